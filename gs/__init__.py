@@ -1,0 +1,1 @@
+"""Ground station: station node, mission planner, backhaul, GCS gateway."""

@@ -1,0 +1,1 @@
+"""Measurements: ``zdrone bench ...`` and the flight report."""

@@ -1,0 +1,1 @@
+"""Registration of the node subcommands (router, sim, drone, gs, demo, report)."""

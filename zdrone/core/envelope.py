@@ -1,0 +1,314 @@
+"""The sealed envelope and the secure link: seal, open, replay protection, per-link stats.
+
+Wire format of our envelope (24 bytes added to each frame)::
+
+    +-------+----------------------+---------------------------+----------+
+    | epoch | counter (56 bit, BE) | ciphertext (= plaintext)  | tag (16) |
+    +-------+----------------------+---------------------------+----------+
+      1 B          7 B                      n B                   16 B
+
+The AEAD nonce is four zero bytes followed by the 8 header bytes; it never repeats because every
+(direction, epoch) has its own key and the counter only grows. The associated data binds a
+version label, the key expression, sender, receiver and the header (hence the key epoch), so a
+frame moved to another key expression, link or epoch fails to open.
+
+Checks on open, in order; the first failure is returned as ``Dropped(reason)`` and counted, never
+raised: envelope well-formed -> known key epoch -> AEAD opens -> not a replay -> inner MAVLink frame
+parses and its sysid is the sender's fleet sysid (or the inner control message decodes) -> sender
+authorized.
+"""
+
+from __future__ import annotations
+
+import base64
+import enum
+import logging
+import struct
+from collections import Counter
+from dataclasses import dataclass
+from typing import Callable, Protocol
+
+import msgspec
+from cryptography.exceptions import InvalidTag
+from cryptography.fernet import Fernet, InvalidToken
+from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
+
+from . import wire
+from .keys import DOWN, UP, KeyChain, LinkKey
+from .mavlink import FrameError, FrameHeader, read_header
+from .replay import ReplayWindow
+from .tbm import TbmSnapshot, TbmThresholds, TimeBetweenMessages
+
+log = logging.getLogger(__name__)
+
+HEADER = struct.Struct(">Q")  # epoch byte << 56 | counter
+HEADER_LEN = 8
+TAG_LEN = 16
+COUNTER_LIMIT = (1 << 56) - 1
+#: A sender moves to a new key epoch after this many frames (far below the 2**56 counter space).
+DEFAULT_REKEY_AFTER = 1 << 32
+AD_LABEL = b"zdrone/v1"
+
+
+class DropReason(enum.Enum):
+    """Why an incoming envelope was dropped, in the order the checks run."""
+
+    MALFORMED = "malformed"
+    UNKNOWN_EPOCH = "unknown_epoch"
+    AUTH_FAILED = "auth_failed"
+    REPLAY = "replay"
+    BAD_INNER = "bad_inner_mavlink"
+    SYSID_MISMATCH = "sysid_mismatch"
+    UNAUTHORIZED = "unauthorized_sender"
+
+
+class Dropped(msgspec.Struct, frozen=True):
+    """An envelope that failed a check. A value, never an exception."""
+
+    reason: DropReason
+    detail: str = ""
+
+
+class Opened(msgspec.Struct, frozen=True):
+    """An authentic, fresh envelope: either a MAVLink frame or a control message."""
+
+    plaintext: bytes
+    header: FrameHeader | None  # set for MAVLink frames
+    control: wire.Control | None  # set for control messages
+    epoch: int
+    counter: int
+    gap: float | None  # seconds since the previous authentic frame on this link (TBM)
+
+
+def associated_data(keyexpr: str, sender: str, receiver: str) -> bytes:
+    """The AD prefix of a direction; the 8-byte header is appended per frame."""
+    return b"\0".join((AD_LABEL, keyexpr.encode(), sender.encode(), receiver.encode(), b""))
+
+
+class Cipher(Protocol):
+    """A way of sealing frames. ``zdrone`` is ours; ``fernet`` reproduces the paper's numbers."""
+
+    name: str
+
+    def make(self, key: bytes) -> object: ...
+
+    def seal(self, ctx: object, epoch: int, counter: int, ad: bytes, plaintext: bytes) -> bytes: ...
+
+    def parse(self, data: bytes) -> tuple[int, int | None, bytes] | None: ...
+
+    def open(self, ctx: object, data: bytes, ad: bytes) -> bytes | None: ...
+
+
+class ChaChaCipher:
+    """ChaCha20-Poly1305 with the 8-byte epoch/counter header: 24 bytes per frame."""
+
+    name = "zdrone"
+    overhead = HEADER_LEN + TAG_LEN
+
+    def make(self, key: bytes) -> ChaCha20Poly1305:
+        return ChaCha20Poly1305(key)
+
+    def seal(self, ctx: ChaCha20Poly1305, epoch: int, counter: int, ad: bytes, plaintext: bytes) -> bytes:  # type: ignore[override]
+        header = HEADER.pack(((epoch & 0xFF) << 56) | counter)
+        return header + ctx.encrypt(b"\0\0\0\0" + header, plaintext, ad + header)
+
+    def parse(self, data: bytes) -> tuple[int, int | None, bytes] | None:
+        if len(data) < HEADER_LEN + TAG_LEN + 1:
+            return None
+        (word,) = HEADER.unpack_from(data)
+        return word >> 56, word & COUNTER_LIMIT, data
+
+    def open(self, ctx: ChaCha20Poly1305, data: bytes, ad: bytes) -> bytes | None:  # type: ignore[override]
+        header = data[:HEADER_LEN]
+        try:
+            return ctx.decrypt(b"\0\0\0\0" + header, data[HEADER_LEN:], ad + header)
+        except InvalidTag:
+            return None
+
+
+class FernetCipher:
+    """The paper's security layer: one Fernet token per frame, no AD, no counter (side-by-side only).
+
+    Adds 90..115 bytes to a 21..50-byte frame. Without a counter it has no replay protection
+    beyond what the link's higher layers add; it exists to reproduce the paper's Table 1.
+    """
+
+    name = "fernet"
+
+    def make(self, key: bytes) -> Fernet:
+        return Fernet(base64.urlsafe_b64encode(key))
+
+    def seal(self, ctx: Fernet, epoch: int, counter: int, ad: bytes, plaintext: bytes) -> bytes:  # type: ignore[override]
+        return ctx.encrypt(plaintext)
+
+    def parse(self, data: bytes) -> tuple[int, int | None, bytes] | None:
+        return (0, None, data) if len(data) >= 57 else None
+
+    def open(self, ctx: Fernet, data: bytes, ad: bytes) -> bytes | None:  # type: ignore[override]
+        try:
+            return ctx.decrypt(data)
+        except (InvalidToken, ValueError, TypeError):
+            return None
+
+
+CIPHERS: dict[str, Cipher] = {"zdrone": ChaChaCipher(), "fernet": FernetCipher()}
+
+
+class _RxEpoch:
+    __slots__ = ("epoch", "ctx", "window")
+
+    def __init__(self, epoch: int, ctx: object, window: ReplayWindow) -> None:
+        self.epoch, self.ctx, self.window = epoch, ctx, window
+
+
+@dataclass(frozen=True, slots=True)
+class LinkStats:
+    """Counters of one link, as shown in stats and logs."""
+
+    sent: int
+    opened: int
+    dropped: dict[str, int]
+    tx_epoch: int
+    rx_epoch: int
+    tbm: TbmSnapshot
+
+
+class SecureLink:
+    """One end of a (drone, gs) link: seals what it sends, opens and checks what it receives.
+
+    ``local``/``peer`` are fleet names; ``role`` is ``"drone"`` or ``"gs"`` (it picks which
+    direction this end sends on). ``peer_sysid`` is the MAVLink sysid the peer's frames must carry;
+    ``authorize(peer)`` is asked last on every frame. Pure: ``now`` is passed to ``open``.
+    """
+
+    def __init__(
+        self,
+        *,
+        key: LinkKey,
+        role: str,
+        tx_keyexpr: str,
+        rx_keyexpr: str,
+        peer_sysid: int | None,
+        now: float,
+        authorize: Callable[[str], bool] | None = None,
+        cipher: str = "zdrone",
+        window: int = 1024,
+        rekey_after: int = DEFAULT_REKEY_AFTER,
+        thresholds: TbmThresholds = TbmThresholds(),
+    ) -> None:
+        if role not in ("drone", "gs"):
+            raise ValueError(f"role must be 'drone' or 'gs', not {role!r}")
+        if not 1 <= rekey_after <= COUNTER_LIMIT:
+            raise ValueError("rekey_after out of range")
+        self.key = key
+        self.role = role
+        self.local, self.peer = (key.drone, key.gs) if role == "drone" else (key.gs, key.drone)
+        self.cipher = CIPHERS[cipher]
+        self.peer_sysid = peer_sysid
+        self.authorize = authorize
+        self.rekey_after = rekey_after
+        self.window_size = window
+        tx_dir, rx_dir = (DOWN, UP) if role == "drone" else (UP, DOWN)
+        self._tx_ad = associated_data(tx_keyexpr, self.local, self.peer)
+        self._rx_ad = associated_data(rx_keyexpr, self.peer, self.local)
+        self._tx_chain = KeyChain.start(key.direction(tx_dir))
+        self._tx_ctx = self.cipher.make(self._tx_chain.aead_key())
+        self._tx_counter = 0
+        self._rx_chain = KeyChain.start(key.direction(rx_dir))
+        self._rx_current = _RxEpoch(0, self.cipher.make(self._rx_chain.aead_key()), ReplayWindow(window))
+        self._rx_previous: _RxEpoch | None = None
+        self.tbm = TimeBetweenMessages(now, thresholds)
+        self.sent = 0
+        self.opened = 0
+        self.drops: Counter[DropReason] = Counter()
+
+    # ------------------------------------------------------------------ sending
+    def seal(self, plaintext: bytes) -> bytes:
+        """Seal one MAVLink frame (or control plaintext) for the peer."""
+        if not plaintext:
+            raise ValueError("nothing to seal")
+        if self._tx_counter >= self.rekey_after:
+            self._tx_chain.advance()
+            self._tx_ctx = self.cipher.make(self._tx_chain.aead_key())
+            self._tx_counter = 0
+            log.info("link %s->%s: tx rekey to epoch %d", self.local, self.peer, self._tx_chain.epoch)
+        out = self.cipher.seal(self._tx_ctx, self._tx_chain.epoch, self._tx_counter, self._tx_ad, plaintext)
+        self._tx_counter += 1
+        self.sent += 1
+        return out
+
+    def seal_control(self, msg: wire.Control) -> bytes:
+        return self.seal(wire.encode_control(msg))
+
+    # ---------------------------------------------------------------- receiving
+    def _drop(self, reason: DropReason, detail: str = "") -> Dropped:
+        self.drops[reason] += 1
+        log.debug("link %s<-%s: dropped (%s) %s", self.local, self.peer, reason.value, detail)
+        return Dropped(reason, detail)
+
+    def _rx_for(self, epoch_byte: int) -> tuple[_RxEpoch | None, bool]:
+        cur = self._rx_current
+        if epoch_byte == cur.epoch & 0xFF:
+            return cur, False
+        prev = self._rx_previous
+        if prev is not None and epoch_byte == prev.epoch & 0xFF:
+            return prev, False
+        if epoch_byte == (cur.epoch + 1) & 0xFF:
+            nxt = _RxEpoch(cur.epoch + 1, self.cipher.make(self._rx_chain.peek_next()), ReplayWindow(self.window_size))
+            return nxt, True
+        return None, False
+
+    def open(self, data: bytes, now: float) -> Opened | Dropped:
+        """Open and check one received envelope. Never raises on bad input."""
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            return self._drop(DropReason.MALFORMED, "not bytes")
+        data = bytes(data)
+        parsed = self.cipher.parse(data)
+        if parsed is None:
+            return self._drop(DropReason.MALFORMED, f"{len(data)} bytes")
+        epoch_byte, counter, _ = parsed
+        rx, is_next = self._rx_for(epoch_byte)
+        if rx is None:
+            return self._drop(DropReason.UNKNOWN_EPOCH, f"epoch byte {epoch_byte}")
+        plaintext = self.cipher.open(rx.ctx, data, self._rx_ad)
+        if plaintext is None:
+            return self._drop(DropReason.AUTH_FAILED)
+        if counter is not None:
+            if not rx.window.is_fresh(counter):
+                return self._drop(DropReason.REPLAY, f"counter {counter}")
+            rx.window.mark(counter)
+        if is_next:  # first authentic frame of the peer's new epoch: follow it
+            self._rx_chain.advance()
+            self._rx_previous, self._rx_current = self._rx_current, rx
+            log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
+        header: FrameHeader | None = None
+        control: wire.Control | None = None
+        if plaintext[:1] in (b"\xfd", b"\xfe"):
+            try:
+                header = read_header(plaintext)
+            except FrameError as exc:
+                return self._drop(DropReason.BAD_INNER, str(exc))
+            if self.peer_sysid is not None and header.sysid != self.peer_sysid:
+                return self._drop(DropReason.SYSID_MISMATCH, f"sysid {header.sysid} != {self.peer_sysid}")
+        else:
+            try:
+                control = wire.decode_control(plaintext)
+            except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
+                return self._drop(DropReason.BAD_INNER, f"control: {exc}")
+        if self.authorize is not None and not self.authorize(self.peer):
+            return self._drop(DropReason.UNAUTHORIZED, self.peer)
+        gap = self.tbm.observe(now)
+        self.opened += 1
+        return Opened(plaintext, header, control, rx.epoch, counter or 0, gap)
+
+    def stats(self, now: float) -> LinkStats:
+        return LinkStats(
+            self.sent,
+            self.opened,
+            {r.value: self.drops[r] for r in DropReason},
+            self._tx_chain.epoch,
+            self._rx_current.epoch,
+            self.tbm.snapshot(now),
+        )
+
+

@@ -1,0 +1,134 @@
+"""The fleet: every node's public identity, each GS's coverage, each drone's authorized GSs.
+
+``fleet.json5`` is public and shared by all nodes. Parsing is pure (text in, ``Fleet`` out) and
+validated with msgspec; every problem is a ``FleetError`` naming the file, the field and what is
+wrong, so the CLI can print one line.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import json5
+import msgspec
+
+from .geometry import Circle, GeoPoint
+from .keys import unb64
+
+SysId = Annotated[int, msgspec.Meta(ge=1, le=255)]
+Name = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
+
+
+class ConfigError(ValueError):
+    """A configuration file is unusable. ``str()`` is one line: where and what."""
+
+
+class FleetError(ConfigError):
+    pass
+
+
+class Coverage(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    lat: Annotated[float, msgspec.Meta(ge=-90, le=90)]
+    lon: Annotated[float, msgspec.Meta(ge=-180, le=180)]
+    radius_m: Annotated[float, msgspec.Meta(gt=0)]
+
+    def circle(self) -> Circle:
+        return Circle(GeoPoint(self.lat, self.lon), self.radius_m)
+
+
+class Node(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    role: Literal["drone", "gs"]
+    sysid: SysId
+    public_key: str
+    coverage: Coverage | None = None
+    authorized_gs: list[Name] = []
+
+    @property
+    def public_bytes(self) -> bytes:
+        return unb64(self.public_key, 32)
+
+
+class Home(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    lat: Annotated[float, msgspec.Meta(ge=-90, le=90)]
+    lon: Annotated[float, msgspec.Meta(ge=-180, le=180)]
+    alt: float = 0.0
+
+
+class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The parsed, validated fleet."""
+
+    version: Literal[1]
+    nodes: dict[Name, Node]
+    home: Home | None = None
+
+    def node(self, name: str) -> Node:
+        try:
+            return self.nodes[name]
+        except KeyError:
+            raise KeyError(f"no node named {name!r} in the fleet") from None
+
+    def drones(self) -> list[str]:
+        return [n for n, v in self.nodes.items() if v.role == "drone"]
+
+    def ground_stations(self) -> list[str]:
+        return [n for n, v in self.nodes.items() if v.role == "gs"]
+
+    def is_authorized(self, drone: str, gs: str) -> bool:
+        node = self.nodes.get(drone)
+        return node is not None and node.role == "drone" and gs in node.authorized_gs
+
+    def by_sysid(self, sysid: int) -> str | None:
+        for name, node in self.nodes.items():
+            if node.sysid == sysid:
+                return name
+        return None
+
+
+def parse_fleet(text: str, source: str = "fleet.json5") -> Fleet:
+    """Parse and validate fleet text. Raises ``FleetError`` with a one-line message."""
+    try:
+        raw = json5.loads(text)
+    except ValueError as exc:
+        raise FleetError(f"{source}: not valid JSON5: {str(exc).splitlines()[0]}") from None
+    try:
+        fleet = msgspec.convert(raw, Fleet)
+    except msgspec.ValidationError as exc:
+        raise FleetError(f"{source}: {_where(exc)}") from None
+    _check(fleet, source)
+    return fleet
+
+
+def _where(exc: msgspec.ValidationError) -> str:
+    msg = str(exc)
+    if " - at `" in msg:
+        what, at = msg.rsplit(" - at `", 1)
+        return f"field {at.rstrip('`')}: {what}"
+    return msg
+
+
+def _check(fleet: Fleet, source: str) -> None:
+    seen: dict[int, str] = {}
+    for name, node in fleet.nodes.items():
+        where = f"{source}: field $.nodes.{name}"
+        try:
+            node.public_bytes
+        except ValueError as exc:
+            raise FleetError(f"{where}.public_key: {exc}") from None
+        if node.sysid in seen:
+            raise FleetError(f"{where}.sysid: {node.sysid} already used by {seen[node.sysid]}")
+        seen[node.sysid] = name
+        if node.role == "gs":
+            if node.coverage is None:
+                raise FleetError(f"{where}.coverage: a ground station needs a coverage circle")
+            if node.authorized_gs:
+                raise FleetError(f"{where}.authorized_gs: only drones have an authorized list")
+        else:
+            for gs in node.authorized_gs:
+                other = fleet.nodes.get(gs)
+                if other is None or other.role != "gs":
+                    raise FleetError(f"{where}.authorized_gs: {gs!r} is not a ground station of the fleet")
+
+
+def encode_fleet(fleet: Fleet) -> str:
+    """Serialize a fleet as (JSON-compatible) JSON5 text."""
+    return msgspec.json.format(msgspec.json.encode(fleet), indent=2).decode() + "\n"

@@ -1,0 +1,102 @@
+"""Time between messages (TBM): per-link liveness measured from authentic frames only.
+
+Theory of operation: every authentic frame on a link calls ``observe(now)``; ``state(now)`` maps
+the time since the last authentic frame to OK / DEGRADED / LOST with two thresholds (defaults
+1 s / 3 s). Before the first frame the silence is counted from the moment the monitor was made.
+``poll(now)`` reports a state only when it changed, so an adapter can turn it into one event.
+Zenoh's own lease (10 s) is far too slow for this; this is the application-level detector.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+
+class LinkState(enum.Enum):
+    OK = "ok"
+    DEGRADED = "degraded"
+    LOST = "lost"
+
+
+@dataclass(frozen=True, slots=True)
+class TbmThresholds:
+    """Silence (seconds) after which a link is DEGRADED, then LOST."""
+
+    degraded: float = 1.0
+    lost: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not (0 < self.degraded <= self.lost) or not math.isfinite(self.lost):
+            raise ValueError(f"need 0 < degraded <= lost, got {self.degraded} / {self.lost}")
+
+
+@dataclass(frozen=True, slots=True)
+class TbmSnapshot:
+    """What the monitor knows at one instant."""
+
+    state: LinkState
+    since_last: float
+    frames: int
+    mean_gap: float | None
+    max_gap: float | None
+    last_seen: float | None
+
+
+class TimeBetweenMessages:
+    """Liveness monitor of one link. Pure: ``now`` is always passed in."""
+
+    __slots__ = ("thresholds", "created", "last_seen", "frames", "_gap_sum", "max_gap", "_reported")
+
+    def __init__(self, now: float, thresholds: TbmThresholds = TbmThresholds()) -> None:
+        self.thresholds = thresholds
+        self.created = now
+        self.last_seen: float | None = None
+        self.frames = 0
+        self._gap_sum = 0.0
+        self.max_gap: float | None = None
+        self._reported = LinkState.LOST
+
+    def observe(self, now: float) -> float | None:
+        """Record an authentic frame at ``now``; return the gap since the previous one."""
+        gap = None
+        if self.last_seen is not None:
+            gap = max(0.0, now - self.last_seen)
+            self._gap_sum += gap
+            self.max_gap = gap if self.max_gap is None else max(self.max_gap, gap)
+        self.last_seen = now
+        self.frames += 1
+        return gap
+
+    def since_last(self, now: float) -> float:
+        ref = self.last_seen if self.last_seen is not None else self.created
+        return max(0.0, now - ref)
+
+    def state(self, now: float) -> LinkState:
+        if self.last_seen is None:
+            return LinkState.LOST
+        silence = self.since_last(now)
+        if silence >= self.thresholds.lost:
+            return LinkState.LOST
+        if silence >= self.thresholds.degraded:
+            return LinkState.DEGRADED
+        return LinkState.OK
+
+    def deadline(self) -> float | None:
+        """The instant the link becomes LOST if nothing arrives (for an adapter's timer)."""
+        if self.last_seen is None:
+            return None
+        return self.last_seen + self.thresholds.lost
+
+    def poll(self, now: float) -> LinkState | None:
+        """Return the current state if it differs from the last one polled, else None."""
+        st = self.state(now)
+        if st is self._reported:
+            return None
+        self._reported = st
+        return st
+
+    def snapshot(self, now: float) -> TbmSnapshot:
+        mean = self._gap_sum / (self.frames - 1) if self.frames > 1 else None
+        return TbmSnapshot(self.state(now), self.since_last(now), self.frames, mean, self.max_gap, self.last_seen)

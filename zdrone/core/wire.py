@@ -1,0 +1,84 @@
+"""Control messages carried inside the sealed envelope next to MAVLink frames.
+
+A sealed plaintext is either one MAVLink frame (first byte 0xFD or 0xFE) or ``CONTROL_PREFIX``
+followed by one msgpack-encoded control message below (a msgspec tagged union, field ``t``).
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+CONTROL_PREFIX = b"\x01"
+
+
+class Control(msgspec.Struct, frozen=True, tag_field="t", forbid_unknown_fields=True):
+    """Base of every control message."""
+
+
+class KeyGrant(Control, frozen=True, tag="key_grant"):
+    """Authority GS -> drone: install the link secret for GS ``gs`` (obtained over the backhaul)."""
+
+    gs: str
+    sysid: int
+    secret: bytes
+    grant_id: int
+
+
+class KeyGrantAck(Control, frozen=True, tag="key_grant_ack"):
+    gs: str
+    grant_id: int
+
+
+class HandoverRequest(Control, frozen=True, tag="handover_request"):
+    """A GS asks for authority (``to`` is the GS that should receive it)."""
+
+    to: str
+    epoch: int
+
+
+class HandoverRelease(Control, frozen=True, tag="handover_release"):
+    """The current authority releases authority to ``to`` for epoch ``epoch``."""
+
+    to: str
+    epoch: int
+
+
+class AuthorityStatus(Control, frozen=True, tag="authority"):
+    """Drone -> every linked GS: who holds authority, in which epoch, in which state."""
+
+    owner: str | None
+    epoch: int
+    state: str
+    pending_to: str | None = None
+
+
+class Reject(Control, frozen=True, tag="reject"):
+    """An authentic but illegal protocol step was refused."""
+
+    what: str
+    reason: str
+
+
+class FailsafeNotice(Control, frozen=True, tag="failsafe"):
+    """Drone -> any GS it can reach: the failsafe fired."""
+
+    action: str
+    reason: str
+
+
+ControlMessage = KeyGrant | KeyGrantAck | HandoverRequest | HandoverRelease | AuthorityStatus | Reject | FailsafeNotice
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(ControlMessage)
+
+
+def encode_control(msg: Control) -> bytes:
+    """Serialize a control message into a sealable plaintext."""
+    return CONTROL_PREFIX + _encoder.encode(msg)
+
+
+def decode_control(plaintext: bytes) -> Control:
+    """Parse a control plaintext (with prefix); raise ``msgspec.DecodeError`` / ``ValueError``."""
+    if not plaintext.startswith(CONTROL_PREFIX):
+        raise ValueError("not a control message")
+    return _decoder.decode(plaintext[1:])

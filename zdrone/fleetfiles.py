@@ -1,0 +1,122 @@
+"""Fleet files on disk: ``zdrone fleet init`` writes them, every node loads them.
+
+Layout of a fleet directory::
+
+    fleet.json5                  public: nodes, sysids, public keys, coverage, authorized lists
+    secrets/<name>.json          private (mode 0600): the node's X25519 key and router password
+    router/credentials.txt       private (mode 0600): user:password lines for the router
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+
+from .core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
+from .core.keys import Identity, b64, unb64
+from .core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
+
+FLEET_FILE = "fleet.json5"
+
+
+@dataclass(frozen=True, slots=True, repr=False)
+class NodeSecret:
+    """What only one node knows: its static key and its router password."""
+
+    name: str
+    identity: Identity
+    router_password: str
+
+    def __repr__(self) -> str:
+        return f"NodeSecret({self.name})"
+
+
+class _SecretFile(msgspec.Struct, forbid_unknown_fields=True):
+    name: str
+    private_key: str
+    router_password: str
+
+
+def fleet_path(where: str | Path) -> Path:
+    p = Path(where)
+    return p if p.suffix in (".json5", ".json") else p / FLEET_FILE
+
+
+def _write_private(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.chmod(path, 0o600)
+
+
+def init_fleet(directory: str | Path, force: bool = False) -> Fleet:
+    """Write the default fleet (d1, A, B, X), one secret file per node and router credentials."""
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise ConfigError(f"{d}: exists and is not a directory")
+    if (d / FLEET_FILE).exists() and not force:
+        raise ConfigError(f"{d / FLEET_FILE}: already exists (use --force to overwrite)")
+    d.mkdir(parents=True, exist_ok=True)
+    nodes: dict[str, Node] = {}
+    creds: list[str] = []
+    for name, role, sysid, centre, authorized in DEFAULT_NODES:
+        ident = Identity.generate()
+        password = secrets.token_urlsafe(18)
+        cov = Coverage(centre.lat, centre.lon, COVERAGE_RADIUS_M) if centre is not None else None
+        nodes[name] = Node(role=role, sysid=sysid, public_key=b64(ident.public), coverage=cov,  # type: ignore[arg-type]
+                           authorized_gs=list(authorized))
+        secret = {"name": name, "private_key": b64(ident.private), "router_password": password}
+        _write_private(d / "secrets" / f"{name}.json", json.dumps(secret, indent=2) + "\n")
+        creds.append(f"{name}:{password}")
+    fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt))
+    (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
+    _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
+    return fleet
+
+
+def load_fleet(where: str | Path) -> Fleet:
+    """Load and validate ``fleet.json5`` (a path to it or to its directory)."""
+    path = fleet_path(where)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file (run 'zdrone fleet init --dir {path.parent}' to make one)") from None
+    except (PermissionError, IsADirectoryError, UnicodeDecodeError, OSError) as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
+    return parse_fleet(text, str(path))
+
+
+def load_secret(where: str | Path, name: str, fleet: Fleet | None = None) -> NodeSecret:
+    """Load node ``name``'s secret file; refuse one readable by group or others."""
+    base = fleet_path(where).parent
+    path = base / "secrets" / f"{name}.json"
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no secret file for node {name!r}") from None
+    mode = stat.S_IMODE(st.st_mode)
+    if mode & 0o077:
+        raise ConfigError(f"{path}: key file is accessible by others (mode {mode:04o}); run chmod 600 {path}")
+    try:
+        raw = msgspec.json.decode(path.read_bytes(), type=_SecretFile)
+        ident = Identity(unb64(raw.private_key, 32))
+    except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
+        raise ConfigError(f"{path}: malformed secret file: {str(exc).splitlines()[0]}") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
+    if raw.name != name:
+        raise ConfigError(f"{path}: field $.name: is {raw.name!r}, expected {name!r}")
+    if fleet is not None:
+        node = fleet.nodes.get(name)
+        if node is None:
+            raise ConfigError(f"{path}: node {name!r} is not in the fleet")
+        if node.public_bytes != ident.public:
+            raise ConfigError(f"{path}: private key does not match the fleet's public key for {name!r}")
+    return NodeSecret(name, ident, raw.router_password)

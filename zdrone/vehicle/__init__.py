@@ -1,0 +1,1 @@
+"""zdrone.vehicle"""
