@@ -90,6 +90,16 @@ def parse_fleet(text: str, source: str = "fleet.json5") -> Fleet:
         raw = json5.loads(text)
     except ValueError as exc:
         raise FleetError(f"{source}: not valid JSON5: {str(exc).splitlines()[0]}") from None
+    # Nodes are validated one by one so an error names the node ($.nodes.d1.sysid, not $.nodes[...]).
+    nodes_raw = raw.get("nodes") if isinstance(raw, dict) else None
+    if isinstance(nodes_raw, dict):
+        nodes: dict[str, Node] = {}
+        for name, node_raw in nodes_raw.items():
+            try:
+                nodes[name] = msgspec.convert(node_raw, Node)
+            except msgspec.ValidationError as exc:
+                raise FleetError(f"{source}: {_where(exc, f'$.nodes.{name}')}") from None
+        raw = {**raw, "nodes": {n: msgspec.to_builtins(v) for n, v in nodes.items()}}
     try:
         fleet = msgspec.convert(raw, Fleet)
     except msgspec.ValidationError as exc:
@@ -98,12 +108,12 @@ def parse_fleet(text: str, source: str = "fleet.json5") -> Fleet:
     return fleet
 
 
-def _where(exc: msgspec.ValidationError) -> str:
+def _where(exc: msgspec.ValidationError, prefix: str = "$") -> str:
     msg = str(exc)
     if " - at `" in msg:
         what, at = msg.rsplit(" - at `", 1)
-        return f"field {at.rstrip('`')}: {what}"
-    return msg
+        return f"field {prefix}{at.rstrip('`')[1:]}: {what}"
+    return f"field {prefix}: {msg}"
 
 
 def _check(fleet: Fleet, source: str) -> None:

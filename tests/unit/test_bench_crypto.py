@@ -1,0 +1,22 @@
+import json
+
+from zdrone.cli import main
+
+
+def test_bench_crypto_json_shape(capsys):
+    assert main(["bench", "crypto", "--quick", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    msgs = [f["message"] for f in result["frames"]]
+    assert msgs == ["HEARTBEAT", "GLOBAL_POSITION_INT", "COMMAND_LONG", "MISSION_ITEM_INT"]
+    for f in result["frames"]:
+        assert f["added_bytes"]["zdrone"] == 24  # the target is a wire-format fact, not a timing
+        assert 90 <= f["added_bytes"]["fernet"] <= 115
+        assert 21 <= f["frame_bytes"] <= 50
+    assert set(result["seal_open_us"]) == {"zdrone", "fernet"} == set(result["frames_per_s"])
+    assert all(v > 0 for v in result["seal_open_us"].values())
+
+
+def test_bench_crypto_table(capsys):
+    assert main(["bench", "crypto", "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "HEARTBEAT" in out and "µs / frame" in out

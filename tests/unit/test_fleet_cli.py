@@ -1,0 +1,125 @@
+"""Fleet files and CLI errors: one clear line on stderr, exit code 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from zdrone.cli import main
+from zdrone.core.fleet import FleetError, parse_fleet
+from zdrone.fleetfiles import init_fleet, load_fleet, load_secret
+
+
+@pytest.fixture()
+def fleet_dir(tmp_path: Path) -> Path:
+    init_fleet(tmp_path / "fleet")
+    return tmp_path / "fleet"
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_init_writes_default_fleet(fleet_dir: Path):
+    fleet = load_fleet(fleet_dir)
+    assert {n: (v.role, v.sysid) for n, v in fleet.nodes.items()} == {
+        "d1": ("drone", 1), "A": ("gs", 4), "B": ("gs", 3), "X": ("gs", 7)}
+    assert fleet.is_authorized("d1", "A") and fleet.is_authorized("d1", "B")
+    assert not fleet.is_authorized("d1", "X")
+    for name in fleet.nodes:
+        path = fleet_dir / "secrets" / f"{name}.json"
+        assert oct(path.stat().st_mode & 0o777) == "0o600"
+        assert load_secret(fleet_dir, name, fleet).identity.public == fleet.nodes[name].public_bytes
+    creds = (fleet_dir / "router" / "credentials.txt").read_text().split()
+    assert sorted(c.split(":")[0] for c in creds) == ["A", "B", "X", "d1"]
+    assert (fleet_dir / "router" / "credentials.txt").stat().st_mode & 0o077 == 0
+
+
+def test_init_refuses_to_overwrite(capsys, fleet_dir: Path):
+    code, _, err = run_cli(capsys, "fleet", "init", "--dir", str(fleet_dir))
+    assert code == 2 and err.count("\n") == 1 and "already exists" in err
+
+
+def test_show_ok(capsys, fleet_dir: Path):
+    code, out, err = run_cli(capsys, "fleet", "show", "--dir", str(fleet_dir), "--check-secrets")
+    assert code == 0 and "d1" in out and "authorized: A,B" in out and err == ""
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda f: f["nodes"]["d1"].__setitem__("sysid", "one"), "$.nodes.d1.sysid"),
+    (lambda f: f["nodes"]["d1"].__setitem__("sysid", 300), "$.nodes.d1.sysid"),
+    (lambda f: f["nodes"]["A"].__setitem__("public_key", "abc"), "$.nodes.A.public_key"),
+    (lambda f: f["nodes"]["B"].__setitem__("sysid", 4), "$.nodes.B.sysid"),
+    (lambda f: f["nodes"]["d1"].__setitem__("authorized_gs", ["Q"]), "$.nodes.d1.authorized_gs"),
+    (lambda f: f["nodes"]["A"].pop("coverage"), "$.nodes.A.coverage"),
+    (lambda f: f["nodes"]["A"].__setitem__("colour", "red"), "$.nodes.A"),
+    (lambda f: f.__setitem__("version", 2), "$.version"),
+])
+def test_malformed_fleet_names_file_and_field(capsys, fleet_dir: Path, edit, field):
+    path = fleet_dir / "fleet.json5"
+    data = json.loads("\n".join(line for line in path.read_text().splitlines() if not line.startswith("//")))
+    edit(data)
+    path.write_text(json.dumps(data))
+    code, _, err = run_cli(capsys, "fleet", "show", "--dir", str(fleet_dir))
+    assert code == 2
+    assert err.count("\n") == 1 and str(path) in err and field in err, err
+
+
+def test_unparseable_fleet(capsys, tmp_path: Path):
+    (tmp_path / "fleet.json5").write_text("{nodes: [1, 2,, }")
+    code, _, err = run_cli(capsys, "fleet", "show", "--dir", str(tmp_path))
+    assert code == 2 and "not valid JSON5" in err and err.count("\n") == 1
+
+
+def test_missing_and_unreadable_paths(capsys, tmp_path: Path, fleet_dir: Path):
+    code, _, err = run_cli(capsys, "fleet", "show", "--dir", str(tmp_path / "nope"))
+    assert code == 2 and "no such file" in err
+    (tmp_path / "d.json5").mkdir()
+    code, _, err = run_cli(capsys, "fleet", "show", "--dir", str(tmp_path / "d.json5"))
+    assert code == 2 and "cannot read" in err and err.count("\n") == 1
+
+
+def test_key_file_with_wrong_permissions(capsys, fleet_dir: Path):
+    key = fleet_dir / "secrets" / "A.json"
+    os.chmod(key, 0o644)
+    code, _, err = run_cli(capsys, "fleet", "show", "--dir", str(fleet_dir), "--check-secrets")
+    assert code == 2 and "chmod 600" in err and str(key) in err and err.count("\n") == 1
+
+
+def test_malformed_and_mismatched_key_files(fleet_dir: Path):
+    key = fleet_dir / "secrets" / "A.json"
+    key.write_text("{not json")
+    with pytest.raises(Exception, match="malformed secret file"):
+        load_secret(fleet_dir, "A")
+    b = json.loads((fleet_dir / "secrets" / "B.json").read_text())
+    b["name"] = "A"
+    key.write_text(json.dumps(b))
+    with pytest.raises(Exception, match="does not match the fleet's public key"):
+        load_secret(fleet_dir, "A", load_fleet(fleet_dir))
+
+
+def test_bad_cli_input_is_one_line(capsys):
+    code, _, err = run_cli(capsys, "nonsense")
+    assert code == 2 and err.startswith("zdrone: error:") and err.count("\n") == 1
+    code, _, err = run_cli(capsys, "fleet", "show", "--bogus")
+    assert code == 2 and err.count("\n") == 1
+
+
+def test_parse_fleet_error_type():
+    with pytest.raises(FleetError):
+        parse_fleet("{version: 1, nodes: {d1: {role: 'plane', sysid: 1, public_key: ''}}}")
+
+
+def test_console_script_help_and_exit_codes(tmp_path: Path):
+    exe = Path(sys.executable).parent / "zdrone"
+    out = subprocess.run([str(exe), "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "fleet" in out.stdout and "bench" in out.stdout
+    out = subprocess.run([str(exe), "fleet", "show", "--dir", str(tmp_path)], capture_output=True, text=True)
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and "Traceback" not in out.stderr

@@ -1,0 +1,33 @@
+"""zdrone/core is sans-IO: it imports no zenoh, socket, threading, asyncio, time (nor their kin)."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import zdrone.core
+
+CORE = Path(zdrone.core.__file__).parent
+FORBIDDEN = {"zenoh", "socket", "threading", "asyncio", "time", "subprocess", "multiprocessing", "select",
+             "selectors", "datetime"}
+
+
+def test_core_sources_import_no_io():
+    bad = []
+    for path in CORE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            bad += [f"{path.name}: {n}" for n in names if n.split(".")[0] in FORBIDDEN]
+    assert not bad, bad
+
+
+def test_importing_core_loads_no_zenoh_or_socket():
+    code = ("import sys, pkgutil, importlib, zdrone.core as c\n"
+            "for m in pkgutil.iter_modules(c.__path__): importlib.import_module('zdrone.core.' + m.name)\n"
+            "print(','.join(sorted(n for n in ('zenoh', 'asyncio') if n in sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
