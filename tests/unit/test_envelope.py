@@ -217,3 +217,16 @@ def test_counters_and_tbm_in_stats():
 def test_seal_empty_is_a_programming_error():
     with pytest.raises(ValueError):
         make_pair().gs.seal(b"")
+
+
+def test_split_frames_resyncs_after_garbage():
+    from zdrone.core.mavlink import split_frames
+
+    p = make_pair()
+    a, b = p.heartbeat(), p.command()
+    frames, rest, skipped = split_frames(b"\xfd\x02 junk" + a + b"\xfe\x02xx" + b + b"\xfd\x09")
+    assert frames == [a, b] and rest == b"\xfd\x09" and skipped == 11
+    frames, rest, _ = split_frames(b"\xfd\xff junk" + a)  # a long bogus header waits for more bytes
+    assert frames == [] and rest.endswith(a)
+    frames, _, _ = split_frames(rest + bytes(300) + b)
+    assert frames[-1] == b and a in frames

@@ -10,6 +10,7 @@ from __future__ import annotations
 import msgspec
 
 from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.generator.mavcrc import x25crc
 
 MAGIC_V2 = 0xFD
 MAGIC_V1 = 0xFE
@@ -95,14 +96,30 @@ def read_header(frame: bytes) -> FrameHeader:
     return FrameHeader(version, seq, sysid, compid, msgid, n)
 
 
-def split_frames(data: bytes) -> tuple[list[bytes], bytes]:
-    """Split a byte stream into whole MAVLink frames; return (frames, leftover bytes).
+def crc_ok(frame: bytes) -> bool:
+    """True if the frame's X.25 checksum (with the message's CRC_EXTRA) is right."""
+    if frame[0] == MAGIC_V2:
+        hdr, msgid = 10, frame[7] | (frame[8] << 8) | (frame[9] << 16)
+        plen = frame[1]
+    else:
+        hdr, msgid, plen = 6, frame[5], frame[1]
+    cls = MESSAGE_CLASSES.get(msgid)
+    if cls is None:
+        return False
+    crc = x25crc(frame[1 : hdr + plen])
+    crc.accumulate(bytes([cls.crc_extra]))
+    return frame[hdr + plen] | (frame[hdr + plen + 1] << 8) == crc.crc
 
-    Garbage before a magic byte is skipped. Used by stream adapters (TCP/serial) that must cut
-    frames before sealing each one.
+
+def split_frames(data: bytes) -> tuple[list[bytes], bytes, int]:
+    """Split a byte stream into whole MAVLink frames; return (frames, leftover, bytes skipped).
+
+    A candidate frame whose checksum is wrong is not a frame: the splitter moves one byte on and
+    looks for the next magic byte, so garbage never swallows the real frames behind it. Used by
+    stream adapters (TCP/serial) that must cut frames before sealing each one.
     """
     frames: list[bytes] = []
-    i, n = 0, len(data)
+    i, n, skipped = 0, len(data), 0
     while i < n:
         b = data[i]
         if b == MAGIC_V2:
@@ -115,12 +132,18 @@ def split_frames(data: bytes) -> tuple[list[bytes], bytes]:
             total = 6 + data[i + 1] + 2
         else:
             i += 1
+            skipped += 1
             continue
         if n - i < total:
             break
-        frames.append(bytes(data[i : i + total]))
+        candidate = bytes(data[i : i + total])
+        if not crc_ok(candidate):
+            i += 1
+            skipped += 1
+            continue
+        frames.append(candidate)
         i += total
-    return frames, bytes(data[i:])
+    return frames, bytes(data[i:]), skipped
 
 
 class FrameCodec:

@@ -243,7 +243,9 @@ class SimAutopilot:
     # ---------------------------------------------------------------- receiving
     def receive_bytes(self, data: bytes, now: float) -> None:
         """Feed a chunk of a byte stream (TCP/serial); whole frames are handled, the rest kept."""
-        frames, self._buffer = split_frames(self._buffer + data)
+        frames, self._buffer, skipped = split_frames(self._buffer + data)
+        if skipped:
+            self._count("malformed", f"{skipped} stream bytes skipped")
         if len(self._buffer) > 4096:
             self._count("malformed", "stream buffer overflow")
             self._buffer = b""

@@ -56,7 +56,7 @@ class SimServer:
                         self.transport.send(f)
         finally:
             self.transport.close()
-            log.info("sim stopped; counters %s", dict(self.sim.counters))
+            log.info("sim stopped; counters %s, stream bytes skipped %d", dict(self.sim.counters), self.transport.skipped_bytes)
 
 
 def run_sim(opts: SimOptions) -> int:

@@ -57,6 +57,7 @@ class MavTransport:
         self.sock: socket.socket | None = None
         self.rx_frames = 0
         self.tx_frames = 0
+        self.skipped_bytes = 0  # bytes that were not part of any valid frame (counted, never silent)
         try:
             if ep.kind in ("udpin", "udpout"):
                 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -110,7 +111,8 @@ class MavTransport:
                     except OSError:  # ICMP port unreachable from a gone peer
                         break
                     self.udp_peers[addr] = max(self.udp_peers.get(addr, 0.0), time.monotonic())
-                    frames, _rest = split_frames(data)
+                    frames, rest, skipped = split_frames(data)
+                    self.skipped_bytes += skipped + len(rest)
                     out += [(f, addr) for f in frames]
             elif tag == "accept":
                 try:
@@ -132,7 +134,8 @@ class MavTransport:
                 if not data:
                     self._drop_client(s)  # type: ignore[arg-type]
                     continue
-                frames, rest = split_frames(self.tcp_clients.get(s, b"") + data)  # type: ignore[arg-type]
+                frames, rest, skipped = split_frames(self.tcp_clients.get(s, b"") + data)  # type: ignore[arg-type]
+                self.skipped_bytes += skipped
                 self.tcp_clients[s] = rest[-4096:]  # type: ignore[index]
                 out += [(f, s) for f in frames]
         self.rx_frames += len(out)

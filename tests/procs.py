@@ -1,0 +1,76 @@
+"""Starting and always cleaning up real processes in integration tests."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Iterator
+
+ZDRONE = str(Path(sys.executable).parent / "zdrone")
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Proc:
+    """A child process whose stdout lines are collected on a thread, so tests can wait on them."""
+
+    def __init__(self, args: list[str], env: dict[str, str] | None = None) -> None:
+        self.args = args
+        self.p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                  env={**os.environ, **(env or {})}, start_new_session=True)
+        self.lines: list[str] = []
+        self._q: queue.Queue[str] = queue.Queue()
+        self._t = threading.Thread(target=self._pump, daemon=True)
+        self._t.start()
+
+    def _pump(self) -> None:
+        assert self.p.stdout is not None
+        for line in self.p.stdout:
+            self.lines.append(line)
+            self._q.put(line)
+
+    def wait_line(self, needle: str, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        for line in list(self.lines):
+            if needle in line:
+                return line
+        while time.monotonic() < deadline:
+            try:
+                line = self._q.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                break
+            if needle in line:
+                return line
+        raise TimeoutError(f"{needle!r} not seen from {self.args[:3]} in {timeout}s; output:\n{''.join(self.lines[-30:])}")
+
+    def stop(self, timeout: float = 10.0) -> int:
+        if self.p.poll() is None:
+            self.p.send_signal(signal.SIGTERM)
+            try:
+                self.p.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.p.kill()
+                self.p.wait(5)
+        self._t.join(2)
+        return self.p.returncode
+
+
+@contextlib.contextmanager
+def spawn(*args: str, env: dict[str, str] | None = None) -> Iterator[Proc]:
+    proc = Proc(list(args), env)
+    try:
+        yield proc
+    finally:
+        proc.stop()
