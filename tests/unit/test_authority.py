@@ -1,0 +1,226 @@
+"""The handover authority table: scenarios and a hypothesis sweep over every (state, event) pair."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from zdrone.core import authority as ha
+from zdrone.core.authority import (AuthorityChanged, AuthorityMachine, CommandVehicle, Config, DropFrame, Forward,
+                                   Frame, HaDrop, HandoverRequest, IllegalTransition, KeyGranted, LinkChanged,
+                                   Paired, RegionChanged, Release, SendControl, State, Subscribe, Tick, Unsubscribe)
+from zdrone.core.tbm import LinkState
+from zdrone.core.wire import FailsafeNotice, Reject
+
+AUTH = frozenset({"A", "B"})
+
+
+def machine() -> AuthorityMachine:
+    return AuthorityMachine(Config(authorized=AUTH, handover_timeout=5.0))
+
+
+def linked_with_b(m: AuthorityMachine, now: float = 1.0) -> None:
+    m.handle(Paired(now, "A"))
+    m.handle(LinkChanged(now, "A", LinkState.OK))
+    m.handle(KeyGranted(now, "A", "B"))
+
+
+def prove(m: AuthorityMachine, gs: str, now: float, n: int = 2) -> list:
+    acts = m.handle(LinkChanged(now, gs, LinkState.OK))
+    for i in range(n):
+        acts += m.handle(Frame(now + 0.01 * i, gs, commanding=False))
+    return acts
+
+
+def test_first_pairing_gives_authority_epoch_1():
+    m = machine()
+    acts = m.handle(Paired(0.0, "A"))
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 1
+    assert Subscribe("A") in acts and AuthorityChanged(None, "A", 1, "paired") in acts
+
+
+def test_unauthorized_gs_cannot_pair_and_gets_a_reject():
+    m = machine()
+    acts = m.handle(Paired(0.0, "X"))
+    assert m.state is State.UNPAIRED and m.owner is None
+    assert any(isinstance(a, SendControl) and isinstance(a.msg, Reject) and a.gs == "X" for a in acts)
+    assert m.rejects["unauthorized"] == 1
+
+
+def test_only_authority_commands_are_forwarded():
+    m = machine()
+    linked_with_b(m)
+    assert m.handle(Frame(2.0, "A", commanding=True)) == [Forward("A")]
+    assert m.handle(Frame(2.0, "B", commanding=True)) == [DropFrame("B", HaDrop.NOT_AUTHORITY)]
+    assert m.handle(Frame(2.0, "B", commanding=False)) == [Forward("B")]  # telemetry requests, heartbeats
+    assert m.handle(Frame(2.0, "X", commanding=True)) == [DropFrame("X", HaDrop.NOT_LINKED)]
+    assert m.drops[HaDrop.NOT_AUTHORITY] == 1 and m.drops[HaDrop.NOT_LINKED] == 1
+
+
+def test_make_before_break_handover():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(10.0, frozenset({"A", "B"})))
+    assert m.in_region and "B" in m.subscribed
+    acts = m.handle(Release(11.0, "A", "B", 1))
+    assert m.state is State.HANDOVER_PENDING and m.owner == "A"  # B not proven yet: A keeps authority
+    assert m.handle(Frame(11.1, "A", commanding=True)) == [Forward("A")]
+    acts = prove(m, "B", 11.2)
+    assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
+    assert AuthorityChanged("A", "B", 2, "handover") in acts
+    assert m.handle(Frame(11.3, "A", commanding=True)) == [DropFrame("A", HaDrop.NOT_AUTHORITY)]
+    assert m.handle(Frame(11.3, "B", commanding=True)) == [Forward("B")]
+    acts = m.handle(RegionChanged(20.0, frozenset({"B"})))
+    assert Unsubscribe("A") in acts and m.subscribed == {"B"}
+    # history: never a moment with no owner or two
+    assert [(o, e) for _, o, e in m.history] == [("A", 1), ("B", 2)]
+
+
+def test_release_to_proven_gs_switches_at_once():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(10.0, frozenset({"A", "B"})))
+    prove(m, "B", 10.5)
+    acts = m.handle(Release(11.0, "A", "B", 1))
+    assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
+    assert any(isinstance(a, AuthorityChanged) for a in acts)
+
+
+def test_handover_timeout_leaves_authority_where_it_was():
+    m = machine()
+    linked_with_b(m)
+    m.handle(Release(11.0, "A", "B", 1))
+    m.handle(Tick(15.9))
+    assert m.state is State.HANDOVER_PENDING
+    m.handle(Tick(16.0))
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 1 and m.pending_to is None
+
+
+def test_pending_recipient_lost_aborts():
+    m = machine()
+    linked_with_b(m)
+    m.handle(Release(11.0, "A", "B", 1))
+    m.handle(LinkChanged(11.0, "B", LinkState.DEGRADED))
+    m.handle(LinkChanged(12.0, "B", LinkState.LOST))
+    assert m.state is State.LINKED and m.owner == "A" and m.pending_to is None
+
+
+def test_illegal_releases_are_rejected():
+    m = machine()
+    linked_with_b(m)
+    for ev, why in [(Release(2.0, "B", "B", 1), "not the authority"), (Release(2.0, "A", "B", 7), "stale epoch"),
+                    (Release(2.0, "A", "X", 1), "unauthorized"), (KeyGranted(2.0, "B", "A"), "not the authority")]:
+        acts = m.handle(ev)
+        rej = [a.msg for a in acts if isinstance(a, SendControl) and isinstance(a.msg, Reject)]
+        assert rej and why in rej[0].reason, (ev, rej)
+    m2 = machine()
+    m2.handle(Paired(0.0, "A"))
+    acts = m2.handle(Release(1.0, "A", "B", 1))
+    assert "no link" in [a.msg for a in acts if isinstance(a, SendControl)][0].reason
+
+
+def test_authority_link_lost_without_heir_is_failsafe_land():
+    m = machine()
+    m.handle(Paired(0.0, "A"))
+    m.handle(LinkChanged(0.5, "A", LinkState.OK))
+    acts = m.handle(LinkChanged(3.5, "A", LinkState.LOST))
+    assert m.state is State.FAILSAFE
+    assert CommandVehicle("LAND", "authority link to A lost") in acts
+    assert SendControl("A", FailsafeNotice("LAND", "authority link to A lost")) in acts
+    assert m.handle(Frame(4.0, "A", commanding=True)) == [DropFrame("A", HaDrop.FAILSAFE)]
+    # terminal until a GS re-pairs on the ground
+    m.handle(Paired(5.0, "A", on_ground=False))
+    assert m.state is State.FAILSAFE
+    m.handle(Paired(9.0, "A", on_ground=True))
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 2
+
+
+def test_rtl_failsafe_configurable():
+    m = AuthorityMachine(Config(authorized=AUTH, failsafe_action="RTL"))
+    m.handle(Paired(0.0, "A"))
+    acts = m.handle(LinkChanged(3.5, "A", LinkState.LOST))
+    assert any(isinstance(a, CommandVehicle) and a.command == "RTL" for a in acts)
+
+
+def test_authority_link_lost_with_proven_heir_is_emergency_handover():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(10.0, frozenset({"A", "B"})))
+    prove(m, "B", 10.0)
+    acts = m.handle(LinkChanged(13.0, "A", LinkState.LOST))
+    assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
+    assert AuthorityChanged("A", "B", 2, "emergency") in acts
+    assert not any(isinstance(a, CommandVehicle) for a in acts)
+
+
+def test_request_from_non_authority_is_passed_to_the_owner():
+    m = machine()
+    linked_with_b(m)
+    acts = m.handle(HandoverRequest(2.0, "B", "B"))
+    assert m.state is State.LINKED and m.owner == "A"
+    assert any(isinstance(a, SendControl) and a.gs == "A" for a in acts)
+    acts = m.handle(HandoverRequest(2.0, "A", "B"))  # the owner asking = releasing
+    assert m.state is State.HANDOVER_PENDING
+
+
+def test_non_gs_event_missing_from_table_is_a_programming_error():
+    class Bogus(ha.Event):
+        pass
+
+    with pytest.raises(IllegalTransition):
+        machine().handle(Bogus(0.0))
+
+
+# ------------------------------------------------------------------ hypothesis sweep
+GS = st.sampled_from(["A", "B", "X"])
+times = st.floats(0, 1000, allow_nan=False)
+EVENTS = st.one_of(
+    st.builds(Paired, times, GS, st.booleans()),
+    st.builds(KeyGranted, times, GS, GS),
+    st.builds(Frame, times, GS, st.booleans()),
+    st.builds(LinkChanged, times, GS, st.sampled_from(list(LinkState))),
+    st.builds(RegionChanged, times, st.frozensets(GS)),
+    st.builds(HandoverRequest, times, GS, GS),
+    st.builds(Release, times, GS, GS, st.integers(0, 4)),
+    st.builds(Tick, times),
+)
+
+
+def check_invariants(m: AuthorityMachine) -> None:
+    assert m.state in State
+    if m.state is State.UNPAIRED:
+        assert m.owner is None and m.epoch == 0
+    else:
+        assert m.owner in AUTH  # exactly one, authorized owner
+    assert (m.pending_to is not None) == (m.state is State.HANDOVER_PENDING)
+    if m.pending_to is not None:
+        assert m.pending_to != m.owner and m.pending_to in AUTH and m.pending_deadline is not None
+    if m.state in (State.LINKED, State.HANDOVER_PENDING):
+        assert m.owner in m.subscribed
+    assert set(m.links) <= AUTH
+    epochs = [e for _, _, e in m.history]
+    assert epochs == sorted(epochs)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(EVENTS, max_size=40), EVENTS)
+def test_every_state_event_pair_ends_valid(prefix, last):
+    m = machine()
+    for ev in prefix + [last]:
+        before_owner, before_state = m.owner, m.state
+        acts = m.handle(ev)  # never raises for these events
+        check_invariants(m)
+        for a in acts:
+            if isinstance(a, Forward) and isinstance(ev, Frame) and ev.commanding:
+                assert a.gs == before_owner and before_state is not State.FAILSAFE
+            if isinstance(a, AuthorityChanged):
+                assert a.new == m.owner and a.epoch == m.epoch
+
+
+def test_table_covers_every_non_gs_event_in_every_state():
+    for state in State:
+        for ev in (LinkChanged, RegionChanged, Tick):
+            assert (state, ev) in ha.TRANSITIONS
+        for ev in (Paired, Frame):
+            assert (state, ev) in ha.TRANSITIONS

@@ -1,0 +1,487 @@
+"""The handover authority (HA): which ground station commands the drone, per drone, as a table.
+
+Theory of operation
+-------------------
+States: ``UNPAIRED -> LINKED(owner, epoch) -> HANDOVER_PENDING(owner -> to) -> LINKED(to, epoch+1)``
+and ``FAILSAFE`` (terminal until a GS re-pairs while the vehicle is on the ground).
+
+Exactly one GS holds authority in LINKED and HANDOVER_PENDING: ``owner``. Only frames that command
+the vehicle from the owner are forwarded; commanding frames from anyone else are dropped with a
+counted reason. Telemetry goes to every linked GS the drone currently listens to.
+
+Hand-over is make-before-break. The owner sends ``Release(to, epoch)``; authority passes to ``to``
+in the same step only if ``to``'s link is *proven* (its TBM is OK and at least ``PROOF_FRAMES``
+authentic frames arrived since it last was LOST); otherwise the machine waits in
+HANDOVER_PENDING, the owner keeping authority, until the proof arrives (switch, epoch+1) or the
+timeout passes (authority stays where it was). There is never an instant with no owner or two.
+
+Failsafe: when the owner's link becomes LOST, authority passes to another authorized GS whose link
+is proven (an emergency hand-over, epoch+1); if there is none, the machine enters FAILSAFE and
+commands the vehicle to LAND (or RTL).
+
+The machine is pure: every event carries ``now``; ``handle(event)`` returns a list of actions that
+the drone node adapter carries out (forward a frame, send a control message, subscribe, command
+the vehicle). The whole behaviour is the table ``TRANSITIONS``: (state, event type) -> (handler,
+allowed next states). A pair missing from the table is an illegal step: a GS-originated event
+gets a ``Reject`` action, anything else raises ``IllegalTransition`` (a programming error).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections import Counter
+from dataclasses import dataclass
+from typing import Callable
+
+from .tbm import LinkState
+from .wire import AuthorityStatus, Control, FailsafeNotice, Reject
+
+log = logging.getLogger(__name__)
+
+PROOF_FRAMES = 2
+DEFAULT_HANDOVER_TIMEOUT = 5.0
+
+
+class State(enum.Enum):
+    UNPAIRED = "unpaired"
+    LINKED = "linked"
+    HANDOVER_PENDING = "handover_pending"
+    FAILSAFE = "failsafe"
+
+
+class HaDrop(enum.Enum):
+    """Why the HA refused to forward a frame (counted per reason)."""
+
+    NOT_AUTHORITY = "not_authority"
+    NOT_LINKED = "not_linked"
+    FAILSAFE = "failsafe"
+
+
+# ----------------------------------------------------------------------------- events
+@dataclass(frozen=True, slots=True)
+class Event:
+    now: float
+
+
+@dataclass(frozen=True, slots=True)
+class Paired(Event):
+    """Pairing with ``gs`` completed (the adapter already checked its static key)."""
+
+    gs: str
+    on_ground: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class KeyGranted(Event):
+    """``sender`` (over its sealed link) hands the drone a link key for ``gs``."""
+
+    sender: str
+    gs: str
+
+
+@dataclass(frozen=True, slots=True)
+class Frame(Event):
+    """An authentic MAVLink frame from ``gs``."""
+
+    gs: str
+    commanding: bool
+
+
+@dataclass(frozen=True, slots=True)
+class LinkChanged(Event):
+    """The TBM state of the link to ``gs`` changed."""
+
+    gs: str
+    state: LinkState
+
+
+@dataclass(frozen=True, slots=True)
+class RegionChanged(Event):
+    """The set of GS coverage circles the vehicle is inside changed."""
+
+    inside: frozenset[str]
+
+
+@dataclass(frozen=True, slots=True)
+class HandoverRequest(Event):
+    """``sender`` asks that authority pass to ``to``."""
+
+    sender: str
+    to: str
+
+
+@dataclass(frozen=True, slots=True)
+class Release(Event):
+    """``sender`` releases authority of ``epoch`` to ``to`` (effective once ``to`` is proven)."""
+
+    sender: str
+    to: str
+    epoch: int
+
+
+@dataclass(frozen=True, slots=True)
+class Tick(Event):
+    """Time passes (the adapter ticks the machine at its loop rate)."""
+
+
+GS_EVENTS = (Paired, KeyGranted, Frame, HandoverRequest, Release)
+
+
+# ---------------------------------------------------------------------------- actions
+@dataclass(frozen=True, slots=True)
+class Action:
+    pass
+
+
+@dataclass(frozen=True, slots=True)
+class Forward(Action):
+    """Forward the frame of the event being handled to the vehicle."""
+
+    gs: str
+
+
+@dataclass(frozen=True, slots=True)
+class DropFrame(Action):
+    gs: str
+    reason: HaDrop
+
+
+@dataclass(frozen=True, slots=True)
+class SendControl(Action):
+    gs: str
+    msg: Control
+
+
+@dataclass(frozen=True, slots=True)
+class Subscribe(Action):
+    gs: str
+
+
+@dataclass(frozen=True, slots=True)
+class Unsubscribe(Action):
+    gs: str
+
+
+@dataclass(frozen=True, slots=True)
+class InstallKey(Action):
+    gs: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandVehicle(Action):
+    command: str  # "LAND" | "RTL"
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class AuthorityChanged(Action):
+    """For the event log: authority moved (``old`` None at first pairing)."""
+
+    old: str | None
+    new: str
+    epoch: int
+    kind: str  # "paired" | "handover" | "emergency" | "repaired"
+
+
+@dataclass(frozen=True, slots=True)
+class Note(Action):
+    """For the event log: something worth recording (region entered, hand-over timed out, ...)."""
+
+    kind: str
+    detail: str
+
+
+class IllegalTransition(RuntimeError):
+    """An event that no table entry covers and that no GS sent: a programming error."""
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    authorized: frozenset[str]
+    handover_timeout: float = DEFAULT_HANDOVER_TIMEOUT
+    failsafe_action: str = "LAND"
+
+
+@dataclass(slots=True)
+class _Link:
+    state: LinkState = LinkState.LOST
+    frames_since_ok: int = 0
+
+
+Handler = Callable[["AuthorityMachine", Event], "tuple[State, list[Action]]"]
+
+
+class AuthorityMachine:
+    """The HA of one drone. Feed events with ``handle``; carry out the actions it returns."""
+
+    def __init__(self, config: Config) -> None:
+        if config.failsafe_action not in ("LAND", "RTL"):
+            raise ValueError("failsafe_action must be LAND or RTL")
+        self.config = config
+        self.state = State.UNPAIRED
+        self.owner: str | None = None
+        self.epoch = 0
+        self.pending_to: str | None = None
+        self.pending_deadline: float | None = None
+        self.links: dict[str, _Link] = {}
+        self.subscribed: set[str] = set()
+        self.inside: frozenset[str] = frozenset()
+        self.drops: Counter[HaDrop] = Counter()
+        self.rejects: Counter[str] = Counter()
+        self.history: list[tuple[float, str | None, int]] = []  # (time, owner, epoch) after each change
+
+    # ------------------------------------------------------------------ queries
+    def is_authorized(self, gs: str) -> bool:
+        return gs in self.config.authorized
+
+    def is_proven(self, gs: str) -> bool:
+        link = self.links.get(gs)
+        return link is not None and link.state is LinkState.OK and link.frames_since_ok >= PROOF_FRAMES
+
+    @property
+    def in_region(self) -> bool:
+        """Inside the coverage of two or more authorized GSs: the hand-over region."""
+        return len(self.inside & self.config.authorized) >= 2
+
+    def telemetry_targets(self) -> list[str]:
+        """The linked GSs the drone currently talks to."""
+        return sorted(self.subscribed)
+
+    def status(self) -> AuthorityStatus:
+        return AuthorityStatus(self.owner, self.epoch, self.state.value, self.pending_to)
+
+    # ------------------------------------------------------------------- engine
+    def handle(self, event: Event) -> list[Action]:
+        """Apply one event; return the actions to carry out. Never raises for GS-sent events."""
+        entry = TRANSITIONS.get((self.state, type(event)))
+        if entry is None:
+            if isinstance(event, GS_EVENTS):
+                sender = getattr(event, "sender", None) or getattr(event, "gs")
+                return self._reject(sender, type(event).__name__, f"illegal in state {self.state.value}")
+            raise IllegalTransition(f"{type(event).__name__} in state {self.state.value}")
+        handler, allowed = entry
+        next_state, actions = handler(self, event)
+        if next_state not in allowed:
+            raise IllegalTransition(f"{handler.__name__} chose {next_state} from {self.state}")
+        self._set_state(next_state, event.now)
+        return actions
+
+    def _set_state(self, new: State, now: float) -> None:
+        if new is not self.state:
+            log.info("authority: %s -> %s (owner %s, epoch %d)", self.state.value, new.value, self.owner, self.epoch)
+            self.state = new
+        if not self.history or self.history[-1][1:] != (self.owner, self.epoch):
+            self.history.append((now, self.owner, self.epoch))
+
+    def _reject(self, gs: str, what: str, reason: str) -> list[Action]:
+        self.rejects[reason.split(":")[0]] += 1
+        log.info("authority: reject %s from %s: %s", what, gs, reason)
+        return [SendControl(gs, Reject(what, reason)), Note("reject", f"{what} from {gs}: {reason}")]
+
+    def _status_to_all(self) -> list[Action]:
+        st = self.status()
+        return [SendControl(gs, st) for gs in sorted(self.subscribed | ({self.owner} if self.owner else set()))]
+
+    def _switch(self, to: str, now: float, kind: str) -> list[Action]:
+        old = self.owner
+        self.owner, self.epoch = to, self.epoch + 1
+        self.pending_to = self.pending_deadline = None
+        acts: list[Action] = [AuthorityChanged(old, to, self.epoch, kind)]
+        if to not in self.subscribed:
+            self.subscribed.add(to)
+            acts.append(Subscribe(to))
+        return acts
+
+    def _update_subscriptions(self) -> list[Action]:
+        """Listen to every linked GS whose coverage holds the vehicle, and always to the owner
+        and a pending recipient; drop the others (the old GS once the vehicle leaves the region)."""
+        want = {gs for gs in self.links if gs in self.inside}
+        want |= {g for g in (self.owner, self.pending_to) if g}
+        acts: list[Action] = [Subscribe(gs) for gs in sorted(want - self.subscribed)]
+        acts += [Unsubscribe(gs) for gs in sorted(self.subscribed - want)]
+        self.subscribed = want
+        return acts
+
+    # ----------------------------------------------------------------- handlers
+    def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:
+        if not self.is_authorized(ev.gs):
+            return State.UNPAIRED, self._reject(ev.gs, "pair", f"unauthorized: {ev.gs} is not authorized for this drone")
+        self.links[ev.gs] = _Link()
+        acts = self._switch(ev.gs, ev.now, "paired")
+        return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+
+    def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
+        if not self.is_authorized(ev.gs):
+            return self.state, self._reject(ev.gs, "pair", f"unauthorized: {ev.gs} is not authorized for this drone")
+        self.links.setdefault(ev.gs, _Link())
+        return self.state, self._update_subscriptions() + [InstallKey(ev.gs)] + self._status_to_all()
+
+    def _on_pair_failsafe(self, ev: Paired) -> tuple[State, list[Action]]:
+        if not self.is_authorized(ev.gs):
+            return State.FAILSAFE, self._reject(ev.gs, "pair", f"unauthorized: {ev.gs} is not authorized for this drone")
+        if not ev.on_ground:
+            return State.FAILSAFE, self._reject(ev.gs, "pair", "failsafe: re-pair only on the ground")
+        self.links[ev.gs] = _Link()
+        acts = self._switch(ev.gs, ev.now, "repaired")
+        return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+
+    def _on_key_granted(self, ev: KeyGranted) -> tuple[State, list[Action]]:
+        if ev.sender != self.owner:
+            return self.state, self._reject(ev.sender, "key_grant", "not the authority: only the authority grants keys")
+        if not self.is_authorized(ev.gs):
+            return self.state, self._reject(ev.sender, "key_grant", f"unauthorized: {ev.gs} is not authorized for this drone")
+        self.links.setdefault(ev.gs, _Link())
+        return self.state, [InstallKey(ev.gs), Note("key_installed", ev.gs)] + self._update_subscriptions()
+
+    def _on_frame(self, ev: Frame) -> tuple[State, list[Action]]:
+        link = self.links.get(ev.gs)
+        if link is None:
+            self.drops[HaDrop.NOT_LINKED] += 1
+            return self.state, [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
+        link.frames_since_ok += 1
+        acts: list[Action] = []
+        if ev.gs == self.owner or not ev.commanding:
+            acts.append(Forward(ev.gs))
+        else:
+            self.drops[HaDrop.NOT_AUTHORITY] += 1
+            acts.append(DropFrame(ev.gs, HaDrop.NOT_AUTHORITY))
+        if self.state is State.HANDOVER_PENDING and ev.gs == self.pending_to and self.is_proven(ev.gs):
+            acts += self._complete_handover(ev.now)
+            return State.LINKED, acts
+        return self.state, acts
+
+    def _on_frame_unpaired(self, ev: Frame) -> tuple[State, list[Action]]:
+        self.drops[HaDrop.NOT_LINKED] += 1
+        return State.UNPAIRED, [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
+
+    def _on_frame_failsafe(self, ev: Frame) -> tuple[State, list[Action]]:
+        if ev.commanding:
+            self.drops[HaDrop.FAILSAFE] += 1
+            return State.FAILSAFE, [DropFrame(ev.gs, HaDrop.FAILSAFE)]
+        return State.FAILSAFE, [Forward(ev.gs)] if ev.gs in self.links else [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
+
+    def _complete_handover(self, now: float) -> list[Action]:
+        to = self.pending_to
+        assert to is not None
+        acts = self._switch(to, now, "handover")
+        return acts + self._update_subscriptions() + self._status_to_all()
+
+    def _on_release(self, ev: Release) -> tuple[State, list[Action]]:
+        if ev.sender != self.owner:
+            return self.state, self._reject(ev.sender, "release", "not the authority")
+        if ev.epoch != self.epoch:
+            return self.state, self._reject(ev.sender, "release", f"stale epoch: {ev.epoch} != {self.epoch}")
+        if ev.to == self.owner or not self.is_authorized(ev.to):
+            return self.state, self._reject(ev.sender, "release", f"unauthorized: cannot hand over to {ev.to}")
+        if ev.to not in self.links:
+            return self.state, self._reject(ev.sender, "release", f"no link: no key installed for {ev.to}")
+        if self.state is State.HANDOVER_PENDING and ev.to == self.pending_to:
+            return self.state, []  # a repeated release
+        self.pending_to, self.pending_deadline = ev.to, ev.now + self.config.handover_timeout
+        acts: list[Action] = [Note("handover_start", f"{self.owner} -> {ev.to}")]
+        if self.is_proven(ev.to):
+            return State.LINKED, acts + self._complete_handover(ev.now)
+        return State.HANDOVER_PENDING, acts + self._update_subscriptions() + self._status_to_all()
+
+    def _on_request(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
+        if not self.is_authorized(ev.sender):
+            return self.state, self._reject(ev.sender, "handover_request", f"unauthorized: {ev.sender} is not authorized")
+        if not self.is_authorized(ev.to) or ev.to not in self.links:
+            return self.state, self._reject(ev.sender, "handover_request", f"no link: {ev.to} cannot take authority")
+        if ev.sender == self.owner:  # the owner asking is a release
+            return self._on_release(Release(ev.now, ev.sender, ev.to, self.epoch))
+        st = self.status()
+        note = Note("handover_requested", f"{ev.sender} asks for {ev.to}")
+        return self.state, [note, SendControl(self.owner, st)] if self.owner else [note]
+
+    def _on_link(self, ev: LinkChanged) -> tuple[State, list[Action]]:
+        link = self.links.get(ev.gs)
+        if link is None:
+            return self.state, []
+        if ev.state is not LinkState.OK:
+            link.frames_since_ok = 0 if ev.state is LinkState.LOST else link.frames_since_ok
+        link.state = ev.state
+        if ev.state is not LinkState.LOST:
+            if self.state is State.HANDOVER_PENDING and ev.gs == self.pending_to and self.is_proven(ev.gs):
+                return State.LINKED, self._complete_handover(ev.now)
+            return self.state, []
+        if self.state is State.FAILSAFE:
+            return State.FAILSAFE, []
+        if ev.gs == self.pending_to:
+            self.pending_to = self.pending_deadline = None
+            return State.LINKED, [Note("handover_aborted", f"link to {ev.gs} lost")] + self._update_subscriptions() + self._status_to_all()
+        if ev.gs != self.owner:
+            return self.state, []
+        # the authority link is lost: another proven authorized link takes over, else failsafe
+        heirs = [self.pending_to] if self.pending_to and self.is_proven(self.pending_to) else []
+        heirs += sorted(g for g in self.links if g != self.owner and self.is_authorized(g) and self.is_proven(g))
+        if heirs:
+            self.pending_to = heirs[0]
+            acts = [Note("authority_link_lost", f"{ev.gs}: authority to {heirs[0]}")]
+            acts += self._switch(heirs[0], ev.now, "emergency")
+            self.pending_to = self.pending_deadline = None
+            return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+        action = self.config.failsafe_action
+        self.pending_to = self.pending_deadline = None
+        notice = FailsafeNotice(action, f"authority link to {ev.gs} lost")
+        acts = [CommandVehicle(action, notice.reason), Note("failsafe", notice.reason)]
+        acts += [SendControl(g, notice) for g in sorted(self.links)]
+        return State.FAILSAFE, acts
+
+    def _on_region(self, ev: RegionChanged) -> tuple[State, list[Action]]:
+        was = self.in_region
+        self.inside = ev.inside
+        acts: list[Action] = []
+        if self.in_region and not was:
+            acts.append(Note("region_entered", ",".join(sorted(ev.inside))))
+        elif was and not self.in_region:
+            acts.append(Note("region_left", ",".join(sorted(ev.inside))))
+        if self.state in (State.LINKED, State.HANDOVER_PENDING):
+            acts += self._update_subscriptions()
+        return self.state, acts
+
+    def _on_tick(self, ev: Tick) -> tuple[State, list[Action]]:
+        if self.state is State.HANDOVER_PENDING and self.pending_deadline is not None and ev.now >= self.pending_deadline:
+            to = self.pending_to
+            self.pending_to = self.pending_deadline = None
+            acts: list[Action] = [Note("handover_timeout", f"{self.owner} -> {to}: authority stays with {self.owner}")]
+            return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+        return self.state, []
+
+    def _ignore(self, ev: Event) -> tuple[State, list[Action]]:
+        return self.state, []
+
+
+S = State
+#: (state, event type) -> (handler, next states it may choose)
+TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
+    (S.UNPAIRED, Paired): (AuthorityMachine._on_first_pair, frozenset({S.UNPAIRED, S.LINKED})),
+    (S.UNPAIRED, Frame): (AuthorityMachine._on_frame_unpaired, frozenset({S.UNPAIRED})),
+    (S.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
+    (S.UNPAIRED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.UNPAIRED})),
+    (S.UNPAIRED, Tick): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
+    (S.LINKED, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.LINKED})),
+    (S.LINKED, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.LINKED})),
+    (S.LINKED, Frame): (AuthorityMachine._on_frame, frozenset({S.LINKED})),
+    (S.LINKED, LinkChanged): (AuthorityMachine._on_link, frozenset({S.LINKED, S.FAILSAFE})),
+    (S.LINKED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.LINKED})),
+    (S.LINKED, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
+    (S.LINKED, Release): (AuthorityMachine._on_release, frozenset({S.LINKED, S.HANDOVER_PENDING})),
+    (S.LINKED, Tick): (AuthorityMachine._on_tick, frozenset({S.LINKED})),
+    (S.HANDOVER_PENDING, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
+    (S.HANDOVER_PENDING, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
+    (S.HANDOVER_PENDING, Frame): (AuthorityMachine._on_frame, frozenset({S.HANDOVER_PENDING, S.LINKED})),
+    (S.HANDOVER_PENDING, LinkChanged): (AuthorityMachine._on_link, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
+    (S.HANDOVER_PENDING, RegionChanged): (AuthorityMachine._on_region, frozenset({S.HANDOVER_PENDING})),
+    (S.HANDOVER_PENDING, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
+    (S.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({S.HANDOVER_PENDING, S.LINKED})),
+    (S.HANDOVER_PENDING, Tick): (AuthorityMachine._on_tick, frozenset({S.HANDOVER_PENDING, S.LINKED})),
+    (S.FAILSAFE, Paired): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
+    (S.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({S.FAILSAFE})),
+    (S.FAILSAFE, LinkChanged): (AuthorityMachine._on_link, frozenset({S.FAILSAFE})),
+    (S.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({S.FAILSAFE})),
+    (S.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({S.FAILSAFE})),
+}
+# Missing on purpose (illegal steps, answered with a Reject): KeyGranted, HandoverRequest and
+# Release in UNPAIRED and FAILSAFE.
