@@ -55,3 +55,19 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
 
 
 _EXTRA_COMMANDS.append(add_sim)
+
+
+def _router(args: argparse.Namespace) -> int:
+    from .net.router import run_router
+
+    return run_router(args.config, args.listen)
+
+
+def add_router(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("router", help="Zenoh router with the fleet's auth and access control")
+    p.add_argument("-c", "--config", default="router.json5", help="router config (JSON5; also valid for zenohd -c)")
+    p.add_argument("--listen", metavar="ENDPOINT", help="override listen endpoint, e.g. tcp/127.0.0.1:7447")
+    p.set_defaults(func=_router)
+
+
+_EXTRA_COMMANDS.append(add_router)

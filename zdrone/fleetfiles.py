@@ -5,6 +5,7 @@ Layout of a fleet directory::
     fleet.json5                  public: nodes, sysids, public keys, coverage, authorized lists
     secrets/<name>.json          private (mode 0600): the node's X25519 key and router password
     router/credentials.txt       private (mode 0600): user:password lines for the router
+    router/router.json5          the router's config: auth from credentials.txt, default-deny ACL
 """
 
 from __future__ import annotations
@@ -78,6 +79,9 @@ def init_fleet(directory: str | Path, force: bool = False) -> Fleet:
     fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt))
     (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
+    from .net.routerconfig import HEADER, render, router_config
+
+    (d / "router" / "router.json5").write_text(render(router_config(fleet, "credentials.txt"), HEADER))
     return fleet
 
 

@@ -1,0 +1,69 @@
+"""Opening Zenoh sessions: every node is a client of the router, scouting off, authenticated."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import json5
+import zenoh
+
+from ..core.fleet import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+def client_config(router: str, user: str, password: str) -> zenoh.Config:
+    """A client that connects only to ``router`` (e.g. ``tcp/127.0.0.1:7447``), never to peers."""
+    cfg: dict[str, Any] = {
+        "mode": "client",
+        "connect": {"endpoints": [router], "timeout_ms": 5000, "exit_on_failure": True},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+        "transport": {"auth": {"usrpwd": {"user": user, "password": password}}},
+    }
+    return zenoh.Config.from_json5(json.dumps(cfg))
+
+
+def open_client(router: str, user: str, password: str) -> zenoh.Session:
+    """Open a client session; ``ConfigError`` (one line) if the router refuses or is not there."""
+    try:
+        return zenoh.open(client_config(router, user, password))
+    except zenoh.ZError as exc:
+        detail = str(exc).split(" at ")[0].splitlines()[0]
+        raise ConfigError(f"cannot connect to router {router} as {user!r} (wrong password or no router): {detail}") from None
+
+
+def load_router_config(path: str | Path, listen: str | None = None) -> zenoh.Config:
+    """Read a router JSON5 file; resolve the credentials path relative to the file."""
+    p = Path(path)
+    try:
+        raw = json5.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such file") from None
+    except ValueError as exc:
+        raise ConfigError(f"{p}: not valid JSON5: {str(exc).splitlines()[0]}") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read: {exc.__class__.__name__}") from None
+    if not isinstance(raw, dict) or raw.get("mode") != "router":
+        raise ConfigError(f"{p}: field $.mode: must be \"router\"")
+    try:
+        dict_file = raw["transport"]["auth"]["usrpwd"]["dictionary_file"]
+    except (KeyError, TypeError):
+        raise ConfigError(f"{p}: field $.transport.auth.usrpwd.dictionary_file: missing (auth is required)") from None
+    cred = Path(dict_file)
+    if not cred.is_absolute():
+        cred = (p.parent / cred).resolve()
+    if not cred.is_file():
+        raise ConfigError(f"{p}: field $.transport.auth.usrpwd.dictionary_file: {cred} does not exist (run 'zdrone fleet init')")
+    raw["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(cred)
+    if listen:
+        raw["listen"] = {"endpoints": [listen]}
+    acl = raw.get("access_control", {})
+    if not acl.get("enabled") or acl.get("default_permission") != "deny":
+        log.warning("%s: access control is not enabled with default deny", p)
+    try:
+        return zenoh.Config.from_json5(json.dumps(raw))
+    except zenoh.ZError as exc:
+        raise ConfigError(f"{p}: rejected by zenoh: {str(exc).splitlines()[0]}") from None
