@@ -71,3 +71,72 @@ def add_router(sub: argparse._SubParsersAction) -> None:
 
 
 _EXTRA_COMMANDS.append(add_router)
+
+
+def _thresholds(args: argparse.Namespace):
+    from .core.tbm import TbmThresholds
+
+    try:
+        return TbmThresholds(args.degraded_after, args.lost_after)
+    except ValueError as exc:
+        raise UsageError(f"--degraded-after/--lost-after: {exc}") from None
+
+
+def _drone(args: argparse.Namespace) -> int:
+    from .net.drone import DroneOptions, run_drone
+
+    return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=args.router, vehicle=args.vehicle,
+                                  thresholds=_thresholds(args), failsafe=args.failsafe,
+                                  handover_timeout=args.handover_timeout, sil_coverage=args.sil_coverage,
+                                  events=args.events))
+
+
+def add_drone(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("drone", help="onboard companion: vehicle link + security module + handover authority")
+    p.add_argument("--id", default="d1", help="drone name in the fleet (default d1)")
+    p.add_argument("--fleet", default="fleet", help="fleet directory (default ./fleet)")
+    p.add_argument("--router", default="tcp/127.0.0.1:7447", help="Zenoh router endpoint")
+    p.add_argument("--vehicle", default="udpout:127.0.0.1:14580", metavar="CONN",
+                   help="autopilot: udpout:127.0.0.1:14580 (zdrone sim), udpin:0.0.0.0:14540 (PX4 SITL), "
+                        "tcp:127.0.0.1:5760 (ArduPilot SITL), /dev/ttyACM0,921600")
+    p.add_argument("--degraded-after", type=positive, default=1.0, metavar="S", help="TBM DEGRADED threshold (1 s)")
+    p.add_argument("--lost-after", type=positive, default=3.0, metavar="S", help="TBM LOST threshold (3 s)")
+    p.add_argument("--failsafe", choices=["LAND", "RTL"], default="LAND", help="action when the authority link is lost")
+    p.add_argument("--handover-timeout", type=positive, default=5.0, metavar="S", help="hand-over timeout (5 s)")
+    p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
+    p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    p.set_defaults(func=_drone)
+
+
+def _gs(args: argparse.Namespace) -> int:
+    from gs.planner import load_plan, reference_mission
+    from gs.station import StationOptions, run_station
+
+    mission = None
+    if args.mission == "reference":
+        mission = reference_mission()
+    elif args.mission:
+        mission = load_plan(args.mission)
+    return run_station(StationOptions(gs=args.id, fleet=args.fleet, router=args.router,
+                                      drones=tuple(args.drone or ()), pair=args.pair, mission=mission,
+                                      heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
+                                      events=args.events))
+
+
+def add_gs(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("gs", help="ground station: pairing, key sharing, heartbeat, mission, hand-over")
+    p.add_argument("--id", required=True, help="ground station name in the fleet (A, B, ...)")
+    p.add_argument("--fleet", default="fleet", help="fleet directory (default ./fleet)")
+    p.add_argument("--router", default="tcp/127.0.0.1:7447", help="Zenoh router endpoint")
+    p.add_argument("--drone", action="append", help="drone(s) to serve (default: all it is authorized for)")
+    p.add_argument("--pair", action="store_true", help="pair with the drone(s) on start (the take-off GS)")
+    p.add_argument("--mission", metavar="PLAN", help="fly this QGroundControl .plan, or 'reference'")
+    p.add_argument("--heartbeat-hz", type=positive, default=2.0, help="sealed HEARTBEAT rate (2 Hz)")
+    p.add_argument("--command-rate", type=float, default=0.0, metavar="HZ",
+                   help="while in authority, send a harmless command stream (for hand-over checks)")
+    p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    p.set_defaults(func=_gs)
+
+
+_EXTRA_COMMANDS.append(add_drone)
+_EXTRA_COMMANDS.append(add_gs)

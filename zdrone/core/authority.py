@@ -265,7 +265,10 @@ class AuthorityMachine:
         if next_state not in allowed:
             raise IllegalTransition(f"{handler.__name__} chose {next_state} from {self.state}")
         self._set_state(next_state, event.now)
-        return actions
+        # status messages describe the state after this step, not the one the handler started in
+        st = self.status()
+        return [SendControl(a.gs, st) if isinstance(a, SendControl) and isinstance(a.msg, AuthorityStatus) else a
+                for a in actions]
 
     def _set_state(self, new: State, now: float) -> None:
         if new is not self.state:

@@ -1,0 +1,138 @@
+"""Mission planning on the ground station: the reference mission, QGroundControl ``.plan`` files,
+and a sans-IO mission uploader (the GCS side of the MAVLink mission protocol).
+
+Theory of operation of ``MissionUploader``: ``start(now)`` returns MISSION_COUNT; each
+MISSION_REQUEST_INT / MISSION_REQUEST from the vehicle is answered with that item; MISSION_ACK ends
+the transfer (``result``). ``tick(now)`` resends MISSION_COUNT if the vehicle said nothing for
+``retry_s`` and gives up after ``max_retries``. Messages in and out are pymavlink message objects;
+the station seals and sends them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mav
+
+from zdrone.core.fleet import ConfigError
+from zdrone.core.geometry import GeoPoint
+from zdrone.core.reference import CRUISE_ALT_M, CRUISE_SPEED_MS, DELIVERY, HOME
+
+REL = mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+NAN = float("nan")
+
+
+@dataclass(frozen=True, slots=True)
+class PlannedItem:
+    frame: int
+    command: int
+    params: tuple[float, float, float, float]
+    lat: float
+    lon: float
+    alt: float
+
+    def message(self, seq: int, target: tuple[int, int]) -> mav.MAVLink_mission_item_int_message:
+        lat = 0 if math.isnan(self.lat) else int(round(self.lat * 1e7))
+        lon = 0 if math.isnan(self.lon) else int(round(self.lon * 1e7))
+        return mav.MAVLink_mission_item_int_message(target[0], target[1], seq, self.frame, self.command, int(seq == 0), 1,
+                                                    *self.params, lat, lon, self.alt)
+
+
+def _nav(cmd: int, p: GeoPoint, alt: float, params=(0.0, 0.0, 0.0, NAN)) -> PlannedItem:
+    return PlannedItem(REL, cmd, params, p.lat, p.lon, alt)
+
+
+def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt: float = CRUISE_ALT_M,
+                      speed: float = CRUISE_SPEED_MS) -> list[PlannedItem]:
+    """Take off at A, fly to the delivery point in B's area, land, release, take off, return, land."""
+    do = mav.MAV_FRAME_MISSION
+    return [
+        _nav(mav.MAV_CMD_NAV_TAKEOFF, home, alt),
+        PlannedItem(do, mav.MAV_CMD_DO_CHANGE_SPEED, (1.0, speed, -1.0, 0.0), NAN, NAN, 0.0),
+        _nav(mav.MAV_CMD_NAV_WAYPOINT, delivery, alt),
+        _nav(mav.MAV_CMD_NAV_LAND, delivery, 0.0),
+        PlannedItem(do, mav.MAV_CMD_DO_GRIPPER, (1.0, float(mav.GRIPPER_ACTION_RELEASE), 0.0, 0.0), NAN, NAN, 0.0),
+        _nav(mav.MAV_CMD_NAV_TAKEOFF, delivery, alt),
+        _nav(mav.MAV_CMD_NAV_WAYPOINT, home, alt),
+        _nav(mav.MAV_CMD_NAV_LAND, home, 0.0),
+    ]
+
+
+def load_plan(path: str | Path) -> list[PlannedItem]:
+    """Read the mission of a QGroundControl ``.plan`` file (SimpleItems only)."""
+    p = Path(path)
+    try:
+        raw: Any = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such file") from None
+    except (ValueError, OSError) as exc:
+        raise ConfigError(f"{p}: not a readable JSON .plan file: {str(exc).splitlines()[0]}") from None
+    if not isinstance(raw, dict) or raw.get("fileType") != "Plan":
+        raise ConfigError(f"{p}: field $.fileType: not \"Plan\"")
+    items = raw.get("mission", {}).get("items")
+    if not isinstance(items, list) or not items:
+        raise ConfigError(f"{p}: field $.mission.items: no mission items")
+    out: list[PlannedItem] = []
+    for i, it in enumerate(items):
+        where = f"{p}: field $.mission.items[{i}]"
+        if not isinstance(it, dict) or it.get("type") != "SimpleItem":
+            raise ConfigError(f"{where}: only SimpleItem is supported (got {it.get('type') if isinstance(it, dict) else it!r})")
+        prm = it.get("params")
+        if not isinstance(prm, list) or len(prm) != 7:
+            raise ConfigError(f"{where}.params: need 7 values")
+        try:
+            vals = [NAN if v is None else float(v) for v in prm]
+            out.append(PlannedItem(int(it["frame"]), int(it["command"]), tuple(vals[:4]), vals[4], vals[5], vals[6]))  # type: ignore[arg-type]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    return out
+
+
+class MissionUploader:
+    """The GCS side of a mission upload, sans-IO."""
+
+    def __init__(self, items: list[PlannedItem], target: tuple[int, int] = (1, 1), retry_s: float = 1.5,
+                 max_retries: int = 5) -> None:
+        self.items = items
+        self.target = target
+        self.retry_s, self.max_retries = retry_s, max_retries
+        self.result: int | None = None
+        self.last_activity = 0.0
+        self.retries = 0
+        self.started = False
+
+    @property
+    def done(self) -> bool:
+        return self.result is not None
+
+    @property
+    def accepted(self) -> bool:
+        return self.result == mav.MAV_MISSION_ACCEPTED
+
+    def start(self, now: float) -> list[Any]:
+        self.started, self.last_activity = True, now
+        return [mav.MAVLink_mission_count_message(self.target[0], self.target[1], len(self.items), 0)]
+
+    def on_message(self, msg: Any, now: float, my_sysid: int) -> list[Any]:
+        if not self.started or self.done or getattr(msg, "target_system", my_sysid) != my_sysid:
+            return []
+        t = msg.get_type()
+        if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and 0 <= msg.seq < len(self.items):
+            self.last_activity = now
+            return [self.items[msg.seq].message(msg.seq, self.target)]
+        if t == "MISSION_ACK":
+            self.result = msg.type
+        return []
+
+    def tick(self, now: float) -> list[Any]:
+        if not self.started or self.done or now - self.last_activity < self.retry_s:
+            return []
+        self.retries += 1
+        if self.retries > self.max_retries:
+            self.result = mav.MAV_MISSION_OPERATION_CANCELLED
+            return []
+        return self.start(now)

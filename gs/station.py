@@ -1,0 +1,439 @@
+"""``zdrone gs``: a ground station node.
+
+It pairs with a drone on the ground (Noise KK over ``zdrone/<drone>/pair/<gs>``), shares link keys
+over the backhaul (answers ``backhaul/<gs>/linkkey/<drone>`` with an HPKE-sealed secret; asks the
+other authorized GSs' queryables and hands their keys to the drone as KEY_GRANTs), sends a sealed
+MAVLink HEARTBEAT at 2 Hz on every link (the drone's TBM liveness signal: no extra packets),
+flies a mission (the reference mission or a QGroundControl ``.plan``) when it holds authority, and
+coordinates hand-over: while it holds authority and the drone is inside its own and another
+authorized GS's coverage, nearer to the other's centre, it releases authority to that GS. If a
+hand-over it started fails, it commands RTL so the drone comes back into its coverage.
+
+One thread runs the loop; Zenoh callbacks only queue what they receive.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import signal
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import msgspec
+import zenoh
+from pymavlink.dialects.v20 import common as mav
+
+from zdrone.core import wire
+from zdrone.core.envelope import Dropped, SecureLink
+from zdrone.core.fleet import ConfigError
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.keys import LinkKey
+from zdrone.core.keyshare import LinkKeyRequest, open_secret, seal_secret
+from zdrone.core.mavlink import FrameCodec
+from zdrone.core.pairing import PairingFailed, PairingInitiator
+from zdrone.fleetfiles import load_fleet, load_secret
+from zdrone.net import keyexprs as kx
+from zdrone.net.eventlog import EventLog
+from zdrone.net.session import open_client
+
+from .planner import MissionUploader, PlannedItem
+
+log = logging.getLogger(__name__)
+GCS_COMPID = mav.MAV_COMP_ID_MISSIONPLANNER
+
+
+@dataclass(frozen=True, slots=True)
+class StationOptions:
+    gs: str
+    fleet: str
+    router: str
+    drones: tuple[str, ...] = ()
+    pair: bool = False
+    mission: list[PlannedItem] | None = None
+    heartbeat_hz: float = 2.0
+    command_rate: float = 0.0
+    hysteresis_m: float = 20.0
+    events: str | None = None
+    status_period: float = 1.0
+    cipher: str = "zdrone"
+
+
+@dataclass
+class DroneView:
+    """What this GS knows of one drone."""
+
+    name: str
+    sysid: int
+    link: SecureLink | None = None
+    position: GeoPoint | None = None
+    armed: bool = False
+    custom_mode: int = 0
+    landed_state: int = 0
+    mission_seq: int = -1
+    owner: str | None = None
+    epoch: int = 0
+    ha_state: str = "unknown"
+    pending_to: str | None = None
+    grants: dict[str, wire.KeyGrant] = field(default_factory=dict)  # gs -> grant not yet acknowledged
+    granted: set[str] = field(default_factory=set)
+    grant_sent: float = 0.0
+    uploader: MissionUploader | None = None
+    flight_stage: str = "idle"  # idle -> uploading -> arming -> starting -> flying
+    stage_time: float = 0.0
+    released_epoch: int = -1
+    release_sent: float = 0.0
+    handover_failed_epoch: int = -1
+    commands_sent: Counter = field(default_factory=Counter)  # per epoch
+    last_pair_try: float = -1e9
+    last_share_try: float = -1e9
+
+
+class GroundStation:
+    """One ground station node."""
+
+    def __init__(self, opts: StationOptions) -> None:
+        self.opts = opts
+        self.fleet = load_fleet(opts.fleet)
+        node = self.fleet.nodes.get(opts.gs)
+        if node is None or node.role != "gs":
+            raise ConfigError(f"--id {opts.gs}: not a ground station of the fleet ({', '.join(self.fleet.ground_stations())})")
+        self.name = opts.gs
+        self.sysid = node.sysid
+        self.coverage = node.coverage.circle() if node.coverage else None
+        self.secret = load_secret(opts.fleet, opts.gs, self.fleet)
+        drones = opts.drones or tuple(d for d in self.fleet.drones() if self.fleet.is_authorized(d, self.name))
+        for d in drones:
+            if d not in self.fleet.nodes or self.fleet.nodes[d].role != "drone":
+                raise ConfigError(f"--drone {d}: not a drone of the fleet")
+        self.views = {d: DroneView(d, self.fleet.nodes[d].sysid) for d in drones}
+        self.codec = FrameCodec(self.sysid, GCS_COMPID)
+        self.events = EventLog(opts.events, opts.gs)
+        self.counters: Counter[str] = Counter()
+        self.rx: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self._running = True
+        self._grant_id = 0
+        self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
+        self.session = open_client(opts.router, opts.gs, self.secret.router_password)
+        self.sub = self.session.declare_subscriber(kx.down("*", self.name), self._on_sample)
+        self.linkkey_q = self.session.declare_queryable(kx.linkkey_all(self.name))
+
+    # ------------------------------------------------------------------ plumbing
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self.rx.put((str(sample.key_expr).split("/")[1], sample.payload.to_bytes()))
+
+    def _install(self, view: DroneView, key: LinkKey, now: float) -> None:
+        view.link = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(view.name, self.name),
+                               rx_keyexpr=kx.down(view.name, self.name), peer_sysid=view.sysid, now=now,
+                               cipher=self.opts.cipher)
+
+    def send_frame(self, view: DroneView, frame: bytes) -> None:
+        """Seal and send one MAVLink frame to the drone (no-op without a link)."""
+        if view.link is not None:
+            self.session.put(kx.up(view.name, self.name), view.link.seal(frame))  # see DroneNode._publish
+
+    def send_msg(self, view: DroneView, msg: Any) -> None:
+        self.send_frame(view, self.codec.encode(msg))
+
+    def send_control(self, view: DroneView, msg: wire.Control) -> None:
+        if view.link is not None:
+            self.session.put(kx.up(view.name, self.name), view.link.seal_control(msg))
+
+    def holds_authority(self, view: DroneView) -> bool:
+        return view.owner == self.name and view.released_epoch != view.epoch
+
+    # ------------------------------------------------------------------ pairing
+    def _try_pair(self, view: DroneView, now: float) -> None:
+        if now - view.last_pair_try < 2.0:
+            return
+        view.last_pair_try = now
+        ini = PairingInitiator(self.secret.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes)
+        m1 = ini.start()
+        for reply in self.session.get(kx.pair(view.name, self.name), payload=m1, timeout=3.0):
+            if reply.ok is None:
+                reason = reply.err.payload.to_bytes().decode(errors="replace") if reply.err else "error"
+                self.events.write("pair_refused", drone=view.name, reason=reason)
+                log.warning("pairing with %s refused: %s", view.name, reason)
+                self.counters["pair_refused"] += 1
+                return
+            key = ini.finish(reply.ok.payload.to_bytes())
+            if isinstance(key, PairingFailed):
+                self.events.write("pair_failed", drone=view.name, reason=key.reason)
+                return
+            self._install(view, key, now)
+            self.events.write("paired", drone=view.name)
+            print(f"zdrone gs {self.name}: paired with {view.name}", flush=True)
+            return
+        self.counters["pair_no_answer"] += 1
+
+    # --------------------------------------------------------------- key sharing
+    def _serve_linkkeys(self, now: float) -> None:
+        while True:
+            q = self.linkkey_q.try_recv()
+            if q is None:
+                return
+            try:
+                self._answer_linkkey(q, now)
+            finally:
+                q.drop()
+
+    def _answer_linkkey(self, q: zenoh.Query, now: float) -> None:
+        drone = kx.gs_of(q.key_expr)
+        try:
+            req = msgspec.json.decode(q.payload.to_bytes() if q.payload else b"", type=LinkKeyRequest)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            self.counters["linkkey_malformed"] += 1
+            q.reply_err(b"malformed request")
+            return
+        asker = self.fleet.nodes.get(req.asker)
+        if (drone not in self.views or asker is None or asker.role != "gs"
+                or not self.fleet.is_authorized(drone, req.asker) or not self.fleet.is_authorized(drone, self.name)):
+            self.counters["linkkey_refused"] += 1
+            self.events.write("linkkey_refused", drone=drone, asker=req.asker)
+            q.reply_err(b"not authorized")
+            return
+        secret = os.urandom(32)
+        view = self.views[drone]
+        self._install(view, LinkKey.from_secret(drone, self.name, secret), now)
+        q.reply(q.key_expr, seal_secret(secret, asker.public_bytes, drone, self.name, req.asker))
+        self.events.write("linkkey_shared", drone=drone, asker=req.asker)
+        log.info("link key for (%s, %s) shared with %s", drone, self.name, req.asker)
+
+    def _share_keys(self, view: DroneView, now: float) -> None:
+        """As authority: fetch the other authorized GSs' link keys and grant them to the drone."""
+        others = [g for g in self.fleet.nodes[view.name].authorized_gs if g != self.name]
+        for g in others:
+            if g in view.granted or g in view.grants or now - view.last_share_try < 2.0:
+                continue
+            view.last_share_try = now
+            payload = msgspec.json.encode(LinkKeyRequest(self.name))
+            for reply in self.session.get(kx.linkkey(g, view.name), payload=payload, timeout=3.0):
+                if reply.ok is None:
+                    continue
+                secret = open_secret(reply.ok.payload.to_bytes(), self.secret.identity, view.name, g, self.name)
+                if secret is None:
+                    self.counters["linkkey_bad_reply"] += 1
+                    continue
+                self._grant_id += 1
+                view.grants[g] = wire.KeyGrant(g, self.fleet.nodes[g].sysid, secret, self._grant_id)
+                view.grant_sent = 0.0
+                break
+        if view.grants and now - view.grant_sent >= 1.0:
+            view.grant_sent = now
+            for grant in view.grants.values():
+                self.send_control(view, grant)
+
+    # ----------------------------------------------------------------- receiving
+    def _on_envelope(self, drone: str, data: bytes, now: float) -> None:
+        view = self.views.get(drone)
+        if view is None or view.link is None:
+            self.counters["no_link"] += 1
+            return
+        res = view.link.open(data, now)
+        if isinstance(res, Dropped):
+            return
+        if res.control is not None:
+            self._on_control(view, res.control, now)
+            return
+        for listener in self.frame_listeners:
+            listener(drone, res.plaintext)
+        msg = self.codec.decode(res.plaintext)
+        if msg is None:
+            return
+        t = msg.get_type()
+        if t == "GLOBAL_POSITION_INT":
+            view.position = GeoPoint(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
+        elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            view.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+            view.custom_mode = msg.custom_mode
+        elif t == "EXTENDED_SYS_STATE":
+            view.landed_state = msg.landed_state
+        elif t == "MISSION_CURRENT":
+            view.mission_seq = msg.seq
+        elif t == "STATUSTEXT":
+            self.events.write("vehicle_text", drone=drone, text=msg.text)
+        if view.uploader is not None:
+            for out in view.uploader.on_message(msg, now, self.sysid):
+                self.send_msg(view, out)
+        if t == "COMMAND_ACK" and msg.target_system == self.sysid:
+            self._on_ack(view, msg, now)
+
+    def _on_control(self, view: DroneView, msg: wire.Control, now: float) -> None:
+        if isinstance(msg, wire.AuthorityStatus):
+            changed = (msg.owner, msg.epoch, msg.state, msg.pending_to) != (view.owner, view.epoch, view.ha_state, view.pending_to)
+            was_mine = view.owner == self.name
+            view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, msg.state, msg.pending_to
+            if changed:
+                self.events.write("authority_status", drone=view.name, owner=msg.owner, epoch=msg.epoch,
+                                  state=msg.state, pending_to=msg.pending_to)
+            if (was_mine and msg.owner == self.name and view.released_epoch == msg.epoch and msg.pending_to is None
+                    and msg.state == "linked" and now - view.release_sent > 0.5 and view.handover_failed_epoch != msg.epoch):
+                self._handover_failed(view, now)
+        elif isinstance(msg, wire.KeyGrantAck):
+            if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
+                del view.grants[msg.gs]
+                view.granted.add(msg.gs)
+                self.events.write("key_granted", drone=view.name, gs=msg.gs)
+        elif isinstance(msg, wire.Reject):
+            self.events.write("rejected", drone=view.name, what=msg.what, reason=msg.reason)
+            log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
+        elif isinstance(msg, wire.FailsafeNotice):
+            self.events.write("failsafe_notice", drone=view.name, action=msg.action, reason=msg.reason)
+            log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
+
+    def _handover_failed(self, view: DroneView, now: float) -> None:
+        view.handover_failed_epoch = view.epoch
+        view.released_epoch = -1
+        self.events.write("handover_failed", drone=view.name, epoch=view.epoch, action="RTL")
+        log.warning("hand-over of %s failed: authority stays here; commanding RTL", view.name)
+        self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0))
+
+    def _on_ack(self, view: DroneView, msg: Any, now: float) -> None:
+        ok = msg.result == mav.MAV_RESULT_ACCEPTED
+        if view.flight_stage == "arming" and msg.command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            view.flight_stage, view.stage_time = ("starting" if ok else "failed"), now
+            if ok:
+                self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, mav.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0))
+        elif view.flight_stage == "starting" and msg.command == mav.MAV_CMD_MISSION_START:
+            view.flight_stage, view.stage_time = ("flying" if ok else "failed"), now
+            self.events.write("mission_started" if ok else "mission_start_failed", drone=view.name, result=msg.result)
+
+    # ----------------------------------------------------------------- flying
+    def _fly(self, view: DroneView, now: float) -> None:
+        if self.opts.mission is None or not self.holds_authority(view) or view.grants:
+            return
+        if view.flight_stage == "idle":
+            view.uploader = MissionUploader(self.opts.mission, target=(view.sysid, 1))
+            for m in view.uploader.start(now):
+                self.send_msg(view, m)
+            view.flight_stage, view.stage_time = "uploading", now
+            self.events.write("mission_upload", drone=view.name, items=len(self.opts.mission))
+        elif view.flight_stage == "uploading" and view.uploader is not None:
+            for m in view.uploader.tick(now):
+                self.send_msg(view, m)
+            if view.uploader.done:
+                if view.uploader.accepted:
+                    view.flight_stage, view.stage_time = "arming", now
+                    self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0))
+                else:
+                    view.flight_stage = "failed"
+                    self.events.write("mission_upload_failed", drone=view.name, result=view.uploader.result)
+        elif view.flight_stage in ("arming", "starting") and now - view.stage_time > 3.0:
+            view.flight_stage = "idle"  # no answer: start over
+
+    def _coordinate(self, view: DroneView, now: float) -> None:
+        """Release authority toward the GS whose coverage the drone is flying into."""
+        if view.owner != self.name or view.position is None or self.coverage is None:
+            return
+        if view.released_epoch == view.epoch and now - view.release_sent < 1.0:
+            return
+        if view.handover_failed_epoch == view.epoch:
+            return
+        here = GeoPoint(view.position.lat, view.position.lon)
+        if not self.coverage.contains(here):
+            return
+        mine = distance_m(self.coverage.centre, here)
+        for g in self.fleet.nodes[view.name].authorized_gs:
+            other = self.fleet.nodes[g]
+            if g == self.name or other.coverage is None:
+                continue
+            circle = other.coverage.circle()
+            if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
+                if view.released_epoch != view.epoch:
+                    self.events.write("handover_release", drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])
+                    self.session.put(kx.handover(view.name), msgspec.json.encode(
+                        {"from": self.name, "to": g, "epoch": view.epoch, "mission_seq": view.mission_seq}))
+                view.released_epoch, view.release_sent = view.epoch, now
+                self.send_control(view, wire.HandoverRelease(g, view.epoch))
+                return
+
+    def _command_stream(self, view: DroneView, now: float, last: dict[str, float]) -> None:
+        if self.opts.command_rate <= 0 or not self.holds_authority(view) or view.flight_stage != "flying":
+            return
+        if now - last.get(view.name, 0.0) < 1.0 / self.opts.command_rate:
+            return
+        last[view.name] = now
+        view.commands_sent[view.epoch] += 1
+        self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                             mav.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0))
+
+    # -------------------------------------------------------------------- loop
+    def status(self) -> dict[str, Any]:
+        out = {}
+        for d, v in self.views.items():
+            out[d] = {"linked": v.link is not None, "owner": v.owner, "epoch": v.epoch, "state": v.ha_state,
+                      "stage": v.flight_stage, "position": [v.position.lat, v.position.lon, v.position.alt] if v.position else None,
+                      "commands_sent": {str(k): c for k, c in v.commands_sent.items()},
+                      "link": None if v.link is None else {"opened": v.link.opened, "sent": v.link.sent,
+                                                             "dropped": {r.value: c for r, c in v.link.drops.items() if c}}}
+        return {"drones": out, "counters": dict(self.counters)}
+
+    def stop(self, *_: object) -> None:
+        self._running = False
+
+    def step(self, now: float, last_cmd: dict[str, float], hb_due: list[float]) -> None:
+        """One pass of the loop (also used by the GCS gateway's own loop)."""
+        self._serve_linkkeys(now)
+        for view in self.views.values():
+            if view.link is None and self.opts.pair:
+                self._try_pair(view, now)
+            if view.link is None:
+                continue
+            if view.owner == self.name:
+                self._share_keys(view, now)
+            self._fly(view, now)
+            self._coordinate(view, now)
+            self._command_stream(view, now, last_cmd)
+        if now >= hb_due[0]:
+            hb_due[0] = now + 1.0 / self.opts.heartbeat_hz
+            for view in self.views.values():
+                self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                                  mav.MAV_STATE_ACTIVE, 3))
+
+    def drain(self, timeout: float) -> None:
+        try:
+            first = self.rx.get(timeout=timeout)
+        except queue.Empty:
+            return
+        self._on_envelope(first[0], first[1], time.monotonic())
+        for _ in range(512):
+            try:
+                d, data = self.rx.get_nowait()
+            except queue.Empty:
+                return
+            self._on_envelope(d, data, time.monotonic())
+
+    def run(self) -> None:
+        print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)
+        self.events.write("start", drones=list(self.views))
+        last_cmd: dict[str, float] = {}
+        hb_due = [0.0]
+        next_status = 0.0
+        try:
+            while self._running:
+                self.drain(0.01)
+                now = time.monotonic()
+                self.step(now, last_cmd, hb_due)
+                if now >= next_status:
+                    next_status = now + self.opts.status_period
+                    self.events.write("status", **self.status())
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        self.events.write("stop", **self.status())
+        self.sub.undeclare()
+        self.linkkey_q.undeclare()
+        self.session.close()
+        self.events.close()
+
+
+def run_station(opts: StationOptions) -> int:
+    station = GroundStation(opts)
+    signal.signal(signal.SIGTERM, station.stop)
+    signal.signal(signal.SIGINT, station.stop)
+    station.run()
+    return 0

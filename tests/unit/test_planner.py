@@ -1,0 +1,59 @@
+import json
+
+import pytest
+from pymavlink.dialects.v20 import common as mav
+
+from gs.planner import MissionUploader, load_plan, reference_mission
+from tests.simpair import SimPair
+from zdrone.core.fleet import ConfigError
+from zdrone.core.geometry import distance_m
+from zdrone.core.reference import DELIVERY, HOME
+
+
+def test_reference_mission_uploads_to_the_sim_and_delivers():
+    s = SimPair()
+    up = MissionUploader(reference_mission(), target=(1, 1))
+    out = up.start(0.0)
+    for _ in range(50):
+        for m in out:
+            s.send(m)
+        out = []
+        for m in list(s.inbox):
+            out += up.on_message(m, 0.0, 255)
+        s.inbox.clear()
+        if up.done:
+            break
+    assert up.accepted
+    s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    s.command(mav.MAV_CMD_MISSION_START, 0, 0)
+    assert s.run_until(lambda: s.sim.payload_released, 300)
+    assert distance_m(DELIVERY, s.sim.position) < 2.0
+    assert s.run_until(lambda: not s.sim.armed, 300)
+    assert distance_m(HOME, s.sim.position) < 2.0
+
+
+def test_uploader_retries_then_gives_up():
+    up = MissionUploader(reference_mission(), retry_s=1.0, max_retries=2)
+    up.start(0.0)
+    assert up.tick(0.5) == []
+    assert len(up.tick(1.1)) == 1 and len(up.tick(2.2)) == 1
+    assert up.tick(3.3) == [] and up.result == mav.MAV_MISSION_OPERATION_CANCELLED
+
+
+def test_load_qgc_plan(tmp_path):
+    plan = {"fileType": "Plan", "version": 1, "mission": {"items": [
+        {"type": "SimpleItem", "command": 22, "frame": 3, "params": [0, 0, 0, None, HOME.lat, HOME.lon, 20], "autoContinue": True},
+        {"type": "SimpleItem", "command": 16, "frame": 3, "params": [0, 0, 0, None, DELIVERY.lat, DELIVERY.lon, 20]},
+        {"type": "SimpleItem", "command": 20, "frame": 2, "params": [0, 0, 0, 0, 0, 0, 0]},
+    ], "plannedHomePosition": [HOME.lat, HOME.lon, 488]}}
+    f = tmp_path / "m.plan"
+    f.write_text(json.dumps(plan))
+    items = load_plan(f)
+    assert [i.command for i in items] == [22, 16, 20]
+    plan["mission"]["items"].append({"type": "ComplexItem", "complexItemType": "survey"})
+    f.write_text(json.dumps(plan))
+    with pytest.raises(ConfigError, match=r"items\[3\]"):
+        load_plan(f)
+    f.write_text("{")
+    with pytest.raises(ConfigError, match="not a readable"):
+        load_plan(f)

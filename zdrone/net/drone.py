@@ -1,0 +1,354 @@
+"""``zdrone drone``: the onboard companion node (vehicle link + security module + handover authority).
+
+One thread owns everything: Zenoh callbacks only put received samples on a queue (they never
+block and never call Zenoh); the main loop opens envelopes, feeds the ``AuthorityMachine``, carries
+out its actions, forwards vehicle telemetry to the GSs the machine talks to, and polls each link's
+TBM so that a silent authority link is noticed within one loop period (5 ms) of the threshold.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import signal
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+from pymavlink.dialects.v20 import common as mav
+
+from ..core import authority as ha
+from ..core.envelope import Dropped, Opened, SecureLink
+from ..core.fleet import ConfigError
+from ..core.geometry import GeoPoint
+from ..core.keys import LinkKey
+from ..core.pairing import PairingFailed, respond
+from ..core.tbm import TbmThresholds
+from ..core import wire
+from ..core.wire import KeyGrant, KeyGrantAck
+from ..fleetfiles import load_fleet, load_secret
+from ..sil.coverage import CoverageGate
+from ..vehicle.link import VehicleLink
+from . import keyexprs as kx
+from .eventlog import EventLog
+from .session import open_client
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class DroneOptions:
+    drone: str
+    fleet: str
+    router: str
+    vehicle: str
+    thresholds: TbmThresholds = TbmThresholds()
+    failsafe: str = "LAND"
+    handover_timeout: float = 5.0
+    sil_coverage: bool = False
+    events: str | None = None
+    status_period: float = 0.5
+
+
+class DroneNode:
+    """The companion computer of one drone."""
+
+    def __init__(self, opts: DroneOptions) -> None:
+        self.opts = opts
+        self.fleet = load_fleet(opts.fleet)
+        node = self.fleet.nodes.get(opts.drone)
+        if node is None or node.role != "drone":
+            raise ConfigError(f"--id {opts.drone}: not a drone of the fleet ({', '.join(self.fleet.drones())})")
+        self.name = opts.drone
+        self.sysid = node.sysid
+        self.secret = load_secret(opts.fleet, opts.drone, self.fleet)
+        self.events = EventLog(opts.events, opts.drone)
+        self.machine = ha.AuthorityMachine(ha.Config(frozenset(node.authorized_gs), opts.handover_timeout, opts.failsafe))
+        self.gate = CoverageGate(self.fleet) if opts.sil_coverage else None
+        self.links: dict[str, SecureLink] = {}
+        self.candidates: dict[str, LinkKey] = {}
+        self.rx: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.subs: dict[str, Any] = {}
+        self.counters: Counter[str] = Counter()
+        self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
+        self._running = True
+        self._inside: frozenset[str] = frozenset()
+        self.vehicle = VehicleLink(opts.vehicle, companion_sysid=self.sysid)
+        self.session = open_client(opts.router, opts.drone, self.secret.router_password)
+        self.pairing = self.session.declare_queryable(kx.pair_all(self.name))
+
+    # ------------------------------------------------------------------ zenoh
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        # Zenoh thread: hand over and return at once.
+        self.rx.put((kx.gs_of(sample.key_expr), sample.payload.to_bytes()))
+
+    def _subscribe(self, gs: str) -> None:
+        if gs not in self.subs:
+            self.subs[gs] = self.session.declare_subscriber(kx.up(self.name, gs), self._on_sample)
+            self.events.write("subscribe", gs=gs)
+
+    def _unsubscribe(self, gs: str) -> None:
+        sub = self.subs.pop(gs, None)
+        if sub is not None:
+            sub.undeclare()
+            self.events.write("unsubscribe", gs=gs)
+
+    def _publish(self, gs: str, payload: bytes) -> None:
+        if self.gate is not None and not self.gate.allow(gs, "down"):
+            return
+        # session.put, not a declared publisher: through an ACL router (zenoh 1.10) a declared
+        # publisher's samples after the first are not delivered; session.put's are.
+        self.session.put(kx.down(self.name, gs), payload)
+
+    # ------------------------------------------------------------------ links
+    def _install(self, gs: str, key: LinkKey, now: float) -> None:
+        self.links[gs] = SecureLink(
+            key=key, role="drone", tx_keyexpr=kx.down(self.name, gs), rx_keyexpr=kx.up(self.name, gs),
+            peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds,
+            authorize=lambda g: self.fleet.is_authorized(self.name, g))
+        self.events.write("link_installed", gs=gs)
+
+    def _send_control(self, gs: str, msg: Any) -> None:
+        link = self.links.get(gs)
+        if link is not None:
+            self._publish(gs, link.seal_control(msg))
+
+    def _on_ground(self) -> bool:
+        return not self.vehicle.armed or self.vehicle.landed_state == mav.MAV_LANDED_STATE_ON_GROUND
+
+    # ------------------------------------------------------------------ events
+    def _apply(self, actions: list[ha.Action], now: float, frame: bytes | None = None) -> None:
+        for a in actions:
+            if isinstance(a, ha.Forward):
+                if frame is not None:
+                    self.vehicle.send(frame)
+            elif isinstance(a, ha.DropFrame):
+                self.counters[f"ha_drop:{a.reason.value}"] += 1
+                log.info("HA dropped a frame from %s: %s", a.gs, a.reason.value)
+            elif isinstance(a, ha.SendControl):
+                self._send_control(a.gs, a.msg)
+            elif isinstance(a, ha.Subscribe):
+                self._subscribe(a.gs)
+            elif isinstance(a, ha.Unsubscribe):
+                self._unsubscribe(a.gs)
+            elif isinstance(a, ha.InstallKey):
+                key = self.candidates.pop(a.gs, None)
+                if key is not None:
+                    self._install(a.gs, key, now)
+            elif isinstance(a, ha.CommandVehicle):
+                self._failsafe(a, now)
+            elif isinstance(a, ha.AuthorityChanged):
+                kind = "handover_complete" if a.kind in ("handover", "emergency") else "authority"
+                self.events.write(kind, **{"from": a.old, "to": a.new, "epoch": a.epoch, "kind": a.kind,
+                                           "time": round(time.time(), 4), "position": self._pos()})
+                log.warning("authority %s -> %s (epoch %d, %s)", a.old, a.new, a.epoch, a.kind)
+            elif isinstance(a, ha.Note):
+                self.events.write(a.kind, detail=a.detail, position=self._pos())
+                log.info("%s: %s", a.kind, a.detail)
+
+    def _failsafe(self, a: ha.CommandVehicle, now: float) -> None:
+        (self.vehicle.command_land if a.command == "LAND" else self.vehicle.command_rtl)()
+        owner_link = self.links.get(self.machine.owner or "")
+        latency = None
+        if owner_link is not None and owner_link.tbm.last_seen is not None:
+            latency = (now - owner_link.tbm.last_seen - self.opts.thresholds.lost) * 1000.0
+        self.events.write("failsafe", action=a.command, reason=a.reason, detect_to_command_ms=latency, position=self._pos())
+        log.warning("FAILSAFE: %s (%s), %.1f ms after the threshold", a.command, a.reason, latency or -1)
+
+    def _pos(self) -> list[float] | None:
+        p = self.vehicle.position
+        return [round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)] if p else None
+
+    def _handle(self, event: ha.Event, frame: bytes | None = None) -> None:
+        self._apply(self.machine.handle(event), event.now, frame)
+
+    # --------------------------------------------------------------- receiving
+    def _on_envelope(self, gs: str, data: bytes, now: float) -> None:
+        if self.gate is not None and not self.gate.allow(gs, "up"):
+            return
+        link = self.links.get(gs)
+        if link is None:
+            self.counters["no_link"] += 1
+            return
+        res = link.open(data, now)
+        if isinstance(res, Dropped):
+            self.events.write("drop", gs=gs, reason=res.reason.value, detail=res.detail) if link.drops[res.reason] <= 5 else None
+            return
+        assert isinstance(res, Opened)
+        if res.header is not None:
+            if res.header.commanding and self.machine.owner == gs:
+                self.forwarded[gs] += 1
+            self._handle(ha.Frame(now, gs, res.header.commanding), res.plaintext)
+            return
+        msg = res.control
+        if isinstance(msg, KeyGrant):
+            self._on_grant(gs, msg, now)
+        elif isinstance(msg, wire.HandoverRelease):
+            self._handle(ha.Release(now, gs, msg.to, msg.epoch))
+        elif isinstance(msg, wire.HandoverRequest):
+            self._handle(ha.HandoverRequest(now, gs, msg.to))
+        else:
+            self.counters[f"control_ignored:{type(msg).__name__}"] += 1
+
+    def _on_grant(self, sender: str, msg: KeyGrant, now: float) -> None:
+        target = self.fleet.nodes.get(msg.gs)
+        if target is None or target.role != "gs" or target.sysid != msg.sysid or len(msg.secret) != 32:
+            self.counters["bad_grant"] += 1
+            self._send_control(sender, wire.Reject("key_grant", f"unknown ground station or sysid: {msg.gs}/{msg.sysid}"))
+            return
+        key = LinkKey.from_secret(self.name, msg.gs, msg.secret)
+        current = self.links.get(msg.gs)
+        if current is not None and current.key.same_as(key):
+            self._send_control(sender, KeyGrantAck(msg.gs, msg.grant_id))  # a repeated grant
+            return
+        self.candidates[msg.gs] = key
+        self._handle(ha.KeyGranted(now, sender, msg.gs))
+        if msg.gs not in self.candidates and msg.gs in self.links:
+            self._send_control(sender, KeyGrantAck(msg.gs, msg.grant_id))
+        self.candidates.pop(msg.gs, None)
+
+    def _serve_pairing(self, now: float) -> None:
+        while True:
+            q = self.pairing.try_recv()
+            if q is None:
+                return
+            try:
+                self._pair(q, now)
+            finally:
+                q.drop()
+
+    def _pair(self, q: zenoh.Query, now: float) -> None:
+        gs = kx.gs_of(q.key_expr)
+        node = self.fleet.nodes.get(gs)
+        if node is None or node.role != "gs" or q.payload is None:
+            self.counters["pair_unknown"] += 1
+            self.events.write("pair_failed", gs=gs, reason="not a ground station of the fleet")
+            q.reply_err(b"not a ground station of the fleet")
+            return
+        out = respond(self.secret.identity, self.name, gs, node.public_bytes, q.payload.to_bytes(), os.urandom(32))
+        if isinstance(out, PairingFailed):
+            self.counters["pair_failed"] += 1
+            self.events.write("pair_failed", gs=gs, reason=out.reason)
+            log.warning("pairing with %s failed: %s", gs, out.reason)
+            q.reply_err(out.reason.encode())
+            return
+        msg2, key = out
+        self.candidates[gs] = key
+        actions = self.machine.handle(ha.Paired(now, gs, self._on_ground()))
+        refused = [a for a in actions if isinstance(a, ha.SendControl) and a.gs == gs and isinstance(a.msg, wire.Reject)]
+        if refused:
+            self.candidates.pop(gs, None)
+            reason = refused[0].msg.reason  # type: ignore[attr-defined]
+            self.counters["pair_refused"] += 1
+            self.events.write("pair_refused", gs=gs, reason=reason)
+            log.warning("pairing with %s refused by the handover authority: %s", gs, reason)
+            q.reply_err(reason.encode())
+            return
+        if gs in self.candidates:  # first pairing: install before the actions that use the link
+            self._install(gs, self.candidates.pop(gs), now)
+        q.reply(q.key_expr, msg2)
+        self.events.write("paired", gs=gs)
+        self._apply([a for a in actions if not isinstance(a, ha.InstallKey)], now)
+
+    # -------------------------------------------------------------------- loop
+    def _telemetry(self, frames: list[bytes]) -> None:
+        targets = self.machine.telemetry_targets()
+        for f in frames:
+            for gs in targets:
+                link = self.links.get(gs)
+                if link is not None:
+                    self._publish(gs, link.seal(f))
+
+    def _region(self, now: float) -> None:
+        pos = self.vehicle.position
+        if self.gate is not None:
+            self.gate.update(pos)
+        if pos is None:
+            return
+        inside = frozenset(name for name, n in self.fleet.nodes.items()
+                           if n.role == "gs" and n.coverage and n.coverage.circle().contains(GeoPoint(pos.lat, pos.lon)))
+        if inside != self._inside:
+            self._inside = inside
+            self._handle(ha.RegionChanged(now, inside))
+
+    def _poll_links(self, now: float) -> None:
+        for gs, link in list(self.links.items()):
+            st = link.tbm.poll(now)
+            if st is not None:
+                self.events.write("link_state", gs=gs, state=st.value)
+                self._handle(ha.LinkChanged(now, gs, st))
+
+    def status(self, now: float) -> dict[str, Any]:
+        m = self.machine
+        v = self.vehicle.state()
+        return {
+            "owner": m.owner, "epoch": m.epoch, "state": m.state.value, "pending_to": m.pending_to,
+            "position": self._pos(), "armed": v.armed, "mode": v.mode, "landed_state": v.landed_state,
+            "in_region": m.in_region, "subscribed": sorted(m.subscribed),
+            "links": {gs: {"state": link.tbm.state(now).value, "since_last": round(link.tbm.since_last(now), 3),
+                           "opened": link.opened, "sent": link.sent,
+                           "dropped": {r.value: c for r, c in link.drops.items() if c}}
+                      for gs, link in self.links.items()},
+            "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
+            "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
+            "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
+        }
+
+    def stop(self, *_: object) -> None:
+        self._running = False
+
+    def run(self) -> None:
+        print(f"zdrone drone {self.name}: vehicle {self.opts.vehicle}, router {self.opts.router}", flush=True)
+        self.events.write("start", vehicle=self.opts.vehicle)
+        if not self.vehicle.wait_vehicle(30.0):
+            raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
+        print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
+        next_status = 0.0
+        try:
+            while self._running:
+                try:
+                    first = self.rx.get(timeout=0.005)
+                except queue.Empty:
+                    first = None
+                now = time.monotonic()
+                if first is not None:
+                    self._on_envelope(first[0], first[1], now)
+                    for _ in range(512):
+                        try:
+                            gs, data = self.rx.get_nowait()
+                        except queue.Empty:
+                            break
+                        self._on_envelope(gs, data, time.monotonic())
+                self._serve_pairing(now)
+                self.vehicle.heartbeat(now)
+                self._telemetry(self.vehicle.recv(0.0))
+                self._region(now)
+                self._poll_links(now)
+                self._handle(ha.Tick(now))
+                if now >= next_status:
+                    next_status = now + self.opts.status_period
+                    self.events.write("status", **self.status(now))
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        now = time.monotonic()
+        self.events.write("stop", **self.status(now))
+        for gs in list(self.subs):
+            self._unsubscribe(gs)
+        self.pairing.undeclare()
+        self.session.close()
+        self.vehicle.close()
+        self.events.close()
+
+
+def run_drone(opts: DroneOptions) -> int:
+    node = DroneNode(opts)
+    signal.signal(signal.SIGTERM, node.stop)
+    signal.signal(signal.SIGINT, node.stop)
+    node.run()
+    return 0
+
