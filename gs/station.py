@@ -33,7 +33,7 @@ from zdrone.core.fleet import ConfigError
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.keys import LinkKey
 from zdrone.core.keyshare import LinkKeyRequest, open_secret, seal_secret
-from zdrone.core.mavlink import FrameCodec
+from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.fleetfiles import load_fleet, load_secret
 from zdrone.net import keyexprs as kx
@@ -78,6 +78,7 @@ class DroneView:
     epoch: int = 0
     ha_state: str = "unknown"
     pending_to: str | None = None
+    drone_links: set[str] = field(default_factory=set)  # GSs the drone already holds keys for
     grants: dict[str, wire.KeyGrant] = field(default_factory=dict)  # gs -> grant not yet acknowledged
     granted: set[str] = field(default_factory=set)
     grant_sent: float = 0.0
@@ -133,6 +134,8 @@ class GroundStation:
     def send_frame(self, view: DroneView, frame: bytes) -> None:
         """Seal and send one MAVLink frame to the drone (no-op without a link)."""
         if view.link is not None:
+            if read_header(frame).commanding:
+                view.commands_sent[view.epoch] += 1  # every commanding frame, to check none is lost
             self.session.put(kx.up(view.name, self.name), view.link.seal(frame))  # see DroneNode._publish
 
     def send_msg(self, view: DroneView, msg: Any) -> None:
@@ -206,7 +209,7 @@ class GroundStation:
         """As authority: fetch the other authorized GSs' link keys and grant them to the drone."""
         others = [g for g in self.fleet.nodes[view.name].authorized_gs if g != self.name]
         for g in others:
-            if g in view.granted or g in view.grants or now - view.last_share_try < 2.0:
+            if g in view.drone_links or g in view.granted or g in view.grants or now - view.last_share_try < 2.0:
                 continue
             view.last_share_try = now
             payload = msgspec.json.encode(LinkKeyRequest(self.name))
@@ -266,6 +269,7 @@ class GroundStation:
             changed = (msg.owner, msg.epoch, msg.state, msg.pending_to) != (view.owner, view.epoch, view.ha_state, view.pending_to)
             was_mine = view.owner == self.name
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, msg.state, msg.pending_to
+            view.drone_links = set(msg.linked)
             if changed:
                 self.events.write("authority_status", drone=view.name, owner=msg.owner, epoch=msg.epoch,
                                   state=msg.state, pending_to=msg.pending_to)
@@ -351,12 +355,11 @@ class GroundStation:
                 return
 
     def _command_stream(self, view: DroneView, now: float, last: dict[str, float]) -> None:
-        if self.opts.command_rate <= 0 or not self.holds_authority(view) or view.flight_stage != "flying":
+        if self.opts.command_rate <= 0 or not self.holds_authority(view) or not view.armed:
             return
         if now - last.get(view.name, 0.0) < 1.0 / self.opts.command_rate:
             return
         last[view.name] = now
-        view.commands_sent[view.epoch] += 1
         self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0,
                                                              mav.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0))
 

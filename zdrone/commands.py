@@ -140,3 +140,33 @@ def add_gs(sub: argparse._SubParsersAction) -> None:
 
 _EXTRA_COMMANDS.append(add_drone)
 _EXTRA_COMMANDS.append(add_gs)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .sil.launcher import DemoOptions, run_demo
+
+    live = True if args.live else (False if args.no_live else None)
+    return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=args.speedup,
+                                live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report))
+
+
+def add_demo(sub: argparse._SubParsersAction) -> None:
+    from .sil.launcher import SCENARIOS
+
+    p = sub.add_parser("demo", help="fly the reference flight with router, sim, drone and two GSs as processes")
+    p.add_argument("--scenario", choices=SCENARIOS, default="nominal", help="nominal flight, or an attack / fault case")
+    p.add_argument("--out", metavar="DIR", help="output folder (default: a fresh runs/demo-... folder)")
+    p.add_argument("--speedup", type=positive, default=2.0, help="simulator speed-up (default 2)")
+    p.add_argument("--timeout", type=positive, default=None, metavar="S", help="give up after S wall seconds")
+    p.add_argument("--command-rate", type=float, default=5.0, metavar="HZ",
+                   help="command stream of the authority GS, to check none is lost across hand-overs (5 Hz)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--live", action="store_true", help="force the live view")
+    g.add_argument("--no-live", action="store_true", help="plain event lines (default when not a terminal)")
+    p.add_argument("--no-report", action="store_true", help="do not write the HTML flight report")
+    p.set_defaults(func=_demo)
+
+
+_EXTRA_COMMANDS.append(add_demo)

@@ -249,7 +249,7 @@ class AuthorityMachine:
         return sorted(self.subscribed)
 
     def status(self) -> AuthorityStatus:
-        return AuthorityStatus(self.owner, self.epoch, self.state.value, self.pending_to)
+        return AuthorityStatus(self.owner, self.epoch, self.state.value, self.pending_to, sorted(self.links))
 
     # ------------------------------------------------------------------- engine
     def handle(self, event: Event) -> list[Action]:

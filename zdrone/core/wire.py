@@ -50,6 +50,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     epoch: int
     state: str
     pending_to: str | None = None
+    linked: list[str] = []  # GSs the drone holds a link key for
 
 
 class Reject(Control, frozen=True, tag="reject"):
