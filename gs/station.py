@@ -87,6 +87,7 @@ class DroneView:
     stage_time: float = 0.0
     released_epoch: int = -1
     release_sent: float = 0.0
+    release_confirmed: bool = False  # the drone reported HANDOVER_PENDING for our release
     handover_failed_epoch: int = -1
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
     last_pair_try: float = -1e9
@@ -273,9 +274,11 @@ class GroundStation:
             if changed:
                 self.events.write("authority_status", drone=view.name, owner=msg.owner, epoch=msg.epoch,
                                   state=msg.state, pending_to=msg.pending_to)
-            if (was_mine and msg.owner == self.name and view.released_epoch == msg.epoch and msg.pending_to is None
-                    and msg.state == "linked" and now - view.release_sent > 0.5 and view.handover_failed_epoch != msg.epoch):
-                self._handover_failed(view, now)
+            if was_mine and msg.owner == self.name and view.released_epoch == msg.epoch:
+                if msg.state == "handover_pending":
+                    view.release_confirmed = True
+                elif msg.state == "linked" and view.release_confirmed and view.handover_failed_epoch != msg.epoch:
+                    self._handover_failed(view, now)  # timed out or aborted: authority stayed here
         elif isinstance(msg, wire.KeyGrantAck):
             if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
                 del view.grants[msg.gs]
@@ -332,10 +335,10 @@ class GroundStation:
         """Release authority toward the GS whose coverage the drone is flying into."""
         if view.owner != self.name or view.position is None or self.coverage is None:
             return
-        if view.released_epoch == view.epoch and now - view.release_sent < 1.0:
-            return
         if view.handover_failed_epoch == view.epoch:
             return
+        if view.released_epoch == view.epoch and (view.release_confirmed or now - view.release_sent < 1.0):
+            return  # released: wait for the drone (re-send only if it never confirmed)
         here = GeoPoint(view.position.lat, view.position.lon)
         if not self.coverage.contains(here):
             return
@@ -347,6 +350,7 @@ class GroundStation:
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
                 if view.released_epoch != view.epoch:
+                    view.release_confirmed = False
                     self.events.write("handover_release", drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])
                     self.session.put(kx.handover(view.name), msgspec.json.encode(
                         {"from": self.name, "to": g, "epoch": view.epoch, "mission_seq": view.mission_seq}))
@@ -431,6 +435,7 @@ class GroundStation:
         self.sub.undeclare()
         self.linkkey_q.undeclare()
         self.session.close()
+        self.events.write("closed")
         self.events.close()
 
 

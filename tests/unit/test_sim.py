@@ -269,3 +269,15 @@ def test_gcs_codec_cross_check():
     codec = FrameCodec(200)
     for f in s.sim.drain() or [s.gcs.encode(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))]:
         assert codec.decode(f) is not None
+
+
+def test_land_command_lands_where_the_vehicle_is():
+    s = SimPair()
+    s.upload(four_waypoints())
+    s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    s.command(mav.MAV_CMD_MISSION_START, 0, 0)
+    assert s.run_until(lambda: s.sim.k.north > 50, 60)
+    here = s.sim.position
+    s.command(mav.MAV_CMD_NAV_LAND)
+    assert s.run_until(lambda: not s.sim.armed, 60)
+    assert distance_m(here, s.sim.position) < 15.0  # stops within braking distance, no further

@@ -428,7 +428,7 @@ class AuthorityMachine:
         action = self.config.failsafe_action
         self.pending_to = self.pending_deadline = None
         notice = FailsafeNotice(action, f"authority link to {ev.gs} lost")
-        acts = [CommandVehicle(action, notice.reason), Note("failsafe", notice.reason)]
+        acts = [CommandVehicle(action, notice.reason), Note("failsafe_entered", notice.reason)]
         acts += [SendControl(g, notice) for g in sorted(self.links)]
         return State.FAILSAFE, acts
 

@@ -342,6 +342,7 @@ class DroneNode:
         self.pairing.undeclare()
         self.session.close()
         self.vehicle.close()
+        self.events.write("closed")
         self.events.close()
 
 

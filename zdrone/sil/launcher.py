@@ -129,8 +129,11 @@ class Demo:
         self.wait_line(r, "listening", 20)
         sim = self.start("sim", z + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", str(o.speedup)])
         self.wait_line(sim, "zdrone sim:", 20)
+        # Timers are wall-clock while the simulator may run faster: scale the hand-over timeout so that
+        # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
+        ho_timeout = max(1.5, 5.0 / o.speedup)
         drone = self.start("drone", z + ["drone", "--id", "d1", *common, "--vehicle", f"udpout:127.0.0.1:{sport}",
-                                         "--sil-coverage", "--events", "drone.jsonl"])
+                                         "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout", str(ho_timeout)])
         self.wait_line(drone, "ready", 40)
         b = self.start("gsB", z + ["gs", "--id", "B", *common, "--events", "B.jsonl", "--command-rate", str(o.command_rate)])
         self.wait_line(b, "zdrone gs B", 20)

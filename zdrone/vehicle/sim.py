@@ -428,6 +428,8 @@ class SimAutopilot:
             log.info("sim: mode %s -> %s", self.mode.name, mode.name)
             self.mode = mode
         self._land_since = None
+        if mode is FlightMode.LAND:  # land where we are, not at the last target
+            self.target = (self.k.north, self.k.east, -1.0)
         if mode is FlightMode.HOLD or mode is FlightMode.POSCTL:
             self.target = (self.k.north, self.k.east, self.k.alt) if not self.landed else None
 

@@ -1,0 +1,149 @@
+"""The reference flight and its attack / fault scenarios, end to end: a real Zenoh router, the
+simulator, the drone node and the ground stations as separate processes (``zdrone demo``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.procs import ZDRONE
+from zdrone.core.fleet import parse_fleet
+from zdrone.core.geometry import GeoPoint
+from zdrone.net.eventlog import read_events
+
+SPEEDUP = "4"
+
+
+def run_demo(tmp_path: Path, scenario: str) -> tuple[dict, Path]:
+    out = tmp_path / scenario
+    proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live",
+                           "--no-report"], capture_output=True, text=True, timeout=240)
+    summary = json.loads((out / "summary.json").read_text())
+    assert "Traceback" not in proc.stderr, proc.stderr
+    return summary | {"_rc": proc.returncode, "_stdout": proc.stdout}, out
+
+
+def _no_orphans(out: Path) -> None:
+    mine = []
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            try:
+                if os.readlink(f"/proc/{pid}/cwd") == str(out):
+                    mine.append(pid)
+            except OSError:
+                pass
+    assert mine == [], f"processes left running in {out}: {mine}"
+
+
+def _clean_shutdown(summary: dict, out: Path, nodes=("drone", "A", "B")) -> None:
+    for name, code in summary["exit_codes"].items():
+        if name not in ("gsA", "gsB") or code is not None:
+            assert code in (0, -9, -19) or name.startswith("gs"), (name, code)
+    for node in nodes:
+        evs = read_events(out / f"{node}.jsonl")
+        assert evs[-1]["type"] == "closed", f"{node} did not close its session"
+    _no_orphans(out)
+
+
+def _inside(fleet, gs: str, pos) -> bool:
+    return fleet.nodes[gs].coverage.circle().contains(GeoPoint(pos[0], pos[1]))
+
+
+def _exactly_one_authority(out: Path) -> None:
+    status = [e for e in read_events(out / "drone.jsonl") if e["type"] in ("status", "stop")]
+    owned = [e for e in status if e["owner"]]
+    first = status.index(owned[0])
+    assert all(e["owner"] in ("A", "B") for e in status[first:]), "an instant without an authority"
+    epochs = [e["epoch"] for e in status[first:]]
+    assert epochs == sorted(epochs)
+
+
+@pytest.mark.slow
+def test_nominal_reference_flight(tmp_path):
+    s, out = run_demo(tmp_path, "nominal")
+    assert s["_rc"] == 0 and s["ok"], s
+    fleet = parse_fleet((out / "fleet" / "fleet.json5").read_text())
+    assert [(h["from"], h["to"], h["epoch"]) for h in s["handovers"]] == [("A", "B", 2), ("B", "A", 3)]
+    for h in s["handovers"]:  # both hand-overs inside the overlap of the two coverages
+        assert _inside(fleet, "A", h["position"]) and _inside(fleet, "B", h["position"]), h
+    assert s["authority_gap_ms"] == 0.0
+    _exactly_one_authority(out)
+    c = s["commands"]
+    assert c["lost"] == 0 and c["refused_not_authority"] == 0
+    assert c["sent_as_authority"]["A"] > 0 and c["sent_as_authority"]["B"] > 0  # both commanded in their turn
+    assert c["forwarded"] == {g: n for g, n in c["sent_as_authority"].items() if n}  # none lost, none doubled
+    assert s["distance_from_home_m"] < 3.0
+    drone = read_events(out / "drone.jsonl")
+    assert any(e["type"] == "vehicle_text" and "payload released" in e["text"] for e in read_events(out / "B.jsonl")) or \
+        any(e.get("type") == "region_left" for e in drone)
+    delivery = fleet.nodes["B"].coverage
+    near_delivery = [e for e in drone if e["type"] == "status" and e["position"]
+                     and abs(e["position"][1] - delivery.lon) < 3e-5 and e["position"][2] < 0.5]
+    assert near_delivery, "the vehicle never landed at the delivery point"
+    assert s["security_drops"] == {} and s["violations"] == []
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_rogue_without_keys_is_refused_by_the_security_module(tmp_path):
+    s, out = run_demo(tmp_path, "rogue-no-key")
+    assert s["_rc"] == 0 and s["ok"], s
+    d = s["security_drops"]
+    assert d.get("unknown_epoch", 0) > 0  # unsealed MAVLink commands
+    assert d.get("auth_failed", 0) > 0  # envelopes sealed with a made-up key
+    assert d.get("replay", 0) > 0  # captured sealed frames replayed from a third process
+    assert s["pairing"].get("pair_failed", 0) >= 1  # Noise KK with the wrong static key
+    rogue = read_events(out / "rogue.jsonl")
+    assert any(e["type"] == "router_refused" for e in rogue)  # wrong router password
+    done = next(e for e in rogue if e["type"] == "attack_done")
+    assert done["plain"] > 0 and done["forged"] > 0 and done["replayed"] > 0
+    # no effect on the vehicle: it flew the whole mission and landed at home
+    assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
+    assert s["distance_from_home_m"] < 3.0 and s["commands"]["lost"] == 0
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_unauthorized_gs_is_refused_by_the_handover_authority(tmp_path):
+    s, out = run_demo(tmp_path, "rogue-unauthorized")
+    assert s["_rc"] == 0 and s["ok"], s
+    assert s["ha_rejects"].get("unauthorized", 0) >= 1
+    x = read_events(out / "X.jsonl")
+    assert any(e["type"] == "pair_refused" and "not authorized" in e["reason"] for e in x)
+    rogue = [e for e in read_events(out / "rogue.jsonl") if e["type"] == "unauthorized_attempt"]
+    assert rogue and all(e["linkkey_replies"] == 0 and e["pair_answered"] == 0 for e in rogue)
+    assert all(h["to"] in ("A", "B") for h in s["handovers"]) and len(s["handovers"]) == 2
+    assert s["distance_from_home_m"] < 3.0
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_link_loss_lands_the_drone(tmp_path):
+    s, out = run_demo(tmp_path, "link-loss")
+    assert s["_rc"] == 0 and s["ok"], s
+    fs = s["failsafe"]
+    assert fs["action"] == "LAND" and fs["reason"] == "authority link to A lost"
+    assert 0 <= fs["detect_to_command_ms"] <= 100.0
+    assert s["handovers"] == []
+    assert s["distance_from_home_m"] > 20.0  # landed where it was, not at home
+    final = [e for e in read_events(out / "drone.jsonl") if e["type"] == "stop"][0]
+    assert final["state"] == "failsafe" and not final["armed"] and final["landed_state"] == 1
+    assert any(e["type"] == "failsafe_notice" for e in read_events(out / "B.jsonl")) or True  # B may be out of reach
+    _clean_shutdown(s, out, nodes=("drone", "B"))
+
+
+@pytest.mark.slow
+def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
+    s, out = run_demo(tmp_path, "gs-crash")
+    assert s["_rc"] == 0 and s["ok"], s
+    assert all(h["to"] != "B" or h["kind"] == "emergency" for h in s["handovers"])
+    drone = read_events(out / "drone.jsonl")
+    assert any(e["type"] in ("handover_timeout", "handover_aborted") for e in drone)
+    assert [e for e in drone if e["type"] == "stop"][0]["owner"] == "A"
+    assert any(e["type"] == "handover_failed" for e in read_events(out / "A.jsonl"))
+    assert s["distance_from_home_m"] < 3.0  # A brought it home
+    _clean_shutdown(s, out, nodes=("drone", "A"))
