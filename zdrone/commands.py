@@ -66,7 +66,8 @@ def _router(args: argparse.Namespace) -> int:
 def add_router(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("router", help="Zenoh router with the fleet's auth and access control")
     p.add_argument("-c", "--config", default="router.json5", help="router config (JSON5; also valid for zenohd -c)")
-    p.add_argument("--listen", metavar="ENDPOINT", help="override listen endpoint, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--listen", metavar="ENDPOINT", action="append",
+                   help="listen here instead of the config's endpoints, e.g. tcp/127.0.0.1:7447 (repeatable)")
     p.set_defaults(func=_router)
 
 

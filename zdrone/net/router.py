@@ -15,7 +15,7 @@ from .session import load_router_config
 log = logging.getLogger(__name__)
 
 
-def run_router(config_path: str | Path, listen: str | None = None) -> int:
+def run_router(config_path: str | Path, listen: list[str] | None = None) -> int:
     """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints."""
     cfg = load_router_config(config_path, listen)
     stop = threading.Event()
@@ -26,7 +26,7 @@ def run_router(config_path: str | Path, listen: str | None = None) -> int:
     except zenoh.ZError as exc:
         raise ConfigError(f"{config_path}: router did not start: {str(exc).splitlines()[0]}") from None
     try:
-        eps = listen or "(from config)"
+        eps = ", ".join(listen) if listen else "(endpoints from config)"
         print(f"zdrone router: listening on {eps}, zid {session.info.zid()}", flush=True)
         stop.wait()
     finally:

@@ -35,7 +35,7 @@ def open_client(router: str, user: str, password: str) -> zenoh.Session:
         raise ConfigError(f"cannot connect to router {router} as {user!r} (wrong password or no router): {detail}") from None
 
 
-def load_router_config(path: str | Path, listen: str | None = None) -> zenoh.Config:
+def load_router_config(path: str | Path, listen: list[str] | str | None = None) -> zenoh.Config:
     """Read a router JSON5 file; resolve the credentials path relative to the file."""
     p = Path(path)
     try:
@@ -59,7 +59,7 @@ def load_router_config(path: str | Path, listen: str | None = None) -> zenoh.Con
         raise ConfigError(f"{p}: field $.transport.auth.usrpwd.dictionary_file: {cred} does not exist (run 'zdrone fleet init')")
     raw["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(cred)
     if listen:
-        raw["listen"] = {"endpoints": [listen]}
+        raw["listen"] = {"endpoints": [listen] if isinstance(listen, str) else list(listen)}
     acl = raw.get("access_control", {})
     if not acl.get("enabled") or acl.get("default_permission") != "deny":
         log.warning("%s: access control is not enabled with default deny", p)
