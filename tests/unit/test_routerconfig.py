@@ -1,0 +1,37 @@
+"""The router's access-control rules follow the fleet; the repository's router.json5 stays in sync."""
+
+import json5
+
+from pathlib import Path
+
+from zdrone.core.fleet import Coverage, Fleet, Node
+from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES
+from zdrone.net.routerconfig import router_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def default_fleet() -> Fleet:
+    nodes = {n: Node(role=r, sysid=s, public_key="A" * 43 + "=",  # type: ignore[arg-type]
+                     coverage=Coverage(c.lat, c.lon, COVERAGE_RADIUS_M) if c else None, authorized_gs=a)
+             for n, r, s, c, a in DEFAULT_NODES}
+    return Fleet(version=1, nodes=nodes)
+
+
+def test_repository_router_json5_matches_the_default_fleet():
+    on_disk = json5.loads((ROOT / "router.json5").read_text())
+    assert on_disk == router_config(default_fleet(), "fleet/router/credentials.txt")
+
+
+def test_acl_is_default_deny_and_scoped_per_identity():
+    acl = router_config(default_fleet(), "c.txt")["access_control"]
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    assert rules["d1-pub-down"]["key_exprs"] == ["zdrone/d1/down/*"] and rules["d1-pub-down"]["messages"] == ["put"]
+    assert rules["A-pub-up"]["key_exprs"] == ["zdrone/*/up/A"]
+    assert rules["B-linkkey-own"]["key_exprs"] == ["backhaul/B/linkkey/*"]
+    assert rules["A-linkkey-ask"]["key_exprs"] == ["backhaul/*/linkkey/d1"]
+    assert "X-linkkey-ask" not in rules  # X is not authorized for any drone: it may not ask for keys
+    assert not any(r["id"].startswith("d1-") and "query" in r["messages"] and "ingress" in r["flows"] for r in acl["rules"])
+    subjects = {s["id"]: s["usernames"] for s in acl["subjects"]}
+    assert subjects == {"user-d1": ["d1"], "user-A": ["A"], "user-B": ["B"], "user-X": ["X"]}
