@@ -62,6 +62,22 @@ def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt:
     ]
 
 
+def shuttle_mission(crossings: int, home: GeoPoint = HOME, alt: float = CRUISE_ALT_M,
+                    speed: float = CRUISE_SPEED_MS) -> list[PlannedItem]:
+    """Fly back and forth across the hand-over region ``crossings`` times, then land at home."""
+    from zdrone.core.geometry import offset
+
+    if not 1 <= crossings <= 100:
+        raise ValueError("crossings must be 1..100")
+    near_a, near_b = offset(home, 0.0, 80.0), offset(home, 0.0, 440.0)
+    items = [_nav(mav.MAV_CMD_NAV_TAKEOFF, home, alt),
+             PlannedItem(mav.MAV_FRAME_MISSION, mav.MAV_CMD_DO_CHANGE_SPEED, (1.0, speed, -1.0, 0.0), NAN, NAN, 0.0)]
+    for i in range(crossings):
+        items.append(_nav(mav.MAV_CMD_NAV_WAYPOINT, near_b if i % 2 == 0 else near_a, alt))
+    items += [_nav(mav.MAV_CMD_NAV_WAYPOINT, home, alt), _nav(mav.MAV_CMD_NAV_LAND, home, 0.0)]
+    return items
+
+
 def load_plan(path: str | Path) -> list[PlannedItem]:
     """Read the mission of a QGroundControl ``.plan`` file (SimpleItems only)."""
     p = Path(path)

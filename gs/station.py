@@ -59,7 +59,8 @@ class StationOptions:
     hysteresis_m: float = 20.0
     events: str | None = None
     status_period: float = 1.0
-    cipher: str = "zdrone"
+    cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
+    paper_heartbeat: bool = False  # also send the paper's separate 2 Hz security heartbeat
 
 
 @dataclass
@@ -118,6 +119,7 @@ class GroundStation:
         self.rx: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
         self._running = True
         self._grant_id = 0
+        self._sm_seq = 0
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.session = open_client(opts.router, opts.gs, self.secret.router_password)
         self.sub = self.session.declare_subscriber(kx.down("*", self.name), self._on_sample)
@@ -399,6 +401,9 @@ class GroundStation:
             for view in self.views.values():
                 self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
                                                                   mav.MAV_STATE_ACTIVE, 3))
+                if self.opts.paper_heartbeat:
+                    self._sm_seq += 1
+                    self.send_control(view, wire.SmHeartbeat(self._sm_seq))
 
     def drain(self, timeout: float) -> None:
         try:

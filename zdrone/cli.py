@@ -55,6 +55,36 @@ def _bench_crypto(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_traffic(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .bench import table, traffic
+
+    result = traffic.run(quick=args.quick, out=Path(args.out) if args.out else None, progress=not args.json)
+    table.print_json(result) if args.json else traffic.render(result)
+    return 0 if all("error" not in r for r in result["rows"]) else 1
+
+
+def _bench_link(args: argparse.Namespace) -> int:
+    from .bench import link, table
+
+    result = link.run(quick=args.quick)
+    table.print_json(result) if args.json else link.render(result)
+    return 0
+
+
+def _bench_handover(args: argparse.Namespace) -> int:
+    from .bench import handover, table
+
+    for name in ("crossings", "trials"):
+        v = getattr(args, name)
+        if v is not None and not 1 <= v <= 50:
+            raise UsageError(f"--{name} {v}: must be 1..50")
+    result = handover.run(quick=args.quick, crossings=args.crossings, trials=args.trials, progress=not args.json)
+    table.print_json(result) if args.json else handover.render(result)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="zdrone", description="Secure hand-over of a drone's command authority over Zenoh.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
@@ -80,6 +110,24 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bc.add_argument("--quick", action="store_true", help="few iterations (proves it runs)")
     bc.set_defaults(func=_bench_crypto)
+
+    bt = bsub.add_parser("traffic", help="packets/min and mean packet size: plain vs zdrone vs the paper (Table 1)")
+    bt.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bt.add_argument("--quick", action="store_true", help="15 s per variant instead of whole flights")
+    bt.add_argument("--out", metavar="DIR", help="keep the runs here")
+    bt.set_defaults(func=_bench_traffic)
+
+    bl = bsub.add_parser("link", help="GS -> vehicle latency p50/p99 and frames/s through the router, with and without security")
+    bl.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bl.add_argument("--quick", action="store_true", help="few frames (proves it runs)")
+    bl.set_defaults(func=_bench_link)
+
+    bh = bsub.add_parser("handover", help="repeated hand-overs under a 20 Hz command stream; link-loss to LAND latency")
+    bh.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bh.add_argument("--quick", action="store_true", help="2 crossings and 1 link-loss trial")
+    bh.add_argument("--crossings", type=int, metavar="N", help="overlap crossings (default 6)")
+    bh.add_argument("--trials", type=int, metavar="M", help="link-loss trials (default 3)")
+    bh.set_defaults(func=_bench_handover)
 
     for extra in _EXTRA_COMMANDS:
         extra(sub)

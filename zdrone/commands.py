@@ -60,7 +60,7 @@ _EXTRA_COMMANDS.append(add_sim)
 def _router(args: argparse.Namespace) -> int:
     from .net.router import run_router
 
-    return run_router(args.config, args.listen)
+    return run_router(args.config, args.listen, args.tap)
 
 
 def add_router(sub: argparse._SubParsersAction) -> None:
@@ -68,6 +68,7 @@ def add_router(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-c", "--config", default="router.json5", help="router config (JSON5; also valid for zenohd -c)")
     p.add_argument("--listen", metavar="ENDPOINT", action="append",
                    help="listen here instead of the config's endpoints, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    p.add_argument("--tap", metavar="FILE", help="count packets and bytes per key expression into FILE (JSON, every second)")
     p.set_defaults(func=_router)
 
 
@@ -89,7 +90,7 @@ def _drone(args: argparse.Namespace) -> int:
     return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=args.router, vehicle=args.vehicle,
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
                                   handover_timeout=args.handover_timeout, sil_coverage=args.sil_coverage,
-                                  events=args.events))
+                                  events=args.events, cipher=args.cipher))
 
 
 def add_drone(sub: argparse._SubParsersAction) -> None:
@@ -106,6 +107,8 @@ def add_drone(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--handover-timeout", type=positive, default=5.0, metavar="S", help="hand-over timeout (5 s)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
+                   help="envelope; fernet/plain exist only to measure against (bench traffic)")
     p.set_defaults(func=_drone)
 
 
@@ -116,12 +119,19 @@ def _gs(args: argparse.Namespace) -> int:
     mission = None
     if args.mission == "reference":
         mission = reference_mission()
+    elif args.mission and args.mission.startswith("shuttle:"):
+        from gs.planner import shuttle_mission
+
+        try:
+            mission = shuttle_mission(int(args.mission.split(":", 1)[1]))
+        except ValueError:
+            raise UsageError(f"--mission {args.mission}: expected shuttle:N with N crossings") from None
     elif args.mission:
         mission = load_plan(args.mission)
     return run_station(StationOptions(gs=args.id, fleet=args.fleet, router=args.router,
                                       drones=tuple(args.drone or ()), pair=args.pair, mission=mission,
                                       heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
-                                      events=args.events))
+                                      events=args.events, cipher=args.cipher, paper_heartbeat=args.paper_heartbeat))
 
 
 def add_gs(sub: argparse._SubParsersAction) -> None:
@@ -131,11 +141,15 @@ def add_gs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--router", default="tcp/127.0.0.1:7447", help="Zenoh router endpoint")
     p.add_argument("--drone", action="append", help="drone(s) to serve (default: all it is authorized for)")
     p.add_argument("--pair", action="store_true", help="pair with the drone(s) on start (the take-off GS)")
-    p.add_argument("--mission", metavar="PLAN", help="fly this QGroundControl .plan, or 'reference'")
+    p.add_argument("--mission", metavar="PLAN",
+                   help="fly this QGroundControl .plan, 'reference', or 'shuttle:N' (N overlap crossings, for bench handover)")
     p.add_argument("--heartbeat-hz", type=positive, default=2.0, help="sealed HEARTBEAT rate (2 Hz)")
     p.add_argument("--command-rate", type=float, default=0.0, metavar="HZ",
                    help="while in authority, send a harmless command stream (for hand-over checks)")
     p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
+                   help="envelope; fernet/plain exist only to measure against (bench traffic)")
+    p.add_argument("--paper-heartbeat", action="store_true", help="also send the paper's separate 2 Hz security heartbeat")
     p.set_defaults(func=_gs)
 
 

@@ -24,7 +24,11 @@ def run_demo(tmp_path: Path, scenario: str) -> tuple[dict, Path]:
                            "--no-report"], capture_output=True, text=True, timeout=240)
     summary = json.loads((out / "summary.json").read_text())
     assert "Traceback" not in proc.stderr, proc.stderr
-    return summary | {"_rc": proc.returncode, "_stdout": proc.stdout}, out
+    summary |= {"_rc": proc.returncode, "_stdout": proc.stdout[-2000:], "_stderr": proc.stderr[-2000:]}
+    if not summary["ok"]:
+        for log in sorted(out.glob("*.log")):  # show what each process said, to diagnose
+            print(f"== {log.name}\n{log.read_text()[-1500:]}")
+    return summary, out
 
 
 def _no_orphans(out: Path) -> None:

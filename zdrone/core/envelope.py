@@ -151,7 +151,25 @@ class FernetCipher:
             return None
 
 
-CIPHERS: dict[str, Cipher] = {"zdrone": ChaChaCipher(), "fernet": FernetCipher()}
+class PlainCipher:
+    """No security layer at all: the frame as it is. The baseline of ``zdrone bench traffic`` only."""
+
+    name = "plain"
+
+    def make(self, key: bytes) -> None:
+        return None
+
+    def seal(self, ctx: None, epoch: int, counter: int, ad: bytes, plaintext: bytes) -> bytes:  # type: ignore[override]
+        return plaintext
+
+    def parse(self, data: bytes) -> tuple[int, int | None, bytes] | None:
+        return (0, None, data) if data else None
+
+    def open(self, ctx: None, data: bytes, ad: bytes) -> bytes | None:  # type: ignore[override]
+        return data
+
+
+CIPHERS: dict[str, Cipher] = {"zdrone": ChaChaCipher(), "fernet": FernetCipher(), "plain": PlainCipher()}
 
 
 class _RxEpoch:
@@ -260,9 +278,10 @@ class SecureLink:
 
     def open(self, data: bytes, now: float) -> Opened | Dropped:
         """Open and check one received envelope. Never raises on bad input."""
-        if not isinstance(data, (bytes, bytearray, memoryview)):
-            return self._drop(DropReason.MALFORMED, "not bytes")
-        data = bytes(data)
+        if type(data) is not bytes:
+            if not isinstance(data, (bytearray, memoryview)):
+                return self._drop(DropReason.MALFORMED, "not bytes")
+            data = bytes(data)
         parsed = self.cipher.parse(data)
         if parsed is None:
             return self._drop(DropReason.MALFORMED, f"{len(data)} bytes")

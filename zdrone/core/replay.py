@@ -12,14 +12,16 @@ from __future__ import annotations
 class ReplayWindow:
     """Accepts each counter at most once; tolerates reordering within ``size`` counters."""
 
-    __slots__ = ("size", "highest", "_bits")
+    __slots__ = ("size", "highest", "_bits", "_mask", "_limit")
 
     def __init__(self, size: int = 1024) -> None:
         if size < 1:
             raise ValueError("replay window size must be >= 1")
         self.size = size
         self.highest = -1
-        self._bits = 0  # bit i set <=> counter (highest - i) seen
+        self._bits = 0  # bit i set <=> counter (highest - i) seen; bits beyond ``size`` are ignored
+        self._mask = (1 << size) - 1
+        self._limit = 2 * size  # trim the bitmap only when it grows past this (cheaper than every time)
 
     def is_fresh(self, counter: int) -> bool:
         """True if ``counter`` has not been seen and is not older than the window."""
@@ -34,7 +36,11 @@ class ReplayWindow:
         """Record ``counter`` as seen. Call only after the frame authenticated."""
         if counter > self.highest:
             shift = counter - self.highest
-            self._bits = ((self._bits << shift) | 1) & ((1 << self.size) - 1) if shift < self.size else 1
+            if shift < self.size:
+                bits = (self._bits << shift) | 1
+                self._bits = bits & self._mask if bits.bit_length() > self._limit else bits
+            else:
+                self._bits = 1
             self.highest = counter
         else:
             self._bits |= 1 << (self.highest - counter)

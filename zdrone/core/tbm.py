@@ -61,10 +61,12 @@ class TimeBetweenMessages:
     def observe(self, now: float) -> float | None:
         """Record an authentic frame at ``now``; return the gap since the previous one."""
         gap = None
-        if self.last_seen is not None:
-            gap = max(0.0, now - self.last_seen)
+        last = self.last_seen
+        if last is not None:
+            gap = now - last if now > last else 0.0
             self._gap_sum += gap
-            self.max_gap = gap if self.max_gap is None else max(self.max_gap, gap)
+            if self.max_gap is None or gap > self.max_gap:
+                self.max_gap = gap
         self.last_seen = now
         self.frames += 1
         return gap

@@ -67,7 +67,15 @@ class FailsafeNotice(Control, frozen=True, tag="failsafe"):
     reason: str
 
 
-ControlMessage = KeyGrant | KeyGrantAck | HandoverRequest | HandoverRelease | AuthorityStatus | Reject | FailsafeNotice
+class SmHeartbeat(Control, frozen=True, tag="sm_heartbeat"):
+    """The paper's separate security-layer heartbeat (``bench traffic`` "paper" variant only;
+    zdrone itself reuses the MAVLink HEARTBEAT and sends no extra packets)."""
+
+    seq: int
+
+
+ControlMessage = (KeyGrant | KeyGrantAck | HandoverRequest | HandoverRelease | AuthorityStatus | Reject | FailsafeNotice
+                  | SmHeartbeat)
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(ControlMessage)

@@ -51,6 +51,7 @@ class DroneOptions:
     sil_coverage: bool = False
     events: str | None = None
     status_period: float = 0.5
+    cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
 
 
 class DroneNode:
@@ -107,7 +108,7 @@ class DroneNode:
     def _install(self, gs: str, key: LinkKey, now: float) -> None:
         self.links[gs] = SecureLink(
             key=key, role="drone", tx_keyexpr=kx.down(self.name, gs), rx_keyexpr=kx.up(self.name, gs),
-            peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds,
+            peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds, cipher=self.opts.cipher,
             authorize=lambda g: self.fleet.is_authorized(self.name, g))
         self.events.write("link_installed", gs=gs)
 
@@ -190,6 +191,8 @@ class DroneNode:
             self._handle(ha.Release(now, gs, msg.to, msg.epoch))
         elif isinstance(msg, wire.HandoverRequest):
             self._handle(ha.HandoverRequest(now, gs, msg.to))
+        elif isinstance(msg, wire.SmHeartbeat):
+            self.counters["sm_heartbeat"] += 1
         else:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
 

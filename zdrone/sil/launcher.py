@@ -51,6 +51,13 @@ class DemoOptions:
     timeout: float | None = None
     command_rate: float = 5.0
     report: bool = True
+    # for the benches
+    cipher: str = "zdrone"
+    paper_heartbeat: bool = False
+    tap: bool = False
+    quiet: bool = False
+    max_wall: float | None = None  # stop measuring after this many wall seconds (not a failure)
+    mission: str = "reference"
 
 
 @dataclass
@@ -68,6 +75,7 @@ class Demo:
     children: dict[str, Child] = field(default_factory=dict)
     t0: float = field(default_factory=time.monotonic)
     notes: list[str] = field(default_factory=list)
+    progress: dict[str, Any] = field(default_factory=dict)
 
     # --------------------------------------------------------------- processes
     def start(self, name: str, args: list[str]) -> Child:
@@ -125,7 +133,8 @@ class Demo:
         router = f"tcp/127.0.0.1:{rport}"
         z = ["-m", "zdrone", "-v"]
         common = ["--fleet", "fleet", "--router", router]
-        r = self.start("router", z + ["router", "-c", "fleet/router/router.json5", "--listen", router])
+        r = self.start("router", z + ["router", "-c", "fleet/router/router.json5", "--listen", router]
+                       + (["--tap", "tap.json"] if o.tap else []))
         self.wait_line(r, "listening", 20)
         sim = self.start("sim", z + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", str(o.speedup)])
         self.wait_line(sim, "zdrone sim:", 20)
@@ -133,12 +142,15 @@ class Demo:
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
         drone = self.start("drone", z + ["drone", "--id", "d1", *common, "--vehicle", f"udpout:127.0.0.1:{sport}",
-                                         "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout", str(ho_timeout)])
+                                         "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout", str(ho_timeout),
+                                         "--cipher", o.cipher])
+        gs_extra = ["--cipher", o.cipher] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
         self.wait_line(drone, "ready", 40)
-        b = self.start("gsB", z + ["gs", "--id", "B", *common, "--events", "B.jsonl", "--command-rate", str(o.command_rate)])
+        b = self.start("gsB", z + ["gs", "--id", "B", *common, "--events", "B.jsonl", "--command-rate", str(o.command_rate),
+                                   *gs_extra])
         self.wait_line(b, "zdrone gs B", 20)
-        a = self.start("gsA", z + ["gs", "--id", "A", *common, "--pair", "--mission", "reference",
-                                   "--events", "A.jsonl", "--command-rate", str(o.command_rate)])
+        a = self.start("gsA", z + ["gs", "--id", "A", *common, "--pair", "--mission", o.mission,
+                                   "--events", "A.jsonl", "--command-rate", str(o.command_rate), *gs_extra])
         self.wait_line(a, "zdrone gs A", 20)
         if o.scenario == "rogue-unauthorized":
             self.start("gsX", z + ["gs", "--id", "X", *common, "--drone", "d1", "--pair", "--mission", "reference",
@@ -150,10 +162,13 @@ class Demo:
         timeout = o.timeout or (60.0 + 240.0 / o.speedup)
         deadline = time.monotonic() + timeout
         drone_log = self.out / "drone.jsonl"
-        live = LiveView(o.scenario, enabled=o.live if o.live is not None else sys.stdout.isatty())
+        live = LiveView(o.scenario, enabled=o.live if o.live is not None else sys.stdout.isatty(), quiet=o.quiet)
+        if o.max_wall is not None:
+            deadline = min(deadline, time.monotonic() + o.max_wall)
+        self.progress = state = {}
         seen = 0
-        state: dict[str, Any] = {"handovers": [], "failsafe": None, "armed_seen": False, "status": {}, "region_entered": 0,
-                                 "mission_started": False, "done": False, "rogue_started": False, "hook_done": False}
+        state.update({"handovers": [], "failsafe": None, "armed_seen": False, "status": {}, "region_entered": 0,
+                                 "mission_started": False, "done": False, "rogue_started": False, "hook_done": False})
         with live:
             while time.monotonic() < deadline and not state["done"]:
                 events = read_events(drone_log) if drone_log.exists() else []
@@ -169,7 +184,7 @@ class Demo:
                 time.sleep(0.1)
         wall = time.monotonic() - self.t0
         codes = self.shutdown()
-        return self._summarize(state, wall, codes, timed_out=not state["done"])
+        return self._summarize(state, wall, codes, timed_out=not state["done"] and o.max_wall is None)
 
     def _on_gs_events(self, state: dict[str, Any]) -> None:
         a_log = self.out / "A.jsonl"
@@ -265,9 +280,19 @@ class Demo:
                         and (final or {}).get("owner") == "A",
         }[sc]
         landed_home = home_dist is not None and home_dist < 5.0
-        ok = (not timed_out and expected and not violations
-              and (landed_home if sc in ("nominal", "rogue-no-key", "rogue-unauthorized", "gs-crash") else True)
-              and all(c == 0 for n, c in codes.items() if not self.children[n].stopped))
+        why: list[str] = []
+        if timed_out:
+            why.append("timed out")
+        if not expected:
+            why.append(f"scenario outcome not met (hand-overs {pairs}, failsafe {state['failsafe'] is not None})")
+        if violations:
+            why.append("security violations")
+        if sc in ("nominal", "rogue-no-key", "rogue-unauthorized", "gs-crash") and not landed_home:
+            why.append(f"not landed at home ({home_dist} m)")
+        bad_exit = {n: c for n, c in codes.items() if c != 0 and not self.children[n].stopped}
+        if bad_exit:
+            why.append(f"non-zero exit codes {bad_exit}")
+        ok = not why
         summary = {
             "scenario": sc, "ok": ok, "timed_out": timed_out, "wall_time_s": round(wall, 2), "speedup": self.opts.speedup,
             "handovers": state["handovers"], "authority_gap_ms": gap_ms,
@@ -277,7 +302,7 @@ class Demo:
                          "refused_not_authority": ha_drops.get("not_authority", 0)},
             "security_drops": drops, "ha_drops": ha_drops, "ha_rejects": (final or {}).get("rejects", {}),
             "pairing": (final or {}).get("counters", {}), "out_of_coverage": (final or {}).get("out_of_coverage", {}),
-            "violations": violations, "exit_codes": codes, "notes": self.notes,
+            "violations": violations, "exit_codes": codes, "notes": self.notes, "why_not_ok": why,
         }
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         return summary
@@ -299,9 +324,10 @@ def _describe(ev: dict[str, Any]) -> str:
 class LiveView:
     """A rich live panel when on a terminal; plain event lines otherwise."""
 
-    def __init__(self, scenario: str, enabled: bool) -> None:
+    def __init__(self, scenario: str, enabled: bool, quiet: bool = False) -> None:
         self.scenario = scenario
-        self.enabled = enabled
+        self.enabled = enabled and not quiet
+        self.quiet = quiet
         self.lines: list[str] = []
         self._live: Any = None
         self._t0: float | None = None
@@ -323,7 +349,7 @@ class LiveView:
             self._t0 = t
         line = f"{t - self._t0:7.2f}s  {text}"
         self.lines.append(line)
-        if not self.enabled:
+        if not self.enabled and not self.quiet:
             print(line, flush=True)
 
     def update(self, status: dict[str, Any], elapsed: float) -> None:
