@@ -185,3 +185,19 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 _EXTRA_COMMANDS.append(add_demo)
+
+
+def _report(args: argparse.Namespace) -> int:
+    from .bench.report import write_report
+
+    print(write_report(args.log))
+    return 0
+
+
+def add_report(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="HTML flight report (track, TBM, altitude, events, drops) from an event log")
+    p.add_argument("log", help="a run folder written by zdrone demo, or its drone.jsonl")
+    p.set_defaults(func=_report)
+
+
+_EXTRA_COMMANDS.append(add_report)

@@ -18,10 +18,10 @@ from zdrone.net.eventlog import read_events
 SPEEDUP = "4"
 
 
-def run_demo(tmp_path: Path, scenario: str) -> tuple[dict, Path]:
+def run_demo(tmp_path: Path, scenario: str, report: bool = False) -> tuple[dict, Path]:
     out = tmp_path / scenario
-    proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live",
-                           "--no-report"], capture_output=True, text=True, timeout=240)
+    proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live"]
+                          + ([] if report else ["--no-report"]), capture_output=True, text=True, timeout=240)
     summary = json.loads((out / "summary.json").read_text())
     assert "Traceback" not in proc.stderr, proc.stderr
     summary |= {"_rc": proc.returncode, "_stdout": proc.stdout[-2000:], "_stderr": proc.stderr[-2000:]}
@@ -68,7 +68,7 @@ def _exactly_one_authority(out: Path) -> None:
 
 @pytest.mark.slow
 def test_nominal_reference_flight(tmp_path):
-    s, out = run_demo(tmp_path, "nominal")
+    s, out = run_demo(tmp_path, "nominal", report=True)
     assert s["_rc"] == 0 and s["ok"], s
     fleet = parse_fleet((out / "fleet" / "fleet.json5").read_text())
     assert [(h["from"], h["to"], h["epoch"]) for h in s["handovers"]] == [("A", "B", 2), ("B", "A", 3)]
@@ -90,6 +90,8 @@ def test_nominal_reference_flight(tmp_path):
     assert near_delivery, "the vehicle never landed at the delivery point"
     assert s["security_drops"] == {} and s["violations"] == []
     _clean_shutdown(s, out)
+    page = (out / "report.html").read_text()  # written at the end of the demo
+    assert page.count("data:image/png;base64,") == 3 and "A→B" in page and (out / "track.png").stat().st_size > 10_000
 
 
 @pytest.mark.slow

@@ -1,0 +1,62 @@
+"""Every bench runs in --quick mode and prints well-formed JSON (speed is not asserted here)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+
+from tests.procs import ZDRONE
+
+
+def bench(*args: str, timeout: float = 240) -> dict:
+    out = subprocess.run([ZDRONE, "bench", *args, "--quick", "--json"], capture_output=True, text=True, timeout=timeout)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return json.loads(out.stdout)
+
+
+@pytest.mark.slow
+def test_bench_traffic_quick():
+    r = bench("traffic")
+    rows = {row["variant"]: row for row in r["rows"]}
+    assert set(rows) == {"plain", "zdrone", "paper"}
+    for row in rows.values():
+        assert "error" not in row, row
+        assert row["packets_per_min"] > 0 and row["mean_packet_bytes"] > 0
+        assert row["up"]["packets"] > 0 and row["down"]["packets"] > 0
+    # wire-format facts, not speed: our envelope adds 24 bytes to every frame; the paper's far more
+    assert 20.0 <= rows["zdrone"]["change_vs_plain"]["mean_bytes_added"] <= 28.0
+    assert rows["paper"]["change_vs_plain"]["mean_bytes_added"] > 60.0
+    assert rows["paper"]["up"]["packets_per_min"] > rows["zdrone"]["up"]["packets_per_min"]  # separate heartbeats
+    assert r["paper_table1"]["with"]["packets_per_min"] == 196
+
+
+@pytest.mark.slow
+def test_bench_link_quick():
+    r = bench("link")
+    for v in ("plain", "zdrone"):
+        assert r["latency_us"][v]["received"] == 300 and r["latency_us"][v]["p50"] > 0
+        assert r["frames_per_s"][v] > 0 and r["dropped"][v] == 0
+    assert {"added_p50_us", "added_p99_us", "throughput_ratio", "targets"} <= set(r)
+
+
+@pytest.mark.slow
+def test_bench_handover_quick():
+    r = bench("handover")
+    h = r["handover"]
+    assert h["handovers"] == h["crossings"] == 2
+    assert h["authority_gap_ms"] == 0 and h["commands_lost"] == 0 and h["commands_duplicated"] == 0
+    assert h["commands_sent"] > 0 and h["commands_forwarded"] == h["commands_sent"]
+    ll = r["link_loss"]
+    assert ll["missing"] == 0 and all(0 <= v <= 100 for v in ll["detect_to_land_ms"])
+
+
+def test_bench_bad_arguments_are_one_line():
+    out = subprocess.run([ZDRONE, "bench", "handover", "--crossings", "0"], capture_output=True, text=True)
+    assert out.returncode == 2 and out.stderr.count("\n") == 1
+
+
+def test_report_of_a_missing_log_is_one_line(tmp_path):
+    out = subprocess.run([ZDRONE, "report", str(tmp_path / "nope")], capture_output=True, text=True)
+    assert out.returncode == 2 and "no such event log" in out.stderr and out.stderr.count("\n") == 1

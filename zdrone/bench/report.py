@@ -1,0 +1,206 @@
+"""``zdrone report``: one self-contained HTML page (PNG plots inlined) from a flight's event log.
+
+Input: a run folder (as ``zdrone demo`` writes it) or its ``drone.jsonl``. The fleet (coverage
+circles) is read from ``fleet/fleet.json5`` next to the log when present, else the reference fleet.
+Output: ``report.html`` and ``track.png`` (the ground track alone, for a README) in the run folder.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+from ..core.fleet import ConfigError, parse_fleet
+from ..core.geometry import GeoPoint, ne_of
+from ..core.reference import COVERAGE_RADIUS_M, GS_A, GS_B, HOME
+from ..net.eventlog import read_events
+
+COLOURS = {"A": "#1f77b4", "B": "#ff7f0e", None: "#999999"}
+HIDDEN = {"status", "subscribe", "unsubscribe", "link_state", "drop", "start", "stop", "closed"}
+
+
+def _resolve(log: str | Path) -> tuple[Path, Path]:
+    p = Path(log)
+    if p.is_dir():
+        p = p / "drone.jsonl"
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such event log (give a run folder or its drone.jsonl)")
+    return p, p.parent
+
+
+def _coverage(run: Path) -> dict[str, tuple[GeoPoint, float]]:
+    f = run / "fleet" / "fleet.json5"
+    if f.is_file():
+        try:
+            fleet = parse_fleet(f.read_text(), str(f))
+            return {n: (GeoPoint(v.coverage.lat, v.coverage.lon), v.coverage.radius_m)
+                    for n, v in fleet.nodes.items() if v.role == "gs" and v.coverage and n in ("A", "B")}
+        except ConfigError:
+            pass
+    return {"A": (GS_A, COVERAGE_RADIUS_M), "B": (GS_B, COVERAGE_RADIUS_M)}
+
+
+def _png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def _track_figure(status: list[dict], events: list[dict], cov: dict[str, tuple[GeoPoint, float]]) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
+    fig, ax = plt.subplots(figsize=(8, 5.2))
+    for name, (centre, r) in cov.items():
+        n, e = ne_of(HOME, centre)
+        ax.add_patch(Circle((e, n), r, color=COLOURS.get(name, "#777"), alpha=0.12))
+        ax.add_patch(Circle((e, n), r, fill=False, ec=COLOURS.get(name, "#777"), lw=1.2))
+        ax.annotate(f"GS {name}", (e, n), ha="center", va="center", fontsize=10, color=COLOURS.get(name, "#777"))
+    if len(cov) >= 2:  # shade the overlap (hand-over region)
+        import numpy as np
+
+        (c1, r1), (c2, r2) = list(cov.values())[:2]
+        n1, e1 = ne_of(HOME, c1)
+        n2, e2 = ne_of(HOME, c2)
+        xs = np.linspace(min(e1 - r1, e2 - r2), max(e1 + r1, e2 + r2), 300)
+        ys = np.linspace(min(n1 - r1, n2 - r2), max(n1 + r1, n2 + r2), 300)
+        X, Y = np.meshgrid(xs, ys)
+        inside = ((X - e1) ** 2 + (Y - n1) ** 2 <= r1 ** 2) & ((X - e2) ** 2 + (Y - n2) ** 2 <= r2 ** 2)
+        ax.contourf(X, Y, inside.astype(float), levels=[0.5, 1.5], colors=["#2ca02c"], alpha=0.12)
+        ax.plot([], [], color="#2ca02c", alpha=0.4, lw=6, label="hand-over region")
+    pts = [(s["t"], s["position"], s.get("owner")) for s in status if s.get("position")]
+    for (t1, p1, o1), (_, p2, _) in zip(pts, pts[1:]):
+        n1, e1 = ne_of(HOME, GeoPoint(p1[0], p1[1]))
+        n2, e2 = ne_of(HOME, GeoPoint(p2[0], p2[1]))
+        ax.plot([e1, e2], [n1, n2], color=COLOURS.get(o1, "#999"), lw=2.5)
+    for owner in ("A", "B"):
+        ax.plot([], [], color=COLOURS[owner], lw=2.5, label=f"authority {owner}")
+    for ev in events:
+        if ev["type"] == "handover_complete" and ev.get("position"):
+            n, e = ne_of(HOME, GeoPoint(ev["position"][0], ev["position"][1]))
+            ax.plot(e, n + (6 if ev.get("to") == "B" else -6), marker="*", ms=15, color="#d62728" if ev.get("kind") == "emergency" else "black")
+            ax.annotate(f"{ev.get('from')}→{ev.get('to')}", (e, n), textcoords="offset points",
+                        xytext=(0, 12 if ev.get("to") == "B" else -18), ha="center", fontsize=9)
+        if ev["type"] == "failsafe" and ev.get("position"):
+            n, e = ne_of(HOME, GeoPoint(ev["position"][0], ev["position"][1]))
+            ax.plot(e, n, marker="X", ms=14, color="red")
+            ax.annotate(f"failsafe {ev.get('action')}", (e, n), textcoords="offset points", xytext=(0, 12), ha="center",
+                        color="red", fontsize=9)
+    ax.plot([], [], marker="*", ls="", color="black", ms=12, label="hand-over")
+    ax.set_aspect("equal")
+    ax.set_xlabel("east of take-off (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_title("Ground track, coloured by the GS holding authority")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _tbm_figure(status: list[dict], t0: float) -> Any:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3))
+    links = sorted({gs for s in status for gs in (s.get("links") or {})})
+    for gs in links:
+        xs = [s["t"] - t0 for s in status if gs in (s.get("links") or {})]
+        ys = [min(s["links"][gs]["since_last"], 6.0) for s in status if gs in (s.get("links") or {})]
+        ax.plot(xs, ys, label=f"link {gs}", color=COLOURS.get(gs, "#777"))
+    ax.axhline(1.0, ls="--", color="#bcbd22", label="DEGRADED (1 s)")
+    ax.axhline(3.0, ls="--", color="#d62728", label="LOST (3 s)")
+    ax.set_ylabel("time since last\nauthentic frame (s)")
+    ax.set_xlabel("time (s)")
+    ax.set_ylim(0, 6.2)
+    ax.set_title("Time between messages per link")
+    ax.legend(fontsize=8, ncol=4)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _alt_figure(status: list[dict], events: list[dict], t0: float) -> Any:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 2.6))
+    xs = [s["t"] - t0 for s in status if s.get("position")]
+    ys = [s["position"][2] for s in status if s.get("position")]
+    ax.plot(xs, ys, color="#333")
+    for ev in events:
+        if ev["type"] in ("handover_complete", "failsafe"):
+            ax.axvline(ev["t"] - t0, color="red" if ev["type"] == "failsafe" else "#555", ls=":")
+    ax.set_ylabel("altitude (m)")
+    ax.set_xlabel("time (s)")
+    ax.set_title("Altitude (dotted: hand-overs, red: failsafe)")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def _detail(ev: dict) -> str:
+    keep = {k: v for k, v in ev.items() if k not in ("t", "node", "type")}
+    return ", ".join(f"{k}={v}" for k, v in keep.items())
+
+
+def write_report(log: str | Path) -> Path:
+    """Write ``report.html`` and ``track.png`` next to the log; return the HTML path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path, run = _resolve(log)
+    events = read_events(path)
+    status = [e for e in events if e["type"] == "status"]
+    if not status:
+        raise ConfigError(f"{path}: no status events: not a drone event log")
+    t0 = events[0]["t"]
+    cov = _coverage(run)
+    figs = {"track": _track_figure(status, events, cov), "tbm": _tbm_figure(status, t0), "alt": _alt_figure(status, events, t0)}
+    pngs = {k: _png(f) for k, f in figs.items()}
+    for f in figs.values():
+        plt.close(f)
+    (run / "track.png").write_bytes(pngs["track"])
+    final = next((e for e in reversed(events) if e["type"] == "stop"), status[-1])
+    drops: dict[str, int] = {}
+    for gs, ln in (final.get("links") or {}).items():
+        for reason, n in ln.get("dropped", {}).items():
+            drops[f"security: {reason} (link {gs})"] = n
+    for reason, n in (final.get("ha_drops") or {}).items():
+        drops[f"authority: {reason}"] = n
+    for reason, n in (final.get("rejects") or {}).items():
+        drops[f"authority reject: {reason}"] = n
+    for k, n in (final.get("out_of_coverage") or {}).items():
+        drops[f"testbed coverage: {k}"] = n
+    for k, n in (final.get("counters") or {}).items():
+        drops[f"node: {k}"] = n
+    summary_file = run / "summary.json"
+    summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
+    rows = "".join(f"<tr><td>{e['t'] - t0:8.2f}</td><td>{html.escape(e['type'])}</td><td>{html.escape(_detail(e))}</td></tr>"
+                   for e in events if e["type"] not in HIDDEN)
+    drop_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{n}</td></tr>" for k, n in sorted(drops.items())) or \
+        "<tr><td colspan=2>none</td></tr>"
+    img = {k: base64.b64encode(v).decode() for k, v in pngs.items()}
+    head = ""
+    if summary:
+        head = (f"<p><b>{html.escape(summary.get('scenario', ''))}</b>: {'OK' if summary.get('ok') else 'FAILED'} in "
+                f"{summary.get('wall_time_s')} s (speed-up {summary.get('speedup')}); hand-overs "
+                f"{', '.join(h['from'] + '→' + h['to'] for h in summary.get('handovers', [])) or 'none'}; authority gap "
+                f"{summary.get('authority_gap_ms')} ms; commands lost {summary.get('commands', {}).get('lost')}.</p>")
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>zdrone flight report</title>
+<style>body{{font-family:sans-serif;max-width:960px;margin:2em auto}}table{{border-collapse:collapse;font-size:13px}}
+td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left}}img{{max-width:100%}}</style></head><body>
+<h1>zdrone flight report</h1><p>{html.escape(str(path))}</p>{head}
+<img alt="ground track" src="data:image/png;base64,{img['track']}">
+<img alt="time between messages" src="data:image/png;base64,{img['tbm']}">
+<img alt="altitude" src="data:image/png;base64,{img['alt']}">
+<h2>Drops and refusals by reason</h2><table><tr><th>reason</th><th>count</th></tr>{drop_rows}</table>
+<h2>Events</h2><table><tr><th>t (s)</th><th>event</th><th>detail</th></tr>{rows}</table></body></html>"""
+    out = run / "report.html"
+    out.write_text(page)
+    return out
+
+
