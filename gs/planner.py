@@ -63,13 +63,13 @@ def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt:
 
 
 def shuttle_mission(crossings: int, home: GeoPoint = HOME, alt: float = CRUISE_ALT_M,
-                    speed: float = CRUISE_SPEED_MS) -> list[PlannedItem]:
+                    speed: float = CRUISE_SPEED_MS, far_east_m: float = 440.0) -> list[PlannedItem]:
     """Fly back and forth across the hand-over region ``crossings`` times, then land at home."""
     from zdrone.core.geometry import offset
 
     if not 1 <= crossings <= 100:
         raise ValueError("crossings must be 1..100")
-    near_a, near_b = offset(home, 0.0, 80.0), offset(home, 0.0, 440.0)
+    near_a, near_b = offset(home, 0.0, 80.0), offset(home, 0.0, far_east_m)
     items = [_nav(mav.MAV_CMD_NAV_TAKEOFF, home, alt),
              PlannedItem(mav.MAV_FRAME_MISSION, mav.MAV_CMD_DO_CHANGE_SPEED, (1.0, speed, -1.0, 0.0), NAN, NAN, 0.0)]
     for i in range(crossings):

@@ -85,6 +85,20 @@ def _bench_handover(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_scale(args: argparse.Namespace) -> int:
+    from .bench import scale, table
+
+    try:
+        ks = [int(x) for x in args.drones.split(",")] if args.drones else None
+    except ValueError:
+        raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
+    if ks and not all(1 <= k <= 150 for k in ks) or not 2 <= args.stations <= 26:
+        raise UsageError("--drones: each 1..150; --stations: 2..26")
+    result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json)
+    table.print_json(result) if args.json else scale.render(result)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="zdrone", description="Secure hand-over of a drone's command authority over Zenoh.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
@@ -128,6 +142,13 @@ def build_parser() -> argparse.ArgumentParser:
     bh.add_argument("--crossings", type=int, metavar="N", help="overlap crossings (default 6)")
     bh.add_argument("--trials", type=int, metavar="M", help="link-loss trials (default 3)")
     bh.set_defaults(func=_bench_handover)
+
+    bs = bsub.add_parser("scale", help="K drones x G ground stations through one router, each drone doing hand-overs")
+    bs.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bs.add_argument("--quick", action="store_true", help="3 drones only")
+    bs.add_argument("--drones", metavar="K,K,…", help="drone counts to try (default 10,25,50)")
+    bs.add_argument("--stations", type=int, default=3, metavar="G", help="ground stations (default 3)")
+    bs.set_defaults(func=_bench_scale)
 
     for extra in _EXTRA_COMMANDS:
         extra(sub)

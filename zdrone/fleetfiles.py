@@ -21,6 +21,7 @@ import msgspec
 
 from .core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
 from .core.keys import Identity, b64, unb64
+from .core.geometry import GeoPoint, offset
 from .core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
 
 FLEET_FILE = "fleet.json5"
@@ -57,8 +58,20 @@ def _write_private(path: Path, text: str) -> None:
     os.chmod(path, 0o600)
 
 
-def init_fleet(directory: str | Path, force: bool = False) -> Fleet:
-    """Write the default fleet (d1, A, B, X), one secret file per node and router credentials."""
+def scale_nodes(drones: int, stations: int) -> list[tuple[str, str, int, GeoPoint | None, list[str]]]:
+    """A fleet for ``bench scale``: GSs A, B, C… 500 m apart eastwards; every drone authorized for all."""
+    if not 1 <= drones <= 150 or not 2 <= stations <= 26:
+        raise ConfigError("scale fleet: 1..150 drones and 2..26 ground stations")
+    gss = [chr(ord("A") + i) for i in range(stations)]
+    nodes: list[tuple[str, str, int, GeoPoint | None, list[str]]] = [
+        (gs, "gs", 200 + i, offset(HOME, 0.0, 500.0 * i), []) for i, gs in enumerate(gss)]
+    nodes += [(f"d{i + 1}", "drone", i + 1, None, list(gss)) for i in range(drones)]
+    return nodes
+
+
+def init_fleet(directory: str | Path, force: bool = False,
+               nodes_spec: list[tuple[str, str, int, GeoPoint | None, list[str]]] | None = None) -> Fleet:
+    """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials."""
     d = Path(directory)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"{d}: exists and is not a directory")
@@ -67,7 +80,7 @@ def init_fleet(directory: str | Path, force: bool = False) -> Fleet:
     d.mkdir(parents=True, exist_ok=True)
     nodes: dict[str, Node] = {}
     creds: list[str] = []
-    for name, role, sysid, centre, authorized in DEFAULT_NODES:
+    for name, role, sysid, centre, authorized in nodes_spec or DEFAULT_NODES:
         ident = Identity.generate()
         password = secrets.token_urlsafe(18)
         cov = Coverage(centre.lat, centre.lon, COVERAGE_RADIUS_M) if centre is not None else None

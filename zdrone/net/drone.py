@@ -57,7 +57,7 @@ class DroneOptions:
 class DroneNode:
     """The companion computer of one drone."""
 
-    def __init__(self, opts: DroneOptions) -> None:
+    def __init__(self, opts: DroneOptions, vehicle: Any = None) -> None:
         self.opts = opts
         self.fleet = load_fleet(opts.fleet)
         node = self.fleet.nodes.get(opts.drone)
@@ -76,8 +76,9 @@ class DroneNode:
         self.counters: Counter[str] = Counter()
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self._running = True
+        self._next_status = 0.0
         self._inside: frozenset[str] = frozenset()
-        self.vehicle = VehicleLink(opts.vehicle, companion_sysid=self.sysid)
+        self.vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
         self.session = open_client(opts.router, opts.drone, self.secret.router_password)
         self.pairing = self.session.declare_queryable(kx.pair_all(self.name))
 
@@ -309,33 +310,36 @@ class DroneNode:
         if not self.vehicle.wait_vehicle(30.0):
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
-        next_status = 0.0
         try:
             while self._running:
-                try:
-                    first = self.rx.get(timeout=0.005)
-                except queue.Empty:
-                    first = None
-                now = time.monotonic()
-                if first is not None:
-                    self._on_envelope(first[0], first[1], now)
-                    for _ in range(512):
-                        try:
-                            gs, data = self.rx.get_nowait()
-                        except queue.Empty:
-                            break
-                        self._on_envelope(gs, data, time.monotonic())
-                self._serve_pairing(now)
-                self.vehicle.heartbeat(now)
-                self._telemetry(self.vehicle.recv(0.0))
-                self._region(now)
-                self._poll_links(now)
-                self._handle(ha.Tick(now))
-                if now >= next_status:
-                    next_status = now + self.opts.status_period
-                    self.events.write("status", **self.status(now))
+                self.step(0.005)
         finally:
             self.close()
+
+    def step(self, wait: float) -> None:
+        """One pass of the loop: wait up to ``wait`` s for the first envelope, then do everything."""
+        try:
+            first = self.rx.get(timeout=wait) if wait > 0 else self.rx.get_nowait()
+        except queue.Empty:
+            first = None
+        now = time.monotonic()
+        if first is not None:
+            self._on_envelope(first[0], first[1], now)
+            for _ in range(512):
+                try:
+                    gs, data = self.rx.get_nowait()
+                except queue.Empty:
+                    break
+                self._on_envelope(gs, data, time.monotonic())
+        self._serve_pairing(now)
+        self.vehicle.heartbeat(now)
+        self._telemetry(self.vehicle.recv(0.0))
+        self._region(now)
+        self._poll_links(now)
+        self._handle(ha.Tick(now))
+        if now >= self._next_status:
+            self._next_status = now + self.opts.status_period
+            self.events.write("status", **self.status(now))
 
     def close(self) -> None:
         now = time.monotonic()

@@ -104,25 +104,29 @@ class Demo:
             os.kill(child.proc.pid, sig)
 
     def shutdown(self, timeout: float = 10.0) -> dict[str, int | None]:
-        """SIGTERM in reverse start order, then SIGKILL what is left; return exit codes."""
+        """SIGTERM the nodes first (so they close their sessions while the router is still up), then
+        the simulator and the router; SIGKILL only what does not exit in time; return exit codes."""
         codes: dict[str, int | None] = {}
-        for child in reversed(list(self.children.values())):
-            if child.proc.poll() is None:
+        nodes = [c for n, c in self.children.items() if n not in ("sim", "router")]
+        infra = [c for n, c in self.children.items() if n in ("sim", "router")]
+        for group in (nodes, infra):
+            for child in reversed(group):
+                if child.proc.poll() is None:
+                    try:
+                        os.kill(child.proc.pid, signal.SIGCONT)  # a stopped process cannot handle SIGTERM
+                        child.proc.terminate()
+                    except ProcessLookupError:
+                        pass
+            deadline = time.monotonic() + timeout
+            for child in group:
                 try:
-                    os.kill(child.proc.pid, signal.SIGCONT)  # a stopped process cannot handle SIGTERM
-                    child.proc.terminate()
-                except ProcessLookupError:
-                    pass
-        deadline = time.monotonic() + timeout
-        for child in self.children.values():
-            try:
-                child.proc.wait(max(0.1, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                child.proc.kill()
-                child.proc.wait(5)
-                self.notes.append(f"{child.name} had to be killed")
-            codes[child.name] = child.proc.returncode
-        return codes
+                    child.proc.wait(max(0.1, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    child.proc.kill()
+                    child.proc.wait(5)
+                    self.notes.append(f"{child.name} had to be killed")
+                codes[child.name] = child.proc.returncode
+        return {n: codes.get(n) for n in self.children}
 
     # ----------------------------------------------------------------- running
     def run(self) -> dict[str, Any]:

@@ -1,0 +1,67 @@
+"""A vehicle link to a simulator inside the same process (no sockets): for hosting many drones in
+one process in ``zdrone bench scale``. Same interface as ``VehicleLink``."""
+
+from __future__ import annotations
+
+import time
+
+from pymavlink.dialects.v20 import common as mav
+
+from ..core.geometry import GeoPoint
+from .px4modes import mode_name
+from .link import VehicleState
+from .sim import SimAutopilot
+
+
+class InProcessVehicle:
+    """Drives a ``SimAutopilot`` on the wall clock times ``speedup``; frames pass as bytes."""
+
+    def __init__(self, home: GeoPoint, sysid: int, speedup: float = 1.0, seed: int = 0) -> None:
+        self.sim = SimAutopilot(home, sysid=sysid, seed=seed)
+        self.speedup = speedup
+        self.t0 = time.monotonic()
+        self.sysid = sysid
+        self.autopilot = mav.MAV_AUTOPILOT_PX4
+        self.conn = f"inproc-sim:{sysid}"
+
+    def _sim_time(self) -> float:
+        return (time.monotonic() - self.t0) * self.speedup
+
+    @property
+    def position(self) -> GeoPoint:
+        p = self.sim.position
+        return GeoPoint(p.lat, p.lon, self.sim.k.alt)
+
+    @property
+    def armed(self) -> bool:
+        return self.sim.armed
+
+    @property
+    def landed_state(self) -> int:
+        return self.sim.landed_state()
+
+    def heartbeat(self, now: float | None = None) -> None:
+        pass
+
+    def recv(self, timeout: float = 0.0) -> list[bytes]:
+        self.sim.step(self._sim_time())
+        return self.sim.drain()
+
+    def send(self, frame: bytes) -> None:
+        self.sim.receive(frame, self.sim.t)
+
+    def state(self) -> VehicleState:
+        return VehicleState(self.sysid, self.position, self.armed, mode_name(self.sim.mode.custom_mode),
+                            self.landed_state, self.autopilot)
+
+    def command_land(self) -> None:
+        self.sim._request_mode(self.sim.mode.__class__.LAND)
+
+    def command_rtl(self) -> None:
+        self.sim._request_mode(self.sim.mode.__class__.RTL)
+
+    def wait_vehicle(self, timeout: float) -> bool:
+        return True
+
+    def close(self) -> None:
+        pass
