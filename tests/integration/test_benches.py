@@ -60,3 +60,12 @@ def test_bench_bad_arguments_are_one_line():
 def test_report_of_a_missing_log_is_one_line(tmp_path):
     out = subprocess.run([ZDRONE, "report", str(tmp_path / "nope")], capture_output=True, text=True)
     assert out.returncode == 2 and "no such event log" in out.stderr and out.stderr.count("\n") == 1
+
+
+@pytest.mark.slow
+def test_bench_scale_quick():
+    r = bench("scale")
+    row = r["rows"][0]
+    assert row["k"] == 3 and row["g"] == 3 and "error" not in row, row
+    assert row["correct"] == 3 and row["all_correct"], row["failures"]  # 4 hand-overs each, none lost
+    assert r["largest_k_all_correct"] == 3
