@@ -63,6 +63,7 @@ class StationOptions:
     command_rate: float = 0.0
     hysteresis_m: float = 20.0
     events: str | None = None
+    gcs: tuple[str, ...] = ()  # local MAVLink endpoints of the GCS gateway
     status_period: float = 1.0
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
     paper_heartbeat: bool = False  # also send the paper's separate 2 Hz security heartbeat
@@ -126,6 +127,7 @@ class GroundStation:
         self._grant_id = 0
         self._sm_seq = 0
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
+        self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
         self.session = open_client(opts.router, opts.gs, self.secret.router_password)
         self.sub = self.session.declare_subscriber(kx.down("*", self.name), self._on_sample)
         self.linkkey_q = self.session.declare_queryable(kx.linkkey_all(self.name))
@@ -433,9 +435,11 @@ class GroundStation:
         next_status = 0.0
         try:
             while self._running:
-                self.drain(0.01)
+                self.drain(0.005 if self.loop_hooks else 0.01)
                 now = time.monotonic()
                 self.step(now, last_cmd, hb_due)
+                for hook in self.loop_hooks:
+                    hook(now)
                 if now >= next_status:
                     next_status = now + self.opts.status_period
                     self.events.write("status", **self.status())
@@ -453,7 +457,21 @@ class GroundStation:
 
 def run_station(opts: StationOptions) -> int:
     station = GroundStation(opts)
+    gateway = None
+    if opts.gcs:
+        from .gateway import GcsGateway
+
+        try:
+            gateway = GcsGateway(station, list(opts.gcs))
+        except ConfigError:
+            station.close()
+            raise
+        print(f"zdrone gs {station.name}: GCS gateway on {', '.join(gateway.endpoints())} for {gateway.drone}", flush=True)
     signal.signal(signal.SIGTERM, station.stop)
     signal.signal(signal.SIGINT, station.stop)
-    station.run()
+    try:
+        station.run()
+    finally:
+        if gateway is not None:
+            gateway.close()
     return 0

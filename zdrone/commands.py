@@ -116,6 +116,10 @@ def _gs(args: argparse.Namespace) -> int:
     from gs.planner import load_plan, reference_mission
     from gs.station import StationOptions, run_station
 
+    from .vehicle.transport import parse_endpoint
+
+    for conn in args.gcs or ():
+        parse_endpoint(conn)  # a bad endpoint is a usage error before anything connects
     mission = None
     if args.mission == "reference":
         mission = reference_mission()
@@ -131,7 +135,8 @@ def _gs(args: argparse.Namespace) -> int:
     return run_station(StationOptions(gs=args.id, fleet=args.fleet, router=args.router,
                                       drones=tuple(args.drone or ()), pair=args.pair, mission=mission,
                                       heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
-                                      events=args.events, cipher=args.cipher, paper_heartbeat=args.paper_heartbeat))
+                                      events=args.events, cipher=args.cipher, paper_heartbeat=args.paper_heartbeat,
+                                      gcs=tuple(args.gcs or ())))
 
 
 def add_gs(sub: argparse._SubParsersAction) -> None:
@@ -150,6 +155,9 @@ def add_gs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
                    help="envelope; fernet/plain exist only to measure against (bench traffic)")
     p.add_argument("--paper-heartbeat", action="store_true", help="also send the paper's separate 2 Hz security heartbeat")
+    p.add_argument("--gcs", action="append", metavar="CONN",
+                   help="GCS gateway endpoint for QGroundControl/MAVProxy/MAVSDK: udpin:HOST:PORT (apps connect here), "
+                        "udpout:127.0.0.1:14550 (QGroundControl's default), tcpin:HOST:PORT; repeatable")
     p.set_defaults(func=_gs)
 
 

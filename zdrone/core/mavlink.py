@@ -173,3 +173,37 @@ class FrameCodec:
         if msg.get_type() == "BAD_DATA":
             return None
         return msg
+
+
+def _crc(frame_wo_crc: bytes, crc_extra: int) -> bytes:
+    crc = x25crc(frame_wo_crc[1:])
+    crc.accumulate(bytes([crc_extra]))
+    return bytes([crc.crc & 0xFF, crc.crc >> 8])
+
+
+def rewrite_source(frame: bytes, sysid: int, compid: int) -> bytes:
+    """The same frame with another source (sysid, compid) and a fresh checksum.
+
+    Used by the GCS gateway: every application's frames leave the GS under the GS's fleet sysid,
+    one component id per application. A MAVLink 2 signature cannot survive the change, so it is
+    removed (the sealed envelope authenticates the frame instead).
+    """
+    hdr = read_header(frame)
+    cls = MESSAGE_CLASSES[hdr.msgid]
+    if hdr.version == 2:
+        body = bytearray(frame[: 10 + frame[1]])
+        body[2] &= ~SIGNED_FLAG
+        body[5], body[6] = sysid, compid
+    else:
+        body = bytearray(frame[: 6 + frame[1]])
+        body[3], body[4] = sysid, compid
+    return bytes(body) + _crc(bytes(body), cls.crc_extra)
+
+
+def encode_raw(msgid: int, crc_extra: int, payload: bytes, sysid: int, compid: int, seq: int = 0) -> bytes:
+    """A MAVLink 2 frame for a message this dialect does not define (e.g. CONTROL_STATUS, 512)."""
+    while len(payload) > 1 and payload[-1] == 0:  # MAVLink 2 drops trailing zero bytes
+        payload = payload[:-1]
+    body = bytes([MAGIC_V2, len(payload), 0, 0, seq & 0xFF, sysid, compid, msgid & 0xFF, (msgid >> 8) & 0xFF,
+                  msgid >> 16]) + payload
+    return body + _crc(body, crc_extra)

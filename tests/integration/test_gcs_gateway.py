@@ -1,0 +1,186 @@
+"""The GCS gateway with real clients nobody here wrote: MAVSDK, MAVProxy, pymavlink, through the secure
+link (real router, simulator, drone node and ground stations as processes)."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mav
+
+from gs.planner import reference_mission
+from tests.procs import ZDRONE, free_port, spawn
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.reference import DELIVERY, HOME
+from zdrone.fleetfiles import init_fleet
+from zdrone.net.eventlog import read_events
+from zdrone.vehicle.px4modes import FlightMode
+
+
+@contextlib.contextmanager
+def stack(tmp: Path, speedup: str, with_b: bool):
+    init_fleet(tmp / "fleet")
+    rport, sport, pa, pb = free_port(socket.SOCK_STREAM), free_port(), free_port(), free_port()
+    router = f"tcp/127.0.0.1:{rport}"
+    common = ["--fleet", str(tmp / "fleet"), "--router", router]
+    with contextlib.ExitStack() as es:
+        r = es.enter_context(spawn(ZDRONE, "router", "-c", str(tmp / "fleet/router/router.json5"), "--listen", router))
+        r.wait_line("listening", 20)
+        sim = es.enter_context(spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", speedup))
+        sim.wait_line("zdrone sim:", 20)
+        drone = es.enter_context(spawn(ZDRONE, "drone", *common, "--vehicle", f"udpout:127.0.0.1:{sport}", "--sil-coverage",
+                                       "--handover-timeout", "2", "--events", str(tmp / "drone.jsonl")))
+        drone.wait_line("ready", 40)
+        if with_b:
+            b = es.enter_context(spawn(ZDRONE, "gs", "--id", "B", *common, "--gcs", f"udpin:127.0.0.1:{pb}",
+                                       "--events", str(tmp / "B.jsonl")))
+            b.wait_line("GCS gateway", 20)
+        a = es.enter_context(spawn(ZDRONE, "gs", "--id", "A", *common, "--pair", "--gcs", f"udpin:127.0.0.1:{pa}",
+                                   "--events", str(tmp / "A.jsonl")))
+        a.wait_line("paired", 30)
+        yield {"a": pa, "b": pb}
+
+
+def _client(port: int, sysid: int) -> mavutil.mavfile:
+    c = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=sysid, source_component=190, dialect="common")
+    c.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    return c
+
+
+def _ack(c, command: int, timeout: float = 3.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        m = c.recv_match(type="COMMAND_ACK", blocking=True, timeout=0.2)
+        if m is not None and m.command == command:
+            return m
+    return None
+
+
+@pytest.mark.slow
+def test_mavproxy_reads_parameters_and_switches_mode(tmp_path):
+    with stack(tmp_path, "3", with_b=False) as ports:
+        cwd = tmp_path / "mavproxy"
+        cwd.mkdir()
+        mp = subprocess.Popen([str(Path(sys.executable).parent / "mavproxy.py"), f"--master=udpout:127.0.0.1:{ports['a']}",
+                               "--source-system=250", "--default-modules=mode,param,cmdlong"],
+                              cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True, start_new_session=True)
+        out: list[str] = []
+
+        def wait_for(needle: str, timeout: float) -> bool:
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                line = mp.stdout.readline()
+                if line:
+                    out.append(line)
+                    if needle in line:
+                        return True
+                else:
+                    time.sleep(0.05)
+            return False
+
+        def type_(cmd: str) -> None:  # the operator types at MAVProxy's prompt
+            assert mp.stdin is not None
+            mp.stdin.write(cmd + "\n")
+            mp.stdin.flush()
+
+        try:
+            assert mp.stdout is not None
+            os.set_blocking(mp.stdout.fileno(), False)
+            assert wait_for("Detected vehicle 1:1", 30), "".join(out)
+            assert wait_for("Received 13 parameters", 30), "".join(out)  # MAVProxy fetches them on connect
+            type_("param show COM_DL_LOSS_T")
+            assert wait_for("COM_DL_LOSS_T", 10), "".join(out)
+            type_("long DO_SET_MODE 1 3 0")  # custom mode, PX4 main mode 3 = POSCTL (MAVProxy's cmdlong module)
+            assert wait_for("Mode POSCTL", 15), "".join(out)
+        finally:
+            os.killpg(mp.pid, signal.SIGTERM)
+            try:
+                mp.wait(5)
+            except subprocess.TimeoutExpired:  # MAVProxy's own threads may ignore SIGTERM
+                os.killpg(mp.pid, signal.SIGKILL)
+                mp.wait(5)
+        text = "".join(out)
+        assert "Mode POSCTL" in text, text  # the vehicle's HEARTBEAT after the mode command went through
+        params = dict(line.split()[:2] for line in (cwd / "mav.parm").read_text().splitlines() if line.strip())
+        assert float(params["COM_DL_LOSS_T"]) == 10 and float(params["NAV_DLL_ACT"]) == 0
+        status = [e for e in read_events(tmp_path / "drone.jsonl") if e["type"] == "status"]
+        assert status[-1]["mode"] == "POSCTL"
+        apps = [e for e in read_events(tmp_path / "A.jsonl") if e["type"] == "gcs_app"]
+        assert apps and apps[0]["sysid"] == 250
+
+
+@pytest.mark.slow
+def test_mavsdk_flies_through_a_while_b_is_refused_until_it_holds_authority(tmp_path):
+    from mavsdk import ComponentType, Configuration, Mavsdk
+    from mavsdk.plugins.action import Action
+    from mavsdk.plugins.mission_raw import MissionItem, MissionRaw
+    from mavsdk.plugins.telemetry import Telemetry
+
+    with stack(tmp_path, "3", with_b=True) as ports:
+        m = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        b = _client(ports["b"], 254)
+        try:
+            m.add_any_connection(f"udpout://127.0.0.1:{ports['a']}")
+            system = m.first_autopilot(20.0)
+            assert system is not None, "MAVSDK did not find the vehicle behind GS A's gateway"
+            tel, act, mis = Telemetry(system), Action(system), MissionRaw(system)
+            items = [MissionItem(i, it.frame, it.command, int(i == 0), 1, *it.params,
+                                 0 if math.isnan(it.lat) else int(round(it.lat * 1e7)),
+                                 0 if math.isnan(it.lon) else int(round(it.lon * 1e7)), it.alt, 0)
+                     for i, it in enumerate(reference_mission())]
+            mis.upload_mission(items)
+            act.arm()
+            mis.start_mission()
+            hold = FlightMode.HOLD.value
+            mission = FlightMode.MISSION.value
+            refused = accepted = resumed = False
+            closest_delivery = math.inf
+            finished = False
+            deadline = time.monotonic() + 150
+            while time.monotonic() < deadline:
+                # the delivery point is beyond A's coverage: B's application sees it through B's gateway
+                while (gp := b.recv_match(type="GLOBAL_POSITION_INT", blocking=False)) is not None:
+                    if gp.relative_alt < 1000:
+                        closest_delivery = min(closest_delivery, distance_m(DELIVERY, GeoPoint(gp.lat / 1e7, gp.lon / 1e7)))
+                if not accepted:
+                    b.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                    b.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                            hold[0], hold[1], 0, 0, 0, 0)
+                    ack = _ack(b, mav.MAV_CMD_DO_SET_MODE, 1.0)
+                    if ack is not None and ack.result == mav.MAV_RESULT_DENIED:
+                        refused = True  # B's application while B is not in control
+                    elif ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED:
+                        accepted = True  # after the hand-over to B
+                        time.sleep(1.0)
+                        b.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                                mission[0], mission[1], 0, 0, 0, 0)
+                        resumed = (_ack(b, mav.MAV_CMD_DO_SET_MODE, 3.0) or ack).result == mav.MAV_RESULT_ACCEPTED
+                if accepted and not tel.armed() and closest_delivery < 5:
+                    p = tel.position()
+                    if math.isfinite(p.latitude_deg) and distance_m(HOME, GeoPoint(p.latitude_deg, p.longitude_deg)) < 3:
+                        finished = True
+                        break
+                time.sleep(0.2)
+            events = read_events(tmp_path / "drone.jsonl")
+            hv = [(e["from"], e["to"]) for e in events if e["type"] == "handover_complete"]
+            assert refused, "B's application was never refused while A held authority"
+            assert accepted and resumed, f"B's application could not command after the hand-over (hand-overs {hv})"
+            assert hv == [("A", "B"), ("B", "A")]
+            assert closest_delivery < 5 and finished, f"delivery {closest_delivery:.1f} m; finished {finished}"
+            assert mis.mission_progress().current >= len(items) - 1
+            b_apps = [e for e in read_events(tmp_path / "B.jsonl") if e["type"] == "gcs_app"]
+            assert b_apps and b_apps[0]["sysid"] == 254
+        finally:
+            b.close()
+            m.destroy()
