@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
-import signal
+import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -146,14 +146,16 @@ class GroundStation:
         if view.link is not None:
             if read_header(frame).commanding:
                 view.commands_sent[view.epoch] += 1  # every commanding frame, to check none is lost
-            self.session.put(kx.up(view.name, self.name), view.link.seal(frame))  # see DroneNode._publish
+            self.session.put(kx.up(view.name, self.name), view.link.seal(frame),  # see DroneNode._publish
+                             congestion_control=zenoh.CongestionControl.DROP)
 
     def send_msg(self, view: DroneView, msg: Any) -> None:
         self.send_frame(view, self.codec.encode(msg))
 
     def send_control(self, view: DroneView, msg: wire.Control) -> None:
         if view.link is not None:
-            self.session.put(kx.up(view.name, self.name), view.link.seal_control(msg))
+            self.session.put(kx.up(view.name, self.name), view.link.seal_control(msg),
+                             congestion_control=zenoh.CongestionControl.DROP)
 
     def holds_authority(self, view: DroneView) -> bool:
         return view.owner == self.name and view.released_epoch != view.epoch
@@ -389,6 +391,18 @@ class GroundStation:
                                                              "dropped": {r.value: c for r, c in v.link.drops.items() if c}}}
         return {"drones": out, "counters": dict(self.counters)}
 
+    def print_view(self) -> None:
+        """The telemetry view: one line per linked drone on stdout."""
+        from zdrone.vehicle.px4modes import mode_name
+
+        for d, v in self.views.items():
+            if v.link is None:
+                continue
+            pos = f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position else "position ?"
+            print(f"gs {self.name} | {d}: authority {v.owner} (epoch {v.epoch}, {v.ha_state}) | {pos} | "
+                  f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.custom_mode)} | mission item {v.mission_seq} | "
+                  f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}", flush=True)
+
     def stop(self, *_: object) -> None:
         self._running = False
 
@@ -432,7 +446,7 @@ class GroundStation:
         self.events.write("start", drones=list(self.views))
         last_cmd: dict[str, float] = {}
         hb_due = [0.0]
-        next_status = 0.0
+        next_status = next_view = 0.0
         try:
             while self._running:
                 self.drain(0.005 if self.loop_hooks else 0.01)
@@ -443,19 +457,27 @@ class GroundStation:
                 if now >= next_status:
                     next_status = now + self.opts.status_period
                     self.events.write("status", **self.status())
+                    if now >= next_view:
+                        next_view = now + 5.0
+                        self.print_view()
         finally:
             self.close()
 
     def close(self) -> None:
         self.events.write("stop", **self.status())
-        self.sub.undeclare()
-        self.linkkey_q.undeclare()
-        self.session.close()
+        for step in (self.sub.undeclare, self.linkkey_q.undeclare, self.session.close):
+            try:  # each step on its own: a session the signal thread closed must not stop the rest
+                step()
+            except Exception as exc:
+                log.warning("close: %s", exc)
         self.events.write("closed")
         self.events.close()
 
 
 def run_station(opts: StationOptions) -> int:
+    from zdrone.net.shutdown import block_signals, serve_signals
+
+    block_signals()
     station = GroundStation(opts)
     gateway = None
     if opts.gcs:
@@ -467,11 +489,12 @@ def run_station(opts: StationOptions) -> int:
             station.close()
             raise
         print(f"zdrone gs {station.name}: GCS gateway on {', '.join(gateway.endpoints())} for {gateway.drone}", flush=True)
-    signal.signal(signal.SIGTERM, station.stop)
-    signal.signal(signal.SIGINT, station.stop)
+    closed = threading.Event()
+    serve_signals(station.stop, station.session.close, closed)
     try:
         station.run()
     finally:
+        closed.set()
         if gateway is not None:
             gateway.close()
     return 0

@@ -68,7 +68,7 @@ def _bench_traffic(args: argparse.Namespace) -> int:
 def _bench_link(args: argparse.Namespace) -> int:
     from .bench import link, table
 
-    result = link.run(quick=args.quick)
+    result = link.run(quick=args.quick, progress=not args.json)
     table.print_json(result) if args.json else link.render(result)
     return 0
 
@@ -155,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+#: Commands whose SIGTERM/SIGINT are served by a signal thread (registered by zdrone.commands).
+_SIGNAL_THREAD_COMMANDS: list[Callable[[argparse.Namespace], int]] = []
+
 #: Later modules register their subcommands here (name -> adder of a subparser).
 _EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = []
 
@@ -163,8 +166,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``zdrone`` console script."""
     from . import commands  # noqa: F401  (registers the node subcommands)
 
+    import faulthandler
+    import signal
+
+    try:  # `kill -USR1 PID` prints every thread's stack, even if one is stuck in C
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+    except (AttributeError, ValueError, OSError):  # no SIGUSR1, or stderr is not a real file (tests)
+        pass
     try:
         args = build_parser().parse_args(argv)
+        if getattr(args, "func", None) in _SIGNAL_THREAD_COMMANDS:
+            from .net.shutdown import block_signals
+
+            block_signals()  # before any library starts a thread: see zdrone.net.shutdown
         level = logging.WARNING - 10 * min(args.verbose, 2)
         logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
         code = args.func(args)

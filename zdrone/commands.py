@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from .cli import _EXTRA_COMMANDS, UsageError
+from .cli import _EXTRA_COMMANDS, _SIGNAL_THREAD_COMMANDS, UsageError
 from .core.geometry import GeoPoint
 
 
@@ -163,6 +163,7 @@ def add_gs(sub: argparse._SubParsersAction) -> None:
 
 _EXTRA_COMMANDS.append(add_drone)
 _EXTRA_COMMANDS.append(add_gs)
+_SIGNAL_THREAD_COMMANDS.extend([_drone, _gs])
 
 
 def _demo(args: argparse.Namespace) -> int:

@@ -31,6 +31,7 @@ from zdrone.vehicle.px4modes import FlightMode
 def stack(tmp: Path, speedup: str, with_b: bool):
     init_fleet(tmp / "fleet")
     rport, sport, pa, pb = free_port(socket.SOCK_STREAM), free_port(), free_port(), free_port()
+    ta = free_port(socket.SOCK_STREAM)
     router = f"tcp/127.0.0.1:{rport}"
     common = ["--fleet", str(tmp / "fleet"), "--router", router]
     with contextlib.ExitStack() as es:
@@ -46,9 +47,64 @@ def stack(tmp: Path, speedup: str, with_b: bool):
                                        "--events", str(tmp / "B.jsonl")))
             b.wait_line("GCS gateway", 20)
         a = es.enter_context(spawn(ZDRONE, "gs", "--id", "A", *common, "--pair", "--gcs", f"udpin:127.0.0.1:{pa}",
-                                   "--events", str(tmp / "A.jsonl")))
+                                   "--gcs", f"tcpin:127.0.0.1:{ta}", "--events", str(tmp / "A.jsonl")))
         a.wait_line("paired", 30)
-        yield {"a": pa, "b": pb}
+        yield {"a": pa, "b": pb, "a_tcp": ta}
+
+
+class RawApp:
+    """A minimal MAVLink application over TCP that also sees messages pymavlink's dialect lacks (512)."""
+
+    def __init__(self, port: int, sysid: int) -> None:
+        from zdrone.core.mavlink import FrameCodec
+
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        self.codec = FrameCodec(sysid, 190)
+        self.buf = b""
+        self.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+
+    def send(self, msg) -> None:
+        self.sock.sendall(self.codec.encode(msg))
+
+    def _frames(self, timeout: float) -> list[bytes]:
+        self.sock.settimeout(timeout)
+        try:
+            self.buf += self.sock.recv(65536)
+        except socket.timeout:
+            return []
+        out = []
+        while len(self.buf) >= 12:
+            i = self.buf.find(b"\xfd")
+            if i < 0:
+                self.buf = b""
+                break
+            self.buf = self.buf[i:]
+            total = 12 + self.buf[1]
+            if len(self.buf) < total:
+                break
+            out.append(self.buf[:total])
+            self.buf = self.buf[total:]
+        return out
+
+    def wait_control_status(self, timeout: float) -> int | None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for f in self._frames(0.5):
+                if f[7:10] == bytes([0, 2, 0]):  # msgid 512
+                    return f[10]  # sysid_in_control
+        return None
+
+    def wait(self, pred, timeout: float):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for f in self._frames(0.5):
+                m = self.codec.decode(f)
+                if m is not None and pred(m):
+                    return m
+        raise AssertionError("expected message not received")
+
+    def close(self) -> None:
+        self.sock.close()
 
 
 def _client(port: int, sysid: int) -> mavutil.mavfile:
@@ -94,16 +150,27 @@ def test_mavproxy_reads_parameters_and_switches_mode(tmp_path):
             mp.stdin.write(cmd + "\n")
             mp.stdin.flush()
 
+        raw = RawApp(ports["a_tcp"], sysid=251)  # a second application on the same GS, over TCP
         try:
             assert mp.stdout is not None
             os.set_blocking(mp.stdout.fileno(), False)
             assert wait_for("Detected vehicle 1:1", 30), "".join(out)
+            # operator control: A holds authority; the gateway says so (CONTROL_STATUS) and grants the request
+            status = raw.wait_control_status(10)
+            assert status == 4, status  # GS A's sysid
+            raw.send(mav.MAVLink_command_long_message(1, 1, 32100, 0, 0, 0, 0, 0, 0, 0, 0))
+            ack = raw.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 32100, 10)
+            assert ack.result == mav.MAV_RESULT_ACCEPTED and (ack.target_system, ack.target_component) == (251, 190)
+            raw.send(mav.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1))
+            pv = raw.wait(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "NAV_DLL_ACT", 10)
+            assert struct.unpack("<i", struct.pack("<f", pv.param_value))[0] == 0
             assert wait_for("Received 13 parameters", 30), "".join(out)  # MAVProxy fetches them on connect
             type_("param show COM_DL_LOSS_T")
             assert wait_for("COM_DL_LOSS_T", 10), "".join(out)
             type_("long DO_SET_MODE 1 3 0")  # custom mode, PX4 main mode 3 = POSCTL (MAVProxy's cmdlong module)
             assert wait_for("Mode POSCTL", 15), "".join(out)
         finally:
+            raw.close()
             os.killpg(mp.pid, signal.SIGTERM)
             try:
                 mp.wait(5)
@@ -116,8 +183,8 @@ def test_mavproxy_reads_parameters_and_switches_mode(tmp_path):
         assert float(params["COM_DL_LOSS_T"]) == 10 and float(params["NAV_DLL_ACT"]) == 0
         status = [e for e in read_events(tmp_path / "drone.jsonl") if e["type"] == "status"]
         assert status[-1]["mode"] == "POSCTL"
-        apps = [e for e in read_events(tmp_path / "A.jsonl") if e["type"] == "gcs_app"]
-        assert apps and apps[0]["sysid"] == 250
+        apps = {e["sysid"]: e["gs_compid"] for e in read_events(tmp_path / "A.jsonl") if e["type"] == "gcs_app"}
+        assert set(apps) == {250, 251} and len(set(apps.values())) == 2  # two applications, two component ids
 
 
 @pytest.mark.slow

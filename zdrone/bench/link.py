@@ -184,7 +184,7 @@ def _throughput(path: _Path, n: int) -> float:
     return round(len(path.arrivals) / (path.arrivals[-1][0] - sent[0]))
 
 
-def run(quick: bool = False) -> dict[str, Any]:
+def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="zdrone-bench-link-"))
     init_fleet(tmp / "fleet")
     port = free_port(socket.SOCK_STREAM)
@@ -196,6 +196,12 @@ def run(quick: bool = False) -> dict[str, Any]:
         proc.stdout.readline()  # the ready line
         n_lat, n_thr = (300, 3000) if quick else (2000, 30000)
         out: dict[str, Any] = {"latency_us": {}, "frames_per_s": {}, "dropped": {}}
+        status = None
+        if progress:
+            from rich.console import Console
+
+            status = Console(stderr=True).status("measuring latency and throughput…")
+            status.start()
         variants = (("plain", False), ("zdrone", True))
         rounds = 1 if quick else 3
         samples: dict[str, list[dict[str, float]]] = {n: [] for n, _ in variants}
@@ -209,6 +215,8 @@ def run(quick: bool = False) -> dict[str, Any]:
                         out["dropped"][name] = path.dropped
                 finally:
                     path.close()
+        if status is not None:
+            status.stop()
         for name, _ in variants:
             ss = sorted(samples[name], key=lambda x: x["p50"])
             out["latency_us"][name] = ss[len(ss) // 2] | {"rounds": rounds}

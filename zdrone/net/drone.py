@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import os
 import queue
-import signal
+import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -103,7 +103,7 @@ class DroneNode:
             return
         # session.put, not a declared publisher: through an ACL router (zenoh 1.10) a declared
         # publisher's samples after the first are not delivered; session.put's are.
-        self.session.put(kx.down(self.name, gs), payload)
+        self.session.put(kx.down(self.name, gs), payload, congestion_control=zenoh.CongestionControl.DROP)
 
     # ------------------------------------------------------------------ links
     def _install(self, gs: str, key: LinkKey, now: float) -> None:
@@ -344,19 +344,27 @@ class DroneNode:
     def close(self) -> None:
         now = time.monotonic()
         self.events.write("stop", **self.status(now))
-        for gs in list(self.subs):
-            self._unsubscribe(gs)
-        self.pairing.undeclare()
-        self.session.close()
-        self.vehicle.close()
+        steps = [*(lambda gs=gs: self._unsubscribe(gs) for gs in list(self.subs)), self.pairing.undeclare,
+                 self.session.close, self.vehicle.close]
+        for step in steps:  # each step on its own: a session the signal thread closed must not stop the rest
+            try:
+                step()
+            except Exception as exc:
+                log.warning("close: %s", exc)
         self.events.write("closed")
         self.events.close()
 
 
 def run_drone(opts: DroneOptions) -> int:
+    from .shutdown import block_signals, serve_signals
+
+    block_signals()
     node = DroneNode(opts)
-    signal.signal(signal.SIGTERM, node.stop)
-    signal.signal(signal.SIGINT, node.stop)
-    node.run()
+    closed = threading.Event()
+    serve_signals(node.stop, node.session.close, closed)
+    try:
+        node.run()
+    finally:
+        closed.set()
     return 0
 

@@ -122,9 +122,14 @@ class Demo:
                 try:
                     child.proc.wait(max(0.1, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
+                    try:
+                        os.kill(child.proc.pid, signal.SIGUSR1)  # its stacks go to its log, for diagnosis
+                        time.sleep(0.5)
+                    except ProcessLookupError:
+                        pass
                     child.proc.kill()
                     child.proc.wait(5)
-                    self.notes.append(f"{child.name} had to be killed")
+                    self.notes.append(f"{child.name} had to be killed (stacks in {child.log.name})")
                 codes[child.name] = child.proc.returncode
         return {n: codes.get(n) for n in self.children}
 
