@@ -114,11 +114,11 @@ def _tbm_figure(status: list[dict], t0: float) -> Any:
         ax.plot(xs, ys, label=f"link {gs}", color=COLOURS.get(gs, "#777"))
     ax.axhline(1.0, ls="--", color="#bcbd22", label="DEGRADED (1 s)")
     ax.axhline(3.0, ls="--", color="#d62728", label="LOST (3 s)")
-    ax.set_ylabel("time since last\nauthentic frame (s)")
+    ax.set_ylabel("time since last authentic\nframe (s, clipped at 6)")
     ax.set_xlabel("time (s)")
     ax.set_ylim(0, 6.2)
     ax.set_title("Time between messages per link")
-    ax.legend(fontsize=8, ncol=4)
+    ax.legend(fontsize=8, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.28), frameon=False)
     ax.grid(alpha=0.3)
     return fig
 
