@@ -38,6 +38,7 @@ from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.fleetfiles import load_fleet, load_secret
 from zdrone.net import keyexprs as kx
 from zdrone.net.eventlog import EventLog
+from zdrone.net.inbox import drain
 from zdrone.net.session import open_client
 
 from .planner import MissionUploader, PlannedItem
@@ -429,17 +430,7 @@ class GroundStation:
                     self.send_control(view, wire.SmHeartbeat(self._sm_seq))
 
     def drain(self, timeout: float) -> None:
-        try:
-            first = self.rx.get(timeout=timeout)
-        except queue.Empty:
-            return
-        self._on_envelope(first[0], first[1], time.monotonic())
-        for _ in range(512):
-            try:
-                d, data = self.rx.get_nowait()
-            except queue.Empty:
-                return
-            self._on_envelope(d, data, time.monotonic())
+        drain(self.rx, timeout, self._on_envelope)
 
     def run(self) -> None:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)

@@ -44,49 +44,54 @@ def _fleet_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _bench_crypto(args: argparse.Namespace) -> int:
-    from .bench import crypto, table
+def _emit(args: argparse.Namespace, result: dict, render: Callable[[dict], None]) -> None:
+    """Every bench prints a table for people, or ``--json`` for tools."""
+    from .bench import table
 
-    result = crypto.run(quick=args.quick)
     if args.json:
         table.print_json(result)
     else:
-        crypto.render(result)
+        render(result)
+
+
+def _bench_crypto(args: argparse.Namespace) -> int:
+    from .bench import crypto
+
+    _emit(args, crypto.run(quick=args.quick), crypto.render)
     return 0
 
 
 def _bench_traffic(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .bench import table, traffic
+    from .bench import traffic
 
     result = traffic.run(quick=args.quick, out=Path(args.out) if args.out else None, progress=not args.json)
-    table.print_json(result) if args.json else traffic.render(result)
+    _emit(args, result, traffic.render)
     return 0 if all("error" not in r for r in result["rows"]) else 1
 
 
 def _bench_link(args: argparse.Namespace) -> int:
-    from .bench import link, table
+    from .bench import link
 
-    result = link.run(quick=args.quick, progress=not args.json)
-    table.print_json(result) if args.json else link.render(result)
+    _emit(args, link.run(quick=args.quick, progress=not args.json), link.render)
     return 0
 
 
 def _bench_handover(args: argparse.Namespace) -> int:
-    from .bench import handover, table
+    from .bench import handover
 
     for name in ("crossings", "trials"):
         v = getattr(args, name)
         if v is not None and not 1 <= v <= 50:
             raise UsageError(f"--{name} {v}: must be 1..50")
     result = handover.run(quick=args.quick, crossings=args.crossings, trials=args.trials, progress=not args.json)
-    table.print_json(result) if args.json else handover.render(result)
+    _emit(args, result, handover.render)
     return 0
 
 
 def _bench_scale(args: argparse.Namespace) -> int:
-    from .bench import scale, table
+    from .bench import scale
 
     try:
         ks = [int(x) for x in args.drones.split(",")] if args.drones else None
@@ -94,8 +99,7 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
     if ks and not all(1 <= k <= 150 for k in ks) or not 2 <= args.stations <= 26:
         raise UsageError("--drones: each 1..150; --stations: 2..26")
-    result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json)
-    table.print_json(result) if args.json else scale.render(result)
+    _emit(args, scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json), scale.render)
     return 0
 
 

@@ -43,10 +43,12 @@ def _no_orphans(out: Path) -> None:
     assert mine == [], f"processes left running in {out}: {mine}"
 
 
-def _clean_shutdown(summary: dict, out: Path, nodes=("drone", "A", "B")) -> None:
+def _clean_shutdown(summary: dict, out: Path, nodes=("drone", "A", "B"), stopped: tuple[str, ...] = ()) -> None:
+    """Every process the scenario did not stop or kill on purpose exited 0 on SIGTERM, having closed
+    its session, and none is left."""
     for name, code in summary["exit_codes"].items():
-        if name not in ("gsA", "gsB") or code is not None:
-            assert code in (0, -9, -19) or name.startswith("gs"), (name, code)
+        if name not in stopped:
+            assert code == 0, (name, code, summary["notes"])
     for node in nodes:
         evs = read_events(out / f"{node}.jsonl")
         assert evs[-1]["type"] == "closed", f"{node} did not close its session"
@@ -82,8 +84,8 @@ def test_nominal_reference_flight(tmp_path):
     assert c["forwarded"] == {g: n for g, n in c["sent_as_authority"].items() if n}  # none lost, none doubled
     assert s["distance_from_home_m"] < 3.0
     drone = read_events(out / "drone.jsonl")
-    assert any(e["type"] == "vehicle_text" and "payload released" in e["text"] for e in read_events(out / "B.jsonl")) or \
-        any(e.get("type") == "region_left" for e in drone)
+    # B held authority at the delivery and heard the vehicle report it
+    assert any(e["type"] == "vehicle_text" and "payload released" in e["text"] for e in read_events(out / "B.jsonl"))
     delivery = fleet.nodes["B"].coverage
     near_delivery = [e for e in drone if e["type"] == "status" and e["position"]
                      and abs(e["position"][1] - delivery.lon) < 3e-5 and e["position"][2] < 0.5]
@@ -138,8 +140,7 @@ def test_link_loss_lands_the_drone(tmp_path):
     assert s["distance_from_home_m"] > 20.0  # landed where it was, not at home
     final = [e for e in read_events(out / "drone.jsonl") if e["type"] == "stop"][0]
     assert final["state"] == "failsafe" and not final["armed"] and final["landed_state"] == 1
-    assert any(e["type"] == "failsafe_notice" for e in read_events(out / "B.jsonl")) or True  # B may be out of reach
-    _clean_shutdown(s, out, nodes=("drone", "B"))
+    _clean_shutdown(s, out, nodes=("drone", "B"), stopped=("gsA",))
 
 
 @pytest.mark.slow
@@ -152,4 +153,4 @@ def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     assert [e for e in drone if e["type"] == "stop"][0]["owner"] == "A"
     assert any(e["type"] == "handover_failed" for e in read_events(out / "A.jsonl"))
     assert s["distance_from_home_m"] < 3.0  # A brought it home
-    _clean_shutdown(s, out, nodes=("drone", "A"))
+    _clean_shutdown(s, out, nodes=("drone", "A"), stopped=("gsB",))

@@ -26,7 +26,7 @@ def test_initiator_without_fleet_key_fails():
 
 def test_responder_without_fleet_key_fails():
     ini = PairingInitiator(GS, "A", "d1", DRONE.public)
-    m1 = ini.start()
+    ini.start()  # the real GS sent its message 1; an impostor answers it
     fake = PairingInitiator(GS, "A", "d1", STRANGER.public)  # someone answering as d1 with another key
     out = respond(STRANGER, "d1", "A", GS.public, fake.start(), SECRET)
     assert not isinstance(out, PairingFailed)

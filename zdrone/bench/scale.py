@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import socket
 import subprocess
@@ -30,6 +29,7 @@ SPEEDUP = 4.0
 
 def _host_drones(args: argparse.Namespace) -> int:
     from ..core.reference import HOME
+    from ..core.authority import HaDrop
     from ..core.tbm import LinkState
     from ..net.drone import DroneNode, DroneOptions
     from ..vehicle.inproc import InProcessVehicle
@@ -73,7 +73,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "handovers": max(0, m.epoch - 1),  # epoch 1 at pairing, +1 per hand-over
                 "owners": [o for _, o, _ in m.history], "state": m.state.value, "flew": armed_seen[i],
                 "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
-                "forwarded": dict(n.forwarded), "not_authority": m.drops.get(next(iter(m.drops), None), 0) if m.drops else 0,
+                "forwarded": dict(n.forwarded), "not_authority": m.drops[HaDrop.NOT_AUTHORITY],
                 "worst_owner_silence_s": round(worst_owner_silence[i], 3), "owner_lost_samples": owner_lost[i],
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.links.items()}}
         Path(args.out, "drones.json").write_text(json.dumps({"results": results, "loops": loops,

@@ -34,6 +34,7 @@ from ..sil.coverage import CoverageGate
 from ..vehicle.link import VehicleLink
 from . import keyexprs as kx
 from .eventlog import EventLog
+from .inbox import drain
 from .session import open_client
 
 log = logging.getLogger(__name__)
@@ -177,7 +178,8 @@ class DroneNode:
             return
         res = link.open(data, now)
         if isinstance(res, Dropped):
-            self.events.write("drop", gs=gs, reason=res.reason.value, detail=res.detail) if link.drops[res.reason] <= 5 else None
+            if link.drops[res.reason] <= 5:  # the first few of each reason in the log; all of them in the counters
+                self.events.write("drop", gs=gs, reason=res.reason.value, detail=res.detail)
             return
         assert isinstance(res, Opened)
         if res.header is not None:
@@ -318,19 +320,8 @@ class DroneNode:
 
     def step(self, wait: float) -> None:
         """One pass of the loop: wait up to ``wait`` s for the first envelope, then do everything."""
-        try:
-            first = self.rx.get(timeout=wait) if wait > 0 else self.rx.get_nowait()
-        except queue.Empty:
-            first = None
+        drain(self.rx, wait, self._on_envelope)
         now = time.monotonic()
-        if first is not None:
-            self._on_envelope(first[0], first[1], now)
-            for _ in range(512):
-                try:
-                    gs, data = self.rx.get_nowait()
-                except queue.Empty:
-                    break
-                self._on_envelope(gs, data, time.monotonic())
         self._serve_pairing(now)
         self.vehicle.heartbeat(now)
         self._telemetry(self.vehicle.recv(0.0))

@@ -174,10 +174,10 @@ class Demo:
         live = LiveView(o.scenario, enabled=o.live if o.live is not None else sys.stdout.isatty(), quiet=o.quiet)
         if o.max_wall is not None:
             deadline = min(deadline, time.monotonic() + o.max_wall)
-        self.progress = state = {}
+        state: dict[str, Any] = {"handovers": [], "failsafe": None, "armed_seen": False, "status": {}, "region_entered": 0,
+                                 "mission_started": False, "done": False, "rogue_started": False, "hook_done": False}
+        self.progress = state  # read by the benches' progress displays
         seen = 0
-        state.update({"handovers": [], "failsafe": None, "armed_seen": False, "status": {}, "region_entered": 0,
-                                 "mission_started": False, "done": False, "rogue_started": False, "hook_done": False})
         with live:
             while time.monotonic() < deadline and not state["done"]:
                 events = read_events(drone_log) if drone_log.exists() else []
@@ -227,7 +227,7 @@ class Demo:
                     state["hook_done"] = True
                     self.signal("gsA", signal.SIGSTOP)
                     self.children["gsA"].stopped = True
-                    live.event(ev["t"] - 0, "scenario: GS A goes silent (SIGSTOP)")
+                    live.event(ev["t"], "scenario: GS A goes silent (SIGSTOP)")
             landed = ev.get("landed_state") == 1 and not ev.get("armed")
             if state["armed_seen"] and landed and ev.get("mode") in ("MISSION", "HOLD", "LAND", "RTL"):
                 state["done"] = True
@@ -244,7 +244,8 @@ class Demo:
             state["handovers"].append({k: ev.get(k) for k in ("from", "to", "epoch", "time", "kind", "position")})
         if t == "failsafe":
             state["failsafe"] = ev
-        if t not in ("subscribe", "unsubscribe", "link_state", "drop") or t == "drop" and len(live.lines) < 200:
+        shown = t not in ("subscribe", "unsubscribe", "link_state", "drop") or (t == "drop" and len(live.lines) < 200)
+        if shown:
             live.event(ev["t"], _describe(ev))
 
     # ----------------------------------------------------------------- summary
