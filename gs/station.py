@@ -1,15 +1,19 @@
 """``zdrone gs``: a ground station node.
 
 It pairs with a drone on the ground (Noise KK over ``zdrone/<drone>/pair/<gs>``), shares link keys
-over the backhaul (answers ``backhaul/<gs>/linkkey/<drone>`` with an HPKE-sealed secret; asks the
-other authorized GSs' queryables and hands their keys to the drone as KEY_GRANTs), sends a sealed
+over the backhaul (Noise KK as query and reply on ``backhaul/<gs>/linkkey/<drone>``, see
+``zdrone.core.keyshare``: the secret it hands out stays a *candidate* of its own link until the drone
+proves it; as authority it asks the other authorized GSs and hands their keys to the drone as
+KEY_GRANTs), sends a sealed
 MAVLink HEARTBEAT at 2 Hz on every link (the drone's TBM liveness signal: no extra packets),
 flies a mission (the reference mission or a QGroundControl ``.plan``) when it holds authority, and
 coordinates hand-over: while it holds authority and the drone is inside its own and another
 authorized GS's coverage, nearer to the other's centre, it releases authority to that GS. If a
 hand-over it started fails, it commands RTL so the drone comes back into its coverage.
 
-One thread runs the loop; Zenoh callbacks only queue what they receive.
+One thread runs the loop; Zenoh callbacks only queue what they receive. No call in the loop
+blocks: pairing and key-sharing queries are asynchronous (their replies come back through the
+inbox), and work for incoming key-sharing queries is bounded per turn and rate-limited per asker.
 """
 
 from __future__ import annotations
@@ -32,18 +36,27 @@ from zdrone.core.envelope import Dropped, SecureLink
 from zdrone.core.fleet import ConfigError
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.keys import LinkKey
-from zdrone.core.keyshare import LinkKeyRequest, open_secret, seal_secret
+from zdrone.core.keyshare import KeyShareAsk, Refused, ShareRefusal, answer, decode_query
+from zdrone.core.linkslot import LinkSlot, Promoted
+from zdrone.core.ratelimit import RateLimiter
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.fleetfiles import load_fleet, load_secret
 from zdrone.net import keyexprs as kx
 from zdrone.net.eventlog import EventLog
-from zdrone.net.inbox import drain
-from zdrone.net.session import open_client
+from zdrone.net.inbox import drain, reply_bytes
+from zdrone.net.session import open_client, query_queue
 
 from .planner import MissionUploader, PlannedItem
 
 log = logging.getLogger(__name__)
+#: Key-sharing handshakes answered per loop turn at most, and per asker per second.
+LINKKEY_PER_TURN = 2
+LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
+#: A secret handed out over the backhaul waits this long for the drone to prove it (the drone
+#: first speaks under it when it reaches this GS's coverage).
+LINKKEY_CANDIDATE_TTL = 900.0
+PAIR_TIMEOUT = 3.0
 GCS_COMPID = mav.MAV_COMP_ID_MISSIONPLANNER
 USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG_ID_HEARTBEAT,
                          mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, mav.MAVLINK_MSG_ID_MISSION_CURRENT,
@@ -76,7 +89,11 @@ class DroneView:
 
     name: str
     sysid: int
-    link: SecureLink | None = None
+    link: SecureLink | None = None  # the live link (``slot.live``)
+    slot: LinkSlot = field(default_factory=LinkSlot)
+    pairing: PairingInitiator | None = None
+    pairing_deadline: float = 0.0
+    asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
     position: GeoPoint | None = None
     armed: bool = False
     custom_mode: int = 0
@@ -123,24 +140,25 @@ class GroundStation:
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
         self.events = EventLog(opts.events, opts.gs)
         self.counters: Counter[str] = Counter()
-        self.rx: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.rx: queue.SimpleQueue[tuple[str, str, Any]] = queue.SimpleQueue()
         self._running = True
         self._grant_id = 0
         self._sm_seq = 0
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
+        self.linkkey_limiter = RateLimiter(LINKKEY_RATE, LINKKEY_BURST)
         self.session = open_client(opts.router, opts.gs, self.secret.router_password)
         self.sub = self.session.declare_subscriber(kx.down("*", self.name), self._on_sample)
-        self.linkkey_q = self.session.declare_queryable(kx.linkkey_all(self.name))
+        self.linkkey_q = self.session.declare_queryable(kx.linkkey_all(self.name), query_queue())
 
     # ------------------------------------------------------------------ plumbing
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        self.rx.put((str(sample.key_expr).split("/")[1], sample.payload.to_bytes()))
+        self.rx.put(("down", str(sample.key_expr).split("/")[1], sample.payload.to_bytes()))
 
-    def _install(self, view: DroneView, key: LinkKey, now: float) -> None:
-        view.link = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(view.name, self.name),
-                               rx_keyexpr=kx.down(view.name, self.name), peer_sysid=view.sysid, now=now,
-                               cipher=self.opts.cipher)
+    def _new_link(self, view: DroneView, key: LinkKey, now: float) -> SecureLink:
+        return SecureLink(key=key, role="gs", tx_keyexpr=kx.up(view.name, self.name),
+                          rx_keyexpr=kx.down(view.name, self.name), peer_sysid=view.sysid, now=now,
+                          cipher=self.opts.cipher)
 
     def send_frame(self, view: DroneView, frame: bytes) -> None:
         """Seal and send one MAVLink frame to the drone (no-op without a link)."""
@@ -163,94 +181,177 @@ class GroundStation:
 
     # ------------------------------------------------------------------ pairing
     def _try_pair(self, view: DroneView, now: float) -> None:
+        """Send message 1 (asynchronous: the reply comes back through the inbox)."""
+        if view.pairing is not None and now < view.pairing_deadline:
+            return
         if now - view.last_pair_try < 2.0:
             return
         view.last_pair_try = now
-        ini = PairingInitiator(self.secret.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes)
-        m1 = ini.start()
-        for reply in self.session.get(kx.pair(view.name, self.name), payload=m1, timeout=3.0):
-            if reply.ok is None:
-                reason = reply.err.payload.to_bytes().decode(errors="replace") if reply.err else "error"
-                self.events.write("pair_refused", drone=view.name, reason=reason)
-                log.warning("pairing with %s refused: %s", view.name, reason)
-                self.counters["pair_refused"] += 1
-                return
-            key = ini.finish(reply.ok.payload.to_bytes())
-            if isinstance(key, PairingFailed):
-                self.events.write("pair_failed", drone=view.name, reason=key.reason)
-                return
-            self._install(view, key, now)
-            self.events.write("paired", drone=view.name)
-            print(f"zdrone gs {self.name}: paired with {view.name}", flush=True)
+        view.pairing = PairingInitiator(self.secret.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes)
+        view.pairing_deadline = now + PAIR_TIMEOUT
+        drone = view.name
+        self.session.get(kx.pair(drone, self.name), lambda r: self.rx.put(("pair", drone, reply_bytes(r))),
+                         payload=view.pairing.start(), timeout=PAIR_TIMEOUT,
+                         consolidation=zenoh.ConsolidationMode.NONE)
+
+    def _on_pair_reply(self, view: DroneView, reply: tuple[bytes | None, bytes | None], now: float) -> None:
+        ok, err = reply
+        ini = view.pairing
+        if ini is None or now >= view.pairing_deadline:
+            self.counters["pair_reply_late"] += 1
             return
-        self.counters["pair_no_answer"] += 1
+        if ok is None:
+            reason = (err or b"error").decode(errors="replace")[:200]
+            self.events.write("pair_refused", drone=view.name, reason=reason)
+            log.warning("pairing with %s refused: %s", view.name, reason)
+            self.counters["pair_refused"] += 1
+            return
+        key = ini.finish(ok)
+        if isinstance(key, PairingFailed):
+            self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
+            self.events.write("pair_failed", drone=view.name, reason=key.reason)
+            return
+        view.pairing = None
+        # our own fresh key, proven by the drone's message 2: live at once; the drone takes it once
+        # our first frame under it arrives (we send a heartbeat now), the old one stays readable a while
+        view.slot.install(self._new_link(view, key, now), now)
+        view.link = view.slot.live
+        self.events.write("paired", drone=view.name)
+        print(f"zdrone gs {self.name}: paired with {view.name}", flush=True)
+        self._heartbeat(view)
 
     # --------------------------------------------------------------- key sharing
     def _serve_linkkeys(self, now: float) -> None:
+        """Answer key-sharing queries: refusals cost no crypto; ``LINKKEY_PER_TURN`` handshakes at most."""
+        handshakes = 0
         while True:
             q = self.linkkey_q.try_recv()
             if q is None:
                 return
             try:
-                self._answer_linkkey(q, now)
+                if handshakes >= LINKKEY_PER_TURN:
+                    self.counters["linkkey_deferred"] += 1
+                    continue
+                handshakes += self._answer_linkkey(q, now)
+            except zenoh.ZError as exc:
+                self.counters["linkkey_reply_error"] += 1
+                log.info("linkkey reply failed: %s", exc)
             finally:
                 q.drop()
 
-    def _answer_linkkey(self, q: zenoh.Query, now: float) -> None:
+    def _refuse_linkkey(self, q: zenoh.Query, reason: ShareRefusal, drone: str, asker: str, detail: str = "") -> None:
+        self.counters[f"linkkey_refused:{reason.value}"] += 1
+        if self.counters[f"linkkey_refused:{reason.value}"] <= 5:
+            self.events.write("linkkey_refused", drone=drone, asker=asker, reason=reason.value, detail=detail)
+        if reason is not ShareRefusal.RATE_LIMITED:
+            q.reply_err(reason.value.encode())
+
+    def _answer_linkkey(self, q: zenoh.Query, now: float) -> int:
+        """One key-sharing query; return 1 if a handshake was computed."""
         drone = kx.gs_of(q.key_expr)
-        try:
-            req = msgspec.json.decode(q.payload.to_bytes() if q.payload else b"", type=LinkKeyRequest)
-        except (msgspec.DecodeError, msgspec.ValidationError):
-            self.counters["linkkey_malformed"] += 1
-            q.reply_err(b"malformed request")
-            return
+        req = decode_query(q.payload.to_bytes() if q.payload else b"")
+        if isinstance(req, Refused):
+            self._refuse_linkkey(q, req.reason, drone, "?", req.detail)
+            return 0
         asker = self.fleet.nodes.get(req.asker)
-        if (drone not in self.views or asker is None or asker.role != "gs"
-                or not self.fleet.is_authorized(drone, req.asker) or not self.fleet.is_authorized(drone, self.name)):
-            self.counters["linkkey_refused"] += 1
-            self.events.write("linkkey_refused", drone=drone, asker=req.asker)
-            q.reply_err(b"not authorized")
-            return
+        if asker is None or asker.role != "gs" or req.asker == self.name:
+            self._refuse_linkkey(q, ShareRefusal.UNKNOWN_ASKER, drone, req.asker)
+            return 0
+        if drone not in self.views or not self.fleet.is_authorized(drone, req.asker) or not self.fleet.is_authorized(drone, self.name):
+            self._refuse_linkkey(q, ShareRefusal.UNAUTHORIZED, drone, req.asker)
+            return 0
+        if not self.linkkey_limiter.allow(req.asker, now):
+            self._refuse_linkkey(q, ShareRefusal.RATE_LIMITED, drone, req.asker)
+            return 0
         secret = os.urandom(32)
+        reply = answer(self.secret.identity, self.name, drone, req.asker, asker.public_bytes, req.m1, secret)
+        if isinstance(reply, Refused):  # claimed to be an authorized GS without its key
+            self._refuse_linkkey(q, reply.reason, drone, req.asker, reply.detail)
+            return 1
         view = self.views[drone]
-        self._install(view, LinkKey.from_secret(drone, self.name, secret), now)
-        q.reply(q.key_expr, seal_secret(secret, asker.public_bytes, drone, self.name, req.asker))
+        # Never touch the live link: the secret is a candidate until the drone speaks under it.
+        candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
+        view.slot.offer(candidate, now, f"linkkey:{req.asker}", LINKKEY_CANDIDATE_TTL)
+        q.reply(q.key_expr, reply)
+        self.counters["linkkey_shared"] += 1
         self.events.write("linkkey_shared", drone=drone, asker=req.asker)
-        log.info("link key for (%s, %s) shared with %s", drone, self.name, req.asker)
+        log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.name, req.asker)
+        return 1
 
     def _share_keys(self, view: DroneView, now: float) -> None:
-        """As authority: fetch the other authorized GSs' link keys and grant them to the drone."""
+        """As authority: fetch the other authorized GSs' link keys and grant them to the drone.
+
+        Asynchronous: each ask is one query; its replies come back through the inbox."""
         others = [g for g in self.fleet.nodes[view.name].authorized_gs if g != self.name]
         for g in others:
+            ask = view.asks.get(g)
+            if ask is not None and not ask.expired(now):
+                continue
+            if ask is not None:
+                del view.asks[g]
+                self.counters["linkkey_no_answer"] += 1
             if g in view.drone_links or g in view.granted or g in view.grants or now - view.last_share_try < 2.0:
                 continue
             view.last_share_try = now
-            payload = msgspec.json.encode(LinkKeyRequest(self.name))
-            for reply in self.session.get(kx.linkkey(g, view.name), payload=payload, timeout=3.0):
-                if reply.ok is None:
-                    continue
-                secret = open_secret(reply.ok.payload.to_bytes(), self.secret.identity, view.name, g, self.name)
-                if secret is None:
-                    self.counters["linkkey_bad_reply"] += 1
-                    continue
-                self._grant_id += 1
-                view.grants[g] = wire.KeyGrant(g, self.fleet.nodes[g].sysid, secret, self._grant_id)
-                view.grant_sent = 0.0
-                break
+            ask = KeyShareAsk(self.secret.identity, self.name, g, self.fleet.nodes[g].public_bytes, view.name, now)
+            view.asks[g] = ask
+            drone = view.name
+            self.session.get(kx.linkkey(g, drone), lambda r, g=g: self.rx.put(("linkkey", drone, (g, reply_bytes(r)))),
+                             payload=ask.payload, timeout=ask.deadline - now,
+                             consolidation=zenoh.ConsolidationMode.NONE)
         if view.grants and now - view.grant_sent >= 1.0:
             view.grant_sent = now
             for grant in view.grants.values():
                 self.send_control(view, grant)
 
+    def _on_linkkey_reply(self, view: DroneView, g: str, reply: tuple[bytes | None, bytes | None], now: float) -> None:
+        ok, err = reply
+        ask = view.asks.get(g)
+        if ok is None:
+            self.counters["linkkey_reply_error"] += 1
+            self.events.write("linkkey_error", drone=view.name, gs=g, reason=(err or b"").decode(errors="replace")[:120])
+            return
+        if ask is None:
+            self.counters["linkkey_reply:not_waiting"] += 1
+            return
+        secret = ask.on_reply(ok, now)
+        if isinstance(secret, Refused):
+            self.counters[f"linkkey_reply:{secret.reason.value}"] += 1
+            if self.counters[f"linkkey_reply:{secret.reason.value}"] <= 5:
+                self.events.write("linkkey_bad_reply", drone=view.name, gs=g, reason=secret.reason.value)
+            log.warning("key-sharing reply for %s from %s refused: %s", view.name, g, secret.reason.value)
+            return
+        del view.asks[g]
+        self._grant_id += 1
+        view.grants[g] = wire.KeyGrant(g, self.fleet.nodes[g].sysid, secret, self._grant_id)
+        view.grant_sent = 0.0
+        self.events.write("linkkey_received", drone=view.name, gs=g)
+
     # ----------------------------------------------------------------- receiving
-    def _on_envelope(self, drone: str, data: bytes, now: float) -> None:
+    def _on_inbox(self, kind: str, drone: str, data: Any, now: float) -> None:
         view = self.views.get(drone)
-        if view is None or view.link is None:
+        if view is None:
+            self.counters[f"{kind}:unknown_drone"] += 1
+            return
+        if kind == "down":
+            self._on_envelope(view, data, now)
+        elif kind == "pair":
+            self._on_pair_reply(view, data, now)
+        elif kind == "linkkey":
+            self._on_linkkey_reply(view, data[0], data[1], now)
+
+    def _on_envelope(self, view: DroneView, data: bytes, now: float) -> None:
+        drone = view.name
+        if view.link is None and not view.slot.candidates:
             self.counters["no_link"] += 1
             return
-        res = view.link.open(data, now)
+        res, promoted = view.slot.open(data, now)
         if isinstance(res, Dropped):
             return
+        if promoted is not None:
+            view.link = view.slot.live
+            self.events.write("link_confirmed", drone=drone, how=promoted.origin, replaced=promoted.replaced)
+            log.info("link to %s: key confirmed by the drone (%s)", drone, promoted.origin)
         if res.control is not None:
             self._on_control(view, res.control, now)
             return
@@ -366,8 +467,6 @@ class GroundStation:
                 if view.released_epoch != view.epoch:
                     view.release_confirmed = False
                     self.events.write("handover_release", drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])
-                    self.session.put(kx.handover(view.name), msgspec.json.encode(
-                        {"from": self.name, "to": g, "epoch": view.epoch, "mission_seq": view.mission_seq}))
                 view.released_epoch, view.release_sent = view.epoch, now
                 self.send_control(view, wire.HandoverRelease(g, view.epoch))
                 return
@@ -389,7 +488,9 @@ class GroundStation:
                       "stage": v.flight_stage, "position": [v.position.lat, v.position.lon, v.position.alt] if v.position else None,
                       "commands_sent": {str(k): c for k, c in v.commands_sent.items()},
                       "link": None if v.link is None else {"opened": v.link.opened, "sent": v.link.sent,
-                                                             "dropped": {r.value: c for r, c in v.link.drops.items() if c}}}
+                                                             "dropped": {r.value: c for r, c in v.link.drops.items() if c}},
+                      "key_candidates": len(v.slot.candidates),
+                      "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c}}
         return {"drones": out, "counters": dict(self.counters)}
 
     def print_view(self) -> None:
@@ -423,14 +524,17 @@ class GroundStation:
         if now >= hb_due[0]:
             hb_due[0] = now + 1.0 / self.opts.heartbeat_hz
             for view in self.views.values():
-                self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
-                                                                  mav.MAV_STATE_ACTIVE, 3))
+                self._heartbeat(view)
                 if self.opts.paper_heartbeat:
                     self._sm_seq += 1
                     self.send_control(view, wire.SmHeartbeat(self._sm_seq))
 
+    def _heartbeat(self, view: DroneView) -> None:
+        self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                          mav.MAV_STATE_ACTIVE, 3))
+
     def drain(self, timeout: float) -> None:
-        drain(self.rx, timeout, self._on_envelope)
+        drain(self.rx, timeout, self._on_inbox)
 
     def run(self) -> None:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)

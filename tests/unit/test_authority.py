@@ -11,9 +11,11 @@ from zdrone.core.authority import (AuthorityChanged, AuthorityMachine, CommandVe
                                    Frame, HaDrop, HandoverRequest, IllegalTransition, KeyGranted, LinkChanged,
                                    Paired, RegionChanged, Release, SendControl, State, Subscribe, Tick, Unsubscribe)
 from zdrone.core.tbm import LinkState
+from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import FailsafeNotice, Reject
 
 AUTH = frozenset({"A", "B"})
+RO, AO, DENIED = UplinkClass.READ_ONLY, UplinkClass.AUTHORITY_ONLY, UplinkClass.DENIED
 
 
 def machine() -> AuthorityMachine:
@@ -29,7 +31,7 @@ def linked_with_b(m: AuthorityMachine, now: float = 1.0) -> None:
 def prove(m: AuthorityMachine, gs: str, now: float, n: int = 2) -> list:
     acts = m.handle(LinkChanged(now, gs, LinkState.OK))
     for i in range(n):
-        acts += m.handle(Frame(now + 0.01 * i, gs, commanding=False))
+        acts += m.handle(Frame(now + 0.01 * i, gs, RO))
     return acts
 
 
@@ -51,11 +53,31 @@ def test_unauthorized_gs_cannot_pair_and_gets_a_reject():
 def test_only_authority_commands_are_forwarded():
     m = machine()
     linked_with_b(m)
-    assert m.handle(Frame(2.0, "A", commanding=True)) == [Forward("A")]
-    assert m.handle(Frame(2.0, "B", commanding=True)) == [DropFrame("B", HaDrop.NOT_AUTHORITY)]
-    assert m.handle(Frame(2.0, "B", commanding=False)) == [Forward("B")]  # telemetry requests, heartbeats
-    assert m.handle(Frame(2.0, "X", commanding=True)) == [DropFrame("X", HaDrop.NOT_LINKED)]
-    assert m.drops[HaDrop.NOT_AUTHORITY] == 1 and m.drops[HaDrop.NOT_LINKED] == 1
+    assert m.handle(Frame(2.0, "A", AO)) == [Forward("A")]
+    assert m.handle(Frame(2.0, "B", AO)) == [DropFrame("B", HaDrop.NOT_AUTHORITY)]
+    assert m.handle(Frame(2.0, "B", RO)) == [Forward("B")]  # heartbeats, parameter reads
+    assert m.handle(Frame(2.0, "X", AO)) == [DropFrame("X", HaDrop.NOT_LINKED)]
+    assert m.handle(Frame(2.0, "X", RO)) == [DropFrame("X", HaDrop.NOT_LINKED)]
+    assert m.drops[HaDrop.NOT_AUTHORITY] == 1 and m.drops[HaDrop.NOT_LINKED] == 2
+
+
+def test_denied_frames_are_dropped_for_everyone():
+    m = machine()
+    linked_with_b(m)
+    assert m.handle(Frame(2.0, "A", DENIED)) == [DropFrame("A", HaDrop.DENIED_BY_POLICY)]  # the owner too
+    assert m.handle(Frame(2.0, "B", DENIED)) == [DropFrame("B", HaDrop.DENIED_BY_POLICY)]
+    assert m.handle(Frame(2.0, "X", DENIED)) == [DropFrame("X", HaDrop.NOT_LINKED)]  # not linked comes first
+    assert m.drops[HaDrop.DENIED_BY_POLICY] == 2 and m.drops[HaDrop.NOT_AUTHORITY] == 0
+
+
+def test_denied_frames_still_prove_a_link():
+    m = machine()
+    linked_with_b(m)
+    m.handle(Release(3.0, "A", "B", 1))
+    m.handle(LinkChanged(3.1, "B", LinkState.OK))
+    m.handle(Frame(3.2, "B", DENIED))
+    acts = m.handle(Frame(3.3, "B", DENIED))
+    assert m.owner == "B" and acts[0] == DropFrame("B", HaDrop.DENIED_BY_POLICY)
 
 
 def test_make_before_break_handover():
@@ -65,12 +87,12 @@ def test_make_before_break_handover():
     assert m.in_region and "B" in m.subscribed
     acts = m.handle(Release(11.0, "A", "B", 1))
     assert m.state is State.HANDOVER_PENDING and m.owner == "A"  # B not proven yet: A keeps authority
-    assert m.handle(Frame(11.1, "A", commanding=True)) == [Forward("A")]
+    assert m.handle(Frame(11.1, "A", AO)) == [Forward("A")]
     acts = prove(m, "B", 11.2)
     assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
     assert AuthorityChanged("A", "B", 2, "handover") in acts
-    assert m.handle(Frame(11.3, "A", commanding=True)) == [DropFrame("A", HaDrop.NOT_AUTHORITY)]
-    assert m.handle(Frame(11.3, "B", commanding=True)) == [Forward("B")]
+    assert m.handle(Frame(11.3, "A", AO)) == [DropFrame("A", HaDrop.NOT_AUTHORITY)]
+    assert m.handle(Frame(11.3, "B", AO)) == [Forward("B")]
     acts = m.handle(RegionChanged(20.0, frozenset({"B"})))
     assert Unsubscribe("A") in acts and m.subscribed == {"B"}
     # history: never a moment with no owner or two
@@ -128,7 +150,10 @@ def test_authority_link_lost_without_heir_is_failsafe_land():
     assert m.state is State.FAILSAFE
     assert CommandVehicle("LAND", "authority link to A lost") in acts
     assert SendControl("A", FailsafeNotice("LAND", "authority link to A lost")) in acts
-    assert m.handle(Frame(4.0, "A", commanding=True)) == [DropFrame("A", HaDrop.FAILSAFE)]
+    assert m.handle(Frame(4.0, "A", AO)) == [DropFrame("A", HaDrop.FAILSAFE)]
+    assert m.handle(Frame(4.0, "A", DENIED)) == [DropFrame("A", HaDrop.DENIED_BY_POLICY)]
+    assert m.handle(Frame(4.0, "A", RO)) == [Forward("A")]
+    assert m.handle(Frame(4.0, "B", RO)) == [DropFrame("B", HaDrop.NOT_LINKED)]
     # terminal until a GS re-pairs on the ground
     m.handle(Paired(5.0, "A", on_ground=False))
     assert m.state is State.FAILSAFE
@@ -178,7 +203,7 @@ times = st.floats(0, 1000, allow_nan=False)
 EVENTS = st.one_of(
     st.builds(Paired, times, GS, st.booleans()),
     st.builds(KeyGranted, times, GS, GS),
-    st.builds(Frame, times, GS, st.booleans()),
+    st.builds(Frame, times, GS, st.sampled_from(list(UplinkClass))),
     st.builds(LinkChanged, times, GS, st.sampled_from(list(LinkState))),
     st.builds(RegionChanged, times, st.frozensets(GS)),
     st.builds(HandoverRequest, times, GS, GS),
@@ -208,12 +233,24 @@ def check_invariants(m: AuthorityMachine) -> None:
 def test_every_state_event_pair_ends_valid(prefix, last):
     m = machine()
     for ev in prefix + [last]:
-        before_owner, before_state = m.owner, m.state
+        before_owner, before_state, before_links = m.owner, m.state, set(m.links)
         acts = m.handle(ev)  # never raises for these events
         check_invariants(m)
+        if isinstance(ev, Frame):
+            verdicts = [a for a in acts if isinstance(a, (Forward, DropFrame))]
+            assert len(verdicts) == 1 and verdicts[0].gs == ev.gs  # exactly one verdict per frame
+            v = verdicts[0]
+            if ev.gs not in before_links:
+                assert v == DropFrame(ev.gs, HaDrop.NOT_LINKED)
+            elif ev.uplink is DENIED:
+                assert v == DropFrame(ev.gs, HaDrop.DENIED_BY_POLICY)
+            elif ev.uplink is RO:
+                assert v == Forward(ev.gs)
+            elif before_state is State.FAILSAFE:
+                assert v == DropFrame(ev.gs, HaDrop.FAILSAFE)
+            else:
+                assert v == (Forward(ev.gs) if ev.gs == before_owner else DropFrame(ev.gs, HaDrop.NOT_AUTHORITY))
         for a in acts:
-            if isinstance(a, Forward) and isinstance(ev, Frame) and ev.commanding:
-                assert a.gs == before_owner and before_state is not State.FAILSAFE
             if isinstance(a, AuthorityChanged):
                 assert a.new == m.owner and a.epoch == m.epoch
 

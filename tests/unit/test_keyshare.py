@@ -1,15 +1,81 @@
-from zdrone.core.keys import Identity
-from zdrone.core.keyshare import open_secret, seal_secret
+"""GS-to-GS key sharing (Noise KK as query and reply): what an attacker with router passwords gets."""
 
-A, X = Identity(bytes([5]) * 32), Identity(bytes([6]) * 32)
+from hypothesis import given, settings, strategies as st
+
+from zdrone.core.keys import Identity
+from zdrone.core.keyshare import KeyShareAsk, Refused, ShareRefusal, answer, decode_query
+
+A, B, X = Identity(bytes([5]) * 32), Identity(bytes([6]) * 32), Identity(bytes([7]) * 32)
 SECRET = bytes(range(32))
 
 
-def test_only_the_asker_opens_the_shared_secret():
-    sealed = seal_secret(SECRET, A.public, "d1", "B", "A")
-    assert len(sealed) == 80 and SECRET not in sealed
-    assert open_secret(sealed, A, "d1", "B", "A") == SECRET
-    assert open_secret(sealed, X, "d1", "B", "A") is None
-    assert open_secret(sealed, A, "d2", "B", "A") is None  # bound to the drone
-    assert open_secret(sealed[:-1] + bytes([sealed[-1] ^ 1]), A, "d1", "B", "A") is None
-    assert open_secret(b"junk", A, "d1", "B", "A") is None
+def ask(me: Identity = A, asker: str = "A", owner_public: bytes = B.public, now: float = 0.0) -> KeyShareAsk:
+    return KeyShareAsk(me, asker, "B", owner_public, "d1", now)
+
+
+def test_owner_answers_an_authentic_query_and_only_the_asker_reads_the_secret():
+    a = ask()
+    q = decode_query(a.payload)
+    assert not isinstance(q, Refused) and q.asker == "A" and len(q.m1) == 48
+    reply = answer(B, "B", "d1", "A", A.public, q.m1, SECRET)
+    assert isinstance(reply, bytes) and SECRET not in reply and len(reply) == 32 + 32 + 16
+    assert a.on_reply(reply, 1.0) == SECRET
+
+
+def test_query_claiming_another_gs_without_its_key_is_refused_before_any_secret():
+    """Attack 2: a stolen router password of B, claiming asker B, without B's private key."""
+    forged = KeyShareAsk(X, "A", "B", B.public, "d1", 0.0)  # X signs as "A"
+    q = decode_query(forged.payload)
+    assert not isinstance(q, Refused)
+    out = answer(B, "B", "d1", "A", A.public, q.m1, SECRET)
+    assert isinstance(out, Refused) and out.reason is ShareRefusal.AUTH_FAILED
+
+
+def test_reply_from_anyone_but_the_owner_is_refused_and_does_not_spoil_the_ask():
+    """Attack 1: the attacker answers (before or after the real owner) with its own secret."""
+    a = ask()
+    q = decode_query(a.payload)
+    assert isinstance(answer(X, "B", "d1", "A", A.public, q.m1, bytes(32)), Refused)  # X cannot even read it
+    other = KeyShareAsk(A, "A", "B", X.public, "d1", 0.0)  # a well-formed message 2 made with X's key
+    evil = answer(X, "B", "d1", "A", A.public, decode_query(other.payload).m1, bytes(32))  # type: ignore[union-attr]
+    assert isinstance(evil, bytes)
+    got = a.on_reply(evil, 0.5)
+    assert isinstance(got, Refused) and got.reason is ShareRefusal.AUTH_FAILED
+    assert isinstance(a.on_reply(b"\x00" * 80, 0.6), Refused)
+    real = answer(B, "B", "d1", "A", A.public, q.m1, SECRET)
+    assert a.on_reply(real, 0.7) == SECRET  # the genuine reply still opens
+
+
+def test_one_authentic_reply_per_ask_and_replays_do_not_open():
+    a1, a2 = ask(), ask()
+    r1 = answer(B, "B", "d1", "A", A.public, decode_query(a1.payload).m1, SECRET)  # type: ignore[union-attr]
+    assert a1.on_reply(r1, 0.1) == SECRET
+    second = answer(B, "B", "d1", "A", A.public, decode_query(a1.payload).m1, bytes(32))  # type: ignore[union-attr]
+    late = a1.on_reply(second, 0.2)
+    assert isinstance(late, Refused) and late.reason is ShareRefusal.NOT_WAITING
+    replay = a2.on_reply(r1, 0.1)  # a captured reply to an earlier ask: bound to the old ephemeral
+    assert isinstance(replay, Refused) and replay.reason is ShareRefusal.AUTH_FAILED
+
+
+def test_transcript_bound_to_drone_owner_and_asker():
+    a = ask()
+    m1 = decode_query(a.payload).m1  # type: ignore[union-attr]
+    assert isinstance(answer(B, "B", "d2", "A", A.public, m1, SECRET), Refused)
+    assert isinstance(answer(B, "C", "d1", "A", A.public, m1, SECRET), Refused)
+
+
+def test_expired_ask_accepts_nothing():
+    a = ask(now=0.0)
+    reply = answer(B, "B", "d1", "A", A.public, decode_query(a.payload).m1, SECRET)  # type: ignore[union-attr]
+    out = a.on_reply(reply, 100.0)
+    assert isinstance(out, Refused) and out.reason is ShareRefusal.NOT_WAITING
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=400))
+def test_garbage_never_raises(data):
+    q = decode_query(data)
+    assert isinstance(q, Refused) or q.asker is not None
+    a = ask()
+    assert isinstance(a.on_reply(data, 0.1), Refused)
+    assert isinstance(answer(B, "B", "d1", "A", A.public, data[:256], SECRET), Refused)

@@ -45,3 +45,34 @@ def test_garbage_message_fails_cleanly():
     ini = PairingInitiator(GS, "A", "d1", DRONE.public)
     ini.start()
     assert isinstance(ini.finish(b"junk"), PairingFailed)
+
+
+def test_forged_reply_does_not_spoil_the_genuine_one():
+    ini = PairingInitiator(GS, "A", "d1", DRONE.public)
+    m1 = ini.start()
+    fake = respond(STRANGER, "d1", "A", GS.public, m1, SECRET)
+    assert isinstance(fake, PairingFailed) or isinstance(ini.finish(fake[0]), PairingFailed)
+    assert isinstance(ini.finish(b"\x01" * 80), PairingFailed)
+    m2, drone_key = respond(DRONE, "d1", "A", GS.public, m1, SECRET)  # type: ignore[misc]
+    key = ini.finish(m2)
+    assert not isinstance(key, PairingFailed) and key.same_as(drone_key)
+    assert isinstance(ini.finish(m2), PairingFailed)  # finished: a second reply changes nothing
+
+
+def test_replayed_message1_gives_a_key_the_replayer_cannot_use():
+    ini = PairingInitiator(GS, "A", "d1", DRONE.public)
+    m1 = ini.start()
+    first = respond(DRONE, "d1", "A", GS.public, m1, SECRET)
+    replay = respond(DRONE, "d1", "A", GS.public, m1, bytes(32))  # KK cannot tell: hence key confirmation
+    assert not isinstance(first, PairingFailed) and not isinstance(replay, PairingFailed)
+    assert not first[1].same_as(replay[1])
+
+
+def test_pairing_guard_refuses_before_crypto_and_rate_limits():
+    from zdrone.core.pairing import PairingGuard
+
+    g = PairingGuard(frozenset({"A", "B", "X"}), frozenset({"A", "B"}), rate=1.0, burst=2)
+    assert g.admit("Z", 0.0) == "unknown" and g.admit("X", 0.0) == "unauthorized"
+    assert [g.admit("B", 0.0) for _ in range(4)] == [None, None, "rate_limited", "rate_limited"]
+    assert g.admit("A", 0.0) is None  # per peer
+    assert g.admit("B", 1.0) is None and g.admit("B", 1.0) == "rate_limited"

@@ -5,9 +5,19 @@ Theory of operation
 States: ``UNPAIRED -> LINKED(owner, epoch) -> HANDOVER_PENDING(owner -> to) -> LINKED(to, epoch+1)``
 and ``FAILSAFE`` (terminal until a GS re-pairs while the vehicle is on the ground).
 
-Exactly one GS holds authority in LINKED and HANDOVER_PENDING: ``owner``. Only frames that command
-the vehicle from the owner are forwarded; commanding frames from anyone else are dropped with a
-counted reason. Telemetry goes to every linked GS the drone currently listens to.
+Exactly one GS holds authority in LINKED and HANDOVER_PENDING: ``owner``. Every MAVLink frame a GS
+sends up arrives classified by the drone's uplink policy (``zdrone.core.uplink``) and is checked in
+this order, each refusal a counted ``DropFrame(reason)``:
+
+1. the sender has no link (not paired, no key installed): ``not_linked``;
+2. ``DENIED`` (e.g. SERIAL_CONTROL, SETUP_SIGNING, unless the policy allows them): ``denied_by_policy``,
+   whoever sends it, the owner included;
+3. ``AUTHORITY_ONLY`` (every id not on the read-only allowlist, unknown ids included): forwarded from
+   the owner only, ``not_authority`` from anyone else; in FAILSAFE from nobody (``failsafe``);
+4. ``READ_ONLY`` (HEARTBEAT, parameter reads, ...): forwarded from any linked GS, in FAILSAFE too.
+
+Every authentic frame of a linked GS counts towards proving its link, forwarded or not. Telemetry
+goes to every linked GS the drone currently listens to.
 
 Hand-over is make-before-break. The owner sends ``Release(to, epoch)``; authority passes to ``to``
 in the same step only if ``to``'s link is *proven* (its TBM is OK and at least ``PROOF_FRAMES``
@@ -35,6 +45,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from .tbm import LinkState
+from .uplink import UplinkClass
 from .wire import AuthorityStatus, Control, FailsafeNotice, Reject
 
 log = logging.getLogger(__name__)
@@ -56,6 +67,7 @@ class HaDrop(enum.Enum):
     NOT_AUTHORITY = "not_authority"
     NOT_LINKED = "not_linked"
     FAILSAFE = "failsafe"
+    DENIED_BY_POLICY = "denied_by_policy"
 
 
 # ----------------------------------------------------------------------------- events
@@ -82,10 +94,10 @@ class KeyGranted(Event):
 
 @dataclass(frozen=True, slots=True)
 class Frame(Event):
-    """An authentic MAVLink frame from ``gs``."""
+    """An authentic MAVLink frame from ``gs``, classified by the drone's uplink policy."""
 
     gs: str
-    commanding: bool
+    uplink: UplinkClass
 
 
 @dataclass(frozen=True, slots=True)
@@ -344,7 +356,10 @@ class AuthorityMachine:
             return self.state, [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
         link.frames_since_ok += 1
         acts: list[Action] = []
-        if ev.gs == self.owner or not ev.commanding:
+        if ev.uplink is UplinkClass.DENIED:
+            self.drops[HaDrop.DENIED_BY_POLICY] += 1
+            acts.append(DropFrame(ev.gs, HaDrop.DENIED_BY_POLICY))
+        elif ev.uplink is UplinkClass.READ_ONLY or ev.gs == self.owner:
             acts.append(Forward(ev.gs))
         else:
             self.drops[HaDrop.NOT_AUTHORITY] += 1
@@ -359,10 +374,16 @@ class AuthorityMachine:
         return State.UNPAIRED, [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
 
     def _on_frame_failsafe(self, ev: Frame) -> tuple[State, list[Action]]:
-        if ev.commanding:
-            self.drops[HaDrop.FAILSAFE] += 1
-            return State.FAILSAFE, [DropFrame(ev.gs, HaDrop.FAILSAFE)]
-        return State.FAILSAFE, [Forward(ev.gs)] if ev.gs in self.links else [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
+        if ev.gs not in self.links:
+            reason = HaDrop.NOT_LINKED
+        elif ev.uplink is UplinkClass.DENIED:
+            reason = HaDrop.DENIED_BY_POLICY
+        elif ev.uplink is UplinkClass.AUTHORITY_ONLY:
+            reason = HaDrop.FAILSAFE
+        else:
+            return State.FAILSAFE, [Forward(ev.gs)]
+        self.drops[reason] += 1
+        return State.FAILSAFE, [DropFrame(ev.gs, reason)]
 
     def _complete_handover(self, now: float) -> list[Action]:
         to = self.pending_to

@@ -259,7 +259,9 @@ class SecureLink:
         return self.seal(wire.encode_control(msg))
 
     # ---------------------------------------------------------------- receiving
-    def _drop(self, reason: DropReason, detail: str = "") -> Dropped:
+    def _drop(self, reason: DropReason, detail: str = "", count: bool = True) -> Dropped:
+        if not count:
+            return Dropped(reason, detail)
         self.drops[reason] += 1
         log.debug("link %s<-%s: dropped (%s) %s", self.local, self.peer, reason.value, detail)
         return Dropped(reason, detail)
@@ -276,22 +278,30 @@ class SecureLink:
             return nxt, True
         return None, False
 
-    def open(self, data: bytes, now: float) -> Opened | Dropped:
-        """Open and check one received envelope. Never raises on bad input."""
+    def count_drop(self, dropped: Dropped) -> None:
+        """Count a drop that an ``open(..., count=False)`` returned (see ``LinkSlot``)."""
+        self.drops[dropped.reason] += 1
+
+    def open(self, data: bytes, now: float, count: bool = True) -> Opened | Dropped:
+        """Open and check one received envelope. Never raises on bad input.
+
+        With ``count=False`` a failure before authentication (malformed, unknown epoch, AEAD) is
+        returned but not counted: the caller tries another key of the same peer first.
+        """
         if type(data) is not bytes:
             if not isinstance(data, (bytearray, memoryview)):
-                return self._drop(DropReason.MALFORMED, "not bytes")
+                return self._drop(DropReason.MALFORMED, "not bytes", count)
             data = bytes(data)
         parsed = self.cipher.parse(data)
         if parsed is None:
-            return self._drop(DropReason.MALFORMED, f"{len(data)} bytes")
+            return self._drop(DropReason.MALFORMED, f"{len(data)} bytes", count)
         epoch_byte, counter, _ = parsed
         rx, is_next = self._rx_for(epoch_byte)
         if rx is None:
-            return self._drop(DropReason.UNKNOWN_EPOCH, f"epoch byte {epoch_byte}")
+            return self._drop(DropReason.UNKNOWN_EPOCH, f"epoch byte {epoch_byte}", count)
         plaintext = self.cipher.open(rx.ctx, data, self._rx_ad)
         if plaintext is None:
-            return self._drop(DropReason.AUTH_FAILED)
+            return self._drop(DropReason.AUTH_FAILED, "", count)
         if counter is not None:
             if not rx.window.is_fresh(counter):
                 return self._drop(DropReason.REPLAY, f"counter {counter}")

@@ -14,6 +14,7 @@ import msgspec
 
 from .geometry import Circle, GeoPoint
 from .keys import unb64
+from .uplink import UplinkPolicy
 
 SysId = Annotated[int, msgspec.Meta(ge=1, le=255)]
 Name = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
@@ -42,6 +43,7 @@ class Node(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     public_key: str
     coverage: Coverage | None = None
     authorized_gs: list[Name] = []
+    uplink: UplinkPolicy = UplinkPolicy()  # drones only: what a GS may send up (zdrone.core.uplink)
 
     @property
     def public_bytes(self) -> bytes:
@@ -132,6 +134,8 @@ def _check(fleet: Fleet, source: str) -> None:
                 raise FleetError(f"{where}.coverage: a ground station needs a coverage circle")
             if node.authorized_gs:
                 raise FleetError(f"{where}.authorized_gs: only drones have an authorized list")
+            if not node.uplink.is_default:
+                raise FleetError(f"{where}.uplink: only drones have an uplink policy")
         else:
             for gs in node.authorized_gs:
                 other = fleet.nodes.get(gs)
@@ -140,5 +144,9 @@ def _check(fleet: Fleet, source: str) -> None:
 
 
 def encode_fleet(fleet: Fleet) -> str:
-    """Serialize a fleet as (JSON-compatible) JSON5 text."""
-    return msgspec.json.format(msgspec.json.encode(fleet), indent=2).decode() + "\n"
+    """Serialize a fleet as (JSON-compatible) JSON5 text; a default ``uplink`` is left out."""
+    raw = msgspec.to_builtins(fleet)
+    for name, node in fleet.nodes.items():
+        if node.uplink.is_default:
+            del raw["nodes"][name]["uplink"]
+    return msgspec.json.format(msgspec.json.encode(raw), indent=2).decode() + "\n"

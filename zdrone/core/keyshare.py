@@ -1,41 +1,124 @@
-"""Key sharing over the backhaul: a link secret sealed with HPKE (RFC 9180) to the asking GS.
+"""Key sharing over the backhaul: GS-to-GS, mutually authenticated and fresh (Noise KK).
 
-GS B answers ``backhaul/B/linkkey/<drone>`` with a fresh 32-byte secret for link (drone, B),
-sealed to the asking GS's fleet static key (X25519 / HKDF-SHA256 / ChaCha20-Poly1305). The info
-string binds drone, owner and asker, so a reply cannot be reused for another pair. Neither the
-router nor anyone else on the backhaul can read it.
+Theory of operation
+-------------------
+The authority GS A needs a link key for (drone, B) before the drone reaches B's coverage. A asks
+B's queryable ``backhaul/B/linkkey/<drone>``; the query payload is a ``LinkKeyQuery``: the asker's
+name and a Noise ``KK`` message 1 (``e, es, ss``). B's reply is message 2 (``e, ee, se``) whose
+encrypted payload is a fresh 32-byte link secret for (drone, B).
+
+* The request proves A's fleet static key: message 1's tag is made with ``ss`` (A's static key with
+  B's), so a party that claims to be A without A's private key fails B's check — before B draws any
+  secret or touches any state. A leaked router password is not enough.
+* The reply proves B's static key (``se``) and is bound to A's fresh ephemeral (``ee``): a reply
+  captured earlier, or sealed by anyone but B, does not open; nobody but A and B learns the secret
+  (forward secrecy from the ephemerals).
+* The prologue binds the protocol version, drone, owner and asker: a transcript for one triple is
+  worthless for another.
+* A replayed message 1 makes B answer again (KK cannot tell), but the answer only creates a
+  *pending* secret that nobody but the real A can read, which expires unused: B's live link is
+  never touched (key confirmation, see ``linkslot``).
+* Exactly one authentic reply per query: the handshake state of A accepts one message 2; after it
+  the ask is finished and every later reply (a second queryable, a consolidation artefact, a
+  replay) is counted and ignored. Two different authentic replies to one ask are impossible.
+
+Alternatives considered: HPKE Auth mode (sender-authenticated, but the request would still need its
+own proof and freshness) and a static-static MAC (no forward secrecy). Noise KK gives both proofs,
+freshness and forward secrecy in two 48/64-byte messages, with the same code as drone pairing.
 """
 
 from __future__ import annotations
 
+import enum
+
 import msgspec
-from cryptography.hazmat.primitives import hpke
 
-from .keys import KEY_LEN, Identity, public_key
+from .keys import KEY_LEN, Identity
+from .kk import KKInitiator, respond
 
-SUITE = hpke.Suite(hpke.KEM.X25519, hpke.KDF.HKDF_SHA256, hpke.AEAD.CHACHA20_POLY1305)
+#: How long an ask waits for B's reply before it is given up (the adapter asks again later).
+ASK_TIMEOUT = 5.0
 
 
-class LinkKeyRequest(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Payload of a linkkey query: who asks (checked against the fleet by the answering GS)."""
+class LinkKeyQuery(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Payload of a linkkey query: who asks, and Noise KK message 1 proving it."""
 
     asker: str
+    m1: bytes
 
 
-def _info(drone: str, owner: str, asker: str) -> bytes:
-    return f"zdrone linkkey v1|{drone}|{owner}|{asker}".encode()
+class ShareRefusal(enum.Enum):
+    """Why a linkkey query or reply was refused (counted per reason)."""
+
+    MALFORMED = "malformed"
+    UNKNOWN_ASKER = "unknown_asker"
+    UNAUTHORIZED = "unauthorized"
+    AUTH_FAILED = "auth_failed"
+    RATE_LIMITED = "rate_limited"
+    NOT_WAITING = "not_waiting"  # a reply after the ask finished, expired or was never made
 
 
-def seal_secret(secret: bytes, asker_public: bytes, drone: str, owner: str, asker: str) -> bytes:
+class Refused(msgspec.Struct, frozen=True):
+    reason: ShareRefusal
+    detail: str = ""
+
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(LinkKeyQuery)
+
+
+def _prologue(drone: str, owner: str, asker: str) -> bytes:
+    return b"\0".join((b"zdrone linkkey v2", drone.encode(), owner.encode(), asker.encode()))
+
+
+def decode_query(payload: bytes) -> LinkKeyQuery | Refused:
+    """Parse a query payload (no crypto): the adapter checks the asker against the fleet next."""
+    try:
+        q = _decoder.decode(payload)
+    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+        return Refused(ShareRefusal.MALFORMED, str(exc)[:80])
+    if len(q.m1) > 256:
+        return Refused(ShareRefusal.MALFORMED, "message 1 too long")
+    return q
+
+
+class KeyShareAsk:
+    """The asking GS's side of one key-sharing exchange (one query, at most one accepted reply)."""
+
+    def __init__(self, me: Identity, asker: str, owner: str, owner_public: bytes, drone: str, now: float,
+                 timeout: float = ASK_TIMEOUT, ephemeral: bytes | None = None) -> None:
+        self.asker, self.owner, self.drone = asker, owner, drone
+        self.deadline = now + timeout
+        self.done = False
+        self._kk = KKInitiator(me, owner_public, _prologue(drone, owner, asker), ephemeral)
+        self.payload = _encoder.encode(LinkKeyQuery(asker, self._kk.message1))
+
+    def expired(self, now: float) -> bool:
+        return now >= self.deadline
+
+    def on_reply(self, reply: bytes, now: float) -> bytes | Refused:
+        """The link secret from the owner's authentic reply; a ``Refused`` for anything else."""
+        if self.done or self.expired(now):
+            return Refused(ShareRefusal.NOT_WAITING, f"ask to {self.owner} already finished")
+        secret = self._kk.read_reply(reply)
+        if secret is None:  # forged, replayed or garbage: the genuine reply may still come
+            return Refused(ShareRefusal.AUTH_FAILED, f"reply does not prove {self.owner}'s static key")
+        if len(secret) != KEY_LEN:
+            return Refused(ShareRefusal.MALFORMED, "reply carries no link secret")
+        self.done = True  # one authentic reply per ask: any later one is NOT_WAITING
+        return secret
+
+
+def answer(me: Identity, owner: str, drone: str, asker: str, asker_public: bytes, m1: bytes,
+           secret: bytes) -> bytes | Refused:
+    """The owner's side: check message 1 from ``asker``; return message 2 carrying ``secret``.
+
+    The caller has already checked (before any crypto) that ``asker`` is a GS authorized for
+    ``drone`` and is within its rate limit; ``secret`` is fresh randomness from the adapter.
+    """
     if len(secret) != KEY_LEN:
         raise ValueError("link secret must be 32 bytes")
-    return SUITE.encrypt(secret, public_key(asker_public), info=_info(drone, owner, asker))
-
-
-def open_secret(sealed: bytes, me: Identity, drone: str, owner: str, asker: str) -> bytes | None:
-    """The secret, or None if the reply does not open for us (forged, or for someone else)."""
-    try:
-        out = SUITE.decrypt(sealed, me.private_key(), info=_info(drone, owner, asker))
-    except Exception:  # InvalidTag and friends
-        return None
-    return out if len(out) == KEY_LEN else None
+    msg2 = respond(me, asker_public, _prologue(drone, owner, asker), m1, secret)
+    if msg2 is None:
+        return Refused(ShareRefusal.AUTH_FAILED, f"query does not prove {asker}'s static key")
+    return msg2

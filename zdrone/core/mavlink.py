@@ -9,38 +9,38 @@ from __future__ import annotations
 
 import msgspec
 
-from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.dialects.v20 import ardupilotmega, common as mavlink2
 from pymavlink.generator.mavcrc import x25crc
+
+from .uplink import DEFAULT_POLICY, UplinkClass
+
+try:  # not in every pymavlink release
+    from pymavlink.dialects.v20 import development
+except ImportError:  # pragma: no cover
+    development = None  # type: ignore[assignment]
 
 MAGIC_V2 = 0xFD
 MAGIC_V1 = 0xFE
 SIGNED_FLAG = 0x01
 SIGNATURE_LEN = 13
 
-#: message id -> message class of the common dialect
-MESSAGE_CLASSES = mavlink2.mavlink_map
 
-#: Message ids whose frames command the vehicle. Only the authority GS may send these.
-COMMANDING_MSGIDS: frozenset[int] = frozenset(
-    {
-        mavlink2.MAVLINK_MSG_ID_COMMAND_LONG,
-        mavlink2.MAVLINK_MSG_ID_COMMAND_INT,
-        mavlink2.MAVLINK_MSG_ID_SET_MODE,
-        mavlink2.MAVLINK_MSG_ID_MISSION_COUNT,
-        mavlink2.MAVLINK_MSG_ID_MISSION_ITEM,
-        mavlink2.MAVLINK_MSG_ID_MISSION_ITEM_INT,
-        mavlink2.MAVLINK_MSG_ID_MISSION_CLEAR_ALL,
-        mavlink2.MAVLINK_MSG_ID_MISSION_SET_CURRENT,
-        mavlink2.MAVLINK_MSG_ID_MISSION_WRITE_PARTIAL_LIST,
-        mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
-        mavlink2.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT,
-        mavlink2.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET,
-        mavlink2.MAVLINK_MSG_ID_MANUAL_CONTROL,
-        mavlink2.MAVLINK_MSG_ID_RC_CHANNELS_OVERRIDE,
-        mavlink2.MAVLINK_MSG_ID_PARAM_SET,
-        mavlink2.MAVLINK_MSG_ID_SET_HOME_POSITION,
-    }
-)
+def _known_messages() -> dict[int, type]:
+    """message id -> message class over the dialects a vehicle may speak (common first)."""
+    out: dict[int, type] = {}
+    for dialect in (mavlink2, development, ardupilotmega):
+        if dialect is not None:
+            for msgid, cls in dialect.mavlink_map.items():
+                out.setdefault(msgid, cls)
+    return out
+
+
+#: message id -> message class, union of pymavlink's v20 common, development and ardupilotmega
+MESSAGE_CLASSES: dict[int, type] = _known_messages()
+#: message id -> CRC_EXTRA byte (the checksum seed of the message's definition)
+CRC_EXTRA: dict[int, int] = {msgid: cls.crc_extra for msgid, cls in MESSAGE_CLASSES.items()}
+
+_READ_ONLY = UplinkClass.READ_ONLY
 
 
 class FrameHeader(msgspec.Struct, frozen=True):
@@ -55,8 +55,9 @@ class FrameHeader(msgspec.Struct, frozen=True):
 
     @property
     def commanding(self) -> bool:
-        """True if this frame commands the vehicle (see ``COMMANDING_MSGIDS``)."""
-        return self.msgid in COMMANDING_MSGIDS
+        """True if only the GS holding authority may send this frame under the default uplink policy
+        (``zdrone.core.uplink``): every id that is not read-only, unknown ids included."""
+        return DEFAULT_POLICY.classify(self.msgid) is not _READ_ONLY
 
 
 class FrameError(ValueError):
@@ -66,9 +67,11 @@ class FrameError(ValueError):
 def read_header(frame: bytes) -> FrameHeader:
     """Read and check the header of exactly one MAVLink 1 or 2 frame.
 
-    Checks magic, declared payload length against the byte count, and that the message id is
-    known to the dialect. Raises ``FrameError`` otherwise. The CRC is not recomputed: the envelope's
-    AEAD already proves the bytes are the sender's.
+    Checks magic, declared payload length against the byte count and (MAVLink 2) the incompat
+    flags. Raises ``FrameError`` otherwise. Any message id is accepted, including ids no dialect
+    known here defines (PX4's EVENT, a vendor's messages): what a GS may send up is the uplink
+    policy's business, and downlink passes every well-formed frame. The CRC is not recomputed: the
+    envelope's AEAD already proves the bytes are the sender's.
     """
     n = len(frame)
     if n < 8:
@@ -91,23 +94,24 @@ def read_header(frame: bytes) -> FrameHeader:
         raise FrameError(f"bad magic 0x{magic:02x}")
     if n != expected:
         raise FrameError(f"length {n} does not match header ({expected})")
-    if msgid not in MESSAGE_CLASSES:
-        raise FrameError(f"unknown message id {msgid}")
     return FrameHeader(version, seq, sysid, compid, msgid, n)
 
 
 def crc_ok(frame: bytes) -> bool:
-    """True if the frame's X.25 checksum (with the message's CRC_EXTRA) is right."""
+    """True if the frame's X.25 checksum (with the message's CRC_EXTRA) is right.
+
+    False for a message id no known dialect defines: without its CRC_EXTRA it cannot be checked.
+    """
     if frame[0] == MAGIC_V2:
         hdr, msgid = 10, frame[7] | (frame[8] << 8) | (frame[9] << 16)
         plen = frame[1]
     else:
         hdr, msgid, plen = 6, frame[5], frame[1]
-    cls = MESSAGE_CLASSES.get(msgid)
-    if cls is None:
+    extra = CRC_EXTRA.get(msgid)
+    if extra is None:
         return False
     crc = x25crc(frame[1 : hdr + plen])
-    crc.accumulate(bytes([cls.crc_extra]))
+    crc.accumulate(bytes([extra]))
     return frame[hdr + plen] | (frame[hdr + plen + 1] << 8) == crc.crc
 
 
@@ -115,8 +119,11 @@ def split_frames(data: bytes) -> tuple[list[bytes], bytes, int]:
     """Split a byte stream into whole MAVLink frames; return (frames, leftover, bytes skipped).
 
     A candidate frame whose checksum is wrong is not a frame: the splitter moves one byte on and
-    looks for the next magic byte, so garbage never swallows the real frames behind it. Used by
-    stream adapters (TCP/serial) that must cut frames before sealing each one.
+    looks for the next magic byte, so garbage never swallows the real frames behind it. A message id
+    no known dialect defines cannot have its checksum checked; such a candidate is taken as a frame
+    when it is well formed (``read_header``'s checks, a non-empty payload) and delimited: the data
+    ends with it or the next byte is a magic byte. Used by stream adapters (TCP/serial) that must
+    cut frames before sealing each one.
     """
     frames: list[bytes] = []
     i, n, skipped = 0, len(data), 0
@@ -137,13 +144,26 @@ def split_frames(data: bytes) -> tuple[list[bytes], bytes, int]:
         if n - i < total:
             break
         candidate = bytes(data[i : i + total])
-        if not crc_ok(candidate):
+        if not (crc_ok(candidate) or _framed_unknown(candidate, data, i + total)):
             i += 1
             skipped += 1
             continue
         frames.append(candidate)
         i += total
     return frames, bytes(data[i:]), skipped
+
+
+def _framed_unknown(candidate: bytes, data: bytes, end: int) -> bool:
+    """True if ``candidate`` has a message id of no known dialect, is well formed and delimited."""
+    if candidate[0] == MAGIC_V2:
+        msgid = candidate[7] | (candidate[8] << 8) | (candidate[9] << 16)
+        if candidate[2] & ~SIGNED_FLAG:
+            return False
+    else:
+        msgid = candidate[5]
+    if msgid in CRC_EXTRA or candidate[1] == 0:
+        return False
+    return end == len(data) or data[end] in (MAGIC_V2, MAGIC_V1)
 
 
 class FrameCodec:
@@ -186,10 +206,13 @@ def rewrite_source(frame: bytes, sysid: int, compid: int) -> bytes:
 
     Used by the GCS gateway: every application's frames leave the GS under the GS's fleet sysid,
     one component id per application. A MAVLink 2 signature cannot survive the change, so it is
-    removed (the sealed envelope authenticates the frame instead).
+    removed (the sealed envelope authenticates the frame instead). Raises ``FrameError`` for a
+    malformed frame or a message id no known dialect defines (its checksum cannot be recomputed).
     """
     hdr = read_header(frame)
-    cls = MESSAGE_CLASSES[hdr.msgid]
+    extra = CRC_EXTRA.get(hdr.msgid)
+    if extra is None:
+        raise FrameError(f"unknown message id {hdr.msgid}: cannot recompute its checksum")
     if hdr.version == 2:
         body = bytearray(frame[: 10 + frame[1]])
         body[2] &= ~SIGNED_FLAG
@@ -197,7 +220,7 @@ def rewrite_source(frame: bytes, sysid: int, compid: int) -> bytes:
     else:
         body = bytearray(frame[: 6 + frame[1]])
         body[3], body[4] = sysid, compid
-    return bytes(body) + _crc(bytes(body), cls.crc_extra)
+    return bytes(body) + _crc(bytes(body), extra)
 
 
 def encode_raw(msgid: int, crc_extra: int, payload: bytes, sysid: int, compid: int, seq: int = 0) -> bytes:

@@ -99,6 +99,11 @@ class TimeBetweenMessages:
         self._reported = st
         return st
 
+    def carry_over(self, old: "TimeBetweenMessages") -> None:
+        """Continue the reporting of ``old`` (a link whose key was replaced): the next ``poll``
+        reports a change relative to what ``old`` last reported, so no state change is lost."""
+        self._reported = old._reported
+
     def snapshot(self, now: float) -> TbmSnapshot:
         mean = self._gap_sum / (self.frames - 1) if self.frames > 1 else None
         return TbmSnapshot(self.state(now), self.since_last(now), self.frames, mean, self.max_gap, self.last_seen)

@@ -25,7 +25,8 @@ from ..core.envelope import Dropped, Opened, SecureLink
 from ..core.fleet import ConfigError
 from ..core.geometry import GeoPoint
 from ..core.keys import LinkKey
-from ..core.pairing import PairingFailed, respond
+from ..core.linkslot import CANDIDATE_TTL, LinkSlot, Promoted
+from ..core.pairing import PairingFailed, PairingGuard, respond
 from ..core.tbm import TbmThresholds
 from ..core import wire
 from ..core.wire import KeyGrant, KeyGrantAck
@@ -35,9 +36,16 @@ from ..vehicle.link import VehicleLink
 from . import keyexprs as kx
 from .eventlog import EventLog
 from .inbox import drain
-from .session import open_client
+from .session import open_client, query_queue
 
 log = logging.getLogger(__name__)
+
+#: Pairing handshakes (X25519 + AEAD work) done per loop turn at most; the rest waits its turn.
+PAIRING_PER_TURN = 2
+#: Pairing queries looked at per loop turn (no crypto for those refused).
+PAIRING_QUERIES_PER_TURN = 256
+#: A pairing candidate must be proven by the GS within this time.
+PAIRING_TTL = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,13 +74,17 @@ class DroneNode:
             raise ConfigError(f"--id {opts.drone}: not a drone of the fleet ({', '.join(self.fleet.drones())})")
         self.name = opts.drone
         self.sysid = node.sysid
+        self.uplink = self.fleet.nodes[self.name].uplink
         self.secret = load_secret(opts.fleet, opts.drone, self.fleet)
         self.events = EventLog(opts.events, opts.drone)
         self.machine = ha.AuthorityMachine(ha.Config(frozenset(node.authorized_gs), opts.handover_timeout, opts.failsafe))
         self.gate = CoverageGate(self.fleet) if opts.sil_coverage else None
-        self.links: dict[str, SecureLink] = {}
-        self.candidates: dict[str, LinkKey] = {}
-        self.rx: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()
+        self.slots: dict[str, LinkSlot] = {}
+        self.links: dict[str, SecureLink] = {}  # the live link of each slot
+        self.candidates: dict[str, LinkKey] = {}  # keys granted by the authority, until the HA decides
+        self.probation: dict[str, float] = {}  # GS -> until when we listen for its proof of a new key
+        self.guard = PairingGuard(frozenset(self.fleet.ground_stations()), frozenset(node.authorized_gs))
+        self.rx: queue.SimpleQueue[tuple[str, str, bytes]] = queue.SimpleQueue()
         self.subs: dict[str, Any] = {}
         self.counters: Counter[str] = Counter()
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
@@ -81,12 +93,12 @@ class DroneNode:
         self._inside: frozenset[str] = frozenset()
         self.vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
         self.session = open_client(opts.router, opts.drone, self.secret.router_password)
-        self.pairing = self.session.declare_queryable(kx.pair_all(self.name))
+        self.pairing = self.session.declare_queryable(kx.pair_all(self.name), query_queue())
 
     # ------------------------------------------------------------------ zenoh
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh thread: hand over and return at once.
-        self.rx.put((kx.gs_of(sample.key_expr), sample.payload.to_bytes()))
+        self.rx.put(("up", kx.gs_of(sample.key_expr), sample.payload.to_bytes()))
 
     def _subscribe(self, gs: str) -> None:
         if gs not in self.subs:
@@ -99,6 +111,15 @@ class DroneNode:
             sub.undeclare()
             self.events.write("unsubscribe", gs=gs)
 
+    def _sync_subscriptions(self, now: float) -> None:
+        """Listen to what the HA wants plus every GS whose new key waits for its proof."""
+        self.probation = {gs: t for gs, t in self.probation.items() if t > now}
+        want = set(self.machine.subscribed) | set(self.probation)
+        for gs in sorted(want - set(self.subs)):
+            self._subscribe(gs)
+        for gs in sorted(set(self.subs) - want):
+            self._unsubscribe(gs)
+
     def _publish(self, gs: str, payload: bytes) -> None:
         if self.gate is not None and not self.gate.allow(gs, "down"):
             return
@@ -107,12 +128,25 @@ class DroneNode:
         self.session.put(kx.down(self.name, gs), payload, congestion_control=zenoh.CongestionControl.DROP)
 
     # ------------------------------------------------------------------ links
-    def _install(self, gs: str, key: LinkKey, now: float) -> None:
-        self.links[gs] = SecureLink(
+    def _new_link(self, gs: str, key: LinkKey, now: float) -> SecureLink:
+        return SecureLink(
             key=key, role="drone", tx_keyexpr=kx.down(self.name, gs), rx_keyexpr=kx.up(self.name, gs),
             peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds, cipher=self.opts.cipher,
             authorize=lambda g: self.fleet.is_authorized(self.name, g))
-        self.events.write("link_installed", gs=gs)
+
+    def _install(self, gs: str, key: LinkKey, now: float) -> None:
+        """A key granted by the authority: live at once if the link has none, else a candidate that
+        GS ``gs`` must prove. The drone then speaks under it once, so the GS can confirm it too."""
+        slot = self.slots.setdefault(gs, LinkSlot())
+        link = self._new_link(gs, key, now)
+        if slot.live is None:
+            slot.install(link, now)
+            self.links[gs] = link
+            self.events.write("link_installed", gs=gs, how="grant")
+            self._send_control(gs, self.machine.status())  # the drone's proof of the key, for the GS
+        else:
+            slot.offer(link, now, "grant")
+            self.events.write("link_candidate", gs=gs, how="grant")
 
     def _send_control(self, gs: str, msg: Any) -> None:
         link = self.links.get(gs)
@@ -133,10 +167,8 @@ class DroneNode:
                 log.info("HA dropped a frame from %s: %s", a.gs, a.reason.value)
             elif isinstance(a, ha.SendControl):
                 self._send_control(a.gs, a.msg)
-            elif isinstance(a, ha.Subscribe):
-                self._subscribe(a.gs)
-            elif isinstance(a, ha.Unsubscribe):
-                self._unsubscribe(a.gs)
+            elif isinstance(a, (ha.Subscribe, ha.Unsubscribe)):
+                self._sync_subscriptions(now)
             elif isinstance(a, ha.InstallKey):
                 key = self.candidates.pop(a.gs, None)
                 if key is not None:
@@ -169,23 +201,27 @@ class DroneNode:
         self._apply(self.machine.handle(event), event.now, frame)
 
     # --------------------------------------------------------------- receiving
-    def _on_envelope(self, gs: str, data: bytes, now: float) -> None:
+    def _on_envelope(self, kind: str, gs: str, data: bytes, now: float) -> None:
         if self.gate is not None and not self.gate.allow(gs, "up"):
             return
-        link = self.links.get(gs)
-        if link is None:
+        slot = self.slots.get(gs)
+        if slot is None:
             self.counters["no_link"] += 1
             return
-        res = link.open(data, now)
+        res, promoted = slot.open(data, now)
         if isinstance(res, Dropped):
-            if link.drops[res.reason] <= 5:  # the first few of each reason in the log; all of them in the counters
+            drops = slot.live.drops if slot.live is not None else slot.unlinked
+            if drops[res.reason] <= 5:  # the first few of each reason in the log; all of them in the counters
                 self.events.write("drop", gs=gs, reason=res.reason.value, detail=res.detail)
             return
         assert isinstance(res, Opened)
+        if promoted is not None:
+            self._on_promoted(gs, promoted, now)
         if res.header is not None:
-            if res.header.commanding and self.machine.owner == gs:
+            uplink = self.uplink.classify(res.header.msgid)
+            if uplink is ha.UplinkClass.AUTHORITY_ONLY and self.machine.owner == gs:
                 self.forwarded[gs] += 1
-            self._handle(ha.Frame(now, gs, res.header.commanding), res.plaintext)
+            self._handle(ha.Frame(now, gs, uplink), res.plaintext)
             return
         msg = res.control
         if isinstance(msg, KeyGrant):
@@ -206,8 +242,9 @@ class DroneNode:
             self._send_control(sender, wire.Reject("key_grant", f"unknown ground station or sysid: {msg.gs}/{msg.sysid}"))
             return
         key = LinkKey.from_secret(self.name, msg.gs, msg.secret)
-        current = self.links.get(msg.gs)
-        if current is not None and current.key.same_as(key):
+        slot = self.slots.get(msg.gs)
+        known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
+        if any(link.key.same_as(key) for link in known):
             self._send_control(sender, KeyGrantAck(msg.gs, msg.grant_id))  # a repeated grant
             return
         self.candidates[msg.gs] = key
@@ -216,48 +253,80 @@ class DroneNode:
             self._send_control(sender, KeyGrantAck(msg.gs, msg.grant_id))
         self.candidates.pop(msg.gs, None)
 
+    def _on_promoted(self, gs: str, promoted: Promoted, now: float) -> None:
+        """GS ``gs`` proved a candidate key with the frame just opened: it is now the live key."""
+        slot = self.slots[gs]
+        assert slot.live is not None
+        self.links[gs] = slot.live
+        self.probation.pop(gs, None)
+        self.events.write("link_confirmed", gs=gs, how=promoted.origin, replaced=promoted.replaced)
+        log.info("link to %s: new key proven (%s)", gs, promoted.origin)
+        if promoted.origin == "pair":
+            refusal = self._pair_refusal(gs)
+            if refusal is not None:  # the HA's state changed since message 1 (e.g. failsafe in the air)
+                self.counters["pair_refused"] += 1
+                self.events.write("pair_refused", gs=gs, reason=refusal)
+            else:
+                self.events.write("paired", gs=gs)
+                self._handle(ha.Paired(now, gs, self._on_ground()))
+        self._sync_subscriptions(now)
+
+    def _pair_refusal(self, gs: str) -> str | None:
+        """Why the HA would refuse a pairing with ``gs`` now (asked before any crypto), or None."""
+        if not self.machine.is_authorized(gs):
+            return f"unauthorized: {gs} is not authorized for this drone"
+        if self.machine.state is ha.State.FAILSAFE and not self._on_ground():
+            return "failsafe: re-pair only on the ground"
+        return None
+
     def _serve_pairing(self, now: float) -> None:
-        while True:
+        """Answer pairing queries: refusals cost no crypto; at most ``PAIRING_PER_TURN`` handshakes."""
+        handshakes = 0
+        for _ in range(PAIRING_QUERIES_PER_TURN):
             q = self.pairing.try_recv()
             if q is None:
                 return
             try:
-                self._pair(q, now)
+                if handshakes < PAIRING_PER_TURN:
+                    handshakes += self._pair(q, now)
+                else:
+                    self.counters["pair_deferred"] += 1  # over this turn's budget: the GS asks again
+            except zenoh.ZError as exc:
+                self.counters["pair_reply_error"] += 1
+                log.info("pairing reply failed: %s", exc)
             finally:
                 q.drop()
 
-    def _pair(self, q: zenoh.Query, now: float) -> None:
+    def _pair(self, q: zenoh.Query, now: float) -> int:
+        """One pairing query; return 1 if a handshake was computed, else 0."""
         gs = kx.gs_of(q.key_expr)
-        node = self.fleet.nodes.get(gs)
-        if node is None or node.role != "gs" or q.payload is None:
-            self.counters["pair_unknown"] += 1
-            self.events.write("pair_failed", gs=gs, reason="not a ground station of the fleet")
-            q.reply_err(b"not a ground station of the fleet")
-            return
-        out = respond(self.secret.identity, self.name, gs, node.public_bytes, q.payload.to_bytes(), os.urandom(32))
+        admit = self.guard.admit(gs, now)
+        if admit is None:
+            admit = self._pair_refusal(gs)
+        if admit is not None:  # refused before any crypto
+            self.counters[f"pair_refused:{admit.split(':')[0]}"] += 1
+            if self.counters[f"pair_refused:{admit.split(':')[0]}"] <= 5:
+                self.events.write("pair_refused", gs=gs, reason=admit)
+            if not admit.startswith("rate_limited"):
+                q.reply_err(admit.encode())
+            return 0
+        payload = q.payload.to_bytes() if q.payload is not None else b""
+        out = respond(self.secret.identity, self.name, gs, self.fleet.nodes[gs].public_bytes, payload, os.urandom(32))
         if isinstance(out, PairingFailed):
             self.counters["pair_failed"] += 1
             self.events.write("pair_failed", gs=gs, reason=out.reason)
             log.warning("pairing with %s failed: %s", gs, out.reason)
             q.reply_err(out.reason.encode())
-            return
+            return 1
         msg2, key = out
-        self.candidates[gs] = key
-        actions = self.machine.handle(ha.Paired(now, gs, self._on_ground()))
-        refused = [a for a in actions if isinstance(a, ha.SendControl) and a.gs == gs and isinstance(a.msg, wire.Reject)]
-        if refused:
-            self.candidates.pop(gs, None)
-            reason = refused[0].msg.reason  # type: ignore[attr-defined]
-            self.counters["pair_refused"] += 1
-            self.events.write("pair_refused", gs=gs, reason=reason)
-            log.warning("pairing with %s refused by the handover authority: %s", gs, reason)
-            q.reply_err(reason.encode())
-            return
-        if gs in self.candidates:  # first pairing: install before the actions that use the link
-            self._install(gs, self.candidates.pop(gs), now)
+        # The key is a candidate until the GS proves it: a replayed message 1 replaces nothing.
+        self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, key, now), now, "pair", PAIRING_TTL)
+        self.probation[gs] = now + PAIRING_TTL
+        self._sync_subscriptions(now)
         q.reply(q.key_expr, msg2)
-        self.events.write("paired", gs=gs)
-        self._apply([a for a in actions if not isinstance(a, ha.InstallKey)], now)
+        self.counters["pair_answered"] += 1
+        self.events.write("pair_answered", gs=gs)
+        return 1
 
     # -------------------------------------------------------------------- loop
     def _telemetry(self, frames: list[bytes]) -> None:
@@ -298,6 +367,9 @@ class DroneNode:
                            "opened": link.opened, "sent": link.sent,
                            "dropped": {r.value: c for r, c in link.drops.items() if c}}
                       for gs, link in self.links.items()},
+            "keys": {gs: {"live": slot.live is not None, "candidates": len(slot.candidates), "expired": slot.expired,
+                          "dropped_unlinked": {r.value: c for r, c in slot.unlinked.items() if c}}
+                     for gs, slot in self.slots.items()},
             "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
             "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
@@ -325,6 +397,8 @@ class DroneNode:
         self._serve_pairing(now)
         self.vehicle.heartbeat(now)
         self._telemetry(self.vehicle.recv(0.0))
+        if self.probation and min(self.probation.values()) <= now:
+            self._sync_subscriptions(now)
         self._region(now)
         self._poll_links(now)
         self._handle(ha.Tick(now))

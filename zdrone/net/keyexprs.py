@@ -23,17 +23,12 @@ def pair_all(drone: str) -> str:
 
 
 def linkkey(gs: str, drone: str) -> str:
-    """Queryable declared by ``gs``: a fresh key for link (drone, gs), sealed to the asking GS."""
+    """Queryable declared by ``gs``: Noise KK key sharing, a fresh key for link (drone, gs)."""
     return f"backhaul/{gs}/linkkey/{drone}"
 
 
 def linkkey_all(gs: str) -> str:
     return f"backhaul/{gs}/linkkey/*"
-
-
-def handover(drone: str) -> str:
-    """GS <-> GS coordination about ``drone`` (intent, release, mission progress)."""
-    return f"backhaul/{drone}/handover"
 
 
 def gs_of(keyexpr: str) -> str:

@@ -5,9 +5,12 @@ Rules (the router checks ``ingress`` from the sender's session and ``egress`` to
 
 * drone ``d``: publish on ``zdrone/d/down/*``, subscribe ``zdrone/d/up/*``, answer pairing on
   ``zdrone/d/pair/*``;
-* GS ``g``: publish on ``zdrone/*/up/g``, subscribe ``zdrone/*/down/g``, pair on ``zdrone/*/pair/g``,
-  declare and answer only its own ``backhaul/g/linkkey/*``; query ``backhaul/*/linkkey/d`` and use
-  ``backhaul/d/handover`` only for the drones ``d`` it is authorized for.
+* GS ``g``: publish on ``zdrone/*/up/g``, subscribe ``zdrone/*/down/g``, declare and answer only its
+  own ``backhaul/g/linkkey/*``; pair (``zdrone/d/pair/g``) and query ``backhaul/*/linkkey/d`` only for
+  the drones ``d`` it is authorized for.
+
+The ACL is the second wall: every exchange it allows is also authenticated end to end by the
+fleet's static keys, so a leaked router password alone gets nothing.
 """
 
 from __future__ import annotations
@@ -48,14 +51,13 @@ def access_control(fleet: Fleet) -> dict[str, Any]:
             add("pub-up", ["put"], ["ingress"], [kx.up("*", name)])
             add("sub-down", ["declare_subscriber"], ["ingress"], [kx.down("*", name)])
             add("recv-down", ["put"], ["egress"], [kx.down("*", name)])
-            add("pair", ["query"], ["ingress"], [kx.pair("*", name)])
-            add("pair-r", ["reply"], ["egress"], [kx.pair("*", name)])
             add("linkkey-own", ["declare_queryable", "reply"], ["ingress"], [kx.linkkey_all(name)])
             add("linkkey-own-q", ["query"], ["egress"], [kx.linkkey_all(name)])
-            if drones:
+            if drones:  # pairing and key sharing only for the drones this GS is authorized for
+                add("pair", ["query"], ["ingress"], [kx.pair(d, name) for d in drones])
+                add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
                 add("linkkey-ask", ["query"], ["ingress"], [kx.linkkey("*", d) for d in drones])
                 add("linkkey-ans", ["reply"], ["egress"], [kx.linkkey("*", d) for d in drones])
-                add("handover", ["put", "declare_subscriber"], ["ingress", "egress"], [kx.handover(d) for d in drones])
         subjects.append({"id": f"user-{name}", "usernames": [name]})
         policies.append({"id": f"policy-{name}", "rules": ids, "subjects": [f"user-{name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}

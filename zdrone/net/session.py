@@ -26,6 +26,16 @@ def client_config(router: str, user: str, password: str) -> zenoh.Config:
     return zenoh.Config.from_json5(json.dumps(cfg))
 
 
+#: Queries waiting for a node's loop: the oldest are dropped beyond this (a flood cannot grow memory
+#: or block a Zenoh thread).
+QUERY_QUEUE_SIZE = 256
+
+
+def query_queue() -> "zenoh.handlers.RingChannel":
+    """The handler of every queryable: a bounded ring, drained by the node's loop."""
+    return zenoh.handlers.RingChannel(QUERY_QUEUE_SIZE)
+
+
 def open_client(router: str, user: str, password: str) -> zenoh.Session:
     """Open a client session; ``ConfigError`` (one line) if the router refuses or is not there."""
     try:

@@ -23,13 +23,12 @@ import signal
 import sys
 import time
 
-import msgspec
 from pymavlink.dialects.v20 import common as mav
 
 from ..core.envelope import SecureLink
 from ..core.fleet import ConfigError
 from ..core.keys import Identity, LinkKey
-from ..core.keyshare import LinkKeyRequest
+from ..core.keyshare import KeyShareAsk
 from ..core.mavlink import FrameCodec
 from ..core.pairing import PairingInitiator
 from ..fleetfiles import load_fleet, load_secret
@@ -99,7 +98,7 @@ def unauthorized(fleet_dir: str, router: str, drone: str, events: EventLog, dura
             for r in s.get(kx.pair(drone, "X"), payload=ini.start(), timeout=3.0):
                 answered += r.ok is not None
                 refused += r.err is not None
-            keys = [r for r in s.get(kx.linkkey("B", drone), payload=msgspec.json.encode(LinkKeyRequest("X")), timeout=2.0)
+            keys = [r for r in s.get(kx.linkkey("B", drone), payload=KeyShareAsk(me.identity, "X", "B", fleet.nodes["B"].public_bytes, drone, 0.0).payload, timeout=2.0)
                     if r.ok is not None]
             s.put(kx.up(drone, "A"), _land(fleet.nodes["X"].sysid))  # denied by the router's ACL
             s.put(kx.up(drone, "X"), _land(fleet.nodes["X"].sysid))  # nobody listens: X has no link

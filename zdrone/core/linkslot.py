@@ -1,0 +1,116 @@
+"""One peer's link with key confirmation: the live key, candidate keys, and the key just replaced.
+
+Theory of operation
+-------------------
+No new key replaces a live one until its holder proves it. A new key (from pairing, from a key
+grant, from answering a key-sharing query) enters the slot as a *candidate* with an expiry. An
+incoming envelope is tried under the live key first; if that fails before authentication, under
+each candidate, then under the key that was replaced last (for a short grace period, so frames
+already in flight under it are not lost). The first candidate that opens an authentic frame is
+*proven*: it becomes the live key, the old live key becomes the previous one, the other candidates
+are forgotten, and the new link's liveness monitor continues the old one's reporting (so a state
+change is never lost across a key change). Candidates that nobody proves expire.
+
+Failures are counted once, on the live link (or, when the slot has none yet, in ``unlinked``):
+trying a candidate never inflates the drop counters. Work per envelope is bounded by
+``MAX_CANDIDATES`` + 2 AEAD attempts.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+from .envelope import Dropped, DropReason, Opened, SecureLink
+
+MAX_CANDIDATES = 3
+CANDIDATE_TTL = 30.0
+PREVIOUS_GRACE = 3.0
+
+
+@dataclass(slots=True)
+class _Candidate:
+    link: SecureLink
+    expires: float
+    origin: str
+
+
+@dataclass(frozen=True, slots=True)
+class Promoted:
+    """The envelope just opened proved a candidate key; it is now the live one."""
+
+    origin: str
+    replaced: bool  # a live key existed and was replaced
+
+
+@dataclass
+class LinkSlot:
+    """The keys of one (drone, gs) link at one end."""
+
+    live: SecureLink | None = None
+    candidates: list[_Candidate] = field(default_factory=list)
+    previous: SecureLink | None = None
+    previous_until: float = 0.0
+    unlinked: Counter = field(default_factory=Counter)  # drops while no live key exists
+    expired: int = 0
+
+    def install(self, link: SecureLink, now: float) -> None:
+        """Make ``link`` live at once (a key this end chose and the peer proved, or the first key
+        of a link that has none); the replaced key stays readable for a grace period."""
+        if self.live is not None:
+            link.tbm.carry_over(self.live.tbm)
+            self.previous, self.previous_until = self.live, now + PREVIOUS_GRACE
+        self.live = link
+        self.candidates.clear()
+
+    def offer(self, link: SecureLink, now: float, origin: str, ttl: float = CANDIDATE_TTL) -> None:
+        """Add a candidate key; the oldest is forgotten beyond ``MAX_CANDIDATES``."""
+        self.expire(now)
+        self.candidates.append(_Candidate(link, now + ttl, origin))
+        if len(self.candidates) > MAX_CANDIDATES:
+            self.candidates.pop(0)
+            self.expired += 1
+
+    def expire(self, now: float) -> None:
+        before = len(self.candidates)
+        self.candidates = [c for c in self.candidates if c.expires > now]
+        self.expired += before - len(self.candidates)
+        if self.previous is not None and now >= self.previous_until:
+            self.previous = None
+
+    def open(self, data: bytes, now: float) -> tuple[Opened | Dropped, Promoted | None]:
+        """Open one envelope from the peer; say whether it proved (and promoted) a candidate."""
+        first: Dropped | None = None
+        if self.live is not None:
+            res = self.live.open(data, now, count=False)
+            if isinstance(res, Opened):
+                return res, None
+            if res.reason not in _BEFORE_AUTH:
+                self.live.count_drop(res)  # authentic key, failed a later check: the live link's drop
+                return res, None
+            first = res
+        if self.candidates or self.previous is not None:
+            self.expire(now)
+        for cand in self.candidates:
+            res = cand.link.open(data, now, count=False)
+            if isinstance(res, Opened):
+                replaced = self.live is not None
+                self.install(cand.link, now)
+                return res, Promoted(cand.origin, replaced)
+            if res.reason not in _BEFORE_AUTH:
+                cand.link.count_drop(res)
+                return res, None
+            first = first or res
+        if self.previous is not None:
+            res = self.previous.open(data, now, count=False)
+            if isinstance(res, Opened):
+                return res, None
+        dropped = first or Dropped(DropReason.AUTH_FAILED, "no key for this link")
+        if self.live is not None:
+            self.live.count_drop(dropped)
+        else:
+            self.unlinked[dropped.reason] += 1
+        return dropped, None
+
+
+_BEFORE_AUTH = frozenset({DropReason.MALFORMED, DropReason.UNKNOWN_EPOCH, DropReason.AUTH_FAILED})
