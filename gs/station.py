@@ -146,6 +146,7 @@ class GroundStation:
         self._sm_seq = 0
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
+        self.status_sources: dict[str, Callable[[], dict[str, Any]]] = {}  # e.g. the gateway's stats
         self.linkkey_limiter = RateLimiter(LINKKEY_RATE, LINKKEY_BURST)
         self.session = open_client(opts.router, opts.gs, self.secret.router_password)
         self.sub = self.session.declare_subscriber(kx.down("*", self.name), self._on_sample)
@@ -491,7 +492,8 @@ class GroundStation:
                                                              "dropped": {r.value: c for r, c in v.link.drops.items() if c}},
                       "key_candidates": len(v.slot.candidates),
                       "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c}}
-        return {"drones": out, "counters": dict(self.counters)}
+        extra = {name: source() for name, source in self.status_sources.items()}
+        return {"drones": out, "counters": dict(self.counters), **extra}
 
     def print_view(self) -> None:
         """The telemetry view: one line per linked drone on stdout."""
@@ -583,6 +585,7 @@ def run_station(opts: StationOptions) -> int:
         except ConfigError:
             station.close()
             raise
+        station.status_sources["gateway"] = gateway.stats
         print(f"zdrone gs {station.name}: GCS gateway on {', '.join(gateway.endpoints())} for {gateway.drone}", flush=True)
     closed = threading.Event()
     serve_signals(station.stop, station.session.close, closed)

@@ -1,0 +1,99 @@
+"""Key confirmation: no new key replaces a live one until its holder proves it (attacks 2 and 3)."""
+
+from __future__ import annotations
+
+from hypothesis import given, settings, strategies as st
+
+from tests.corepair import make_pair
+from zdrone.core.envelope import DropReason, Dropped, Opened
+from zdrone.core.keys import Identity
+from zdrone.core.linkslot import MAX_CANDIDATES, PREVIOUS_GRACE, LinkSlot
+from zdrone.core.pairing import PairingInitiator, respond
+from zdrone.core.tbm import LinkState
+
+OLD, NEW, OTHER = bytes(range(32)), bytes(range(1, 33)), bytes(range(2, 34))
+
+
+def drone_slot(now: float = 0.0):
+    p = make_pair(OLD, now=now)
+    slot = LinkSlot()
+    slot.install(p.drone, now)
+    return p, slot
+
+
+def test_replayed_pairing_never_replaces_the_live_link():
+    """Attack 3: a captured message 1 replayed in flight yields a candidate; the live key keeps working,
+    the candidate expires unproven, and nothing is counted against the live link meanwhile."""
+    drone_id, gs_id = Identity(bytes([1]) * 32), Identity(bytes([2]) * 32)
+    p, slot = drone_slot()
+    m1 = PairingInitiator(gs_id, "A", "d1", drone_id.public).start()  # captured earlier
+    _msg2, key = respond(drone_id, "d1", "A", gs_id.public, m1, NEW)  # type: ignore[misc]
+    cand = make_pair(NEW).drone
+    assert cand.key.same_as(key)
+    slot.offer(cand, 1.0, "pair", ttl=10.0)
+    for i in range(50):  # the real GS goes on under the old key
+        res, promoted = slot.open(p.gs.seal(p.heartbeat()), 1.0 + 0.1 * i)
+        assert isinstance(res, Opened) and promoted is None
+    assert slot.live is p.drone and sum(p.drone.drops.values()) == 0
+    slot.expire(20.0)
+    assert slot.candidates == [] and slot.expired == 1 and slot.live is p.drone
+
+
+def test_candidate_proven_by_its_holder_becomes_live_and_carries_the_link_state():
+    p, slot = drone_slot()
+    slot.open(p.gs.seal(p.heartbeat()), 0.1)
+    assert p.drone.tbm.poll(0.2) is LinkState.OK
+    q = make_pair(NEW, now=1.0)
+    slot.offer(q.drone, 1.0, "pair")
+    res, promoted = slot.open(q.gs.seal(q.heartbeat()), 1.1)
+    assert isinstance(res, Opened) and promoted is not None and promoted.replaced and promoted.origin == "pair"
+    assert slot.live is q.drone and slot.candidates == []
+    assert q.drone.tbm.poll(1.2) is None  # OK already reported for this link: no spurious change
+    assert q.drone.tbm.poll(5.0) is LinkState.LOST  # and a silent new key is reported LOST
+    # frames in flight under the old key still open during the grace period, then no more
+    assert isinstance(slot.open(p.gs.seal(p.heartbeat()), 1.2)[0], Opened)
+    late = slot.open(p.gs.seal(p.heartbeat()), 1.1 + PREVIOUS_GRACE + 0.1)[0]
+    assert isinstance(late, Dropped) and late.reason is DropReason.AUTH_FAILED
+
+
+def test_forged_frames_are_counted_once_on_the_live_link():
+    p, slot = drone_slot()
+    slot.offer(make_pair(NEW).drone, 0.0, "pair")
+    forger = make_pair(OTHER)
+    for _ in range(7):
+        res, promoted = slot.open(forger.gs.seal(forger.heartbeat()), 0.5)
+        assert isinstance(res, Dropped) and promoted is None
+    assert p.drone.drops[DropReason.AUTH_FAILED] == 7
+    assert all(sum(c.link.drops.values()) == 0 for c in slot.candidates)
+
+
+def test_candidates_are_bounded():
+    _, slot = drone_slot()
+    for i in range(MAX_CANDIDATES + 5):
+        slot.offer(make_pair(bytes([i]) * 32).drone, float(i), "pair", ttl=100.0)
+    assert len(slot.candidates) == MAX_CANDIDATES
+
+
+def test_empty_slot_counts_drops_as_unlinked():
+    slot = LinkSlot()
+    res, _ = slot.open(b"junk" * 10, 0.0)
+    assert isinstance(res, Dropped) and slot.unlinked[res.reason] == 1
+
+
+def test_owner_answering_a_linkkey_query_keeps_its_live_link():
+    """Attack 2: B's password, a query claiming to be B; even a genuine query only adds a candidate."""
+    p, slot = drone_slot()  # here: A's side of link (d1, A) is the "live" one
+    slot.offer(make_pair(NEW).gs, 0.5, "linkkey:B", ttl=900.0)
+    res, promoted = slot.open(p.gs.seal(p.heartbeat()), 0.6)
+    assert isinstance(res, Opened) and promoted is None and slot.live is p.drone
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.binary(max_size=120), max_size=20))
+def test_garbage_never_raises_nor_promotes(blobs):
+    p, slot = drone_slot()
+    slot.offer(make_pair(NEW).drone, 0.0, "pair")
+    for b in blobs:
+        res, promoted = slot.open(b, 0.1)
+        assert isinstance(res, Dropped) and promoted is None
+    assert slot.live is p.drone
