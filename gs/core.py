@@ -1,0 +1,615 @@
+"""The ground station's protocol logic, sans-IO: pairing, key sharing with confirmation, hand-over
+coordination and mission stages. ``gs/station.py`` is its thin Zenoh adapter.
+
+Theory of operation
+-------------------
+``StationCore`` holds one ``DroneView`` per drone the GS serves. Time comes in as ``now``; bytes
+and events come in through ``on_*`` methods; what the adapter must do comes out as actions:
+``Put`` (publish a sealed envelope), ``Ask`` (send a query; its replies come back through
+``on_pair_reply`` / ``on_linkkey_reply``), ``Log`` (an event-log record), ``FrameUp`` (a drone frame
+for the GCS gateway) and ``Say`` (a line for the operator). An incoming key-sharing query is
+answered with a ``QueryAnswer`` value. Nothing here blocks, reads a clock or touches a socket.
+
+Per drone:
+
+* **Pairing** (with ``pair``): message 1 is an ``Ask``; the first reply that proves the drone's
+  static key installs the new link (our own fresh key: live at once, the old one readable for a
+  grace period) and a HEARTBEAT goes out under it, the proof the drone waits for. Forged replies are
+  counted and leave the exchange open.
+* **Key sharing, as authority**: for every other authorized GS without a link on the drone, one
+  ``KeyShareAsk`` at a time (Noise KK); its single authentic reply becomes a ``KEY_GRANT`` re-sent
+  each second until the drone acknowledges it.
+* **Key sharing, as owner**: a query is checked against the fleet and the asker's rate limit before
+  any crypto; an authentic one gets a fresh secret that becomes a *candidate* of our own link — the
+  live link is never touched — until the drone speaks under it.
+* **Hand-over**: while it holds authority and the vehicle is inside its and another authorized GS's
+  coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``); if the
+  drone reports the release timed out, the GS commands RTL.
+* **Mission stages** are a table, ``FLIGHT``: (stage, event) -> handler; pairs not in it are no-ops
+  by definition.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from pymavlink.dialects.v20 import common as mav
+
+from zdrone.core import wire
+from zdrone.core.authority import State as HaState
+from zdrone.core.envelope import Dropped, SecureLink
+from zdrone.core.fleet import Fleet
+from zdrone.core.geometry import Circle, GeoPoint, distance_m
+from zdrone.core.keys import Identity, LinkKey
+from zdrone.core.keyshare import KeyShareAsk, Refused, ShareRefusal, answer, decode_query
+from zdrone.core.linkslot import LinkSlot
+from zdrone.core.mavlink import FrameCodec, read_header
+from zdrone.core.pairing import PairingFailed, PairingInitiator
+from zdrone.core.ratelimit import RateLimiter
+from zdrone.net import keyexprs as kx
+
+from .planner import MissionUploader, PlannedItem
+
+log = logging.getLogger(__name__)
+
+GCS_COMPID = mav.MAV_COMP_ID_MISSIONPLANNER
+USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG_ID_HEARTBEAT,
+                         mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, mav.MAVLINK_MSG_ID_MISSION_CURRENT,
+                         mav.MAVLINK_MSG_ID_STATUSTEXT, mav.MAVLINK_MSG_ID_COMMAND_ACK,
+                         mav.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mav.MAVLINK_MSG_ID_MISSION_REQUEST,
+                         mav.MAVLINK_MSG_ID_MISSION_ACK})
+#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
+LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
+#: A secret handed out over the backhaul waits this long for the drone to prove it (the drone first
+#: speaks under it when it reaches this GS's coverage).
+LINKKEY_CANDIDATE_TTL = 900.0
+PAIR_TIMEOUT = 3.0
+RETRY_S = 2.0
+STAGE_TIMEOUT = 3.0
+
+
+class Stage(enum.Enum):
+    """Where the GS is in flying its mission with one drone."""
+
+    IDLE = "idle"
+    UPLOADING = "uploading"
+    ARMING = "arming"
+    STARTING = "starting"
+    FLYING = "flying"
+    FAILED = "failed"
+
+
+class AskKind(enum.Enum):
+    PAIR = "pair"
+    LINKKEY = "linkkey"
+
+
+# ---------------------------------------------------------------------------- actions
+@dataclass(frozen=True, slots=True)
+class Put:
+    """Publish ``payload`` (a sealed envelope) on ``keyexpr``."""
+
+    keyexpr: str
+    payload: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Ask:
+    """Send a query; hand every reply back with ``on_pair_reply`` / ``on_linkkey_reply``."""
+
+    kind: AskKind
+    drone: str
+    gs: str
+    keyexpr: str
+    payload: bytes
+    timeout: float
+
+
+@dataclass(frozen=True, slots=True)
+class Log:
+    """One event-log record."""
+
+    kind: str
+    fields: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class FrameUp:
+    """An authentic MAVLink frame from ``drone`` for the GCS gateway."""
+
+    drone: str
+    frame: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class Say:
+    """A line for the operator (stdout)."""
+
+    text: str
+
+
+Action = Put | Ask | Log | FrameUp | Say
+
+
+@dataclass(frozen=True, slots=True)
+class QueryAnswer:
+    """How to answer one key-sharing query: a reply payload, or an error (None: no answer at all)."""
+
+    reply: bytes | None = None
+    error: bytes | None = None
+    crypto: bool = False  # a handshake was computed (the adapter bounds these per loop turn)
+
+
+# ----------------------------------------------------------------------- flight events
+@dataclass(frozen=True, slots=True)
+class FlightTick:
+    now: float
+
+
+@dataclass(frozen=True, slots=True)
+class FlightAck:
+    now: float
+    command: int
+    accepted: bool
+    result: int
+
+
+@dataclass(frozen=True, slots=True)
+class CoreOptions:
+    """What the GS core needs of the command line."""
+
+    pair: bool = False
+    mission: list[PlannedItem] | None = None
+    heartbeat_hz: float = 2.0
+    command_rate: float = 0.0
+    hysteresis_m: float = 20.0
+    cipher: str = "zdrone"
+    paper_heartbeat: bool = False
+
+
+@dataclass
+class DroneView:
+    """What this GS knows of one drone."""
+
+    name: str
+    sysid: int
+    link: SecureLink | None = None  # the live link (``slot.live``)
+    slot: LinkSlot = field(default_factory=LinkSlot)
+    pairing: PairingInitiator | None = None
+    pairing_deadline: float = 0.0
+    asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
+    position: GeoPoint | None = None
+    armed: bool = False
+    custom_mode: int = 0
+    landed_state: int = 0
+    mission_seq: int | None = None
+    owner: str | None = None
+    epoch: int = 0
+    ha_state: HaState | None = None
+    pending_to: str | None = None
+    drone_links: set[str] = field(default_factory=set)  # GSs the drone already holds keys for
+    grants: dict[str, wire.KeyGrant] = field(default_factory=dict)  # gs -> grant not yet acknowledged
+    granted: set[str] = field(default_factory=set)
+    grant_sent: float | None = None
+    uploader: MissionUploader | None = None
+    stage: Stage = Stage.IDLE
+    stage_time: float = 0.0
+    released_epoch: int | None = None
+    release_sent: float = 0.0
+    release_confirmed: bool = False  # the drone reported HANDOVER_PENDING for our release
+    handover_failed_epoch: int | None = None
+    commands_sent: Counter = field(default_factory=Counter)  # per epoch
+    last_pair_try: float | None = None
+    last_share_try: float | None = None
+    last_command: float | None = None
+
+
+def _due(last: float | None, now: float, period: float) -> bool:
+    return last is None or now - last >= period
+
+
+class StationCore:
+    """The protocol logic of one ground station (see the module docstring)."""
+
+    def __init__(self, name: str, fleet: Fleet, identity: Identity, drones: tuple[str, ...],
+                 opts: CoreOptions = CoreOptions()) -> None:
+        self.name = name
+        self.fleet = fleet
+        self.identity = identity
+        self.opts = opts
+        node = fleet.node(name)
+        self.sysid = node.sysid
+        self.coverage: Circle | None = node.coverage.circle() if node.coverage else None
+        self.views = {d: DroneView(d, fleet.nodes[d].sysid) for d in drones}
+        self.codec = FrameCodec(self.sysid, GCS_COMPID)
+        self.counters: Counter[str] = Counter()
+        self.linkkey_limiter = RateLimiter(LINKKEY_RATE, LINKKEY_BURST)
+        self._grant_id = 0
+        self._sm_seq = 0
+        self._hb_due = 0.0
+
+    # ------------------------------------------------------------------ sending
+    def _new_link(self, view: DroneView, key: LinkKey, now: float) -> SecureLink:
+        return SecureLink(key=key, role="gs", tx_keyexpr=kx.up(view.name, self.name),
+                          rx_keyexpr=kx.down(view.name, self.name), peer_sysid=view.sysid, now=now,
+                          cipher=self.opts.cipher)
+
+    def send_frame(self, view: DroneView, frame: bytes) -> list[Action]:
+        """Seal one MAVLink frame for the drone (nothing without a link)."""
+        if view.link is None:
+            return []
+        if read_header(frame).commanding:
+            view.commands_sent[view.epoch] += 1  # every commanding frame, to check none is lost
+        return [Put(kx.up(view.name, self.name), view.link.seal(frame))]
+
+    def send_msg(self, view: DroneView, msg: Any) -> list[Action]:
+        return self.send_frame(view, self.codec.encode(msg))
+
+    def send_control(self, view: DroneView, msg: wire.Control) -> list[Action]:
+        if view.link is None:
+            return []
+        return [Put(kx.up(view.name, self.name), view.link.seal_control(msg))]
+
+    def holds_authority(self, view: DroneView) -> bool:
+        return view.owner == self.name and view.released_epoch != view.epoch
+
+    def _heartbeat(self, view: DroneView) -> list[Action]:
+        return self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                                 mav.MAV_STATE_ACTIVE, 3))
+
+    def _command(self, view: DroneView, command: int, *params: float) -> list[Action]:
+        p = list(params) + [0.0] * (7 - len(params))
+        return self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, command, 0, *p))
+
+    # -------------------------------------------------------------------- time
+    def tick(self, now: float) -> list[Action]:
+        """One pass of the GS's periodic work."""
+        out: list[Action] = []
+        for view in self.views.values():
+            if view.link is None and self.opts.pair:
+                out += self._try_pair(view, now)
+            if view.link is None:
+                continue
+            if view.owner == self.name:
+                out += self._share_keys(view, now)
+            out += self._flight(view, FlightTick(now))
+            out += self._coordinate(view, now)
+            out += self._command_stream(view, now)
+        if now >= self._hb_due:
+            self._hb_due = now + 1.0 / self.opts.heartbeat_hz
+            for view in self.views.values():
+                out += self._heartbeat(view)
+                if self.opts.paper_heartbeat:
+                    self._sm_seq += 1
+                    out += self.send_control(view, wire.SmHeartbeat(self._sm_seq))
+        return out
+
+    # ------------------------------------------------------------------ pairing
+    def _try_pair(self, view: DroneView, now: float) -> list[Action]:
+        if view.pairing is not None and now < view.pairing_deadline:
+            return []
+        if not _due(view.last_pair_try, now, RETRY_S):
+            return []
+        view.last_pair_try = now
+        view.pairing = PairingInitiator(self.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes)
+        view.pairing_deadline = now + PAIR_TIMEOUT
+        return [Ask(AskKind.PAIR, view.name, self.name, kx.pair(view.name, self.name), view.pairing.start(), PAIR_TIMEOUT)]
+
+    def on_pair_reply(self, drone: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
+        """One reply to our pairing query (``ok`` payload, or the drone's error text)."""
+        view = self.views.get(drone)
+        if view is None or view.pairing is None or now >= view.pairing_deadline:
+            self.counters["pair_reply_late"] += 1
+            return []
+        if ok is None:
+            reason = (err or b"error").decode(errors="replace")[:200]
+            self.counters["pair_refused"] += 1
+            log.warning("pairing with %s refused: %s", drone, reason)
+            return [Log("pair_refused", {"drone": drone, "reason": reason})]
+        key = view.pairing.finish(ok)
+        if isinstance(key, PairingFailed):
+            self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
+            return [Log("pair_failed", {"drone": drone, "reason": key.reason})]
+        view.pairing = None
+        # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
+        # first frame under it arrives (a heartbeat now); the old one stays readable a while
+        view.slot.install(self._new_link(view, key, now), now)
+        view.link = view.slot.live
+        return [Log("paired", {"drone": drone}), Say(f"zdrone gs {self.name}: paired with {drone}"),
+                *self._heartbeat(view)]
+
+    # --------------------------------------------------------------- key sharing
+    def _refused(self, logs: list[Action], reason: ShareRefusal, drone: str, asker: str, detail: str = "") -> QueryAnswer:
+        key = f"linkkey_refused:{reason.value}"
+        self.counters[key] += 1
+        if self.counters[key] <= 5:  # the first few in the log; all of them in the counters
+            logs.append(Log("linkkey_refused", {"drone": drone, "asker": asker, "reason": reason.value, "detail": detail}))
+        crypto = reason is ShareRefusal.AUTH_FAILED
+        if reason is ShareRefusal.RATE_LIMITED:
+            return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
+        return QueryAnswer(error=reason.value.encode(), crypto=crypto)
+
+    def on_linkkey_query(self, drone: str, payload: bytes, now: float, secret: bytes) -> tuple[QueryAnswer, list[Action]]:
+        """Answer one key-sharing query for link (``drone``, us); ``secret`` is fresh randomness.
+
+        Refusals before any crypto: malformed, unknown asker, not authorized for the drone, over the
+        asker's rate limit. Then message 1 must prove the asker's static key."""
+        logs: list[Action] = []
+        req = decode_query(payload)
+        if isinstance(req, Refused):
+            return self._refused(logs, req.reason, drone, "?", req.detail), logs
+        asker = self.fleet.nodes.get(req.asker)
+        if asker is None or asker.role != "gs" or req.asker == self.name:
+            return self._refused(logs, ShareRefusal.UNKNOWN_ASKER, drone, req.asker), logs
+        if (drone not in self.views or not self.fleet.is_authorized(drone, req.asker)
+                or not self.fleet.is_authorized(drone, self.name)):
+            return self._refused(logs, ShareRefusal.UNAUTHORIZED, drone, req.asker), logs
+        if not self.linkkey_limiter.allow(req.asker, now):
+            return self._refused(logs, ShareRefusal.RATE_LIMITED, drone, req.asker), logs
+        reply = answer(self.identity, self.name, drone, req.asker, asker.public_bytes, req.m1, secret)
+        if isinstance(reply, Refused):  # claimed to be an authorized GS without its key
+            return self._refused(logs, reply.reason, drone, req.asker, reply.detail), logs
+        view = self.views[drone]
+        # Never touch the live link: the secret is a candidate until the drone speaks under it.
+        candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
+        view.slot.offer(candidate, now, f"linkkey:{req.asker}", LINKKEY_CANDIDATE_TTL)
+        self.counters["linkkey_shared"] += 1
+        logs.append(Log("linkkey_shared", {"drone": drone, "asker": req.asker}))
+        log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.name, req.asker)
+        return QueryAnswer(reply=reply, crypto=True), logs
+
+    def _share_keys(self, view: DroneView, now: float) -> list[Action]:
+        """As authority: ask the other authorized GSs for their link keys; grant them to the drone."""
+        out: list[Action] = []
+        for g in self.fleet.nodes[view.name].authorized_gs:
+            if g == self.name:
+                continue
+            ask = view.asks.get(g)
+            if ask is not None and not ask.expired(now):
+                continue
+            if ask is not None:
+                del view.asks[g]
+                self.counters["linkkey_no_answer"] += 1
+            if g in view.drone_links or g in view.granted or g in view.grants or not _due(view.last_share_try, now, RETRY_S):
+                continue
+            view.last_share_try = now
+            ask = KeyShareAsk(self.identity, self.name, g, self.fleet.nodes[g].public_bytes, view.name, now)
+            view.asks[g] = ask
+            out.append(Ask(AskKind.LINKKEY, view.name, g, kx.linkkey(g, view.name), ask.payload, ask.deadline - now))
+        if view.grants and _due(view.grant_sent, now, 1.0):
+            view.grant_sent = now
+            for grant in view.grants.values():
+                out += self.send_control(view, grant)
+        return out
+
+    def on_linkkey_reply(self, drone: str, gs: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
+        """One reply from ``gs`` to our key-sharing query about ``drone``."""
+        view = self.views.get(drone)
+        if view is None:
+            self.counters["linkkey_reply:unknown_drone"] += 1
+            return []
+        if ok is None:
+            self.counters["linkkey_reply_error"] += 1
+            return [Log("linkkey_error", {"drone": drone, "gs": gs, "reason": (err or b"").decode(errors="replace")[:120]})]
+        ask = view.asks.get(gs)
+        if ask is None:
+            self.counters["linkkey_reply:not_waiting"] += 1
+            return []
+        secret = ask.on_reply(ok, now)
+        if isinstance(secret, Refused):
+            key = f"linkkey_reply:{secret.reason.value}"
+            self.counters[key] += 1
+            log.warning("key-sharing reply for %s from %s refused: %s", drone, gs, secret.reason.value)
+            return [Log("linkkey_bad_reply", {"drone": drone, "gs": gs, "reason": secret.reason.value})] if self.counters[key] <= 5 else []
+        del view.asks[gs]
+        self._grant_id += 1
+        view.grants[gs] = wire.KeyGrant(gs, self.fleet.nodes[gs].sysid, secret, self._grant_id)
+        view.grant_sent = None
+        return [Log("linkkey_received", {"drone": drone, "gs": gs})]
+
+    # ----------------------------------------------------------------- receiving
+    def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
+        """One sealed envelope from ``drone``."""
+        view = self.views.get(drone)
+        if view is None:
+            self.counters["down:unknown_drone"] += 1
+            return []
+        if view.link is None and not view.slot.candidates:
+            self.counters["no_link"] += 1
+            return []
+        res, promoted = view.slot.open(data, now)
+        if isinstance(res, Dropped):
+            return []
+        out: list[Action] = []
+        if promoted is not None:
+            view.link = view.slot.live
+            out.append(Log("link_confirmed", {"drone": drone, "how": promoted.origin, "replaced": promoted.replaced}))
+            log.info("link to %s: key confirmed by the drone (%s)", drone, promoted.origin)
+        if res.control is not None:
+            return out + self._on_control(view, res.control, now)
+        out.append(FrameUp(drone, res.plaintext))
+        if res.header is None or res.header.msgid not in USED_MSGIDS:
+            return out  # a full decode costs ~19 µs: only for what the station uses
+        msg = self.codec.decode(res.plaintext)
+        if msg is None:
+            return out
+        t = msg.get_type()
+        if t == "GLOBAL_POSITION_INT":
+            view.position = GeoPoint(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
+        elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            view.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+            view.custom_mode = msg.custom_mode
+        elif t == "EXTENDED_SYS_STATE":
+            view.landed_state = msg.landed_state
+        elif t == "MISSION_CURRENT":
+            view.mission_seq = msg.seq
+        elif t == "STATUSTEXT":
+            out.append(Log("vehicle_text", {"drone": drone, "text": msg.text}))
+        if view.uploader is not None:
+            for m in view.uploader.on_message(msg, now, self.sysid):
+                out += self.send_msg(view, m)
+        if t == "COMMAND_ACK" and msg.target_system == self.sysid:
+            out += self._flight(view, FlightAck(now, msg.command, msg.result == mav.MAV_RESULT_ACCEPTED, msg.result))
+        return out
+
+    def _on_control(self, view: DroneView, msg: wire.Control, now: float) -> list[Action]:
+        out: list[Action] = []
+        if isinstance(msg, wire.AuthorityStatus):
+            try:
+                state: HaState | None = HaState(msg.state)
+            except ValueError:
+                state = None
+                self.counters["status_unknown_state"] += 1
+            changed = (msg.owner, msg.epoch, state, msg.pending_to) != (view.owner, view.epoch, view.ha_state, view.pending_to)
+            was_mine = view.owner == self.name
+            view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
+            view.drone_links = set(msg.linked)
+            if changed:
+                out.append(Log("authority_status", {"drone": view.name, "owner": msg.owner, "epoch": msg.epoch,
+                                                    "state": msg.state, "pending_to": msg.pending_to}))
+            if was_mine and msg.owner == self.name and view.released_epoch == msg.epoch:
+                if state is HaState.HANDOVER_PENDING:
+                    view.release_confirmed = True
+                elif state is HaState.LINKED and view.release_confirmed and view.handover_failed_epoch != msg.epoch:
+                    out += self._handover_failed(view)  # timed out or aborted: authority stayed here
+        elif isinstance(msg, wire.KeyGrantAck):
+            if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
+                del view.grants[msg.gs]
+                view.granted.add(msg.gs)
+                out.append(Log("key_granted", {"drone": view.name, "gs": msg.gs}))
+        elif isinstance(msg, wire.Reject):
+            log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
+            out.append(Log("rejected", {"drone": view.name, "what": msg.what, "reason": msg.reason}))
+        elif isinstance(msg, wire.FailsafeNotice):
+            log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
+            out.append(Log("failsafe_notice", {"drone": view.name, "action": msg.action, "reason": msg.reason}))
+        else:
+            self.counters[f"control_ignored:{type(msg).__name__}"] += 1
+        return out
+
+    def _handover_failed(self, view: DroneView) -> list[Action]:
+        view.handover_failed_epoch = view.epoch
+        view.released_epoch = None
+        log.warning("hand-over of %s failed: authority stays here; commanding RTL", view.name)
+        return [Log("handover_failed", {"drone": view.name, "epoch": view.epoch, "action": "RTL"}),
+                *self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)]
+
+    # ----------------------------------------------------------------- flying
+    def _set_stage(self, view: DroneView, stage: Stage, now: float) -> None:
+        if stage is not view.stage:
+            log.info("mission %s: %s -> %s", view.name, view.stage.value, stage.value)
+            view.stage, view.stage_time = stage, now
+
+    def _flight(self, view: DroneView, ev: FlightTick | FlightAck) -> list[Action]:
+        if self.opts.mission is None or not self.holds_authority(view) or view.grants:
+            return []
+        handler = FLIGHT.get((view.stage, type(ev)))
+        return handler(self, view, ev) if handler is not None else []
+
+    def _start_upload(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        assert self.opts.mission is not None
+        view.uploader = MissionUploader(self.opts.mission, target=(view.sysid, 1))
+        out: list[Action] = []
+        for m in view.uploader.start(ev.now):
+            out += self.send_msg(view, m)
+        self._set_stage(view, Stage.UPLOADING, ev.now)
+        return out + [Log("mission_upload", {"drone": view.name, "items": len(self.opts.mission)})]
+
+    def _upload_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        assert view.uploader is not None
+        out: list[Action] = []
+        for m in view.uploader.tick(ev.now):
+            out += self.send_msg(view, m)
+        if view.uploader.done:
+            if view.uploader.accepted:
+                self._set_stage(view, Stage.ARMING, ev.now)
+                out += self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            else:
+                self._set_stage(view, Stage.FAILED, ev.now)
+                out.append(Log("mission_upload_failed", {"drone": view.name, "result": view.uploader.result}))
+        return out
+
+    def _stage_timeout(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        if ev.now - view.stage_time > STAGE_TIMEOUT:
+            self._set_stage(view, Stage.IDLE, ev.now)  # no answer: start over
+        return []
+
+    def _arm_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
+        if ev.command != mav.MAV_CMD_COMPONENT_ARM_DISARM:
+            return []
+        if not ev.accepted:
+            self._set_stage(view, Stage.FAILED, ev.now)
+            return [Log("arm_failed", {"drone": view.name, "result": ev.result})]
+        self._set_stage(view, Stage.STARTING, ev.now)
+        return self._command(view, mav.MAV_CMD_MISSION_START)
+
+    def _start_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
+        if ev.command != mav.MAV_CMD_MISSION_START:
+            return []
+        self._set_stage(view, Stage.FLYING if ev.accepted else Stage.FAILED, ev.now)
+        return [Log("mission_started" if ev.accepted else "mission_start_failed", {"drone": view.name, "result": ev.result})]
+
+    def _coordinate(self, view: DroneView, now: float) -> list[Action]:
+        """Release authority toward the GS whose coverage the drone is flying into."""
+        if view.owner != self.name or view.position is None or self.coverage is None:
+            return []
+        if view.handover_failed_epoch == view.epoch:
+            return []
+        if view.released_epoch == view.epoch and (view.release_confirmed or now - view.release_sent < 1.0):
+            return []  # released: wait for the drone (re-send only if it never confirmed)
+        here = GeoPoint(view.position.lat, view.position.lon)
+        if not self.coverage.contains(here):
+            return []
+        mine = distance_m(self.coverage.centre, here)
+        for g in self.fleet.nodes[view.name].authorized_gs:
+            other = self.fleet.nodes[g]
+            if g == self.name or other.coverage is None:
+                continue
+            circle = other.coverage.circle()
+            if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
+                out: list[Action] = []
+                if view.released_epoch != view.epoch:
+                    view.release_confirmed = False
+                    out.append(Log("handover_release", {"drone": view.name, "to": g, "epoch": view.epoch,
+                                                        "position": [here.lat, here.lon]}))
+                view.released_epoch, view.release_sent = view.epoch, now
+                return out + self.send_control(view, wire.HandoverRelease(g, view.epoch))
+        return []
+
+    def _command_stream(self, view: DroneView, now: float) -> list[Action]:
+        if self.opts.command_rate <= 0 or not self.holds_authority(view) or not view.armed:
+            return []
+        if not _due(view.last_command, now, 1.0 / self.opts.command_rate):
+            return []
+        view.last_command = now
+        return self._command(view, mav.MAV_CMD_REQUEST_MESSAGE, mav.MAVLINK_MSG_ID_HOME_POSITION)
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> dict[str, Any]:
+        out = {}
+        for d, v in self.views.items():
+            out[d] = {"linked": v.link is not None, "owner": v.owner, "epoch": v.epoch,
+                      "state": v.ha_state.value if v.ha_state else "unknown", "stage": v.stage.value,
+                      "position": [v.position.lat, v.position.lon, v.position.alt] if v.position else None,
+                      "commands_sent": {str(k): c for k, c in v.commands_sent.items()},
+                      "link": None if v.link is None else {"opened": v.link.opened, "sent": v.link.sent,
+                                                             "dropped": {r.value: c for r, c in v.link.drops.items() if c}},
+                      "key_candidates": len(v.slot.candidates),
+                      "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c}}
+        return {"drones": out, "counters": dict(self.counters)}
+
+
+Handler = Callable[[StationCore, DroneView, Any], "list[Action]"]
+#: The mission stages: (stage, event type) -> handler. Pairs not listed do nothing.
+FLIGHT: dict[tuple[Stage, type], Handler] = {
+    (Stage.IDLE, FlightTick): StationCore._start_upload,
+    (Stage.UPLOADING, FlightTick): StationCore._upload_tick,
+    (Stage.ARMING, FlightTick): StationCore._stage_timeout,
+    (Stage.STARTING, FlightTick): StationCore._stage_timeout,
+    (Stage.ARMING, FlightAck): StationCore._arm_ack,
+    (Stage.STARTING, FlightAck): StationCore._start_ack,
+}

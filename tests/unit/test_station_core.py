@@ -1,0 +1,124 @@
+"""The GS core with explicit time: key sharing, pairing and the attacks on them, no sockets."""
+
+from __future__ import annotations
+
+import pytest
+
+from zdrone.core.keys import Identity
+from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
+from zdrone.core.pairing import respond
+from zdrone.fleetfiles import init_fleet, load_fleet, load_secret
+from gs.core import Ask, AskKind, CoreOptions, Log, Put, StationCore, Stage
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fleet")
+    init_fleet(d)
+    return d
+
+
+def core(fleet_dir, name: str, **kw) -> StationCore:
+    fleet = load_fleet(fleet_dir)
+    drones = tuple(x for x in fleet.drones() if fleet.is_authorized(x, name))
+    return StationCore(name, fleet, load_secret(fleet_dir, name, fleet).identity, drones, CoreOptions(**kw))
+
+
+def ident(fleet_dir, name: str) -> Identity:
+    return load_secret(fleet_dir, name).identity
+
+
+def paired_a(fleet_dir) -> StationCore:
+    """GS A, paired with d1 (the drone side of the handshake done here by hand) and holding authority."""
+    a = core(fleet_dir, "A", pair=True)
+    asks = [x for x in a.tick(0.0) if isinstance(x, Ask)]
+    assert [x.kind for x in asks] == [AskKind.PAIR]
+    m2, _key = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, asks[0].payload, bytes(32))
+    out = a.on_pair_reply("d1", m2, None, 0.1)
+    assert any(isinstance(x, Put) for x in out)  # the proof of the new key goes out at once
+    a.views["d1"].owner, a.views["d1"].epoch = "A", 1
+    return a
+
+
+def share(a: StationCore, b: StationCore, now: float) -> Ask:
+    asks = [x for x in a.tick(now) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    assert len(asks) == 1 and asks[0].gs == "B" and asks[0].keyexpr == "backhaul/B/linkkey/d1"
+    return asks[0]
+
+
+def test_key_sharing_end_to_end_leaves_the_owner_live_link_alone(fleet_dir):
+    a, b = paired_a(fleet_dir), core(fleet_dir, "B")
+    ask = share(a, b, 1.0)
+    ans, logs = b.on_linkkey_query("d1", ask.payload, 1.1, bytes(range(32)))
+    assert ans.reply is not None and ans.crypto and [x.kind for x in logs] == ["linkkey_shared"]
+    assert b.views["d1"].link is None and len(b.views["d1"].slot.candidates) == 1  # pending the drone's proof
+    out = a.on_linkkey_reply("d1", "B", ans.reply, None, 1.2)
+    assert [x.kind for x in out if isinstance(x, Log)] == ["linkkey_received"]
+    assert a.views["d1"].grants["B"].secret == bytes(range(32))
+
+
+def test_attack1_forged_reply_before_and_after_the_real_one(fleet_dir):
+    a, b = paired_a(fleet_dir), core(fleet_dir, "B")
+    ask = share(a, b, 1.0)
+    # the attacker has B's router password and its own key pair: a well-formed message 2, not B's
+    x = Identity.generate()
+    other = KeyShareAsk(ident(fleet_dir, "A"), "A", "B", x.public, "d1", 0.0)
+    forged = answer(x, "B", "d1", "A", a.fleet.nodes["A"].public_bytes, decode_query(other.payload).m1, bytes(32))  # type: ignore[union-attr]
+    assert isinstance(forged, bytes)
+    a.on_linkkey_reply("d1", "B", forged, None, 1.1)
+    a.on_linkkey_reply("d1", "B", b"\x00" * 80, None, 1.1)
+    assert a.counters["linkkey_reply:auth_failed"] == 2 and not a.views["d1"].grants
+    ans, _ = b.on_linkkey_query("d1", ask.payload, 1.2, bytes(range(32)))
+    a.on_linkkey_reply("d1", "B", ans.reply, None, 1.3)
+    assert a.views["d1"].grants["B"].secret == bytes(range(32))
+    a.on_linkkey_reply("d1", "B", forged, None, 1.4)  # later replies: nobody is waiting
+    assert a.counters["linkkey_reply:not_waiting"] == 1 and a.views["d1"].grants["B"].secret == bytes(range(32))
+
+
+def test_attack2_query_claiming_b_without_b_key_is_refused_and_changes_nothing(fleet_dir):
+    a = paired_a(fleet_dir)
+    live = a.views["d1"].link
+    x = Identity.generate()
+    forged = KeyShareAsk(x, "B", "A", a.fleet.nodes["A"].public_bytes, "d1", 0.0)  # claims to be B
+    ans, logs = a.on_linkkey_query("d1", forged.payload, 2.0, bytes(32))
+    assert ans.reply is None and ans.error == b"auth_failed" and a.counters["linkkey_refused:auth_failed"] == 1
+    ans, _ = a.on_linkkey_query("d1", b"junk", 2.0, bytes(32))
+    assert ans.error == b"malformed" and not ans.crypto
+    assert a.views["d1"].link is live and not a.views["d1"].slot.candidates
+
+
+def test_unauthorized_asker_and_rate_limit_refused_before_crypto(fleet_dir):
+    b = core(fleet_dir, "B")
+    x_ask = KeyShareAsk(ident(fleet_dir, "X"), "X", "B", b.fleet.nodes["B"].public_bytes, "d1", 0.0)
+    ans, _ = b.on_linkkey_query("d1", x_ask.payload, 0.0, bytes(32))
+    assert ans.error == b"unauthorized" and not ans.crypto
+    a_id = ident(fleet_dir, "A")
+    results = [b.on_linkkey_query("d1", KeyShareAsk(a_id, "A", "B", b.fleet.nodes["B"].public_bytes, "d1", 0.0).payload,
+                                  0.0, bytes(32))[0] for _ in range(10)]
+    assert sum(r.crypto for r in results) == 3  # the burst; the rest cost no handshake and get no answer
+    assert all(r.reply is None and r.error is None for r in results[3:])
+    assert b.counters["linkkey_refused:rate_limited"] == 7
+
+
+def test_forged_pairing_reply_does_not_spoil_pairing(fleet_dir):
+    a = core(fleet_dir, "A", pair=True)
+    ask = [x for x in a.tick(0.0) if isinstance(x, Ask)][0]
+    a.on_pair_reply("d1", b"\x02" * 64, None, 0.1)
+    assert a.counters["pair_bad_reply"] == 1 and a.views["d1"].link is None
+    m2, _ = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, ask.payload, bytes(32))
+    a.on_pair_reply("d1", m2, None, 0.2)
+    assert a.views["d1"].link is not None
+    assert a.on_pair_reply("d1", m2, None, 0.3) == [] and a.counters["pair_reply_late"] == 1
+
+
+def test_mission_stages_are_a_table(fleet_dir):
+    from gs.core import FLIGHT, FlightAck, FlightTick
+
+    assert {s for s, _ in FLIGHT} <= set(Stage)
+    a = paired_a(fleet_dir)
+    assert a.views["d1"].stage is Stage.IDLE
+    a.opts = CoreOptions(pair=True, mission=None)
+    a.tick(5.0)
+    assert a.views["d1"].stage is Stage.IDLE  # no mission: nothing to fly
+    assert a._flight(a.views["d1"], FlightAck(5.0, 400, True, 0)) == []
+    assert a._flight(a.views["d1"], FlightTick(5.0)) == []
