@@ -179,6 +179,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     try:
         args = build_parser().parse_args(argv)
+    except (UsageError, ConfigError) as exc:
+        print(f"zdrone: error: {exc}", file=sys.stderr)
+        return 2
+    return run_parsed(args)
+
+
+def run_parsed(args: argparse.Namespace) -> int:
+    """Run a parsed subcommand: logging, signal thread, one-line errors with exit code 2."""
+    try:
         if getattr(args, "func", None) in _SIGNAL_THREAD_COMMANDS:
             from .net.shutdown import block_signals
 

@@ -90,10 +90,11 @@ def _drone(args: argparse.Namespace) -> int:
     return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=args.router, vehicle=args.vehicle,
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
                                   handover_timeout=args.handover_timeout, sil_coverage=args.sil_coverage,
-                                  events=args.events, cipher=args.cipher))
+                                  events=args.events, cipher=getattr(args, "cipher", "zdrone")))
 
 
-def add_drone(sub: argparse._SubParsersAction) -> None:
+def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
+    """``zdrone drone``; with ``bench`` (the bench harness only) also ``--cipher``."""
     p = sub.add_parser("drone", help="onboard companion: vehicle link + security module + handover authority")
     p.add_argument("--id", default="d1", help="drone name in the fleet (default d1)")
     p.add_argument("--fleet", default="fleet", help="fleet directory (default ./fleet)")
@@ -107,8 +108,9 @@ def add_drone(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--handover-timeout", type=positive, default=5.0, metavar="S", help="hand-over timeout (5 s)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
-    p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
-                   help="envelope; fernet/plain exist only to measure against (bench traffic)")
+    if bench:
+        p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
+                       help="envelope; fernet/plain exist only to measure against (bench traffic)")
     p.set_defaults(func=_drone)
 
 
@@ -135,11 +137,13 @@ def _gs(args: argparse.Namespace) -> int:
     return run_station(StationOptions(gs=args.id, fleet=args.fleet, router=args.router,
                                       drones=tuple(args.drone or ()), pair=args.pair, mission=mission,
                                       heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
-                                      events=args.events, cipher=args.cipher, paper_heartbeat=args.paper_heartbeat,
+                                      events=args.events, cipher=getattr(args, "cipher", "zdrone"),
+                                      paper_heartbeat=getattr(args, "paper_heartbeat", False),
                                       gcs=tuple(args.gcs or ())))
 
 
-def add_gs(sub: argparse._SubParsersAction) -> None:
+def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
+    """``zdrone gs``; with ``bench`` (the bench harness only) also ``--cipher`` and ``--paper-heartbeat``."""
     p = sub.add_parser("gs", help="ground station: pairing, key sharing, heartbeat, mission, hand-over")
     p.add_argument("--id", required=True, help="ground station name in the fleet (A, B, ...)")
     p.add_argument("--fleet", default="fleet", help="fleet directory (default ./fleet)")
@@ -152,9 +156,10 @@ def add_gs(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--command-rate", type=float, default=0.0, metavar="HZ",
                    help="while in authority, send a harmless command stream (for hand-over checks)")
     p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
-    p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
-                   help="envelope; fernet/plain exist only to measure against (bench traffic)")
-    p.add_argument("--paper-heartbeat", action="store_true", help="also send the paper's separate 2 Hz security heartbeat")
+    if bench:
+        p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
+                       help="envelope; fernet/plain exist only to measure against (bench traffic)")
+        p.add_argument("--paper-heartbeat", action="store_true", help="also send the paper's separate 2 Hz security heartbeat")
     p.add_argument("--gcs", action="append", metavar="CONN",
                    help="GCS gateway endpoint for QGroundControl/MAVProxy/MAVSDK: udpin:HOST:PORT (apps connect here), "
                         "udpout:127.0.0.1:14550 (QGroundControl's default), tcpin:HOST:PORT; repeatable")

@@ -195,6 +195,9 @@ def test_forged_next_epoch_does_not_move_receiver():
 
 
 def test_fernet_cipher_same_interface():
+    from zdrone.core.envelope import enable_bench_ciphers
+
+    enable_bench_ciphers()
     p = make_pair(cipher="fernet")
     f = p.heartbeat()
     sealed = p.gs.seal(f)
@@ -257,3 +260,30 @@ def test_encode_raw_control_status():
     c.accumulate(bytes([184]))
     assert f[12] | f[13] << 8 == c.crc
     assert crc_ok(FrameCodec(1).encode(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3)))
+
+
+def test_no_downgrade_outside_the_bench_harness():
+    """A node process cannot build a plain or Fernet link; a drone never opens a GS that tries."""
+    import subprocess
+    import sys
+
+    code = ("from tests.corepair import make_pair\n"
+            "from zdrone.core.envelope import DowngradeRefused\n"
+            "for c in ('plain', 'fernet'):\n"
+            "    try:\n        make_pair(cipher=c)\n        print('built', c)\n"
+            "    except DowngradeRefused:\n        print('refused', c)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[:2] == ["refused plain", "refused fernet"]
+
+
+def test_drone_drops_frames_of_a_gs_using_another_cipher():
+    from zdrone.core.envelope import enable_bench_ciphers
+
+    enable_bench_ciphers()  # to build the downgrading GS's side here
+    ours, theirs = make_pair(), make_pair(cipher="plain")
+    fernet = make_pair(cipher="fernet")
+    for data in (theirs.gs.seal(theirs.command()), fernet.gs.seal(fernet.command())):
+        got = ours.drone.open(data, 1.0)
+        assert isinstance(got, Dropped) and got.reason in (DropReason.AUTH_FAILED, DropReason.UNKNOWN_EPOCH,
+                                                           DropReason.MALFORMED)
+    assert ours.drone.opened == 0

@@ -170,6 +170,20 @@ class PlainCipher:
 
 
 CIPHERS: dict[str, Cipher] = {"zdrone": ChaChaCipher(), "fernet": FernetCipher(), "plain": PlainCipher()}
+#: The only cipher a node uses unless the bench harness enabled the others in its own process.
+PRODUCTION_CIPHER = "zdrone"
+_bench_ciphers = False
+
+
+class DowngradeRefused(ValueError):
+    """A cipher other than ours was asked for outside the bench harness (a programming error)."""
+
+
+def enable_bench_ciphers() -> None:
+    """Allow the measurement-only ciphers (plain, Fernet) in this process. Called only by the bench
+    harness (``zdrone.bench``) and tests: no node command line can select them."""
+    global _bench_ciphers
+    _bench_ciphers = True
 
 
 class _RxEpoch:
@@ -221,6 +235,8 @@ class SecureLink:
         self.key = key
         self.role = role
         self.local, self.peer = (key.drone, key.gs) if role == "drone" else (key.gs, key.drone)
+        if cipher != PRODUCTION_CIPHER and not _bench_ciphers:
+            raise DowngradeRefused(f"cipher {cipher!r} is for the bench harness only")
         self.cipher = CIPHERS[cipher]
         self.peer_sysid = peer_sysid
         self.authorize = authorize

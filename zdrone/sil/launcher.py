@@ -150,15 +150,19 @@ class Demo:
         # Timers are wall-clock while the simulator may run faster: scale the hand-over timeout so that
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
-        drone = self.start("drone", z + ["drone", "--id", "d1", *common, "--vehicle", f"udpout:127.0.0.1:{sport}",
-                                         "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout", str(ho_timeout),
-                                         "--cipher", o.cipher])
-        gs_extra = ["--cipher", o.cipher] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
+        # Production nodes have no cipher option: the bench harness alone runs them with plain/Fernet.
+        bench = o.cipher != "zdrone" or o.paper_heartbeat
+        zn = ["-m", "zdrone.bench.nodes", "-v"] if bench else z
+        bench_extra = ["--cipher", o.cipher] if bench else []
+        drone = self.start("drone", zn + ["drone", "--id", "d1", *common, "--vehicle", f"udpout:127.0.0.1:{sport}",
+                                          "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout", str(ho_timeout),
+                                          *bench_extra])
+        gs_extra = bench_extra + (["--paper-heartbeat"] if o.paper_heartbeat else [])
         self.wait_line(drone, "ready", 40)
-        b = self.start("gsB", z + ["gs", "--id", "B", *common, "--events", "B.jsonl", "--command-rate", str(o.command_rate),
+        b = self.start("gsB", zn + ["gs", "--id", "B", *common, "--events", "B.jsonl", "--command-rate", str(o.command_rate),
                                    *gs_extra])
         self.wait_line(b, "zdrone gs B", 20)
-        a = self.start("gsA", z + ["gs", "--id", "A", *common, "--pair", "--mission", o.mission,
+        a = self.start("gsA", zn + ["gs", "--id", "A", *common, "--pair", "--mission", o.mission,
                                    "--events", "A.jsonl", "--command-rate", str(o.command_rate), *gs_extra])
         self.wait_line(a, "zdrone gs A", 20)
         if o.scenario == "rogue-unauthorized":
