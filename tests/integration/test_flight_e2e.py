@@ -116,12 +116,17 @@ def test_rogue_without_keys_is_refused_by_the_security_module(tmp_path):
 
 
 @pytest.mark.slow
-def test_unauthorized_gs_is_refused_by_the_handover_authority(tmp_path):
+def test_unauthorized_gs_is_refused_by_the_acl_and_never_linked(tmp_path):
+    """GS X (in the fleet, its own keys and router account, not authorized for d1): the router's ACL
+    lets it neither pair with d1 nor ask for d1's keys (the drone's own guard, tested in the unit
+    tests, is the wall behind it); it never gets a link, let alone authority."""
     s, out = run_demo(tmp_path, "rogue-unauthorized")
     assert s["_rc"] == 0 and s["ok"], s
-    assert s["ha_rejects"].get("unauthorized", 0) >= 1
     x = read_events(out / "X.jsonl")
-    assert any(e["type"] == "pair_refused" and "not authorized" in e["reason"] for e in x)
+    assert x and not any(e["type"] in ("paired", "link_confirmed") for e in x)
+    drone = read_events(out / "drone.jsonl")
+    assert not any(e["type"] in ("paired", "link_confirmed", "pair_answered") and e.get("gs") == "X" for e in drone)
+    assert all(owner in ("A", "B") for owner in [e.get("to") for e in drone if e["type"] in ("authority", "handover_complete")])
     rogue = [e for e in read_events(out / "rogue.jsonl") if e["type"] == "unauthorized_attempt"]
     assert rogue and all(e["linkkey_replies"] == 0 and e["pair_answered"] == 0 for e in rogue)
     assert all(h["to"] in ("A", "B") for h in s["handovers"]) and len(s["handovers"]) == 2
