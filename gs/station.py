@@ -168,6 +168,9 @@ class GroundStation:
             except zenoh.ZError as exc:
                 self.counters["linkkey_reply_error"] += 1
                 log.info("linkkey reply failed: %s", exc)
+            except Exception:  # last resort: no query may end the GS (counted, logged with its stack)
+                self.counters["linkkey_internal_error"] += 1
+                log.exception("linkkey query")
             finally:
                 q.drop()
 

@@ -103,6 +103,25 @@ def _bench_scale(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_attack(args: argparse.Namespace) -> int:
+    from .bench import attack
+    from .sil.launcher import ATTACK_SCENARIOS
+
+    names = None
+    if args.scenarios is not None:
+        names = [n for n in args.scenarios.split(",") if n] if args.scenarios else []
+        bad = [n for n in names if n not in ATTACK_SCENARIOS]
+        if bad:
+            raise UsageError(f"--scenarios: unknown {bad[0]!r} (attack scenarios: {', '.join(ATTACK_SCENARIOS)})")
+    if args.trials is not None and not 1 <= args.trials <= 20:
+        raise UsageError(f"--trials {args.trials}: must be 1..20")
+    if not 1.0 <= args.rate <= 100_000.0:
+        raise UsageError(f"--rate {args.rate:g}: must be 1..100000 queries/s")
+    result = attack.run(quick=args.quick, scenarios=names, trials=args.trials, rate=args.rate, progress=not args.json)
+    _emit(args, result, attack.render)
+    return 0 if result["all_ok"] else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="zdrone", description="Secure hand-over of a drone's command authority over Zenoh.")
     p.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
@@ -153,6 +172,14 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--drones", metavar="K,K,…", help="drone counts to try (default 10,25,50)")
     bs.add_argument("--stations", type=int, default=3, metavar="G", help="ground stations (default 3)")
     bs.set_defaults(func=_bench_scale)
+
+    ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood")
+    ba.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    ba.add_argument("--quick", action="store_true", help="the pair-flood scenario and 1 flood trial only")
+    ba.add_argument("--scenarios", metavar="S,S,…", help="attack scenarios to fly (default: all; '' for none)")
+    ba.add_argument("--trials", type=int, metavar="N", help="failsafe-under-flood trials (default 3)")
+    ba.add_argument("--rate", type=float, default=2500.0, metavar="Q", help="pairing queries per second of the flood (2500)")
+    ba.set_defaults(func=_bench_attack)
 
     for extra in _EXTRA_COMMANDS:
         extra(sub)

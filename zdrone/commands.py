@@ -182,10 +182,12 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
-    from .sil.launcher import SCENARIOS
+    from .sil.launcher import SCENARIOS, scenario_help
 
-    p = sub.add_parser("demo", help="fly the reference flight with router, sim, drone and two GSs as processes")
-    p.add_argument("--scenario", choices=SCENARIOS, default="nominal", help="nominal flight, or an attack / fault case")
+    p = sub.add_parser("demo", help="fly the reference flight with router, sim, drone and two GSs as processes",
+                       epilog=scenario_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenario", choices=SCENARIOS, default="nominal", metavar="NAME",
+                   help="nominal flight, or an attack / fault case (listed below)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a fresh runs/demo-... folder)")
     p.add_argument("--speedup", type=positive, default=2.0, help="simulator speed-up (default 2)")
     p.add_argument("--timeout", type=positive, default=None, metavar="S", help="give up after S wall seconds")

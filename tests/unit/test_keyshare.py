@@ -79,3 +79,11 @@ def test_garbage_never_raises(data):
     a = ask()
     assert isinstance(a.on_reply(data, 0.1), Refused)
     assert isinstance(answer(B, "B", "d1", "A", A.public, data[:256], SECRET), Refused)
+
+
+def test_bad_utf8_in_the_asker_name_is_malformed_not_a_crash():
+    import msgspec
+
+    payload = msgspec.msgpack.encode({"asker": "A", "m1": b"x"}).replace(b"\xa1A", b"\xa1\xff")
+    q = decode_query(payload)
+    assert isinstance(q, Refused) and q.reason is ShareRefusal.MALFORMED

@@ -75,7 +75,7 @@ def decode_query(payload: bytes) -> LinkKeyQuery | Refused:
     """Parse a query payload (no crypto): the adapter checks the asker against the fleet next."""
     try:
         q = _decoder.decode(payload)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+    except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:  # ValueError: bad UTF-8 in a name
         return Refused(ShareRefusal.MALFORMED, str(exc)[:80])
     if len(q.m1) > 256:
         return Refused(ShareRefusal.MALFORMED, "message 1 too long")

@@ -2,38 +2,335 @@
 processes, flies the reference flight (or an attack / fault scenario), shows it live, writes the
 event logs and a summary, and shuts everything down.
 
-Scenarios and what counts as success:
+Every scenario is one row of ``SCENARIO_TABLE``: its attackers (each a separate process,
+``python -m zdrone.sil.rogue --mode ...``, with real router credentials from the run's fleet
+directory), the moment each is started and told to attack, an optional fault (a GS stopped or
+killed), and its success predicate. A scenario succeeds (``zdrone demo`` exits 0) only if the
+flight turned out as the row expects *and* the counters show every attack was seen and refused;
+the attackers write what they did to ``rogue.jsonl`` so both sides are checked.
 
-* ``nominal``: both hand-overs (A->B, B->A), landing at the take-off point, no violation.
-* ``rogue-no-key``: as nominal while an attacker with A's stolen router password (no keys) tries to
-  pair, command and replay; every attempt is dropped by the security module.
-* ``rogue-unauthorized``: as nominal while GS X (in the fleet, not authorized) tries to pair and
-  command; the handover authority refuses it.
-* ``link-loss``: GS A goes silent (SIGSTOP) after take-off; the drone's failsafe commands LAND.
-* ``gs-crash``: GS B dies (SIGKILL) as the drone enters the hand-over region; authority stays with
-  A, which brings the drone home.
+For the attack scenarios "the flight is unaffected" means: hand-overs A->B then B->A (ordinary,
+not emergency), the authority link never LOST, no failsafe, the delivery done at B, landing at the
+take-off point, and no security violation (authority or pairing with anyone but A and B).
 """
 
 from __future__ import annotations
 
+import ast
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
 import sys
+import textwrap
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..core.geometry import GeoPoint, distance_m
 from ..core.reference import HOME
+from ..core.tbm import TbmThresholds
 from ..fleetfiles import init_fleet
 from ..net.eventlog import read_events
 
-SCENARIOS = ("nominal", "rogue-no-key", "rogue-unauthorized", "link-loss", "gs-crash")
 PY = sys.executable
+
+# ------------------------------------------------------------------ scenario table
+#: Moments of the flight at which an attacker is started, told to attack, or a fault is injected.
+BEFORE_GS_A = "before_gs_a"  # after the drone and GS B are up, before GS A starts (and pairs)
+MISSION_STARTED = "mission_started"  # GS A's mission started (the drone is taking off)
+AIRBORNE = "airborne"  # armed and above 15 m
+REGION_ENTERED = "region_entered"  # first entry into the hand-over region
+HANDOVERS_DONE = "handovers_done"  # both hand-overs done: authority back at A, drone still in the overlap
+TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE)
+
+
+@dataclass(frozen=True)
+class RogueSpec:
+    """One attacker process: its mode, when it starts, when it is told to attack (SIGUSR2; ``None``:
+    at once), for how long (``max(min_wall, sim_s / speedup)`` wall seconds) and at what rate."""
+
+    mode: str
+    launch: str
+    go: str | None = None
+    sim_s: float = 40.0
+    min_wall: float = 10.0
+    rate: float | None = None
+    args: tuple[str, ...] = ()  # further options of the attacker
+
+    def duration(self, speedup: float) -> float:
+        return max(self.min_wall, self.sim_s / speedup)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A GS process stopped (SIGSTOP) or killed (SIGKILL) at a moment of the flight."""
+
+    trigger: str
+    target: str  # child name: gsA, gsB
+    sig: int
+    text: str
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str  # one line: what happens (README, --help)
+    expected: str  # one line: what counts as success
+    check: "Callable[[Outcome], list[str]]"  # the unmet conditions; [] = success
+    rogues: tuple[RogueSpec, ...] = ()
+    fault: Fault | None = None
+    gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
+    gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
+
+
+@dataclass
+class Outcome:
+    """What a scenario's predicate looks at: the summary figures and every node's event log."""
+
+    summary: dict[str, Any]
+    drone: list[dict[str, Any]]
+    gs: dict[str, list[dict[str, Any]]]
+    rogue: list[dict[str, Any]]
+
+    @property
+    def pairs(self) -> list[tuple[str, str]]:
+        return [(h["from"], h["to"]) for h in self.summary["handovers"]]
+
+    def gs_counters(self, gs: str) -> dict[str, int]:
+        return self.summary["gs_counters"].get(gs, {})
+
+    def drone_counter(self, name: str) -> int:
+        return int(self.summary["drone_counters"].get(name, 0))
+
+    def drops(self, reason: str) -> int:
+        return int(self.summary["security_drops"].get(reason, 0))
+
+    def ha_drops(self, reason: str) -> int:
+        return int(self.summary["ha_drops"].get(reason, 0))
+
+    def rogue_done(self, mode: str) -> dict[str, Any]:
+        """The attacker's own account of what it did (its ``attack_done`` event), {} if none."""
+        return next((e for e in self.rogue if e["type"] == "attack_done" and e["node"] == f"rogue-{mode}"), {})
+
+    def rogue_events(self, mode: str, type_: str) -> list[dict[str, Any]]:
+        return [e for e in self.rogue if e["node"] == f"rogue-{mode}" and e["type"] == type_]
+
+    def confirmed(self, gs: str, how: str) -> list[dict[str, Any]]:
+        """The drone's ``link_confirmed`` events: a new key of ``gs`` proven (``how``: pair, grant)."""
+        return [e for e in self.drone if e["type"] == "link_confirmed" and e.get("gs") == gs and e.get("how") == how]
+
+
+def _need(cond: bool, text: str) -> list[str]:
+    return [] if cond else [text]
+
+
+def flight_unaffected(o: Outcome) -> list[str]:
+    """Both hand-overs (ordinary ones), the authority link never LOST, no failsafe, the delivery at
+    B, landing at home."""
+    s = o.summary
+    why = _need(o.pairs == [("A", "B"), ("B", "A")], f"hand-overs {o.pairs}, expected A->B, B->A")
+    why += _need(all(h["kind"] == "handover" for h in s["handovers"]), "an emergency hand-over")
+    why += _need(s["failsafe"] is None, "failsafe triggered")
+    why += _need(s["authority_link"]["worst_state"] != "lost", "the authority link was LOST")
+    why += _need(s["delivered_at_b"], "no delivery at B")
+    why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
+                 f"not landed at home ({s['distance_from_home_m']} m)")
+    return why
+
+
+def _check_no_key(o: Outcome) -> list[str]:
+    return flight_unaffected(o) + _need(o.drops("auth_failed") + o.drops("unknown_epoch") > 0, "no security drops") \
+        + _need(bool(o.rogue_done("no-key")), "the attacker did not report")
+
+
+def _check_unauthorized(o: Outcome) -> list[str]:
+    """The router's ACL stops X's pairing and key-sharing queries (no reply at all); were they let
+    through, the drone would refuse X before any crypto (``pair_refused:unauthorized``)."""
+    tries = o.rogue_events("unauthorized", "unauthorized_attempt")
+    x_linked = any(e.get("drones", {}).get("d1", {}).get("linked") for e in o.gs.get("X", []) if e["type"] in ("status", "stop"))
+    why = flight_unaffected(o) + _need(bool(tries), "the attacker made no attempt")
+    why += _need(all(e["pair_answered"] == 0 and e["linkkey_replies"] == 0 for e in tries), "X got a pairing answer or a key")
+    return why + _need(not x_linked, "GS X holds a link")
+
+
+def _check_link_loss(o: Outcome) -> list[str]:
+    return _need(o.summary["failsafe"] is not None, "no failsafe")
+
+
+def _check_gs_crash(o: Outcome) -> list[str]:
+    s = o.summary
+    why = _need(all(h["to"] != "B" or h["kind"] == "emergency" for h in s["handovers"]), "authority went to a dead B")
+    why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}, expected A")
+    return why + _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0, "not landed at home")
+
+
+def _check_key_injection(o: Outcome) -> list[str]:
+    """``key-injection``: started before A, so that A's first key-sharing query (right after its
+    pairing on the ground) meets it. The forged replies are made ahead and leave before the real B's;
+    A must refuse them and accept the real B's, which the drone then sees B prove (hand-over A->B)."""
+    a, done = o.gs_counters("A"), o.rogue_done("key-injection")
+    why = flight_unaffected(o)
+    why += _need(done.get("random", 0) > 0 and done.get("noise_own_key", 0) > 0, "the attacker sent no forged reply")
+    why += _need(a.get("linkkey_reply:auth_failed", 0) > 0, "A counted no linkkey_reply:auth_failed")
+    why += _need(any(e["type"] == "linkkey_received" and e.get("gs") == "B" for e in o.gs["A"]), "A never got B's key")
+    return why
+
+
+def _check_linkkey_knockout(o: Outcome) -> list[str]:
+    """``linkkey-knockout``: were answering a key-sharing query to replace the answering GS's live
+    key, one query in B's name would knock A's link out. A forged message 1 fails before any secret
+    is drawn (and an answered one only adds a candidate key): A's live link and the flight must not
+    notice."""
+    a, done = o.gs_counters("A"), o.rogue_done("linkkey-knockout")
+    why = flight_unaffected(o)
+    why += _need(done.get("forged_m1", 0) > 0 and done.get("junk", 0) > 0, "the attacker sent nothing")
+    why += _need(done.get("replies", {}).get("ok", 0) == 0, "A answered a forged query with a secret")
+    why += _need(a.get("linkkey_refused:auth_failed", 0) > 0, "A counted no linkkey_refused:auth_failed")
+    why += _need(a.get("linkkey_refused:malformed", 0) > 0, "A counted no linkkey_refused:malformed")
+    return why
+
+
+def _check_pair_replay(o: Outcome) -> list[str]:
+    """``pair-replay``: Noise KK cannot tell a replayed message 1, so the drone answers it (or refuses
+    it as rate-limited); the key it draws stays a candidate that only the real A could prove, and
+    expires. The only pairing proven is A's genuine one."""
+    done = o.rogue_done("pair-replay")
+    seen = o.drone_counter("pair_answered") + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred")
+    keys = o.summary["keys"].get("A", {})
+    why = flight_unaffected(o)
+    why += _need(bool(o.rogue_events("pair-replay", "captured")) and done.get("replayed", 0) > 0, "nothing captured or replayed")
+    why += _need(seen >= 1 + done.get("replayed", 0) // 2, f"the drone saw {seen} pairing queries of A")
+    why += _need(len(o.confirmed("A", "pair")) == 1, "a replayed pairing key was proven")
+    why += _need(keys.get("expired", 0) > 0, "no replayed candidate expired")
+    return why
+
+
+def _check_pair_flood(o: Outcome) -> list[str]:
+    """``pair-flood``: an authorized GS's key (B's) floods valid pairing queries. The drone refuses all
+    beyond B's allowance (1/s, burst 3) before any crypto and does at most 2 handshakes per loop turn;
+    the authority link must never go silent for more than 2 s (DEGRADED at most 1 s)."""
+    done = o.rogue_done("pair-flood")
+    answered = o.drone_counter("pair_answered")
+    why = flight_unaffected(o)
+    why += _need(done.get("sent", 0) > 0, "the attacker sent nothing")
+    why += _need(o.drone_counter("pair_refused:rate_limited") >= 1000,
+                 f"only {o.drone_counter('pair_refused:rate_limited')} pair_refused:rate_limited")
+    why += _need(answered <= 1 + 3 + int(done.get("seconds", 0)) + 1, f"{answered} pairings answered")
+    why += _need(not o.confirmed("B", "pair"), "a flood key was proven")
+    why += _need(o.summary["authority_link"]["longest_silence_s"] <= 2.0,
+                 f"authority link silent {o.summary['authority_link']['longest_silence_s']} s")
+    return why
+
+
+def _check_uplink_policy(o: Outcome) -> list[str]:
+    """``uplink-policy``. (a) An attacker with B's private key *is* B for the drone: once it proves a
+    pairing key, that key replaces the real B's, and the real B can no longer talk to the drone. Done
+    before the A->B hand-over, the hand-over would go to the attacker (it would then command as B)
+    or fail; so it attacks right after the B->A hand-over, while the drone is still in B's coverage
+    (about 2 s of wall time at speed-up 4), when B is a linked GS without authority and is no longer
+    needed. Its sealed frames are authentic: the handover authority must drop them (``not_authority``;
+    ``denied_by_policy`` for SERIAL_CONTROL and SETUP_SIGNING). (b) Without a key, the same ids are
+    dropped by the security module. The simulator must have received none of them (it logs every
+    frame it ignores) and the drone must have forwarded no command beyond the authorities' own."""
+    sealed, unsealed = o.rogue_done("uplink-sealed"), o.rogue_done("uplink-unsealed")
+    c = o.summary["commands"]
+    why = flight_unaffected(o)
+    why += _need(sealed.get("total", 0) > 0, "the B-key attacker sent nothing (did it pair?)")
+    why += _need(unsealed.get("unsealed", 0) > 0 and unsealed.get("random_key", 0) > 0, "the no-key attacker sent nothing")
+    why += _need(o.ha_drops("not_authority") > 0, "no not_authority drops")
+    why += _need(o.ha_drops("denied_by_policy") > 0, "no denied_by_policy drops")
+    why += _need(o.drops("auth_failed") > 0, "no auth_failed drops")
+    why += _need(o.drops("unknown_epoch") + o.drops("malformed") > 0, "no drops of unsealed frames")
+    why += _need(c["forwarded"] == {g: n for g, n in c["sent_as_authority"].items() if n},
+                 f"forwarded {c['forwarded']} != sent by the authority {c['sent_as_authority']}")
+    vehicle = o.summary["vehicle"]
+    why += _need(vehicle["counters"] is not None and not vehicle["ignored"],
+                 f"the vehicle got frames it does not use: {vehicle['ignored'] or 'no simulator counters'}")
+    return why
+
+
+def _check_gateway_flood(o: Outcome) -> list[str]:
+    """``gateway-flood``: a local process floods GS A's GCS gateway with 320 applications and garbage.
+    A's table holds 16; the rest are counted (``app_table_full`` in A's status) and A flies on."""
+    done, gw = o.rogue_done("gateway-flood"), o.summary["gateway_A"]
+    why = flight_unaffected(o)
+    why += _need(done.get("source_ports", 0) >= 300 and done.get("garbage", 0) > 0, "the attacker sent too little")
+    why += _need(gw.get("app_table_full", 0) > 0, "A's gateway counted no app_table_full")
+    return why
+
+
+_STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
+_KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
+
+SCENARIO_TABLE: tuple[Scenario, ...] = (
+    Scenario("nominal", "the reference flight", "A->B and B->A in the overlap, landing at home", flight_unaffected),
+    Scenario("rogue-no-key",
+             "A's stolen router password (no keys): pairs with its own key, sends unsealed and forged-sealed LAND, "
+             "replays captured frames; tries a wrong router password",
+             "all dropped (unknown_epoch, auth_failed, replay, failed handshake); flight unaffected",
+             _check_no_key, rogues=(RogueSpec("no-key", MISSION_STARTED, sim_s=40.0, min_wall=10.0),)),
+    Scenario("rogue-unauthorized",
+             "GS X (in the fleet, not authorized) pairs and flies, asks for B's link key, publishes on A's key",
+             "no answer: the router ACL stops its queries (the drone would refuse them before crypto); flight unaffected",
+             _check_unauthorized, rogues=(RogueSpec("unauthorized", MISSION_STARTED, sim_s=30.0, min_wall=8.0),), gs_x=True),
+    Scenario("link-loss", "GS A goes silent after take-off", "failsafe LAND <= 100 ms after the 3 s threshold",
+             _check_link_loss, fault=_STOP_A),
+    Scenario("gs-crash", "GS B dies as the drone enters the overlap",
+             "the hand-over times out, authority stays with A, A brings it home", _check_gs_crash, fault=_KILL_B),
+    Scenario("key-injection",
+             "B's router password only: a second queryable on backhaul/B/linkkey/* answers A's key-sharing "
+             "queries with forged replies (random bytes, a Noise message 2 made with its own key)",
+             "A refuses them (linkkey_reply:auth_failed), takes the real B's key; flight unaffected",
+             _check_key_injection, rogues=(RogueSpec("key-injection", BEFORE_GS_A, sim_s=1600.0, min_wall=400.0),)),
+    Scenario("linkkey-knockout",
+             "B's router password only: key-sharing queries to A claiming to be B (message 1 made with its own key) "
+             "and junk, 5/s in flight",
+             "A refuses them (linkkey_refused:auth_failed / malformed / rate_limited), its live link untouched",
+             _check_linkkey_knockout,
+             rogues=(RogueSpec("linkkey-knockout", MISSION_STARTED, go=AIRBORNE, sim_s=80.0, min_wall=15.0, rate=5.0),)),
+    Scenario("pair-replay",
+             "the drone's router password captures A's pairing message 1 before A starts; A's password replays it "
+             "every second in flight",
+             "the drone answers but the key stays a candidate that expires; authority and A's link untouched",
+             _check_pair_replay, rogues=(RogueSpec("pair-replay", BEFORE_GS_A, go=AIRBORNE, sim_s=48.0, min_wall=12.0),)),
+    Scenario("pair-flood",
+             "B's private key and router password: >= 2000 valid pairing queries/s for 10 s in flight",
+             "refused before any crypto (pair_refused:rate_limited), at most a few answered; telemetry never stops",
+             _check_pair_flood,
+             rogues=(RogueSpec("pair-flood", MISSION_STARTED, go=AIRBORNE, sim_s=0.0, min_wall=10.0, rate=2500.0),)),
+    Scenario("uplink-policy",
+             "B's private key: pairs as B after both hand-overs and sends 12 dangerous message ids sealed; A's "
+             "router password: the same ids unsealed and with a random key, all flight",
+             "dropped by the handover authority (not_authority, denied_by_policy) and the security module; "
+             "nothing reaches the vehicle",
+             _check_uplink_policy,
+             rogues=(RogueSpec("uplink-unsealed", MISSION_STARTED, go=AIRBORNE, sim_s=100.0, min_wall=10.0),
+                     RogueSpec("uplink-sealed", MISSION_STARTED, go=HANDOVERS_DONE, sim_s=0.0, min_wall=1.5))),
+    Scenario("gateway-flood",
+             "a local process floods GS A's GCS gateway: HEARTBEATs from 320 UDP source ports and garbage, in flight",
+             "A keeps flying and counts the refused applications (app_table_full)",
+             _check_gateway_flood, rogues=(RogueSpec("gateway-flood", MISSION_STARTED, go=AIRBORNE, sim_s=100.0, min_wall=10.0),),
+             gcs_a=True),
+)
+SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
+SCENARIOS = tuple(SCENARIO_BY_NAME)
+ATTACK_SCENARIOS = tuple(s.name for s in SCENARIO_TABLE if s.rogues)
+assert len(SCENARIOS) == len(SCENARIO_TABLE) and all(
+    t in TRIGGERS for s in SCENARIO_TABLE for t in [r.launch for r in s.rogues] + [r.go for r in s.rogues if r.go])
+
+
+def scenario_help() -> str:
+    """The scenario list for ``zdrone demo --help``."""
+    width = max(len(s.name) for s in SCENARIO_TABLE)
+    lines = ["scenarios:"]
+    for s in SCENARIO_TABLE:
+        text = textwrap.wrap(f"{s.description}. Success: {s.expected}.", 96 - width)
+        lines += [f"  {s.name:<{width}}  {text[0]}", *(f"  {'':<{width}}  {t}" for t in text[1:])]
+    return "\n".join(lines)
 
 
 def free_port(kind: int) -> int:
@@ -76,6 +373,14 @@ class Demo:
     t0: float = field(default_factory=time.monotonic)
     notes: list[str] = field(default_factory=list)
     progress: dict[str, Any] = field(default_factory=dict)
+    router: str = ""
+    gcs_port: int | None = None
+    fired: set[str] = field(default_factory=set)
+    pending_go: set[str] = field(default_factory=set)
+
+    @property
+    def spec(self) -> Scenario:
+        return SCENARIO_BY_NAME[self.opts.scenario]
 
     # --------------------------------------------------------------- processes
     def start(self, name: str, args: list[str]) -> Child:
@@ -134,41 +439,107 @@ class Demo:
         return {n: codes.get(n) for n in self.children}
 
     # ----------------------------------------------------------------- running
-    def run(self) -> dict[str, Any]:
+    def start_core(self) -> None:
+        """Fleet, router, simulator and drone node (every scenario and bench starts with these)."""
         o = self.opts
-        fleet_dir = self.out / "fleet"
-        init_fleet(fleet_dir)
+        init_fleet(self.out / "fleet")
         rport, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
-        router = f"tcp/127.0.0.1:{rport}"
-        z = ["-m", "zdrone", "-v"]
-        common = ["--fleet", "fleet", "--router", router]
-        r = self.start("router", z + ["router", "-c", "fleet/router/router.json5", "--listen", router]
+        self.router = f"tcp/127.0.0.1:{rport}"
+        r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
                        + (["--tap", "tap.json"] if o.tap else []))
         self.wait_line(r, "listening", 20)
-        sim = self.start("sim", z + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", str(o.speedup)])
+        sim = self.start("sim", self._z() + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", str(o.speedup)])
         self.wait_line(sim, "zdrone sim:", 20)
         # Timers are wall-clock while the simulator may run faster: scale the hand-over timeout so that
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
-        # Production nodes have no cipher option: the bench harness alone runs them with plain/Fernet.
-        bench = o.cipher != "zdrone" or o.paper_heartbeat
-        zn = ["-m", "zdrone.bench.nodes", "-v"] if bench else z
-        bench_extra = ["--cipher", o.cipher] if bench else []
-        drone = self.start("drone", zn + ["drone", "--id", "d1", *common, "--vehicle", f"udpout:127.0.0.1:{sport}",
-                                          "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout", str(ho_timeout),
-                                          *bench_extra])
-        gs_extra = bench_extra + (["--paper-heartbeat"] if o.paper_heartbeat else [])
+        drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", f"udpout:127.0.0.1:{sport}",
+                                                  "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout",
+                                                  str(ho_timeout), *self._bench_extra()])
         self.wait_line(drone, "ready", 40)
-        b = self.start("gsB", zn + ["gs", "--id", "B", *common, "--events", "B.jsonl", "--command-rate", str(o.command_rate),
-                                   *gs_extra])
-        self.wait_line(b, "zdrone gs B", 20)
-        a = self.start("gsA", zn + ["gs", "--id", "A", *common, "--pair", "--mission", o.mission,
-                                   "--events", "A.jsonl", "--command-rate", str(o.command_rate), *gs_extra])
-        self.wait_line(a, "zdrone gs A", 20)
-        if o.scenario == "rogue-unauthorized":
-            self.start("gsX", z + ["gs", "--id", "X", *common, "--drone", "d1", "--pair", "--mission", "reference",
-                                   "--events", "X.jsonl"])
+
+    def start_gs(self, gs: str, *extra: str) -> Child:
+        child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(), "--events", f"{gs}.jsonl", *extra])
+        self.wait_line(child, f"zdrone gs {gs}", 20)
+        return child
+
+    def start_rogue(self, r: RogueSpec, duration: float | None = None) -> Child:
+        args = ["-m", "zdrone.sil.rogue", "--mode", r.mode, "--fleet", "fleet", "--router", self.router,
+                "--duration", f"{duration if duration is not None else r.duration(self.opts.speedup):.2f}",
+                "--events", "rogue.jsonl"]
+        args += ["--wait-go"] if r.go else []
+        args += ["--rate", str(r.rate)] if r.rate else []
+        args += ["--gcs-port", str(self.gcs_port)] if self.gcs_port else []
+        return self.start(f"rogue-{r.mode}", args + list(r.args))
+
+    def run(self) -> dict[str, Any]:
+        o, spec = self.opts, self.spec
+        self.start_core()
+        gs_extra = ["--command-rate", str(o.command_rate), *self._bench_extra()] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
+        self.start_gs("B", *gs_extra)
+        self._fire(BEFORE_GS_A, None)
+        for r in spec.rogues:  # attackers that must be in place before A starts (and pairs)
+            if r.launch == BEFORE_GS_A:
+                self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
+        a_extra = ["--pair", "--mission", o.mission, *gs_extra]
+        if spec.gcs_a:
+            self.gcs_port = free_port(socket.SOCK_DGRAM)
+            a_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port}"]
+        self.start_gs("A", *a_extra)
+        if spec.gs_x:
+            self.start("gsX", self._z() + ["gs", "--id", "X", *self._common(), "--drone", "d1", "--pair", "--mission",
+                                           "reference", "--events", "X.jsonl"])
         return self._watch()
+
+    def _z(self) -> list[str]:
+        return ["-m", "zdrone", "-v"]
+
+    @property
+    def _bench(self) -> bool:
+        return self.opts.cipher != "zdrone" or self.opts.paper_heartbeat
+
+    def _zn(self) -> list[str]:
+        """The drone and GS command: production nodes have no cipher option, so the bench harness
+        alone runs them with plain/Fernet (or the paper's separate heartbeat)."""
+        return ["-m", "zdrone.bench.nodes", "-v"] if self._bench else self._z()
+
+    def _bench_extra(self) -> list[str]:
+        return ["--cipher", self.opts.cipher] if self._bench else []
+
+    def _common(self) -> list[str]:
+        return ["--fleet", "fleet", "--router", self.router]
+
+    def _fire(self, trigger: str, live: "LiveView | None", t: float | None = None) -> None:
+        """The flight reached ``trigger``: start, unleash or fault what the scenario ties to it."""
+        if trigger in self.fired:
+            return
+        self.fired.add(trigger)
+        spec = self.spec
+        for r in spec.rogues:
+            if r.launch == trigger:
+                self.start_rogue(r)
+                if live is not None:
+                    live.event(t or time.time(), f"scenario: attacker {r.mode} starts")
+            if r.go == trigger:
+                self.pending_go.add(f"rogue-{r.mode}")
+        if spec.fault is not None and spec.fault.trigger == trigger:
+            self.signal(spec.fault.target, spec.fault.sig)
+            self.children[spec.fault.target].stopped = True
+            if live is not None:
+                live.event(t or time.time(), f"scenario: {spec.fault.text}")
+        self._send_go(live)
+
+    def _send_go(self, live: "LiveView | None") -> None:
+        """SIGUSR2 to each attacker whose moment came, once it has set up (its handler is in place)."""
+        for name in sorted(self.pending_go):
+            child = self.children.get(name)
+            if child is None or child.proc.poll() is not None:
+                continue
+            if "rogue: ready" in child.log.read_text(errors="replace"):
+                self.signal(name, signal.SIGUSR2)
+                self.pending_go.discard(name)
+                if live is not None:
+                    live.event(time.time(), f"scenario: attacker {name.removeprefix('rogue-')} attacks")
 
     def _watch(self) -> dict[str, Any]:
         o = self.opts
@@ -179,7 +550,7 @@ class Demo:
         if o.max_wall is not None:
             deadline = min(deadline, time.monotonic() + o.max_wall)
         state: dict[str, Any] = {"handovers": [], "failsafe": None, "armed_seen": False, "status": {}, "region_entered": 0,
-                                 "mission_started": False, "done": False, "rogue_started": False, "hook_done": False}
+                                 "done": False}
         self.progress = state  # read by the benches' progress displays
         seen = 0
         with live:
@@ -188,10 +559,12 @@ class Demo:
                 for ev in events[seen:]:
                     self._on_event(ev, state, live)
                 seen = len(events)
-                self._on_gs_events(state)
+                self._on_gs_events(live)
+                self._send_go(live)
                 live.update(state["status"], time.monotonic() - self.t0)
                 for name, child in self.children.items():
-                    if child.proc.poll() is not None and name not in ("gsB", "gsA", "rogue") and not child.stopped:
+                    if child.proc.poll() is not None and name not in ("gsB", "gsA") and not name.startswith("rogue") \
+                            and not child.stopped:
                         self.notes.append(f"{name} exited early ({child.proc.returncode})")
                         state["done"] = True
                 time.sleep(0.1)
@@ -199,39 +572,21 @@ class Demo:
         codes = self.shutdown()
         return self._summarize(state, wall, codes, timed_out=not state["done"] and o.max_wall is None)
 
-    def _on_gs_events(self, state: dict[str, Any]) -> None:
+    def _on_gs_events(self, live: "LiveView") -> None:
         a_log = self.out / "A.jsonl"
-        if not state["mission_started"] and a_log.exists():
+        if MISSION_STARTED not in self.fired and a_log.exists():
             if any(e["type"] == "mission_started" for e in read_events(a_log)):
-                state["mission_started"] = True
-                if self.opts.scenario == "rogue-no-key" and not state["rogue_started"]:
-                    state["rogue_started"] = True
-                    self.start("rogue", ["-m", "zdrone.sil.rogue", "--mode", "no-key", "--fleet", "fleet", "--router",
-                                         self._router(), "--duration", str(max(10.0, 40.0 / self.opts.speedup)),
-                                         "--events", "rogue.jsonl"])
-                if self.opts.scenario == "rogue-unauthorized" and not state["rogue_started"]:
-                    state["rogue_started"] = True
-                    self.start("rogue", ["-m", "zdrone.sil.rogue", "--mode", "unauthorized", "--fleet", "fleet", "--router",
-                                         self._router(), "--duration", str(max(8.0, 30.0 / self.opts.speedup)),
-                                         "--events", "rogue.jsonl"])
-
-    def _router(self) -> str:
-        args = self.children["router"].proc.args
-        return args[args.index("--listen") + 1]  # type: ignore[union-attr]
+                self._fire(MISSION_STARTED, live)
 
     def _on_event(self, ev: dict[str, Any], state: dict[str, Any], live: "LiveView") -> None:
         t = ev["type"]
-        sc = self.opts.scenario
         if t == "status":
             state["status"] = ev
             pos = ev.get("position")
             if ev.get("armed"):
                 state["armed_seen"] = True
-                if sc == "link-loss" and not state["hook_done"] and pos and pos[2] > 15.0:
-                    state["hook_done"] = True
-                    self.signal("gsA", signal.SIGSTOP)
-                    self.children["gsA"].stopped = True
-                    live.event(ev["t"], "scenario: GS A goes silent (SIGSTOP)")
+                if pos and pos[2] > 15.0:
+                    self._fire(AIRBORNE, live, ev["t"])
             landed = ev.get("landed_state") == 1 and not ev.get("armed")
             if state["armed_seen"] and landed and ev.get("mode") in ("MISSION", "HOLD", "LAND", "RTL"):
                 state["done"] = True
@@ -239,13 +594,11 @@ class Demo:
             return
         if t == "region_entered":
             state["region_entered"] += 1
-            if sc == "gs-crash" and not state["hook_done"]:
-                state["hook_done"] = True
-                self.signal("gsB", signal.SIGKILL)
-                self.children["gsB"].stopped = True
-                live.event(ev["t"], "scenario: GS B crashes (SIGKILL)")
+            self._fire(REGION_ENTERED, live, ev["t"])
         if t == "handover_complete":
             state["handovers"].append({k: ev.get(k) for k in ("from", "to", "epoch", "time", "kind", "position")})
+            if len(state["handovers"]) == 2:
+                self._fire(HANDOVERS_DONE, live, ev["t"])
         if t == "failsafe":
             state["failsafe"] = ev
         shown = t not in ("subscribe", "unsubscribe", "link_state", "drop") or (t == "drop" and len(live.lines) < 200)
@@ -256,24 +609,30 @@ class Demo:
     def _summarize(self, state: dict[str, Any], wall: float, codes: dict[str, int | None], timed_out: bool) -> dict[str, Any]:
         sc = self.opts.scenario
         drone_events = read_events(self.out / "drone.jsonl") if (self.out / "drone.jsonl").exists() else []
-        final = next((e for e in reversed(drone_events) if e["type"] == "stop"), state["status"])
+        final = next((e for e in reversed(drone_events) if e["type"] == "stop"), state["status"]) or {}
+        gs_events: dict[str, list[dict[str, Any]]] = {}
         gs_final = {}
         for g in ("A", "B", "X"):
             p = self.out / f"{g}.jsonl"
-            if p.exists():
-                evs = read_events(p)
-                gs_final[g] = next((e for e in reversed(evs) if e["type"] in ("stop", "status")), {})
+            gs_events[g] = read_events(p) if p.exists() else []
+            if gs_events[g]:
+                gs_final[g] = next((e for e in reversed(gs_events[g]) if e["type"] in ("stop", "status")), {})
+        rogue_log = self.out / "rogue.jsonl"
+        rogue_events = read_events(rogue_log) if rogue_log.exists() else []
         sent = {g: sum(int(v) for v in (f.get("drones", {}).get("d1", {}).get("commands_sent") or {}).values())
                 for g, f in gs_final.items()}
-        forwarded = final.get("forwarded_commands", {}) if final else {}
-        ha_drops = final.get("ha_drops", {}) if final else {}
+        forwarded = final.get("forwarded_commands", {})
+        ha_drops = final.get("ha_drops", {})
         drops: dict[str, int] = {}
         for link in (final.get("links") or {}).values():
             for reason, n in link.get("dropped", {}).items():
                 drops[reason] = drops.get(reason, 0) + n
-        pos = state.get("final_position") or (final.get("position") if final else None)
+        unlinked: dict[str, int] = {}
+        for slot in (final.get("keys") or {}).values():
+            for reason, n in slot.get("dropped_unlinked", {}).items():
+                unlinked[reason] = unlinked.get(reason, 0) + n
+        pos = state.get("final_position") or final.get("position")
         home_dist = distance_m(HOME, GeoPoint(pos[0], pos[1])) if pos else None
-        pairs = [(h["from"], h["to"]) for h in state["handovers"]]
         violations = [f"authority to {h['to']}" for h in state["handovers"] if h["to"] not in ("A", "B")]
         violations += [f"paired with {e['gs']}" for e in drone_events if e["type"] == "paired" and e["gs"] not in ("A", "B")]
         history = [(e["t"], e.get("owner")) for e in drone_events if e["type"] == "status"]
@@ -285,41 +644,100 @@ class Demo:
                     gap_ms += (t2 - t1) * 1000
         cmd_sent = sum(sent.get(g, 0) for g in ("A", "B"))
         cmd_fwd = sum(int(forwarded.get(g, 0)) for g in ("A", "B"))
-        expected = {
-            "nominal": pairs == [("A", "B"), ("B", "A")],
-            "rogue-no-key": pairs == [("A", "B"), ("B", "A")] and drops.get("auth_failed", 0) + drops.get("unknown_epoch", 0) > 0,
-            "rogue-unauthorized": pairs == [("A", "B"), ("B", "A")],
-            "link-loss": state["failsafe"] is not None,
-            "gs-crash": all(h["to"] != "B" or h["kind"] == "emergency" for h in state["handovers"])
-                        and (final or {}).get("owner") == "A",
-        }[sc]
-        landed_home = home_dist is not None and home_dist < 5.0
-        why: list[str] = []
-        if timed_out:
-            why.append("timed out")
-        if not expected:
-            why.append(f"scenario outcome not met (hand-overs {pairs}, failsafe {state['failsafe'] is not None})")
-        if violations:
-            why.append("security violations")
-        if sc in ("nominal", "rogue-no-key", "rogue-unauthorized", "gs-crash") and not landed_home:
-            why.append(f"not landed at home ({home_dist} m)")
-        bad_exit = {n: c for n, c in codes.items() if c != 0 and not self.children[n].stopped}
-        if bad_exit:
-            why.append(f"non-zero exit codes {bad_exit}")
-        ok = not why
-        summary = {
-            "scenario": sc, "ok": ok, "timed_out": timed_out, "wall_time_s": round(wall, 2), "speedup": self.opts.speedup,
+        # The HA counts not_authority refusals per drone, not per sender: attackers add theirs. Only as
+        # many as the authority's own shortfall can be its commands refused (the rest are attackers').
+        refused = min(int(ha_drops.get("not_authority", 0)), max(0, cmd_sent - cmd_fwd))
+        summary: dict[str, Any] = {
+            "scenario": sc, "ok": False, "timed_out": timed_out, "wall_time_s": round(wall, 2), "speedup": self.opts.speedup,
             "handovers": state["handovers"], "authority_gap_ms": gap_ms,
             "failsafe": None if state["failsafe"] is None else {k: state["failsafe"].get(k) for k in ("action", "reason", "detect_to_command_ms", "position")},
             "final_position": pos, "distance_from_home_m": None if home_dist is None else round(home_dist, 2),
-            "commands": {"sent_as_authority": sent, "forwarded": forwarded, "lost": cmd_sent - cmd_fwd - int(ha_drops.get("not_authority", 0)),
+            "final_owner": final.get("owner"),
+            "authority_link": authority_link(drone_events),
+            "delivered_at_b": any(e["type"] == "vehicle_text" and "payload released" in str(e.get("text")) for e in gs_events["B"]),
+            "commands": {"sent_as_authority": sent, "forwarded": forwarded, "lost": cmd_sent - cmd_fwd - refused,
                          "refused_not_authority": ha_drops.get("not_authority", 0)},
-            "security_drops": drops, "ha_drops": ha_drops, "ha_rejects": (final or {}).get("rejects", {}),
-            "pairing": (final or {}).get("counters", {}), "out_of_coverage": (final or {}).get("out_of_coverage", {}),
-            "violations": violations, "exit_codes": codes, "notes": self.notes, "why_not_ok": why,
+            "security_drops": drops, "security_drops_unlinked": unlinked, "ha_drops": ha_drops,
+            "ha_rejects": final.get("rejects", {}),
+            "pairing": final.get("counters", {}), "drone_counters": final.get("counters", {}), "keys": final.get("keys", {}),
+            "gs_counters": {g: f.get("counters", {}) for g, f in gs_final.items()},
+            "gateway_A": self._gateway_counters(gs_final.get("A", {})),
+            "out_of_coverage": final.get("out_of_coverage", {}), "vehicle": self._vehicle_counters(),
+            "attacks": {e["node"].removeprefix("rogue-"): {k: v for k, v in e.items() if k not in ("t", "node", "type")}
+                        for e in rogue_events if e["type"] == "attack_done"},
+            "violations": violations, "exit_codes": codes, "notes": self.notes,
         }
+        why: list[str] = []
+        if timed_out:
+            why.append("timed out")
+        if violations:
+            why.append("security violations")
+        bad_exit = {n: c for n, c in codes.items() if c != 0 and not self.children[n].stopped}
+        if bad_exit:
+            why.append(f"non-zero exit codes {bad_exit}")
+        outcome = Outcome(summary, drone_events, gs_events, rogue_events)
+        summary["flight_problems"] = flight_unaffected(outcome)  # [] = the flight completed unaffected
+        why += self.spec.check(outcome)
+        summary["ok"] = not why
+        summary["why_not_ok"] = why
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         return summary
+
+    def _vehicle_counters(self) -> dict[str, Any]:
+        """What the simulator counted (frames it ignored, refused, could not parse), from its log: the
+        vehicle's own account of what reached it."""
+        log = self.out / "sim.log"
+        text = log.read_text(errors="replace") if log.exists() else ""
+        found = re.search(r"sim stopped; counters (\{.*?\}), stream", text)
+        try:
+            counters = ast.literal_eval(found.group(1)) if found else None
+        except (ValueError, SyntaxError):
+            counters = None
+        return {"counters": counters, "ignored": sorted(set(re.findall(r"sim: ignored (\w+)", text)))}
+
+    def _gateway_counters(self, a_final: dict[str, Any]) -> dict[str, int]:
+        """GS A's GCS gateway drop counters: from its status when the station reports them, else the
+        gateway's (rate-limited) table-full warnings in A's log, which give a lower bound."""
+        gw = a_final.get("gateway")
+        if isinstance(gw, dict) and isinstance(gw.get("counters"), dict):
+            return dict(gw["counters"])
+        log = self.out / "gsA.log"
+        if not self.spec.gcs_a or not log.exists():
+            return {}
+        found = re.findall(r"applications already .*?: (\d+) frame\(s\) of new applications dropped", log.read_text(errors="replace"))
+        return {"app_table_full": sum(int(n) for n in found), "from_log": 1} if found else {}
+
+
+def authority_link(drone_events: list[dict[str, Any]], thresholds: TbmThresholds = TbmThresholds()) -> dict[str, Any]:
+    """The worst TBM state of the link to the GS holding authority at each instant, its longest
+    silence (from the DEGRADED->OK transitions, and the 0.5 s status samples for shorter ones) and
+    how many times it went DEGRADED."""
+    rank = {"ok": 0, "degraded": 1, "lost": 2}
+    owner: str | None = None
+    worst, longest, episodes = "ok", 0.0, 0
+    degraded_at: float | None = None
+    for e in drone_events:
+        t = e["type"]
+        if t in ("authority", "handover_complete"):
+            owner, degraded_at = e.get("to"), None
+        elif t in ("status", "stop"):
+            owner = e.get("owner") or owner
+            link = (e.get("links") or {}).get(owner or "")
+            if link is not None:
+                longest = max(longest, float(link.get("since_last", 0.0)))
+        elif t == "link_state" and owner is not None and e.get("gs") == owner:
+            st = e.get("state", "ok")
+            if rank.get(st, 0) > rank[worst]:
+                worst = st
+            if st == "degraded":
+                episodes += 1
+                degraded_at = e["t"]
+            elif st == "ok" and degraded_at is not None:
+                longest = max(longest, e["t"] - degraded_at + thresholds.degraded)
+                degraded_at = None
+            elif st == "lost":
+                longest = max(longest, thresholds.lost)
+    return {"worst_state": worst, "longest_silence_s": round(longest, 3), "degraded_episodes": episodes}
 
 
 def _describe(ev: dict[str, Any]) -> str:

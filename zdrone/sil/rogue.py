@@ -1,4 +1,8 @@
-"""TESTBED ONLY: attackers for the demo scenarios and the tests.
+"""TESTBED ONLY: attackers for the demo scenarios, the tests and ``zdrone bench attack``.
+
+Each attacker is its own process with real credentials taken from the demo's fleet directory (what
+it is allowed to hold is stated per mode) and writes what it did to its events file, so that a
+scenario can check both sides: what the attacker sent and what the nodes refused.
 
 ``no-key``: has GS A's *router* password (stolen) but not A's static key nor any link key. It
 tries to pair as A with its own key, publishes unsealed MAVLink commands and forged envelopes on
@@ -11,24 +15,68 @@ It also tries the router with a wrong password (refused at connect).
 drone. It tries to pair (refused by the handover authority), to fetch B's link key over the
 backhaul (the router's ACL gives it no reply) and to publish on A's key (denied by the ACL).
 
-Run: ``python -m zdrone.sil.rogue --mode no-key --fleet DIR --router EP --events FILE``.
+``key-injection``: B's router password only. Declares B's key-sharing queryable
+``backhaul/B/linkkey/*`` next to the real B's and answers every query with forged replies: random
+64-80 bytes, and a well-formed Noise KK message 2 made with its own static key. The asker must
+refuse both (``linkkey_reply:auth_failed``) and still get the real B's key.
+
+``linkkey-knockout``: B's router password only. Sends key-sharing queries to A claiming to be B:
+Noise message 1 made with its own static key, and junk payloads. A must refuse them
+(``linkkey_refused:auth_failed`` / ``malformed`` / ``rate_limited``) without touching its live link.
+
+``pair-replay``: the drone's and A's router passwords. Before A starts it declares a queryable on
+``zdrone/<drone>/pair/A`` (allowed to the drone's account) and captures A's genuine pairing
+message 1; when told to attack it replays it as A every second. The drone answers (Noise KK cannot
+tell a replay) but the key stays a candidate nobody proves, and expires.
+
+``pair-flood``: B's private key and router password (an authorized GS that does not hold authority).
+Sends valid Noise KK pairing queries as B as fast as ``--rate`` asks (non-blocking ``session.get``
+with a no-op callback, from a pool of pre-computed messages 1) and logs the rate achieved. The
+drone must refuse nearly all before any crypto (``pair_refused:rate_limited``) and keep its loop.
+
+``uplink-sealed``: B's private key and router password. When told to attack (after both hand-overs,
+authority back with A), it pairs with the drone as B, proves the new key with sealed HEARTBEATs, and
+sends every dangerous message id sealed on its link. The handover authority must drop them
+(``not_authority``, ``denied_by_policy``): B is linked but not the authority.
+
+``uplink-unsealed``: A's router password only. Publishes the same dangerous ids on ``up/A``,
+unsealed and sealed with a random key: dropped by the security module before the authority.
+
+``gateway-flood``: a local process on GS A's machine (no credentials). Sends HEARTBEATs from 300+
+distinct UDP source ports and garbage datagrams to A's GCS gateway; A must keep flying and count
+the applications it refused (``app_table_full``).
+
+Modes that take ``--wait-go`` set up, print ``ready``, and attack when they receive SIGUSR2 (the
+launcher sends it at the scenario's moment). All modes stop at SIGTERM or after ``--duration``.
+
+Run: ``python -m zdrone.sil.rogue --mode MODE --fleet DIR --router EP --events FILE``.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import queue
+import random
 import signal
+import socket
 import sys
+import threading
 import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
+import msgspec
+import zenoh
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.envelope import SecureLink
-from ..core.fleet import ConfigError
+from ..core.envelope import Opened, SecureLink
+from ..core.fleet import ConfigError, Fleet
 from ..core.keys import Identity, LinkKey
-from ..core.keyshare import KeyShareAsk
+from ..core.keyshare import KeyShareAsk, LinkKeyQuery, _prologue as linkkey_prologue, decode_query
+from ..core.kk import KKInitiator, respond as kk_respond
 from ..core.mavlink import FrameCodec
 from ..core.pairing import PairingInitiator
 from ..fleetfiles import load_fleet, load_secret
@@ -36,36 +84,143 @@ from ..net import keyexprs as kx
 from ..net.eventlog import EventLog
 from ..net.session import open_client
 
+log = logging.getLogger(__name__)
+
+MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
+         "uplink-sealed", "uplink-unsealed", "gateway-flood")
+ROGUE_COMPID = 190
+#: How long a ``--wait-go`` attacker waits for its signal before giving up.
+GO_TIMEOUT = 600.0
+
+
+@dataclass
+class Ctx:
+    """What every attacker gets: the fleet directory, the router, its events file and its signals."""
+
+    fleet_dir: str
+    router: str
+    drone: str
+    events: EventLog
+    duration: float
+    rate: float
+    gcs_port: int | None
+    wait_go: bool
+    replies: int = 1  # key-injection: forged replies of each kind per query
+    stop: threading.Event = field(default_factory=threading.Event)
+    go: threading.Event = field(default_factory=threading.Event)
+    _fleet: Fleet | None = None
+
+    @property
+    def fleet(self) -> Fleet:
+        if self._fleet is None:
+            self._fleet = load_fleet(self.fleet_dir)
+        return self._fleet
+
+    def password(self, node: str) -> str:
+        """A stolen router password (the secret file also holds the private key: not used)."""
+        return load_secret(self.fleet_dir, node).router_password
+
+    def ready(self) -> None:
+        print("rogue: ready", flush=True)
+        self.events.write("ready", wait_go=self.wait_go)
+
+    def wait_for_go(self) -> bool:
+        """Block until SIGUSR2 (if ``--wait-go``); False if told to stop first."""
+        if not self.wait_go:
+            return not self.stop.is_set()
+        deadline = time.monotonic() + GO_TIMEOUT
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            if self.go.wait(0.05):
+                self.events.write("go")
+                return True
+        self.events.write("no_go", stopped=self.stop.is_set())
+        return False
+
+    def attack_window(self) -> Callable[[], bool]:
+        """A predicate: True while the attack should go on (``--duration`` from now, no SIGTERM)."""
+        deadline = time.monotonic() + self.duration
+        return lambda: not self.stop.is_set() and time.monotonic() < deadline
+
 
 def _land(sysid: int) -> bytes:
-    return FrameCodec(sysid, 190).encode(
+    return FrameCodec(sysid, ROGUE_COMPID).encode(
         mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_NAV_LAND, 0, 0, 0, 0, float("nan"), float("nan"), float("nan"), float("nan")))
 
 
-def no_key(fleet_dir: str, router: str, drone: str, events: EventLog, duration: float, stop: list[bool]) -> None:
-    fleet = load_fleet(fleet_dir)
-    a_pw = load_secret(fleet_dir, "A").router_password   # stolen router passwords, nothing else
-    d_pw = load_secret(fleet_dir, drone).router_password
+def dangerous_messages(target: int) -> list[tuple[str, Any]]:
+    """Every message a GS without authority must never get to the vehicle (name, pymavlink message)."""
+    nan = float("nan")
+    return [
+        ("SERIAL_CONTROL", mav.MAVLink_serial_control_message(10, 6, 0, 0, 8, list(b"reboot\n\0") + [0] * 62)),
+        ("SETUP_SIGNING", mav.MAVLink_setup_signing_message(target, 1, list(os.urandom(32)), 1)),
+        ("SET_GPS_GLOBAL_ORIGIN", mav.MAVLink_set_gps_global_origin_message(target, 473000000, 85000000, 500000, 0)),
+        ("GPS_INPUT", mav.MAVLink_gps_input_message(0, 0, 0, 0, 0, 3, 473000000, 85000000, 500.0, 1.0, 1.0, 0, 0, 0,
+                                                    0.1, 1.0, 1.0, 12, 0)),
+        ("VISION_POSITION_ESTIMATE", mav.MAVLink_vision_position_estimate_message(0, 100.0, 100.0, -30.0, 0, 0, 0)),
+        ("FILE_TRANSFER_PROTOCOL", mav.MAVLink_file_transfer_protocol_message(0, target, 1, [0] * 251)),
+        ("PARAM_EXT_SET", mav.MAVLink_param_ext_set_message(target, 1, b"COM_DL_LOSS_T", b"1", mav.MAV_PARAM_EXT_TYPE_INT32)),
+        ("SET_ACTUATOR_CONTROL_TARGET", mav.MAVLink_set_actuator_control_target_message(0, 0, target, 1, [1.0] * 8)),
+        ("LOG_ERASE", mav.MAVLink_log_erase_message(target, 1)),
+        ("COMMAND_LONG DO_REPOSITION", mav.MAVLink_command_long_message(target, 1, mav.MAV_CMD_DO_REPOSITION, 0, -1, 1, 0, nan,
+                                                                        47.40, 8.56, 50.0)),
+        ("SET_MODE", mav.MAVLink_set_mode_message(target, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4 << 16 | 6 << 24)),
+        ("PARAM_SET", mav.MAVLink_param_set_message(target, 1, b"NAV_DLL_ACT", 0.0, mav.MAV_PARAM_TYPE_INT32)),
+    ]
+
+
+def _heartbeat() -> Any:
+    return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
+
+
+class _Replies:
+    """Counts query replies by outcome (``ok`` / the error text); filled on Zenoh's threads."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.counts: Counter[str] = Counter()
+        self.ok_payloads: "queue.SimpleQueue[bytes]" = queue.SimpleQueue()
+
+    def __call__(self, reply: Any) -> None:
+        try:
+            if reply.ok is not None:
+                key = "ok"
+                self.ok_payloads.put(reply.ok.payload.to_bytes())
+            else:
+                key = "err:" + (reply.err.payload.to_bytes().decode(errors="replace").split(":")[0][:40] if reply.err else "?")
+        except Exception:  # never raise into Zenoh
+            key = "unreadable"
+        with self._lock:
+            self.counts[key] += 1
+
+    def snapshot(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self.counts)
+
+
+# ------------------------------------------------------------------- the attackers
+def no_key(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
     try:
-        open_client(router, "A", "not-the-password").close()
-        events.write("router_accepted_wrong_password")
+        open_client(c.router, "A", "not-the-password").close()
+        c.events.write("router_accepted_wrong_password")
     except ConfigError:
-        events.write("router_refused", user="A")
-    s_pub = open_client(router, "A", a_pw)
-    s_cap = open_client(router, drone, d_pw)
+        c.events.write("router_refused", user="A")
+    s_pub = open_client(c.router, "A", c.password("A"))
+    s_cap = open_client(c.router, drone, c.password(drone))
     captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     cap = s_cap.declare_subscriber(kx.up(drone, "A"), lambda smp: captured.put(smp.payload.to_bytes()))
     try:
+        c.ready()
         fake = Identity.generate()
         ini = PairingInitiator(fake, "A", drone, fleet.nodes[drone].public_bytes)
         replies = list(s_pub.get(kx.pair(drone, "A"), payload=ini.start(), timeout=3.0))
-        events.write("pair_attempt", answered=sum(1 for r in replies if r.ok is not None))
+        c.events.write("pair_attempt", answered=sum(1 for r in replies if r.ok is not None))
         forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=kx.up(drone, "A"),
                             rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
         sysid_a = fleet.nodes["A"].sysid
         sent = {"plain": 0, "forged": 0, "replayed": 0}
-        deadline = time.monotonic() + duration
-        while time.monotonic() < deadline and not stop[0]:
+        going = c.attack_window()
+        while going():
             s_pub.put(kx.up(drone, "A"), _land(sysid_a))
             sent["plain"] += 1
             s_pub.put(kx.up(drone, "A"), forged.seal(_land(sysid_a)))
@@ -77,54 +232,361 @@ def no_key(fleet_dir: str, router: str, drone: str, events: EventLog, duration: 
                     break
                 s_pub.put(kx.up(drone, "A"), frame)
                 sent["replayed"] += 1
-            time.sleep(0.2)
-        events.write("attack_done", **sent)
+            c.stop.wait(0.2)
+        c.events.write("attack_done", **sent)
     finally:
         cap.undeclare()
         s_cap.close()
         s_pub.close()
 
 
-def unauthorized(fleet_dir: str, router: str, drone: str, events: EventLog, duration: float, stop: list[bool]) -> None:
-    fleet = load_fleet(fleet_dir)
-    me = load_secret(fleet_dir, "X", fleet)
-    s = open_client(router, "X", me.router_password)
+def unauthorized(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    me = load_secret(c.fleet_dir, "X", fleet)
+    s = open_client(c.router, "X", me.router_password)
     try:
-        deadline = time.monotonic() + duration
+        c.ready()
+        going = c.attack_window()
         tries = 0
-        while time.monotonic() < deadline and not stop[0]:
+        while going():
             ini = PairingInitiator(me.identity, "X", drone, fleet.nodes[drone].public_bytes)
             refused = answered = 0
             for r in s.get(kx.pair(drone, "X"), payload=ini.start(), timeout=3.0):
                 answered += r.ok is not None
                 refused += r.err is not None
-            keys = [r for r in s.get(kx.linkkey("B", drone), payload=KeyShareAsk(me.identity, "X", "B", fleet.nodes["B"].public_bytes, drone, 0.0).payload, timeout=2.0)
-                    if r.ok is not None]
+            ask = KeyShareAsk(me.identity, "X", "B", fleet.nodes["B"].public_bytes, drone, 0.0)
+            keys = [r for r in s.get(kx.linkkey("B", drone), payload=ask.payload, timeout=2.0) if r.ok is not None]
             s.put(kx.up(drone, "A"), _land(fleet.nodes["X"].sysid))  # denied by the router's ACL
             s.put(kx.up(drone, "X"), _land(fleet.nodes["X"].sysid))  # nobody listens: X has no link
             tries += 1
-            events.write("unauthorized_attempt", pair_answered=answered, pair_refused=refused, linkkey_replies=len(keys))
-            time.sleep(1.0)
-        events.write("attack_done", tries=tries)
+            c.events.write("unauthorized_attempt", pair_answered=answered, pair_refused=refused, linkkey_replies=len(keys))
+            c.stop.wait(1.0)
+        c.events.write("attack_done", tries=tries)
     finally:
         s.close()
 
 
+def _forged_message2(drone: str, owner: str, asker: str) -> bytes:
+    """A well-formed Noise KK message 2 for (drone, owner, asker) made with the attacker's own static
+    key (it lacks the owner's): right length and structure, wrong keys."""
+    me, other = Identity.generate(), Identity.generate()
+    prologue = linkkey_prologue(drone, owner, asker)
+    m1 = KKInitiator(other, me.public, prologue).message1
+    m2 = kk_respond(me, other.public, prologue, m1, os.urandom(32))
+    assert m2 is not None
+    return m2
+
+
+def key_injection(c: Ctx) -> None:
+    s = open_client(c.router, "B", c.password("B"))
+    qable = s.declare_queryable(kx.linkkey_all("B"), zenoh.handlers.RingChannel(256))
+    sent: Counter[str] = Counter()
+    askers: Counter[str] = Counter()
+    # made ahead, so that the forged replies leave before the real B has computed its own
+    forged = {(g, c.drone): [_forged_message2(c.drone, "B", g) for _ in range(c.replies)] for g in c.fleet.ground_stations()}
+    try:
+        c.ready()
+        rng = random.Random()
+        going = c.attack_window()
+        while going():
+            q = qable.try_recv()
+            if q is None:
+                c.stop.wait(0.001)
+                continue
+            try:
+                drone = kx.gs_of(q.key_expr)
+                req = decode_query(q.payload.to_bytes() if q.payload is not None else b"")
+                asker = req.asker if isinstance(req, LinkKeyQuery) else "?"
+                askers[asker] += 1
+                made = forged.get((asker, drone)) or [_forged_message2(drone, "B", asker) for _ in range(c.replies)]
+                for m2 in made:
+                    q.reply(q.key_expr, os.urandom(rng.randint(64, 80)))  # random bytes
+                    sent["random"] += 1
+                    q.reply(q.key_expr, m2)  # well-formed, made with its own static key
+                    sent["noise_own_key"] += 1
+                c.events.write("forged_reply", drone=drone, asker=asker, replies=2 * c.replies)
+            except zenoh.ZError as exc:
+                sent["reply_error"] += 1
+                log.info("reply failed: %s", exc)
+            finally:
+                q.drop()
+        c.events.write("attack_done", queries=sum(askers.values()), askers=dict(askers), **sent)
+    finally:
+        qable.undeclare()
+        s.close()
+
+
+def junk_queries(rng: random.Random) -> list[bytes]:
+    """Payloads a key-sharing queryable must refuse as malformed: random bytes, and msgpack that is
+    almost a ``LinkKeyQuery`` (invalid UTF-8 in the name, wrong types, missing or extra fields, an
+    oversized message 1, a truncated map)."""
+    enc = msgspec.msgpack.Encoder()
+    return [
+        rng.randbytes(rng.randint(1, 200)),
+        b"\x82\xa5asker\xa2\xff\xfe\xa2m1\xc4\x01\x00",  # the name is not UTF-8
+        enc.encode({"asker": 1, "m1": "x"}),
+        enc.encode({"asker": "B"}),
+        enc.encode({"asker": "B", "m1": b"\0" * 48, "extra": 1}),
+        enc.encode({"asker": "B", "m1": rng.randbytes(4096)}),
+        enc.encode({"asker": "B", "m1": b"\0" * 48})[:-20],
+    ]
+
+
+def linkkey_knockout(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    s = open_client(c.router, "B", c.password("B"))
+    replies = _Replies()
+    sent: Counter[str] = Counter()
+    rng = random.Random(5)
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        period = 1.0 / c.rate
+        encoder = msgspec.msgpack.Encoder()
+        i = 0
+        while going():
+            fake = Identity.generate()  # claims to be B without B's private key
+            m1 = KKInitiator(fake, fleet.nodes["A"].public_bytes, linkkey_prologue(drone, "A", "B")).message1
+            s.get(kx.linkkey("A", drone), replies, payload=encoder.encode(LinkKeyQuery("B", m1)), timeout=2.0)
+            sent["forged_m1"] += 1
+            junk = junk_queries(rng)
+            s.get(kx.linkkey("A", drone), replies, payload=junk[i % len(junk)], timeout=2.0)
+            sent["junk"] += 1
+            i += 1
+            c.stop.wait(period)
+        c.stop.wait(2.0)  # the last replies
+        c.events.write("attack_done", replies=replies.snapshot(), **sent)
+    finally:
+        s.close()
+
+
+def pair_replay(c: Ctx) -> None:
+    drone = c.drone
+    s_cap = open_client(c.router, drone, c.password(drone))  # the drone's account may declare pair/*
+    qable = s_cap.declare_queryable(kx.pair(drone, "A"), zenoh.handlers.RingChannel(16))
+    s_a = open_client(c.router, "A", c.password("A"))
+    captured: list[bytes] = []
+    replies = _Replies()
+    try:
+        c.ready()
+        deadline = time.monotonic() + GO_TIMEOUT
+        while not captured and not c.stop.is_set() and time.monotonic() < deadline:
+            q = qable.try_recv()
+            if q is None:
+                c.stop.wait(0.002)
+                continue
+            if q.payload is not None:
+                captured.append(q.payload.to_bytes())
+            q.drop()  # no reply: the genuine drone answers A
+        qable.undeclare()
+        if not captured:
+            c.events.write("nothing_captured")
+            return
+        c.events.write("captured", what="pairing message 1 of A", bytes=len(captured[0]))
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        replayed = 0
+        while going():
+            s_a.get(kx.pair(drone, "A"), replies, payload=captured[0], timeout=2.0)
+            replayed += 1
+            c.stop.wait(1.0)
+        c.stop.wait(2.0)
+        c.events.write("attack_done", replayed=replayed, replies=replies.snapshot())
+    finally:
+        s_a.close()
+        s_cap.close()
+
+
+def pair_flood(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    me = load_secret(c.fleet_dir, "B", fleet)  # B's private key and router password
+    s = open_client(c.router, "B", me.router_password)
+    pool = [PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes).start() for _ in range(64)]
+    replies = _Replies()
+    key = kx.pair(drone, "B")
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        print(f"rogue: flooding at {c.rate:.0f} queries/s for {c.duration:.0f} s", flush=True)
+        c.events.write("flood_start", target_rate=c.rate)
+        t0 = time.monotonic()
+        going = c.attack_window()
+        sent = 0
+        chunk = max(1, int(c.rate / 200))  # paced in 5 ms slices
+        while going():
+            due = int((time.monotonic() - t0) * c.rate)
+            if sent >= due:
+                time.sleep(0.0005)
+                continue
+            for _ in range(min(chunk * 4, due - sent)):
+                s.get(key, replies, payload=pool[sent % len(pool)], timeout=1.0)
+                sent += 1
+        elapsed = time.monotonic() - t0
+        c.stop.wait(1.5)  # the last replies
+        rate = sent / elapsed if elapsed > 0 else 0.0
+        print(f"rogue: flood done: {sent} queries in {elapsed:.2f} s ({rate:.0f}/s)", flush=True)
+        c.events.write("attack_done", sent=sent, seconds=round(elapsed, 3), rate=round(rate, 1), target_rate=c.rate,
+                       t_start=round(time.time() - elapsed - 1.5, 4), replies=replies.snapshot())
+    finally:
+        s.close()
+
+
+def uplink_sealed(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    me = load_secret(c.fleet_dir, "B", fleet)
+    s = open_client(c.router, "B", me.router_password)
+    down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    sub = s.declare_subscriber(kx.down(drone, "B"), lambda smp: down.put(smp.payload.to_bytes()))
+    codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
+    target = fleet.nodes[drone].sysid
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        ini = PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes)
+        key = None
+        refusals = []
+        for r in s.get(kx.pair(drone, "B"), payload=ini.start(), timeout=2.0):
+            if r.ok is not None and key is None:
+                out = ini.finish(r.ok.payload.to_bytes())
+                key = out if isinstance(out, LinkKey) else None
+            elif r.err is not None:
+                refusals.append(r.err.payload.to_bytes().decode(errors="replace")[:80])
+        if key is None:
+            c.events.write("pair_failed", refusals=refusals)
+            return
+        now = time.monotonic()
+        link = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(drone, "B"), rx_keyexpr=kx.down(drone, "B"),
+                          peer_sysid=target, now=now)
+        c.events.write("paired_as", gs="B")
+        for _ in range(3):  # the proof of the new key: authentic, read-only frames
+            s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
+        sent: Counter[str] = Counter()
+        going = c.attack_window()
+        while going():
+            for name, msg in dangerous_messages(target):
+                s.put(kx.up(drone, "B"), link.seal(codec.encode(msg)))
+                sent[name] += 1
+            s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
+            c.stop.wait(0.1)
+        opened = 0
+        while True:
+            try:
+                data = down.get_nowait()
+            except queue.Empty:
+                break
+            opened += isinstance(link.open(data, time.monotonic()), Opened)
+        c.events.write("attack_done", sealed=dict(sent), total=sum(sent.values()), drone_frames_opened=opened)
+    finally:
+        sub.undeclare()
+        s.close()
+
+
+def uplink_unsealed(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    s = open_client(c.router, "A", c.password("A"))
+    codec = FrameCodec(fleet.nodes["A"].sysid, ROGUE_COMPID)
+    target = fleet.nodes[drone].sysid
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        sent: Counter[str] = Counter()
+        going = c.attack_window()
+        while going():
+            forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs",
+                                tx_keyexpr=kx.up(drone, "A"), rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
+            for _name, msg in dangerous_messages(target):
+                frame = codec.encode(msg)
+                s.put(kx.up(drone, "A"), frame)
+                sent["unsealed"] += 1
+                s.put(kx.up(drone, "A"), forged.seal(frame))
+                sent["random_key"] += 1
+            c.stop.wait(0.5)
+        c.events.write("attack_done", ids=len(dangerous_messages(target)), **sent)
+    finally:
+        s.close()
+
+
+def gateway_flood(c: Ctx) -> None:
+    if c.gcs_port is None:
+        raise ConfigError("--gcs-port is required for gateway-flood")
+    dest = ("127.0.0.1", c.gcs_port)
+    socks: list[socket.socket] = []
+    rng = random.Random(11)
+    sent: Counter[str] = Counter()
+    try:
+        for _ in range(320):
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind(("127.0.0.1", 0))
+            sock.setblocking(False)
+            socks.append(sock)
+        c.ready()
+        if not c.wait_for_go():
+            return
+        ports = {sock.getsockname()[1] for sock in socks}
+        going = c.attack_window()
+        while going():
+            for i, sock in enumerate(socks):
+                try:
+                    sock.sendto(FrameCodec(1 + i % 249, 190 + i // 249).encode(_heartbeat()), dest)
+                    sent["heartbeat"] += 1
+                except OSError:
+                    sent["send_failed"] += 1
+                if i % 50 == 49:
+                    time.sleep(0.01)  # let the gateway's socket buffer drain
+            junk = socks[0]
+            for n in (1, 7, 11, 20, 100, 280, 1400, 65000):
+                try:
+                    junk.sendto(rng.randbytes(n), dest)
+                    junk.sendto(FrameCodec(9, 9).encode(_heartbeat())[: max(1, n % 21)], dest)
+                    sent["garbage"] += 2
+                except OSError:
+                    sent["send_failed"] += 1
+            c.stop.wait(1.0)
+        c.events.write("attack_done", source_ports=len(ports), **sent)
+    finally:
+        for sock in socks:
+            sock.close()
+
+
+ATTACKS: dict[str, Callable[[Ctx], None]] = {
+    "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
+    "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
+    "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
+}
+assert set(ATTACKS) == set(MODES)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m zdrone.sil.rogue", description="TESTBED ONLY attackers")
-    p.add_argument("--mode", choices=["no-key", "unauthorized"], required=True)
+    p.add_argument("--mode", choices=MODES, required=True)
     p.add_argument("--fleet", required=True)
     p.add_argument("--router", required=True)
     p.add_argument("--drone", default="d1")
-    p.add_argument("--duration", type=float, default=20.0)
+    p.add_argument("--duration", type=float, default=20.0, help="seconds of attack")
+    p.add_argument("--rate", type=float, default=2.0, help="queries per second (linkkey-knockout, pair-flood)")
+    p.add_argument("--gcs-port", type=int, help="UDP port of the GCS gateway (gateway-flood)")
+    p.add_argument("--wait-go", action="store_true", help="set up, then attack on SIGUSR2")
+    p.add_argument("--replies", type=int, default=1, help="key-injection: forged replies of each kind per query (1)")
     p.add_argument("--events")
     args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if args.rate <= 0 or args.duration <= 0:
+        print("rogue: error: --rate and --duration must be positive", file=sys.stderr)
+        return 2
     events = EventLog(args.events, f"rogue-{args.mode}")
-    stop = [False]
-    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
+              max(1, args.replies))
+    signal.signal(signal.SIGTERM, lambda *_: ctx.stop.set())
+    signal.signal(signal.SIGUSR2, lambda *_: ctx.go.set())
     try:
         print(f"rogue {args.mode}: attacking {args.drone}", flush=True)
-        (no_key if args.mode == "no-key" else unauthorized)(args.fleet, args.router, args.drone, events, args.duration, stop)
+        ATTACKS[args.mode](ctx)
     except ConfigError as exc:
         print(f"rogue: error: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,231 @@
+"""``zdrone bench attack``: the attack scenarios, measured; and the failsafe's lateness under a pairing flood.
+
+Part 1 flies every attack scenario of ``zdrone demo`` (one after the other, speed-up 4) and reports
+per scenario: whether the flight completed unaffected, the worst TBM state and the longest silence
+of the link to the GS holding authority, the security module's drops by reason, the handover
+authority's drops, the refusals counted by the drone, the GSs and A's GCS gateway, and what the
+attacker says it sent.
+
+Part 2 measures what a pairing flood costs the drone's loop. Router, simulator, drone and GS A only:
+A pairs on the ground and holds authority. An attacker holding B's private key and router password
+sends valid Noise KK pairing queries at ``--rate`` per second for 10 s; 3 s into the flood GS A is
+stopped (SIGSTOP). The drone's ``failsafe`` event gives ``detect_to_command_ms``: how long after the
+3 s threshold the vehicle was commanded to LAND (goal: <= 100 ms under any input load). The drone's
+CPU time (``/proc/PID/stat`` utime + stime) over the flood, divided by the pairing queries it
+handled, is the cost of one refused query; "net" subtracts the CPU the drone spent per second just
+before the flood. A trial without a flood gives the baseline lateness.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from ..net.eventlog import read_events
+from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec
+
+SPEEDUP = 4.0
+FLOOD_SECONDS = 10.0
+STOP_AFTER = 3.0  # seconds into the flood at which GS A goes silent
+DEFAULT_RATE = 2500.0
+
+
+# ----------------------------------------------------------------- part 1: scenarios
+def _scenario(base: Path, name: str) -> dict[str, Any]:
+    d = base / name
+    d.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    s = Demo(DemoOptions(out=d, scenario=name, speedup=SPEEDUP, quiet=True, live=False, report=False), d.resolve()).run()
+    refusals: dict[str, int] = {}
+    for k, v in s["drone_counters"].items():
+        if k.startswith(("pair_refused", "pair_failed", "pair_deferred", "bad_grant")):
+            refusals[f"drone {k}"] = int(v)
+    for g, counters in s["gs_counters"].items():
+        for k, v in counters.items():
+            if k.startswith(("linkkey_refused", "linkkey_reply", "pair_bad_reply")):
+                refusals[f"{g} {k}"] = int(v)
+    for k, v in s["gateway_A"].items():
+        if k != "from_log":
+            refusals[f"A gateway {k}"] = int(v)
+    for k, v in s["ha_rejects"].items():
+        refusals[f"HA reject {k}"] = int(v)
+    return {"scenario": name, "ok": s["ok"], "flight_completed": not s["flight_problems"],
+            "authority_link": s["authority_link"], "security_drops": {**s["security_drops"], **{
+                f"{k} (no live key)": v for k, v in s["security_drops_unlinked"].items()}},
+            "ha_drops": s["ha_drops"], "refusals": refusals, "attack": s["attacks"],
+            "handovers": [f"{h['from']}->{h['to']}" for h in s["handovers"]], "why_not_ok": s["why_not_ok"],
+            "wall_s": round(time.monotonic() - t0, 1), "run": str(d)}
+
+
+# --------------------------------------------------------- part 2: failsafe under a flood
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (fields 14, 15)
+
+
+def _pairing_queries(events: list[dict[str, Any]], until: float) -> int:
+    """Pairing queries the drone had handled by wall time ``until`` (its last status before it)."""
+    st = [e for e in events if e["type"] == "status" and e["t"] <= until]
+    if not st:
+        return 0
+    c = st[-1].get("counters", {})
+    return sum(int(v) for k, v in c.items() if k.startswith(("pair_refused", "pair_answered", "pair_failed", "pair_deferred")))
+
+
+def _wait_event(path: Path, type_: str, timeout: float) -> dict[str, Any] | None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if path.exists():
+            ev = next((e for e in read_events(path) if e["type"] == type_), None)
+            if ev is not None:
+                return ev
+        time.sleep(0.05)
+    return None
+
+
+def _failsafe_trial(base: Path, i: int, rate: float | None) -> dict[str, Any]:
+    """One trial: A pairs on the ground; optionally the flood; A stops; the drone's failsafe."""
+    d = base / (f"flood-{i}" if rate else f"baseline-{i}")
+    d.mkdir(parents=True, exist_ok=True)
+    demo = Demo(DemoOptions(out=d, speedup=SPEEDUP, quiet=True, live=False, report=False, command_rate=0.0), d.resolve())
+    row: dict[str, Any] = {"flood": bool(rate)}
+    try:
+        demo.start_core()
+        demo.start_gs("A", "--pair")
+        if _wait_event(d / "drone.jsonl", "paired", 30.0) is None:
+            raise RuntimeError("A did not pair")
+        pid = demo.children["drone"].proc.pid
+        time.sleep(1.0)
+        c0, t0 = _cpu_seconds(pid), time.time()
+        time.sleep(2.0)
+        base_rate = (_cpu_seconds(pid) - c0) / (time.time() - t0)  # drone CPU s per s, no flood
+        row["drone_cpu_idle_pct"] = round(100 * base_rate, 2)
+        if rate:
+            rogue = demo.start_rogue(RogueSpec("pair-flood", "bench", rate=rate), duration=FLOOD_SECONDS)
+            demo.wait_line(rogue, "rogue: flooding", 30)
+            f_cpu0, f_t0 = _cpu_seconds(pid), time.time()
+        time.sleep(STOP_AFTER if rate else 1.0)
+        demo.signal("gsA", signal.SIGSTOP)
+        demo.children["gsA"].stopped = True
+        fs = _wait_event(d / "drone.jsonl", "failsafe", 10.0)
+        row["detect_to_command_ms"] = None if fs is None else round(float(fs["detect_to_command_ms"]), 2)
+        if rate:
+            demo.wait_line(rogue, "rogue: flood done", FLOOD_SECONDS + 20)
+            f_cpu1, f_t1 = _cpu_seconds(pid), time.time()
+            time.sleep(0.7)  # the drone's next status carries its counters
+            events = read_events(d / "drone.jsonl")
+            n = _pairing_queries(events, f_t1 + 0.6) - _pairing_queries(events, f_t0)
+            done = next((e for e in read_events(d / "rogue.jsonl") if e["type"] == "attack_done"), {})
+            cpu = f_cpu1 - f_cpu0
+            row |= {"flood_rate_per_s": done.get("rate"), "queries_sent": done.get("sent"), "queries_handled": n,
+                    "drone_cpu_pct_during_flood": round(100 * cpu / (f_t1 - f_t0), 2),
+                    "cpu_us_per_query": round(1e6 * cpu / n, 2) if n else None,
+                    "cpu_us_per_query_net": round(1e6 * (cpu - base_rate * (f_t1 - f_t0)) / n, 2) if n else None,
+                    "pair_answered": _counter(events, "pair_answered"),
+                    "pair_refused_rate_limited": _counter(events, "pair_refused:rate_limited")}
+    except RuntimeError as exc:
+        row["error"] = str(exc)
+    finally:
+        demo.shutdown()
+    return row
+
+
+def _counter(events: list[dict[str, Any]], name: str) -> int:
+    st = [e for e in events if e["type"] == "status"]
+    return int(st[-1].get("counters", {}).get(name, 0)) if st else 0
+
+
+def _stats(vals: list[float]) -> dict[str, float | None]:
+    return {"max": round(max(vals), 2) if vals else None, "median": round(statistics.median(vals), 2) if vals else None}
+
+
+def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | None = None, rate: float = DEFAULT_RATE,
+        progress: bool = True) -> dict[str, Any]:
+    base = Path(tempfile.mkdtemp(prefix="zdrone-bench-attack-"))
+    names = scenarios if scenarios is not None else (["pair-flood"] if quick else list(ATTACK_SCENARIOS))
+    m = trials or (1 if quick else 3)
+    t0 = time.monotonic()
+    status = _Status(progress)
+    rows = []
+    for name in names:
+        status.say(f"scenario {name} ({len(rows) + 1}/{len(names)})")
+        rows.append(_scenario(base, name))
+    flood = []
+    for i in range(m):
+        status.say(f"failsafe under a {rate:.0f}/s pairing flood: trial {i + 1}/{m}")
+        flood.append(_failsafe_trial(base, i, rate))
+    baseline = []
+    if not quick:
+        status.say("failsafe without a flood (baseline)")
+        baseline.append(_failsafe_trial(base, 0, None))
+    status.close()
+    late = [r["detect_to_command_ms"] for r in flood if r.get("detect_to_command_ms") is not None]
+    per_q = [r["cpu_us_per_query"] for r in flood if r.get("cpu_us_per_query") is not None]
+    per_q_net = [r["cpu_us_per_query_net"] for r in flood if r.get("cpu_us_per_query_net") is not None]
+    return {"scenarios": rows,
+            "failsafe_under_pairing_flood": {
+                "target_rate_per_s": rate, "flood_s": FLOOD_SECONDS, "trials": flood, "baseline_trials": baseline,
+                "detect_to_command_ms": {"values": late, **_stats(late)},
+                "baseline_ms": [r.get("detect_to_command_ms") for r in baseline],
+                "flood_rate_per_s": [r.get("flood_rate_per_s") for r in flood],
+                "cpu_us_per_query": {"values": per_q, **_stats(per_q)},
+                "cpu_us_per_query_net": {"values": per_q_net, **_stats(per_q_net)},
+                "missing": m - len(late), "goal_ms": 100.0},
+            "all_ok": all(r["ok"] for r in rows) and len(late) == m and all(v <= 100.0 for v in late),
+            "wall_s": round(time.monotonic() - t0, 1), "runs": str(base)}
+
+
+class _Status:
+    def __init__(self, enabled: bool) -> None:
+        self._p: Any = None
+        if enabled:
+            from rich.console import Console
+
+            self._p = Console(stderr=True).status("")
+            self._p.start()
+
+    def say(self, text: str) -> None:
+        if self._p is not None:
+            self._p.update(text)
+
+    def close(self) -> None:
+        if self._p is not None:
+            self._p.stop()
+
+
+def _fmt_counts(d: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in d.items()) or "-"
+
+
+def render(r: dict[str, Any]) -> None:
+    from .table import print_table
+
+    rows = []
+    for s in r["scenarios"]:
+        al = s["authority_link"]
+        rows.append([s["scenario"], "yes" if s["flight_completed"] else "NO", al["worst_state"].upper(),
+                     f"{al['longest_silence_s']:.2f}", _fmt_counts(s["security_drops"]), _fmt_counts(s["ha_drops"]),
+                     _fmt_counts(s["refusals"]), "OK" if s["ok"] else "FAILED: " + "; ".join(s["why_not_ok"])])
+    if rows:
+        print_table("Attack scenarios (zdrone demo, speed-up 4)",
+                    ["scenario", "flight completed", "authority link worst", "longest silence s", "security drops",
+                     "HA drops", "refusals", "result"], rows)
+    f = r["failsafe_under_pairing_flood"]
+    rows = []
+    for i, t in enumerate(f["trials"]):
+        rows.append([f"flood {i + 1}", t.get("flood_rate_per_s", "-"), t.get("queries_handled", "-"),
+                     t.get("detect_to_command_ms", t.get("error", "-")), t.get("cpu_us_per_query", "-"),
+                     t.get("cpu_us_per_query_net", "-"), t.get("drone_cpu_pct_during_flood", "-"),
+                     t.get("pair_answered", "-")])
+    for i, t in enumerate(f["baseline_trials"]):
+        rows.append([f"no flood {i + 1}", "-", "-", t.get("detect_to_command_ms", t.get("error", "-")), "-", "-",
+                     t.get("drone_cpu_idle_pct", "-"), "-"])
+    print_table("Failsafe lateness under a pairing flood (router, sim, drone, GS A; A stopped 3 s into the flood)",
+                ["trial", "queries/s sent", "queries handled", "LAND after threshold ms", "drone CPU µs/query",
+                 "net µs/query", "drone CPU %", "answered"], rows,
+                caption="goal: LAND <= threshold + 100 ms under any input load")
