@@ -28,6 +28,7 @@ from typing import Any
 
 from ..net.eventlog import read_events
 from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec
+from .table import ProgressLine
 
 SPEEDUP = 4.0
 FLOOD_SECONDS = 10.0
@@ -150,7 +151,7 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
     names = scenarios if scenarios is not None else (["pair-flood"] if quick else list(ATTACK_SCENARIOS))
     m = trials or (1 if quick else 3)
     t0 = time.monotonic()
-    status = _Status(progress)
+    status = ProgressLine(progress)
     rows = []
     for name in names:
         status.say(f"scenario {name} ({len(rows) + 1}/{len(names)})")
@@ -178,24 +179,6 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
                 "missing": m - len(late), "goal_ms": 100.0},
             "all_ok": all(r["ok"] for r in rows) and len(late) == m and all(v <= 100.0 for v in late),
             "wall_s": round(time.monotonic() - t0, 1), "runs": str(base)}
-
-
-class _Status:
-    def __init__(self, enabled: bool) -> None:
-        self._p: Any = None
-        if enabled:
-            from rich.console import Console
-
-            self._p = Console(stderr=True).status("")
-            self._p.start()
-
-    def say(self, text: str) -> None:
-        if self._p is not None:
-            self._p.update(text)
-
-    def close(self) -> None:
-        if self._p is not None:
-            self._p.stop()
 
 
 def _fmt_counts(d: dict[str, Any]) -> str:

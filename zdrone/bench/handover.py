@@ -21,6 +21,7 @@ from typing import Any
 
 from ..net.eventlog import read_events
 from ..sil.launcher import Demo, DemoOptions
+from .table import ProgressLine
 
 
 def _shuttle(base: Path, crossings: int, speedup: float) -> dict[str, Any]:
@@ -75,7 +76,7 @@ def run(quick: bool = False, crossings: int | None = None, trials: int | None = 
     n = crossings or (2 if quick else 6)
     m = trials or (1 if quick else 3)
     t0 = time.monotonic()
-    status = _Status(progress)
+    status = ProgressLine(progress)
     status.say(f"shuttle flight: {n} crossings under a 20 Hz command stream")
     shuttle = _shuttle(base, n, 4.0)
     status.say(f"link-loss trials: {m}")
@@ -88,25 +89,6 @@ def run(quick: bool = False, crossings: int | None = None, trials: int | None = 
                           "missing": m - len(vals)},
             "targets": {"authority_gap_ms": 0, "commands_lost": 0, "commands_duplicated": 0, "detect_to_land_ms_max": 100},
             "wall_s": round(time.monotonic() - t0, 1), "runs": str(base)}
-
-
-class _Status:
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
-        self._p: Any = None
-        if enabled:
-            from rich.console import Console
-
-            self._p = Console(stderr=True).status("")
-            self._p.start()
-
-    def say(self, text: str) -> None:
-        if self._p is not None:
-            self._p.update(text)
-
-    def close(self) -> None:
-        if self._p is not None:
-            self._p.stop()
 
 
 def render(r: dict[str, Any]) -> None:

@@ -27,3 +27,20 @@ def _fmt(v: Any) -> str:
 
 def print_json(obj: Any) -> None:
     sys.stdout.write(json.dumps(obj, indent=2) + "\n")
+
+
+class ProgressLine:
+    """One live status line on stderr while a bench runs (nothing when ``enabled`` is false)."""
+
+    def __init__(self, enabled: bool) -> None:
+        self._p: Any = Console(stderr=True).status("") if enabled else None
+        if self._p is not None:
+            self._p.start()
+
+    def say(self, text: str) -> None:
+        if self._p is not None:
+            self._p.update(text)
+
+    def close(self) -> None:
+        if self._p is not None:
+            self._p.stop()

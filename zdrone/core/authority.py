@@ -319,24 +319,31 @@ class AuthorityMachine:
         return acts
 
     # ----------------------------------------------------------------- handlers
+    def pair_refusal(self, gs: str, on_ground: bool) -> str | None:
+        """Why a pairing with ``gs`` would be refused now (a query: the adapter asks before any
+        crypto, the ``Paired`` handlers apply the same rule), or None."""
+        if not self.is_authorized(gs):
+            return f"unauthorized: {gs} is not authorized for this drone"
+        if self.state is State.FAILSAFE and not on_ground:
+            return "failsafe: re-pair only on the ground"
+        return None
+
     def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:
-        if not self.is_authorized(ev.gs):
-            return State.UNPAIRED, self._reject(ev.gs, "pair", f"unauthorized: {ev.gs} is not authorized for this drone")
+        if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
+            return State.UNPAIRED, self._reject(ev.gs, "pair", why)
         self.links[ev.gs] = _Link()
         acts = self._switch(ev.gs, ev.now, "paired")
         return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
 
     def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
-        if not self.is_authorized(ev.gs):
-            return self.state, self._reject(ev.gs, "pair", f"unauthorized: {ev.gs} is not authorized for this drone")
+        if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
+            return self.state, self._reject(ev.gs, "pair", why)
         self.links.setdefault(ev.gs, _Link())
         return self.state, self._update_subscriptions() + [InstallKey(ev.gs)] + self._status_to_all()
 
     def _on_pair_failsafe(self, ev: Paired) -> tuple[State, list[Action]]:
-        if not self.is_authorized(ev.gs):
-            return State.FAILSAFE, self._reject(ev.gs, "pair", f"unauthorized: {ev.gs} is not authorized for this drone")
-        if not ev.on_ground:
-            return State.FAILSAFE, self._reject(ev.gs, "pair", "failsafe: re-pair only on the ground")
+        if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
+            return State.FAILSAFE, self._reject(ev.gs, "pair", why)
         self.links[ev.gs] = _Link()
         acts = self._switch(ev.gs, ev.now, "repaired")
         return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()

@@ -262,7 +262,7 @@ class DroneNode:
         self.events.write("link_confirmed", gs=gs, how=promoted.origin, replaced=promoted.replaced)
         log.info("link to %s: new key proven (%s)", gs, promoted.origin)
         if promoted.origin == "pair":
-            refusal = self._pair_refusal(gs)
+            refusal = self.machine.pair_refusal(gs, self._on_ground())
             if refusal is not None:  # the HA's state changed since message 1 (e.g. failsafe in the air)
                 self.counters["pair_refused"] += 1
                 self.events.write("pair_refused", gs=gs, reason=refusal)
@@ -270,14 +270,6 @@ class DroneNode:
                 self.events.write("paired", gs=gs)
                 self._handle(ha.Paired(now, gs, self._on_ground()))
         self._sync_subscriptions(now)
-
-    def _pair_refusal(self, gs: str) -> str | None:
-        """Why the HA would refuse a pairing with ``gs`` now (asked before any crypto), or None."""
-        if not self.machine.is_authorized(gs):
-            return f"unauthorized: {gs} is not authorized for this drone"
-        if self.machine.state is ha.State.FAILSAFE and not self._on_ground():
-            return "failsafe: re-pair only on the ground"
-        return None
 
     def _serve_pairing(self, now: float) -> None:
         """Answer pairing queries: refusals cost no crypto; at most ``PAIRING_PER_TURN`` handshakes."""
@@ -302,7 +294,7 @@ class DroneNode:
         gs = kx.gs_of(q.key_expr)
         admit = self.guard.admit(gs, now)
         if admit is None:
-            admit = self._pair_refusal(gs)
+            admit = self.machine.pair_refusal(gs, self._on_ground())
         if admit is not None:  # refused before any crypto
             self.counters[f"pair_refused:{admit.split(':')[0]}"] += 1
             if self.counters[f"pair_refused:{admit.split(':')[0]}"] <= 5:

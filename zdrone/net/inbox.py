@@ -12,8 +12,6 @@ from typing import Any, Callable
 
 MAX_BATCH = 512
 
-Inbox = "queue.SimpleQueue[tuple[str, str, Any]]"
-
 
 def drain(inbox: "queue.SimpleQueue[tuple[str, str, Any]]", wait: float,
           handle: Callable[[str, str, Any, float], None]) -> int:
