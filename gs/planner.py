@@ -1,5 +1,16 @@
 """Mission planning on the ground station: the reference mission, QGroundControl ``.plan`` files,
-and a sans-IO mission uploader (the GCS side of the MAVLink mission protocol).
+the encoding of a planned mission for one autopilot, and a sans-IO mission uploader (the GCS side of
+the MAVLink mission protocol).
+
+A planned mission is autopilot-neutral: take-offs where the vehicle must leave the ground,
+including after a mid-mission landing. ``encode_mission`` turns it into what each autopilot flies:
+
+* PX4 refuses any NAV_TAKEOFF after an item with a position ("Mission rejected: takeoff not first
+  waypoint item", at MISSION_START) and takes off again by itself after a mid-mission landing: only
+  the first take-off stays.
+* ArduPilot keeps item 0 as home and never flies it: a placeholder at home goes first. After a
+  mid-mission NAV_LAND it continues only with ``MIS_OPTIONS`` bit 2 set *and* a NAV_TAKEOFF as the
+  next navigation item (otherwise it disarms at touchdown): the take-offs stay.
 
 Theory of operation of ``MissionUploader``: ``start(now)`` returns MISSION_COUNT; each
 MISSION_REQUEST_INT / MISSION_REQUEST from the vehicle is answered with that item; MISSION_ACK ends
@@ -42,13 +53,40 @@ class PlannedItem:
                                                     *self.params, lat, lon, self.alt)
 
 
-def _nav(cmd: int, p: GeoPoint, alt: float, params=(0.0, 0.0, 0.0, NAN)) -> PlannedItem:
+def _nav(cmd: int, p: GeoPoint, alt: float, params: tuple[float, float, float, float] = (0.0, 0.0, 0.0, NAN)) -> PlannedItem:
     return PlannedItem(REL, cmd, params, p.lat, p.lon, alt)
 
 
-def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt: float = CRUISE_ALT_M,
-                      speed: float = CRUISE_SPEED_MS) -> list[PlannedItem]:
-    """Take off at A, fly to the delivery point in B's area, land, release, take off, return, land."""
+#: the autopilots ``encode_mission`` knows
+AUTOPILOTS = ("px4", "ardupilot")
+#: commands PX4 does not count as "an item with a position" when it checks that a take-off comes
+#: first (its FeasibilityChecker); every other command does
+_PX4_NON_POSITIONAL = frozenset({
+    0, 93, 177, 178, 179, 189, 2003, 203, 2000, 2001, 2500, 2501, 200, 204, 205, 1000, 1001, 201, 195, 196, 197,
+    206, 260, 214, 530, 531, 532, 3000})
+
+
+def encode_mission(items: list[PlannedItem], autopilot: str = "px4", home: GeoPoint = HOME) -> list[PlannedItem]:
+    """``items`` as ``autopilot`` flies them (see the module docstring); ``ValueError`` for an
+    autopilot not in ``AUTOPILOTS``."""
+    if autopilot == "px4":
+        out: list[PlannedItem] = []
+        positional = False
+        for it in items:
+            if it.command == mav.MAV_CMD_NAV_TAKEOFF and positional:
+                continue  # PX4 would refuse the whole mission; it takes off again by itself
+            positional = positional or it.command not in _PX4_NON_POSITIONAL
+            out.append(it)
+        return out
+    if autopilot == "ardupilot":
+        return [_nav(mav.MAV_CMD_NAV_WAYPOINT, home, 0.0, (0.0, 0.0, 0.0, 0.0)), *items]  # item 0: home
+    raise ValueError(f"autopilot {autopilot!r}: expected one of {', '.join(AUTOPILOTS)}")
+
+
+def reference_plan(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt: float = CRUISE_ALT_M,
+                   speed: float = CRUISE_SPEED_MS) -> list[PlannedItem]:
+    """The reference flight, autopilot-neutral: take off at A, fly to the delivery point in B's
+    area, land, release, take off, return, land."""
     do = mav.MAV_FRAME_MISSION
     return [
         _nav(mav.MAV_CMD_NAV_TAKEOFF, home, alt),
@@ -62,8 +100,14 @@ def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt:
     ]
 
 
+def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt: float = CRUISE_ALT_M,
+                      speed: float = CRUISE_SPEED_MS, autopilot: str = "px4") -> list[PlannedItem]:
+    """The reference flight encoded for ``autopilot`` (PX4 by default)."""
+    return encode_mission(reference_plan(home, delivery, alt, speed), autopilot, home)
+
+
 def shuttle_mission(crossings: int, home: GeoPoint = HOME, alt: float = CRUISE_ALT_M,
-                    speed: float = CRUISE_SPEED_MS, far_east_m: float = 440.0) -> list[PlannedItem]:
+                    speed: float = CRUISE_SPEED_MS, far_east_m: float = 440.0, autopilot: str = "px4") -> list[PlannedItem]:
     """Fly back and forth across the hand-over region ``crossings`` times, then land at home."""
     from zdrone.core.geometry import offset
 
@@ -75,7 +119,7 @@ def shuttle_mission(crossings: int, home: GeoPoint = HOME, alt: float = CRUISE_A
     for i in range(crossings):
         items.append(_nav(mav.MAV_CMD_NAV_WAYPOINT, near_b if i % 2 == 0 else near_a, alt))
     items += [_nav(mav.MAV_CMD_NAV_WAYPOINT, home, alt), _nav(mav.MAV_CMD_NAV_LAND, home, 0.0)]
-    return items
+    return encode_mission(items, autopilot, home)
 
 
 def load_plan(path: str | Path) -> list[PlannedItem]:

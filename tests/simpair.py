@@ -2,20 +2,36 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
+from pymavlink.dialects.v20 import all as every_dialect
 from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core.geometry import GeoPoint, offset
-from zdrone.core.mavlink import FrameCodec
+from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.reference import HOME
+from zdrone.vehicle.personality import PX4, Personality
 from zdrone.vehicle.sim import SimAutopilot
 
 
+@dataclass(frozen=True)
+class RawFrame:
+    """A frame of an id no pymavlink dialect defines (PX4's EVENT, ...): header and payload only."""
+
+    msgid: int
+    payload: bytes
+
+    def get_type(self) -> str:
+        return f"UNKNOWN_{self.msgid}"
+
+
 class SimPair:
-    def __init__(self, seed: int = 0) -> None:
-        self.sim = SimAutopilot(HOME, sysid=1, seed=seed)
+    def __init__(self, seed: int = 0, personality: Personality = PX4, ready_after: float = 0.0) -> None:
+        self.sim = SimAutopilot(HOME, sysid=1, seed=seed, personality=personality, ready_after=ready_after)
         self.gcs = FrameCodec(255, 190)
+        self._any = every_dialect.MAVLink(None)  # decodes common, development and ardupilotmega ids
+        self._any.robust_parsing = True
         self.now = 0.0
         self.inbox: list[Any] = []
 
@@ -25,9 +41,17 @@ class SimPair:
 
     def _collect(self) -> None:
         for f in self.sim.drain():
-            m = self.gcs.decode(f)
-            assert m is not None, f.hex()
-            self.inbox.append(m)
+            hdr = read_header(f)
+            if hdr.msgid in every_dialect.mavlink_map:
+                msgs = self._any.parse_buffer(f)
+                assert msgs and msgs[0].get_type() != "BAD_DATA", f.hex()
+                self.inbox.append(msgs[0])
+            else:
+                self.inbox.append(RawFrame(hdr.msgid, f[10:10 + f[1]]))
+
+    def texts(self) -> list[str]:
+        """STATUSTEXTs received so far (taken from the inbox), in order."""
+        return [m.text for m in self.take("STATUSTEXT")]
 
     def run(self, seconds: float, dt: float = 0.1) -> None:
         end = self.now + seconds

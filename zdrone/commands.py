@@ -32,19 +32,30 @@ def positive(text: str) -> float:
 
 def _sim(args: argparse.Namespace) -> int:
     from .core.reference import HOME
+    from .vehicle.personality import personality
     from .vehicle.simserver import SimOptions, run_sim
 
     home = parse_home(args.home) if args.home else HOME
     if not 1 <= args.sysid <= 255:
         raise UsageError(f"--sysid {args.sysid}: must be 1..255")
+    if args.ready_after is not None and not (math.isfinite(args.ready_after) and 0 <= args.ready_after <= 3600):
+        raise UsageError(f"--ready-after {args.ready_after:g}: must be 0..3600 simulated seconds")
     return run_sim(SimOptions(mavlink=args.mavlink, home=home, speedup=args.speedup, seed=args.seed,
-                              sysid=args.sysid, gps_noise=args.gps_noise, duration=args.duration))
+                              sysid=args.sysid, gps_noise=args.gps_noise, duration=args.duration,
+                              personality=personality(args.autopilot), ready_after=args.ready_after))
 
 
 def add_sim(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sim", help="built-in MAVLink multicopter simulator (PX4-type autopilot)")
-    p.add_argument("--mavlink", default="udpin:127.0.0.1:14580", metavar="CONN",
-                   help="udpin:|udpout:|tcpin:|tcp:HOST:PORT (default udpin:127.0.0.1:14580)")
+    p = sub.add_parser("sim", help="built-in MAVLink multicopter simulator (PX4- or ArduPilot-like autopilot)")
+    p.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                   help="the autopilot it behaves like: PX4 v1.16 or ArduCopter 4.7 (default px4)")
+    p.add_argument("--mavlink", default=None, metavar="CONN",
+                   help="udpin:|udpout:|tcpin:|tcp:HOST:PORT (default: the autopilot's own endpoint, px4: "
+                        "udpin:127.0.0.1:14580 sending to 127.0.0.1:14540 as well; ardupilot: tcpin:127.0.0.1:5760, "
+                        "booting when the first client connects)")
+    p.add_argument("--ready-after", type=float, default=None, metavar="S",
+                   help="simulated seconds after boot before arming is allowed (ArduPilot: and a position "
+                        "estimate for AUTO); default 1 for px4, 6 for ardupilot (the real ones: ~10 and 20-40)")
     p.add_argument("--speedup", type=positive, default=1.0, help="simulated seconds per wall second")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
     p.add_argument("--gps-noise", type=float, default=0.0, metavar="M", help="GPS noise, metres 1-sigma")

@@ -1,4 +1,12 @@
-"""``zdrone sim``: the simulator on a MAVLink socket, in real time or faster (``--speedup``)."""
+"""``zdrone sim``: the simulator on a MAVLink socket, in real time or faster (``--speedup``).
+
+Theory of operation: ``SimServer`` owns the clock and the socket of one ``SimAutopilot``. Each turn
+it polls the socket for up to 20 ms, hands the frames to the simulator at the current simulated
+time (wall time since boot × speed-up), steps it and sends what it drained to every peer. The
+personality's endpoints are the defaults: PX4's onboard link listens on UDP 14580 and sends to
+14540 from boot; ArduPilot SITL listens on TCP 5760 and does not boot (its clock does not start)
+until a client has connected there.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +16,7 @@ import time
 from dataclasses import dataclass
 
 from ..core.geometry import GeoPoint
+from .personality import PX4, Personality
 from .sim import SimAutopilot
 from .transport import MavTransport
 
@@ -16,13 +25,15 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True, slots=True)
 class SimOptions:
-    mavlink: str = "udpin:127.0.0.1:14580"
+    mavlink: str | None = None  # None: the personality's endpoint (PX4 udpin:127.0.0.1:14580 -> 14540)
     home: GeoPoint = GeoPoint(47.397742, 8.545594, 0.0)
     speedup: float = 1.0
     seed: int = 0
     sysid: int = 1
     gps_noise: float = 0.0
     duration: float | None = None  # wall seconds, None = until stopped
+    personality: Personality = PX4
+    ready_after: float | None = None  # simulated seconds; None: the personality's short default
 
 
 class SimServer:
@@ -30,8 +41,14 @@ class SimServer:
 
     def __init__(self, opts: SimOptions) -> None:
         self.opts = opts
-        self.transport = MavTransport(opts.mavlink)
-        self.sim = SimAutopilot(opts.home, sysid=opts.sysid, seed=opts.seed)
+        pers = opts.personality
+        conn = opts.mavlink or pers.endpoint
+        peers = (pers.send_to,) if opts.mavlink is None and pers.send_to is not None else ()
+        self.transport = MavTransport(conn, peers)
+        self.peers = peers
+        self.ready_after = pers.default_ready_after if opts.ready_after is None else opts.ready_after
+        self.sim = SimAutopilot(opts.home, sysid=opts.sysid, seed=opts.seed, personality=pers,
+                                ready_after=self.ready_after)
         self.sim.params["SIM_GPS_NOISE"].value = opts.gps_noise
         self._running = True
 
@@ -41,13 +58,24 @@ class SimServer:
     def run(self) -> None:
         t0 = time.monotonic()
         tick = 0.02
-        log.info("sim on %s (sysid %d, speed-up %g)", self.transport.endpoint, self.opts.sysid, self.opts.speedup)
+        booted = not self.opts.personality.boots_on_first_client
+        log.info("sim (%s) on %s%s (sysid %d, speed-up %g, ready after %g s)", self.opts.personality.name,
+                 self.transport.endpoint, "".join(f", sending to {h}:{p}" for h, p in self.peers), self.opts.sysid,
+                 self.opts.speedup, self.ready_after)
+        if not booted:
+            log.info("waiting for a client before boot")
         try:
             while self._running:
                 wall = time.monotonic() - t0
                 if self.opts.duration is not None and wall >= self.opts.duration:
                     break
-                for frame, _peer in self.transport.poll(tick):
+                received = self.transport.poll(tick)
+                if not booted:
+                    if not self.transport.has_peer():
+                        continue
+                    booted, t0 = True, time.monotonic()  # the autopilot boots now: its clock starts at 0
+                    log.info("client connected: booting")
+                for frame, _peer in received:
                     self.sim.receive(frame, self.sim.t)
                 self.sim.step((time.monotonic() - t0) * self.opts.speedup)
                 out = self.sim.drain()
@@ -63,7 +91,10 @@ def run_sim(opts: SimOptions) -> int:
     server = SimServer(opts)
     signal.signal(signal.SIGTERM, server.stop)
     signal.signal(signal.SIGINT, server.stop)
-    print(f"zdrone sim: PX4-type quadrotor sysid {opts.sysid} on {server.transport.endpoint}"
-          f" (home {opts.home.lat:.6f},{opts.home.lon:.6f}, speed-up {opts.speedup:g})", flush=True)
+    pers = opts.personality
+    also = "".join(f" -> udp {h}:{p}" for h, p in server.peers)
+    print(f"zdrone sim: {pers.label} quadrotor sysid {opts.sysid} on {server.transport.endpoint}{also}"
+          f" (home {opts.home.lat:.6f},{opts.home.lon:.6f}, speed-up {opts.speedup:g},"
+          f" ready {server.ready_after:g} s after boot)", flush=True)
     server.run()
     return 0

@@ -2,7 +2,8 @@
 
 Connection strings (pymavlink style, ``//`` after the colon optional):
 
-* ``udpin:HOST:PORT`` (or ``udp:``): listen; answer every address that has talked to us.
+* ``udpin:HOST:PORT`` (or ``udp:``): listen; answer every address that has talked to us, and the
+  fixed ``peers`` given to ``MavTransport`` (e.g. PX4's onboard link: listen on 14580, send to 14540).
 * ``udpout:HOST:PORT``: send to HOST:PORT, receive its answers.
 * ``tcpin:HOST:PORT``: listen for TCP clients (several at once).
 * ``tcp:HOST:PORT`` (or ``tcpout:``): connect to a TCP server.
@@ -47,9 +48,11 @@ def parse_endpoint(text: str) -> Endpoint:
 class MavTransport:
     """One MAVLink endpoint. ``poll`` returns whole frames with an opaque peer id."""
 
-    def __init__(self, conn: str | Endpoint) -> None:
+    def __init__(self, conn: str | Endpoint, peers: tuple[tuple[str, int], ...] = ()) -> None:
         self.endpoint = conn if isinstance(conn, Endpoint) else parse_endpoint(conn)
         ep = self.endpoint
+        if peers and ep.kind != "udpin":
+            raise ConfigError(f"connection {ep}: fixed peers need a udpin: endpoint")
         self.sel = selectors.DefaultSelector()
         self.udp_peers: dict[tuple, float] = {}
         self.tcp_clients: dict[socket.socket, bytes] = {}
@@ -64,6 +67,8 @@ class MavTransport:
                 if ep.kind == "udpin":
                     s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                     s.bind((ep.host, ep.port))
+                    for host, port in peers:  # sent to from the start, whether or not they ever talk
+                        self.udp_peers[(socket.gethostbyname(host), port)] = float("inf")
                 else:
                     s.bind(("127.0.0.1" if ep.host.startswith("127.") or ep.host == "localhost" else "", 0))
                     self.udp_peers[(socket.gethostbyname(ep.host), ep.port)] = float("inf")
@@ -108,7 +113,9 @@ class MavTransport:
                         data, addr = s.recvfrom(65535)  # type: ignore[union-attr]
                     except (BlockingIOError, InterruptedError):
                         break
-                    except OSError:  # ICMP port unreachable from a gone peer
+                    except ConnectionRefusedError:  # ICMP port unreachable (a peer not listening): reported
+                        continue  # once per error, so read on; the datagrams behind it are still queued
+                    except OSError:
                         break
                     self.udp_peers[addr] = max(self.udp_peers.get(addr, 0.0), time.monotonic())
                     frames, rest, skipped = split_frames(data)
