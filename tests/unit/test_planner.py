@@ -3,7 +3,7 @@ import json
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from gs.planner import MissionUploader, load_plan, reference_mission
+from gs.planner import MissionUploader, encode_mission, load_plan, reference_mission, reference_plan, shuttle_mission
 from tests.simpair import SimPair
 from zdrone.core.fleet import ConfigError
 from zdrone.core.geometry import distance_m
@@ -57,3 +57,21 @@ def test_load_qgc_plan(tmp_path):
     f.write_text("{")
     with pytest.raises(ConfigError, match="not a readable"):
         load_plan(f)
+
+
+def test_mission_encoded_per_autopilot():
+    plan = reference_plan()
+    takeoff, land, wp = mav.MAV_CMD_NAV_TAKEOFF, mav.MAV_CMD_NAV_LAND, mav.MAV_CMD_NAV_WAYPOINT
+    assert [it.command for it in plan].count(takeoff) == 2
+    # PX4: a take-off only first (it refuses any later one and takes off again by itself)
+    px4 = reference_mission()
+    assert px4 == encode_mission(plan, "px4") == reference_mission(autopilot="px4")
+    assert [it.command for it in px4].count(takeoff) == 1 and px4[0].command == takeoff
+    assert [it.command for it in px4] == [it.command for it in plan if it is not plan[5]]
+    # ArduPilot: item 0 is home (a placeholder there), and a take-off must follow a mid-mission landing
+    ardu = reference_mission(autopilot="ardupilot")
+    assert ardu[1:] == plan and ardu[0].command == wp and (ardu[0].lat, ardu[0].lon) == (HOME.lat, HOME.lon)
+    assert [it.command for it in ardu][4:7] == [land, mav.MAV_CMD_DO_GRIPPER, takeoff]
+    assert shuttle_mission(2, autopilot="ardupilot")[1:] == shuttle_mission(2)
+    with pytest.raises(ValueError, match="expected one of px4, ardupilot"):
+        encode_mission(plan, "betaflight")

@@ -56,7 +56,7 @@ class SimServer:
         self._running = False
 
     def run(self) -> None:
-        t0 = time.monotonic()
+        t0 = start = time.monotonic()
         tick = 0.02
         booted = not self.opts.personality.boots_on_first_client
         log.info("sim (%s) on %s%s (sysid %d, speed-up %g, ready after %g s)", self.opts.personality.name,
@@ -66,8 +66,7 @@ class SimServer:
             log.info("waiting for a client before boot")
         try:
             while self._running:
-                wall = time.monotonic() - t0
-                if self.opts.duration is not None and wall >= self.opts.duration:
+                if self.opts.duration is not None and time.monotonic() - start >= self.opts.duration:
                     break
                 received = self.transport.poll(tick)
                 if not booted:
