@@ -358,6 +358,18 @@ def test_ardupilot_parameters_names_defaults_and_encoding():
     assert 3 <= len(s.take("GLOBAL_POSITION_INT")) <= 5  # the stream rate parameter is live
 
 
+def test_mavlink_ftp_is_refused_by_the_ardupilot_personality_so_clients_fall_back():
+    open_ro = struct.pack("<HBBBBBBI", 7, 0, 4, 0, 0, 0, 0, 0) + b"@PARAM/param.pck\0"
+    s = ap()
+    s.send(mav.MAVLink_file_transfer_protocol_message(0, 1, 1, list(open_ro.ljust(251, b"\0"))))
+    reply = bytes(s.take("FILE_TRANSFER_PROTOCOL")[-1].payload)
+    seq, _session, opcode, size, req_opcode = struct.unpack_from("<HBBBB", reply)
+    assert (seq, opcode, size, req_opcode, reply[12]) == (8, 129, 1, 4, 10)  # NAK, file not found
+    px4 = SimPair()
+    px4.send(mav.MAVLink_file_transfer_protocol_message(0, 1, 1, list(open_ro.ljust(251, b"\0"))))
+    assert px4.take("FILE_TRANSFER_PROTOCOL") == [] and px4.sim.counters["ignored"] == 1
+
+
 def test_ardupilot_gcs_failsafe_counts_only_mav_gcs_sysid():
     s = ap()
     set_param(s, "FS_GCS_ENABLE", 5.0, mav.MAV_PARAM_TYPE_INT8)  # 5: land

@@ -185,9 +185,6 @@ class Readiness:
     def stage(self, since_boot: float, ready_after: float) -> ReadyStage | None:
         return next((st for st in self.stages if since_boot < st.until * ready_after), None)
 
-    def arm_ready_at(self, ready_after: float) -> float:
-        return max((st.until for st in self.stages), default=0.0) * ready_after
-
 
 # ------------------------------------------------------------------------------ mission rules
 class _Item(Protocol):
@@ -454,6 +451,7 @@ class Personality:
     send_to: tuple[str, int] | None  # also send to this UDP address from boot (PX4's onboard link)
     boots_on_first_client: bool  # ArduPilot SITL waits for a client on its TCP port before it boots
     extra_ids: frozenset[int] = field(default_factory=frozenset)  # ids outside pymavlink's common dialect it sends
+    ftp_refuses: bool = False  # answer MAVLink FTP with NAK (no such file) so clients fall back at once
 
     def text(self, key: str) -> Say | None:
         return self.texts.get(key)
@@ -533,6 +531,7 @@ ARDUPILOT = Personality(
     banner=("ArduCopter V4.7.0-dev (5a44524f)", "Frame: QUAD/X"),
     endpoint="tcpin:127.0.0.1:5760", send_to=None, boots_on_first_client=True,
     extra_ids=frozenset({MSG_MEMINFO, MSG_AHRS2, MSG_EKF_STATUS_REPORT}),
+    ftp_refuses=True,  # MAVProxy asks ArduPilot for @PARAM/param.pck first; a NAK makes it use PARAM_REQUEST_LIST
 )
 
 PERSONALITIES: Mapping[str, Personality] = MappingProxyType({p.name: p for p in (PX4, ARDUPILOT)})

@@ -57,6 +57,10 @@ GRAVITY = 9.81
 FORCE_MAGIC = 21196  # param 2 of ARM_DISARM: force (arm without checks, disarm in the air)
 DELIVERY_PAUSE_S = 3.0  # on the ground after a mid-mission landing before the next item
 UNIX_EPOCH_AT_BOOT = 1_790_000_000  # SYSTEM_TIME: a fixed, deterministic wall clock
+# MAVLink FTP opcodes and error codes (the protocol's, as in MAVProxy's ftp module)
+FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS, FTP_LIST_DIRECTORY, FTP_OPEN_FILE_RO = 1, 2, 3, 4
+FTP_ACK, FTP_NAK = 128, 129
+FTP_ERR_UNKNOWN_COMMAND, FTP_ERR_FILE_NOT_FOUND = 7, 10
 
 
 @dataclass(slots=True)
@@ -190,6 +194,7 @@ class SimAutopilot:
             "PARAM_REQUEST_READ": self._on_param_request_read,
             "PARAM_SET": self._on_param_set,
             "REQUEST_DATA_STREAM": self._on_request_data_stream,
+            "FILE_TRANSFER_PROTOCOL": self._on_ftp,
             "TIMESYNC": self._on_timesync,
             "PING": self._on_ping,
         }
@@ -349,6 +354,26 @@ class SimAutopilot:
     def _on_timesync(self, msg: Any, now: float) -> None:
         if msg.tc1 == 0:
             self._send(mav.MAVLink_timesync_message(int(now * 1e9), msg.ts1))
+
+    def _on_ftp(self, msg: Any, now: float) -> None:
+        """MAVLink FTP is not simulated. With ``ftp_refuses`` every request gets a NAK at once (open:
+        no such file; session resets are ACKed), so a client falls back to the parameter protocol."""
+        if not self.p.ftp_refuses:
+            self._count("ignored", "FILE_TRANSFER_PROTOCOL")
+            return
+        raw = bytes(msg.payload)
+        if len(raw) < 12:
+            self._count("malformed", "FTP payload")
+            return
+        seq, session, opcode = struct.unpack_from("<HBB", raw)
+        if opcode in (FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS):
+            reply = struct.pack("<HBBBBBBI", (seq + 1) & 0xFFFF, session, FTP_ACK, 0, opcode, 0, 0, 0)
+        else:
+            error = FTP_ERR_FILE_NOT_FOUND if opcode in (FTP_OPEN_FILE_RO, FTP_LIST_DIRECTORY) else FTP_ERR_UNKNOWN_COMMAND
+            reply = struct.pack("<HBBBBBBIB", (seq + 1) & 0xFFFF, session, FTP_NAK, 1, opcode, 0, 0, 0, error)
+        self._count("ftp_refused", str(opcode))
+        self._send(mav.MAVLink_file_transfer_protocol_message(0, msg.get_srcSystem(), msg.get_srcComponent(),
+                                                              list(reply.ljust(251, b"\0"))))
 
     def _on_ping(self, msg: Any, now: float) -> None:
         if msg.target_system == 0:
