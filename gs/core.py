@@ -45,11 +45,10 @@ from zdrone.core.envelope import Dropped, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
-from zdrone.core.keyshare import KeyShareAsk, Refused, ShareRefusal, answer, decode_query
+from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
 from zdrone.core.linkslot import LinkSlot
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
-from zdrone.core.ratelimit import RateLimiter
 from zdrone.net import keyexprs as kx
 
 from .planner import MissionUploader, PlannedItem
@@ -227,7 +226,7 @@ class StationCore:
         self.views = {d: DroneView(d, fleet.nodes[d].sysid) for d in drones}
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
         self.counters: Counter[str] = Counter()
-        self.linkkey_limiter = RateLimiter(LINKKEY_RATE, LINKKEY_BURST)
+        self.keyshare = KeyShareResponder(identity, name, LINKKEY_RATE, LINKKEY_BURST)
         self._grant_id = 0
         self._sm_seq = 0
         self._hb_due = 0.0
@@ -308,12 +307,14 @@ class StationCore:
         if ok is None:
             reason = (err or b"error").decode(errors="replace")[:200]
             self.counters["pair_refused"] += 1
+            if self.counters["pair_refused"] > 5:  # the first few in the log; all in the counters
+                return []
             log.warning("pairing with %s refused: %s", drone, reason)
             return [Log("pair_refused", {"drone": drone, "reason": reason})]
         key = view.pairing.finish(ok)
         if isinstance(key, PairingFailed):
             self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
-            return [Log("pair_failed", {"drone": drone, "reason": key.reason})]
+            return [Log("pair_failed", {"drone": drone, "reason": key.reason})] if self.counters["pair_bad_reply"] <= 5 else []
         view.pairing = None
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
@@ -329,15 +330,16 @@ class StationCore:
         if self.counters[key] <= 5:  # the first few in the log; all of them in the counters
             logs.append(Log("linkkey_refused", {"drone": drone, "asker": asker, "reason": reason.value, "detail": detail}))
         crypto = reason is ShareRefusal.AUTH_FAILED
-        if reason is ShareRefusal.RATE_LIMITED:
+        if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC):
             return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
         return QueryAnswer(error=reason.value.encode(), crypto=crypto)
 
     def on_linkkey_query(self, drone: str, payload: bytes, now: float, secret: bytes) -> tuple[QueryAnswer, list[Action]]:
         """Answer one key-sharing query for link (``drone``, us); ``secret`` is fresh randomness.
 
-        Refusals before any crypto: malformed, unknown asker, not authorized for the drone, over the
-        asker's rate limit. Then message 1 must prove the asker's static key."""
+        Refusals before any crypto: malformed, unknown asker, not authorized for the drone; then the
+        cheap tag, a repeated message 1 (its first answer again), the asker's rate limit (charged
+        only for authentic queries), and the handshake (``KeyShareResponder``)."""
         logs: list[Action] = []
         req = decode_query(payload)
         if isinstance(req, Refused):
@@ -348,13 +350,16 @@ class StationCore:
         if (drone not in self.views or not self.fleet.is_authorized(drone, req.asker)
                 or not self.fleet.is_authorized(drone, self.name)):
             return self._refused(logs, ShareRefusal.UNAUTHORIZED, drone, req.asker), logs
-        if not self.linkkey_limiter.allow(req.asker, now):
-            return self._refused(logs, ShareRefusal.RATE_LIMITED, drone, req.asker), logs
-        reply = answer(self.identity, self.name, drone, req.asker, asker.public_bytes, req.m1, secret)
-        if isinstance(reply, Refused):  # claimed to be an authorized GS without its key
-            return self._refused(logs, reply.reason, drone, req.asker, reply.detail), logs
+        out = self.keyshare.answer(drone, req.asker, asker.public_bytes, req.m1, now, secret)
+        if isinstance(out, Refused):  # forged, over the rate limit, or claimed without the key
+            return self._refused(logs, out.reason, drone, req.asker, out.detail), logs
+        reply, fresh = out
+        if not fresh:
+            self.counters["linkkey_repeated"] += 1  # a replay or a retransmission: same answer, nothing new
+            return QueryAnswer(reply=reply), logs
         view = self.views[drone]
-        # Never touch the live link: the secret is a candidate until the drone speaks under it.
+        # Never touch the live link: the secret is a candidate until the drone speaks under it
+        # (one per asker: the newest replaces an older one).
         candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
         view.slot.offer(candidate, now, f"linkkey:{req.asker}", LINKKEY_CANDIDATE_TTL)
         self.counters["linkkey_shared"] += 1
@@ -394,6 +399,8 @@ class StationCore:
             return []
         if ok is None:
             self.counters["linkkey_reply_error"] += 1
+            if self.counters["linkkey_reply_error"] > 5:  # the first few in the log; all in the counters
+                return []
             return [Log("linkkey_error", {"drone": drone, "gs": gs, "reason": (err or b"").decode(errors="replace")[:120]})]
         ask = view.asks.get(gs)
         if ask is None:
@@ -403,8 +410,10 @@ class StationCore:
         if isinstance(secret, Refused):
             key = f"linkkey_reply:{secret.reason.value}"
             self.counters[key] += 1
+            if self.counters[key] > 5:  # the first few in the log; all in the counters
+                return []
             log.warning("key-sharing reply for %s from %s refused: %s", drone, gs, secret.reason.value)
-            return [Log("linkkey_bad_reply", {"drone": drone, "gs": gs, "reason": secret.reason.value})] if self.counters[key] <= 5 else []
+            return [Log("linkkey_bad_reply", {"drone": drone, "gs": gs, "reason": secret.reason.value})]
         del view.asks[gs]
         self._grant_id += 1
         view.grants[gs] = wire.KeyGrant(gs, self.fleet.nodes[gs].sysid, secret, self._grant_id)
@@ -475,7 +484,7 @@ class StationCore:
                 if state is HaState.HANDOVER_PENDING:
                     view.release_confirmed = True
                 elif state is HaState.LINKED and view.release_confirmed and view.handover_failed_epoch != msg.epoch:
-                    out += self._handover_failed(view)  # timed out or aborted: authority stayed here
+                    out += self._handover_failed(view, "release timed out")  # authority stayed here
         elif isinstance(msg, wire.KeyGrantAck):
             if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
                 del view.grants[msg.gs]
@@ -484,6 +493,9 @@ class StationCore:
         elif isinstance(msg, wire.Reject):
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
             out.append(Log("rejected", {"drone": view.name, "what": msg.what, "reason": msg.reason}))
+            if (msg.what == "release" and view.owner == self.name and view.released_epoch == view.epoch
+                    and view.handover_failed_epoch != view.epoch):
+                out += self._handover_failed(view, f"release refused: {msg.reason}")
         elif isinstance(msg, wire.FailsafeNotice):
             log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
             out.append(Log("failsafe_notice", {"drone": view.name, "action": msg.action, "reason": msg.reason}))
@@ -491,11 +503,14 @@ class StationCore:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
         return out
 
-    def _handover_failed(self, view: DroneView) -> list[Action]:
+    def _handover_failed(self, view: DroneView, reason: str) -> list[Action]:
+        """The hand-over cannot happen: authority stays here, and the vehicle comes home while it is
+        still in our coverage rather than flying out of it into a failsafe."""
         view.handover_failed_epoch = view.epoch
         view.released_epoch = None
-        log.warning("hand-over of %s failed: authority stays here; commanding RTL", view.name)
-        return [Log("handover_failed", {"drone": view.name, "epoch": view.epoch, "action": "RTL"}),
+        log.warning("hand-over of %s failed (%s): authority stays here; commanding RTL", view.name, reason)
+        return [Log("handover_failed", {"drone": view.name, "epoch": view.epoch, "action": "RTL", "reason": reason}),
+                Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); commanding RTL"),
                 *self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)]
 
     # ----------------------------------------------------------------- flying
@@ -571,6 +586,8 @@ class StationCore:
                 continue
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
+                if g not in view.drone_links and g not in view.granted:  # the drone holds no key for g
+                    return self._handover_failed(view, f"the drone has no link to {g}")
                 out: list[Action] = []
                 if view.released_epoch != view.epoch:
                     view.release_confirmed = False

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import os
-import queue
 import threading
 import time
 from dataclasses import dataclass
@@ -30,7 +29,7 @@ from zdrone.core.fleet import ConfigError
 from zdrone.fleetfiles import load_fleet, load_secret
 from zdrone.net import keyexprs as kx
 from zdrone.net.eventlog import EventLog
-from zdrone.net.inbox import drain, reply_bytes
+from zdrone.net.inbox import MAX_ENVELOPE, Inbox, payload_bytes, reply_bytes
 from zdrone.net.session import open_client, query_queue
 
 from .core import GCS_COMPID, Action, Ask, AskKind, CoreOptions, DroneView, FrameUp, Log, Put, Say, StationCore
@@ -39,6 +38,8 @@ from .planner import PlannedItem
 log = logging.getLogger(__name__)
 #: Key-sharing handshakes answered per loop turn at most (the rest wait in the bounded query queue).
 LINKKEY_PER_TURN = 2
+#: Key-sharing queries looked at per loop turn (refusals cost microseconds each).
+LINKKEY_QUERIES_PER_TURN = 256
 
 __all__ = ["GCS_COMPID", "DroneView", "GroundStation", "StationOptions", "run_station"]
 
@@ -83,7 +84,7 @@ class GroundStation:
         self.views = self.core.views
         self.counters = self.core.counters
         self.events = EventLog(opts.events, opts.gs)
-        self.rx: queue.SimpleQueue[tuple[str, str, Any]] = queue.SimpleQueue()
+        self.rx = Inbox()
         self._running = True
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
@@ -94,7 +95,7 @@ class GroundStation:
 
     # ------------------------------------------------------------------ plumbing
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        self.rx.put(("down", str(sample.key_expr).split("/")[1], sample.payload.to_bytes()))
+        self.rx.put_payload("down", str(sample.key_expr).split("/")[1], sample.payload, MAX_ENVELOPE)
 
     def _do(self, actions: list[Action]) -> None:
         """Carry out the core's actions."""
@@ -116,12 +117,14 @@ class GroundStation:
         drone, gs = a.drone, a.gs
         if a.kind is AskKind.PAIR:
             def on_reply(r: Any) -> None:
-                self.rx.put(("pair", drone, reply_bytes(r)))
+                self.rx.put("pair", drone, reply_bytes(r))
         else:
             def on_reply(r: Any) -> None:
-                self.rx.put(("linkkey", drone, (gs, reply_bytes(r))))
+                self.rx.put("linkkey", drone, (gs, reply_bytes(r)))
+        # every queryable on the key (ALL: a second queryable declared with a stolen password cannot
+        # hide the real one), every reply (NONE): the core picks the authentic one
         self.session.get(a.keyexpr, on_reply, payload=a.payload, timeout=a.timeout,
-                         consolidation=zenoh.ConsolidationMode.NONE)  # every reply: the core picks the authentic one
+                         target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
 
     def send_frame(self, view: DroneView, frame: bytes) -> None:
         """Seal and send one MAVLink frame to the drone (no-op without a link)."""
@@ -149,7 +152,7 @@ class GroundStation:
     def _serve_linkkeys(self, now: float) -> None:
         """Answer key-sharing queries: refusals cost no crypto; ``LINKKEY_PER_TURN`` handshakes at most."""
         handshakes = 0
-        while True:
+        for _ in range(LINKKEY_QUERIES_PER_TURN):
             q = self.linkkey_q.try_recv()
             if q is None:
                 return
@@ -157,8 +160,11 @@ class GroundStation:
                 if handshakes >= LINKKEY_PER_TURN:
                     self.counters["linkkey_deferred"] += 1
                     continue
-                ans, actions = self.core.on_linkkey_query(kx.gs_of(q.key_expr), q.payload.to_bytes() if q.payload else b"",
-                                                          now, os.urandom(32))
+                payload = payload_bytes(q.payload)
+                if payload is None:
+                    self.counters["linkkey_refused:oversize"] += 1
+                    continue
+                ans, actions = self.core.on_linkkey_query(kx.gs_of(q.key_expr), payload, now, os.urandom(32))
                 handshakes += ans.crypto
                 if ans.reply is not None:
                     q.reply(q.key_expr, ans.reply)
@@ -177,7 +183,7 @@ class GroundStation:
     # -------------------------------------------------------------------- loop
     def status(self) -> dict[str, Any]:
         extra = {name: source() for name, source in self.status_sources.items()}
-        return {**self.core.status(), **extra}
+        return {**self.core.status(), "inbox_dropped": self.rx.stats(), **extra}
 
     def print_view(self) -> None:
         """The telemetry view: one line per linked drone on stdout."""
@@ -201,7 +207,7 @@ class GroundStation:
         self._do(self.core.tick(now))
 
     def drain(self, timeout: float) -> None:
-        drain(self.rx, timeout, self._on_inbox)
+        self.rx.drain(timeout, self._on_inbox)
 
     def run(self) -> None:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)

@@ -104,7 +104,7 @@ def test_rogue_without_keys_is_refused_by_the_security_module(tmp_path):
     assert d.get("unknown_epoch", 0) > 0  # unsealed MAVLink commands
     assert d.get("auth_failed", 0) > 0  # envelopes sealed with a made-up key
     assert d.get("replay", 0) > 0  # captured sealed frames replayed from a third process
-    assert s["pairing"].get("pair_failed", 0) >= 1  # Noise KK with the wrong static key
+    assert s["pairing"].get("pair_refused:bad_mac", 0) >= 1  # Noise KK with the wrong static key: fails the tag
     rogue = read_events(out / "rogue.jsonl")
     assert any(e["type"] == "router_refused" for e in rogue)  # wrong router password
     done = next(e for e in rogue if e["type"] == "attack_done")

@@ -70,8 +70,17 @@ def test_forged_frames_are_counted_once_on_the_live_link():
 def test_candidates_are_bounded():
     _, slot = drone_slot()
     for i in range(MAX_CANDIDATES + 5):
-        slot.offer(make_pair(bytes([i]) * 32).drone, float(i), "pair", ttl=100.0)
+        slot.offer(make_pair(bytes([i]) * 32).drone, float(i), f"linkkey:{i}", ttl=100.0)
     assert len(slot.candidates) == MAX_CANDIDATES
+
+
+def test_a_newer_candidate_of_the_same_origin_replaces_the_older():
+    """Review F3: replays from one origin used to evict another origin's candidate."""
+    _, slot = drone_slot()
+    slot.offer(make_pair(bytes([1]) * 32).drone, 0.0, "grant", ttl=100.0)
+    for i in range(10):
+        slot.offer(make_pair(bytes([i + 2]) * 32).drone, float(i), "pair", ttl=100.0)
+    assert [c.origin for c in slot.candidates] == ["grant", "pair"]
 
 
 def test_empty_slot_counts_drops_as_unlinked():

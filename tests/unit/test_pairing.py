@@ -2,6 +2,7 @@ from zdrone.core.keys import Identity
 from zdrone.core.pairing import PairingFailed, PairingInitiator, respond
 
 DRONE, GS, STRANGER = Identity(bytes([1]) * 32), Identity(bytes([2]) * 32), Identity(bytes([3]) * 32)
+GS2 = Identity(bytes([4]) * 32)
 SECRET = bytes(range(32))
 
 
@@ -15,7 +16,7 @@ def test_kk_both_sides_get_the_same_directional_keys():
     assert not isinstance(gs_key, PairingFailed)
     assert gs_key.same_as(drone_key) and gs_key.up != gs_key.down
     assert SECRET not in m1 + m2  # never in clear
-    assert len(m1) == 48
+    assert len(m1) == 48 + 16  # Noise message 1 + the pair tag
 
 
 def test_initiator_without_fleet_key_fails():
@@ -68,11 +69,40 @@ def test_replayed_message1_gives_a_key_the_replayer_cannot_use():
     assert not first[1].same_as(replay[1])
 
 
-def test_pairing_guard_refuses_before_crypto_and_rate_limits():
-    from zdrone.core.pairing import PairingGuard
+def _responder(rate: float = 1.0, burst: float = 2.0):
+    from zdrone.core.pairing import PairingResponder
 
-    g = PairingGuard(frozenset({"A", "B", "X"}), frozenset({"A", "B"}), rate=1.0, burst=2)
-    assert g.admit("Z", 0.0) == "unknown" and g.admit("X", 0.0) == "unauthorized"
-    assert [g.admit("B", 0.0) for _ in range(4)] == [None, None, "rate_limited", "rate_limited"]
-    assert g.admit("A", 0.0) is None  # per peer
-    assert g.admit("B", 1.0) is None and g.admit("B", 1.0) == "rate_limited"
+    x = Identity(bytes([9]) * 32)
+    return PairingResponder(DRONE, "d1", {"A": GS.public, "B": GS2.public, "X": x.public}, frozenset({"A", "B"}),
+                            rate=rate, burst=burst)
+
+
+def test_pairing_responder_refuses_cheapest_first_and_rate_limits_only_authentic_queries():
+    r = _responder()
+    m1 = PairingInitiator(GS, "A", "d1", DRONE.public).start()
+    assert r.answer("Z", m1, 0.0, SECRET).refused == "unknown"
+    assert r.answer("X", m1, 0.0, SECRET).refused == "unauthorized"
+    assert r.answer("A", m1, 0.0, SECRET, policy="failsafe: re-pair only on the ground").refused.startswith("failsafe")
+    # forged in B's name (not B's key): silent, no crypto, no token spent
+    for _ in range(20):
+        forged = PairingInitiator(GS, "B", "d1", DRONE.public).start()
+        ans = r.answer("B", forged, 0.0, SECRET)
+        assert ans.refused == "bad_mac" and ans.silent and ans.reply is None and not ans.crypto
+    answers = [r.answer("B", PairingInitiator(GS2, "B", "d1", DRONE.public).start(), 0.0, SECRET) for _ in range(3)]
+    assert [a.key is not None for a in answers] == [True, True, False] and answers[2].refused == "rate_limited"
+    assert r.answer("A", m1, 0.0, SECRET).key is not None  # per GS
+
+
+def test_pairing_responder_answers_a_repeated_message1_with_the_same_reply_and_no_key():
+    r = _responder()
+    ini = PairingInitiator(GS, "A", "d1", DRONE.public)
+    m1 = ini.start()
+    first = r.answer("A", m1, 0.0, SECRET)
+    assert first.key is not None and first.reply is not None
+    for t in (0.5, 10.0, 59.0):
+        again = r.answer("A", m1, t, bytes(32))
+        assert again.reply == first.reply and again.key is None and again.refused == "repeated"
+    key = ini.finish(first.reply)
+    assert not isinstance(key, PairingFailed) and key.same_as(first.key)
+    late = r.answer("A", m1, 61.0, bytes(32))  # the cache forgot it: a new candidate, which only A could prove
+    assert late.key is not None and not late.key.same_as(first.key)

@@ -67,7 +67,7 @@ def test_attack1_forged_reply_before_and_after_the_real_one(fleet_dir):
     assert isinstance(forged, bytes)
     a.on_linkkey_reply("d1", "B", forged, None, 1.1)
     a.on_linkkey_reply("d1", "B", b"\x00" * 80, None, 1.1)
-    assert a.counters["linkkey_reply:auth_failed"] == 2 and not a.views["d1"].grants
+    assert a.counters["linkkey_reply:bad_mac"] == 2 and not a.views["d1"].grants  # refused by the tag
     ans, _ = b.on_linkkey_query("d1", ask.payload, 1.2, bytes(range(32)))
     a.on_linkkey_reply("d1", "B", ans.reply, None, 1.3)
     assert a.views["d1"].grants["B"].secret == bytes(range(32))
@@ -81,7 +81,8 @@ def test_attack2_query_claiming_b_without_b_key_is_refused_and_changes_nothing(f
     x = Identity.generate()
     forged = KeyShareAsk(x, "B", "A", a.fleet.nodes["A"].public_bytes, "d1", 0.0)  # claims to be B
     ans, logs = a.on_linkkey_query("d1", forged.payload, 2.0, bytes(32))
-    assert ans.reply is None and ans.error == b"auth_failed" and a.counters["linkkey_refused:auth_failed"] == 1
+    # refused by the tag before any crypto, and silently (no error to learn from)
+    assert ans.reply is None and ans.error is None and not ans.crypto and a.counters["linkkey_refused:bad_mac"] == 1
     ans, _ = a.on_linkkey_query("d1", b"junk", 2.0, bytes(32))
     assert ans.error == b"malformed" and not ans.crypto
     assert a.views["d1"].link is live and not a.views["d1"].slot.candidates
@@ -122,3 +123,37 @@ def test_mission_stages_are_a_table(fleet_dir):
     assert a.views["d1"].stage is Stage.IDLE  # no mission: nothing to fly
     assert a._flight(a.views["d1"], FlightAck(5.0, 400, True, 0)) == []
     assert a._flight(a.views["d1"], FlightTick(5.0)) == []
+
+
+def _in_overlap_nearer_b(a: StationCore, links: set[str]) -> None:
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+
+    view = a.views["d1"]
+    view.position = offset(HOME, 0.0, 300.0)  # 300 m from A's centre, 200 m from B's: inside both
+    view.drone_links = links
+
+
+def test_no_release_toward_a_gs_the_drone_has_no_key_for_the_vehicle_comes_home(fleet_dir):
+    """Review F2: with key sharing blocked, A used to release anyway (refused by the drone), keep
+    flying out of its coverage, and the drone failsafe-landed far from home."""
+    a = paired_a(fleet_dir)
+    _in_overlap_nearer_b(a, {"A"})
+    out = a.tick(10.0)
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    assert len(failed) == 1 and "no link to B" in failed[0].fields["reason"] and failed[0].fields["action"] == "RTL"
+    assert a.views["d1"].released_epoch is None and a.holds_authority(a.views["d1"])
+    assert not [x for x in a.tick(11.0) if isinstance(x, Log) and x.kind in ("handover_failed", "handover_release")]
+
+
+def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
+    from zdrone.core import wire
+
+    a = paired_a(fleet_dir)
+    _in_overlap_nearer_b(a, {"A", "B"})
+    out = a.tick(10.0)
+    assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["B"]
+    out = a._on_control(a.views["d1"], wire.Reject("release", "no link: no key installed for B"), 10.5)
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    assert len(failed) == 1 and failed[0].fields["reason"].startswith("release refused")
+    assert a.holds_authority(a.views["d1"]) and any(isinstance(x, Put) for x in out)  # the RTL command

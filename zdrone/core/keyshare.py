@@ -15,9 +15,12 @@ encrypted payload is a fresh 32-byte link secret for (drone, B).
   (forward secrecy from the ephemerals).
 * The prologue binds the protocol version, drone, owner and asker: a transcript for one triple is
   worthless for another.
-* A replayed message 1 makes B answer again (KK cannot tell), but the answer only creates a
-  *pending* secret that nobody but the real A can read, which expires unused: B's live link is
-  never touched (key confirmation, see ``linkslot``).
+* Both messages carry the cheap tag of ``kk`` (a key from A's and B's static keys): forged queries
+  and replies are refused in microseconds, before any Diffie-Hellman, before they can spend A's
+  rate-limit tokens at B, and without using up A's reply attempts.
+* A replayed message 1 gets B's first answer again (``kk.ResponseCache``) and creates nothing. A
+  new secret is only ever a *pending* one (one per asker: the newest replaces the older) until the
+  drone speaks under it: B's live link is never touched (key confirmation, see ``linkslot``).
 * Exactly one authentic reply per query: the handshake state of A accepts one message 2; after it
   the ask is finished and every later reply (a second queryable, a consolidation artefact, a
   replay) is counted and ignored. Two different authentic replies to one ask are impossible.
@@ -34,7 +37,8 @@ import enum
 import msgspec
 
 from .keys import KEY_LEN, Identity
-from .kk import KKInitiator, respond
+from .kk import KKFail, KKInitiator, ResponseCache, check_message1, respond
+from .ratelimit import RateLimiter
 
 #: How long an ask waits for B's reply before it is given up (the adapter asks again later).
 ASK_TIMEOUT = 5.0
@@ -53,8 +57,10 @@ class ShareRefusal(enum.Enum):
     MALFORMED = "malformed"
     UNKNOWN_ASKER = "unknown_asker"
     UNAUTHORIZED = "unauthorized"
+    BAD_MAC = "bad_mac"  # failed the cheap tag: forged or garbage, no crypto spent
     AUTH_FAILED = "auth_failed"
     RATE_LIMITED = "rate_limited"
+    EXHAUSTED = "exhausted"  # too many tag-valid replies to one ask
     NOT_WAITING = "not_waiting"  # a reply after the ask finished, expired or was never made
 
 
@@ -101,8 +107,8 @@ class KeyShareAsk:
         if self.done or self.expired(now):
             return Refused(ShareRefusal.NOT_WAITING, f"ask to {self.owner} already finished")
         secret = self._kk.read_reply(reply)
-        if secret is None:  # forged, replayed or garbage: the genuine reply may still come
-            return Refused(ShareRefusal.AUTH_FAILED, f"reply does not prove {self.owner}'s static key")
+        if isinstance(secret, KKFail):  # forged, replayed or garbage: the genuine reply may still come
+            return Refused(ShareRefusal(secret.value), f"reply does not prove {self.owner}'s static key")
         if len(secret) != KEY_LEN:
             return Refused(ShareRefusal.MALFORMED, "reply carries no link secret")
         self.done = True  # one authentic reply per ask: any later one is NOT_WAITING
@@ -111,14 +117,49 @@ class KeyShareAsk:
 
 def answer(me: Identity, owner: str, drone: str, asker: str, asker_public: bytes, m1: bytes,
            secret: bytes) -> bytes | Refused:
-    """The owner's side: check message 1 from ``asker``; return message 2 carrying ``secret``.
-
-    The caller has already checked (before any crypto) that ``asker`` is a GS authorized for
-    ``drone`` and is within its rate limit; ``secret`` is fresh randomness from the adapter.
-    """
+    """The owner's side of the handshake: check message 1 from ``asker``; return message 2
+    carrying ``secret`` (fresh randomness from the adapter). ``KeyShareResponder`` adds the checks
+    that come first."""
     if len(secret) != KEY_LEN:
         raise ValueError("link secret must be 32 bytes")
     msg2 = respond(me, asker_public, _prologue(drone, owner, asker), m1, secret)
-    if msg2 is None:
-        return Refused(ShareRefusal.AUTH_FAILED, f"query does not prove {asker}'s static key")
+    if isinstance(msg2, KKFail):
+        return Refused(ShareRefusal(msg2.value), f"query does not prove {asker}'s static key")
     return msg2
+
+
+#: A message 1 seen within this time gets its first answer again (a replay creates nothing).
+SHARE_RESPONSE_TTL = 60.0
+
+
+class KeyShareResponder:
+    """The owner's checks for one authenticated query, cheapest first, after the caller checked
+    that the asker is a GS of the fleet authorized for the drone (no crypto for those):
+
+    1. message 1's tag (~2 µs, no Diffie-Hellman): forged -> ``BAD_MAC``;
+    2. a message 1 seen before gets the same message 2 again and no new secret (``repeated``);
+    3. the asker's rate limit, charged only now (nobody without its key can spend its tokens);
+    4. the Noise handshake.
+    """
+
+    def __init__(self, me: Identity, owner: str, rate: float, burst: float) -> None:
+        self.me, self.owner = me, owner
+        self.limiter = RateLimiter(rate, burst)
+        self.cache = ResponseCache(SHARE_RESPONSE_TTL)
+
+    def answer(self, drone: str, asker: str, asker_public: bytes, m1: bytes, now: float,
+               secret: bytes) -> tuple[bytes, bool] | Refused:
+        """(message 2, new secret?) or why the query is refused."""
+        fail = check_message1(self.me, asker_public, _prologue(drone, self.owner, asker), m1)
+        if fail is not None:
+            return Refused(ShareRefusal(fail.value), f"query does not prove {asker}'s static key")
+        cached = self.cache.get(m1, now)
+        if cached is not None:
+            return cached, False
+        if not self.limiter.allow(asker, now):
+            return Refused(ShareRefusal.RATE_LIMITED, asker)
+        msg2 = answer(self.me, self.owner, drone, asker, asker_public, m1, secret)
+        if isinstance(msg2, Refused):
+            return msg2
+        self.cache.put(m1, msg2, now)
+        return msg2, True

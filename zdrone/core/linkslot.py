@@ -3,7 +3,8 @@
 Theory of operation
 -------------------
 No new key replaces a live one until its holder proves it. A new key (from pairing, from a key
-grant, from answering a key-sharing query) enters the slot as a *candidate* with an expiry. An
+grant, from answering a key-sharing query) enters the slot as a *candidate* with an expiry; a
+newer candidate of the same origin (the same GS's pairing, the same asker) replaces the older. An
 incoming envelope is tried under the live key first; if that fails before authentication, under
 each candidate, then under the key that was replaced last (for a short grace period, so frames
 already in flight under it are not lost). The first candidate that opens an authentic frame is
@@ -64,8 +65,13 @@ class LinkSlot:
         self.candidates.clear()
 
     def offer(self, link: SecureLink, now: float, origin: str, ttl: float = CANDIDATE_TTL) -> None:
-        """Add a candidate key; the oldest is forgotten beyond ``MAX_CANDIDATES``."""
+        """Add a candidate key. It replaces an earlier candidate of the same origin (each origin
+        only ever means its newest key); the oldest is forgotten beyond ``MAX_CANDIDATES``."""
         self.expire(now)
+        replaced = [c for c in self.candidates if c.origin == origin]
+        if replaced:
+            self.candidates = [c for c in self.candidates if c.origin != origin]
+            self.expired += len(replaced)
         self.candidates.append(_Candidate(link, now + ttl, origin))
         if len(self.candidates) > MAX_CANDIDATES:
             self.candidates.pop(0)

@@ -7,21 +7,23 @@ a fresh 32-byte link secret chosen by the drone. Both sides then derive the same
 key per direction). The prologue binds the protocol version and both names, so a transcript for
 one (drone, gs) pair cannot be replayed for another.
 
-Message 1 can be replayed (KK cannot tell a replay from a fresh one), so the drone treats the key
-of every pairing as a *candidate*: it replaces nothing until the GS proves it with an authentic
-frame under it (see ``linkslot``). A replayed message 1 therefore yields a candidate that only the
-real GS could prove, and that expires. The drone checks that the GS is authorized and within its
-rate limit before any crypto (``PairingGuard``).
+Message 1 can be replayed (KK cannot tell a replay from a fresh one). The drone answers a message 1
+it has seen with the message 2 it sent then (``kk.ResponseCache``), so a replay makes no new key;
+and it treats the key of every pairing as a *candidate*: it replaces nothing until the GS proves it
+with an authentic frame under it (see ``linkslot``). ``PairingResponder`` orders the checks
+cheapest first; a forged message 1 fails a 16-byte tag (``kk``) before any Diffie-Hellman and
+before it can spend the GS's rate-limit tokens.
 """
 
 from __future__ import annotations
 
 import enum
+from dataclasses import dataclass
 
 import msgspec
 
 from .keys import KEY_LEN, Identity, LinkKey
-from .kk import KKInitiator, respond as kk_respond
+from .kk import KKFail, KKInitiator, ResponseCache, check_message1, respond as kk_respond
 from .ratelimit import RateLimiter
 
 
@@ -66,8 +68,8 @@ class PairingInitiator:
         if self.state is not PairingState.SENT:
             return PairingFailed("pairing already finished")
         secret = self._kk.read_reply(message2)
-        if secret is None:
-            return PairingFailed(f"drone {self.drone} did not prove the fleet's static key (handshake failed)")
+        if isinstance(secret, KKFail):
+            return PairingFailed(f"drone {self.drone} did not prove the fleet's static key ({secret.value})")
         if len(secret) != KEY_LEN:
             self.state = PairingState.FAILED
             return PairingFailed("message 2 carries no link secret")
@@ -78,38 +80,80 @@ class PairingInitiator:
 def respond(
     me: Identity, drone: str, gs: str, gs_public: bytes, message1: bytes, secret: bytes
 ) -> tuple[bytes, LinkKey] | PairingFailed:
-    """The drone side: check message 1 from ``gs``; return message 2 and the (candidate) link key.
-
-    ``secret`` is the fresh 32-byte link secret (the adapter draws it from ``os.urandom``;
-    tests pass fixed bytes).
-    """
+    """The drone side of one handshake: check message 1 from ``gs``; return message 2 and the
+    (candidate) link key. ``secret`` is the fresh 32-byte link secret (the adapter draws it from
+    ``os.urandom``; tests pass fixed bytes). ``PairingResponder`` adds the checks that come first."""
     if len(secret) != KEY_LEN:
         raise ValueError("link secret must be 32 bytes")
     msg2 = kk_respond(me, gs_public, _prologue(drone, gs), message1, secret)
-    if msg2 is None:
-        return PairingFailed(f"ground station {gs} did not prove the fleet's static key (handshake failed)")
+    if isinstance(msg2, KKFail):
+        return PairingFailed(f"ground station {gs} did not prove the fleet's static key ({msg2.value})")
     return msg2, LinkKey.from_secret(drone, gs, secret)
 
 
-class PairingGuard:
-    """What a drone checks before it spends any crypto on a pairing request.
+@dataclass(frozen=True, slots=True)
+class PairAnswer:
+    """What the drone does with one pairing query.
 
-    ``admit(gs, now)`` is None when the request may go on to the handshake, else the reason it is
-    refused: not a ground station of the fleet, not authorized for this drone, or over its rate
-    limit (``rate`` handshakes per second per GS, bursts of ``burst``).
+    ``reply`` is message 2 to send (None: send ``refused`` as an error, or nothing if ``silent``);
+    ``key`` is a new candidate link key (None for a repeated message 1: its answer is re-sent);
+    ``crypto`` says whether a handshake was computed (the adapter's per-turn budget)."""
+
+    reply: bytes | None = None
+    key: LinkKey | None = None
+    refused: str | None = None
+    silent: bool = False
+    crypto: bool = False
+
+
+#: A message 1 seen within this time gets its first answer again (a replay creates nothing).
+PAIR_RESPONSE_TTL = 60.0
+
+
+class PairingResponder:
+    """Everything a drone checks for a pairing query, cheapest first.
+
+    1. the GS is in the fleet and authorized for this drone (``policy``: the authority machine's
+       extra rule, e.g. no re-pairing in failsafe in the air) -- refused with a reason;
+    2. message 1's tag (``kk`` module: ~2 µs, no Diffie-Hellman) -- forged: silently dropped;
+    3. a message 1 seen before gets the same message 2 again, and no new key;
+    4. the GS's rate limit (``rate`` handshakes per second, bursts of ``burst``), charged only now,
+       so nobody without the GS's key can spend its tokens;
+    5. the Noise handshake.
     """
 
-    def __init__(self, ground_stations: frozenset[str], authorized: frozenset[str], rate: float = 1.0,
-                 burst: float = 3.0) -> None:
+    def __init__(self, me: Identity, drone: str, ground_stations: dict[str, bytes], authorized: frozenset[str],
+                 rate: float = 1.0, burst: float = 3.0) -> None:
+        self.me, self.drone = me, drone
         self.ground_stations = ground_stations
         self.authorized = authorized
         self.limiter = RateLimiter(rate, burst)
+        self.cache = ResponseCache(PAIR_RESPONSE_TTL)
 
-    def admit(self, gs: str, now: float) -> str | None:
+    def admit(self, gs: str) -> str | None:
+        """Why a query from ``gs`` is refused before looking at it, or None."""
         if gs not in self.ground_stations:
             return "unknown"
         if gs not in self.authorized:
             return "unauthorized"
-        if not self.limiter.allow(gs, now):
-            return "rate_limited"
         return None
+
+    def answer(self, gs: str, message1: bytes, now: float, secret: bytes, policy: str | None = None) -> PairAnswer:
+        why = self.admit(gs) or policy
+        if why is not None:
+            return PairAnswer(refused=why)
+        prologue = _prologue(self.drone, gs)
+        fail = check_message1(self.me, self.ground_stations[gs], prologue, message1)
+        if fail is not None:
+            return PairAnswer(refused=fail.value, silent=True)
+        cached = self.cache.get(message1, now)
+        if cached is not None:
+            return PairAnswer(reply=cached, refused="repeated")
+        if not self.limiter.allow(gs, now):
+            return PairAnswer(refused="rate_limited", silent=True)
+        out = respond(self.me, self.drone, gs, self.ground_stations[gs], message1, secret)
+        if isinstance(out, PairingFailed):
+            return PairAnswer(refused="auth_failed", crypto=True)
+        msg2, key = out
+        self.cache.put(message1, msg2, now)
+        return PairAnswer(reply=msg2, key=key, crypto=True)

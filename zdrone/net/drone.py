@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import os
-import queue
 import threading
 import time
 from collections import Counter
@@ -26,7 +25,7 @@ from ..core.fleet import ConfigError
 from ..core.geometry import GeoPoint
 from ..core.keys import LinkKey
 from ..core.linkslot import CANDIDATE_TTL, LinkSlot, Promoted
-from ..core.pairing import PairingFailed, PairingGuard, respond
+from ..core.pairing import PairingResponder
 from ..core.tbm import TbmThresholds
 from ..core import wire
 from ..core.wire import KeyGrant, KeyGrantAck
@@ -35,7 +34,7 @@ from ..sil.coverage import CoverageGate
 from ..vehicle.link import VehicleLink
 from . import keyexprs as kx
 from .eventlog import EventLog
-from .inbox import drain
+from .inbox import MAX_ENVELOPE, Inbox, payload_bytes
 from .session import open_client, query_queue
 
 log = logging.getLogger(__name__)
@@ -83,8 +82,10 @@ class DroneNode:
         self.links: dict[str, SecureLink] = {}  # the live link of each slot
         self.candidates: dict[str, LinkKey] = {}  # keys granted by the authority, until the HA decides
         self.probation: dict[str, float] = {}  # GS -> until when we listen for its proof of a new key
-        self.guard = PairingGuard(frozenset(self.fleet.ground_stations()), frozenset(node.authorized_gs))
-        self.rx: queue.SimpleQueue[tuple[str, str, bytes]] = queue.SimpleQueue()
+        self.responder = PairingResponder(self.secret.identity, self.name,
+                                          {g: self.fleet.nodes[g].public_bytes for g in self.fleet.ground_stations()},
+                                          frozenset(node.authorized_gs))
+        self.rx = Inbox()
         self.subs: dict[str, Any] = {}
         self.counters: Counter[str] = Counter()
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
@@ -98,7 +99,7 @@ class DroneNode:
     # ------------------------------------------------------------------ zenoh
     def _on_sample(self, sample: zenoh.Sample) -> None:
         # Zenoh thread: hand over and return at once.
-        self.rx.put(("up", kx.gs_of(sample.key_expr), sample.payload.to_bytes()))
+        self.rx.put_payload("up", kx.gs_of(sample.key_expr), sample.payload, MAX_ENVELOPE)
 
     def _subscribe(self, gs: str) -> None:
         if gs not in self.subs:
@@ -292,33 +293,35 @@ class DroneNode:
     def _pair(self, q: zenoh.Query, now: float) -> int:
         """One pairing query; return 1 if a handshake was computed, else 0."""
         gs = kx.gs_of(q.key_expr)
-        admit = self.guard.admit(gs, now)
-        if admit is None:
-            admit = self.machine.pair_refusal(gs, self._on_ground())
-        if admit is not None:  # refused before any crypto
-            self.counters[f"pair_refused:{admit.split(':')[0]}"] += 1
-            if self.counters[f"pair_refused:{admit.split(':')[0]}"] <= 5:
-                self.events.write("pair_refused", gs=gs, reason=admit)
-            if not admit.startswith("rate_limited"):
-                q.reply_err(admit.encode())
+        payload = payload_bytes(q.payload)
+        if payload is None:
+            self._pair_refused(gs, "oversize")
             return 0
-        payload = q.payload.to_bytes() if q.payload is not None else b""
-        out = respond(self.secret.identity, self.name, gs, self.fleet.nodes[gs].public_bytes, payload, os.urandom(32))
-        if isinstance(out, PairingFailed):
-            self.counters["pair_failed"] += 1
-            self.events.write("pair_failed", gs=gs, reason=out.reason)
-            log.warning("pairing with %s failed: %s", gs, out.reason)
-            q.reply_err(out.reason.encode())
-            return 1
-        msg2, key = out
-        # The key is a candidate until the GS proves it: a replayed message 1 replaces nothing.
-        self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, key, now), now, "pair", PAIRING_TTL)
-        self.probation[gs] = now + PAIRING_TTL
-        self._sync_subscriptions(now)
-        q.reply(q.key_expr, msg2)
-        self.counters["pair_answered"] += 1
-        self.events.write("pair_answered", gs=gs)
-        return 1
+        policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self._on_ground())
+        ans = self.responder.answer(gs, payload, now, os.urandom(32), policy)
+        if ans.refused == "repeated":
+            self.counters["pair_repeated"] += 1  # a replay or a retransmission: the same answer again
+        elif ans.refused is not None:
+            self._pair_refused(gs, ans.refused)
+        if ans.reply is None:
+            if not ans.silent:
+                q.reply_err(ans.refused.encode() if ans.refused else b"refused")
+            return int(ans.crypto)
+        if ans.key is not None:
+            # The key is a candidate until the GS proves it (the newest pairing replaces an older one).
+            self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, ans.key, now), now, "pair", PAIRING_TTL)
+            self.probation[gs] = now + PAIRING_TTL
+            self._sync_subscriptions(now)
+            self.counters["pair_answered"] += 1
+            self.events.write("pair_answered", gs=gs)
+        q.reply(q.key_expr, ans.reply)
+        return int(ans.crypto)
+
+    def _pair_refused(self, gs: str, reason: str) -> None:
+        key = f"pair_refused:{reason.split(':')[0]}"
+        self.counters[key] += 1
+        if self.counters[key] <= 5:  # the first few of each reason in the log; all of them in the counters
+            self.events.write("pair_refused", gs=gs, reason=reason)
 
     # -------------------------------------------------------------------- loop
     def _telemetry(self, frames: list[bytes]) -> None:
@@ -350,6 +353,8 @@ class DroneNode:
 
     def status(self, now: float) -> dict[str, Any]:
         m = self.machine
+        for slot in self.slots.values():
+            slot.expire(now)
         v = self.vehicle.state()
         return {
             "owner": m.owner, "epoch": m.epoch, "state": m.state.value, "pending_to": m.pending_to,
@@ -364,6 +369,7 @@ class DroneNode:
                      for gs, slot in self.slots.items()},
             "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
             "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
+            "inbox_dropped": self.rx.stats(),
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
         }
 
@@ -384,7 +390,7 @@ class DroneNode:
 
     def step(self, wait: float) -> None:
         """One pass of the loop: wait up to ``wait`` s for the first envelope, then do everything."""
-        drain(self.rx, wait, self._on_envelope)
+        self.rx.drain(wait, self._on_envelope)
         now = time.monotonic()
         self._serve_pairing(now)
         self.vehicle.heartbeat(now)

@@ -22,6 +22,9 @@ from ..core.fleet import Fleet
 from . import keyexprs as kx
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+#: The largest Zenoh message a router or node accepts (Zenoh's default is 1 GiB). zdrone's largest
+#: is under 1 KiB; a bigger one is dropped by the receiving transport, and its sender's session stays.
+MAX_MESSAGE_SIZE = 65536
 
 
 def _rule(rid: str, messages: list[str], flows: list[str], keys: list[str]) -> dict[str, Any]:
@@ -68,7 +71,8 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str = DEFAULT_LIS
         "mode": "router",
         "listen": {"endpoints": [listen]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-        "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}}},
+        "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}},
+                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}},
         "access_control": access_control(fleet),
     }
 

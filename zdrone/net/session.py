@@ -11,6 +11,7 @@ import json5
 import zenoh
 
 from ..core.fleet import ConfigError
+from .routerconfig import MAX_MESSAGE_SIZE
 
 log = logging.getLogger(__name__)
 
@@ -21,7 +22,8 @@ def client_config(router: str, user: str, password: str) -> zenoh.Config:
         "mode": "client",
         "connect": {"endpoints": [router], "timeout_ms": 5000, "exit_on_failure": True},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-        "transport": {"auth": {"usrpwd": {"user": user, "password": password}}},
+        "transport": {"auth": {"usrpwd": {"user": user, "password": password}},
+                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}},
     }
     return zenoh.Config.from_json5(json.dumps(cfg))
 

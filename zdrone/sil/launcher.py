@@ -175,7 +175,7 @@ def _check_key_injection(o: Outcome) -> list[str]:
     a, done = o.gs_counters("A"), o.rogue_done("key-injection")
     why = flight_unaffected(o)
     why += _need(done.get("random", 0) > 0 and done.get("noise_own_key", 0) > 0, "the attacker sent no forged reply")
-    why += _need(a.get("linkkey_reply:auth_failed", 0) > 0, "A counted no linkkey_reply:auth_failed")
+    why += _need(a.get("linkkey_reply:bad_mac", 0) > 0, "A counted no linkkey_reply:bad_mac")
     why += _need(any(e["type"] == "linkkey_received" and e.get("gs") == "B" for e in o.gs["A"]), "A never got B's key")
     return why
 
@@ -189,23 +189,24 @@ def _check_linkkey_knockout(o: Outcome) -> list[str]:
     why = flight_unaffected(o)
     why += _need(done.get("forged_m1", 0) > 0 and done.get("junk", 0) > 0, "the attacker sent nothing")
     why += _need(done.get("replies", {}).get("ok", 0) == 0, "A answered a forged query with a secret")
-    why += _need(a.get("linkkey_refused:auth_failed", 0) > 0, "A counted no linkkey_refused:auth_failed")
+    why += _need(a.get("linkkey_refused:bad_mac", 0) > 0, "A counted no linkkey_refused:bad_mac")
     why += _need(a.get("linkkey_refused:malformed", 0) > 0, "A counted no linkkey_refused:malformed")
     return why
 
 
 def _check_pair_replay(o: Outcome) -> list[str]:
-    """``pair-replay``: Noise KK cannot tell a replayed message 1, so the drone answers it (or refuses
-    it as rate-limited); the key it draws stays a candidate that only the real A could prove, and
-    expires. The only pairing proven is A's genuine one."""
+    """``pair-replay``: Noise KK cannot tell a replayed message 1, so the drone answers it with the
+    message 2 it sent the first time (``pair_repeated``): no new key. After the response cache's 60 s a
+    replay draws one new key, a candidate that only the real A could prove. The only pairing proven is
+    A's genuine one."""
     done = o.rogue_done("pair-replay")
-    seen = o.drone_counter("pair_answered") + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred")
-    keys = o.summary["keys"].get("A", {})
+    seen = (o.drone_counter("pair_answered") + o.drone_counter("pair_repeated")
+            + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred"))
     why = flight_unaffected(o)
     why += _need(bool(o.rogue_events("pair-replay", "captured")) and done.get("replayed", 0) > 0, "nothing captured or replayed")
     why += _need(seen >= 1 + done.get("replayed", 0) // 2, f"the drone saw {seen} pairing queries of A")
     why += _need(len(o.confirmed("A", "pair")) == 1, "a replayed pairing key was proven")
-    why += _need(keys.get("expired", 0) > 0, "no replayed candidate expired")
+    why += _need(o.drone_counter("pair_repeated") > 0, "no replay was answered from the response cache")
     return why
 
 
@@ -263,6 +264,21 @@ def _check_gateway_flood(o: Outcome) -> list[str]:
     return why
 
 
+def _check_big_flood(o: Outcome) -> list[str]:
+    """``big-flood``: oversized payloads from B's stolen password must cost the nodes nothing: the
+    router drops those over 64 KiB, the nodes refuse the rest by length before copying them."""
+    done, a = o.rogue_done("big-flood"), o.gs_counters("A")
+    dropped = o.summary.get("drone_inbox_dropped", {})
+    why = flight_unaffected(o)
+    why += _need(done.get("big", 0) > 0 and done.get("huge", 0) > 0, "the attacker sent nothing")
+    why += _need(dropped.get("up:oversize", 0) > 0, f"the drone counted no up:oversize ({dropped})")
+    why += _need(o.drone_counter("pair_refused:oversize") > 0, "the drone counted no pair_refused:oversize")
+    why += _need(a.get("linkkey_refused:oversize", 0) > 0, "A counted no linkkey_refused:oversize")
+    why += _need(o.summary["authority_link"]["longest_silence_s"] <= 2.0,
+                 f"authority link silent {o.summary['authority_link']['longest_silence_s']} s")
+    return why
+
+
 _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 
@@ -271,7 +287,7 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("rogue-no-key",
              "A's stolen router password (no keys): pairs with its own key, sends unsealed and forged-sealed LAND, "
              "replays captured frames; tries a wrong router password",
-             "all dropped (unknown_epoch, auth_failed, replay, failed handshake); flight unaffected",
+             "all dropped (unknown_epoch, auth_failed, replay; its pairing fails the tag: pair_refused:bad_mac); flight unaffected",
              _check_no_key, rogues=(RogueSpec("no-key", MISSION_STARTED, sim_s=40.0, min_wall=10.0),)),
     Scenario("rogue-unauthorized",
              "GS X (in the fleet, not authorized) pairs and flies, asks for B's link key, publishes on A's key",
@@ -284,18 +300,18 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("key-injection",
              "B's router password only: a second queryable on backhaul/B/linkkey/* answers A's key-sharing "
              "queries with forged replies (random bytes, a Noise message 2 made with its own key)",
-             "A refuses them (linkkey_reply:auth_failed), takes the real B's key; flight unaffected",
+             "A refuses them by their tag (linkkey_reply:bad_mac), takes the real B's key; flight unaffected",
              _check_key_injection, rogues=(RogueSpec("key-injection", BEFORE_GS_A, sim_s=1600.0, min_wall=400.0),)),
     Scenario("linkkey-knockout",
              "B's router password only: key-sharing queries to A claiming to be B (message 1 made with its own key) "
              "and junk, 5/s in flight",
-             "A refuses them (linkkey_refused:auth_failed / malformed / rate_limited), its live link untouched",
+             "A refuses them before any crypto (linkkey_refused:bad_mac / malformed), its live link untouched",
              _check_linkkey_knockout,
              rogues=(RogueSpec("linkkey-knockout", MISSION_STARTED, go=AIRBORNE, sim_s=80.0, min_wall=15.0, rate=5.0),)),
     Scenario("pair-replay",
              "the drone's router password captures A's pairing message 1 before A starts; A's password replays it "
              "every second in flight",
-             "the drone answers but the key stays a candidate that expires; authority and A's link untouched",
+             "the drone answers with its first message 2 again (pair_repeated): no new key; authority and A's link untouched",
              _check_pair_replay, rogues=(RogueSpec("pair-replay", BEFORE_GS_A, go=AIRBORNE, sim_s=48.0, min_wall=12.0),)),
     Scenario("pair-flood",
              "B's private key and router password: >= 2000 valid pairing queries/s for 10 s in flight",
@@ -315,6 +331,12 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "A keeps flying and counts the refused applications (app_table_full)",
              _check_gateway_flood, rogues=(RogueSpec("gateway-flood", MISSION_STARTED, go=AIRBORNE, sim_s=100.0, min_wall=10.0),),
              gcs_a=True),
+    Scenario("big-flood",
+             "B's router password only: 60 KiB envelopes, pairing and key-sharing queries (20/s each) and 4 MiB "
+             "ones (1/s each), from the overlap on (through the hand-over)",
+             "the router drops > 64 KiB, the nodes refuse the rest by length (oversize); telemetry never stops",
+             _check_big_flood,
+             rogues=(RogueSpec("big-flood", MISSION_STARTED, go=REGION_ENTERED, sim_s=40.0, min_wall=10.0, rate=20.0),)),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
 SCENARIOS = tuple(SCENARIO_BY_NAME)
@@ -660,6 +682,7 @@ class Demo:
             "security_drops": drops, "security_drops_unlinked": unlinked, "ha_drops": ha_drops,
             "ha_rejects": final.get("rejects", {}),
             "pairing": final.get("counters", {}), "drone_counters": final.get("counters", {}), "keys": final.get("keys", {}),
+            "drone_inbox_dropped": final.get("inbox_dropped", {}),
             "gs_counters": {g: f.get("counters", {}) for g, f in gs_final.items()},
             "gateway_A": self._gateway_counters(gs_final.get("A", {})),
             "out_of_coverage": final.get("out_of_coverage", {}), "vehicle": self._vehicle_counters(),

@@ -42,6 +42,12 @@ sends every dangerous message id sealed on its link. The handover authority must
 ``uplink-unsealed``: A's router password only. Publishes the same dangerous ids on ``up/A``,
 unsealed and sealed with a random key: dropped by the security module before the authority.
 
+``big-flood``: B's router password only. Sends oversized payloads everywhere B's account may:
+envelopes on ``zdrone/<drone>/up/B``, pairing queries to the drone as B and key-sharing queries to A
+(60 KiB each, ``--rate`` per second of each), and one 4 MiB message of each kind per second. The
+router drops messages over 64 KiB; the nodes refuse the rest by their length before copying them
+(``up:oversize``, ``pair_refused:oversize``, ``linkkey_refused:oversize``) and fly on.
+
 ``gateway-flood``: a local process on GS A's machine (no credentials). Sends HEARTBEATs from 300+
 distinct UDP source ports and garbage datagrams to A's GCS gateway; A must keep flying and count
 the applications it refused (``app_table_full``).
@@ -87,7 +93,7 @@ from ..net.session import open_client
 log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
-         "uplink-sealed", "uplink-unsealed", "gateway-flood")
+         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood")
 ROGUE_COMPID = 190
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
 GO_TIMEOUT = 600.0
@@ -554,10 +560,41 @@ def gateway_flood(c: Ctx) -> None:
             sock.close()
 
 
+def big_flood(c: Ctx) -> None:
+    drone = c.drone
+    s = open_client(c.router, "B", c.password("B"))
+    replies = _Replies()
+    sent: Counter[str] = Counter()
+    big, huge = os.urandom(60 * 1024), os.urandom(4 * 1024 * 1024)
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        period, next_huge = 1.0 / c.rate, 0.0
+        while going():
+            s.put(kx.up(drone, "B"), big, congestion_control=zenoh.CongestionControl.DROP)
+            s.get(kx.pair(drone, "B"), replies, payload=big, timeout=1.0)
+            s.get(kx.linkkey("A", drone), replies, payload=big, timeout=1.0)
+            sent["big"] += 3
+            if time.monotonic() >= next_huge:
+                next_huge = time.monotonic() + 1.0
+                s.put(kx.up(drone, "B"), huge, congestion_control=zenoh.CongestionControl.DROP)
+                s.get(kx.pair(drone, "B"), replies, payload=huge, timeout=1.0)
+                s.get(kx.linkkey("A", drone), replies, payload=huge, timeout=1.0)
+                sent["huge"] += 3
+            c.stop.wait(period)
+        c.stop.wait(1.5)  # the last replies
+        c.events.write("attack_done", replies=replies.snapshot(), **sent)
+    finally:
+        s.close()
+
+
 ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
     "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
+    "big-flood": big_flood,
 }
 assert set(ATTACKS) == set(MODES)
 
