@@ -168,6 +168,7 @@ class CoreOptions:
     hysteresis_m: float = 20.0
     cipher: str = "zdrone"
     paper_heartbeat: bool = False
+    take_control: bool = False  # after a failsafe, ask for control as soon as our link is proven
 
 
 @dataclass
@@ -205,6 +206,7 @@ class DroneView:
     last_pair_try: float | None = None
     last_share_try: float | None = None
     last_command: float | None = None
+    last_take_control: float | None = None
 
 
 def _due(last: float | None, now: float, period: float) -> bool:
@@ -253,8 +255,20 @@ class StationCore:
             return []
         return [Put(kx.up(view.name, self.name), view.link.seal_control(msg))]
 
+    def request_control(self, view: DroneView, now: float) -> list[Action]:
+        """Ask the drone for authority (an operator's request): honoured in its failsafe if our link is
+        proven, else passed to the authority. Sent at most once a second."""
+        if view.link is None or view.owner == self.name and view.ha_state is not HaState.FAILSAFE:
+            return []
+        if not _due(view.last_take_control, now, 1.0):
+            return []
+        view.last_take_control = now
+        return [Log("control_requested", {"drone": view.name, "state": view.ha_state.value if view.ha_state else None}),
+                *self.send_control(view, wire.HandoverRequest(self.name, view.epoch))]
+
     def holds_authority(self, view: DroneView) -> bool:
-        return view.owner == self.name and view.released_epoch != view.epoch
+        return (view.owner == self.name and view.released_epoch != view.epoch
+                and view.ha_state is not HaState.FAILSAFE)
 
     def _heartbeat(self, view: DroneView) -> list[Action]:
         return self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -277,6 +291,8 @@ class StationCore:
                 out += self._share_keys(view, now)
             out += self._flight(view, FlightTick(now))
             out += self._coordinate(view, now)
+            if self.opts.take_control and view.ha_state is HaState.FAILSAFE:
+                out += self.request_control(view, now)
             out += self._command_stream(view, now)
         if now >= self._hb_due:
             self._hb_due = now + 1.0 / self.opts.heartbeat_hz
@@ -497,6 +513,7 @@ class StationCore:
                     and view.handover_failed_epoch != view.epoch):
                 out += self._handover_failed(view, f"release refused: {msg.reason}")
         elif isinstance(msg, wire.FailsafeNotice):
+            view.ha_state = HaState.FAILSAFE  # nobody holds authority until a GS takes control back
             log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
             out.append(Log("failsafe_notice", {"drone": view.name, "action": msg.action, "reason": msg.reason}))
         else:

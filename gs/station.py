@@ -60,6 +60,7 @@ class StationOptions:
     status_period: float = 1.0
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
     paper_heartbeat: bool = False  # also send the paper's separate 2 Hz security heartbeat
+    take_control: bool = False  # take control back after a failsafe (the operator's standing request)
 
 
 class GroundStation:
@@ -80,7 +81,8 @@ class GroundStation:
                 raise ConfigError(f"--drone {d}: not a drone of the fleet")
         self.core = StationCore(self.name, self.fleet, self.secret.identity, tuple(drones), CoreOptions(
             pair=opts.pair, mission=opts.mission, heartbeat_hz=opts.heartbeat_hz, command_rate=opts.command_rate,
-            hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat))
+            hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
+            take_control=opts.take_control))
         self.views = self.core.views
         self.counters = self.core.counters
         self.events = EventLog(opts.events, opts.gs)

@@ -150,7 +150,7 @@ def _gs(args: argparse.Namespace) -> int:
                                       heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
                                       events=args.events, cipher=getattr(args, "cipher", "zdrone"),
                                       paper_heartbeat=getattr(args, "paper_heartbeat", False),
-                                      gcs=tuple(args.gcs or ())))
+                                      gcs=tuple(args.gcs or ()), take_control=args.take_control))
 
 
 def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
@@ -167,6 +167,9 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--command-rate", type=float, default=0.0, metavar="HZ",
                    help="while in authority, send a harmless command stream (for hand-over checks)")
     p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    p.add_argument("--take-control", action="store_true",
+                   help="the operator's standing request: if the drone enters its failsafe, take control back as soon as "
+                        "this GS's link is proven (the vehicle goes on with the failsafe action until commanded)")
     if bench:
         p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
                        help="envelope; fernet/plain exist only to measure against (bench traffic)")

@@ -149,6 +149,24 @@ def test_link_loss_lands_the_drone(tmp_path):
 
 
 @pytest.mark.slow
+def test_failsafe_is_recovered_only_by_an_explicit_request(tmp_path):
+    """Issue 11: A (silent, the drone in its failsafe) wakes; its operator's request takes control back."""
+    s, out = run_demo(tmp_path, "failsafe-recover")
+    assert s["_rc"] == 0 and s["ok"], s
+    assert s["failsafe"]["action"] == "LAND"
+    assert [(r["from"], r["to"], r["epoch"]) for r in s["regained"]] == [("A", "A", 2)]
+    drone = read_events(out / "drone.jsonl")
+    states = [e["state"] for e in drone if e["type"] == "status"]
+    first_fs = states.index("failsafe")
+    assert "linked" in states[first_fs:]  # failsafe, then linked again (epoch 2)
+    assert any(e["type"] == "control_requested" for e in read_events(out / "A.jsonl"))
+    final = [e for e in drone if e["type"] == "stop"][0]
+    assert final["owner"] == "A" and final["epoch"] == 2 and not final["armed"] and final["landed_state"] == 1
+    assert s["distance_from_home_m"] > 20.0  # it went on landing where it was
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
 def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     s, out = run_demo(tmp_path, "gs-crash")
     assert s["_rc"] == 0 and s["ok"], s

@@ -261,3 +261,34 @@ def test_table_covers_every_non_gs_event_in_every_state():
             assert (state, ev) in ha.TRANSITIONS
         for ev in (Paired, Frame):
             assert (state, ev) in ha.TRANSITIONS
+
+
+def _failsafe_with_b_linked() -> AuthorityMachine:
+    m = machine()
+    linked_with_b(m)
+    m.handle(LinkChanged(2.0, "A", LinkState.LOST))  # B not proven: no heir
+    assert m.state is State.FAILSAFE
+    return m
+
+
+def test_failsafe_is_left_only_on_an_explicit_request_of_a_proven_authorized_gs():
+    """Issue 11: regain control after the failsafe, never automatically."""
+    m = _failsafe_with_b_linked()
+    prove(m, "B", 3.0)
+    assert m.state is State.FAILSAFE  # a proven link alone changes nothing
+    acts = m.handle(HandoverRequest(4.0, "B", "B"))
+    assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
+    assert AuthorityChanged("A", "B", 2, "regained") in acts
+    assert not any(isinstance(a, CommandVehicle) for a in acts)  # the vehicle goes on landing
+    assert m.handle(Frame(4.1, "B", AO)) == [Forward("B")]
+
+
+def test_failsafe_request_refused_unless_proven_for_itself_and_authorized():
+    m = _failsafe_with_b_linked()
+    acts = m.handle(HandoverRequest(3.0, "B", "B"))  # B's link not proven yet
+    assert m.state is State.FAILSAFE and any(isinstance(a, SendControl) and isinstance(a.msg, Reject) for a in acts)
+    prove(m, "B", 3.5)
+    m.handle(HandoverRequest(4.0, "B", "A"))  # for someone else: no
+    m.handle(HandoverRequest(4.0, "X", "X"))
+    assert m.state is State.FAILSAFE and m.owner == "A"
+    assert m.rejects["failsafe"] == 1 and m.rejects["unauthorized"] == 1 and m.rejects["not proven"] == 1

@@ -157,3 +157,16 @@ def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
     failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
     assert len(failed) == 1 and failed[0].fields["reason"].startswith("release refused")
     assert a.holds_authority(a.views["d1"]) and any(isinstance(x, Put) for x in out)  # the RTL command
+
+
+def test_after_a_failsafe_the_gs_asks_for_control_only_with_the_operators_request(fleet_dir):
+    from zdrone.core import wire
+
+    for standing in (False, True):
+        a = paired_a(fleet_dir)
+        a.opts = CoreOptions(pair=True, take_control=standing)
+        a._on_control(a.views["d1"], wire.FailsafeNotice("LAND", "authority link to A lost"), 5.0)
+        assert not a.holds_authority(a.views["d1"])  # the drone obeys nobody in its failsafe
+        asked = [x for x in a.tick(6.0) if isinstance(x, Log) and x.kind == "control_requested"]
+        assert len(asked) == (1 if standing else 0)
+        assert not [x for x in a.tick(6.5) if isinstance(x, Log) and x.kind == "control_requested"]  # 1/s at most

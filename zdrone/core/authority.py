@@ -3,7 +3,9 @@
 Theory of operation
 -------------------
 States: ``UNPAIRED -> LINKED(owner, epoch) -> HANDOVER_PENDING(owner -> to) -> LINKED(to, epoch+1)``
-and ``FAILSAFE`` (terminal until a GS re-pairs while the vehicle is on the ground).
+and ``FAILSAFE``. FAILSAFE ends when a GS re-pairs while the vehicle is on the ground, or when an
+authorized GS whose link is proven asks to take control (``HandoverRequest`` for itself: an
+operator's explicit request, never automatic) -> ``LINKED(gs, epoch+1)``.
 
 Exactly one GS holds authority in LINKED and HANDOVER_PENDING: ``owner``. Every MAVLink frame a GS
 sends up arrives classified by the drone's uplink policy (``zdrone.core.uplink``) and is checked in
@@ -193,7 +195,7 @@ class AuthorityChanged(Action):
     old: str | None
     new: str
     epoch: int
-    kind: str  # "paired" | "handover" | "emergency" | "repaired"
+    kind: str  # "paired" | "handover" | "emergency" | "repaired" | "regained"
 
 
 @dataclass(frozen=True, slots=True)
@@ -381,6 +383,8 @@ class AuthorityMachine:
         return State.UNPAIRED, [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
 
     def _on_frame_failsafe(self, ev: Frame) -> tuple[State, list[Action]]:
+        if ev.gs in self.links:
+            self.links[ev.gs].frames_since_ok += 1  # still proving its link: it may take control back
         if ev.gs not in self.links:
             reason = HaDrop.NOT_LINKED
         elif ev.uplink is UplinkClass.DENIED:
@@ -425,6 +429,20 @@ class AuthorityMachine:
         st = self.status()
         note = Note("handover_requested", f"{ev.sender} asks for {ev.to}")
         return self.state, [note, SendControl(self.owner, st)] if self.owner else [note]
+
+    def _on_request_failsafe(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
+        """An operator's explicit request to take control back after the failsafe (never automatic):
+        the requesting GS must be authorized and its link proven; it becomes the authority of a new
+        epoch, and the vehicle goes on with the failsafe action until it commands otherwise."""
+        if ev.to != ev.sender:
+            return State.FAILSAFE, self._reject(ev.sender, "handover_request", "failsafe: a GS may only take control itself")
+        if not self.is_authorized(ev.sender):
+            return State.FAILSAFE, self._reject(ev.sender, "handover_request", f"unauthorized: {ev.sender} is not authorized")
+        if not self.is_proven(ev.sender):
+            return State.FAILSAFE, self._reject(ev.sender, "handover_request", f"not proven: no live link from {ev.sender}")
+        acts: list[Action] = [Note("failsafe_recovered", f"{ev.sender} took control after the failsafe")]
+        acts += self._switch(ev.sender, ev.now, "regained")
+        return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
 
     def _on_link(self, ev: LinkChanged) -> tuple[State, list[Action]]:
         link = self.links.get(ev.gs)
@@ -510,9 +528,10 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.HANDOVER_PENDING, Tick): (AuthorityMachine._on_tick, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.FAILSAFE, Paired): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({S.FAILSAFE})),
+    (S.FAILSAFE, HandoverRequest): (AuthorityMachine._on_request_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, LinkChanged): (AuthorityMachine._on_link, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({S.FAILSAFE})),
 }
 # Missing on purpose (illegal steps, answered with a Reject): KeyGranted, HandoverRequest and
-# Release in UNPAIRED and FAILSAFE.
+# Release in UNPAIRED; KeyGranted and Release in FAILSAFE.

@@ -45,6 +45,9 @@ PAIRING_PER_TURN = 2
 PAIRING_QUERIES_PER_TURN = 256
 #: A pairing candidate must be proven by the GS within this time.
 PAIRING_TTL = 10.0
+#: The authority status goes to every linked GS at least this often (besides every change), so a
+#: GS that was hung or missed a change learns who holds authority within a second.
+STATUS_BEACON_S = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,6 +94,7 @@ class DroneNode:
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self._running = True
         self._next_status = 0.0
+        self._next_beacon = 0.0
         self._inside: frozenset[str] = frozenset()
         self.vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
         self.session = open_client(opts.router, opts.drone, self.secret.router_password)
@@ -400,6 +404,11 @@ class DroneNode:
         self._region(now)
         self._poll_links(now)
         self._handle(ha.Tick(now))
+        if now >= self._next_beacon:
+            self._next_beacon = now + STATUS_BEACON_S
+            st = self.machine.status()
+            for gs in sorted(self.links):
+                self._send_control(gs, st)
         if now >= self._next_status:
             self._next_status = now + self.opts.status_period
             self.events.write("status", **self.status(now))

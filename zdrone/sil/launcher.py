@@ -45,7 +45,8 @@ MISSION_STARTED = "mission_started"  # GS A's mission started (the drone is taki
 AIRBORNE = "airborne"  # armed and above 15 m
 REGION_ENTERED = "region_entered"  # first entry into the hand-over region
 HANDOVERS_DONE = "handovers_done"  # both hand-overs done: authority back at A, drone still in the overlap
-TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE)
+FAILSAFE_FIRED = "failsafe_fired"  # the drone entered its failsafe
+TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED)
 
 
 @dataclass(frozen=True)
@@ -67,7 +68,7 @@ class RogueSpec:
 
 @dataclass(frozen=True)
 class Fault:
-    """A GS process stopped (SIGSTOP) or killed (SIGKILL) at a moment of the flight."""
+    """A GS process stopped (SIGSTOP), resumed (SIGCONT) or killed (SIGKILL) at a moment of the flight."""
 
     trigger: str
     target: str  # child name: gsA, gsB
@@ -82,7 +83,8 @@ class Scenario:
     expected: str  # one line: what counts as success
     check: "Callable[[Outcome], list[str]]"  # the unmet conditions; [] = success
     rogues: tuple[RogueSpec, ...] = ()
-    fault: Fault | None = None
+    faults: tuple[Fault, ...] = ()
+    gs_a_extra: tuple[str, ...] = ()  # further options of GS A
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
 
@@ -264,6 +266,21 @@ def _check_gateway_flood(o: Outcome) -> list[str]:
     return why
 
 
+def _check_failsafe_recover(o: Outcome) -> list[str]:
+    """``failsafe-recover``: the failsafe fires; A, back, takes control by its operator's request (never
+    automatically: only a GS that asks gets it), in the next epoch; exactly one authority throughout."""
+    s = o.summary
+    fs_epoch = next((e.get("epoch") for e in reversed(o.drone) if e["type"] == "status" and e.get("state") == "failsafe"), None)
+    regained = s.get("regained", [])
+    why = _need(s["failsafe"] is not None, "no failsafe")
+    why += _need(len(regained) == 1 and regained[0]["to"] == "A", f"control not regained by A: {regained}")
+    why += _need(bool(regained) and fs_epoch is not None and regained[0]["epoch"] == fs_epoch + 1,
+                 f"regained in epoch {regained[0]['epoch'] if regained else None}, failsafe epoch {fs_epoch}")
+    why += _need(any(e["type"] == "control_requested" for e in o.gs["A"]), "A never asked for control")
+    why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}")
+    return why
+
+
 def _check_big_flood(o: Outcome) -> list[str]:
     """``big-flood``: oversized payloads from B's stolen password must cost the nodes nothing: the
     router drops those over 64 KiB, the nodes refuse the rest by length before copying them."""
@@ -281,6 +298,7 @@ def _check_big_flood(o: Outcome) -> list[str]:
 
 _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
+_RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("nominal", "the reference flight", "A->B and B->A in the overlap, landing at home", flight_unaffected),
@@ -294,9 +312,14 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "no answer: the router ACL stops its queries (the drone would refuse them before crypto); flight unaffected",
              _check_unauthorized, rogues=(RogueSpec("unauthorized", MISSION_STARTED, sim_s=30.0, min_wall=8.0),), gs_x=True),
     Scenario("link-loss", "GS A goes silent after take-off", "failsafe LAND <= 100 ms after the 3 s threshold",
-             _check_link_loss, fault=_STOP_A),
+             _check_link_loss, faults=(_STOP_A,)),
     Scenario("gs-crash", "GS B dies as the drone enters the overlap",
-             "the hand-over times out, authority stays with A, A brings it home", _check_gs_crash, fault=_KILL_B),
+             "the hand-over times out, authority stays with A, A brings it home", _check_gs_crash, faults=(_KILL_B,)),
+    Scenario("failsafe-recover",
+             "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
+             "operator's standing request (--take-control) asks for control back",
+             "failsafe LAND, then LINKED(A, epoch+1) by A's explicit request; the vehicle goes on landing",
+             _check_failsafe_recover, faults=(_STOP_A, _RESUME_A), gs_a_extra=("--take-control",)),
     Scenario("key-injection",
              "B's router password only: a second queryable on backhaul/B/linkkey/* answers A's key-sharing "
              "queries with forged replies (random bytes, a Noise message 2 made with its own key)",
@@ -503,7 +526,7 @@ class Demo:
         for r in spec.rogues:  # attackers that must be in place before A starts (and pairs)
             if r.launch == BEFORE_GS_A:
                 self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
-        a_extra = ["--pair", "--mission", o.mission, *gs_extra]
+        a_extra = ["--pair", "--mission", o.mission, *gs_extra, *spec.gs_a_extra]
         if spec.gcs_a:
             self.gcs_port = free_port(socket.SOCK_DGRAM)
             a_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port}"]
@@ -544,11 +567,12 @@ class Demo:
                     live.event(t or time.time(), f"scenario: attacker {r.mode} starts")
             if r.go == trigger:
                 self.pending_go.add(f"rogue-{r.mode}")
-        if spec.fault is not None and spec.fault.trigger == trigger:
-            self.signal(spec.fault.target, spec.fault.sig)
-            self.children[spec.fault.target].stopped = True
-            if live is not None:
-                live.event(t or time.time(), f"scenario: {spec.fault.text}")
+        for fault in spec.faults:
+            if fault.trigger == trigger:
+                self.signal(fault.target, fault.sig)
+                self.children[fault.target].stopped = fault.sig != signal.SIGCONT
+                if live is not None:
+                    live.event(t or time.time(), f"scenario: {fault.text}")
         self._send_go(live)
 
     def _send_go(self, live: "LiveView | None") -> None:
@@ -623,6 +647,9 @@ class Demo:
                 self._fire(HANDOVERS_DONE, live, ev["t"])
         if t == "failsafe":
             state["failsafe"] = ev
+            self._fire(FAILSAFE_FIRED, live, ev["t"])
+        if t == "authority" and ev.get("kind") == "regained":
+            state.setdefault("regained", []).append({k: ev.get(k) for k in ("from", "to", "epoch", "time", "position")})
         shown = t not in ("subscribe", "unsubscribe", "link_state", "drop") or (t == "drop" and len(live.lines) < 200)
         if shown:
             live.event(ev["t"], _describe(ev))
@@ -671,7 +698,7 @@ class Demo:
         refused = min(int(ha_drops.get("not_authority", 0)), max(0, cmd_sent - cmd_fwd))
         summary: dict[str, Any] = {
             "scenario": sc, "ok": False, "timed_out": timed_out, "wall_time_s": round(wall, 2), "speedup": self.opts.speedup,
-            "handovers": state["handovers"], "authority_gap_ms": gap_ms,
+            "handovers": state["handovers"], "authority_gap_ms": gap_ms, "regained": state.get("regained", []),
             "failsafe": None if state["failsafe"] is None else {k: state["failsafe"].get(k) for k in ("action", "reason", "detect_to_command_ms", "position")},
             "final_position": pos, "distance_from_home_m": None if home_dist is None else round(home_dist, 2),
             "final_owner": final.get("owner"),
