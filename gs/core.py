@@ -51,7 +51,7 @@ from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.net import keyexprs as kx
 
-from .planner import MissionUploader, PlannedItem
+from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,18 @@ USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG
                          mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, mav.MAVLINK_MSG_ID_MISSION_CURRENT,
                          mav.MAVLINK_MSG_ID_STATUSTEXT, mav.MAVLINK_MSG_ID_COMMAND_ACK,
                          mav.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mav.MAVLINK_MSG_ID_MISSION_REQUEST,
-                         mav.MAVLINK_MSG_ID_MISSION_ACK})
+                         mav.MAVLINK_MSG_ID_MISSION_ACK, mav.MAVLINK_MSG_ID_SYS_STATUS,
+                         mav.MAVLINK_MSG_ID_PARAM_VALUE})
+AUTOPILOT_NAMES = {mav.MAV_AUTOPILOT_PX4: "px4", mav.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
+#: ArduPilot's "continue after land" mission option (MIS_OPTIONS bit 2): the reference flight
+#: lands at the delivery point and goes on.
+ARDUPILOT_CONTINUE_AFTER_LAND = 4
+#: Tries of a refused or unanswered ARM / MISSION_START / PARAM_SET before the mission is given up.
+MAX_TRIES = 30
+RETRY_AFTER_S = 2.0
+#: Without a pre-arm health report, try to arm after this long (the vehicle's refusal decides).
+READY_WAIT_S = 3.0
+TEXTS_KEPT = 8
 #: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
 LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
 #: A secret handed out over the backhaul waits this long for the drone to prove it (the drone first
@@ -74,8 +85,10 @@ STAGE_TIMEOUT = 3.0
 class Stage(enum.Enum):
     """Where the GS is in flying its mission with one drone."""
 
-    IDLE = "idle"
+    IDLE = "idle"  # waiting to know the autopilot (its HEARTBEAT)
+    PREPARING = "preparing"  # ArduPilot: MIS_OPTIONS "continue after land" set and confirmed
     UPLOADING = "uploading"
+    WAITING_READY = "waiting_ready"  # pre-arm checks (SYS_STATUS) or the next try after a refusal
     ARMING = "arming"
     STARTING = "starting"
     FLYING = "flying"
@@ -158,6 +171,15 @@ class FlightAck:
 
 
 @dataclass(frozen=True, slots=True)
+class FlightParam:
+    """A PARAM_VALUE from the vehicle."""
+
+    now: float
+    name: str
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
 class CoreOptions:
     """What the GS core needs of the command line."""
 
@@ -203,6 +225,11 @@ class DroneView:
     release_confirmed: bool = False  # the drone reported HANDOVER_PENDING for our release
     handover_failed_epoch: int | None = None
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
+    autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
+    prearm_ok: bool | None = None  # SYS_STATUS pre-arm health (None: not reported)
+    texts: list[tuple[float, str]] = field(default_factory=list)  # the vehicle's recent STATUSTEXTs
+    tries: int = 0  # of the current stage's command (arm, start, parameter)
+    next_try: float = 0.0
     last_pair_try: float | None = None
     last_share_try: float | None = None
     last_command: float | None = None
@@ -468,12 +495,23 @@ class StationCore:
         elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:
             view.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
             view.custom_mode = msg.custom_mode
+            if view.autopilot is None:
+                view.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, "other")
+                out.append(Log("autopilot", {"drone": drone, "autopilot": view.autopilot, "type": msg.type}))
+        elif t == "SYS_STATUS":
+            if msg.onboard_control_sensors_present & mav.MAV_SYS_STATUS_PREARM_CHECK:
+                view.prearm_ok = bool(msg.onboard_control_sensors_health & mav.MAV_SYS_STATUS_PREARM_CHECK)
+        elif t == "PARAM_VALUE":
+            name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
+            out += self._flight(view, FlightParam(now, name, float(msg.param_value)))
         elif t == "EXTENDED_SYS_STATE":
             view.landed_state = msg.landed_state
         elif t == "MISSION_CURRENT":
             view.mission_seq = msg.seq
         elif t == "STATUSTEXT":
-            out.append(Log("vehicle_text", {"drone": drone, "text": msg.text}))
+            text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
+            view.texts = (view.texts + [(now, text)])[-TEXTS_KEPT:]
+            out.append(Log("vehicle_text", {"drone": drone, "text": text, "severity": msg.severity}))
         if view.uploader is not None:
             for m in view.uploader.on_message(msg, now, self.sysid):
                 out += self.send_msg(view, m)
@@ -536,20 +574,76 @@ class StationCore:
             log.info("mission %s: %s -> %s", view.name, view.stage.value, stage.value)
             view.stage, view.stage_time = stage, now
 
-    def _flight(self, view: DroneView, ev: FlightTick | FlightAck) -> list[Action]:
+    def _flight(self, view: DroneView, ev: "FlightTick | FlightAck | FlightParam") -> list[Action]:
         if self.opts.mission is None or not self.holds_authority(view) or view.grants:
             return []
         handler = FLIGHT.get((view.stage, type(ev)))
         return handler(self, view, ev) if handler is not None else []
 
+    def _reasons(self, view: DroneView, now: float) -> list[str]:
+        """What the vehicle said in the last seconds: the reason of a refusal, as far as it gives one."""
+        return [t for (when, t) in view.texts if now - when <= 3.0]
+
+    def _try_again(self, view: DroneView, stage: Stage, now: float, what: str, result: int | None) -> list[Action]:
+        """A refused or unanswered step: try again after ``RETRY_AFTER_S``, at most ``MAX_TRIES`` times."""
+        view.tries += 1
+        reasons = self._reasons(view, now)
+        log_ = Log("vehicle_refused", {"drone": view.name, "what": what, "result": result, "try": view.tries,
+                                        "texts": reasons})
+        if view.tries >= MAX_TRIES:
+            return [log_, *self._give_up(view, now, f"{what} refused {view.tries} times: "
+                                                    f"{'; '.join(reasons) or f'result {result}'}")]
+        view.next_try = now + RETRY_AFTER_S
+        self._set_stage(view, stage, now)
+        return [log_]
+
+    def _give_up(self, view: DroneView, now: float, reason: str) -> list[Action]:
+        """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
+        self._set_stage(view, Stage.FAILED, now)
+        out: list[Action] = [Log("mission_failed", {"drone": view.name, "reason": reason}),
+                             Say(f"zdrone gs {self.name}: mission for {view.name} failed: {reason}")]
+        if view.armed and view.landed_state != mav.MAV_LANDED_STATE_IN_AIR:
+            out += self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+        return out
+
+    def _identify(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        """Wait for the autopilot's HEARTBEAT; ArduPilot first gets "continue after land"."""
+        if view.autopilot is None:
+            return []
+        view.tries = 0
+        if view.autopilot == "ardupilot":
+            self._set_stage(view, Stage.PREPARING, ev.now)
+            return self._set_mis_options(view, ev.now)
+        return self._start_upload(view, ev)
+
+    def _set_mis_options(self, view: DroneView, now: float) -> list[Action]:
+        view.next_try = now + RETRY_AFTER_S
+        return self.send_msg(view, mav.MAVLink_param_set_message(view.sysid, 1, b"MIS_OPTIONS", float(ARDUPILOT_CONTINUE_AFTER_LAND),
+                                                               mav.MAV_PARAM_TYPE_INT16))
+
+    def _preparing_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        if ev.now < view.next_try:
+            return []
+        view.tries += 1
+        if view.tries >= MAX_TRIES:
+            return self._give_up(view, ev.now, "MIS_OPTIONS (continue after land) never confirmed")
+        return self._set_mis_options(view, ev.now)
+
+    def _preparing_param(self, view: DroneView, ev: FlightParam) -> list[Action]:
+        if ev.name != "MIS_OPTIONS" or not int(ev.value) & ARDUPILOT_CONTINUE_AFTER_LAND:
+            return []
+        return [Log("vehicle_param", {"drone": view.name, "name": ev.name, "value": ev.value}),
+                *self._start_upload(view, FlightTick(ev.now))]
+
     def _start_upload(self, view: DroneView, ev: FlightTick) -> list[Action]:
         assert self.opts.mission is not None
-        view.uploader = MissionUploader(self.opts.mission, target=(view.sysid, 1))
+        items = encode_mission(self.opts.mission, view.autopilot if view.autopilot in AUTOPILOTS else "px4")
+        view.uploader = MissionUploader(items, target=(view.sysid, 1))
         out: list[Action] = []
         for m in view.uploader.start(ev.now):
             out += self.send_msg(view, m)
         self._set_stage(view, Stage.UPLOADING, ev.now)
-        return out + [Log("mission_upload", {"drone": view.name, "items": len(self.opts.mission)})]
+        return out + [Log("mission_upload", {"drone": view.name, "items": len(items), "autopilot": view.autopilot})]
 
     def _upload_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
         assert view.uploader is not None
@@ -558,32 +652,54 @@ class StationCore:
             out += self.send_msg(view, m)
         if view.uploader.done:
             if view.uploader.accepted:
-                self._set_stage(view, Stage.ARMING, ev.now)
-                out += self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+                view.tries, view.next_try = 0, 0.0
+                self._set_stage(view, Stage.WAITING_READY, ev.now)
             else:
-                self._set_stage(view, Stage.FAILED, ev.now)
-                out.append(Log("mission_upload_failed", {"drone": view.name, "result": view.uploader.result}))
+                out += self._give_up(view, ev.now, f"mission upload refused (MISSION_ACK {view.uploader.result})")
         return out
+
+    def _ready_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        """Arm once the vehicle reports its pre-arm checks passed (or, if it reports nothing, after a
+        short wait: its refusal then says why and the GS tries again)."""
+        if ev.now < view.next_try:
+            return []
+        if view.armed:  # armed already (e.g. a retried start): go on with the start
+            self._set_stage(view, Stage.STARTING, ev.now)
+            return self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
+        if view.prearm_ok is False or (view.prearm_ok is None and ev.now - view.stage_time < READY_WAIT_S):
+            return []
+        self._set_stage(view, Stage.ARMING, ev.now)
+        return self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def _stage_timeout(self, view: DroneView, ev: FlightTick) -> list[Action]:
         if ev.now - view.stage_time > STAGE_TIMEOUT:
-            self._set_stage(view, Stage.IDLE, ev.now)  # no answer: start over
+            what = "arm" if view.stage is Stage.ARMING else "mission start"
+            return self._try_again(view, Stage.WAITING_READY, ev.now, f"{what} (no answer)", None)
+        if view.stage is Stage.STARTING and not view.armed and ev.now - view.stage_time > 2.0:
+            return self._try_again(view, Stage.WAITING_READY, ev.now, "mission start (disarmed meanwhile)", None)
         return []
 
     def _arm_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
         if ev.command != mav.MAV_CMD_COMPONENT_ARM_DISARM:
             return []
         if not ev.accepted:
-            self._set_stage(view, Stage.FAILED, ev.now)
-            return [Log("arm_failed", {"drone": view.name, "result": ev.result})]
+            return self._try_again(view, Stage.WAITING_READY, ev.now, "arm", ev.result)
         self._set_stage(view, Stage.STARTING, ev.now)
-        return self._command(view, mav.MAV_CMD_MISSION_START)
+        return self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
 
     def _start_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
         if ev.command != mav.MAV_CMD_MISSION_START:
             return []
-        self._set_stage(view, Stage.FLYING if ev.accepted else Stage.FAILED, ev.now)
-        return [Log("mission_started" if ev.accepted else "mission_start_failed", {"drone": view.name, "result": ev.result})]
+        if ev.accepted:
+            self._set_stage(view, Stage.FLYING, ev.now)
+            return [Log("mission_started", {"drone": view.name, "result": ev.result})]
+        reasons = " ".join(self._reasons(view, ev.now)).lower()
+        if "requires position" in reasons or ev.result == mav.MAV_RESULT_TEMPORARILY_REJECTED:
+            return self._try_again(view, Stage.WAITING_READY, ev.now, "mission start", ev.result)  # not ready yet
+        # a refusal that waiting cannot fix (e.g. PX4: the mission is not feasible)
+        out = [Log("mission_start_failed", {"drone": view.name, "result": ev.result, "texts": self._reasons(view, ev.now)})]
+        return out + self._give_up(view, ev.now, f"mission start refused (result {ev.result}): "
+                                                 f"{'; '.join(self._reasons(view, ev.now)) or 'no reason given'}")
 
     def _coordinate(self, view: DroneView, now: float) -> list[Action]:
         """Release authority toward the GS whose coverage the drone is flying into."""
@@ -640,8 +756,11 @@ class StationCore:
 Handler = Callable[[StationCore, DroneView, Any], "list[Action]"]
 #: The mission stages: (stage, event type) -> handler. Pairs not listed do nothing.
 FLIGHT: dict[tuple[Stage, type], Handler] = {
-    (Stage.IDLE, FlightTick): StationCore._start_upload,
+    (Stage.IDLE, FlightTick): StationCore._identify,
+    (Stage.PREPARING, FlightTick): StationCore._preparing_tick,
+    (Stage.PREPARING, FlightParam): StationCore._preparing_param,
     (Stage.UPLOADING, FlightTick): StationCore._upload_tick,
+    (Stage.WAITING_READY, FlightTick): StationCore._ready_tick,
     (Stage.ARMING, FlightTick): StationCore._stage_timeout,
     (Stage.STARTING, FlightTick): StationCore._stage_timeout,
     (Stage.ARMING, FlightAck): StationCore._arm_ack,

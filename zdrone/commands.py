@@ -126,7 +126,7 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
 
 
 def _gs(args: argparse.Namespace) -> int:
-    from gs.planner import load_plan, reference_mission
+    from gs.planner import load_plan, reference_plan
     from gs.station import StationOptions, run_station
 
     from .vehicle.transport import parse_endpoint
@@ -135,7 +135,7 @@ def _gs(args: argparse.Namespace) -> int:
         parse_endpoint(conn)  # a bad endpoint is a usage error before anything connects
     mission = None
     if args.mission == "reference":
-        mission = reference_mission()
+        mission = reference_plan()  # autopilot-neutral: the GS encodes it for the autopilot it finds
     elif args.mission and args.mission.startswith("shuttle:"):
         from gs.planner import shuttle_mission
 
@@ -191,8 +191,13 @@ def _demo(args: argparse.Namespace) -> int:
     from .sil.launcher import DemoOptions, run_demo
 
     live = True if args.live else (False if args.no_live else None)
+    if args.vehicle:
+        from .vehicle.transport import parse_endpoint
+
+        parse_endpoint(args.vehicle)  # a bad connection is a usage error before anything starts
     return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=args.speedup,
-                                live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report))
+                                live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
+                                autopilot=args.autopilot, vehicle=args.vehicle))
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
@@ -211,6 +216,12 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--live", action="store_true", help="force the live view")
     g.add_argument("--no-live", action="store_true", help="plain event lines (default when not a terminal)")
     p.add_argument("--no-report", action="store_true", help="do not write the HTML flight report")
+    v = p.add_mutually_exclusive_group()
+    v.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                   help="personality of the built-in simulator (default px4)")
+    v.add_argument("--vehicle", metavar="CONN",
+                   help="fly an autopilot that is already running at the reference home instead of the simulator: "
+                        "udpin:127.0.0.1:14540 (PX4 SITL), tcp:127.0.0.1:5760 (ArduPilot SITL), a serial port")
     p.set_defaults(func=_demo)
 
 

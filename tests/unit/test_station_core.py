@@ -8,7 +8,7 @@ from zdrone.core.keys import Identity
 from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
 from zdrone.fleetfiles import init_fleet, load_fleet, load_secret
-from gs.core import Ask, AskKind, CoreOptions, Log, Put, StationCore, Stage
+from gs.core import Ask, AskKind, CoreOptions, Log, Put, Say, StationCore, Stage
 
 
 @pytest.fixture(scope="module")
@@ -170,3 +170,77 @@ def test_after_a_failsafe_the_gs_asks_for_control_only_with_the_operators_reques
         asked = [x for x in a.tick(6.0) if isinstance(x, Log) and x.kind == "control_requested"]
         assert len(asked) == (1 if standing else 0)
         assert not [x for x in a.tick(6.5) if isinstance(x, Log) and x.kind == "control_requested"]  # 1/s at most
+
+
+def _flying_core(fleet_dir, autopilot: str) -> StationCore:
+    from gs.planner import reference_plan
+
+    a = paired_a(fleet_dir)
+    a.opts = CoreOptions(pair=True, mission=reference_plan())
+    a.views["d1"].autopilot = autopilot
+    return a
+
+
+def test_the_mission_is_encoded_for_the_autopilot_found(fleet_dir):
+    from gs.core import FlightParam, FlightTick
+
+    px4 = _flying_core(fleet_dir, "px4")
+    logs = [x for x in px4._flight(px4.views["d1"], FlightTick(1.0)) if isinstance(x, Log)]
+    assert logs[-1].kind == "mission_upload" and logs[-1].fields["items"] == 7  # no second take-off
+    ap = _flying_core(fleet_dir, "ardupilot")
+    assert ap._flight(ap.views["d1"], FlightTick(1.0)) and ap.views["d1"].stage is Stage.PREPARING  # MIS_OPTIONS first
+    assert ap._flight(ap.views["d1"], FlightParam(1.1, "MIS_OPTIONS", 0.0)) == []  # not yet set
+    logs = [x for x in ap._flight(ap.views["d1"], FlightParam(1.2, "MIS_OPTIONS", 4.0)) if isinstance(x, Log)]
+    assert logs[-1].fields["items"] == 9 and ap.views["d1"].stage is Stage.UPLOADING  # home placeholder + both take-offs
+
+
+def _uploaded(a: StationCore) -> None:
+    view = a.views["d1"]
+    view.stage, view.stage_time, view.tries, view.next_try = Stage.WAITING_READY, 10.0, 0, 0.0
+
+
+def test_arming_waits_for_the_pre_arm_checks_and_retries_a_refusal_with_its_reason(fleet_dir):
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.core import MAX_TRIES, FlightAck, FlightTick
+
+    a = _flying_core(fleet_dir, "ardupilot")
+    view = a.views["d1"]
+    _uploaded(a)
+    view.prearm_ok = False
+    assert a._flight(view, FlightTick(20.0)) == [] and view.stage is Stage.WAITING_READY  # not ready: no ARM
+    view.prearm_ok = None
+    assert a._flight(view, FlightTick(11.0)) == []  # no report: a short wait first
+    assert any(isinstance(x, Put) for x in a._flight(view, FlightTick(13.5))) and view.stage is Stage.ARMING
+    view.texts = [(13.6, "Arm: EKF attitude is bad")]
+    out = a._flight(view, FlightAck(13.7, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+    refused = [x for x in out if isinstance(x, Log) and x.kind == "vehicle_refused"]
+    assert refused and refused[0].fields["texts"] == ["Arm: EKF attitude is bad"] and view.stage is Stage.WAITING_READY
+    for i in range(MAX_TRIES):
+        view.stage = Stage.ARMING
+        out = a._flight(view, FlightAck(14.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+    assert view.stage is Stage.FAILED
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "mission_failed"]
+    assert failed and failed[0].fields["reason"].startswith(f"arm refused {MAX_TRIES} times")
+
+
+def test_a_start_refusal_waiting_cannot_fix_disarms_and_says_why(fleet_dir):
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.core import FlightAck
+
+    a = _flying_core(fleet_dir, "px4")
+    view = a.views["d1"]
+    view.stage, view.armed, view.landed_state = Stage.STARTING, True, mav.MAV_LANDED_STATE_ON_GROUND
+    view.texts = [(30.0, "Mission rejected: takeoff not first waypoint item")]
+    out = a._flight(view, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "mission_failed"]
+    assert view.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
+    assert any(isinstance(x, Say) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
+    # ArduPilot before its position estimate: not a failure, a later try
+    b = _flying_core(fleet_dir, "ardupilot")
+    vb = b.views["d1"]
+    vb.stage, vb.armed = Stage.STARTING, True
+    vb.texts = [(30.0, "Mode change to AUTO failed: requires position")]
+    b._flight(vb, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED))
+    assert vb.stage is Stage.WAITING_READY and vb.next_try > 30.1

@@ -400,6 +400,8 @@ class DemoOptions:
     quiet: bool = False
     max_wall: float | None = None  # stop measuring after this many wall seconds (not a failure)
     mission: str = "reference"
+    autopilot: str = "px4"  # personality of the built-in simulator
+    vehicle: str | None = None  # an autopilot already running (no simulator started)
 
 
 @dataclass
@@ -493,12 +495,23 @@ class Demo:
         r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
                        + (["--tap", "tap.json"] if o.tap else []))
         self.wait_line(r, "listening", 20)
-        sim = self.start("sim", self._z() + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", str(o.speedup)])
-        self.wait_line(sim, "zdrone sim:", 20)
+        if o.vehicle is not None:
+            vehicle = o.vehicle
+        elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
+            tport = free_port(socket.SOCK_STREAM)
+            sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
+                                                 "--speedup", str(o.speedup)])
+            self.wait_line(sim, "zdrone sim:", 20)
+            vehicle = f"tcp:127.0.0.1:{tport}"
+        else:
+            sim = self.start("sim", self._z() + ["sim", "--autopilot", "px4", "--mavlink", f"udpin:127.0.0.1:{sport}",
+                                                 "--speedup", str(o.speedup)])
+            self.wait_line(sim, "zdrone sim:", 20)
+            vehicle = f"udpout:127.0.0.1:{sport}"
         # Timers are wall-clock while the simulator may run faster: scale the hand-over timeout so that
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
-        drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", f"udpout:127.0.0.1:{sport}",
+        drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", vehicle,
                                                   "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout",
                                                   str(ho_timeout), *self._bench_extra()])
         self.wait_line(drone, "ready", 40)
@@ -605,7 +618,7 @@ class Demo:
                 for ev in events[seen:]:
                     self._on_event(ev, state, live)
                 seen = len(events)
-                self._on_gs_events(live)
+                self._on_gs_events(live, state)
                 self._send_go(live)
                 live.update(state["status"], time.monotonic() - self.t0)
                 for name, child in self.children.items():
@@ -618,11 +631,19 @@ class Demo:
         codes = self.shutdown()
         return self._summarize(state, wall, codes, timed_out=not state["done"] and o.max_wall is None)
 
-    def _on_gs_events(self, live: "LiveView") -> None:
+    def _on_gs_events(self, live: "LiveView", state: dict[str, Any]) -> None:
         a_log = self.out / "A.jsonl"
-        if MISSION_STARTED not in self.fired and a_log.exists():
-            if any(e["type"] == "mission_started" for e in read_events(a_log)):
+        if MISSION_STARTED in self.fired or not a_log.exists():
+            return
+        for e in read_events(a_log):
+            if e["type"] == "mission_started":
                 self._fire(MISSION_STARTED, live)
+            elif e["type"] == "mission_failed":  # the GS gave up (it said why): the demo ends, not ok
+                self.notes.append(f"GS A: mission failed: {e.get('reason')}")
+                live.event(e["t"], f"GS A: mission failed: {e.get('reason')}")
+                state["done"] = True
+                state["mission_failed"] = e.get("reason")
+                return
 
     def _on_event(self, ev: dict[str, Any], state: dict[str, Any], live: "LiveView") -> None:
         t = ev["type"]
@@ -631,10 +652,12 @@ class Demo:
             pos = ev.get("position")
             if ev.get("armed"):
                 state["armed_seen"] = True
+                if pos and pos[2] > 5.0:
+                    state["flown"] = True  # an arm refused or undone on the ground is not the end
                 if pos and pos[2] > 15.0:
                     self._fire(AIRBORNE, live, ev["t"])
             landed = ev.get("landed_state") == 1 and not ev.get("armed")
-            if state["armed_seen"] and landed and ev.get("mode") in ("MISSION", "HOLD", "LAND", "RTL"):
+            if state.get("flown") and landed:
                 state["done"] = True
                 state["final_position"] = pos
             return
@@ -720,6 +743,8 @@ class Demo:
         why: list[str] = []
         if timed_out:
             why.append("timed out")
+        if state.get("mission_failed"):
+            why.append(f"mission failed: {state['mission_failed']}")
         if violations:
             why.append("security violations")
         bad_exit = {n: c for n, c in codes.items() if c != 0 and not self.children[n].stopped}
