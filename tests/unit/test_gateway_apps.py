@@ -23,7 +23,7 @@ from zenoh import ZError
 import gs.gateway as gateway_mod
 from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, STATION_COMPID, AppKey, AppTable,
                         GcsGateway)
-from zdrone.core.mavlink import FrameCodec, FrameError, encode_raw, read_header
+from zdrone.core.mavlink import FrameCodec, FrameError, crc_seed, encode_raw, read_header
 
 GS_SYSID = 4
 VEHICLE_SYSID = 1
@@ -279,10 +279,15 @@ def test_garbage_from_applications_and_the_drone_is_counted():
     assert gw.counters["drone_malformed"] == 4 and gw.counters["internal_error"] == 0
 
 
-def test_a_frame_of_an_unknown_message_id_is_dropped_and_counted():
+def test_a_frame_of_an_unknown_message_id_is_relayed_and_a_corrupted_one_counted():
     gw, station, _ = make_gateway()
-    gw.on_app_frame(0, ("127.0.0.1", 5), encode_raw(60000, 0, b"\x01\x02", 250, 190), 0.0)
-    assert gw.counters["rewrite_failed"] + gw.counters["malformed"] == 1 and station.sent == []
+    unknown = encode_raw(60000, 0x21, b"\x01\x02", 250, 190)  # an id of no dialect here: relayed all the same
+    gw.on_app_frame(0, ("127.0.0.1", 5), unknown, 0.0)
+    assert len(station.sent) == 1 and station.sent[0][10:12] == b"\x01\x02"
+    assert read_header(station.sent[0]).sysid == GS_SYSID and crc_seed(station.sent[0]) == 0x21
+    corrupted = unknown[:-1] + bytes([unknown[-1] ^ 0x40])  # its checksum fits no seed
+    gw.on_app_frame(0, ("127.0.0.1", 5), corrupted, 0.0)
+    assert gw.counters["rewrite_failed"] == 1 and len(station.sent) == 1
     assert gw.counters["internal_error"] == 0
 
 

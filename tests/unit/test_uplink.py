@@ -18,7 +18,7 @@ from zdrone.core.authority import (AuthorityMachine, Config, DropFrame, Forward,
                                    Paired)
 from zdrone.core.envelope import Opened
 from zdrone.core.fleet import FleetError, encode_fleet, parse_fleet
-from zdrone.core.mavlink import (CRC_EXTRA, MESSAGE_CLASSES, FrameCodec, FrameError, crc_ok, encode_raw, read_header,
+from zdrone.core.mavlink import (CRC_EXTRA, MESSAGE_CLASSES, FrameCodec, FrameError, crc_ok, crc_seed, encode_raw, read_header,
                                  rewrite_source, split_frames)
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import (DEFAULT_DENIED, DEFAULT_POLICY, DEFAULT_READ_ONLY, DENIED_NAMES, MAX_MSGID,
@@ -214,9 +214,14 @@ def test_the_crc_extra_map_covers_the_dialects():
     assert crc_ok(meminfo) and not crc_ok(meminfo[:-1] + bytes([meminfo[-1] ^ 1]))
 
 
-def test_rewrite_source_of_an_unknown_id_is_a_frame_error():
-    with pytest.raises(FrameError, match="unknown message id 60000"):
-        rewrite_source(encode_raw(60000, 0, b"\x01", 1, 1), 4, 100)
+def test_rewrite_source_of_an_unknown_id_keeps_its_own_checksum_seed():
+    unknown = encode_raw(60000, 0x5A, b"\x01", 1, 1)  # an id of no dialect here
+    g = rewrite_source(unknown, 4, 100)
+    assert read_header(g).sysid == 4 and crc_seed(g) == 0x5A
+    broken = unknown[:-1] + bytes([unknown[-1] ^ 0x40])
+    assert crc_seed(broken) is None  # a checksum no seed fits: a corrupted frame
+    with pytest.raises(FrameError, match="fits no CRC_EXTRA"):
+        rewrite_source(broken, 4, 100)
     meminfo = encode_raw(152, CRC_EXTRA[152], b"\x01\x02", 245, 190)
     g = rewrite_source(meminfo, 4, 100)
     assert read_header(g).sysid == 4 and crc_ok(g)

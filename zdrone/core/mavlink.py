@@ -2,10 +2,20 @@
 
 The security module only needs the header (sysid, compid, msgid), which is read straight from the
 bytes: a full pymavlink decode costs about five times the AEAD. Full decoding and encoding use the
-generated dialect class sans-IO (never ``mavutil``, which has globals and env-var dialect choice).
+generated dialect classes sans-IO (never ``mavutil``, which has globals and env-var dialect choice).
+
+Every well-formed frame passes, whatever its dialect: reading the header needs no message table, and
+the only operation that needs a message's CRC_EXTRA (rewriting the source of a frame, for the GCS
+gateway) recovers it from the frame's own checksum when no table here has it. Decoding knows the
+union of pymavlink's ``common``, ``development`` and ``ardupilotmega`` dialects (PX4's CURRENT_MODE,
+ArduPilot's MEMINFO, ...) and answers ``None`` for any other id.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
 
 import msgspec
 
@@ -37,8 +47,13 @@ def _known_messages() -> dict[int, type]:
 
 #: message id -> message class, union of pymavlink's v20 common, development and ardupilotmega
 MESSAGE_CLASSES: dict[int, type] = _known_messages()
+#: CRC_EXTRA of message ids PX4 v1.16 sends or answers that none of those pymavlink dialects defines
+#: (computed from the MAVLink XML definitions): LINK_NODE_STATUS, TIME_ESTIMATE_TO_TARGET, EVENT,
+#: CURRENT_EVENT_SEQUENCE, REQUEST_EVENT, RESPONSE_EVENT_ERROR. A dialect's own value wins if one
+#: ever defines them.
+EXTRA_CRC: Mapping[int, int] = MappingProxyType({8: 117, 380: 232, 410: 160, 411: 106, 412: 33, 413: 77})
 #: message id -> CRC_EXTRA byte (the checksum seed of the message's definition)
-CRC_EXTRA: dict[int, int] = {msgid: cls.crc_extra for msgid, cls in MESSAGE_CLASSES.items()}
+CRC_EXTRA: dict[int, int] = {**EXTRA_CRC, **{msgid: cls.crc_extra for msgid, cls in MESSAGE_CLASSES.items()}}
 
 _READ_ONLY = UplinkClass.READ_ONLY
 
@@ -100,7 +115,8 @@ def read_header(frame: bytes) -> FrameHeader:
 def crc_ok(frame: bytes) -> bool:
     """True if the frame's X.25 checksum (with the message's CRC_EXTRA) is right.
 
-    False for a message id no known dialect defines: without its CRC_EXTRA it cannot be checked.
+    False for a message id without a CRC_EXTRA here (no dialect here defines it, nor ``EXTRA_CRC``):
+    its checksum cannot be checked against a definition (``crc_seed`` still says which seed fits it).
     """
     if frame[0] == MAGIC_V2:
         hdr, msgid = 10, frame[7] | (frame[8] << 8) | (frame[9] << 16)
@@ -166,31 +182,58 @@ def _framed_unknown(candidate: bytes, data: bytes, end: int) -> bool:
     return end == len(data) or data[end] in (MAGIC_V2, MAGIC_V1)
 
 
+def _decoders() -> tuple[tuple[frozenset[int], type], ...]:
+    """(ids, MAVLink class) per dialect, ardupilotmega (which includes common) first."""
+    out = [(frozenset(ardupilotmega.mavlink_map), ardupilotmega.MAVLink)]
+    if development is not None:
+        out.append((frozenset(development.mavlink_map) - out[0][0], development.MAVLink))
+    return tuple(out)
+
+
+_DECODERS = _decoders()
+
+
 class FrameCodec:
-    """Sans-IO MAVLink 2 encoder/decoder for one (sysid, compid), owning its sequence number."""
+    """Sans-IO MAVLink 2 encoder/decoder for one (sysid, compid), owning its sequence number.
+
+    Decodes the ids of pymavlink's common, ardupilotmega and development dialects; ``decode`` answers
+    ``None`` for any other id (the frame itself is still a frame: see ``read_header``)."""
 
     def __init__(self, sysid: int, compid: int = 1) -> None:
-        self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
-        self.mav.robust_parsing = True
         self.sysid = sysid
         self.compid = compid
+        self._parsers: list[tuple[frozenset[int], Any]] = []
+        for ids, cls in _DECODERS:
+            parser = cls(None, srcSystem=sysid, srcComponent=compid)
+            parser.robust_parsing = True
+            self._parsers.append((ids, parser))
+        #: the encoder (ardupilotmega's, a superset of common); its ``seq`` is this codec's sequence number
+        self.mav = self._parsers[0][1]
 
-    def encode(self, msg: mavlink2.MAVLink_message) -> bytes:
+    def encode(self, msg: Any) -> bytes:
         """Pack ``msg`` with this codec's ids and advance the sequence number."""
         frame = msg.pack(self.mav)
         self.mav.seq = (self.mav.seq + 1) % 256
         return bytes(frame)
 
-    def decode(self, frame: bytes) -> mavlink2.MAVLink_message | None:
-        """Decode one frame fully; ``None`` if it does not decode (bad CRC, unknown id)."""
+    def decode(self, frame: bytes) -> Any | None:
+        """Decode exactly one frame fully; ``None`` if it does not decode (malformed, bad CRC, or an
+        id none of the dialects defines). Never raises."""
         try:
-            msgs = self.mav.parse_buffer(frame)
+            msgid = read_header(frame).msgid
+        except FrameError:
+            return None
+        parser = next((p for ids, p in self._parsers if msgid in ids), None)
+        if parser is None:
+            return None
+        try:
+            msgs = parser.parse_buffer(frame)
         except Exception:  # pymavlink raises assorted errors on garbage
             return None
         if not msgs:
             return None
         msg = msgs[0]
-        if msg.get_type() == "BAD_DATA":
+        if msg.get_type() == "BAD_DATA" or msg.get_type().startswith("UNKNOWN_"):
             return None
         return msg
 
@@ -201,18 +244,46 @@ def _crc(frame_wo_crc: bytes, crc_extra: int) -> bytes:
     return bytes([crc.crc & 0xFF, crc.crc >> 8])
 
 
+def _x25_last_step(t: int) -> int:
+    return ((t << 8) ^ (t << 3) ^ (t >> 4)) & 0xFFFF
+
+
+#: The X.25 checksum's last step (the CRC_EXTRA byte) is a bijection of that byte: inverse table.
+_LAST_STEP = {_x25_last_step(t): t for t in range(256)}
+
+
+def crc_seed(frame: bytes) -> int | None:
+    """The CRC_EXTRA byte under which the checksum of ``frame`` (one well-formed frame) is right.
+
+    Recovered from the checksum itself, no message table needed: the X.25 step over the seed byte
+    maps the 256 possible seeds to 256 different checksums, so at most one seed fits. ``None`` if
+    none does (the frame is corrupted). For a message id of a known dialect and an intact frame this
+    is the dialect's CRC_EXTRA.
+    """
+    end = (10 if frame[0] == MAGIC_V2 else 6) + frame[1]
+    state = x25crc(frame[1:end]).crc
+    got = frame[end] | (frame[end + 1] << 8)
+    t = _LAST_STEP.get(got ^ (state >> 8))
+    if t is None:
+        return None
+    return t ^ ((t << 4) & 0xFF) ^ (state & 0xFF)
+
+
 def rewrite_source(frame: bytes, sysid: int, compid: int) -> bytes:
     """The same frame with another source (sysid, compid) and a fresh checksum.
 
     Used by the GCS gateway: every application's frames leave the GS under the GS's fleet sysid,
     one component id per application. A MAVLink 2 signature cannot survive the change, so it is
-    removed (the sealed envelope authenticates the frame instead). Raises ``FrameError`` for a
-    malformed frame or a message id no known dialect defines (its checksum cannot be recomputed).
+    removed (the sealed envelope authenticates the frame instead). The checksum is recomputed with
+    the seed the frame's own checksum was made with (``crc_seed``), so any message id passes, ids of
+    no dialect included, and the rewritten frame is valid exactly when the original was. Raises
+    ``FrameError`` for a malformed frame or a checksum no seed fits (a corrupted frame: dropped,
+    and the gateway counts it as ``rewrite_failed``).
     """
     hdr = read_header(frame)
-    extra = CRC_EXTRA.get(hdr.msgid)
-    if extra is None:
-        raise FrameError(f"unknown message id {hdr.msgid}: cannot recompute its checksum")
+    seed = crc_seed(frame)
+    if seed is None:
+        raise FrameError(f"message id {hdr.msgid}: the checksum fits no CRC_EXTRA (corrupted frame)")
     if hdr.version == 2:
         body = bytearray(frame[: 10 + frame[1]])
         body[2] &= ~SIGNED_FLAG
@@ -220,7 +291,7 @@ def rewrite_source(frame: bytes, sysid: int, compid: int) -> bytes:
     else:
         body = bytearray(frame[: 6 + frame[1]])
         body[3], body[4] = sysid, compid
-    return bytes(body) + _crc(bytes(body), extra)
+    return bytes(body) + _crc(bytes(body), seed)
 
 
 def encode_raw(msgid: int, crc_extra: int, payload: bytes, sysid: int, compid: int, seq: int = 0) -> bytes:
