@@ -37,7 +37,7 @@ from pymavlink.dialects.v20 import common as mav
 from zenoh import ZError
 
 from zdrone.core import wire
-from zdrone.core.mavlink import FrameCodec, FrameError, encode_raw, read_header, rewrite_source
+from zdrone.core.mavlink import MESSAGE_CLASSES, FrameCodec, FrameError, encode_raw, read_header, rewrite_source
 from zdrone.vehicle.transport import MavTransport
 
 log = logging.getLogger(__name__)
@@ -463,5 +463,6 @@ class GcsGateway:
             t.close()
 
 
-_TARGETED = {mid: cls for mid, cls in mav.mavlink_map.items()
+#: addressed messages of every dialect the GS decodes (common, development, ardupilotmega)
+_TARGETED = {mid: cls for mid, cls in MESSAGE_CLASSES.items()
              if "target_system" in cls.fieldnames and "target_component" in cls.fieldnames}

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pymavlink.dialects.v20 import common as mav
+from pymavlink.dialects.v20 import ardupilotmega as apm, common as mav
 from zenoh import ZError
 
 import gs.gateway as gateway_mod
@@ -248,6 +248,18 @@ def test_silent_applications_are_forgotten_by_the_loop_and_their_ids_reused():
     assert len(t.out) == 1 and t.out[0][1] == c
     msg = FrameCodec(252, 190).decode(t.out[0][0])
     assert msg is not None and (msg.target_system, msg.target_component) == (252, 190)
+
+
+def test_an_ardupilotmega_reply_to_an_application_is_retargeted_to_it():
+    gw, station, t = make_gateway()
+    app = ("127.0.0.1", 7)
+    gw.on_app_frame(0, app, heartbeat(250), 0.0)
+    t.out.clear()
+    fence = FrameCodec(VEHICLE_SYSID, 1).encode(apm.MAVLink_fence_point_message(GS_SYSID, FIRST_APP_COMPID, 0, 4, 1.0, 2.0))
+    gw.on_drone_frame("D1", fence)
+    assert len(t.out) == 1 and t.out[0][1] == app
+    msg = FrameCodec(250, 190).decode(t.out[0][0])
+    assert msg.get_type() == "FENCE_POINT" and (msg.target_system, msg.target_component) == (250, 190)
 
 
 def test_a_tcp_application_is_forgotten_when_its_connection_closes():
