@@ -167,6 +167,19 @@ def test_failsafe_is_recovered_only_by_an_explicit_request(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_router_restart_shorter_than_the_loss_threshold_costs_nothing(tmp_path):
+    """Issue 11: every node reconnects by itself (Zenoh client retry 100-400 ms); no failsafe, no re-pairing."""
+    s, out = run_demo(tmp_path, "router-restart")
+    assert s["_rc"] == 0 and s["ok"], s
+    assert "router restarted after 0.8 s down" in s["notes"]
+    assert s["failsafe"] is None and [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
+    assert s["authority_link"]["worst_state"] != "lost" and s["authority_link"]["longest_silence_s"] < 2.5
+    drone = read_events(out / "drone.jsonl")
+    assert [e["gs"] for e in drone if e["type"] == "paired"] == ["A"]
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
 def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     s, out = run_demo(tmp_path, "gs-crash")
     assert s["_rc"] == 0 and s["ok"], s

@@ -20,7 +20,9 @@ def client_config(router: str, user: str, password: str) -> zenoh.Config:
     """A client that connects only to ``router`` (e.g. ``tcp/127.0.0.1:7447``), never to peers."""
     cfg: dict[str, Any] = {
         "mode": "client",
-        "connect": {"endpoints": [router], "timeout_ms": 5000, "exit_on_failure": True},
+        # after losing the router (a restart), try again every 100-400 ms: back within ~0.2 s of its return
+        "connect": {"endpoints": [router], "timeout_ms": 5000, "exit_on_failure": True,
+                    "retry": {"period_init_ms": 100, "period_max_ms": 400, "period_increase_factor": 1.5}},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {"auth": {"usrpwd": {"user": user, "password": password}},
                       "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}},

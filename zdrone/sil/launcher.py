@@ -71,9 +71,10 @@ class Fault:
     """A GS process stopped (SIGSTOP), resumed (SIGCONT) or killed (SIGKILL) at a moment of the flight."""
 
     trigger: str
-    target: str  # child name: gsA, gsB
-    sig: int
+    target: str  # child name: gsA, gsB, router
+    sig: int  # or RESTART: killed, then started again after ``down`` seconds
     text: str
+    down: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -266,6 +267,17 @@ def _check_gateway_flood(o: Outcome) -> list[str]:
     return why
 
 
+def _check_router_restart(o: Outcome) -> list[str]:
+    """``router-restart``: an outage shorter than the loss threshold costs nothing: no failsafe, no
+    new pairing, the same authority and both hand-overs."""
+    s = o.summary
+    why = flight_unaffected(o)
+    why += _need(any("router restarted" in n for n in s["notes"]), "the router was not restarted")
+    why += _need(s["failsafe"] is None, "failsafe")
+    why += _need(len([e for e in o.drone if e["type"] == "paired"]) == 1, "paired again")
+    return why
+
+
 def _check_failsafe_recover(o: Outcome) -> list[str]:
     """``failsafe-recover``: the failsafe fires; A, back, takes control by its operator's request (never
     automatically: only a GS that asks gets it), in the next epoch; exactly one authority throughout."""
@@ -299,6 +311,8 @@ def _check_big_flood(o: Outcome) -> list[str]:
 _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
+RESTART = -1
+_RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("nominal", "the reference flight", "A->B and B->A in the overlap, landing at home", flight_unaffected),
@@ -315,6 +329,10 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              _check_link_loss, faults=(_STOP_A,)),
     Scenario("gs-crash", "GS B dies as the drone enters the overlap",
              "the hand-over times out, authority stays with A, A brings it home", _check_gs_crash, faults=(_KILL_B,)),
+    Scenario("router-restart",
+             "the router dies in flight (SIGKILL) and is started again on the same endpoint 0.8 s later",
+             "every node reconnects by itself; links and authority unchanged, no failsafe; both hand-overs",
+             _check_router_restart, faults=(_RESTART_ROUTER,)),
     Scenario("failsafe-recover",
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
@@ -410,6 +428,7 @@ class Child:
     proc: subprocess.Popen
     log: Path
     stopped: bool = False
+    args: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -430,15 +449,24 @@ class Demo:
         return SCENARIO_BY_NAME[self.opts.scenario]
 
     # --------------------------------------------------------------- processes
-    def start(self, name: str, args: list[str]) -> Child:
+    def start(self, name: str, args: list[str], append: bool = False) -> Child:
         log = self.out / f"{name}.log"
-        fh = open(log, "w")
+        fh = open(log, "a" if append else "w")
         proc = subprocess.Popen([PY, *args], stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 cwd=self.out, start_new_session=True)
         fh.close()
-        child = Child(name, proc, log)
+        child = Child(name, proc, log, args=list(args))
         self.children[name] = child
         return child
+
+    def restart(self, name: str, down: float) -> None:
+        """Kill ``name`` (SIGKILL), wait ``down`` seconds, start it again with the same arguments."""
+        child = self.children[name]
+        if child.proc.poll() is None:
+            os.kill(child.proc.pid, signal.SIGKILL)
+        child.proc.wait(5.0)
+        time.sleep(down)
+        self.start(name, child.args, append=True)
 
     def wait_line(self, child: Child, needle: str, timeout: float) -> None:
         deadline = time.monotonic() + timeout
@@ -581,7 +609,12 @@ class Demo:
             if r.go == trigger:
                 self.pending_go.add(f"rogue-{r.mode}")
         for fault in spec.faults:
-            if fault.trigger == trigger:
+            if fault.trigger == trigger and fault.sig == RESTART:
+                if live is not None:
+                    live.event(t or time.time(), f"scenario: {fault.text}")
+                self.restart(fault.target, fault.down)
+                self.notes.append(f"{fault.target} restarted after {fault.down} s down")
+            elif fault.trigger == trigger:
                 self.signal(fault.target, fault.sig)
                 self.children[fault.target].stopped = fault.sig != signal.SIGCONT
                 if live is not None:
