@@ -180,6 +180,19 @@ def test_a_router_restart_shorter_than_the_loss_threshold_costs_nothing(tmp_path
 
 
 @pytest.mark.slow
+def test_a_hung_authority_loses_authority_and_learns_it_on_waking(tmp_path):
+    """Issue 11: SIGSTOP of the authority in the overlap for 5 s: emergency hand-over to the proven B."""
+    s, out = run_demo(tmp_path, "gs-hang")
+    assert s["_rc"] == 0 and s["ok"], s
+    assert [(h["from"], h["to"], h["kind"]) for h in s["handovers"]] == [("A", "B", "emergency"), ("B", "A", "handover")]
+    a = read_events(out / "A.jsonl")
+    woke = [e for e in a if e["type"] == "authority_status" and e["owner"] == "B"]
+    assert woke and woke[0]["epoch"] == 2
+    assert s["ha_drops"].get("not_authority", 0) == 0  # it never even tried to command in B's epoch
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
 def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     s, out = run_demo(tmp_path, "gs-crash")
     assert s["_rc"] == 0 and s["ok"], s

@@ -75,7 +75,7 @@ class Fault:
     sig: int  # or RESTART: killed, then started again after ``down`` seconds
     text: str
     down: float = 0.0
-
+    after: float = 0.0  # wall seconds after the trigger
 
 @dataclass(frozen=True)
 class Scenario:
@@ -267,6 +267,22 @@ def _check_gateway_flood(o: Outcome) -> list[str]:
     return why
 
 
+def _check_gs_hang(o: Outcome) -> list[str]:
+    """``gs-hang``: the hung authority loses authority by the emergency rule, learns it when it wakes,
+    and never gets a command through in an epoch that is not its own."""
+    s = o.summary
+    kinds = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
+    why = _need(bool(kinds) and kinds[0] == ("A", "B", "emergency"), f"no emergency hand-over to B: {kinds}")
+    why += _need(s["failsafe"] is None, "failsafe")
+    woke = next((e["t"] for e in o.gs["A"] if e["type"] == "authority_status" and e.get("owner") == "B"), None)
+    why += _need(woke is not None, "A never learned that B holds authority")
+    c = s["commands"]
+    why += _need(c["forwarded"].get("A", 0) <= c["sent_as_authority"].get("A", 0), "more forwarded from A than it sent")
+    why += _need(not s["violations"], f"violations {s['violations']}")
+    why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0, "not landed at home")
+    return why
+
+
 def _check_router_restart(o: Outcome) -> list[str]:
     """``router-restart``: an outage shorter than the loss threshold costs nothing: no failsafe, no
     new pairing, the same authority and both hand-overs."""
@@ -312,6 +328,8 @@ _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
 RESTART = -1
+_HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in the overlap", after=0.5)
+_WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
@@ -333,6 +351,11 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the router dies in flight (SIGKILL) and is started again on the same endpoint 0.8 s later",
              "every node reconnects by itself; links and authority unchanged, no failsafe; both hand-overs",
              _check_router_restart, faults=(_RESTART_ROUTER,)),
+    Scenario("gs-hang",
+             "GS A, the authority, hangs in the overlap (SIGSTOP for 5 s) and wakes up (SIGCONT)",
+             "the emergency hand-over to B (proven link); A learns it is no longer the authority and none of its "
+             "commands is forwarded; B hands back to A as usual",
+             _check_gs_hang, faults=(_HANG_A, _WAKE_A)),
     Scenario("failsafe-recover",
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
@@ -443,6 +466,7 @@ class Demo:
     gcs_port: int | None = None
     fired: set[str] = field(default_factory=set)
     pending_go: set[str] = field(default_factory=set)
+    scheduled: list[tuple[float, Fault]] = field(default_factory=list)  # (monotonic due time, fault)
 
     @property
     def spec(self) -> Scenario:
@@ -609,17 +633,25 @@ class Demo:
             if r.go == trigger:
                 self.pending_go.add(f"rogue-{r.mode}")
         for fault in spec.faults:
-            if fault.trigger == trigger and fault.sig == RESTART:
-                if live is not None:
-                    live.event(t or time.time(), f"scenario: {fault.text}")
+            if fault.trigger == trigger:
+                self.scheduled.append((time.monotonic() + fault.after, fault))
+        self._inject_due(live)
+        self._send_go(live)
+
+    def _inject_due(self, live: "LiveView | None") -> None:
+        """Carry out the faults whose time has come."""
+        now = time.monotonic()
+        due = [f for (when, f) in self.scheduled if when <= now]
+        self.scheduled = [(w, f) for (w, f) in self.scheduled if w > now]
+        for fault in due:
+            if live is not None:
+                live.event(time.time(), f"scenario: {fault.text}")
+            if fault.sig == RESTART:
                 self.restart(fault.target, fault.down)
                 self.notes.append(f"{fault.target} restarted after {fault.down} s down")
-            elif fault.trigger == trigger:
+            else:
                 self.signal(fault.target, fault.sig)
                 self.children[fault.target].stopped = fault.sig != signal.SIGCONT
-                if live is not None:
-                    live.event(t or time.time(), f"scenario: {fault.text}")
-        self._send_go(live)
 
     def _send_go(self, live: "LiveView | None") -> None:
         """SIGUSR2 to each attacker whose moment came, once it has set up (its handler is in place)."""
@@ -652,6 +684,7 @@ class Demo:
                     self._on_event(ev, state, live)
                 seen = len(events)
                 self._on_gs_events(live, state)
+                self._inject_due(live)
                 self._send_go(live)
                 live.update(state["status"], time.monotonic() - self.t0)
                 for name, child in self.children.items():
