@@ -1,7 +1,9 @@
-"""The vehicle link against a real ``zdrone sim`` process: frames, tracked state, LAND / RTL."""
+"""The vehicle link against a real ``zdrone sim`` process (PX4 and ArduPilot personalities): frames,
+tracked state, the streams it asks for, LAND / RTL with each autopilot's own modes."""
 
 from __future__ import annotations
 
+import socket
 import time
 
 import pytest
@@ -25,12 +27,12 @@ def _until(link: VehicleLink, pred, timeout: float) -> bool:
 @pytest.mark.slow
 def test_vehicle_link_tracks_and_commands_the_sim():
     port = free_port()
-    with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "4") as sim:
+    with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "4", "--ready-after", "0") as sim:
         sim.wait_line("zdrone sim:", 20)
         link = VehicleLink(f"udpout:127.0.0.1:{port}")
         try:
             assert link.wait_vehicle(10)
-            assert link.sysid == 1 and link.autopilot == mav.MAV_AUTOPILOT_PX4
+            assert link.sysid == 1 and link.autopilot == "px4"
             frames = link.recv(1.0)
             assert frames and all(read_header(f).sysid == 1 for f in frames)
             # raw frames from a GS (sysid 4) go through unchanged
@@ -48,3 +50,50 @@ def test_vehicle_link_tracks_and_commands_the_sim():
             assert link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND
         finally:
             link.close()
+
+
+@pytest.mark.slow
+def test_vehicle_link_asks_ardupilot_for_its_streams_and_flies_it_by_its_modes():
+    port = free_port(socket.SOCK_STREAM)
+    with spawn(ZDRONE, "sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{port}", "--speedup", "4",
+               "--ready-after", "2") as sim:
+        sim.wait_line("zdrone sim:", 20)
+        link = VehicleLink(f"tcp:127.0.0.1:{port}")
+        try:
+            assert link.wait_vehicle(10)
+            assert link.sysid == 1 and link.autopilot == "ardupilot" and link.state().mode == "STABILIZE"
+            seen: set[str] = set()
+
+            def streaming() -> bool:
+                seen.update(mav.mavlink_map[read_header(f).msgid].msgname for f in link.recv(0.05)
+                            if read_header(f).msgid in mav.mavlink_map)
+                return {"GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE", "MISSION_CURRENT", "SYS_STATUS",
+                        "HOME_POSITION"} <= seen
+
+            assert _until(link, streaming, 15), seen
+            stats = link.stream_stats()
+            assert stats["autopilot"] == "ardupilot"
+            assert {s["via"] for s in stats["streams"].values()} == {"interval"} and not stats["counters"]
+            assert link.position is not None and link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND
+            link.command(mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4)  # GUIDED
+            assert _until(link, lambda: link.state().mode == "GUIDED", 5)
+            assert _until(link, lambda: _arm(link), 20)
+            link.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, float("nan"), float("nan"), float("nan"), 12)
+            assert _until(link, lambda: link.position is not None and link.position.alt > 8, 20)
+            assert link.landed_state in (mav.MAV_LANDED_STATE_TAKEOFF, mav.MAV_LANDED_STATE_IN_AIR)
+            link.command_rtl()
+            assert _until(link, lambda: link.state().mode == "RTL", 5)
+            link.command_land()
+            assert _until(link, lambda: link.state().mode == "LAND", 5)
+            assert _until(link, lambda: not link.armed, 30)
+            assert link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND
+            assert not {k: v for k, v in link.stream_stats()["counters"].items() if "refused" in k}
+        finally:
+            link.close()
+
+
+def _arm(link: VehicleLink) -> bool:
+    """Ask to arm (ArduPilot refuses until its checks pass) and say whether it is armed."""
+    if not link.armed:
+        link.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    return link.armed

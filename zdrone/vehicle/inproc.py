@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import time
 
-from pymavlink.dialects.v20 import common as mav
-
 from ..core.geometry import GeoPoint
-from .px4modes import mode_name
 from .link import VehicleState
+from .modes import mode_name
 from .sim import SimAutopilot
 
 
@@ -21,7 +19,7 @@ class InProcessVehicle:
         self.speedup = speedup
         self.t0 = time.monotonic()
         self.sysid = sysid
-        self.autopilot = mav.MAV_AUTOPILOT_PX4
+        self.autopilot: str | None = self.sim.p.name  # "px4"
         self.conn = f"inproc-sim:{sysid}"
 
     def _sim_time(self) -> float:
@@ -51,8 +49,8 @@ class InProcessVehicle:
         self.sim.receive(frame, self.sim.t)
 
     def state(self) -> VehicleState:
-        return VehicleState(self.sysid, self.position, self.armed, mode_name(self.sim.mode.custom_mode),
-                            self.landed_state, self.autopilot)
+        return VehicleState(self.sysid, self.position, self.armed,
+                            mode_name(self.autopilot, self.sim.mode_row.custom_mode), self.landed_state, self.autopilot)
 
     def command_land(self) -> None:
         self.sim._request_mode(self.sim.mode.__class__.LAND)

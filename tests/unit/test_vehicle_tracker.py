@@ -1,0 +1,253 @@
+"""The vehicle link asks for what it needs: ``VehicleTracker`` driven against the simulator's PX4 and
+ArduPilot personalities in memory (explicit simulated time, no sockets)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mav
+
+from zdrone.core.mavlink import FrameCodec, read_header
+from zdrone.core.reference import HOME
+from zdrone.vehicle.modes import set_mode_params
+from zdrone.vehicle.personality import ARDUPILOT, PX4, Personality
+from zdrone.vehicle.sim import SimAutopilot
+from zdrone.vehicle.tracker import DEFAULT_STREAMS, VIEW_STREAMS, StreamWant, Timing, VehicleTracker
+
+COMPANION = (1, mav.MAV_COMP_ID_ONBOARD_COMPUTER)
+NEEDED = ("GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE", "SYS_STATUS", "MISSION_CURRENT", "HOME_POSITION")
+
+
+class Bench:
+    """A simulator and a tracker wired together through MAVLink frames, on one simulated clock."""
+
+    def __init__(self, personality: Personality, streams: tuple[StreamWant, ...] = DEFAULT_STREAMS,
+                 timing: Timing = Timing(), ready_after: float = 0.0, deaf: bool = False) -> None:
+        self.sim = SimAutopilot(HOME, sysid=1, personality=personality, ready_after=ready_after)
+        self.tracker = VehicleTracker(*COMPANION, streams=streams, timing=timing)
+        self.companion = FrameCodec(*COMPANION)
+        self.decoder = FrameCodec(*COMPANION)
+        self.now = 0.0
+        self.received: Counter[int] = Counter()  # message ids from the vehicle
+        self.sent: list[Any] = []  # what the tracker sent the vehicle
+        self.deaf = deaf  # the vehicle ignores everything the tracker sends
+        self.attached = True
+
+    def run(self, seconds: float, dt: float = 0.05) -> None:
+        end = self.now + seconds
+        while self.now < end - 1e-9:
+            self.now = round(self.now + dt, 6)
+            self.sim.step(self.now)
+            for f in self.sim.drain():
+                self.received[read_header(f).msgid] += 1
+                msg = self.decoder.decode(f)
+                if msg is not None and self.attached:
+                    self.tracker.on_message(msg, self.now)
+            if self.attached:
+                for m in self.tracker.poll(self.now):
+                    self.sent.append(m)
+                    if not self.deaf:
+                        self.sim.receive(self.companion.encode(m), self.now)
+
+    def command(self, cmd: int, *params: float) -> None:
+        m = self.tracker.command(cmd, params, self.now)
+        self.sent.append(m)
+        if not self.deaf:
+            self.sim.receive(self.companion.encode(m), self.now)
+
+    def gcs_command(self, cmd: int, *params: float) -> None:
+        """A command from a ground station relayed to the vehicle (sysid 4): not the tracker's."""
+        p = list(params) + [0.0] * (7 - len(params))
+        self.sim.receive(FrameCodec(4, 190).encode(mav.MAVLink_command_long_message(1, 1, cmd, 0, *p)), self.now)
+
+    def sent_of(self, name: str, command: int | None = None) -> list[Any]:
+        return [m for m in self.sent if m.get_type() == name and (command is None or m.command == command)]
+
+    def stream(self, name: str) -> dict[str, Any]:
+        return self.tracker.stats()["streams"][name]
+
+
+def _ids(*names: str) -> set[int]:
+    return {getattr(mav, f"MAVLINK_MSG_ID_{n}") for n in names}
+
+
+# ---------------------------------------------------------------------------- ArduPilot
+def test_ardupilot_streams_nothing_until_the_tracker_asks_then_everything_needed_arrives():
+    b = Bench(ARDUPILOT)
+    b.attached = False
+    b.run(5.0)
+    assert not set(b.received) & _ids(*NEEDED)  # HEARTBEAT (and texts) only
+    assert b.received[mav.MAVLINK_MSG_ID_HEARTBEAT] >= 4
+    b.attached = True
+    b.received.clear()
+    b.run(6.0)
+    t = b.tracker
+    assert t.autopilot == "ardupilot" and t.sysid == 1 and t.compid == 1
+    for name in NEEDED:
+        assert b.stream(name)["state"] == "seen" and b.stream(name)["via"] == "interval", name
+    assert _ids(*NEEDED) <= set(b.received)
+    assert b.received[mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] >= 10  # at 4 Hz
+    assert t.position is not None and abs(t.position.lat - HOME.lat) < 1e-5
+    assert t.mode == "STABILIZE" and t.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
+    asks = b.sent_of("COMMAND_LONG", mav.MAV_CMD_SET_MESSAGE_INTERVAL)
+    assert sorted(int(m.param1) for m in asks) == sorted(_ids(*NEEDED))  # each asked once, nothing else
+    assert [m.param2 for m in asks if int(m.param1) == mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] == [250_000]
+    assert not b.sent_of("REQUEST_DATA_STREAM") and not t.counters
+    b.sent.clear()
+    b.run(10.0)
+    assert not b.sent  # nothing more to ask
+
+
+def test_ardupilot_refusing_an_interval_falls_back_to_its_stream_group():
+    # an ArduPilot that cannot stream GLOBAL_POSITION_INT by interval ("No ap_message for mavlink id (33)")
+    refusing = replace(ARDUPILOT, sendable=ARDUPILOT.sendable - {mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT})
+    b = Bench(refusing)
+    b.run(8.0)
+    gpi = b.stream("GLOBAL_POSITION_INT")
+    assert gpi["state"] == "seen" and gpi["via"] == "data_stream" and gpi["interval_asks"] == 1
+    assert gpi["refusal"] == "FAILED: No ap_message for mavlink id (33)"
+    [req] = b.sent_of("REQUEST_DATA_STREAM")
+    assert (req.req_stream_id, req.req_message_rate, req.start_stop) == (mav.MAV_DATA_STREAM_POSITION, 4, 1)
+    assert b.tracker.counters["interval_refused"] == 1 and b.tracker.position is not None
+    assert all(b.stream(n)["state"] == "seen" for n in NEEDED)
+
+
+def test_ardupilot_mode_names_commands_and_landed_state_from_heartbeat():
+    b = Bench(ARDUPILOT, streams=())  # nothing asked: no EXTENDED_SYS_STATE
+    b.run(2.0)
+    t = b.tracker
+    assert t.mode == "STABILIZE" and t.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND  # STANDBY
+    assert mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE not in b.received
+    b.command(mav.MAV_CMD_DO_SET_MODE, *set_mode_params("ardupilot", "GUIDED"))
+    b.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    b.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, float("nan"), float("nan"), float("nan"), 20)
+    b.run(3.0)
+    assert t.mode == "GUIDED" and t.armed
+    assert t.landed_state(b.now) == mav.MAV_LANDED_STATE_IN_AIR  # ACTIVE while flying
+    b.command(mav.MAV_CMD_DO_SET_MODE, *set_mode_params("ardupilot", "LAND"))
+    b.run(1.0)
+    assert t.mode == "LAND" and t.custom_mode == 9
+    b.run(40.0)
+    assert not t.armed and t.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
+    assert not t.counters  # every command acknowledged at once
+
+
+# ---------------------------------------------------------------------------- PX4
+def test_px4_streams_what_is_needed_unasked_and_the_tracker_leaves_its_rates_alone():
+    b = Bench(PX4)
+    b.run(6.0)
+    t = b.tracker
+    assert t.autopilot == "px4" and t.mode == "HOLD"
+    for name in NEEDED:
+        assert b.stream(name) == {"state": "seen", "via": "unasked", "interval_asks": 0, "stream_asks": 0,
+                                  "lapses": 0, "refusal": None}, name
+    assert not b.sent and t.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
+    b.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    b.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, float("nan"), float("nan"), float("nan"), float("nan"))
+    b.run(2.0)
+    assert t.armed and t.mode == "TAKEOFF" and t.landed_state(b.now) == mav.MAV_LANDED_STATE_TAKEOFF
+    b.run(10.0)
+    assert t.mode == "HOLD" and t.landed_state(b.now) == mav.MAV_LANDED_STATE_IN_AIR
+    b.command(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+    b.run(1.5)  # the next HEARTBEAT
+    assert t.mode == "RTL" and not t.counters
+
+
+def test_px4_refusing_a_stream_is_bounded_logged_and_counted():
+    vfr_hud = next(w for w in VIEW_STREAMS if w.name == "VFR_HUD")  # not a stream this PX4 offers
+    b = Bench(PX4, streams=DEFAULT_STREAMS + (vfr_hud,))
+    b.run(30.0)
+    st = b.stream("VFR_HUD")
+    assert st["state"] == "failed" and st["refusal"] == "UNSUPPORTED" and st["interval_asks"] == 1
+    assert st["stream_asks"] == 3  # PX4 ignores REQUEST_DATA_STREAM: asked 3 times, then given up
+    assert len(b.sent_of("COMMAND_LONG")) == 1 and len(b.sent_of("REQUEST_DATA_STREAM")) == 3
+    assert b.tracker.counters["stream_failed"] == 1 and b.tracker.counters["interval_refused"] == 1
+    b.sent.clear()
+    b.run(20.0)
+    assert not b.sent
+
+
+# ---------------------------------------------------------------------------- bounded retries
+def test_a_vehicle_that_answers_nothing_is_asked_a_bounded_number_of_times():
+    b = Bench(ARDUPILOT, deaf=True)
+    b.run(60.0)
+    t = b.tracker
+    assert all(b.stream(n)["state"] == "failed" for n in NEEDED)
+    intervals = b.sent_of("COMMAND_LONG", mav.MAV_CMD_SET_MESSAGE_INTERVAL)
+    assert len(intervals) == 3 * len(NEEDED)
+    # the groups: POSITION 3 times; EXTENDED_STATUS for SYS_STATUS and MISSION_CURRENT: 3 + 2
+    # (MISSION_CURRENT's first ask rides on SYS_STATUS's); EXTENDED_SYS_STATE and HOME_POSITION have none
+    assert len(b.sent_of("REQUEST_DATA_STREAM")) == 8
+    assert t.counters["interval_no_ack"] == 3 * len(NEEDED) and t.counters["stream_failed"] == len(NEEDED)
+    b.sent.clear()
+    b.run(30.0)
+    assert not b.sent
+    # with no EXTENDED_SYS_STATE, the landed state comes from HEARTBEAT
+    assert t.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
+
+
+def test_commands_are_resent_until_acknowledged_and_then_given_up():
+    b = Bench(PX4, deaf=True)
+    b.run(1.0)
+    b.command(mav.MAV_CMD_NAV_LAND)
+    b.run(10.0)
+    lands = b.sent_of("COMMAND_LONG", mav.MAV_CMD_NAV_LAND)
+    assert [m.confirmation for m in lands] == [0, 1, 2]
+    assert b.tracker.counters[f"command_{mav.MAV_CMD_NAV_LAND}_unacknowledged"] == 1
+    ok = Bench(PX4)
+    ok.run(1.0)
+    ok.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    ok.run(5.0)
+    assert len(ok.sent_of("COMMAND_LONG", mav.MAV_CMD_COMPONENT_ARM_DISARM)) == 1 and not ok.tracker.counters
+
+
+def test_acks_to_ground_stations_are_not_taken_for_the_trackers_own():
+    b = Bench(ARDUPILOT)
+    b.run(1.05)  # the first SET_MESSAGE_INTERVAL is in flight
+    b.gcs_command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, 9999, 1e6)  # refused, to sysid 4
+    b.run(6.0)
+    assert all(b.stream(n)["refusal"] is None for n in NEEDED)
+    assert all(b.stream(n)["state"] == "seen" for n in NEEDED)
+
+
+# ---------------------------------------------------------------------------- reboots
+def _reboot(b: Bench, personality: Personality) -> None:
+    sim = SimAutopilot(HOME, sysid=1, personality=personality, now=b.now)
+    b.sim = sim
+
+
+def test_after_a_reboot_with_a_heartbeat_gap_the_streams_are_asked_for_again():
+    b = Bench(ARDUPILOT)
+    b.run(6.0)
+    assert all(b.stream(n)["state"] == "seen" for n in NEEDED)
+    b.attached = False
+    _reboot(b, ARDUPILOT)  # ArduPilot forgets every stream request when it reboots
+    b.run(5.0)  # rebooting: the tracker hears nothing
+    b.attached = True
+    b.sent.clear()
+    b.run(8.0)
+    t = b.tracker
+    assert t.connections == 2 and t.counters["reconnects"] == 1
+    assert all(b.stream(n)["state"] == "seen" and b.stream(n)["via"] == "interval" for n in NEEDED)
+    assert len(b.sent_of("COMMAND_LONG", mav.MAV_CMD_SET_MESSAGE_INTERVAL)) == len(NEEDED)
+
+
+def test_boot_time_going_back_is_a_reboot_too():
+    b = Bench(PX4)
+    b.run(10.0)
+    _reboot(b, PX4)  # no gap at all; its GLOBAL_POSITION_INT restarts from time_boot_ms 0
+    b.run(1.0)
+    assert b.tracker.connections == 2 and b.tracker.counters["reconnects"] == 1
+
+
+def test_a_stream_that_stops_while_heartbeats_go_on_is_asked_for_again():
+    b = Bench(ARDUPILOT)
+    b.run(6.0)
+    _reboot(b, ARDUPILOT)  # a quick reboot: no heartbeat gap and no boot time to see (nothing streams)
+    b.sent.clear()
+    b.run(26.0)  # HOME_POSITION (every 2 s) counts as stopped after 20 s, the others after 5 s
+    t = b.tracker
+    assert t.connections == 1 and t.counters["stream_lapsed"] == len(NEEDED)
+    assert all(b.stream(n)["state"] == "seen" and b.stream(n)["lapses"] == 1 for n in NEEDED)
