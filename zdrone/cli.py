@@ -66,7 +66,8 @@ def _bench_traffic(args: argparse.Namespace) -> int:
 
     from .bench import traffic
 
-    result = traffic.run(quick=args.quick, out=Path(args.out) if args.out else None, progress=not args.json)
+    result = traffic.run(quick=args.quick, out=Path(args.out) if args.out else None, progress=not args.json,
+                         autopilot=args.autopilot)
     _emit(args, result, traffic.render)
     return 0 if all("error" not in r for r in result["rows"]) else 1
 
@@ -152,6 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bt.add_argument("--quick", action="store_true", help="15 s per variant instead of whole flights")
     bt.add_argument("--out", metavar="DIR", help="keep the runs here")
+    bt.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                    help="personality of the simulator the three stacks fly (default px4, as the paper's figures)")
     bt.set_defaults(func=_bench_traffic)
 
     bl = bsub.add_parser("link", help="GS -> vehicle latency p50/p99 and frames/s through the router, with and without security")
