@@ -101,7 +101,20 @@ def _drone(args: argparse.Namespace) -> int:
     return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=args.router, vehicle=args.vehicle,
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
                                   handover_timeout=args.handover_timeout, sil_coverage=args.sil_coverage,
-                                  events=args.events, cipher=getattr(args, "cipher", "zdrone")))
+                                  events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args)))
+
+
+def _radio(args: argparse.Namespace) -> "Any":
+    """The emulated radio's impairments (testbed only), or None for a perfect one."""
+    from .sil.radio import RadioChannel, parse_models
+
+    if not (args.sil_loss or args.sil_bursts or args.sil_delay_ms or args.sil_jitter_ms):
+        return None
+    try:
+        default, per_gs = parse_models(args.sil_loss or [], args.sil_bursts or [], args.sil_delay_ms, args.sil_jitter_ms)
+    except ValueError as exc:
+        raise UsageError(f"--sil-loss/--sil-bursts/--sil-delay-ms/--sil-jitter-ms: {exc}") from None
+    return RadioChannel(default, per_gs, seed=args.sil_seed)
 
 
 def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
@@ -118,6 +131,13 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--failsafe", choices=["LAND", "RTL"], default="LAND", help="action when the authority link is lost")
     p.add_argument("--handover-timeout", type=positive, default=5.0, metavar="S", help="hand-over timeout (5 s)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
+    p.add_argument("--sil-loss", action="append", metavar="[GS=]P",
+                   help="TESTBED ONLY: lose each frame with probability P (every GS link, or GS's); repeatable")
+    p.add_argument("--sil-bursts", action="append", metavar="[GS=]GOOD_S:BAD_S",
+                   help="TESTBED ONLY: bursty loss: good periods of mean GOOD_S, lossy periods of mean BAD_S seconds")
+    p.add_argument("--sil-delay-ms", type=float, default=0.0, metavar="MS", help="TESTBED ONLY: radio delay")
+    p.add_argument("--sil-jitter-ms", type=float, default=0.0, metavar="MS", help="TESTBED ONLY: radio jitter (±MS)")
+    p.add_argument("--sil-seed", type=int, default=0, help="TESTBED ONLY: seed of the radio's randomness")
     p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
     if bench:
         p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
@@ -197,7 +217,7 @@ def _demo(args: argparse.Namespace) -> int:
         parse_endpoint(args.vehicle)  # a bad connection is a usage error before anything starts
     return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=args.speedup,
                                 live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
-                                autopilot=args.autopilot, vehicle=args.vehicle))
+                                autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ())))
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
@@ -216,6 +236,9 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--live", action="store_true", help="force the live view")
     g.add_argument("--no-live", action="store_true", help="plain event lines (default when not a terminal)")
     p.add_argument("--no-report", action="store_true", help="do not write the HTML flight report")
+    p.add_argument("--radio", action="append", metavar="OPTION",
+                   help="TESTBED ONLY: an option of the drone's emulated radio, e.g. --radio=--sil-loss=0.6 "
+                        "(see zdrone drone --help: --sil-loss, --sil-bursts, --sil-delay-ms, --sil-jitter-ms); repeatable")
     v = p.add_mutually_exclusive_group()
     v.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                    help="personality of the built-in simulator (default px4)")

@@ -193,6 +193,17 @@ def test_a_hung_authority_loses_authority_and_learns_it_on_waking(tmp_path):
 
 
 @pytest.mark.slow
+def test_twenty_percent_radio_loss_is_no_reason_for_a_failsafe(tmp_path):
+    """Issue 11: 20 % loss, 50 +- 20 ms delay on every radio link: no false failsafe, both hand-overs."""
+    s, out = run_demo(tmp_path, "lossy-radio")
+    assert s["_rc"] == 0 and s["ok"], s
+    assert s["failsafe"] is None and s["authority_link"]["worst_state"] != "lost"
+    lost = s["radio_lost"]
+    assert lost.get("up:A:loss", 0) > 10 and lost.get("down:A:loss", 0) > 100  # the radio really lost frames
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
 def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     s, out = run_demo(tmp_path, "gs-crash")
     assert s["_rc"] == 0 and s["ok"], s

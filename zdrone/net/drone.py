@@ -8,6 +8,7 @@ TBM so that a silent authority link is noticed within one loop period (5 ms) of 
 
 from __future__ import annotations
 
+import heapq
 import logging
 import os
 import threading
@@ -63,6 +64,7 @@ class DroneOptions:
     events: str | None = None
     status_period: float = 0.5
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
+    radio: Any = None  # TESTBED ONLY: a ``sil.radio.RadioChannel`` (loss, bursts, delay, jitter)
 
 
 class DroneNode:
@@ -81,6 +83,9 @@ class DroneNode:
         self.events = EventLog(opts.events, opts.drone)
         self.machine = ha.AuthorityMachine(ha.Config(frozenset(node.authorized_gs), opts.handover_timeout, opts.failsafe))
         self.gate = CoverageGate(self.fleet) if opts.sil_coverage else None
+        self.radio = opts.radio
+        self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
+        self._late_seq = 0
         self.slots: dict[str, LinkSlot] = {}
         self.links: dict[str, SecureLink] = {}  # the live link of each slot
         self.candidates: dict[str, LinkKey] = {}  # keys granted by the authority, until the HA decides
@@ -128,6 +133,31 @@ class DroneNode:
     def _publish(self, gs: str, payload: bytes) -> None:
         if self.gate is not None and not self.gate.allow(gs, "down"):
             return
+        if self.radio is not None and not self._through_radio("down", gs, payload):
+            return
+        self._put(gs, payload)
+
+    def _through_radio(self, direction: str, gs: str, data: bytes) -> bool:
+        """TESTBED ONLY: True to pass the frame on now; False if the radio lost or delayed it."""
+        now = time.monotonic()
+        due = self.radio.admit(gs, direction, now)
+        if due is None:
+            return False
+        if due <= now:
+            return True
+        self._late_seq += 1
+        heapq.heappush(self._late, (due, self._late_seq, direction, gs, data))
+        return False
+
+    def _release_late(self, now: float) -> None:
+        while self._late and self._late[0][0] <= now:
+            _, _, direction, gs, data = heapq.heappop(self._late)
+            if direction == "down":
+                self._put(gs, data)
+            else:
+                self._open_envelope(gs, data, now)
+
+    def _put(self, gs: str, payload: bytes) -> None:
         # session.put, not a declared publisher: through an ACL router (zenoh 1.10) a declared
         # publisher's samples after the first are not delivered; session.put's are.
         self.session.put(kx.down(self.name, gs), payload, congestion_control=zenoh.CongestionControl.DROP)
@@ -209,6 +239,11 @@ class DroneNode:
     def _on_envelope(self, kind: str, gs: str, data: bytes, now: float) -> None:
         if self.gate is not None and not self.gate.allow(gs, "up"):
             return
+        if self.radio is not None and not self._through_radio("up", gs, data):
+            return
+        self._open_envelope(gs, data, now)
+
+    def _open_envelope(self, gs: str, data: bytes, now: float) -> None:
         slot = self.slots.get(gs)
         if slot is None:
             self.counters["no_link"] += 1
@@ -375,6 +410,7 @@ class DroneNode:
             "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
             "inbox_dropped": self.rx.stats(),
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
+            "radio_lost": dict(self.radio.lost) if self.radio else {},
         }
 
     def stop(self, *_: object) -> None:
@@ -396,6 +432,8 @@ class DroneNode:
         """One pass of the loop: wait up to ``wait`` s for the first envelope, then do everything."""
         self.rx.drain(wait, self._on_envelope)
         now = time.monotonic()
+        if self._late:
+            self._release_late(now)
         self._serve_pairing(now)
         self.vehicle.heartbeat(now)
         self._telemetry(self.vehicle.recv(0.0))

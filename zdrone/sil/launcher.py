@@ -86,6 +86,7 @@ class Scenario:
     rogues: tuple[RogueSpec, ...] = ()
     faults: tuple[Fault, ...] = ()
     gs_a_extra: tuple[str, ...] = ()  # further options of GS A
+    radio: tuple[str, ...] = ()  # the drone's emulated radio (``--sil-loss 0.2`` ...)
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
 
@@ -283,6 +284,15 @@ def _check_gs_hang(o: Outcome) -> list[str]:
     return why
 
 
+def _check_lossy_radio(o: Outcome) -> list[str]:
+    """``lossy-radio``: 20 % loss is no reason for a failsafe (TBM: DEGRADED after 1 s, LOST after 3 s
+    of silence; with 2 Hz heartbeats and the command stream, 3 s of silence at 20 % loss is ~1e-7)."""
+    lost = o.summary.get("radio_lost", {})
+    why = flight_unaffected(o)
+    why += _need(sum(lost.values()) > 100, f"the radio lost almost nothing: {lost}")
+    return why
+
+
 def _check_router_restart(o: Outcome) -> list[str]:
     """``router-restart``: an outage shorter than the loss threshold costs nothing: no failsafe, no
     new pairing, the same authority and both hand-overs."""
@@ -356,6 +366,10 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the emergency hand-over to B (proven link); A learns it is no longer the authority and none of its "
              "commands is forwarded; B hands back to A as usual",
              _check_gs_hang, faults=(_HANG_A, _WAKE_A)),
+    Scenario("lossy-radio",
+             "every radio link loses 20 % of frames at random and delays the rest by 50 ± 20 ms",
+             "no false failsafe, the authority link never LOST; both hand-overs; landing at home",
+             _check_lossy_radio, radio=("--sil-loss", "0.2", "--sil-delay-ms", "50", "--sil-jitter-ms", "20")),
     Scenario("failsafe-recover",
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
@@ -442,6 +456,7 @@ class DemoOptions:
     max_wall: float | None = None  # stop measuring after this many wall seconds (not a failure)
     mission: str = "reference"
     autopilot: str = "px4"  # personality of the built-in simulator
+    radio: tuple[str, ...] = ()  # the drone's --sil-loss/--sil-bursts/--sil-delay-ms/--sil-jitter-ms options
     vehicle: str | None = None  # an autopilot already running (no simulator started)
 
 
@@ -565,7 +580,7 @@ class Demo:
         ho_timeout = max(1.5, 5.0 / o.speedup)
         drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", vehicle,
                                                   "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout",
-                                                  str(ho_timeout), *self._bench_extra()])
+                                                  str(ho_timeout), *self._bench_extra(), *self.spec.radio, *o.radio])
         self.wait_line(drone, "ready", 40)
 
     def start_gs(self, gs: str, *extra: str) -> Child:
@@ -798,7 +813,7 @@ class Demo:
             "security_drops": drops, "security_drops_unlinked": unlinked, "ha_drops": ha_drops,
             "ha_rejects": final.get("rejects", {}),
             "pairing": final.get("counters", {}), "drone_counters": final.get("counters", {}), "keys": final.get("keys", {}),
-            "drone_inbox_dropped": final.get("inbox_dropped", {}),
+            "drone_inbox_dropped": final.get("inbox_dropped", {}), "radio_lost": final.get("radio_lost", {}),
             "gs_counters": {g: f.get("counters", {}) for g, f in gs_final.items()},
             "gateway_A": self._gateway_counters(gs_final.get("A", {})),
             "out_of_coverage": final.get("out_of_coverage", {}), "vehicle": self._vehicle_counters(),
