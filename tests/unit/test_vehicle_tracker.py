@@ -82,7 +82,7 @@ def test_ardupilot_streams_nothing_until_the_tracker_asks_then_everything_needed
     assert b.received[mav.MAVLINK_MSG_ID_HEARTBEAT] >= 4
     b.attached = True
     b.received.clear()
-    b.run(6.0)
+    b.run(8.0)  # HOME_POSITION (every 2 s) is asked for after 5 s, the others after 1 s
     t = b.tracker
     assert t.autopilot == "ardupilot" and t.sysid == 1 and t.compid == 1
     for name in NEEDED:
@@ -98,6 +98,16 @@ def test_ardupilot_streams_nothing_until_the_tracker_asks_then_everything_needed
     b.sent.clear()
     b.run(10.0)
     assert not b.sent  # nothing more to ask
+
+
+def test_one_message_unasked_is_not_a_stream():
+    b = Bench(ARDUPILOT)
+    b.run(0.5)
+    b.sim._send_mission_current()  # e.g. after a mission upload: one MISSION_CURRENT, no stream
+    b.run(6.0)
+    mc = b.stream("MISSION_CURRENT")
+    assert mc["state"] == "seen" and mc["via"] == "interval" and mc["interval_asks"] == 1
+    assert b.received[mav.MAVLINK_MSG_ID_MISSION_CURRENT] >= 4
 
 
 def test_ardupilot_refusing_an_interval_falls_back_to_its_stream_group():

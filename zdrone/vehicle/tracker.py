@@ -14,9 +14,9 @@ a gap of ``Timing.reboot_gap`` seconds, or a ``time_boot_ms`` of its messages go
 **Streams.** The drone node needs GLOBAL_POSITION_INT (region, coverage) and the landed state; the
 GSs need those, HEARTBEAT, MISSION_CURRENT, SYS_STATUS, HOME_POSITION and the unsolicited protocol
 replies (COMMAND_ACK, MISSION_*, STATUSTEXT). PX4 streams them unasked; ArduPilot streams nothing
-but HEARTBEAT until asked. Each wanted stream (``StreamWant``) that has not arrived within
-``Timing.wait_before_asking`` is asked for, one request in flight at a time (a COMMAND_ACK does not
-say which message id it answers):
+but HEARTBEAT until asked. Each wanted stream (``StreamWant``) that has not arrived twice (one
+message alone, a reply or a change, is no stream) within ``Timing.wait_before_asking`` is asked for,
+one request in flight at a time (a COMMAND_ACK does not say which message id it answers):
 
 1. MAV_CMD_SET_MESSAGE_INTERVAL; ACCEPTED, then the message must arrive within ``Timing.seen_within``;
    no ACK or no message: asked again, ``Timing.attempts`` times in all.
@@ -90,7 +90,7 @@ VIEW_STREAMS: tuple[StreamWant, ...] = (
 class Timing:
     """Timeouts and bounds of the stream requests and command retries (seconds unless said)."""
 
-    grace: float = 1.0  # after (re)connect, leave streams this long (at least 1.5 intervals) to arrive unasked
+    grace: float = 1.0  # after (re)connect, leave streams this long (at least 2.5 intervals) to arrive unasked
     ack_timeout: float = 1.0
     attempts: int = 3  # per method (SET_MESSAGE_INTERVAL, then REQUEST_DATA_STREAM) and per command
     min_seen_within: float = 2.0  # a requested stream must arrive within max(this, 3 intervals)
@@ -101,7 +101,7 @@ class Timing:
     landed_stale: float = 5.0  # EXTENDED_SYS_STATE older than this: landed state from HEARTBEAT
 
     def wait_before_asking(self, want: StreamWant) -> float:
-        return max(self.grace, 1.5 * want.interval)
+        return max(self.grace, 2.5 * want.interval)  # time for two messages: one alone is no stream
 
     def seen_within(self, want: StreamWant) -> float:
         return max(self.min_seen_within, 3.0 * want.interval)
@@ -126,6 +126,7 @@ class _Stream:
     stream_asks: int = 0
     deadline: float = 0.0
     last_seen: float | None = None
+    hits: int = 0  # messages received this connection
     lapses: int = 0
     via: str | None = None  # "unasked", "interval", "data_stream"
     refusal: str | None = None
@@ -230,6 +231,7 @@ class VehicleTracker:
             return  # a GCS, a companion, a gimbal: not the autopilot
         if self.sysid is None or (src != (self.sysid, self.compid) and self._silent(now)):
             self.sysid, self.compid = src
+            self.autopilot = autopilot_name(msg.autopilot)
             self._reconnect(now, "first heartbeat")
         elif src != (self.sysid, self.compid):
             self.counters["other_autopilot_heartbeat"] += 1
@@ -261,13 +263,18 @@ class VehicleTracker:
             log.info("vehicle %s (%s): %s", self.sysid, self.autopilot or "autopilot", why)
 
     def _seen(self, s: _Stream, now: float) -> None:
-        if s.state is not StreamState.SEEN:
-            s.via = s.via or "unasked"
-            if s.via != "unasked":
-                log.info("stream %s arriving (%s)", s.want.name, s.via)
-            if self._pending is not None and self._pending.stream is s:
-                self._pending = None
-        s.state, s.last_seen = StreamState.SEEN, now
+        s.hits += 1
+        s.last_seen = now
+        if s.state is StreamState.SEEN:
+            return
+        if self._pending is not None and self._pending.stream is s:
+            self._pending, s.via = None, "interval"  # arriving before the ACK
+        elif s.via is None and s.hits < 2:
+            return  # one message unasked is not a stream (a reply, a change): a second one is
+        s.via = s.via or "unasked"
+        if s.via != "unasked":
+            log.info("stream %s arriving (%s)", s.want.name, s.via)
+        s.state = StreamState.SEEN
 
     def _ours(self, msg: Any) -> bool:
         ts, tc = getattr(msg, "target_system", 0), getattr(msg, "target_component", 0)
@@ -332,7 +339,7 @@ class VehicleTracker:
             elif s.state is StreamState.SEEN and s.last_seen is not None and not self._silent(now) \
                     and now - s.last_seen > self.timing.lapse_after(s.want) and s.lapses < self.timing.max_lapses:
                 s.lapses += 1
-                s.state, s.interval_asks, s.stream_asks = StreamState.WAITING, 0, 0
+                s.state, s.interval_asks, s.stream_asks, s.via, s.hits = StreamState.WAITING, 0, 0, None, 0
                 self.counters["stream_lapsed"] += 1
                 log.warning("stream %s stopped (%.1f s silent): asking again", s.want.name, now - s.last_seen)
         if self._pending is not None:
