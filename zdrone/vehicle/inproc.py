@@ -4,6 +4,7 @@ one process in ``zdrone bench scale``. Same interface as ``VehicleLink``."""
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from ..core.geometry import GeoPoint
 from .link import VehicleState
@@ -51,6 +52,10 @@ class InProcessVehicle:
     def state(self) -> VehicleState:
         return VehicleState(self.sysid, self.position, self.armed,
                             mode_name(self.autopilot, self.sim.mode_row.custom_mode), self.landed_state, self.autopilot)
+
+    def stream_stats(self) -> dict[str, Any]:
+        """The simulator in this process streams what it streams: nothing is asked of it."""
+        return {"autopilot": self.autopilot, "connections": 1, "streams": {}, "counters": {}}
 
     def command_land(self) -> None:
         self.sim._request_mode(self.sim.mode.__class__.LAND)

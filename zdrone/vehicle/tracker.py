@@ -66,23 +66,22 @@ class StreamWant:
     why: str = ""
 
 
-_M = mav
 #: What the drone node and the ground stations depend on (gs.core.USED_MSGIDS besides the replies).
 DEFAULT_STREAMS: tuple[StreamWant, ...] = (
-    StreamWant(_M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, "GLOBAL_POSITION_INT", 0.25, _M.MAV_DATA_STREAM_POSITION,
+    StreamWant(mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, "GLOBAL_POSITION_INT", 0.25, mav.MAV_DATA_STREAM_POSITION,
                "drone: region and coverage; GS: position"),
-    StreamWant(_M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, "EXTENDED_SYS_STATE", 1.0, None, "drone and GS: landed state"),
-    StreamWant(_M.MAVLINK_MSG_ID_SYS_STATUS, "SYS_STATUS", 1.0, _M.MAV_DATA_STREAM_EXTENDED_STATUS,
+    StreamWant(mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, "EXTENDED_SYS_STATE", 1.0, None, "drone and GS: landed state"),
+    StreamWant(mav.MAVLINK_MSG_ID_SYS_STATUS, "SYS_STATUS", 1.0, mav.MAV_DATA_STREAM_EXTENDED_STATUS,
                "GS: health, pre-arm checks, battery"),
-    StreamWant(_M.MAVLINK_MSG_ID_MISSION_CURRENT, "MISSION_CURRENT", 1.0, _M.MAV_DATA_STREAM_EXTENDED_STATUS,
+    StreamWant(mav.MAVLINK_MSG_ID_MISSION_CURRENT, "MISSION_CURRENT", 1.0, mav.MAV_DATA_STREAM_EXTENDED_STATUS,
                "GS: mission progress"),
-    StreamWant(_M.MAVLINK_MSG_ID_HOME_POSITION, "HOME_POSITION", 2.0, None, "GS: home, position estimate"),
+    StreamWant(mav.MAVLINK_MSG_ID_HOME_POSITION, "HOME_POSITION", 2.0, None, "GS: home, position estimate"),
 )
 #: Not asked by default (nothing here depends on them): what gives a GCS application behind a GS
 #: that does not hold authority (whose own stream requests never reach the vehicle) a live view.
 VIEW_STREAMS: tuple[StreamWant, ...] = (
-    StreamWant(_M.MAVLINK_MSG_ID_ATTITUDE, "ATTITUDE", 0.25, _M.MAV_DATA_STREAM_EXTRA1, "GCS applications: attitude"),
-    StreamWant(_M.MAVLINK_MSG_ID_VFR_HUD, "VFR_HUD", 1.0, _M.MAV_DATA_STREAM_EXTRA2, "GCS applications: HUD"),
+    StreamWant(mav.MAVLINK_MSG_ID_ATTITUDE, "ATTITUDE", 0.25, mav.MAV_DATA_STREAM_EXTRA1, "GCS applications: attitude"),
+    StreamWant(mav.MAVLINK_MSG_ID_VFR_HUD, "VFR_HUD", 1.0, mav.MAV_DATA_STREAM_EXTRA2, "GCS applications: HUD"),
 )
 
 
@@ -334,7 +333,8 @@ class VehicleTracker:
         out = [self._send_command(c, now) for c in self._due_commands(now)]
         for s in self._streams.values():
             if s.state in (StreamState.ASKED, StreamState.FALLBACK) and now >= s.deadline:
-                self.counters["interval_not_streamed" if s.state is StreamState.ASKED else "data_stream_not_streamed"] += 1
+                asked_by = "interval" if s.state is StreamState.ASKED else "data_stream"
+                self.counters[f"{asked_by}_not_streamed"] += 1
                 s.state = StreamState.WAITING  # nothing came: ask again, or fall back
             elif s.state is StreamState.SEEN and s.last_seen is not None and not self._silent(now) \
                     and now - s.last_seen > self.timing.lapse_after(s.want) and s.lapses < self.timing.max_lapses:
