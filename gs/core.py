@@ -80,6 +80,9 @@ LINKKEY_CANDIDATE_TTL = 900.0
 PAIR_TIMEOUT = 3.0
 RETRY_S = 2.0
 STAGE_TIMEOUT = 3.0
+#: An unconfirmed HANDOVER_RELEASE is sent again this often (a lossy radio must not make the
+#: drone leave the overlap before it hears one).
+RELEASE_RESEND_S = 0.25
 
 
 class Stage(enum.Enum):
@@ -707,7 +710,7 @@ class StationCore:
             return []
         if view.handover_failed_epoch == view.epoch:
             return []
-        if view.released_epoch == view.epoch and (view.release_confirmed or now - view.release_sent < 1.0):
+        if view.released_epoch == view.epoch and (view.release_confirmed or now - view.release_sent < RELEASE_RESEND_S):
             return []  # released: wait for the drone (re-send only if it never confirmed)
         here = GeoPoint(view.position.lat, view.position.lon)
         if not self.coverage.contains(here):
