@@ -83,6 +83,9 @@ STAGE_TIMEOUT = 3.0
 #: An unconfirmed HANDOVER_RELEASE is sent again this often (a lossy radio must not make the
 #: drone leave the overlap before it hears one).
 RELEASE_RESEND_S = 0.25
+#: The authority GS pairs again when the drone has been silent this long (and again as often): a
+#: restarted companion has lost every key and must have its owner back within the loss threshold.
+SILENT_REPAIR_S = 1.0
 
 
 class Stage(enum.Enum):
@@ -296,6 +299,11 @@ class StationCore:
         return [Log("control_requested", {"drone": view.name, "state": view.ha_state.value if view.ha_state else None}),
                 *self.send_control(view, wire.HandoverRequest(self.name, view.epoch))]
 
+    def _silent_authority(self, view: DroneView, now: float) -> bool:
+        """We hold authority, yet the drone has said nothing for ``SILENT_REPAIR_S``."""
+        return (view.link is not None and view.owner == self.name and view.ha_state is not HaState.FAILSAFE
+                and view.link.tbm.since_last(now) > SILENT_REPAIR_S)
+
     def holds_authority(self, view: DroneView) -> bool:
         return (view.owner == self.name and view.released_epoch != view.epoch
                 and view.ha_state is not HaState.FAILSAFE)
@@ -315,6 +323,8 @@ class StationCore:
         for view in self.views.values():
             if view.link is None and self.opts.pair:
                 out += self._try_pair(view, now)
+            elif self._silent_authority(view, now):  # a restarted companion waits for its owner to re-pair
+                out += self._try_pair(view, now, retry=SILENT_REPAIR_S)
             if view.link is None:
                 continue
             if view.owner == self.name:
@@ -334,10 +344,10 @@ class StationCore:
         return out
 
     # ------------------------------------------------------------------ pairing
-    def _try_pair(self, view: DroneView, now: float) -> list[Action]:
+    def _try_pair(self, view: DroneView, now: float, retry: float = RETRY_S) -> list[Action]:
         if view.pairing is not None and now < view.pairing_deadline:
             return []
-        if not _due(view.last_pair_try, now, RETRY_S):
+        if not _due(view.last_pair_try, now, retry):
             return []
         view.last_pair_try = now
         view.pairing = PairingInitiator(self.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes)
@@ -364,9 +374,14 @@ class StationCore:
         view.pairing = None
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
+        again = view.link is not None
         view.slot.install(self._new_link(view, key, now), now)
         view.link = view.slot.live
-        return [Log("paired", {"drone": drone}), Say(f"zdrone gs {self.name}: paired with {drone}"),
+        if again:  # the drone may have restarted with no key but ours: share the others' keys again
+            view.granted.clear()
+            view.grants.clear()
+            view.drone_links = {self.name}
+        return [Log("paired", {"drone": drone, "again": again}), Say(f"zdrone gs {self.name}: paired with {drone}"),
                 *self._heartbeat(view)]
 
     # --------------------------------------------------------------- key sharing

@@ -204,6 +204,22 @@ def test_twenty_percent_radio_loss_is_no_reason_for_a_failsafe(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_companion_restart_in_flight_comes_back_with_its_authority(tmp_path):
+    """Issue 11: kill -9 of the drone node in flight; it restores LINKED(A, 1) from disk, A re-pairs with
+    fresh keys before the loss threshold, shares B's key again; the flight goes on."""
+    s, out = run_demo(tmp_path, "companion-restart")
+    assert s["_rc"] == 0 and s["ok"], s
+    drone = read_events(out / "drone.jsonl")
+    assert [(e["owner"], e["epoch"]) for e in drone if e["type"] == "restarted"] == [("A", 1)]
+    restart = next(e["t"] for e in drone if e["type"] == "restarted")
+    repaired = next(e["t"] for e in drone if e["type"] == "paired" and e["t"] > restart)
+    assert repaired - restart < 3.0  # within the loss threshold: no failsafe
+    assert s["failsafe"] is None and [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
+    assert s["commands"]["lost"] <= 10  # only those sent while the node was down
+    _clean_shutdown(s, out, stopped=("drone",))
+
+
+@pytest.mark.slow
 def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     s, out = run_demo(tmp_path, "gs-crash")
     assert s["_rc"] == 0 and s["ok"], s

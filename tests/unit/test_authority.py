@@ -292,3 +292,37 @@ def test_failsafe_request_refused_unless_proven_for_itself_and_authorized():
     m.handle(HandoverRequest(4.0, "X", "X"))
     assert m.state is State.FAILSAFE and m.owner == "A"
     assert m.rejects["failsafe"] == 1 and m.rejects["unauthorized"] == 1 and m.rejects["not proven"] == 1
+
+
+def test_a_restarted_companion_waits_for_its_owner_to_re_pair():
+    """Issue 11: restore(owner, epoch); the owner re-pairs in time and keeps its epoch."""
+    m = machine()
+    m.restore("A", 4, 100.0, grace=3.0)
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 4 and not m.is_proven("A")
+    m.handle(Paired(101.0, "B", on_ground=False))  # another GS re-pairs: a link, never the authority
+    assert m.owner == "A" and m.epoch == 4
+    m.handle(Paired(101.5, "A", on_ground=False))
+    m.handle(LinkChanged(101.6, "A", LinkState.OK))
+    m.handle(Tick(104.0))  # past the grace: the owner is back, nothing happens
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 4
+
+
+def test_a_restarted_companion_whose_owner_never_comes_back_fails_safe_or_hands_over():
+    m = machine()
+    m.restore("A", 4, 100.0, grace=3.0)
+    acts = m.handle(Tick(103.1))
+    assert m.state is State.FAILSAFE and CommandVehicle("LAND", "authority link to A lost") in acts
+    m2 = machine()
+    m2.restore("A", 4, 100.0, grace=3.0)
+    m2.handle(Paired(100.5, "B", on_ground=False))
+    prove(m2, "B", 101.0)
+    m2.handle(Tick(103.1))
+    assert m2.state is State.LINKED and m2.owner == "B" and m2.epoch == 5  # the emergency hand-over
+
+
+def test_restore_only_at_start_and_only_for_an_authorized_owner():
+    m = machine()
+    assert m.restore("X", 2, 0.0, grace=3.0)[0].kind == "restore_refused" and m.state is State.UNPAIRED
+    m.handle(Paired(0.0, "A"))
+    with pytest.raises(IllegalTransition):
+        m.restore("A", 1, 1.0, grace=3.0)

@@ -244,6 +244,7 @@ class AuthorityMachine:
         self.drops: Counter[HaDrop] = Counter()
         self.rejects: Counter[str] = Counter()
         self.history: list[tuple[float, str | None, int]] = []  # (time, owner, epoch) after each change
+        self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
 
     # ------------------------------------------------------------------ queries
     def is_authorized(self, gs: str) -> bool:
@@ -264,6 +265,22 @@ class AuthorityMachine:
 
     def status(self) -> AuthorityStatus:
         return AuthorityStatus(self.owner, self.epoch, self.state.value, self.pending_to, sorted(self.links))
+
+    def restore(self, owner: str, epoch: int, now: float, grace: float) -> list[Action]:
+        """Come back after a companion restart with the authority it had: LINKED(owner, epoch), with
+        no key for anyone. ``owner`` must re-pair within ``grace`` seconds (the loss threshold), else
+        its link counts as LOST (emergency hand-over if another GS has re-paired and proven its link,
+        else the failsafe). Only at start, from UNPAIRED."""
+        if self.state is not State.UNPAIRED:
+            raise IllegalTransition("restore() after the machine started")
+        if not self.is_authorized(owner):
+            return [Note("restore_refused", f"{owner} is not authorized")]
+        self.owner, self.epoch = owner, epoch
+        self.links[owner] = _Link()  # LOST until it re-pairs
+        self.repair_deadline = now + grace
+        self._set_state(State.LINKED, now)
+        return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair"),
+                *self._update_subscriptions()]
 
     # ------------------------------------------------------------------- engine
     def handle(self, event: Event) -> list[Action]:
@@ -340,6 +357,8 @@ class AuthorityMachine:
     def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
             return self.state, self._reject(ev.gs, "pair", why)
+        if ev.gs == self.owner:
+            self.repair_deadline = None  # the owner is back (after a restart, or re-keying)
         self.links.setdefault(ev.gs, _Link())
         return self.state, self._update_subscriptions() + [InstallKey(ev.gs)] + self._status_to_all()
 
@@ -491,6 +510,9 @@ class AuthorityMachine:
         return self.state, acts
 
     def _on_tick(self, ev: Tick) -> tuple[State, list[Action]]:
+        if self.repair_deadline is not None and ev.now >= self.repair_deadline and self.owner is not None:
+            self.repair_deadline = None  # the owner did not come back after the restart: its link is LOST
+            return self._on_link(LinkChanged(ev.now, self.owner, LinkState.LOST))
         if self.state is State.HANDOVER_PENDING and self.pending_deadline is not None and ev.now >= self.pending_deadline:
             to = self.pending_to
             self.pending_to = self.pending_deadline = None
@@ -517,7 +539,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.LINKED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.LINKED})),
     (S.LINKED, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
     (S.LINKED, Release): (AuthorityMachine._on_release, frozenset({S.LINKED, S.HANDOVER_PENDING})),
-    (S.LINKED, Tick): (AuthorityMachine._on_tick, frozenset({S.LINKED})),
+    (S.LINKED, Tick): (AuthorityMachine._on_tick, frozenset({S.LINKED, S.FAILSAFE})),
     (S.HANDOVER_PENDING, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, Frame): (AuthorityMachine._on_frame, frozenset({S.HANDOVER_PENDING, S.LINKED})),
@@ -525,7 +547,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.HANDOVER_PENDING, RegionChanged): (AuthorityMachine._on_region, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({S.HANDOVER_PENDING, S.LINKED})),
-    (S.HANDOVER_PENDING, Tick): (AuthorityMachine._on_tick, frozenset({S.HANDOVER_PENDING, S.LINKED})),
+    (S.HANDOVER_PENDING, Tick): (AuthorityMachine._on_tick, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.FAILSAFE, Paired): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, HandoverRequest): (AuthorityMachine._on_request_failsafe, frozenset({S.FAILSAFE, S.LINKED})),

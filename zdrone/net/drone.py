@@ -34,6 +34,7 @@ from ..fleetfiles import load_fleet, load_secret
 from ..sil.coverage import CoverageGate
 from ..vehicle.link import VehicleLink
 from . import keyexprs as kx
+from .authstore import AuthorityStore, SavedAuthority
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, Inbox, payload_bytes
 from .session import open_client, query_queue
@@ -82,6 +83,7 @@ class DroneNode:
         self.secret = load_secret(opts.fleet, opts.drone, self.fleet)
         self.events = EventLog(opts.events, opts.drone)
         self.machine = ha.AuthorityMachine(ha.Config(frozenset(node.authorized_gs), opts.handover_timeout, opts.failsafe))
+        self.store = AuthorityStore(opts.fleet, opts.drone)
         self.gate = CoverageGate(self.fleet) if opts.sil_coverage else None
         self.radio = opts.radio
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
@@ -234,6 +236,27 @@ class DroneNode:
 
     def _handle(self, event: ha.Event, frame: bytes | None = None) -> None:
         self._apply(self.machine.handle(event), event.now, frame)
+        self._save()
+
+    def _save(self) -> None:
+        """Persist owner, epoch and state on every change (a restart comes back with them)."""
+        m = self.machine
+        if m.owner is not None:
+            self.store.save(SavedAuthority(m.owner, m.epoch, m.state.value))
+
+    def _restore(self, now: float) -> None:
+        """After a restart in the air: the authority it had, waiting for the owner to re-pair."""
+        saved = self.store.load()
+        if saved is None:
+            return
+        if saved.owner is None or saved.state == ha.State.FAILSAFE.value or self._on_ground():
+            self.store.clear()  # a fresh start on the ground (or nothing to come back to)
+            self.events.write("authority_forgotten", owner=saved.owner, epoch=saved.epoch, state=saved.state)
+            return
+        self.events.write("restarted", owner=saved.owner, epoch=saved.epoch, state=saved.state, position=self._pos())
+        log.warning("restarted in the air: authority %s (epoch %d); waiting for it to re-pair", saved.owner, saved.epoch)
+        self._apply(self.machine.restore(saved.owner, saved.epoch, now, self.opts.thresholds.lost), now)
+        self._sync_subscriptions(now)
 
     # --------------------------------------------------------------- receiving
     def _on_envelope(self, kind: str, gs: str, data: bytes, now: float) -> None:
@@ -422,6 +445,7 @@ class DroneNode:
         if not self.vehicle.wait_vehicle(30.0):
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
+        self._restore(time.monotonic())
         try:
             while self._running:
                 self.step(0.005)
@@ -454,6 +478,8 @@ class DroneNode:
     def close(self) -> None:
         now = time.monotonic()
         self.events.write("stop", **self.status(now))
+        if self._on_ground():
+            self.store.clear()  # stopped on the ground: the next start is a fresh one
         steps = [*(lambda gs=gs: self._unsubscribe(gs) for gs in list(self.subs)), self.pairing.undeclare,
                  self.session.close, self.vehicle.close]
         for step in steps:  # each step on its own: a session the signal thread closed must not stop the rest

@@ -293,6 +293,34 @@ def _check_lossy_radio(o: Outcome) -> list[str]:
     return why
 
 
+def _check_companion_restart(o: Outcome) -> list[str]:
+    """``companion-restart``: the restarted node restores LINKED(A, epoch 1), A pairs again in time (no
+    failsafe), the flight goes on with both hand-overs."""
+    restored = [e for e in o.drone if e["type"] == "restarted"]
+    why = flight_unaffected(o)
+    why += _need(len(restored) == 1 and restored[0].get("owner") == "A" and restored[0].get("epoch") == 1,
+                 f"not restored as A, epoch 1: {restored}")
+    why += _need(len([e for e in o.drone if e["type"] == "paired" and e.get("gs") == "A"]) == 2, "A did not pair again")
+    return why
+
+
+def _forwarded_over_restarts(drone_events: list[dict[str, Any]]) -> dict[str, int]:
+    """Commands the drone node forwarded, per GS, summed over every run of the node (a restarted
+    node counts from zero; the last report of each run is its total)."""
+    total: dict[str, int] = {}
+    last: dict[str, int] = {}
+    for e in drone_events:
+        if e["type"] == "start":
+            for g, n in last.items():
+                total[g] = total.get(g, 0) + n
+            last = {}
+        elif "forwarded_commands" in e:
+            last = {g: int(n) for g, n in e["forwarded_commands"].items()}
+    for g, n in last.items():
+        total[g] = total.get(g, 0) + n
+    return total
+
+
 def _check_router_restart(o: Outcome) -> list[str]:
     """``router-restart``: an outage shorter than the loss threshold costs nothing: no failsafe, no
     new pairing, the same authority and both hand-overs."""
@@ -340,6 +368,8 @@ _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT
 RESTART = -1
 _HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in the overlap", after=0.5)
 _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
+_RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
+                       after=1.0)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
@@ -370,6 +400,11 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "every radio link loses 20 % of frames at random and delays the rest by 50 ± 20 ms",
              "no false failsafe, the authority link never LOST; both hand-overs; landing at home",
              _check_lossy_radio, radio=("--sil-loss", "0.2", "--sil-delay-ms", "50", "--sil-jitter-ms", "20")),
+    Scenario("companion-restart",
+             "the drone's companion node is killed in flight (SIGKILL) and started again",
+             "the vehicle flies on; the node comes back with owner A and its epoch, A re-pairs (fresh keys) within "
+             "the loss threshold, shares B's key again; both hand-overs; nobody else gets authority",
+             _check_companion_restart, faults=(_RESTART_DRONE,)),
     Scenario("failsafe-recover",
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
@@ -774,7 +809,7 @@ class Demo:
         rogue_events = read_events(rogue_log) if rogue_log.exists() else []
         sent = {g: sum(int(v) for v in (f.get("drones", {}).get("d1", {}).get("commands_sent") or {}).values())
                 for g, f in gs_final.items()}
-        forwarded = final.get("forwarded_commands", {})
+        forwarded = _forwarded_over_restarts(drone_events)
         ha_drops = final.get("ha_drops", {})
         drops: dict[str, int] = {}
         for link in (final.get("links") or {}).values():

@@ -1,0 +1,76 @@
+"""The drone's authority state on disk: who holds authority in which epoch, written on every change.
+
+A companion computer may reboot in flight. Its link keys die with it (they are never written down),
+but the authority must not: the restarted node comes back with the owner and epoch it had, and that
+owner must re-pair (fresh keys, so no nonce is ever reused under a key). The file sits beside the
+node's secret (``secrets/<drone>.authority.json``, mode 0600) and is replaced atomically: written to
+a temporary file, fsync'ed, renamed over the old one, and the directory fsync'ed, so a crash at any
+moment leaves either the old state or the new one, never a torn file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..fleetfiles import fleet_path
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class SavedAuthority:
+    owner: str | None
+    epoch: int
+    state: str
+
+
+class AuthorityStore:
+    """Reads and writes one drone's ``SavedAuthority``."""
+
+    def __init__(self, fleet: str | Path, drone: str) -> None:
+        self.path = fleet_path(fleet).parent / "secrets" / f"{drone}.authority.json"
+        self._last: SavedAuthority | None = None
+
+    def load(self) -> SavedAuthority | None:
+        """The state saved before a restart, or None (none, or unreadable: logged, not trusted)."""
+        try:
+            raw = json.loads(self.path.read_text())
+            saved = SavedAuthority(raw["owner"], int(raw["epoch"]), str(raw["state"]))
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            log.warning("%s: unreadable authority state, ignored: %s", self.path, exc)
+            return None
+        self._last = saved
+        return saved
+
+    def save(self, saved: SavedAuthority) -> None:
+        """Write ``saved`` durably if it changed (atomic replace + fsync of file and directory)."""
+        if saved == self._last:
+            return
+        tmp = self.path.with_suffix(".tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        try:
+            os.write(fd, json.dumps({"owner": saved.owner, "epoch": saved.epoch, "state": saved.state}).encode())
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, self.path)
+        dfd = os.open(self.path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+        self._last = saved
+
+    def clear(self) -> None:
+        """Forget the saved state (a clean stop on the ground)."""
+        try:
+            self.path.unlink()
+        except FileNotFoundError:
+            pass
+        self._last = None
