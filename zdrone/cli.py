@@ -104,6 +104,16 @@ def _bench_scale(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_chaos(args: argparse.Namespace) -> int:
+    from .bench import chaos
+
+    if not 1 <= args.runs <= 1000:
+        raise UsageError(f"--runs {args.runs}: must be 1..1000")
+    result = chaos.run(args.runs, args.seed, quick=args.quick, progress=not args.json)
+    _emit(args, result, chaos.render)
+    return 0 if result["violations"] == 0 else 1
+
+
 def _bench_attack(args: argparse.Namespace) -> int:
     from .bench import attack
     from .sil.launcher import ATTACK_SCENARIOS
@@ -183,6 +193,12 @@ def build_parser() -> argparse.ArgumentParser:
     ba.add_argument("--trials", type=int, metavar="N", help="failsafe-under-flood trials (default 3)")
     ba.add_argument("--rate", type=float, default=2500.0, metavar="Q", help="pairing queries per second of the flood (2500)")
     ba.set_defaults(func=_bench_attack)
+    bc = bsub.add_parser("chaos", help="seeded random fault schedules over the reference flight; safety invariants")
+    bc.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bc.add_argument("--quick", action="store_true", help="5 schedules at most")
+    bc.add_argument("--runs", type=int, default=50, metavar="N", help="schedules to fly (default 50, ~40 s each)")
+    bc.add_argument("--seed", type=int, default=1, help="seed of the first schedule (the next ones count up)")
+    bc.set_defaults(func=_bench_chaos)
 
     for extra in _EXTRA_COMMANDS:
         extra(sub)

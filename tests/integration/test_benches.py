@@ -69,3 +69,12 @@ def test_bench_scale_quick():
     assert row["k"] == 3 and row["g"] == 3 and "error" not in row, row
     assert row["correct"] == 3 and row["all_correct"], row["failures"]  # 4 hand-overs each, none lost
     assert r["largest_k_all_correct"] == 3
+
+
+@pytest.mark.slow
+def test_bench_chaos_two_schedules_hold_the_invariants():
+    out = subprocess.run([ZDRONE, "bench", "chaos", "--runs", "2", "--seed", "7", "--json"], capture_output=True,
+                         text=True, timeout=400)
+    assert out.returncode == 0, out.stderr[-2000:] + out.stdout[-2000:]
+    r = json.loads(out.stdout)
+    assert r["runs"] == 2 and r["violations"] == 0 and all(s["faults"] for s in r["schedules"])

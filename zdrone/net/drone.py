@@ -99,6 +99,7 @@ class DroneNode:
         self.subs: dict[str, Any] = {}
         self.counters: Counter[str] = Counter()
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
+        self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
         self._running = True
         self._next_status = 0.0
         self._next_beacon = 0.0
@@ -282,8 +283,9 @@ class DroneNode:
             self._on_promoted(gs, promoted, now)
         if res.header is not None:
             uplink = self.uplink.classify(res.header.msgid)
-            if uplink is ha.UplinkClass.AUTHORITY_ONLY and self.machine.owner == gs:
+            if uplink is ha.UplinkClass.AUTHORITY_ONLY and self.machine.owner == gs and self.machine.state is not ha.State.FAILSAFE:
                 self.forwarded[gs] += 1
+                self.forwarded_epochs[f"{self.machine.epoch}:{gs}"] += 1
             self._handle(ha.Frame(now, gs, uplink), res.plaintext)
             return
         msg = res.control
@@ -431,6 +433,7 @@ class DroneNode:
                      for gs, slot in self.slots.items()},
             "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
             "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
+            "forwarded_epochs": dict(self.forwarded_epochs),
             "inbox_dropped": self.rx.stats(),
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
             "radio_lost": dict(self.radio.lost) if self.radio else {},

@@ -492,6 +492,7 @@ class DemoOptions:
     mission: str = "reference"
     autopilot: str = "px4"  # personality of the built-in simulator
     radio: tuple[str, ...] = ()  # the drone's --sil-loss/--sil-bursts/--sil-delay-ms/--sil-jitter-ms options
+    spec: "Scenario | None" = None  # a scenario made on the fly (bench chaos) instead of ``scenario``
     vehicle: str | None = None  # an autopilot already running (no simulator started)
 
 
@@ -520,7 +521,7 @@ class Demo:
 
     @property
     def spec(self) -> Scenario:
-        return SCENARIO_BY_NAME[self.opts.scenario]
+        return self.opts.spec or SCENARIO_BY_NAME[self.opts.scenario]
 
     # --------------------------------------------------------------- processes
     def start(self, name: str, args: list[str], append: bool = False) -> Child:
