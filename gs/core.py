@@ -317,8 +317,8 @@ class StationCore:
         return self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, command, 0, *p))
 
     # -------------------------------------------------------------------- time
-    def tick(self, now: float) -> list[Action]:
-        """One pass of the GS's periodic work."""
+    def tick(self, now: float, wall: float | None = None) -> list[Action]:
+        """One pass of the GS's periodic work (``wall``: the time of day, for key-sharing stamps)."""
         out: list[Action] = []
         for view in self.views.values():
             if view.link is None and self.opts.pair:
@@ -328,7 +328,7 @@ class StationCore:
             if view.link is None:
                 continue
             if view.owner == self.name:
-                out += self._share_keys(view, now)
+                out += self._share_keys(view, now, now if wall is None else wall)
             out += self._flight(view, FlightTick(now))
             out += self._coordinate(view, now)
             if self.opts.take_control and view.ha_state is HaState.FAILSAFE:
@@ -391,11 +391,12 @@ class StationCore:
         if self.counters[key] <= 5:  # the first few in the log; all of them in the counters
             logs.append(Log("linkkey_refused", {"drone": drone, "asker": asker, "reason": reason.value, "detail": detail}))
         crypto = reason is ShareRefusal.AUTH_FAILED
-        if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC):
+        if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC, ShareRefusal.STALE):
             return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
         return QueryAnswer(error=reason.value.encode(), crypto=crypto)
 
-    def on_linkkey_query(self, drone: str, payload: bytes, now: float, secret: bytes) -> tuple[QueryAnswer, list[Action]]:
+    def on_linkkey_query(self, drone: str, payload: bytes, now: float, secret: bytes,
+                         wall: float | None = None) -> tuple[QueryAnswer, list[Action]]:
         """Answer one key-sharing query for link (``drone``, us); ``secret`` is fresh randomness.
 
         Refusals before any crypto: malformed, unknown asker, not authorized for the drone; then the
@@ -411,7 +412,7 @@ class StationCore:
         if (drone not in self.views or not self.fleet.is_authorized(drone, req.asker)
                 or not self.fleet.is_authorized(drone, self.name)):
             return self._refused(logs, ShareRefusal.UNAUTHORIZED, drone, req.asker), logs
-        out = self.keyshare.answer(drone, req.asker, asker.public_bytes, req.m1, now, secret)
+        out = self.keyshare.answer(drone, req.asker, asker.public_bytes, req.m1, now, secret, wall)
         if isinstance(out, Refused):  # forged, over the rate limit, or claimed without the key
             return self._refused(logs, out.reason, drone, req.asker, out.detail), logs
         reply, fresh = out
@@ -428,7 +429,7 @@ class StationCore:
         log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.name, req.asker)
         return QueryAnswer(reply=reply, crypto=True), logs
 
-    def _share_keys(self, view: DroneView, now: float) -> list[Action]:
+    def _share_keys(self, view: DroneView, now: float, wall: float) -> list[Action]:
         """As authority: ask the other authorized GSs for their link keys; grant them to the drone."""
         out: list[Action] = []
         for g in self.fleet.nodes[view.name].authorized_gs:
@@ -443,7 +444,7 @@ class StationCore:
             if g in view.drone_links or g in view.granted or g in view.grants or not _due(view.last_share_try, now, RETRY_S):
                 continue
             view.last_share_try = now
-            ask = KeyShareAsk(self.identity, self.name, g, self.fleet.nodes[g].public_bytes, view.name, now)
+            ask = KeyShareAsk(self.identity, self.name, g, self.fleet.nodes[g].public_bytes, view.name, now, wall=wall)
             view.asks[g] = ask
             out.append(Ask(AskKind.LINKKEY, view.name, g, kx.linkkey(g, view.name), ask.payload, ask.deadline - now))
         if view.grants and _due(view.grant_sent, now, 1.0):

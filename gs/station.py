@@ -166,7 +166,7 @@ class GroundStation:
                 if payload is None:
                     self.counters["linkkey_refused:oversize"] += 1
                     continue
-                ans, actions = self.core.on_linkkey_query(kx.gs_of(q.key_expr), payload, now, os.urandom(32))
+                ans, actions = self.core.on_linkkey_query(kx.gs_of(q.key_expr), payload, now, os.urandom(32), time.time())
                 handshakes += ans.crypto
                 if ans.reply is not None:
                     q.reply(q.key_expr, ans.reply)
@@ -189,7 +189,7 @@ class GroundStation:
 
     def print_view(self) -> None:
         """The telemetry view: one line per linked drone on stdout."""
-        from zdrone.vehicle.px4modes import mode_name
+        from zdrone.vehicle.modes import mode_name
 
         for d, v in self.views.items():
             if v.link is None:
@@ -197,7 +197,7 @@ class GroundStation:
             pos = f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position else "position ?"
             state = v.ha_state.value if v.ha_state else "unknown"
             print(f"gs {self.name} | {d}: authority {v.owner} (epoch {v.epoch}, {state}) | {pos} | "
-                  f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.custom_mode)} | mission item {v.mission_seq} | "
+                  f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.autopilot, v.custom_mode)} | mission item {v.mission_seq} | "
                   f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}", flush=True)
 
     def stop(self, *_: object) -> None:
@@ -206,7 +206,7 @@ class GroundStation:
     def step(self, now: float) -> None:
         """One pass of the loop."""
         self._serve_linkkeys(now)
-        self._do(self.core.tick(now))
+        self._do(self.core.tick(now, time.time()))
 
     def drain(self, timeout: float) -> None:
         self.rx.drain(timeout, self._on_inbox)

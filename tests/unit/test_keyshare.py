@@ -16,7 +16,7 @@ def ask(me: Identity = A, asker: str = "A", owner_public: bytes = B.public, now:
 def test_owner_answers_an_authentic_query_and_only_the_asker_reads_the_secret():
     a = ask()
     q = decode_query(a.payload)
-    assert not isinstance(q, Refused) and q.asker == "A" and len(q.m1) == 48 + 16  # Noise message 1 + the pair tag
+    assert not isinstance(q, Refused) and q.asker == "A" and len(q.m1) == 48 + 8 + 16  # Noise message 1, time stamp, pair tag
     reply = answer(B, "B", "d1", "A", A.public, q.m1, SECRET)
     assert isinstance(reply, bytes) and SECRET not in reply and len(reply) == 32 + 32 + 16 + 16
     assert a.on_reply(reply, 1.0) == SECRET
@@ -111,9 +111,11 @@ def test_responder_checks_the_tag_before_the_rate_limit_and_repeats_its_answer()
     m1 = decode_query(a.payload).m1  # type: ignore[union-attr]
     first = r.answer("d1", "A", A.public, m1, 0.0, SECRET)
     assert isinstance(first, tuple) and first[1] is True  # a fresh secret
-    for t in (0.1, 5.0, 59.0):
+    for t in (0.1, 5.0, 29.0):
         again = r.answer("d1", "A", A.public, m1, t, bytes(32))
         assert again == (first[0], False)  # the same message 2, no new secret
+    late = r.answer("d1", "A", A.public, m1, 61.0, bytes(32))  # review N2: after the cache, a replay is stale
+    assert isinstance(late, Refused) and late.reason is ShareRefusal.STALE
     assert a.on_reply(first[0], 0.2) == SECRET
     second = ask()
     out = r.answer("d1", "A", A.public, decode_query(second.payload).m1, 0.0, bytes(32))  # type: ignore[union-attr]
@@ -121,3 +123,20 @@ def test_responder_checks_the_tag_before_the_rate_limit_and_repeats_its_answer()
     third = ask()
     limited = r.answer("d1", "A", A.public, decode_query(third.payload).m1, 0.0, bytes(32))  # type: ignore[union-attr]
     assert isinstance(limited, Refused) and limited.reason is ShareRefusal.RATE_LIMITED  # burst 2 spent by A itself
+
+
+def test_the_time_stamp_is_under_the_tag_and_checked_against_the_owners_clock():
+    """Review N2: a query captured and replayed after the response cache forgot it is refused."""
+    r = KeyShareResponder(B, "B", rate=10.0, burst=10.0)
+    old = KeyShareAsk(A, "A", "B", B.public, "d1", 0.0, wall=1_000.0)
+    m1 = decode_query(old.payload).m1  # type: ignore[union-attr]
+    out = r.answer("d1", "A", A.public, m1, 0.0, SECRET, wall=1_031.0)
+    assert isinstance(out, Refused) and out.reason is ShareRefusal.STALE
+    future = KeyShareAsk(A, "A", "B", B.public, "d1", 0.0, wall=2_000.0)
+    out = r.answer("d1", "A", A.public, decode_query(future.payload).m1, 0.0, SECRET, wall=1_000.0)  # type: ignore[union-attr]
+    assert isinstance(out, Refused) and out.reason is ShareRefusal.STALE
+    bumped = bytearray(m1)
+    bumped[-24:-16] = bytes(8)  # the stamp, moved to 0.0 by someone without the tag key
+    out = r.answer("d1", "A", A.public, bytes(bumped), 0.0, SECRET, wall=0.0)
+    assert isinstance(out, Refused) and out.reason is ShareRefusal.BAD_MAC
+    assert isinstance(r.answer("d1", "A", A.public, m1, 0.0, SECRET, wall=1_010.0), tuple)

@@ -16,7 +16,7 @@ def test_kk_both_sides_get_the_same_directional_keys():
     assert not isinstance(gs_key, PairingFailed)
     assert gs_key.same_as(drone_key) and gs_key.up != gs_key.down
     assert SECRET not in m1 + m2  # never in clear
-    assert len(m1) == 48 + 16  # Noise message 1 + the pair tag
+    assert len(m1) == 48 + 8 + 16  # Noise message 1, time stamp, pair tag
 
 
 def test_initiator_without_fleet_key_fails():

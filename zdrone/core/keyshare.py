@@ -58,6 +58,7 @@ class ShareRefusal(enum.Enum):
     UNKNOWN_ASKER = "unknown_asker"
     UNAUTHORIZED = "unauthorized"
     BAD_MAC = "bad_mac"  # failed the cheap tag: forged or garbage, no crypto spent
+    STALE = "stale"  # message 1 older than MAX_AGE by its tagged time stamp: a replay
     AUTH_FAILED = "auth_failed"
     RATE_LIMITED = "rate_limited"
     EXHAUSTED = "exhausted"  # too many tag-valid replies to one ask
@@ -92,11 +93,12 @@ class KeyShareAsk:
     """The asking GS's side of one key-sharing exchange (one query, at most one accepted reply)."""
 
     def __init__(self, me: Identity, asker: str, owner: str, owner_public: bytes, drone: str, now: float,
-                 timeout: float = ASK_TIMEOUT, ephemeral: bytes | None = None) -> None:
+                 timeout: float = ASK_TIMEOUT, ephemeral: bytes | None = None, wall: float | None = None) -> None:
         self.asker, self.owner, self.drone = asker, owner, drone
         self.deadline = now + timeout
         self.done = False
-        self._kk = KKInitiator(me, owner_public, _prologue(drone, owner, asker), ephemeral)
+        self._kk = KKInitiator(me, owner_public, _prologue(drone, owner, asker), ephemeral,
+                               stamp=now if wall is None else wall)
         self.payload = _encoder.encode(LinkKeyQuery(asker, self._kk.message1))
 
     def expired(self, now: float) -> bool:
@@ -128,15 +130,20 @@ def answer(me: Identity, owner: str, drone: str, asker: str, asker_public: bytes
     return msg2
 
 
-#: A message 1 seen within this time gets its first answer again (a replay creates nothing).
-SHARE_RESPONSE_TTL = 60.0
+#: A query made longer ago than this (by the asker's clock, under the tag) is a replay: refused.
+#: Ground stations' clocks must agree within it (NTP or GPS time).
+MAX_AGE = 30.0
+#: A message 1 seen within this time gets its first answer again (a replay creates nothing); at
+#: least twice ``MAX_AGE``, so no replay can be both fresh and forgotten.
+SHARE_RESPONSE_TTL = 2 * MAX_AGE
 
 
 class KeyShareResponder:
     """The owner's checks for one authenticated query, cheapest first, after the caller checked
     that the asker is a GS of the fleet authorized for the drone (no crypto for those):
 
-    1. message 1's tag (~2 µs, no Diffie-Hellman): forged -> ``BAD_MAC``;
+    1. message 1's tag (~2 µs, no Diffie-Hellman): forged -> ``BAD_MAC``; made more than ``MAX_AGE``
+       ago by its tagged stamp -> ``STALE``;
     2. a message 1 seen before gets the same message 2 again and no new secret (``repeated``);
     3. the asker's rate limit, charged only now (nobody without its key can spend its tokens);
     4. the Noise handshake.
@@ -148,9 +155,13 @@ class KeyShareResponder:
         self.cache = ResponseCache(SHARE_RESPONSE_TTL)
 
     def answer(self, drone: str, asker: str, asker_public: bytes, m1: bytes, now: float,
-               secret: bytes) -> tuple[bytes, bool] | Refused:
-        """(message 2, new secret?) or why the query is refused."""
-        fail = check_message1(self.me, asker_public, _prologue(drone, self.owner, asker), m1)
+               secret: bytes, wall: float | None = None) -> tuple[bytes, bool] | Refused:
+        """(message 2, new secret?) or why the query is refused. ``wall`` is this GS's clock (time of
+        day, to compare with the asker's stamp; ``now`` is monotonic)."""
+        fail = check_message1(self.me, asker_public, _prologue(drone, self.owner, asker), m1,
+                              now if wall is None else wall, MAX_AGE)
+        if fail is KKFail.STALE:
+            return Refused(ShareRefusal.STALE, f"query made more than {MAX_AGE:.0f} s ago: a replay")
         if fail is not None:
             return Refused(ShareRefusal(fail.value), f"query does not prove {asker}'s static key")
         cached = self.cache.get(m1, now)

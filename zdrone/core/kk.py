@@ -23,9 +23,12 @@ ephemeral key and replays its own side into a fresh state for every reply it tri
 pass the tag can only come from the responder, so the number of full attempts per exchange is
 small and bounded (``MAX_REPLY_ATTEMPTS``).
 
-Responders answer a repeated message 1 with the *same* message 2 (``ResponseCache``): a replay
-(or a copy forwarded by an on-path party) creates no second secret and evicts nothing, and the
-genuine initiator still gets its answer.
+Message 1 also carries the initiator's clock (8 bytes, under the tag). A responder that asks for
+it (key sharing between ground stations, whose clocks agree) refuses a message 1 older than
+``max_age`` (``stale``), before any other work; within that age, it answers a repeated message 1 with
+the *same* message 2 (``ResponseCache``, kept at least twice as long): a replay, or a copy
+forwarded by an on-path party, creates no second secret and evicts nothing, and the genuine
+initiator still gets its answer.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ import enum
 import functools
 import hashlib
 import hmac
+import struct
 import warnings
 from collections import OrderedDict
 
@@ -46,6 +50,7 @@ PROTOCOL = b"Noise_KK_25519_ChaChaPoly_SHA256"
 MAX_REPLY_ATTEMPTS = 8
 MAX_MESSAGE = 512
 TAG_LEN = 16
+STAMP_LEN = 8
 EPHEMERAL_LEN = 32
 
 
@@ -54,6 +59,7 @@ class KKFail(enum.Enum):
 
     MALFORMED = "malformed"  # too short or too long
     BAD_MAC = "bad_mac"  # the cheap tag failed: forged or garbage, no crypto spent
+    STALE = "stale"  # message 1 made too long ago (its tagged time stamp): a replay
     AUTH_FAILED = "auth_failed"  # the tag passed but the Noise message did not (should not happen)
     EXHAUSTED = "exhausted"  # too many authentic-looking replies to one exchange
 
@@ -96,15 +102,26 @@ def _split(message: bytes) -> tuple[bytes, bytes] | None:
     return message[:-TAG_LEN], message[-TAG_LEN:]
 
 
+def _split1(message1: bytes) -> tuple[bytes, float, bytes] | None:
+    """Message 1 on the wire: Noise message 1, the initiator's time stamp, the tag."""
+    parts = _split(message1)
+    if parts is None or len(parts[0]) < EPHEMERAL_LEN + STAMP_LEN:
+        return None
+    body, tag = parts
+    return body[:-STAMP_LEN], struct.unpack(">d", body[-STAMP_LEN:])[0], tag
+
+
 class KKInitiator:
     """The initiator of one KK exchange: ``message1`` to send, ``read_reply`` for each reply."""
 
-    def __init__(self, me: Identity, peer_public: bytes, prologue: bytes, ephemeral: bytes | None = None) -> None:
+    def __init__(self, me: Identity, peer_public: bytes, prologue: bytes, ephemeral: bytes | None = None,
+                 stamp: float = 0.0) -> None:
         self._me, self._peer, self._prologue = me, peer_public, prologue
         self._ephemeral = ephemeral if ephemeral is not None else Identity.generate().private
         self._mac = pair_mac_key(me.private, peer_public)
         self._m1 = bytes(self._fresh().write_message(b""))
-        self.message1 = self._m1 + _tag(self._mac, b"1", prologue, self._m1)
+        body = self._m1 + struct.pack(">d", stamp)
+        self.message1 = body + _tag(self._mac, b"1", prologue, body)
         self.attempts = 0
 
     def _fresh(self) -> NoiseConnection:
@@ -130,14 +147,19 @@ class KKInitiator:
         return payload if conn.handshake_finished else KKFail.AUTH_FAILED
 
 
-def check_message1(me: Identity, peer_public: bytes, prologue: bytes, message1: bytes) -> KKFail | None:
-    """The cheap check of message 1 (no Diffie-Hellman once the peer's tag key is cached)."""
-    parts = _split(bytes(message1))
+def check_message1(me: Identity, peer_public: bytes, prologue: bytes, message1: bytes,
+                   now: float | None = None, max_age: float | None = None) -> KKFail | None:
+    """The cheap check of message 1 (no Diffie-Hellman once the peer's tag key is cached): its tag,
+    and with ``max_age`` its tagged time stamp against the responder's clock ``now``."""
+    parts = _split1(bytes(message1))
     if parts is None:
         return KKFail.MALFORMED
-    m1, tag = parts
-    if not hmac.compare_digest(tag, _tag(pair_mac_key(me.private, peer_public), b"1", prologue, m1)):
+    m1, stamp, tag = parts
+    if not hmac.compare_digest(tag, _tag(pair_mac_key(me.private, peer_public), b"1", prologue,
+                                         bytes(message1[:-TAG_LEN]))):
         return KKFail.BAD_MAC
+    if max_age is not None and now is not None and not abs(now - stamp) <= max_age:
+        return KKFail.STALE
     return None
 
 
@@ -151,7 +173,7 @@ def respond(me: Identity, peer_public: bytes, prologue: bytes, message1: bytes, 
     fail = check_message1(me, peer_public, prologue, message1)
     if fail is not None:
         return fail
-    m1 = bytes(message1[:-TAG_LEN])
+    m1 = bytes(message1[:-(TAG_LEN + STAMP_LEN)])
     conn = _conn(me, peer_public, prologue, False)
     try:
         conn.read_message(m1)

@@ -423,6 +423,7 @@ class DroneNode:
         return {
             "owner": m.owner, "epoch": m.epoch, "state": m.state.value, "pending_to": m.pending_to,
             "position": self._pos(), "armed": v.armed, "mode": v.mode, "landed_state": v.landed_state,
+            "autopilot": getattr(v, "autopilot", None), "vehicle_streams": self.vehicle.stream_stats(),
             "in_region": m.in_region, "subscribed": sorted(m.subscribed),
             "links": {gs: {"state": link.tbm.state(now).value, "since_last": round(link.tbm.since_last(now), 3),
                            "opened": link.opened, "sent": link.sent,

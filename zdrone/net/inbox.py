@@ -1,24 +1,26 @@
 """The hand-off between Zenoh's callback threads and a node's single loop thread.
 
-Callbacks only put ``(kind, peer, data)`` on a bounded queue (envelopes, query replies); the loop
-thread drains it. Nothing that arrives is handled on a Zenoh thread, and nothing a sender can do
-grows a node's memory or stalls its loop: a payload above its kind's size limit is refused by its
-length before it is even copied out of Zenoh, a full queue refuses the newest item, and each drain
-handles a bounded batch. Every refusal is counted per reason (``Inbox.dropped``).
+Callbacks only put ``(kind, peer, data)`` on a bounded queue per (kind, sender) (envelopes, query
+replies); the loop thread drains them in turn. Nothing that arrives is handled on a Zenoh thread, and
+nothing a sender can do grows a node's memory, stalls its loop or crowds out another sender: a
+payload above its kind's size limit is refused by its length before it is even copied out of Zenoh,
+a full queue refuses the newest item, and each drain handles a bounded batch, one item per sender in
+turn. Every refusal is counted per reason (``Inbox.dropped``).
 """
 
 from __future__ import annotations
 
-import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from typing import Any, Callable
 
 #: Items handled per drain at most, so the rest of the loop still runs under load.
 MAX_BATCH = 512
-#: Items waiting at most; beyond it, new ones are refused (counted ``<kind>:inbox_full``).
-INBOX_SIZE = 4096
+#: Items waiting per (kind, sender) at most; beyond it, new ones are refused (``<kind>:inbox_full``).
+INBOX_SIZE = 1024
+#: Distinct (kind, sender) queues at most (senders are GS names from key expressions).
+MAX_SENDERS = 64
 #: A sealed envelope carries one MAVLink frame (<= 280 bytes) or one small control message.
 MAX_ENVELOPE = 1024
 #: A pairing or key-sharing query or reply: a Noise message (<= 512 bytes) and a few names.
@@ -26,23 +28,40 @@ MAX_HANDSHAKE = 768
 
 
 class Inbox:
-    """A bounded, thread-safe queue of ``(kind, peer, data)`` with counted refusals."""
+    """Bounded, thread-safe queues of ``(kind, peer, data)``, one per (kind, peer), drained in turn.
+
+    One queue per sender and kind, each at most ``size`` items: a flood on one key (one leaked
+    password) fills its own queue only, and the loop takes one item from each non-empty queue in
+    turn, so the other senders' frames still get through at their own rate. Refusals are counted."""
 
     def __init__(self, size: int = INBOX_SIZE) -> None:
-        self._q: queue.Queue[tuple[str, str, Any]] = queue.Queue(size)
-        self._lock = threading.Lock()
+        self.size = size
+        self._queues: dict[tuple[str, str], deque[Any]] = {}
+        self._order: deque[tuple[str, str]] = deque()  # keys with items, in turn
+        self._cond = threading.Condition(threading.Lock())
         self.dropped: Counter[str] = Counter()
 
     def drop(self, reason: str) -> None:
         """Count one refusal (any thread)."""
-        with self._lock:
+        with self._cond:
             self.dropped[reason] += 1
 
     def put(self, kind: str, peer: str, data: Any) -> None:
-        try:
-            self._q.put_nowait((kind, peer, data))
-        except queue.Full:
-            self.drop(f"{kind}:inbox_full")
+        key = (kind, peer)
+        with self._cond:
+            q = self._queues.get(key)
+            if q is None:
+                if len(self._queues) >= MAX_SENDERS:
+                    self.dropped[f"{kind}:too_many_senders"] += 1
+                    return
+                q = self._queues[key] = deque()
+            if len(q) >= self.size:
+                self.dropped[f"{kind}:inbox_full"] += 1
+                return
+            if not q:
+                self._order.append(key)
+            q.append(data)
+            self._cond.notify()
 
     def put_payload(self, kind: str, peer: str, payload: Any, limit: int = MAX_ENVELOPE) -> None:
         """Queue a Zenoh payload's bytes, unless it is longer than ``limit`` (checked before copying)."""
@@ -52,26 +71,30 @@ class Inbox:
         self.put(kind, peer, payload.to_bytes())
 
     def stats(self) -> dict[str, int]:
-        with self._lock:
+        with self._cond:
             return dict(self.dropped)
+
+    def _take(self, n: int) -> list[tuple[str, str, Any]]:
+        """Up to ``n`` items, one per sender in turn (the caller holds the lock)."""
+        out: list[tuple[str, str, Any]] = []
+        while self._order and len(out) < n:
+            key = self._order.popleft()
+            q = self._queues[key]
+            out.append((key[0], key[1], q.popleft()))
+            if q:
+                self._order.append(key)
+        return out
 
     def drain(self, wait: float, handle: Callable[[str, str, Any, float], None]) -> int:
         """Wait up to ``wait`` s for the first item, then handle what is queued (at most
-        ``MAX_BATCH``). Return how many were handled."""
-        try:
-            first = self._q.get(timeout=wait) if wait > 0 else self._q.get_nowait()
-        except queue.Empty:
-            return 0
-        handle(first[0], first[1], first[2], time.monotonic())
-        n = 1
-        while n < MAX_BATCH:
-            try:
-                kind, peer, data = self._q.get_nowait()
-            except queue.Empty:
-                break
+        ``MAX_BATCH``, senders in turn). Return how many were handled."""
+        with self._cond:
+            if not self._order and wait > 0:
+                self._cond.wait(wait)
+            batch = self._take(MAX_BATCH)
+        for kind, peer, data in batch:
             handle(kind, peer, data, time.monotonic())
-            n += 1
-        return n
+        return len(batch)
 
 
 def payload_bytes(payload: Any, limit: int = MAX_HANDSHAKE) -> bytes | None:

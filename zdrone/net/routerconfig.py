@@ -72,7 +72,10 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str = DEFAULT_LIS
         "listen": {"endpoints": [listen]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}},
-                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}},
+                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}},
+                      # shared memory would carry big messages between processes of one host around
+                      # the size limit (and zdrone's messages are small): off
+                      "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet),
     }
 

@@ -25,7 +25,8 @@ def client_config(router: str, user: str, password: str) -> zenoh.Config:
                     "retry": {"period_init_ms": 100, "period_max_ms": 400, "period_increase_factor": 1.5}},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {"auth": {"usrpwd": {"user": user, "password": password}},
-                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}},
+                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}},
+                      "shared_memory": {"enabled": False}},  # see routerconfig: no way around the size limit
     }
     return zenoh.Config.from_json5(json.dumps(cfg))
 

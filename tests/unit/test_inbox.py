@@ -1,0 +1,46 @@
+"""The hand-off from Zenoh's threads to a node's loop: bounded, fair between senders, counted."""
+
+from __future__ import annotations
+
+import threading
+
+from zdrone.net.inbox import MAX_BATCH, Inbox
+
+
+class _Payload:
+    def __init__(self, n: int) -> None:
+        self.n = n
+
+    def __len__(self) -> int:
+        return self.n
+
+    def to_bytes(self) -> bytes:
+        raise AssertionError("an oversized payload must not be copied")
+
+
+def test_a_flood_from_one_sender_does_not_crowd_out_another():
+    """Review N1: junk on up/B used to fill the one shared queue and delay A's frames."""
+    ib = Inbox(size=100)
+    for i in range(10_000):
+        ib.put("up", "B", b"junk")
+    for i in range(5):
+        ib.put("up", "A", bytes([i]))
+    got: list[tuple[str, bytes]] = []
+    ib.drain(0.0, lambda kind, peer, data, now: got.append((peer, data)))
+    assert [d for p, d in got if p == "A"] == [bytes([i]) for i in range(5)]  # all of A's, in the first batch
+    assert ib.stats() == {"up:inbox_full": 10_000 - 100}
+    assert len(got) == 105 <= MAX_BATCH
+
+
+def test_oversized_payloads_are_refused_by_length_and_counted():
+    ib = Inbox()
+    ib.put_payload("up", "A", _Payload(5000), limit=1024)
+    assert ib.stats() == {"up:oversize": 1}
+    assert ib.drain(0.0, lambda *a: None) == 0
+
+
+def test_drain_waits_for_the_first_item_from_another_thread():
+    ib = Inbox()
+    threading.Timer(0.05, lambda: ib.put("down", "d1", b"x")).start()
+    got: list[bytes] = []
+    assert ib.drain(2.0, lambda kind, peer, data, now: got.append(data)) == 1 and got == [b"x"]
