@@ -49,7 +49,7 @@ from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareR
 from zdrone.core.linkslot import LinkSlot
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
-from zdrone.net import keyexprs as kx
+from zdrone.fleet import keyexprs as kx
 
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
@@ -541,18 +541,14 @@ class StationCore:
     def _on_control(self, view: DroneView, msg: wire.Control, now: float) -> list[Action]:
         out: list[Action] = []
         if isinstance(msg, wire.AuthorityStatus):
-            try:
-                state: HaState | None = HaState(msg.state)
-            except ValueError:
-                state = None
-                self.counters["status_unknown_state"] += 1
+            state = msg.state  # an enum on the wire: an unknown state does not even decode
             changed = (msg.owner, msg.epoch, state, msg.pending_to) != (view.owner, view.epoch, view.ha_state, view.pending_to)
             was_mine = view.owner == self.name
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
             view.drone_links = set(msg.linked)
             if changed:
                 out.append(Log("authority_status", {"drone": view.name, "owner": msg.owner, "epoch": msg.epoch,
-                                                    "state": msg.state, "pending_to": msg.pending_to}))
+                                                    "state": msg.state.value, "pending_to": msg.pending_to}))
             if was_mine and msg.owner == self.name and view.released_epoch == msg.epoch:
                 if state is HaState.HANDOVER_PENDING:
                     view.release_confirmed = True

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -25,12 +24,10 @@ from typing import Any, Callable
 import zenoh
 
 from zdrone.core import wire
-from zdrone.core.fleet import ConfigError
-from zdrone.fleetfiles import load_fleet, load_secret
-from zdrone.net import keyexprs as kx
-from zdrone.net.eventlog import EventLog
-from zdrone.net.inbox import MAX_ENVELOPE, Inbox, payload_bytes, reply_bytes
-from zdrone.net.session import open_client, query_queue
+from zdrone.core.errors import ConfigError
+from zdrone.fleet import keyexprs as kx
+from zdrone.net.inbox import payload_bytes
+from zdrone.net.runtime import NodeRuntime
 
 from .core import GCS_COMPID, Action, Ask, AskKind, CoreOptions, DroneView, FrameUp, Log, Put, Say, StationCore
 from .planner import PlannedItem
@@ -68,13 +65,10 @@ class GroundStation:
 
     def __init__(self, opts: StationOptions) -> None:
         self.opts = opts
-        self.fleet = load_fleet(opts.fleet)
-        node = self.fleet.nodes.get(opts.gs)
-        if node is None or node.role != "gs":
-            raise ConfigError(f"--id {opts.gs}: not a ground station of the fleet ({', '.join(self.fleet.ground_stations())})")
+        self.rt = NodeRuntime(opts.fleet, opts.gs, "gs", opts.router, opts.events)
+        self.fleet, self.secret, self.events, self.rx = self.rt.fleet, self.rt.secret, self.rt.events, self.rt.inbox
         self.name = opts.gs
-        self.sysid = node.sysid
-        self.secret = load_secret(opts.fleet, opts.gs, self.fleet)
+        self.sysid = self.rt.node.sysid
         drones = opts.drones or tuple(d for d in self.fleet.drones() if self.fleet.is_authorized(d, self.name))
         for d in drones:
             if d not in self.fleet.nodes or self.fleet.nodes[d].role != "drone":
@@ -85,26 +79,20 @@ class GroundStation:
             take_control=opts.take_control))
         self.views = self.core.views
         self.counters = self.core.counters
-        self.events = EventLog(opts.events, opts.gs)
-        self.rx = Inbox()
-        self._running = True
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
         self.status_sources: dict[str, Callable[[], dict[str, Any]]] = {}  # e.g. the gateway's stats
-        self.session = open_client(opts.router, opts.gs, self.secret.router_password)
-        self.sub = self.session.declare_subscriber(kx.down("*", self.name), self._on_sample)
-        self.linkkey_q = self.session.declare_queryable(kx.linkkey_all(self.name), query_queue())
+        self.session = self.rt.session
+        self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of)
+        self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
 
     # ------------------------------------------------------------------ plumbing
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        self.rx.put_payload("down", str(sample.key_expr).split("/")[1], sample.payload, MAX_ENVELOPE)
 
     def _do(self, actions: list[Action]) -> None:
         """Carry out the core's actions."""
         for a in actions:
             if isinstance(a, Put):
-                # session.put, not a declared publisher: see DroneNode._publish
-                self.session.put(a.keyexpr, a.payload, congestion_control=zenoh.CongestionControl.DROP)
+                self.rt.put(a.keyexpr, a.payload)
             elif isinstance(a, FrameUp):
                 for listener in self.frame_listeners:
                     listener(a.drone, a.frame)
@@ -116,17 +104,11 @@ class GroundStation:
                 print(a.text, flush=True)
 
     def _ask(self, a: Ask) -> None:
-        drone, gs = a.drone, a.gs
         if a.kind is AskKind.PAIR:
-            def on_reply(r: Any) -> None:
-                self.rx.put("pair", drone, reply_bytes(r))
+            self.rt.ask(a.keyexpr, a.payload, a.timeout, "pair", a.drone)
         else:
-            def on_reply(r: Any) -> None:
-                self.rx.put("linkkey", drone, (gs, reply_bytes(r)))
-        # every queryable on the key (ALL: a second queryable declared with a stolen password cannot
-        # hide the real one), every reply (NONE): the core picks the authentic one
-        self.session.get(a.keyexpr, on_reply, payload=a.payload, timeout=a.timeout,
-                         target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
+            gs = a.gs
+            self.rt.ask(a.keyexpr, a.payload, a.timeout, "linkkey", a.drone, wrap=lambda r: (gs, r))
 
     def send_frame(self, view: DroneView, frame: bytes) -> None:
         """Seal and send one MAVLink frame to the drone (no-op without a link)."""
@@ -201,7 +183,7 @@ class GroundStation:
                   f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}", flush=True)
 
     def stop(self, *_: object) -> None:
-        self._running = False
+        self.rt.stop()
 
     def step(self, now: float) -> None:
         """One pass of the loop."""
@@ -216,7 +198,7 @@ class GroundStation:
         self.events.write("start", drones=list(self.views))
         next_status = next_view = 0.0
         try:
-            while self._running:
+            while self.rt.running:
                 self.drain(0.005 if self.loop_hooks else 0.01)
                 now = time.monotonic()
                 self.step(now)
@@ -232,20 +214,10 @@ class GroundStation:
             self.close()
 
     def close(self) -> None:
-        self.events.write("stop", **self.status())
-        for step in (self.sub.undeclare, self.linkkey_q.undeclare, self.session.close):
-            try:  # each step on its own: a session the signal thread closed must not stop the rest
-                step()
-            except Exception as exc:
-                log.warning("close: %s", exc)
-        self.events.write("closed")
-        self.events.close()
+        self.rt.close(self.status())
 
 
 def run_station(opts: StationOptions) -> int:
-    from zdrone.net.shutdown import block_signals, serve_signals
-
-    block_signals()
     station = GroundStation(opts)
     gateway = None
     if opts.gcs:
@@ -258,12 +230,8 @@ def run_station(opts: StationOptions) -> int:
             raise
         station.status_sources["gateway"] = gateway.stats
         print(f"zdrone gs {station.name}: GCS gateway on {', '.join(gateway.endpoints())} for {gateway.drone}", flush=True)
-    closed = threading.Event()
-    serve_signals(station.stop, station.session.close, closed)
     try:
-        station.run()
+        return station.rt.serve(station.run)
     finally:
-        closed.set()
         if gateway is not None:
             gateway.close()
-    return 0

@@ -7,13 +7,9 @@ import logging
 import sys
 from typing import Callable, Sequence
 
-from .core.fleet import ConfigError
+from .core.errors import ConfigError, UsageError
 
 log = logging.getLogger("zdrone")
-
-
-class UsageError(Exception):
-    """Bad command-line input; printed as one line, exit 2."""
 
 
 class _Parser(argparse.ArgumentParser):
@@ -23,7 +19,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _fleet_init(args: argparse.Namespace) -> int:
-    from .fleetfiles import init_fleet
+    from .fleet.files import init_fleet
 
     fleet = init_fleet(args.dir, force=args.force)
     print(f"wrote {args.dir}/fleet.json5 with nodes: " + ", ".join(
@@ -33,7 +29,7 @@ def _fleet_init(args: argparse.Namespace) -> int:
 
 
 def _fleet_show(args: argparse.Namespace) -> int:
-    from .fleetfiles import load_fleet, load_secret
+    from .fleet.files import load_fleet, load_secret
 
     fleet = load_fleet(args.dir)
     for name, node in fleet.nodes.items():
@@ -200,22 +196,15 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--seed", type=int, default=1, help="seed of the first schedule (the next ones count up)")
     bc.set_defaults(func=_bench_chaos)
 
-    for extra in _EXTRA_COMMANDS:
-        extra(sub)
+    from .commands import NODE_COMMANDS
+
+    for add in NODE_COMMANDS:
+        add(sub)
     return p
-
-
-#: Commands whose SIGTERM/SIGINT are served by a signal thread (registered by zdrone.commands).
-_SIGNAL_THREAD_COMMANDS: list[Callable[[argparse.Namespace], int]] = []
-
-#: Later modules register their subcommands here (name -> adder of a subparser).
-_EXTRA_COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = []
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``zdrone`` console script."""
-    from . import commands  # noqa: F401  (registers the node subcommands)
-
     import faulthandler
     import signal
 
@@ -234,7 +223,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def run_parsed(args: argparse.Namespace) -> int:
     """Run a parsed subcommand: logging, signal thread, one-line errors with exit code 2."""
     try:
-        if getattr(args, "func", None) in _SIGNAL_THREAD_COMMANDS:
+        from .commands import SIGNAL_THREAD_COMMANDS
+
+        if getattr(args, "func", None) in SIGNAL_THREAD_COMMANDS:
             from .net.shutdown import block_signals
 
             block_signals()  # before any library starts a thread: see zdrone.net.shutdown

@@ -1,11 +1,12 @@
-"""Registration of the node subcommands (router, sim, drone, gs, demo, report)."""
+"""The node subcommands (sim, router, drone, gs, demo, report), listed in ``NODE_COMMANDS``."""
 
 from __future__ import annotations
 
 import argparse
 import math
+from typing import Any, Callable
 
-from .cli import _EXTRA_COMMANDS, _SIGNAL_THREAD_COMMANDS, UsageError
+from .core.errors import UsageError
 from .core.geometry import GeoPoint
 
 
@@ -65,7 +66,6 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_sim)
 
 
-_EXTRA_COMMANDS.append(add_sim)
 
 
 def _router(args: argparse.Namespace) -> int:
@@ -83,7 +83,6 @@ def add_router(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_router)
 
 
-_EXTRA_COMMANDS.append(add_router)
 
 
 def _thresholds(args: argparse.Namespace):
@@ -96,12 +95,22 @@ def _thresholds(args: argparse.Namespace):
 
 
 def _drone(args: argparse.Namespace) -> int:
-    from .net.drone import DroneOptions, run_drone
+    from .nodes.drone import DroneOptions, run_drone
 
     return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=args.router, vehicle=args.vehicle,
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
-                                  handover_timeout=args.handover_timeout, sil_coverage=args.sil_coverage,
+                                  handover_timeout=args.handover_timeout, gate=_gate(args),
                                   events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args)))
+
+
+def _gate(args: argparse.Namespace) -> "Any":
+    """The emulated radio coverage (testbed only), or None."""
+    if not args.sil_coverage:
+        return None
+    from .fleet.files import load_fleet
+    from .sil.coverage import CoverageGate
+
+    return CoverageGate(load_fleet(args.fleet))
 
 
 def _radio(args: argparse.Namespace) -> "Any":
@@ -200,9 +209,6 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.set_defaults(func=_gs)
 
 
-_EXTRA_COMMANDS.append(add_drone)
-_EXTRA_COMMANDS.append(add_gs)
-_SIGNAL_THREAD_COMMANDS.extend([_drone, _gs])
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -248,11 +254,10 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_demo)
 
 
-_EXTRA_COMMANDS.append(add_demo)
 
 
 def _report(args: argparse.Namespace) -> int:
-    from .bench.report import write_report
+    from .report import write_report
 
     print(write_report(args.log))
     return 0
@@ -264,4 +269,8 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_report)
 
 
-_EXTRA_COMMANDS.append(add_report)
+#: The node subcommands, in ``zdrone --help`` order (the fleet and bench commands live in ``cli``).
+NODE_COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
+    add_sim, add_router, add_drone, add_gs, add_demo, add_report)
+#: Commands whose SIGTERM/SIGINT are served by a signal thread (``zdrone.net.shutdown``).
+SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs)

@@ -21,7 +21,7 @@ from pymavlink.dialects.v20 import common as mav
 from tests.integration.test_gcs_gateway import RawApp
 from tests.procs import ZDRONE, free_port, spawn
 from zdrone.core.mavlink import crc_ok, crc_seed, encode_raw, read_header
-from zdrone.fleetfiles import init_fleet
+from zdrone.fleet.files import init_fleet
 from zdrone.net.eventlog import read_events
 
 #: a message id no pymavlink dialect defines, and the checksum seed its (imaginary) definition has

@@ -18,10 +18,11 @@ from zdrone.net.eventlog import read_events
 SPEEDUP = "4"
 
 
-def run_demo(tmp_path: Path, scenario: str, report: bool = False) -> tuple[dict, Path]:
-    out = tmp_path / scenario
-    proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live"]
-                          + ([] if report else ["--no-report"]), capture_output=True, text=True, timeout=240)
+def run_demo(tmp_path: Path, scenario: str, report: bool = False, autopilot: str = "px4") -> tuple[dict, Path]:
+    out = tmp_path / f"{scenario}-{autopilot}"
+    proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live",
+                           "--autopilot", autopilot] + ([] if report else ["--no-report"]),
+                          capture_output=True, text=True, timeout=240)
     summary = json.loads((out / "summary.json").read_text())
     assert "Traceback" not in proc.stderr, proc.stderr
     summary |= {"_rc": proc.returncode, "_stdout": proc.stdout[-2000:], "_stderr": proc.stderr[-2000:]}
@@ -230,3 +231,24 @@ def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
     assert any(e["type"] == "handover_failed" for e in read_events(out / "A.jsonl"))
     assert s["distance_from_home_m"] < 3.0  # A brought it home
     _clean_shutdown(s, out, nodes=("drone", "A"), stopped=("gsB",))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["nominal", "link-loss", "gs-crash"])
+def test_the_reference_flight_and_its_faults_on_the_ardupilot_personality(tmp_path, scenario):
+    """Issue 10: ArduPilot keeps item 0 as home, streams nothing until asked, disarms after a landing
+    unless MIS_OPTIONS says to go on; the GS and the vehicle link adapt, and the outcome is the PX4 one."""
+    s, out = run_demo(tmp_path, scenario, autopilot="ardupilot")
+    assert s["_rc"] == 0 and s["ok"], s
+    a = read_events(out / "A.jsonl")
+    assert [e["autopilot"] for e in a if e["type"] == "autopilot"] == ["ardupilot"]
+    uploads = [e for e in a if e["type"] == "mission_upload"]
+    assert uploads and uploads[0]["items"] == 9  # home placeholder + the plan with both take-offs
+    assert any(e["type"] == "vehicle_param" and e["name"] == "MIS_OPTIONS" for e in a)
+    if scenario == "nominal":
+        assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
+        assert s["delivered_at_b"] and s["distance_from_home_m"] < 5.0
+    elif scenario == "link-loss":
+        assert s["failsafe"]["action"] == "LAND" and s["failsafe"]["detect_to_command_ms"] <= 100.0
+    _clean_shutdown(s, out, **({"stopped": ("gsA",), "nodes": ("drone", "B")} if scenario == "link-loss" else
+                               {"stopped": ("gsB",), "nodes": ("drone", "A")} if scenario == "gs-crash" else {}))

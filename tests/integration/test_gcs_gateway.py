@@ -22,13 +22,13 @@ from gs.planner import reference_mission
 from tests.procs import ZDRONE, free_port, spawn
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.reference import DELIVERY, HOME
-from zdrone.fleetfiles import init_fleet
+from zdrone.fleet.files import init_fleet
 from zdrone.net.eventlog import read_events
 from zdrone.vehicle.px4modes import FlightMode
 
 
 @contextlib.contextmanager
-def stack(tmp: Path, speedup: str, with_b: bool):
+def stack(tmp: Path, speedup: str, with_b: bool, autopilot: str = "px4"):
     init_fleet(tmp / "fleet")
     rport, sport, pa, pb = free_port(socket.SOCK_STREAM), free_port(), free_port(), free_port()
     ta = free_port(socket.SOCK_STREAM)
@@ -37,9 +37,16 @@ def stack(tmp: Path, speedup: str, with_b: bool):
     with contextlib.ExitStack() as es:
         r = es.enter_context(spawn(ZDRONE, "router", "-c", str(tmp / "fleet/router/router.json5"), "--listen", router))
         r.wait_line("listening", 20)
-        sim = es.enter_context(spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", speedup))
+        if autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
+            tport = free_port(socket.SOCK_STREAM)
+            sim = es.enter_context(spawn(ZDRONE, "sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
+                                         "--speedup", speedup))
+            vehicle = f"tcp:127.0.0.1:{tport}"
+        else:
+            sim = es.enter_context(spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--speedup", speedup))
+            vehicle = f"udpout:127.0.0.1:{sport}"
         sim.wait_line("zdrone sim:", 20)
-        drone = es.enter_context(spawn(ZDRONE, "drone", *common, "--vehicle", f"udpout:127.0.0.1:{sport}", "--sil-coverage",
+        drone = es.enter_context(spawn(ZDRONE, "drone", *common, "--vehicle", vehicle, "--sil-coverage",
                                        "--handover-timeout", "2", "--events", str(tmp / "drone.jsonl")))
         drone.wait_line("ready", 40)
         if with_b:
@@ -50,6 +57,48 @@ def stack(tmp: Path, speedup: str, with_b: bool):
                                    "--gcs", f"tcpin:127.0.0.1:{ta}", "--events", str(tmp / "A.jsonl")))
         a.wait_line("paired", 30)
         yield {"a": pa, "b": pb, "a_tcp": ta}
+
+
+class MavProxy:
+    """MAVProxy as an operator runs it, on a GS's gateway: its output read without blocking."""
+
+    def __init__(self, port: int, cwd: Path, modules: str) -> None:
+        self.p = subprocess.Popen([str(Path(sys.executable).parent / "mavproxy.py"), f"--master=udpout:127.0.0.1:{port}",
+                                   "--source-system=250", f"--default-modules={modules}"],
+                                  cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  text=True, start_new_session=True)
+        assert self.p.stdout is not None
+        os.set_blocking(self.p.stdout.fileno(), False)
+        self.out: list[str] = []
+
+    def wait_for(self, needle: str, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            line = self.p.stdout.readline()  # type: ignore[union-attr]
+            if line:
+                self.out.append(line)
+                if needle in line:
+                    return True
+            else:
+                time.sleep(0.05)
+        return False
+
+    def type(self, cmd: str) -> None:
+        """The operator types at MAVProxy's prompt."""
+        assert self.p.stdin is not None
+        self.p.stdin.write(cmd + "\n")
+        self.p.stdin.flush()
+
+    def text(self) -> str:
+        return "".join(self.out)
+
+    def stop(self) -> None:
+        os.killpg(self.p.pid, signal.SIGTERM)
+        try:
+            self.p.wait(5)
+        except subprocess.TimeoutExpired:  # MAVProxy's own threads may ignore SIGTERM
+            os.killpg(self.p.pid, signal.SIGKILL)
+            self.p.wait(5)
 
 
 class RawApp:
@@ -127,34 +176,10 @@ def test_mavproxy_reads_parameters_and_switches_mode(tmp_path):
     with stack(tmp_path, "3", with_b=False) as ports:
         cwd = tmp_path / "mavproxy"
         cwd.mkdir()
-        mp = subprocess.Popen([str(Path(sys.executable).parent / "mavproxy.py"), f"--master=udpout:127.0.0.1:{ports['a']}",
-                               "--source-system=250", "--default-modules=mode,param,cmdlong"],
-                              cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                              text=True, start_new_session=True)
-        out: list[str] = []
-
-        def wait_for(needle: str, timeout: float) -> bool:
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                line = mp.stdout.readline()
-                if line:
-                    out.append(line)
-                    if needle in line:
-                        return True
-                else:
-                    time.sleep(0.05)
-            return False
-
-        def type_(cmd: str) -> None:  # the operator types at MAVProxy's prompt
-            assert mp.stdin is not None
-            mp.stdin.write(cmd + "\n")
-            mp.stdin.flush()
-
+        mp = MavProxy(ports["a"], cwd, "mode,param,cmdlong")
         raw = RawApp(ports["a_tcp"], sysid=251)  # a second application on the same GS, over TCP
         try:
-            assert mp.stdout is not None
-            os.set_blocking(mp.stdout.fileno(), False)
-            assert wait_for("Detected vehicle 1:1", 30), "".join(out)
+            assert mp.wait_for("Detected vehicle 1:1", 30), mp.text()
             # operator control: A holds authority; the gateway says so (CONTROL_STATUS) and grants the request
             status = raw.wait_control_status(10)
             assert status == 4, status  # GS A's sysid
@@ -164,20 +189,15 @@ def test_mavproxy_reads_parameters_and_switches_mode(tmp_path):
             raw.send(mav.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1))
             pv = raw.wait(lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == "NAV_DLL_ACT", 10)
             assert struct.unpack("<i", struct.pack("<f", pv.param_value))[0] == 0
-            assert wait_for("Received 13 parameters", 30), "".join(out)  # MAVProxy fetches them on connect
-            type_("param show COM_DL_LOSS_T")
-            assert wait_for("COM_DL_LOSS_T", 10), "".join(out)
-            type_("long DO_SET_MODE 1 3 0")  # custom mode, PX4 main mode 3 = POSCTL (MAVProxy's cmdlong module)
-            assert wait_for("Mode POSCTL", 15), "".join(out)
+            assert mp.wait_for("Received 13 parameters", 30), mp.text()  # MAVProxy fetches them on connect
+            mp.type("param show COM_DL_LOSS_T")
+            assert mp.wait_for("COM_DL_LOSS_T", 10), mp.text()
+            mp.type("long DO_SET_MODE 1 3 0")  # custom mode, PX4 main mode 3 = POSCTL (MAVProxy's cmdlong module)
+            assert mp.wait_for("Mode POSCTL", 15), mp.text()
         finally:
             raw.close()
-            os.killpg(mp.pid, signal.SIGTERM)
-            try:
-                mp.wait(5)
-            except subprocess.TimeoutExpired:  # MAVProxy's own threads may ignore SIGTERM
-                os.killpg(mp.pid, signal.SIGKILL)
-                mp.wait(5)
-        text = "".join(out)
+            mp.stop()
+        text = mp.text()
         assert "Mode POSCTL" in text, text  # the vehicle's HEARTBEAT after the mode command went through
         params = dict(line.split()[:2] for line in (cwd / "mav.parm").read_text().splitlines() if line.strip())
         assert float(params["COM_DL_LOSS_T"]) == 10 and float(params["NAV_DLL_ACT"]) == 0
@@ -251,3 +271,22 @@ def test_mavsdk_flies_through_a_while_b_is_refused_until_it_holds_authority(tmp_
         finally:
             b.close()
             m.destroy()
+
+
+@pytest.mark.slow
+def test_mavproxy_detects_arducopter_through_the_gateway_and_fetches_its_parameters(tmp_path):
+    """Issue 10: MAVProxy behind GS A's gateway, the ArduPilot personality behind the drone."""
+    with stack(tmp_path, "3", with_b=False, autopilot="ardupilot") as ports:
+        cwd = tmp_path / "mavproxy"
+        cwd.mkdir()
+        mp = MavProxy(ports["a"], cwd, "mode,param")
+        try:
+            assert mp.wait_for("Detected vehicle 1:1", 30), mp.text()
+            assert mp.wait_for("ArduCopter V4.7.0-dev", 30), mp.text()  # its banner, relayed by the gateway
+            assert mp.wait_for("Received", 60), mp.text()  # "Received N parameters"
+        finally:
+            mp.stop()
+        params = dict(line.split()[:2] for line in (cwd / "mav.parm").read_text().splitlines() if line.strip())
+        assert float(params["FS_GCS_ENABLE"]) == 0 and float(params["MAV_GCS_SYSID"]) == 255 and "MIS_OPTIONS" in params
+        status = [e for e in read_events(tmp_path / "drone.jsonl") if e["type"] == "status"]
+        assert status[-1]["autopilot"] == "ardupilot" and status[-1]["position"] is not None  # streams were asked for

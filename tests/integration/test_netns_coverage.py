@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from tests.procs import ZDRONE, free_port, spawn
-from zdrone.fleetfiles import init_fleet
+from zdrone.fleet.files import init_fleet
 from zdrone.net.eventlog import read_events
 
 

@@ -6,8 +6,8 @@ import socket
 import threading
 
 from tests.procs import ZDRONE, free_port, spawn
-from zdrone.fleetfiles import init_fleet, load_secret
-from zdrone.net import keyexprs as kx
+from zdrone.fleet.files import init_fleet, load_secret
+from zdrone.fleet import keyexprs as kx
 from zdrone.net.session import open_client
 
 

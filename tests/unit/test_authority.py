@@ -326,3 +326,30 @@ def test_restore_only_at_start_and_only_for_an_authorized_owner():
     m.handle(Paired(0.0, "A"))
     with pytest.raises(IllegalTransition):
         m.restore("A", 1, 1.0, grace=3.0)
+
+
+def test_the_timer_says_when_to_wake_the_machine():
+    """Issue 12: get_timer()/handle_timer(now), as aioquic's connection: no Tick on every loop pass."""
+    m = machine()
+    linked_with_b(m)
+    assert m.get_timer() is None  # nothing pending: the node may sleep until input
+    m.handle(Release(2.0, "A", "B", 1))
+    assert m.state is State.HANDOVER_PENDING and m.get_timer() == 7.0
+    assert m.handle_timer(6.9) == [] and m.state is State.HANDOVER_PENDING
+    acts = m.handle_timer(7.0)
+    assert m.state is State.LINKED and m.owner == "A" and m.get_timer() is None
+    assert any(isinstance(a, ha.Note) and a.kind == "handover_timeout" for a in acts)
+    r = machine()
+    r.restore("A", 3, 10.0, grace=3.0)
+    assert r.get_timer() == 13.0
+
+
+def test_one_pass_after_any_event_completes_a_proven_hand_over_and_sends_one_status_each():
+    m = machine()
+    linked_with_b(m)
+    prove(m, "B", 1.5)
+    acts = m.handle(Release(2.0, "A", "B", 1))  # B proven already: the same step switches
+    assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
+    statuses = [a for a in acts if isinstance(a, SendControl) and a.msg.__class__.__name__ == "AuthorityStatus"]
+    assert len({a.gs for a in statuses}) == len(statuses)  # once per GS
+    assert all(a.msg.state is State.LINKED and a.msg.owner == "B" for a in statuses)  # the state after the step

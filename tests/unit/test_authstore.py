@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import stat
 
-from zdrone.fleetfiles import init_fleet
+from zdrone.fleet.files import init_fleet
 from zdrone.net.authstore import AuthorityStore, SavedAuthority
 
 

@@ -12,7 +12,7 @@ import pytest
 
 from zdrone.cli import main
 from zdrone.core.fleet import FleetError, parse_fleet
-from zdrone.fleetfiles import init_fleet, load_fleet, load_secret
+from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 
 
 @pytest.fixture()

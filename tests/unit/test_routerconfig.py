@@ -6,7 +6,7 @@ from pathlib import Path
 
 from zdrone.core.fleet import Coverage, Fleet, Node
 from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES
-from zdrone.net.routerconfig import router_config
+from zdrone.fleet.routerconfig import router_config
 
 ROOT = Path(__file__).resolve().parents[2]
 

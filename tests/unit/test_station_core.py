@@ -7,7 +7,7 @@ import pytest
 from zdrone.core.keys import Identity
 from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
-from zdrone.fleetfiles import init_fleet, load_fleet, load_secret
+from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from gs.core import Ask, AskKind, CoreOptions, Log, Put, Say, StationCore, Stage
 
 

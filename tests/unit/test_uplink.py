@@ -23,7 +23,7 @@ from zdrone.core.mavlink import (CRC_EXTRA, MESSAGE_CLASSES, FrameCodec, FrameEr
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import (DEFAULT_DENIED, DEFAULT_POLICY, DEFAULT_READ_ONLY, DENIED_NAMES, MAX_MSGID,
                                 READ_ONLY_NAMES, UplinkClass, UplinkPolicy)
-from zdrone.fleetfiles import init_fleet, load_fleet
+from zdrone.fleet.files import init_fleet, load_fleet
 
 try:
     from pymavlink.dialects.v20 import development

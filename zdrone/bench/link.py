@@ -29,8 +29,8 @@ from pymavlink.dialects.v20 import common as mav
 from ..core.envelope import Opened, SecureLink
 from ..core.keys import LinkKey
 from ..core.mavlink import FrameCodec
-from ..fleetfiles import init_fleet, load_secret
-from ..net import keyexprs as kx
+from ..fleet.files import init_fleet, load_secret
+from ..fleet import keyexprs as kx
 from ..net.session import open_client
 from ..sil.launcher import free_port
 

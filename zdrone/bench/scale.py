@@ -31,13 +31,15 @@ def _host_drones(args: argparse.Namespace) -> int:
     from ..core.reference import HOME
     from ..core.authority import HaDrop
     from ..core.tbm import LinkState
-    from ..net.drone import DroneNode, DroneOptions
+    from ..fleet.files import load_fleet
+    from ..nodes.drone import DroneNode, DroneOptions
+    from ..sil.coverage import CoverageGate
     from ..vehicle.inproc import InProcessVehicle
 
     nodes = []
     for i in range(args.k):
         name = f"d{i + 1}"
-        opts = DroneOptions(drone=name, fleet=args.fleet, router=args.router, vehicle="inproc", sil_coverage=True,
+        opts = DroneOptions(drone=name, fleet=args.fleet, router=args.router, vehicle="inproc", gate=CoverageGate(load_fleet(args.fleet)),
                             events=str(Path(args.out) / f"{name}.jsonl"), handover_timeout=max(1.5, 5.0 / args.speedup),
                             status_period=2.0)
         nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=i + 1, speedup=args.speedup, seed=i)))
@@ -113,7 +115,7 @@ def _host_stations(args: argparse.Namespace) -> int:
 
 
 def _one(k: int, g: int, base: Path, timeout: float) -> dict[str, Any]:
-    from ..fleetfiles import init_fleet, scale_nodes
+    from ..fleet.files import init_fleet, scale_nodes
     from ..sil.launcher import free_port
 
     d = base / f"k{k}"

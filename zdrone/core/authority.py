@@ -33,7 +33,9 @@ commands the vehicle to LAND (or RTL).
 
 The machine is pure: every event carries ``now``; ``handle(event)`` returns a list of actions that
 the drone node adapter carries out (forward a frame, send a control message, subscribe, command
-the vehicle). The whole behaviour is the table ``TRANSITIONS``: (state, event type) -> (handler,
+the vehicle). After every event's handler, one pass (``_settle``) applies the rules that follow
+from the state alone (a proven pending recipient takes authority), so each such rule is written
+once. The per-event behaviour is the table ``TRANSITIONS``: (state, event type) -> (handler,
 allowed next states). A pair missing from the table is an illegal step: a GS-originated event
 gets a ``Reject`` action, anything else raises ``IllegalTransition`` (a programming error).
 """
@@ -46,9 +48,10 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Callable
 
+from .errors import ProtocolError
 from .tbm import LinkState
 from .uplink import UplinkClass
-from .wire import AuthorityStatus, Control, FailsafeNotice, Reject
+from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, Reject
 
 log = logging.getLogger(__name__)
 
@@ -56,11 +59,7 @@ PROOF_FRAMES = 2
 DEFAULT_HANDOVER_TIMEOUT = 5.0
 
 
-class State(enum.Enum):
-    UNPAIRED = "unpaired"
-    LINKED = "linked"
-    HANDOVER_PENDING = "handover_pending"
-    FAILSAFE = "failsafe"
+State = AuthorityState  # one enum: the machine's states are what the drone reports on the wire
 
 
 class HaDrop(enum.Enum):
@@ -206,7 +205,7 @@ class Note(Action):
     detail: str
 
 
-class IllegalTransition(RuntimeError):
+class IllegalTransition(ProtocolError):
     """An event that no table entry covers and that no GS sent: a programming error."""
 
 
@@ -264,7 +263,18 @@ class AuthorityMachine:
         return sorted(self.subscribed)
 
     def status(self) -> AuthorityStatus:
-        return AuthorityStatus(self.owner, self.epoch, self.state.value, self.pending_to, sorted(self.links))
+        return AuthorityStatus(self.owner, self.epoch, self.state, self.pending_to, sorted(self.links))
+
+    def get_timer(self) -> float | None:
+        """When the machine must next be woken with ``handle_timer`` (a hand-over's deadline, the
+        owner's re-pairing deadline after a restart), or None: no deadline pending."""
+        times = [t for t in (self.pending_deadline if self.state is State.HANDOVER_PENDING else None,
+                             self.repair_deadline) if t is not None]
+        return min(times) if times else None
+
+    def handle_timer(self, now: float) -> list[Action]:
+        """Time has reached ``get_timer()``: apply what the deadlines decide."""
+        return self.handle(Tick(now))
 
     def restore(self, owner: str, epoch: int, now: float, grace: float) -> list[Action]:
         """Come back after a companion restart with the authority it had: LINKED(owner, epoch), with
@@ -296,10 +306,45 @@ class AuthorityMachine:
         if next_state not in allowed:
             raise IllegalTransition(f"{handler.__name__} chose {next_state} from {self.state}")
         self._set_state(next_state, event.now)
-        # status messages describe the state after this step, not the one the handler started in
-        st = self.status()
-        return [SendControl(a.gs, st) if isinstance(a, SendControl) and isinstance(a.msg, AuthorityStatus) else a
-                for a in actions]
+        actions += self._settle(event.now)
+        # status messages describe the state after this step (once per GS), not the one it started in
+        st, told = self.status(), set()
+        out: list[Action] = []
+        for a in actions:
+            if isinstance(a, SendControl) and isinstance(a.msg, AuthorityStatus):
+                if a.gs in told:
+                    continue
+                told.add(a.gs)
+                a = SendControl(a.gs, st)
+            out.append(a)
+        return out
+
+    def _settle(self, now: float) -> list[Action]:
+        """The rules that follow from the state and the time alone, applied once after every event,
+        whatever the event was (as h11's state-triggered transitions):
+
+        * a pending recipient whose link is proven takes authority (make-before-break);
+        * a hand-over past its deadline ends, authority staying where it was;
+        * an owner that has not re-paired by its deadline after a restart has lost its link.
+
+        (The authority link going LOST is an event, ``LinkChanged``: its rule is in ``_on_link``.)"""
+        if self.state is State.HANDOVER_PENDING and self.pending_to is not None and self.is_proven(self.pending_to):
+            acts = self._complete_handover(now)
+            self._set_state(State.LINKED, now)
+            return acts
+        if self.state is State.HANDOVER_PENDING and self.pending_deadline is not None and now >= self.pending_deadline:
+            to = self.pending_to
+            self.pending_to = self.pending_deadline = None
+            self._set_state(State.LINKED, now)
+            return [Note("handover_timeout", f"{self.owner} -> {to}: authority stays with {self.owner}"),
+                    *self._update_subscriptions(), *self._status_to_all()]
+        if (self.repair_deadline is not None and now >= self.repair_deadline and self.owner is not None
+                and self.state in (State.LINKED, State.HANDOVER_PENDING)):
+            self.repair_deadline = None  # the owner did not come back after the restart: its link is LOST
+            nxt, acts = self._on_link(LinkChanged(now, self.owner, LinkState.LOST))
+            self._set_state(nxt, now)
+            return acts
+        return []
 
     def _set_state(self, new: State, now: float) -> None:
         if new is not self.state:
@@ -392,10 +437,7 @@ class AuthorityMachine:
         else:
             self.drops[HaDrop.NOT_AUTHORITY] += 1
             acts.append(DropFrame(ev.gs, HaDrop.NOT_AUTHORITY))
-        if self.state is State.HANDOVER_PENDING and ev.gs == self.pending_to and self.is_proven(ev.gs):
-            acts += self._complete_handover(ev.now)
-            return State.LINKED, acts
-        return self.state, acts
+        return self.state, acts  # a proof of the pending recipient is applied by ``_settle``
 
     def _on_frame_unpaired(self, ev: Frame) -> tuple[State, list[Action]]:
         self.drops[HaDrop.NOT_LINKED] += 1
@@ -434,8 +476,7 @@ class AuthorityMachine:
             return self.state, []  # a repeated release
         self.pending_to, self.pending_deadline = ev.to, ev.now + self.config.handover_timeout
         acts: list[Action] = [Note("handover_start", f"{self.owner} -> {ev.to}")]
-        if self.is_proven(ev.to):
-            return State.LINKED, acts + self._complete_handover(ev.now)
+        # pending; if ``to`` is proven already, ``_settle`` completes it in this same step
         return State.HANDOVER_PENDING, acts + self._update_subscriptions() + self._status_to_all()
 
     def _on_request(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
@@ -471,9 +512,7 @@ class AuthorityMachine:
             link.frames_since_ok = 0 if ev.state is LinkState.LOST else link.frames_since_ok
         link.state = ev.state
         if ev.state is not LinkState.LOST:
-            if self.state is State.HANDOVER_PENDING and ev.gs == self.pending_to and self.is_proven(ev.gs):
-                return State.LINKED, self._complete_handover(ev.now)
-            return self.state, []
+            return self.state, []  # a proof of the pending recipient is applied by ``_settle``
         if self.state is State.FAILSAFE:
             return State.FAILSAFE, []
         if ev.gs == self.pending_to:
@@ -510,15 +549,7 @@ class AuthorityMachine:
         return self.state, acts
 
     def _on_tick(self, ev: Tick) -> tuple[State, list[Action]]:
-        if self.repair_deadline is not None and ev.now >= self.repair_deadline and self.owner is not None:
-            self.repair_deadline = None  # the owner did not come back after the restart: its link is LOST
-            return self._on_link(LinkChanged(ev.now, self.owner, LinkState.LOST))
-        if self.state is State.HANDOVER_PENDING and self.pending_deadline is not None and ev.now >= self.pending_deadline:
-            to = self.pending_to
-            self.pending_to = self.pending_deadline = None
-            acts: list[Action] = [Note("handover_timeout", f"{self.owner} -> {to}: authority stays with {self.owner}")]
-            return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
-        return self.state, []
+        return self.state, []  # time alone: the deadlines are rules of ``_settle``
 
     def _ignore(self, ev: Event) -> tuple[State, list[Action]]:
         return self.state, []

@@ -34,6 +34,7 @@ from cryptography.fernet import Fernet, InvalidToken
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
 from . import wire
+from .errors import ProtocolError
 from .keys import DOWN, UP, KeyChain, LinkKey
 from .mavlink import FrameError, FrameHeader, read_header
 from .replay import ReplayWindow
@@ -175,7 +176,7 @@ PRODUCTION_CIPHER = "zdrone"
 _bench_ciphers = False
 
 
-class DowngradeRefused(ValueError):
+class DowngradeRefused(ProtocolError, ValueError):
     """A cipher other than ours was asked for outside the bench harness (a programming error)."""
 
 

@@ -7,6 +7,8 @@ wrong, so the CLI can print one line.
 
 from __future__ import annotations
 
+from .errors import ConfigError
+
 from typing import Annotated, Literal
 
 import json5
@@ -18,10 +20,6 @@ from .uplink import UplinkPolicy
 
 SysId = Annotated[int, msgspec.Meta(ge=1, le=255)]
 Name = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]
-
-
-class ConfigError(ValueError):
-    """A configuration file is unusable. ``str()`` is one line: where and what."""
 
 
 class FleetError(ConfigError):

@@ -6,9 +6,20 @@ followed by one msgpack-encoded control message below (a msgspec tagged union, f
 
 from __future__ import annotations
 
+import enum
+
 import msgspec
 
 CONTROL_PREFIX = b"\x01"
+
+
+class AuthorityState(enum.Enum):
+    """The handover authority's state, as the drone reports it (``authority.State`` is this enum)."""
+
+    UNPAIRED = "unpaired"
+    LINKED = "linked"
+    HANDOVER_PENDING = "handover_pending"
+    FAILSAFE = "failsafe"
 
 
 class Control(msgspec.Struct, frozen=True, tag_field="t", forbid_unknown_fields=True):
@@ -48,7 +59,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
 
     owner: str | None
     epoch: int
-    state: str
+    state: AuthorityState
     pending_to: str | None = None
     linked: list[str] = []  # GSs the drone holds a link key for
 

@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..fleetfiles import fleet_path
+from ..fleet.files import fleet_path
 
 log = logging.getLogger(__name__)
 

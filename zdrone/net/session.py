@@ -11,7 +11,7 @@ import json5
 import zenoh
 
 from ..core.fleet import ConfigError
-from .routerconfig import MAX_MESSAGE_SIZE
+from ..fleet.routerconfig import MAX_MESSAGE_SIZE
 
 log = logging.getLogger(__name__)
 

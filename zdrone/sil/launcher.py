@@ -33,7 +33,7 @@ from typing import Any, Callable
 from ..core.geometry import GeoPoint, distance_m
 from ..core.reference import HOME
 from ..core.tbm import TbmThresholds
-from ..fleetfiles import init_fleet
+from ..fleet.files import init_fleet
 from ..net.eventlog import read_events
 
 PY = sys.executable
@@ -662,7 +662,7 @@ class Demo:
     def _zn(self) -> list[str]:
         """The drone and GS command: production nodes have no cipher option, so the bench harness
         alone runs them with plain/Fernet (or the paper's separate heartbeat)."""
-        return ["-m", "zdrone.bench.nodes", "-v"] if self._bench else self._z()
+        return ["-m", "zdrone.harness", "-v"] if self._bench else self._z()
 
     def _bench_extra(self) -> list[str]:
         return ["--cipher", self.opts.cipher] if self._bench else []
@@ -1032,7 +1032,7 @@ def run_demo(opts: DemoOptions) -> int:
         return 130
     if opts.report:
         try:
-            from ..bench.report import write_report
+            from ..report import write_report
 
             path = write_report(out)
             print(f"report: {path}")

@@ -85,8 +85,8 @@ from ..core.keyshare import KeyShareAsk, LinkKeyQuery, _prologue as linkkey_prol
 from ..core.kk import KKInitiator, respond as kk_respond
 from ..core.mavlink import FrameCodec
 from ..core.pairing import PairingInitiator
-from ..fleetfiles import load_fleet, load_secret
-from ..net import keyexprs as kx
+from ..fleet.files import load_fleet, load_secret
+from ..fleet import keyexprs as kx
 from ..net.eventlog import EventLog
 from ..net.session import open_client
 

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import msgspec
 
-from .core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
-from .core.keys import Identity, b64, unb64
-from .core.geometry import GeoPoint, offset
-from .core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
+from ..core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
+from ..core.keys import Identity, b64, unb64
+from ..core.geometry import GeoPoint, offset
+from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
 
 FLEET_FILE = "fleet.json5"
 
@@ -92,7 +92,7 @@ def init_fleet(directory: str | Path, force: bool = False,
     fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt))
     (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
-    from .net.routerconfig import HEADER, render, router_config
+    from .routerconfig import HEADER, render, router_config
 
     (d / "router" / "router.json5").write_text(render(router_config(fleet, "credentials.txt"), HEADER))
     return fleet

@@ -34,3 +34,8 @@ def linkkey_all(gs: str) -> str:
 def gs_of(keyexpr: str) -> str:
     """The last chunk: the GS of an up/down/pair key expression."""
     return str(keyexpr).rsplit("/", 1)[-1]
+
+
+def drone_of(keyexpr: str) -> str:
+    """The second chunk: the drone of a ``zdrone/<drone>/...`` key expression."""
+    return str(keyexpr).split("/")[1]

@@ -11,11 +11,10 @@ from __future__ import annotations
 import heapq
 import logging
 import os
-import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 from pymavlink.dialects.v20 import common as mav
@@ -25,19 +24,16 @@ from ..core.envelope import Dropped, Opened, SecureLink
 from ..core.fleet import ConfigError
 from ..core.geometry import GeoPoint
 from ..core.keys import LinkKey
-from ..core.linkslot import CANDIDATE_TTL, LinkSlot, Promoted
+from ..core.linkslot import LinkSlot, Promoted
 from ..core.pairing import PairingResponder
 from ..core.tbm import TbmThresholds
 from ..core import wire
 from ..core.wire import KeyGrant, KeyGrantAck
-from ..fleetfiles import load_fleet, load_secret
-from ..sil.coverage import CoverageGate
 from ..vehicle.link import VehicleLink
-from . import keyexprs as kx
-from .authstore import AuthorityStore, SavedAuthority
-from .eventlog import EventLog
-from .inbox import MAX_ENVELOPE, Inbox, payload_bytes
-from .session import open_client, query_queue
+from ..fleet import keyexprs as kx
+from ..net.authstore import AuthorityStore, SavedAuthority
+from ..net.inbox import payload_bytes
+from ..net.runtime import NodeRuntime
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +48,24 @@ PAIRING_TTL = 10.0
 STATUS_BEACON_S = 1.0
 
 
+class LinkGate(Protocol):
+    """Whether the (emulated) radio between the vehicle and a GS exists (the testbed's coverage)."""
+
+    blocked: Counter[str]
+
+    def update(self, position: Any) -> None: ...
+
+    def allow(self, gs: str, direction: str) -> bool: ...
+
+
+class RadioPath(Protocol):
+    """When a frame on a GS's (emulated) radio arrives, or None if it is lost (the testbed's radio)."""
+
+    lost: Counter[str]
+
+    def admit(self, gs: str, direction: str, now: float) -> float | None: ...
+
+
 @dataclass(frozen=True, slots=True)
 class DroneOptions:
     drone: str
@@ -61,11 +75,11 @@ class DroneOptions:
     thresholds: TbmThresholds = TbmThresholds()
     failsafe: str = "LAND"
     handover_timeout: float = 5.0
-    sil_coverage: bool = False
+    gate: Any = None  # TESTBED ONLY: a ``LinkGate`` (radio coverage), handed in by whoever starts the node
     events: str | None = None
     status_period: float = 0.5
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
-    radio: Any = None  # TESTBED ONLY: a ``sil.radio.RadioChannel`` (loss, bursts, delay, jitter)
+    radio: Any = None  # TESTBED ONLY: a ``RadioPath`` (loss, bursts, delay, jitter), handed in likewise
 
 
 class DroneNode:
@@ -73,18 +87,15 @@ class DroneNode:
 
     def __init__(self, opts: DroneOptions, vehicle: Any = None) -> None:
         self.opts = opts
-        self.fleet = load_fleet(opts.fleet)
-        node = self.fleet.nodes.get(opts.drone)
-        if node is None or node.role != "drone":
-            raise ConfigError(f"--id {opts.drone}: not a drone of the fleet ({', '.join(self.fleet.drones())})")
+        self.rt = NodeRuntime(opts.fleet, opts.drone, "drone", opts.router, opts.events)
+        self.fleet, self.secret, self.events, self.rx = self.rt.fleet, self.rt.secret, self.rt.events, self.rt.inbox
+        node = self.rt.node
         self.name = opts.drone
         self.sysid = node.sysid
-        self.uplink = self.fleet.nodes[self.name].uplink
-        self.secret = load_secret(opts.fleet, opts.drone, self.fleet)
-        self.events = EventLog(opts.events, opts.drone)
+        self.uplink = node.uplink
         self.machine = ha.AuthorityMachine(ha.Config(frozenset(node.authorized_gs), opts.handover_timeout, opts.failsafe))
         self.store = AuthorityStore(opts.fleet, opts.drone)
-        self.gate = CoverageGate(self.fleet) if opts.sil_coverage else None
+        self.gate: LinkGate | None = opts.gate
         self.radio = opts.radio
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
         self._late_seq = 0
@@ -95,33 +106,26 @@ class DroneNode:
         self.responder = PairingResponder(self.secret.identity, self.name,
                                           {g: self.fleet.nodes[g].public_bytes for g in self.fleet.ground_stations()},
                                           frozenset(node.authorized_gs))
-        self.rx = Inbox()
         self.subs: dict[str, Any] = {}
         self.counters: Counter[str] = Counter()
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
-        self._running = True
         self._next_status = 0.0
         self._next_beacon = 0.0
         self._inside: frozenset[str] = frozenset()
         self.vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
-        self.session = open_client(opts.router, opts.drone, self.secret.router_password)
-        self.pairing = self.session.declare_queryable(kx.pair_all(self.name), query_queue())
+        self.pairing = self.rt.queryable(kx.pair_all(self.name))
 
     # ------------------------------------------------------------------ zenoh
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        # Zenoh thread: hand over and return at once.
-        self.rx.put_payload("up", kx.gs_of(sample.key_expr), sample.payload, MAX_ENVELOPE)
-
     def _subscribe(self, gs: str) -> None:
         if gs not in self.subs:
-            self.subs[gs] = self.session.declare_subscriber(kx.up(self.name, gs), self._on_sample)
+            self.subs[gs] = self.rt.subscribe(kx.up(self.name, gs), "up", kx.gs_of)
             self.events.write("subscribe", gs=gs)
 
     def _unsubscribe(self, gs: str) -> None:
         sub = self.subs.pop(gs, None)
         if sub is not None:
-            sub.undeclare()
+            self.rt.undeclare(sub)
             self.events.write("unsubscribe", gs=gs)
 
     def _sync_subscriptions(self, now: float) -> None:
@@ -161,9 +165,7 @@ class DroneNode:
                 self._open_envelope(gs, data, now)
 
     def _put(self, gs: str, payload: bytes) -> None:
-        # session.put, not a declared publisher: through an ACL router (zenoh 1.10) a declared
-        # publisher's samples after the first are not delivered; session.put's are.
-        self.session.put(kx.down(self.name, gs), payload, congestion_control=zenoh.CongestionControl.DROP)
+        self.rt.put(kx.down(self.name, gs), payload)
 
     # ------------------------------------------------------------------ links
     def _new_link(self, gs: str, key: LinkKey, now: float) -> SecureLink:
@@ -441,7 +443,7 @@ class DroneNode:
         }
 
     def stop(self, *_: object) -> None:
-        self._running = False
+        self.rt.stop()
 
     def run(self) -> None:
         print(f"zdrone drone {self.name}: vehicle {self.opts.vehicle}, router {self.opts.router}", flush=True)
@@ -451,7 +453,7 @@ class DroneNode:
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
         self._restore(time.monotonic())
         try:
-            while self._running:
+            while self.rt.running:
                 self.step(0.005)
         finally:
             self.close()
@@ -469,7 +471,10 @@ class DroneNode:
             self._sync_subscriptions(now)
         self._region(now)
         self._poll_links(now)
-        self._handle(ha.Tick(now))
+        timer = self.machine.get_timer()
+        if timer is not None and now >= timer:  # a hand-over's or a re-pairing's deadline
+            self._apply(self.machine.handle_timer(now), now)
+            self._save()
         if now >= self._next_beacon:
             self._next_beacon = now + STATUS_BEACON_S
             st = self.machine.status()
@@ -481,30 +486,11 @@ class DroneNode:
 
     def close(self) -> None:
         now = time.monotonic()
-        self.events.write("stop", **self.status(now))
         if self._on_ground():
             self.store.clear()  # stopped on the ground: the next start is a fresh one
-        steps = [*(lambda gs=gs: self._unsubscribe(gs) for gs in list(self.subs)), self.pairing.undeclare,
-                 self.session.close, self.vehicle.close]
-        for step in steps:  # each step on its own: a session the signal thread closed must not stop the rest
-            try:
-                step()
-            except Exception as exc:
-                log.warning("close: %s", exc)
-        self.events.write("closed")
-        self.events.close()
+        self.rt.close(self.status(now), extra_steps=(self.vehicle.close,))
 
 
 def run_drone(opts: DroneOptions) -> int:
-    from .shutdown import block_signals, serve_signals
-
-    block_signals()
     node = DroneNode(opts)
-    closed = threading.Event()
-    serve_signals(node.stop, node.session.close, closed)
-    try:
-        node.run()
-    finally:
-        closed.set()
-    return 0
-
+    return node.rt.serve(node.run)

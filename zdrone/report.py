@@ -14,10 +14,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from ..core.fleet import ConfigError, parse_fleet
-from ..core.geometry import GeoPoint, ne_of
-from ..core.reference import COVERAGE_RADIUS_M, GS_A, GS_B, HOME
-from ..net.eventlog import read_events
+from .core.fleet import ConfigError, parse_fleet
+from .core.geometry import GeoPoint, ne_of
+from .core.reference import COVERAGE_RADIUS_M, GS_A, GS_B, HOME
+from .net.eventlog import read_events
 
 COLOURS = {"A": "#1f77b4", "B": "#ff7f0e", None: "#999999"}
 HIDDEN = {"status", "subscribe", "unsubscribe", "link_state", "drop", "start", "stop", "closed"}

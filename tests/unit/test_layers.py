@@ -1,0 +1,96 @@
+"""Layers only point down, and no two packages import each other.
+
+core < fleet (fleet files, router config, key expressions) < net / vehicle < nodes (the drone node,
+the ``gs`` package) < sil / bench / report < cli (``zdrone.cli``, ``zdrone.commands``). A module may
+import its own layer or a lower one; within a layer, packages must not form a cycle. Imports are
+read with ``ast`` (top-level and inside functions alike), so a lazy import counts too.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+LAYERS: dict[str, int] = {
+    "zdrone.core": 0,
+    "zdrone.fleet": 1,
+    "zdrone.net": 2, "zdrone.vehicle": 2,
+    "zdrone.nodes": 3, "gs": 3,
+    "zdrone.sil": 4, "zdrone.bench": 4, "zdrone.report": 4,
+    "zdrone.cli": 5, "zdrone.commands": 5, "zdrone.harness": 5, "zdrone.__main__": 5, "zdrone": 5,
+}
+
+
+def _unit(module: str) -> str:
+    """The layer unit a module belongs to: its longest prefix in ``LAYERS``."""
+    parts = module.split(".")
+    for n in range(len(parts), 0, -1):
+        if ".".join(parts[:n]) in LAYERS:
+            return ".".join(parts[:n])
+    raise AssertionError(f"{module}: in no layer")
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in ("zdrone", "gs"):
+        for p in (ROOT / pkg).rglob("*.py"):
+            rel = p.relative_to(ROOT).with_suffix("")
+            parts = list(rel.parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = p
+    return out
+
+
+def _imports(module: str, path: Path) -> set[str]:
+    is_pkg = path.name == "__init__.py"
+    base = module.split(".") if is_pkg else module.split(".")[:-1]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                target = ".".join(base[: len(base) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            found.add(target)
+            found |= {f"{target}.{a.name}" for a in node.names}  # `from pkg import module`
+    mods = _modules()
+    return {m for m in found if m in mods and m != module}
+
+
+def _graph() -> dict[str, set[str]]:
+    return {m: _imports(m, p) for m, p in _modules().items()}
+
+
+def test_every_import_points_down_or_sideways():
+    up = []
+    for m, targets in _graph().items():
+        for t in targets:
+            if LAYERS[_unit(t)] > LAYERS[_unit(m)]:
+                up.append(f"{m} -> {t}")
+    assert not up, "imports that point up:\n" + "\n".join(sorted(up))
+
+
+def test_no_package_cycles():
+    edges: dict[str, set[str]] = {}
+    for m, targets in _graph().items():
+        for t in targets:
+            a, b = _unit(m), _unit(t)
+            if a != b:
+                edges.setdefault(a, set()).add(b)
+    cycles = []
+    for a, bs in edges.items():
+        for b in bs:
+            stack, seen = [b], set()
+            while stack:
+                x = stack.pop()
+                if x == a:
+                    cycles.append(f"{a} -> {b} -> ... -> {a}")
+                    break
+                if x not in seen:
+                    seen.add(x)
+                    stack += edges.get(x, ())
+    assert not cycles, "package cycles:\n" + "\n".join(sorted(cycles))

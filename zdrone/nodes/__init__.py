@@ -1,0 +1,1 @@
+"""The nodes: the drone companion (here) and the ground station (the top-level ``gs`` package)."""
