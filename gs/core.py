@@ -516,7 +516,7 @@ class StationCore:
             view.custom_mode = msg.custom_mode
             if view.autopilot is None:
                 view.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, "other")
-                out.append(Log("autopilot", {"drone": drone, "autopilot": view.autopilot, "type": msg.type}))
+                out.append(Log("autopilot", {"drone": drone, "autopilot": view.autopilot, "mav_type": msg.type}))
         elif t == "SYS_STATUS":
             if msg.onboard_control_sensors_present & mav.MAV_SYS_STATUS_PREARM_CHECK:
                 view.prearm_ok = bool(msg.onboard_control_sensors_health & mav.MAV_SYS_STATUS_PREARM_CHECK)
