@@ -162,7 +162,7 @@ def test_px4_streams_its_extra_ids_with_valid_checksums():
     assert 9 <= len(s.take("CURRENT_MODE")) <= 11
     # the frames no dialect defines carry the right checksum (CRC_EXTRA of their definitions)
     s.sim.drain()
-    s.sim._send_message(411)
+    s.sim.telemetry.send_message(411)
     frame = s.sim.drain()[0]
     crc = x25crc(frame[1:10 + frame[1]])
     crc.accumulate(bytes([RAW_CRC_EXTRA[411]]))
@@ -230,7 +230,7 @@ def test_ardupilot_meminfo_is_an_ardupilotmega_id():
     s.send(mav.MAVLink_request_data_stream_message(1, 1, mav.MAV_DATA_STREAM_EXTENDED_STATUS, 2, 1))
     s.run(1.0)
     assert s.take("MEMINFO")  # decoded with the ardupilotmega dialect
-    s.sim._send_message(152)
+    s.sim.telemetry.send_message(152)
     frame = s.sim.drain()[0]
     assert frame[7] == 152 and 152 not in mav.mavlink_map  # not in common: the GS decodes it with ardupilotmega
     assert FrameCodec(255).decode(frame).get_type() == "MEMINFO"

@@ -9,6 +9,7 @@ from typing import Any
 from ..core.geometry import GeoPoint
 from .link import VehicleState
 from .modes import mode_name
+from .px4modes import FlightMode
 from .sim import SimAutopilot
 
 
@@ -58,10 +59,10 @@ class InProcessVehicle:
         return {"autopilot": self.autopilot, "connections": 1, "streams": {}, "counters": {}}
 
     def command_land(self) -> None:
-        self.sim._request_mode(self.sim.mode.__class__.LAND)
+        self.sim.request_mode(FlightMode.LAND)
 
     def command_rtl(self) -> None:
-        self.sim._request_mode(self.sim.mode.__class__.RTL)
+        self.sim.request_mode(FlightMode.RTL)
 
     def wait_vehicle(self, timeout: float) -> bool:
         return True
