@@ -371,10 +371,16 @@ class StationCore:
         if isinstance(key, PairingFailed):
             self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
             return [Log("pair_failed", {"drone": drone, "reason": key.reason})] if self.counters["pair_bad_reply"] <= 5 else []
+        kept = view.pairing.peer_kept_key
         view.pairing = None
+        again = view.link is not None
+        if again and kept:
+            # the drone still holds our key: its silence was the radio (out of coverage), not a
+            # restart; switching to a key it cannot confirm now would cut us off later
+            self.counters["pair_not_needed"] += 1
+            return [Log("pair_not_needed", {"drone": drone})]
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
-        again = view.link is not None
         view.slot.install(self._new_link(view, key, now), now)
         view.link = view.slot.live
         if again:  # the drone may have restarted with no key but ours: share the others' keys again

@@ -25,7 +25,7 @@ def test_mavsdk_flies_a_four_waypoint_mission():
     from mavsdk.plugins.telemetry import Telemetry
 
     port = free_port()
-    with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "5") as sim:
+    with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "5", "--ready-after", "0") as sim:
         sim.wait_line("zdrone sim:", 20)
         m = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
         try:
@@ -118,7 +118,7 @@ def test_pymavlink_mission_params_and_errors(transport):
         import socket
         port = free_port(socket.SOCK_STREAM)
         listen, connect = f"tcpin:127.0.0.1:{port}", f"tcp:127.0.0.1:{port}"
-    with spawn(ZDRONE, "sim", "--mavlink", listen, "--speedup", "8") as sim:
+    with spawn(ZDRONE, "sim", "--mavlink", listen, "--speedup", "8", "--ready-after", "0") as sim:
         sim.wait_line("zdrone sim:", 20)
         c = _conn(connect)
         try:

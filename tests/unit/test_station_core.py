@@ -244,3 +244,23 @@ def test_a_start_refusal_waiting_cannot_fix_disarms_and_says_why(fleet_dir):
     vb.texts = [(30.0, "Mode change to AUTO failed: requires position")]
     b._flight(vb, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED))
     assert vb.stage is Stage.WAITING_READY and vb.next_try > 30.1
+
+
+def _repair(fleet_dir, holds_key: bool):
+    a = paired_a(fleet_dir)
+    live = a.views["d1"].link
+    asks = [x for x in a.tick(10.0) if isinstance(x, Ask) and x.kind is AskKind.PAIR]  # silent 10 s: pair again
+    assert len(asks) == 1
+    m2, _ = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, asks[0].payload, bytes(32),
+                    holds_key=holds_key)
+    out = a.on_pair_reply("d1", m2, None, 10.1)
+    return a, live, out
+
+
+def test_pairing_again_after_silence_keeps_the_key_the_drone_still_holds(fleet_dir):
+    """Out of radio coverage is not a restart: the drone says it still holds our key, and we keep it
+    (switching would leave us with a key the drone cannot confirm until it is back in range)."""
+    a, live, out = _repair(fleet_dir, holds_key=True)
+    assert a.views["d1"].link is live and [x.kind for x in out if isinstance(x, Log)] == ["pair_not_needed"]
+    b, live_b, out_b = _repair(fleet_dir, holds_key=False)  # a restarted companion holds nothing
+    assert b.views["d1"].link is not live_b and any(isinstance(x, Log) and x.kind == "paired" for x in out_b)

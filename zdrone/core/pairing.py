@@ -54,6 +54,7 @@ class PairingInitiator:
     def __init__(self, me: Identity, gs: str, drone: str, drone_public: bytes, ephemeral: bytes | None = None) -> None:
         self.gs, self.drone = gs, drone
         self.state = PairingState.IDLE
+        self.peer_kept_key = False
         self._kk = KKInitiator(me, drone_public, _prologue(drone, gs), ephemeral)
 
     def start(self) -> bytes:
@@ -67,25 +68,28 @@ class PairingInitiator:
             raise RuntimeError("finish() before start()")
         if self.state is not PairingState.SENT:
             return PairingFailed("pairing already finished")
-        secret = self._kk.read_reply(message2)
-        if isinstance(secret, KKFail):
-            return PairingFailed(f"drone {self.drone} did not prove the fleet's static key ({secret.value})")
-        if len(secret) != KEY_LEN:
+        payload = self._kk.read_reply(message2)
+        if isinstance(payload, KKFail):
+            return PairingFailed(f"drone {self.drone} did not prove the fleet's static key ({payload.value})")
+        if len(payload) not in (KEY_LEN, KEY_LEN + 1):
             self.state = PairingState.FAILED
             return PairingFailed("message 2 carries no link secret")
         self.state = PairingState.DONE
-        return LinkKey.from_secret(self.drone, self.gs, secret)
+        # the drone says whether it still holds a live key of ours (then the silence that made us
+        # pair again was the radio, not a restart: the old key stays, see ``gs.core``)
+        self.peer_kept_key = payload[KEY_LEN:] == b"\x01"
+        return LinkKey.from_secret(self.drone, self.gs, payload[:KEY_LEN])
 
 
 def respond(
-    me: Identity, drone: str, gs: str, gs_public: bytes, message1: bytes, secret: bytes
+    me: Identity, drone: str, gs: str, gs_public: bytes, message1: bytes, secret: bytes, holds_key: bool = False
 ) -> tuple[bytes, LinkKey] | PairingFailed:
     """The drone side of one handshake: check message 1 from ``gs``; return message 2 and the
     (candidate) link key. ``secret`` is the fresh 32-byte link secret (the adapter draws it from
     ``os.urandom``; tests pass fixed bytes). ``PairingResponder`` adds the checks that come first."""
     if len(secret) != KEY_LEN:
         raise ValueError("link secret must be 32 bytes")
-    msg2 = kk_respond(me, gs_public, _prologue(drone, gs), message1, secret)
+    msg2 = kk_respond(me, gs_public, _prologue(drone, gs), message1, secret + (b"\x01" if holds_key else b"\x00"))
     if isinstance(msg2, KKFail):
         return PairingFailed(f"ground station {gs} did not prove the fleet's static key ({msg2.value})")
     return msg2, LinkKey.from_secret(drone, gs, secret)
@@ -138,7 +142,9 @@ class PairingResponder:
             return "unauthorized"
         return None
 
-    def answer(self, gs: str, message1: bytes, now: float, secret: bytes, policy: str | None = None) -> PairAnswer:
+    def answer(self, gs: str, message1: bytes, now: float, secret: bytes, policy: str | None = None,
+               holds_key: bool = False) -> PairAnswer:
+        """``holds_key``: the drone has a live key for ``gs`` (told to the GS inside message 2)."""
         why = self.admit(gs) or policy
         if why is not None:
             return PairAnswer(refused=why)
@@ -151,7 +157,7 @@ class PairingResponder:
             return PairAnswer(reply=cached, refused="repeated")
         if not self.limiter.allow(gs, now):
             return PairAnswer(refused="rate_limited", silent=True)
-        out = respond(self.me, self.drone, gs, self.ground_stations[gs], message1, secret)
+        out = respond(self.me, self.drone, gs, self.ground_stations[gs], message1, secret, holds_key)
         if isinstance(out, PairingFailed):
             return PairAnswer(refused="auth_failed", crypto=True)
         msg2, key = out

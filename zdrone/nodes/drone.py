@@ -364,7 +364,7 @@ class DroneNode:
             self._pair_refused(gs, "oversize")
             return 0
         policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self._on_ground())
-        ans = self.responder.answer(gs, payload, now, os.urandom(32), policy)
+        ans = self.responder.answer(gs, payload, now, os.urandom(32), policy, holds_key=gs in self.links)
         if ans.refused == "repeated":
             self.counters["pair_repeated"] += 1  # a replay or a retransmission: the same answer again
         elif ans.refused is not None:

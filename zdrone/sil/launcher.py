@@ -336,7 +336,9 @@ def _check_failsafe_recover(o: Outcome) -> list[str]:
     """``failsafe-recover``: the failsafe fires; A, back, takes control by its operator's request (never
     automatically: only a GS that asks gets it), in the next epoch; exactly one authority throughout."""
     s = o.summary
-    fs_epoch = next((e.get("epoch") for e in reversed(o.drone) if e["type"] == "status" and e.get("state") == "failsafe"), None)
+    fs_t = next((e["t"] for e in o.drone if e["type"] == "failsafe"), None)
+    fs_epoch = next((e.get("epoch") for e in reversed(o.drone) if fs_t is not None and e["t"] <= fs_t
+                     and e["type"] in ("authority", "handover_complete")), None)  # the epoch the failsafe ended
     regained = s.get("regained", [])
     why = _need(s["failsafe"] is not None, "no failsafe")
     why += _need(len(regained) == 1 and regained[0]["to"] == "A", f"control not regained by A: {regained}")
