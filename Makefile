@@ -18,7 +18,7 @@ demo: $(STAMP)
 	$(BIN)/zdrone demo $(ARGS)
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q $(ARGS)
+	$(BIN)/python -m pytest -q --durations=15 $(ARGS)
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q -m 'not slow' $(ARGS)
