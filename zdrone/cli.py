@@ -21,7 +21,7 @@ class _Parser(argparse.ArgumentParser):
 def _fleet_init(args: argparse.Namespace) -> int:
     from .fleet.files import init_fleet
 
-    fleet = init_fleet(args.dir, force=args.force)
+    fleet = init_fleet(args.dir, force=args.force, tls=args.tls)
     print(f"wrote {args.dir}/fleet.json5 with nodes: " + ", ".join(
         f"{n} ({v.role}, sysid {v.sysid})" for n, v in fleet.nodes.items()))
     print(f"secrets in {args.dir}/secrets/ (mode 0600), router credentials in {args.dir}/router/")
@@ -141,6 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
     fi = fsub.add_parser("init", help="write fleet.json5, per-node secret files and router credentials")
     fi.add_argument("--dir", default="fleet", help="fleet directory (default: ./fleet)")
     fi.add_argument("--force", action="store_true", help="overwrite an existing fleet")
+    fi.add_argument("--tls", action="store_true",
+                    help="also a fleet CA and a certificate per node and router; the router then requires them (mutual TLS)")
     fi.set_defaults(func=_fleet_init)
     fs = fsub.add_parser("show", help="validate and list a fleet")
     fs.add_argument("--dir", default="fleet", help="fleet directory or fleet.json5 path")

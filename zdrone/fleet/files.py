@@ -70,8 +70,10 @@ def scale_nodes(drones: int, stations: int) -> list[tuple[str, str, int, GeoPoin
 
 
 def init_fleet(directory: str | Path, force: bool = False,
-               nodes_spec: list[tuple[str, str, int, GeoPoint | None, list[str]]] | None = None) -> Fleet:
-    """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials."""
+               nodes_spec: list[tuple[str, str, int, GeoPoint | None, list[str]]] | None = None,
+               tls: bool = False) -> Fleet:
+    """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials;
+    with ``tls`` also a fleet CA and certificates, and a router config that requires them."""
     d = Path(directory)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"{d}: exists and is not a directory")
@@ -94,7 +96,11 @@ def init_fleet(directory: str | Path, force: bool = False,
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
     from .routerconfig import HEADER, render, router_config
 
-    (d / "router" / "router.json5").write_text(render(router_config(fleet, "credentials.txt"), HEADER))
+    if tls:
+        from .tls import init_tls
+
+        init_tls(d, fleet)
+    (d / "router" / "router.json5").write_text(render(router_config(fleet, "credentials.txt", tls=tls), HEADER))
     return fleet
 
 

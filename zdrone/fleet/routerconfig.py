@@ -22,6 +22,10 @@ from ..core.fleet import Fleet
 from . import keyexprs as kx
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+DEFAULT_TLS_LISTEN = "tls/127.0.0.1:7447"
+#: The TLS fields of a router config that name files (resolved relative to the config file).
+TLS_FILE_FIELDS = ("root_ca_certificate", "listen_certificate", "listen_private_key", "connect_certificate",
+                   "connect_private_key")
 #: The largest Zenoh message a router or node accepts (Zenoh's default is 1 GiB). zdrone's largest
 #: is under 1 KiB; a bigger one is dropped by the receiving transport, and its sender's session stays.
 MAX_MESSAGE_SIZE = 65536
@@ -31,7 +35,7 @@ def _rule(rid: str, messages: list[str], flows: list[str], keys: list[str]) -> d
     return {"id": rid, "messages": messages, "flows": flows, "permission": "allow", "key_exprs": keys}
 
 
-def access_control(fleet: Fleet) -> dict[str, Any]:
+def access_control(fleet: Fleet, tls: bool = False) -> dict[str, Any]:
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
@@ -61,22 +65,29 @@ def access_control(fleet: Fleet) -> dict[str, Any]:
                 add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
                 add("linkkey-ask", ["query"], ["ingress"], [kx.linkkey("*", d) for d in drones])
                 add("linkkey-ans", ["reply"], ["egress"], [kx.linkkey("*", d) for d in drones])
-        subjects.append({"id": f"user-{name}", "usernames": [name]})
+        # with TLS, a client is this node only with its certificate *and* its password
+        subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {})})
         policies.append({"id": f"policy-{name}", "rules": ids, "subjects": [f"user-{name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def router_config(fleet: Fleet, credentials_file: str, listen: str = DEFAULT_LISTEN) -> dict[str, Any]:
+def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None, tls: bool = False) -> dict[str, Any]:
+    """The router's config; with ``tls``, mutual TLS only (paths relative to the router directory)."""
+    link: dict[str, Any] = {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}
+    if tls:
+        link["tls"] = {"root_ca_certificate": "../tls/ca.crt", "listen_certificate": "router.crt",
+                       "listen_private_key": "router.key", "connect_certificate": "router.crt",
+                       "connect_private_key": "router.key", "enable_mtls": True}
     return {
         "mode": "router",
-        "listen": {"endpoints": [listen]},
+        "listen": {"endpoints": [listen or (DEFAULT_TLS_LISTEN if tls else DEFAULT_LISTEN)]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {"auth": {"usrpwd": {"dictionary_file": credentials_file}},
-                      "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}},
+                      "link": link,
                       # shared memory would carry big messages between processes of one host around
                       # the size limit (and zdrone's messages are small): off
                       "shared_memory": {"enabled": False}},
-        "access_control": access_control(fleet),
+        "access_control": access_control(fleet, tls),
     }
 
 

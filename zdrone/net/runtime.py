@@ -29,6 +29,7 @@ import zenoh
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet, Node
 from ..fleet.files import NodeSecret, load_fleet, load_secret
+from ..fleet.tls import node_files
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, Inbox, reply_bytes
 from .session import open_client, query_queue
@@ -55,7 +56,8 @@ class NodeRuntime:
         self.inbox = Inbox()
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
-        self.session = open_client(router, name, self.secret.router_password)
+        tls = node_files(fleet_dir, name).check() if router.startswith("tls/") else None
+        self.session = open_client(router, name, self.secret.router_password, tls)
 
     # ----------------------------------------------------------------- declare
     def queryable(self, keyexpr: str) -> Any:

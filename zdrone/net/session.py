@@ -11,13 +11,15 @@ import json5
 import zenoh
 
 from ..core.fleet import ConfigError
-from ..fleet.routerconfig import MAX_MESSAGE_SIZE
+from ..fleet.routerconfig import MAX_MESSAGE_SIZE, TLS_FILE_FIELDS
+from ..fleet.tls import TlsFiles
 
 log = logging.getLogger(__name__)
 
 
-def client_config(router: str, user: str, password: str) -> zenoh.Config:
-    """A client that connects only to ``router`` (e.g. ``tcp/127.0.0.1:7447``), never to peers."""
+def client_config(router: str, user: str, password: str, tls: "TlsFiles | None" = None) -> zenoh.Config:
+    """A client that connects only to ``router`` (e.g. ``tcp/127.0.0.1:7447``), never to peers;
+    with ``tls`` (for a ``tls/`` endpoint) it shows its fleet certificate and checks the router's."""
     cfg: dict[str, Any] = {
         "mode": "client",
         # after losing the router (a restart), try again every 100-400 ms: back within ~0.2 s of its return
@@ -28,6 +30,9 @@ def client_config(router: str, user: str, password: str) -> zenoh.Config:
                       "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}},
                       "shared_memory": {"enabled": False}},  # see routerconfig: no way around the size limit
     }
+    if tls is not None:
+        cfg["transport"]["link"]["tls"] = {"root_ca_certificate": str(tls.ca), "connect_certificate": str(tls.cert),
+                                           "connect_private_key": str(tls.key), "enable_mtls": True}
     return zenoh.Config.from_json5(json.dumps(cfg))
 
 
@@ -41,10 +46,12 @@ def query_queue() -> "zenoh.handlers.RingChannel":
     return zenoh.handlers.RingChannel(QUERY_QUEUE_SIZE)
 
 
-def open_client(router: str, user: str, password: str) -> zenoh.Session:
+def open_client(router: str, user: str, password: str, tls: "TlsFiles | None" = None) -> zenoh.Session:
     """Open a client session; ``ConfigError`` (one line) if the router refuses or is not there."""
+    if router.startswith("tls/") and tls is None:
+        raise ConfigError(f"router {router}: a TLS endpoint needs the node's fleet certificate (zdrone fleet init --tls)")
     try:
-        return zenoh.open(client_config(router, user, password))
+        return zenoh.open(client_config(router, user, password, tls))
     except zenoh.ZError as exc:
         detail = str(exc).split(" at ")[0].splitlines()[0]
         raise ConfigError(f"cannot connect to router {router} as {user!r} (wrong password or no router): {detail}") from None
@@ -73,6 +80,13 @@ def load_router_config(path: str | Path, listen: list[str] | str | None = None) 
     if not cred.is_file():
         raise ConfigError(f"{p}: field $.transport.auth.usrpwd.dictionary_file: {cred} does not exist (run 'zdrone fleet init')")
     raw["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(cred)
+    tls = raw["transport"].get("link", {}).get("tls") or {}
+    for field in TLS_FILE_FIELDS:
+        if isinstance(tls.get(field), str) and not Path(tls[field]).is_absolute():
+            f = (p.parent / tls[field]).resolve()
+            if not f.is_file():
+                raise ConfigError(f"{p}: field $.transport.link.tls.{field}: {f} does not exist (run 'zdrone fleet init --tls')")
+            tls[field] = str(f)
     if listen:
         raw["listen"] = {"endpoints": [listen] if isinstance(listen, str) else list(listen)}
     acl = raw.get("access_control", {})
