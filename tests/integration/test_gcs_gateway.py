@@ -290,3 +290,34 @@ def test_mavproxy_detects_arducopter_through_the_gateway_and_fetches_its_paramet
         assert float(params["FS_GCS_ENABLE"]) == 0 and float(params["MAV_GCS_SYSID"]) == 255 and "MIS_OPTIONS" in params
         status = [e for e in read_events(tmp_path / "drone.jsonl") if e["type"] == "status"]
         assert status[-1]["autopilot"] == "ardupilot" and status[-1]["position"] is not None  # streams were asked for
+
+
+@pytest.mark.slow
+def test_mavsdk_sees_and_arms_the_ardupilot_personality_through_the_gateway(tmp_path):
+    """Issue 10: MAVSDK behind GS A's gateway; ArduPilot streams nothing until asked, so a position
+    here means the drone's vehicle link asked for it; arming waits for its pre-arm checks."""
+    from mavsdk import ComponentType, Configuration, Mavsdk
+    from mavsdk.plugins.action import Action, ActionError
+    from mavsdk.plugins.telemetry import Telemetry
+
+    with stack(tmp_path, "3", with_b=False, autopilot="ardupilot") as ports:
+        m = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        m.add_any_connection(f"udpout://127.0.0.1:{ports['a']}")
+        system = m.first_autopilot(20.0)
+        assert system is not None, "MAVSDK did not find the vehicle behind GS A's gateway"
+        tel, act = Telemetry(system), Action(system)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not math.isfinite(tel.position().latitude_deg):
+            time.sleep(0.2)
+        p = tel.position()
+        assert math.isfinite(p.latitude_deg) and distance_m(HOME, GeoPoint(p.latitude_deg, p.longitude_deg)) < 5
+        armed = False
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not armed:
+            try:
+                act.arm()
+                armed = True
+            except ActionError:  # "Arm: Accels inconsistent" and friends until the vehicle is ready
+                time.sleep(1.0)
+        assert armed
+        act.disarm()
