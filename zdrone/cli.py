@@ -21,7 +21,8 @@ class _Parser(argparse.ArgumentParser):
 def _fleet_init(args: argparse.Namespace) -> int:
     from .fleet.files import init_fleet
 
-    fleet = init_fleet(args.dir, force=args.force, tls=args.tls)
+    sites = [s for s in args.sites.split(",") if s] if args.sites else None
+    fleet = init_fleet(args.dir, force=args.force, tls=args.tls, sites=sites)
     print(f"wrote {args.dir}/fleet.json5 with nodes: " + ", ".join(
         f"{n} ({v.role}, sysid {v.sysid})" for n, v in fleet.nodes.items()))
     print(f"secrets in {args.dir}/secrets/ (mode 0600), router credentials in {args.dir}/router/")
@@ -141,6 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
     fi = fsub.add_parser("init", help="write fleet.json5, per-node secret files and router credentials")
     fi.add_argument("--dir", default="fleet", help="fleet directory (default: ./fleet)")
     fi.add_argument("--force", action="store_true", help="overwrite an existing fleet")
+    fi.add_argument("--sites", metavar="EP,EP,…",
+                    help="a router per ground-station site, meshed: one endpoint per site (e.g. "
+                         "tcp/127.0.0.1:7447,tcp/127.0.0.1:7448); writes router/site-N.json5 and router/sites.json")
     fi.add_argument("--tls", action="store_true",
                     help="also a fleet CA and a certificate per node and router; the router then requires them (mutual TLS)")
     fi.set_defaults(func=_fleet_init)

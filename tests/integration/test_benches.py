@@ -72,9 +72,9 @@ def test_bench_scale_quick():
 
 
 @pytest.mark.slow
-def test_bench_chaos_two_schedules_hold_the_invariants():
-    out = subprocess.run([ZDRONE, "bench", "chaos", "--runs", "2", "--seed", "7", "--json"], capture_output=True,
+def test_bench_chaos_a_schedule_holds_the_invariants():
+    out = subprocess.run([ZDRONE, "bench", "chaos", "--runs", "1", "--seed", "7", "--json"], capture_output=True,
                          text=True, timeout=400)
     assert out.returncode == 0, out.stderr[-2000:] + out.stdout[-2000:]
     r = json.loads(out.stdout)
-    assert r["runs"] == 2 and r["violations"] == 0 and all(s["faults"] for s in r["schedules"])
+    assert r["runs"] == 1 and r["violations"] == 0 and all(s["faults"] for s in r["schedules"])

@@ -18,10 +18,11 @@ from zdrone.net.eventlog import read_events
 SPEEDUP = "4"
 
 
-def run_demo(tmp_path: Path, scenario: str, report: bool = False, autopilot: str = "px4") -> tuple[dict, Path]:
+def run_demo(tmp_path: Path, scenario: str, report: bool = False, autopilot: str = "px4",
+             extra: tuple[str, ...] = ()) -> tuple[dict, Path]:
     out = tmp_path / f"{scenario}-{autopilot}"
     proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live",
-                           "--autopilot", autopilot] + ([] if report else ["--no-report"]),
+                           "--autopilot", autopilot, *extra] + ([] if report else ["--no-report"]),
                           capture_output=True, text=True, timeout=240)
     summary = json.loads((out / "summary.json").read_text())
     assert "Traceback" not in proc.stderr, proc.stderr
@@ -252,3 +253,24 @@ def test_the_reference_flight_and_its_faults_on_the_ardupilot_personality(tmp_pa
         assert s["failsafe"]["action"] == "LAND" and s["failsafe"]["detect_to_command_ms"] <= 100.0
     _clean_shutdown(s, out, **({"stopped": ("gsA",), "nodes": ("drone", "B")} if scenario == "link-loss" else
                                {"stopped": ("gsB",), "nodes": ("drone", "A")} if scenario == "gs-crash" else {}))
+
+
+@pytest.mark.slow
+def test_the_reference_flight_across_two_site_routers(tmp_path):
+    """Issue 13: a router per site, meshed over mutual TLS; GS A at site 1, B at site 2; the drone
+    reaches both sites' routers (Zenoh moves it when one dies)."""
+    s, out = run_demo(tmp_path, "nominal", extra=("--sites",))
+    assert s["_rc"] == 0 and s["ok"], s
+    assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
+    assert s["authority_gap_ms"] == 0 and s["commands"]["lost"] == 0
+    assert s["exit_codes"].get("router2") == 0  # two routers ran
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_the_other_site_carries_the_link_when_the_authoritys_site_router_dies(tmp_path):
+    s, out = run_demo(tmp_path, "site-router-down")
+    assert s["_rc"] == 0 and s["ok"], s
+    kinds = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
+    assert kinds == [("A", "B", "emergency"), ("B", "A", "handover")] and s["failsafe"] is None
+    _clean_shutdown(s, out)

@@ -123,3 +123,25 @@ def test_console_script_help_and_exit_codes(tmp_path: Path):
     assert out.returncode == 0 and "fleet" in out.stdout and "bench" in out.stdout
     out = subprocess.run([str(exe), "fleet", "show", "--dir", str(tmp_path)], capture_output=True, text=True)
     assert out.returncode == 2 and out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+
+
+def test_fleet_with_sites_makes_a_meshed_router_per_site(tmp_path):
+    import json5
+    import pytest
+
+    from zdrone.core.errors import ConfigError
+    from zdrone.fleet.files import init_fleet, load_sites
+
+    eps = ["tls/127.0.0.1:17447", "tls/127.0.0.1:17448"]
+    init_fleet(tmp_path / "f", sites=eps)
+    sites = load_sites(tmp_path / "f")
+    assert [s["endpoint"] for s in sites.values()] == eps
+    assert sites["site-1"]["ground_stations"] == ["A", "X"] and sites["site-2"]["ground_stations"] == ["B"]
+    s2 = json5.loads((tmp_path / "f" / "router" / "site-2.json5").read_text())
+    assert s2["connect"]["endpoints"] == [eps[0]] and s2["transport"]["link"]["tls"]["enable_mtls"]
+    routers = [x for x in s2["access_control"]["subjects"] if x["id"] == "routers"]
+    assert routers == [{"id": "routers", "cert_common_names": ["router-site-1"]}]
+    assert all("cert_common_names" in x for x in s2["access_control"]["subjects"])  # every subject by certificate
+    assert (tmp_path / "f" / "router" / "site-2.key").stat().st_mode & 0o077 == 0
+    with pytest.raises(ConfigError):
+        init_fleet(tmp_path / "g", sites=["tcp/127.0.0.1:1", "tcp/127.0.0.1:2"])  # the mesh is TLS only

@@ -71,9 +71,10 @@ def scale_nodes(drones: int, stations: int) -> list[tuple[str, str, int, GeoPoin
 
 def init_fleet(directory: str | Path, force: bool = False,
                nodes_spec: list[tuple[str, str, int, GeoPoint | None, list[str]]] | None = None,
-               tls: bool = False) -> Fleet:
+               tls: bool = False, sites: list[str] | None = None) -> Fleet:
     """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials;
-    with ``tls`` also a fleet CA and certificates, and a router config that requires them."""
+    with ``tls`` also a fleet CA and certificates, and a router config that requires them; with
+    ``sites`` (one router endpoint per site, two or more) also a router config per site."""
     d = Path(directory)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"{d}: exists and is not a directory")
@@ -91,17 +92,53 @@ def init_fleet(directory: str | Path, force: bool = False,
         secret = {"name": name, "private_key": b64(ident.private), "router_password": password}
         _write_private(d / "secrets" / f"{name}.json", json.dumps(secret, indent=2) + "\n")
         creds.append(f"{name}:{password}")
+    site_names = [f"site-{i + 1}" for i in range(len(sites or []))]
+    site_passwords = {site: secrets.token_urlsafe(18) for site in site_names}  # for the router mesh
+    creds += [f"router-{site}:{pw}" for site, pw in site_passwords.items()]
     fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt))
     (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
     from .routerconfig import HEADER, render, router_config
 
-    if tls:
+    if tls or sites:  # sites are meshed over mutual TLS
         from .tls import init_tls
 
-        init_tls(d, fleet)
+        init_tls(d, fleet, sites=site_names)
     (d / "router" / "router.json5").write_text(render(router_config(fleet, "credentials.txt", tls=tls), HEADER))
+    if sites:
+        _write_sites(d, fleet, sites, site_passwords)
     return fleet
+
+
+def _write_sites(d: Path, fleet: Fleet, endpoints: list[str], passwords: dict[str, str]) -> None:
+    """One router per site, meshed over mutual TLS (site n connects to sites 1..n-1):
+    ``router/site-<n>.json5`` (private: it holds its router's password for the mesh) and
+    ``router/sites.json`` (public: each site's endpoint and GSs)."""
+    names = list(passwords)
+    from .routerconfig import HEADER, render, site_router_config
+
+    if len(endpoints) < 2:
+        raise ConfigError("--sites: at least two site routers")
+    if not all(ep.startswith("tls/") for ep in endpoints):
+        raise ConfigError("--sites: site routers are meshed over mutual TLS: give tls/HOST:PORT endpoints")
+    gss = fleet.ground_stations()
+    layout = {site: {"endpoint": ep, "ground_stations": [g for i, g in enumerate(gss) if i % len(names) == n]}
+              for n, (site, ep) in enumerate(zip(names, endpoints))}
+    for n, site in enumerate(names):
+        lower = [layout[s]["endpoint"] for s in names[:n]]  # one link per pair of sites
+        cfg = site_router_config(fleet, "credentials.txt", site, endpoints[n], lower,
+                                 tuple(f"router-{s}" for s in names if s != site), passwords[site])
+        _write_private(d / "router" / f"{site}.json5", render(cfg, HEADER))
+    (d / "router" / "sites.json").write_text(json.dumps(layout, indent=2) + "\n")
+
+
+def load_sites(where: str | Path) -> dict[str, dict]:
+    """``router/sites.json``: site -> {endpoint, ground_stations} (``ConfigError`` if there is none)."""
+    path = fleet_path(where).parent / "router" / "sites.json"
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no sites (run 'zdrone fleet init --sites EP,EP')") from None
 
 
 def load_fleet(where: str | Path) -> Fleet:

@@ -35,10 +35,17 @@ def _rule(rid: str, messages: list[str], flows: list[str], keys: list[str]) -> d
     return {"id": rid, "messages": messages, "flows": flows, "permission": "allow", "key_exprs": keys}
 
 
-def access_control(fleet: Fleet, tls: bool = False) -> dict[str, Any]:
+def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = ()) -> dict[str, Any]:
     rules: list[dict[str, Any]] = []
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
+    if routers:  # the other sites' routers (router-to-router over the backhaul, mutual TLS) carry everything
+        rules.append(_rule("routers-all", ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply"],
+                           ["ingress", "egress"], ["**"]))
+        # by certificate only: a router-to-router link has a username on one side at most, but
+        # mutual TLS shows each side the other's certificate
+        subjects.append({"id": "routers", "cert_common_names": list(routers)})
+        policies.append({"id": "policy-routers", "rules": ["routers-all"], "subjects": ["routers"]})
     for name, node in fleet.nodes.items():
         ids: list[str] = []
 
@@ -89,6 +96,23 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
                       "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet, tls),
     }
+
+
+def site_router_config(fleet: Fleet, credentials_file: str, site: str, listen: str, peers: list[str],
+                       peer_routers: tuple[str, ...], password: str) -> dict[str, Any]:
+    """The router of one site, mutual TLS only: the fleet's ACL for its clients (certificate CN and
+    username), and a mesh link to the routers in ``peers`` (router-to-router, certificate
+    ``router-<site>``); the other sites' routers (``peer_routers``, their CNs) may carry everything."""
+    cfg = router_config(fleet, credentials_file, listen, tls=True)
+    tls = cfg["transport"]["link"]["tls"]
+    for field in ("listen_certificate", "connect_certificate"):
+        tls[field] = f"{site}.crt"
+    for field in ("listen_private_key", "connect_private_key"):
+        tls[field] = f"{site}.key"
+    cfg["connect"] = {"endpoints": peers, "retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 1.5}}
+    cfg["transport"]["auth"]["usrpwd"].update({"user": f"router-{site}", "password": password})  # to the others
+    cfg["access_control"] = access_control(fleet, tls=True, routers=peer_routers)
+    return cfg
 
 
 def render(config: dict[str, Any], header: str = "") -> str:

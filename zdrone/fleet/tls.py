@@ -126,8 +126,10 @@ def issue(ca: x509.Certificate, ca_key: ec.EllipticCurvePrivateKey, cn: str, hos
     return b.sign(ca_key, hashes.SHA256()), key
 
 
-def init_tls(fleet_dir: str | Path, fleet: Fleet, router_hosts: tuple[str, ...] = DEFAULT_ROUTER_HOSTS) -> None:
-    """Write the fleet CA and a certificate for every node and for the router."""
+def init_tls(fleet_dir: str | Path, fleet: Fleet, router_hosts: tuple[str, ...] = DEFAULT_ROUTER_HOSTS,
+             sites: list[str] | tuple[str, ...] = ()) -> None:
+    """Write the fleet CA and a certificate for every node, for the router and for each site's
+    router (``router/<site>.crt``, CN ``router-<site>``)."""
     d = Path(fleet_dir)
     ca, ca_key = make_ca()
     _write(d / "tls" / "ca.crt", ca.public_bytes(serialization.Encoding.PEM), private=False)
@@ -141,3 +143,7 @@ def init_tls(fleet_dir: str | Path, fleet: Fleet, router_hosts: tuple[str, ...] 
     files = router_files(d)
     _write(files.cert, cert.public_bytes(serialization.Encoding.PEM), private=False)
     _write(files.key, _pem_key(key), private=True)
+    for site in sites:
+        cert, key = issue(ca, ca_key, f"router-{site}", router_hosts)
+        _write(d / "router" / f"{site}.crt", cert.public_bytes(serialization.Encoding.PEM), private=False)
+        _write(d / "router" / f"{site}.key", _pem_key(key), private=True)

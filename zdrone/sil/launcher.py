@@ -33,7 +33,7 @@ from typing import Any, Callable
 from ..core.geometry import GeoPoint, distance_m
 from ..core.reference import HOME
 from ..core.tbm import TbmThresholds
-from ..fleet.files import init_fleet
+from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import read_events
 
 PY = sys.executable
@@ -86,6 +86,7 @@ class Scenario:
     rogues: tuple[RogueSpec, ...] = ()
     faults: tuple[Fault, ...] = ()
     gs_a_extra: tuple[str, ...] = ()  # further options of GS A
+    sites: bool = False  # needs a router per site (``zdrone demo --sites``)
     radio: tuple[str, ...] = ()  # the drone's emulated radio (``--sil-loss 0.2`` ...)
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
@@ -321,6 +322,18 @@ def _forwarded_over_restarts(drone_events: list[dict[str, Any]]) -> dict[str, in
     return total
 
 
+def _check_site_router_down(o: Outcome) -> list[str]:
+    """``site-router-down``: the other site carries the C2 link; the hand-over happens, no failsafe."""
+    s = o.summary
+    kinds = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
+    why = _need(bool(kinds) and kinds[0][:2] == ("A", "B"), f"no hand-over to B: {kinds}")
+    why += _need(s["failsafe"] is None, "failsafe")
+    why += _need(any("router restarted" in n for n in s["notes"]), "site 1's router did not die")
+    why += _need(s["final_owner"] == "A" and s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
+                 f"not back home under A: {s['final_owner']}, {s['distance_from_home_m']} m")
+    return why
+
+
 def _check_router_restart(o: Outcome) -> list[str]:
     """``router-restart``: an outage shorter than the loss threshold costs nothing: no failsafe, no
     new pairing, the same authority and both hand-overs."""
@@ -372,6 +385,7 @@ _HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in 
 _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
 _RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
                        after=1.0)
+_SITE1_DOWN = Fault(REGION_ENTERED, "router", RESTART, "site 1's router dies; back 6 s later", down=6.0, after=0.5)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
@@ -407,6 +421,12 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the vehicle flies on; the node comes back with owner A and its epoch, A re-pairs (fresh keys) within "
              "the loss threshold, shares B's key again; both hand-overs; nobody else gets authority",
              _check_companion_restart, faults=(_RESTART_DRONE,)),
+    Scenario("site-router-down",
+             "two sites (a router each, meshed); the router of A's site dies in the overlap while A holds authority, "
+             "and is back 6 s later",
+             "the drone moves to site 2's router at once; A is cut off: the emergency hand-over to B (proven), no "
+             "failsafe; B hands back to A when the flight returns",
+             _check_site_router_down, faults=(_SITE1_DOWN,), sites=True),
     Scenario("failsafe-recover",
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
@@ -454,6 +474,8 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              rogues=(RogueSpec("big-flood", MISSION_STARTED, go=REGION_ENTERED, sim_s=40.0, min_wall=10.0, rate=20.0),)),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
+#: Scenarios that need a router per site.
+SCENARIO_SITES: dict[str, bool] = {s.name: s.sites for s in SCENARIO_TABLE}
 SCENARIOS = tuple(SCENARIO_BY_NAME)
 ATTACK_SCENARIOS = tuple(s.name for s in SCENARIO_TABLE if s.rogues)
 assert len(SCENARIOS) == len(SCENARIO_TABLE) and all(
@@ -495,6 +517,7 @@ class DemoOptions:
     autopilot: str = "px4"  # personality of the built-in simulator
     radio: tuple[str, ...] = ()  # the drone's --sil-loss/--sil-bursts/--sil-delay-ms/--sil-jitter-ms options
     spec: "Scenario | None" = None  # a scenario made on the fly (bench chaos) instead of ``scenario``
+    sites: bool = False  # a router per GS site (two, meshed) instead of one
     vehicle: str | None = None  # an autopilot already running (no simulator started)
 
 
@@ -520,6 +543,7 @@ class Demo:
     fired: set[str] = field(default_factory=set)
     pending_go: set[str] = field(default_factory=set)
     scheduled: list[tuple[float, Fault]] = field(default_factory=list)  # (monotonic due time, fault)
+    sites: dict[str, dict[str, Any]] = field(default_factory=dict)  # with --sites: site -> endpoint, GSs
 
     @property
     def spec(self) -> Scenario:
@@ -564,8 +588,8 @@ class Demo:
         """SIGTERM the nodes first (so they close their sessions while the router is still up), then
         the simulator and the router; SIGKILL only what does not exit in time; return exit codes."""
         codes: dict[str, int | None] = {}
-        nodes = [c for n, c in self.children.items() if n not in ("sim", "router")]
-        infra = [c for n, c in self.children.items() if n in ("sim", "router")]
+        nodes = [c for n, c in self.children.items() if n != "sim" and not n.startswith("router")]
+        infra = [c for n, c in self.children.items() if n == "sim" or n.startswith("router")]
         for group in (nodes, infra):
             for child in reversed(group):
                 if child.proc.poll() is None:
@@ -594,12 +618,22 @@ class Demo:
     def start_core(self) -> None:
         """Fleet, router, simulator and drone node (every scenario and bench starts with these)."""
         o = self.opts
-        init_fleet(self.out / "fleet")
         rport, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
         self.router = f"tcp/127.0.0.1:{rport}"
-        r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
-                       + (["--tap", "tap.json"] if o.tap else []))
-        self.wait_line(r, "listening", 20)
+        if o.sites:  # a router per site, meshed; GS A (and X) at site 1, B at site 2
+            site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+            self.router = site_eps[0]
+            init_fleet(self.out / "fleet", sites=site_eps)
+            self.sites = load_sites(self.out / "fleet")
+            for n, site in enumerate(self.sites):
+                name = "router" if n == 0 else f"router{n + 1}"
+                r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5"])
+                self.wait_line(r, "listening", 20)
+        else:
+            init_fleet(self.out / "fleet")
+            r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
+                           + (["--tap", "tap.json"] if o.tap else []))
+            self.wait_line(r, "listening", 20)
         if o.vehicle is not None:
             vehicle = o.vehicle
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
@@ -622,7 +656,7 @@ class Demo:
         self.wait_line(drone, "ready", 40)
 
     def start_gs(self, gs: str, *extra: str) -> Child:
-        child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(), "--events", f"{gs}.jsonl", *extra])
+        child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(gs), "--events", f"{gs}.jsonl", *extra])
         self.wait_line(child, f"zdrone gs {gs}", 20)
         return child
 
@@ -650,7 +684,7 @@ class Demo:
             a_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port}"]
         self.start_gs("A", *a_extra)
         if spec.gs_x:
-            self.start("gsX", self._z() + ["gs", "--id", "X", *self._common(), "--drone", "d1", "--pair", "--mission",
+            self.start("gsX", self._z() + ["gs", "--id", "X", *self._common("X"), "--drone", "d1", "--pair", "--mission",
                                            "reference", "--events", "X.jsonl"])
         return self._watch()
 
@@ -669,8 +703,14 @@ class Demo:
     def _bench_extra(self) -> list[str]:
         return ["--cipher", self.opts.cipher] if self._bench else []
 
-    def _common(self) -> list[str]:
-        return ["--fleet", "fleet", "--router", self.router]
+    def _common(self, node: str | None = None) -> list[str]:
+        """Fleet and router options of a node: with sites, a GS uses its site's router and the drone
+        every site's (Zenoh moves it to another when its router dies)."""
+        router = self.router
+        if self.sites:
+            router = ",".join(s["endpoint"] for s in self.sites.values()) if node is None else next(
+                s["endpoint"] for s in self.sites.values() if node in s["ground_stations"])
+        return ["--fleet", "fleet", "--router", router]
 
     def _fire(self, trigger: str, live: "LiveView | None", t: float | None = None) -> None:
         """The flight reached ``trigger``: start, unleash or fault what the scenario ties to it."""
