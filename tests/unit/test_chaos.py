@@ -38,3 +38,11 @@ def test_a_lost_authority_link_must_be_followed_by_a_hand_over_or_the_failsafe()
     assert invariants(_outcome(base + [_ev(7.0, "failsafe", detect_to_command_ms=2.0)]))
     late = base + [_ev(5.01, "failsafe", detect_to_command_ms=250.0)]
     assert any("250 ms" in w for w in invariants(_outcome(late)))
+
+
+def test_a_link_lost_again_while_already_in_the_failsafe_asks_for_nothing():
+    """Found by the 50-schedule run (seed 1021): A's link came back and went again during the landing."""
+    ev = [_ev(0, "start"), _ev(1, "authority", to="A", epoch=1), _ev(5.0, "link_state", gs="A", state="lost"),
+          _ev(5.001, "failsafe", detect_to_command_ms=1.0), _ev(6.0, "link_state", gs="A", state="ok"),
+          _ev(10.0, "link_state", gs="A", state="lost")]
+    assert invariants(_outcome(ev)) == []

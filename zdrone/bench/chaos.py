@@ -105,12 +105,15 @@ def invariants(o: Outcome) -> list[str]:
                 and e["detect_to_command_ms"] > FAILSAFE_LATE_MS:
             why.append(f"failsafe {e['detect_to_command_ms']:.0f} ms after the threshold")
     owner: str | None = None
+    failsafe = False  # in the failsafe nobody holds authority: a LOST link then asks for nothing more
     for i, e in enumerate(o.drone):
         if e["type"] in ("authority", "handover_complete"):
-            owner = e.get("to")
+            owner, failsafe = e.get("to"), False
         elif e["type"] == "restarted":
-            owner = e.get("owner")
-        elif e["type"] == "link_state" and e.get("state") == "lost" and e.get("gs") == owner:
+            owner, failsafe = e.get("owner"), False
+        elif e["type"] == "failsafe":
+            failsafe = True
+        elif e["type"] == "link_state" and e.get("state") == "lost" and e.get("gs") == owner and not failsafe:
             acted = any(x["type"] in ("failsafe", "handover_complete") and x["t"] - e["t"] <= SILENT_AUTHORITY_S
                         for x in o.drone[i:i + 40])
             if not acted:
