@@ -243,7 +243,24 @@ def run_parsed(args: argparse.Namespace) -> int:
         return 2
     except KeyboardInterrupt:
         return 130
+    if getattr(args, "func", None) in SIGNAL_THREAD_COMMANDS:
+        _exit_now(int(code or 0))
     return int(code or 0)
+
+
+def _exit_now(code: int) -> None:
+    """End a node process once it has closed its session and its event log: flush, then exit without
+    the interpreter's finalization, during which a late Zenoh callback (a query reply arriving after
+    the close) could call into a half-torn-down interpreter and abort the process."""
+    import os
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":
