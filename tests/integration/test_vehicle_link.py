@@ -24,6 +24,17 @@ def _until(link: VehicleLink, pred, timeout: float) -> bool:
     return False
 
 
+def _rtl_then_land(link: VehicleLink) -> None:
+    """The companion's two failsafe commands, in flight: RTL, then LAND until disarmed on the ground."""
+    link.command_rtl()
+    assert _until(link, lambda: link.state().mode == "RTL", 5)
+    link.command_land()
+    assert _until(link, lambda: link.state().mode == "LAND", 5)
+    assert _until(link, lambda: not link.armed, 30)
+    # EXTENDED_SYS_STATE comes once a second: the disarm may be seen first
+    assert _until(link, lambda: link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND, 3)
+
+
 @pytest.mark.slow
 def test_vehicle_link_tracks_and_commands_the_sim():
     port = free_port()
@@ -42,13 +53,7 @@ def test_vehicle_link_tracks_and_commands_the_sim():
                                                                  float("nan"), float("nan"), float("nan"))))
             assert _until(link, lambda: link.position is not None and link.position.alt > 8, 20)
             assert link.state().armed and link.state().mode in ("TAKEOFF", "HOLD")
-            link.command_rtl()
-            assert _until(link, lambda: link.state().mode == "RTL", 5)
-            link.command_land()
-            assert _until(link, lambda: link.state().mode == "LAND", 5)
-            assert _until(link, lambda: not link.armed, 30)
-            # EXTENDED_SYS_STATE comes once a second: the disarm may be seen first
-            assert _until(link, lambda: link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND, 3)
+            _rtl_then_land(link)
         finally:
             link.close()
 
@@ -82,13 +87,7 @@ def test_vehicle_link_asks_ardupilot_for_its_streams_and_flies_it_by_its_modes()
             link.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, float("nan"), float("nan"), float("nan"), 12)
             assert _until(link, lambda: link.position is not None and link.position.alt > 8, 20)
             assert link.landed_state in (mav.MAV_LANDED_STATE_TAKEOFF, mav.MAV_LANDED_STATE_IN_AIR)
-            link.command_rtl()
-            assert _until(link, lambda: link.state().mode == "RTL", 5)
-            link.command_land()
-            assert _until(link, lambda: link.state().mode == "LAND", 5)
-            assert _until(link, lambda: not link.armed, 30)
-            # EXTENDED_SYS_STATE comes once a second: the disarm may be seen first
-            assert _until(link, lambda: link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND, 3)
+            _rtl_then_land(link)
             assert not {k: v for k, v in link.stream_stats()["counters"].items() if "refused" in k}
         finally:
             link.close()
