@@ -41,9 +41,15 @@ def _sim(args: argparse.Namespace) -> int:
         raise UsageError(f"--sysid {args.sysid}: must be 1..255")
     if args.ready_after is not None and not (math.isfinite(args.ready_after) and 0 <= args.ready_after <= 3600):
         raise UsageError(f"--ready-after {args.ready_after:g}: must be 0..3600 simulated seconds")
+    truth = None
+    if args.truth is not None:
+        host, _, port = args.truth.rpartition(":")
+        if host not in ("127.0.0.1", "localhost") or not port.isdigit() or not 0 < int(port) < 65536:
+            raise UsageError(f"--truth {args.truth}: must be 127.0.0.1:PORT")
+        truth = ("127.0.0.1", int(port))
     return run_sim(SimOptions(mavlink=args.mavlink, home=home, speedup=args.speedup, seed=args.seed,
                               sysid=args.sysid, gps_noise=args.gps_noise, duration=args.duration,
-                              personality=personality(args.autopilot), ready_after=args.ready_after))
+                              personality=personality(args.autopilot), ready_after=args.ready_after, truth=truth))
 
 
 def add_sim(sub: argparse._SubParsersAction) -> None:
@@ -63,6 +69,8 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--home", metavar="LAT,LON[,ALT]", help="take-off point (default: the reference home)")
     p.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
     p.add_argument("--duration", type=positive, default=None, help="stop after this many wall seconds")
+    p.add_argument("--truth", metavar="127.0.0.1:PORT", default=None,
+                   help="testbed only: send the true position there (UDP JSON, 20/s), for radio links from coverage")
     p.set_defaults(func=_sim)
 
 
@@ -71,7 +79,7 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
 def _router(args: argparse.Namespace) -> int:
     from .net.router import run_router
 
-    return run_router(args.config, args.listen, args.tap)
+    return run_router(args.config, args.listen, args.tap, args.connect)
 
 
 def add_router(sub: argparse._SubParsersAction) -> None:
@@ -79,6 +87,8 @@ def add_router(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-c", "--config", default="router.json5", help="router config (JSON5; also valid for zenohd -c)")
     p.add_argument("--listen", metavar="ENDPOINT", action="append",
                    help="listen here instead of the config's endpoints, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    p.add_argument("--connect", metavar="ENDPOINT", action="append",
+                   help="connect to these routers instead of the config's (other sites reached another way; repeatable)")
     p.add_argument("--tap", metavar="FILE", help="count packets and bytes per key expression into FILE (JSON, every second)")
     p.set_defaults(func=_router)
 
@@ -97,7 +107,9 @@ def _thresholds(args: argparse.Namespace):
 def _drone(args: argparse.Namespace) -> int:
     from .nodes.drone import DroneOptions, run_drone
 
-    return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=args.router, vehicle=args.vehicle,
+    routers = args.router or ["tcp/127.0.0.1:7447"]
+    router: str | tuple[str, ...] = routers[0] if len(routers) == 1 else tuple(routers)
+    return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=router, vehicle=args.vehicle,
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
                                   handover_timeout=args.handover_timeout, gate=_gate(args),
                                   events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args)))
@@ -131,7 +143,10 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p = sub.add_parser("drone", help="onboard companion: vehicle link + security module + handover authority")
     p.add_argument("--id", default="d1", help="drone name in the fleet (default d1)")
     p.add_argument("--fleet", default="fleet", help="fleet directory (default ./fleet)")
-    p.add_argument("--router", default="tcp/127.0.0.1:7447", help="Zenoh router endpoint")
+    p.add_argument("--router", action="append", metavar="ENDPOINT",
+                   help="Zenoh router endpoint (default tcp/127.0.0.1:7447). Several comma-separated: one session "
+                        "that Zenoh moves to another when its router dies. Repeated (one per site): a session through "
+                        "each at once, so losing a site costs no interruption")
     p.add_argument("--vehicle", default="udpout:127.0.0.1:14580", metavar="CONN",
                    help="autopilot: udpout:127.0.0.1:14580 (zdrone sim), udpin:0.0.0.0:14540 (PX4 SITL), "
                         "tcp:127.0.0.1:5760 (ArduPilot SITL), /dev/ttyACM0,921600")

@@ -46,9 +46,10 @@ class TrafficTap:
         tmp.replace(self.path)
 
 
-def run_router(config_path: str | Path, listen: list[str] | None = None, tap: str | None = None) -> int:
+def run_router(config_path: str | Path, listen: list[str] | None = None, tap: str | None = None,
+               connect: list[str] | None = None) -> int:
     """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints."""
-    cfg = load_router_config(config_path, listen)
+    cfg = load_router_config(config_path, listen, connect)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())

@@ -5,7 +5,10 @@ Theory of operation
 A node (the drone companion, a ground station) is a pure machine plus this runtime. The runtime owns:
 
 * **identity**: the fleet file, the node's entry (checked for its role) and its secret;
-* **the session**: a Zenoh client of the router, authenticated with the node's password;
+* **the session**: a Zenoh client of the router, authenticated with the node's password; or, given
+  several routers (one per site, ``paths``), one session per router, every declaration on each,
+  copies of what several paths deliver dropped and counted (``duplicate_path``), publishing through
+  the first path that has its router (see ``paths.py``);
 * **the inbox**: every subscriber and query reply only puts bytes on the bounded, per-sender
   ``Inbox`` (refusing oversized payloads by length); the node's single loop thread drains it;
 * **queryables** (bounded rings, drained by the loop) and **subscriptions**, tracked so that
@@ -32,6 +35,7 @@ from ..fleet.files import NodeSecret, load_fleet, load_secret
 from ..fleet.tls import node_files
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, Inbox, reply_bytes
+from .paths import PathQueryable, RecentPayloads, SessionPath
 from .session import open_client, query_queue
 
 log = logging.getLogger(__name__)
@@ -42,7 +46,7 @@ ROLE_NAMES = {"drone": "a drone", "gs": "a ground station"}
 class NodeRuntime:
     """Identity, session, inbox, queryables, subscriptions, publishing, events, stop and close."""
 
-    def __init__(self, fleet_dir: str, name: str, role: str, router: str, events: str | None) -> None:
+    def __init__(self, fleet_dir: str, name: str, role: str, router: str | list[str], events: str | None) -> None:
         self.fleet: Fleet = load_fleet(fleet_dir)
         node = self.fleet.nodes.get(name)
         if node is None or node.role != role:
@@ -51,42 +55,121 @@ class NodeRuntime:
         self.name = name
         self.node: Node = node
         self.secret: NodeSecret = load_secret(fleet_dir, name, self.fleet)
-        self.router = router
+        routers = [router] if isinstance(router, str) else list(router)
+        self.router = " + ".join(routers)
         self.events = EventLog(events, name)
         self.inbox = Inbox()
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
-        tls = node_files(fleet_dir, name).check() if router.startswith("tls/") else None
-        self.session = open_client(router, name, self.secret.router_password, tls)
+        self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
+        self._queryables: list[PathQueryable] = []
+        self.multipath = len(routers) > 1
+        self.recent = RecentPayloads() if self.multipath else None
+        tls = {r: node_files(fleet_dir, name).check() for r in routers if r.startswith("tls/")}
+        password = self.secret.router_password
+
+        def opener(r: str) -> zenoh.Session:
+            return open_client(r, name, password, tls.get(r))
+
+        self.paths = [SessionPath(r, opener, background=self.multipath) for r in routers]
+        self._publish_path: SessionPath | None = None
+
+    @property
+    def session(self) -> Any:
+        """The first path's session (a single-router node's only one); None while not open."""
+        return self.paths[0].session
+
+    def poll_paths(self) -> None:
+        """Adopt the sessions opened meanwhile (declaring everything on them) and pick the path to
+        publish through. The node's loop calls this every turn (cheap: no I/O)."""
+        for p in self.paths:
+            if p.poll():
+                self._declare_on(p)
+                self.events.write("path_open", router=p.endpoint)
+                log.info("path %s open", p.endpoint)
+        if self.multipath:
+            chosen = next((p for p in self.paths if p.connected()), None)
+            if chosen is not self._publish_path:
+                self.events.write("path_publish", router=chosen.endpoint if chosen else None,
+                                  previous=self._publish_path.endpoint if self._publish_path else None)
+                log.info("publishing through %s", chosen.endpoint if chosen else "no path")
+                self._publish_path = chosen
+
+    def path_status(self) -> dict[str, dict[str, Any]]:
+        """Each path: open, has its router now, publishing through it."""
+        return {p.endpoint: {"open": p.session is not None, "connected": p.connected(),
+                             "publishing": p is self._publish_path} for p in self.paths}
+
+    def _declare_on(self, p: SessionPath) -> None:
+        assert p.session is not None
+        for handle, keyexpr, cb in self._subs:
+            handle.per_path.append(p.session.declare_subscriber(keyexpr, cb))
+        for q in self._queryables:
+            q.per_path.append(p.session.declare_queryable(q.keyexpr, query_queue()))
+
+    def _open_sessions(self) -> list[Any]:
+        return [p.session for p in self.paths if p.session is not None]
 
     # ----------------------------------------------------------------- declare
     def queryable(self, keyexpr: str) -> Any:
-        """A queryable whose queries wait in a bounded ring for the loop (``try_recv``)."""
-        q = self.session.declare_queryable(keyexpr, query_queue())
+        """A queryable whose queries wait in a bounded ring per path for the loop (``try_recv``)."""
+        q = PathQueryable(keyexpr, self.recent, lambda: self.inbox.drop("query:duplicate_path"))
+        for s in self._open_sessions():
+            q.per_path.append(s.declare_queryable(keyexpr, query_queue()))
+        self._queryables.append(q)
         self._declared.append(q)
         return q
 
     def subscribe(self, keyexpr: str, kind: str, peer_of: Callable[[Any], str], limit: int = MAX_ENVELOPE) -> Any:
-        """A subscriber that queues each sample's bytes as ``(kind, peer_of(key), data)``."""
-        inbox = self.inbox
+        """A subscriber (on every path) that queues each sample's bytes as ``(kind, peer_of(key), data)``."""
+        inbox, recent = self.inbox, self.recent
 
         def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: hand over and return at once
-            inbox.put_payload(kind, peer_of(sample.key_expr), sample.payload, limit)
+            if recent is None:
+                inbox.put_payload(kind, peer_of(sample.key_expr), sample.payload, limit)
+                return
+            payload = sample.payload
+            if payload is None or len(payload) > limit:
+                inbox.drop(f"{kind}:oversize")
+                return
+            peer, data = peer_of(sample.key_expr), payload.to_bytes()
+            if recent.first(kind, peer, data):
+                inbox.put(kind, peer, data)
+            else:
+                inbox.drop(f"{kind}:duplicate_path")
 
-        sub = self.session.declare_subscriber(keyexpr, on_sample)
-        self._declared.append(sub)
-        return sub
+        handle = _PathSubscriber()
+        for s in self._open_sessions():
+            handle.per_path.append(s.declare_subscriber(keyexpr, on_sample))
+        self._subs.append((handle, keyexpr, on_sample))
+        self._declared.append(handle)
+        return handle
 
     def undeclare(self, entity: Any) -> None:
         if entity in self._declared:
             self._declared.remove(entity)
+        self._subs = [e for e in self._subs if e[0] is not entity]
+        self._queryables = [q for q in self._queryables if q is not entity]
         entity.undeclare()
 
     # ------------------------------------------------------------------- send
+    def _out(self) -> Any:
+        if not self.multipath:
+            return self.paths[0].session
+        p = self._publish_path
+        if p is None or not p.connected():
+            p = self._publish_path = next((x for x in self.paths if x.connected()), None)
+        return p.session if p is not None else None
+
     def put(self, keyexpr: str, payload: bytes) -> None:
         """Publish (``session.put``: through an ACL router, a declared publisher's samples after the
-        first are not delivered in zenoh 1.10; ``session.put``'s are). Never blocks: DROP."""
-        self.session.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP)
+        first are not delivered in zenoh 1.10; ``session.put``'s are). Never blocks: DROP. With
+        several paths: through the first that has its router (none: counted ``no_path``)."""
+        s = self._out()
+        if s is None:
+            self.inbox.drop("put:no_path")
+            return
+        s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP)
 
     def ask(self, keyexpr: str, payload: bytes, timeout: float, kind: str, peer: str,
             wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r) -> None:
@@ -98,8 +181,12 @@ class NodeRuntime:
         def on_reply(reply: Any) -> None:
             inbox.put(kind, peer, wrap(reply_bytes(reply)))
 
-        self.session.get(keyexpr, on_reply, payload=payload, timeout=timeout,
-                         target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
+        s = self._out()
+        if s is None:
+            self.inbox.drop("ask:no_path")
+            return
+        s.get(keyexpr, on_reply, payload=payload, timeout=timeout,
+              target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
 
     # ------------------------------------------------------------- lifecycle
     def stop(self, *_: object) -> None:
@@ -110,7 +197,7 @@ class NodeRuntime:
         """Write ``stop`` with the final status, undeclare everything, close the session."""
         self.events.write("stop", **final)
         steps: list[Callable[[], None]] = [e.undeclare for e in reversed(self._declared)]
-        steps += [self.session.close, *extra_steps]
+        steps += [p.close for p in self.paths] + list(extra_steps)
         self._declared.clear()
         for step in steps:  # each on its own: a session the signal thread closed must not stop the rest
             try:
@@ -120,15 +207,32 @@ class NodeRuntime:
         self.events.write("closed")
         self.events.close()
 
+    def close_sessions(self) -> None:
+        """Close every path's session (from the signal thread when the loop is stuck)."""
+        for p in self.paths:
+            p.close()
+
     def serve(self, run: Callable[[], None]) -> int:
         """Run ``run()`` with SIGTERM/SIGINT turned into ``stop()`` by the signal thread (the command
         line blocked those signals before any thread started: ``cli.run_parsed``)."""
         from .shutdown import serve_signals
 
         closed = threading.Event()
-        serve_signals(self.stop, self.session.close, closed)
+        serve_signals(self.stop, self.close_sessions, closed)
         try:
             run()
         finally:
             closed.set()
         return 0
+
+
+class _PathSubscriber:
+    """A subscription declared on every adopted path."""
+
+    def __init__(self) -> None:
+        self.per_path: list[Any] = []
+
+    def undeclare(self) -> None:
+        for sub in self.per_path:
+            sub.undeclare()
+        self.per_path.clear()

@@ -59,7 +59,8 @@ def open_client(router: str, user: str, password: str, tls: "TlsFiles | None" = 
         raise ConfigError(f"cannot connect to router {router} as {user!r} (wrong password or no router): {detail}") from None
 
 
-def load_router_config(path: str | Path, listen: list[str] | str | None = None) -> zenoh.Config:
+def load_router_config(path: str | Path, listen: list[str] | str | None = None,
+                       connect: list[str] | None = None) -> zenoh.Config:
     """Read a router JSON5 file; resolve the credentials path relative to the file."""
     p = Path(path)
     try:
@@ -91,6 +92,8 @@ def load_router_config(path: str | Path, listen: list[str] | str | None = None) 
             tls[field] = str(f)
     if listen:
         raw["listen"] = {"endpoints": [listen] if isinstance(listen, str) else list(listen)}
+    if connect:  # other routers reached another way (e.g. the testbed's backhaul link); retry as configured
+        raw.setdefault("connect", {})["endpoints"] = list(connect)
     acl = raw.get("access_control", {})
     if not acl.get("enabled") or acl.get("default_permission") != "deny":
         log.warning("%s: access control is not enabled with default deny", p)

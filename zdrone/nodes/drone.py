@@ -70,7 +70,7 @@ class RadioPath(Protocol):
 class DroneOptions:
     drone: str
     fleet: str
-    router: str
+    router: str | tuple[str, ...]  # one endpoint (or a comma-separated failover list), or one per site (paths)
     vehicle: str
     thresholds: TbmThresholds = TbmThresholds()
     failsafe: str = "LAND"
@@ -438,6 +438,7 @@ class DroneNode:
             "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
             "forwarded_epochs": dict(self.forwarded_epochs),
             "inbox_dropped": self.rx.stats(),
+            "paths": self.rt.path_status() if self.rt.multipath else {},
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
             "radio_lost": dict(self.radio.lost) if self.radio else {},
         }
@@ -446,7 +447,7 @@ class DroneNode:
         self.rt.stop()
 
     def run(self) -> None:
-        print(f"zdrone drone {self.name}: vehicle {self.opts.vehicle}, router {self.opts.router}", flush=True)
+        print(f"zdrone drone {self.name}: vehicle {self.opts.vehicle}, router {self.rt.router}", flush=True)
         self.events.write("start", vehicle=self.opts.vehicle)
         if not self.vehicle.wait_vehicle(30.0):
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
@@ -461,6 +462,7 @@ class DroneNode:
     def step(self, wait: float) -> None:
         """One pass of the loop: wait up to ``wait`` s for the first envelope, then do everything."""
         self.rx.drain(wait, self._on_envelope)
+        self.rt.poll_paths()
         now = time.monotonic()
         if self._late:
             self._release_late(now)

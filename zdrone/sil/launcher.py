@@ -34,7 +34,8 @@ from ..core.geometry import GeoPoint, distance_m
 from ..core.reference import HOME
 from ..core.tbm import TbmThresholds
 from ..fleet.files import init_fleet, load_sites
-from ..net.eventlog import read_events
+from ..net.eventlog import EventLog, read_events
+from .radiolink import RadioLink, SiteCoverage, TruthReceiver, site_circles
 
 PY = sys.executable
 
@@ -381,6 +382,7 @@ _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
 RESTART = -1
+LINK_DOWN, LINK_UP = -2, -3  # a testbed link (``backhaul``) cut or mended
 _HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in the overlap", after=0.5)
 _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
 _RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
@@ -544,6 +546,11 @@ class Demo:
     pending_go: set[str] = field(default_factory=set)
     scheduled: list[tuple[float, Fault]] = field(default_factory=list)  # (monotonic due time, fault)
     sites: dict[str, dict[str, Any]] = field(default_factory=dict)  # with --sites: site -> endpoint, GSs
+    links: dict[str, RadioLink] = field(default_factory=dict)  # with --sites: radio per site, backhaul per pair
+    coverage: "SiteCoverage | None" = None
+    truth: "TruthReceiver | None" = None
+    radio_log: "EventLog | None" = None
+    site_of_endpoint: dict[str, str] = field(default_factory=dict)  # the drone's path endpoint -> site
 
     @property
     def spec(self) -> Scenario:
@@ -612,6 +619,7 @@ class Demo:
                     child.proc.wait(5)
                     self.notes.append(f"{child.name} had to be killed (stacks in {child.log.name})")
                 codes[child.name] = child.proc.returncode
+        self.close_links()
         return {n: codes.get(n) for n in self.children}
 
     # ----------------------------------------------------------------- running
@@ -621,14 +629,7 @@ class Demo:
         rport, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
         self.router = f"tcp/127.0.0.1:{rport}"
         if o.sites:  # a router per site, meshed; GS A (and X) at site 1, B at site 2
-            site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
-            self.router = site_eps[0]
-            init_fleet(self.out / "fleet", sites=site_eps)
-            self.sites = load_sites(self.out / "fleet")
-            for n, site in enumerate(self.sites):
-                name = "router" if n == 0 else f"router{n + 1}"
-                r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5"])
-                self.wait_line(r, "listening", 20)
+            self._start_sites(rport)
         else:
             init_fleet(self.out / "fleet")
             r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
@@ -639,21 +640,84 @@ class Demo:
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
             tport = free_port(socket.SOCK_STREAM)
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
-                                                 "--speedup", str(o.speedup)])
+                                                 "--speedup", str(o.speedup)] + self._truth_args())
             self.wait_line(sim, "zdrone sim:", 20)
             vehicle = f"tcp:127.0.0.1:{tport}"
         else:
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "px4", "--mavlink", f"udpin:127.0.0.1:{sport}",
-                                                 "--speedup", str(o.speedup)])
+                                                 "--speedup", str(o.speedup)] + self._truth_args())
             self.wait_line(sim, "zdrone sim:", 20)
+            self._wait_coverage()
             vehicle = f"udpout:127.0.0.1:{sport}"
         # Timers are wall-clock while the simulator may run faster: scale the hand-over timeout so that
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
+        coverage = [] if self.links else ["--sil-coverage"]  # with sites: the radio links are the coverage
         drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", vehicle,
-                                                  "--sil-coverage", "--events", "drone.jsonl", "--handover-timeout",
+                                                  *coverage, "--events", "drone.jsonl", "--handover-timeout",
                                                   str(ho_timeout), *self._bench_extra(), *self.spec.radio, *o.radio])
         self.wait_line(drone, "ready", 40)
+
+    def _start_sites(self, rport: int) -> None:
+        """A router per site, meshed through a backhaul link per pair of sites; the drone reaches each
+        site through that site's radio link, up only while the vehicle is inside the site's coverage
+        (from the simulator's true position). No frame filter: coverage is which links exist."""
+        site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+        self.router = site_eps[0]
+        fleet = init_fleet(self.out / "fleet", sites=site_eps)
+        self.sites = load_sites(self.out / "fleet")
+        names = list(self.sites)
+        ports = {site: int(self.sites[site]["endpoint"].rsplit(":", 1)[1]) for site in names}
+        for n, site in enumerate(names):
+            connect: list[str] = []
+            for earlier in names[:n]:  # site N reaches sites < N over its backhaul link to each
+                link = RadioLink(f"backhaul-{earlier}-{site}", ("127.0.0.1", ports[earlier]), up=True)
+                self.links[link.name] = link
+                connect += ["--connect", f"tls/{link.endpoint}"]
+            name = "router" if n == 0 else f"router{n + 1}"
+            r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5", *connect])
+            self.wait_line(r, "listening", 20)
+        self.radio_log = EventLog(self.out / "radio.jsonl", "radio")
+        radios = {site: RadioLink(site, ("127.0.0.1", ports[site]), up=self.opts.vehicle is not None) for site in names}
+        self.links.update(radios)
+        self.site_of_endpoint = {f"tls/{link.endpoint}": site for site, link in radios.items()}
+        if self.opts.vehicle is None:  # the built-in simulator tells where the vehicle truly is
+            log_ = self.radio_log
+            self.coverage = SiteCoverage(site_circles(fleet, self.sites), radios,
+                                         lambda site, up, p: log_.write("radio_link", site=site, up=up,
+                                                                        position=[round(p.lat, 7), round(p.lon, 7)]))
+            self.truth = TruthReceiver(self.coverage.update)
+        else:
+            self.notes.append("--vehicle with --sites: no true position, every site's radio stays up")
+
+    def _truth_args(self) -> list[str]:
+        return ["--truth", f"127.0.0.1:{self.truth.port}"] if self.truth is not None else []
+
+    def _wait_coverage(self, timeout: float = 20.0) -> None:
+        """With radio links: the first true position has set them (the drone starts in range)."""
+        deadline = time.monotonic() + timeout
+        while self.coverage is not None and self.coverage.updates == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError("no true position from the simulator: radio links cannot be set")
+            time.sleep(0.05)
+
+    def link_fault(self, target: str, up: bool) -> None:
+        """Cut or mend a testbed link (``backhaul``: every backhaul link)."""
+        for name, link in self.links.items():
+            if name == target or (target == "backhaul" and name.startswith("backhaul-")):
+                link.set_up(up)
+                if self.radio_log is not None:
+                    self.radio_log.write("backhaul" if name.startswith("backhaul-") else "radio_link", link=name, up=up)
+
+    def close_links(self) -> None:
+        if self.truth is not None:
+            self.truth.close()
+            self.truth = None
+        for link in self.links.values():
+            link.close()
+        self.links.clear()
+        if self.radio_log is not None:
+            self.radio_log.close()
 
     def start_gs(self, gs: str, *extra: str) -> Child:
         child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(gs), "--events", f"{gs}.jsonl", *extra])
@@ -706,10 +770,11 @@ class Demo:
     def _common(self, node: str | None = None) -> list[str]:
         """Fleet and router options of a node: with sites, a GS uses its site's router and the drone
         every site's (Zenoh moves it to another when its router dies)."""
+        if self.sites and node is None:  # the drone: one session per site, through that site's radio
+            return ["--fleet", "fleet"] + [a for site in self.sites for a in ("--router", f"tls/{self.links[site].endpoint}")]
         router = self.router
         if self.sites:
-            router = ",".join(s["endpoint"] for s in self.sites.values()) if node is None else next(
-                s["endpoint"] for s in self.sites.values() if node in s["ground_stations"])
+            router = next(s["endpoint"] for s in self.sites.values() if node in s["ground_stations"])
         return ["--fleet", "fleet", "--router", router]
 
     def _fire(self, trigger: str, live: "LiveView | None", t: float | None = None) -> None:
@@ -739,7 +804,9 @@ class Demo:
         for fault in due:
             if live is not None:
                 live.event(time.time(), f"scenario: {fault.text}")
-            if fault.sig == RESTART:
+            if fault.sig in (LINK_DOWN, LINK_UP):
+                self.link_fault(fault.target, fault.sig == LINK_UP)
+            elif fault.sig == RESTART:
                 self.restart(fault.target, fault.down)
                 self.notes.append(f"{fault.target} restarted after {fault.down} s down")
             else:
@@ -898,6 +965,7 @@ class Demo:
             "attacks": {e["node"].removeprefix("rogue-"): {k: v for k, v in e.items() if k not in ("t", "node", "type")}
                         for e in rogue_events if e["type"] == "attack_done"},
             "violations": violations, "exit_codes": codes, "notes": self.notes,
+            "radio_links": self._radio_summary(drone_events),
         }
         why: list[str] = []
         if timed_out:
@@ -916,6 +984,29 @@ class Demo:
         summary["why_not_ok"] = why
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         return summary
+
+    def _radio_summary(self, drone_events: list[dict[str, Any]]) -> dict[str, Any]:
+        """With sites: each radio/backhaul link change, and for each site lost while the drone published
+        through it, how long until it published through another (the downlink's only interruption;
+        the uplink arrives on every path)."""
+        path = self.out / "radio.jsonl"
+        if not path.exists():
+            return {}
+        changes = [e for e in read_events(path) if e["type"] in ("radio_link", "backhaul")]
+        switches = [e for e in drone_events if e["type"] == "path_publish" and e.get("previous")]
+        switch_ms = []
+        for sw in switches:
+            site = self.site_of_endpoint.get(sw["previous"])
+            downs = [e["t"] for e in changes if e.get("site") == site and e.get("up") is False and e["t"] <= sw["t"] + 0.05]
+            if downs:
+                switch_ms.append(round(max(0.0, sw["t"] - max(downs)) * 1000.0, 1))
+        return {"changes": [{k: e.get(k) for k in ("t", "site", "link", "up")} for e in changes],
+                "downlink_switch_ms": switch_ms, "path_duplicates": sum(
+                    v for k, v in self._drone_final(drone_events).get("inbox_dropped", {}).items() if k.endswith("duplicate_path"))}
+
+    @staticmethod
+    def _drone_final(drone_events: list[dict[str, Any]]) -> dict[str, Any]:
+        return next((e for e in reversed(drone_events) if e["type"] == "stop"), {})
 
     def _vehicle_counters(self) -> dict[str, Any]:
         """What the simulator counted (frames it ignored, refused, could not parse), from its log: the
@@ -1086,5 +1177,9 @@ def run_demo(opts: DemoOptions) -> int:
           f"security drops {summary['security_drops']}; HA refusals {summary['ha_rejects']}; "
           f"failsafe {summary['failsafe']['detect_to_command_ms'] if summary['failsafe'] else '-'} ms; "
           f"final position {summary['distance_from_home_m']} m from home")
+    radio = summary.get("radio_links") or {}
+    if radio:
+        print(f"radio links: {len(radio['changes'])} changes; downlink moved to another site in "
+              f"{radio['downlink_switch_ms']} ms; copies from the second path dropped {radio['path_duplicates']}")
     print(f"summary: {out / 'summary.json'}; events: {out / 'drone.jsonl'}")
     return 0 if summary["ok"] else 1

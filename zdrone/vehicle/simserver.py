@@ -10,8 +10,10 @@ until a client has connected there.
 
 from __future__ import annotations
 
+import json
 import logging
 import signal
+import socket
 import time
 from dataclasses import dataclass
 
@@ -21,6 +23,9 @@ from .sim import SimAutopilot
 from .transport import MavTransport
 
 log = logging.getLogger(__name__)
+
+#: TESTBED ONLY: how often the true position goes to ``--truth`` (wall seconds).
+TRUTH_PERIOD_S = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,6 +39,7 @@ class SimOptions:
     duration: float | None = None  # wall seconds, None = until stopped
     personality: Personality = PX4
     ready_after: float | None = None  # simulated seconds; None: the personality's short default
+    truth: tuple[str, int] | None = None  # TESTBED ONLY: send the true position here (UDP JSON, 20 Hz wall)
 
 
 class SimServer:
@@ -51,6 +57,20 @@ class SimServer:
                                 ready_after=self.ready_after)
         self.sim.params["SIM_GPS_NOISE"].value = opts.gps_noise
         self._running = True
+        self._truth = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if opts.truth else None
+        self._next_truth = 0.0
+
+    def _send_truth(self, now: float) -> None:
+        """TESTBED ONLY: the vehicle's true position, for the testbed's radio links (``--truth``)."""
+        if self._truth is None or now < self._next_truth or self.opts.truth is None:
+            return
+        self._next_truth = now + TRUTH_PERIOD_S
+        p = self.sim.position
+        try:
+            self._truth.sendto(json.dumps({"lat": p.lat, "lon": p.lon, "alt": p.alt, "t": self.sim.t}).encode(),
+                               self.opts.truth)
+        except OSError:
+            pass  # nobody listening (yet): the next one goes out in 50 ms
 
     def stop(self, *_: object) -> None:
         self._running = False
@@ -78,11 +98,14 @@ class SimServer:
                     self.sim.receive(frame, self.sim.t)
                 self.sim.step((time.monotonic() - t0) * self.opts.speedup)
                 out = self.sim.drain()
+                self._send_truth(time.monotonic())
                 if self.transport.has_peer():
                     for f in out:
                         self.transport.send(f)
         finally:
             self.transport.close()
+            if self._truth is not None:
+                self._truth.close()
             log.info("sim stopped; counters %s, stream bytes skipped %d", dict(self.sim.counters), self.transport.skipped_bytes)
 
 

@@ -1,0 +1,162 @@
+"""Several ways to the fleet at once: one Zenoh client session per site router (a "path").
+
+Theory of operation
+-------------------
+A node given several routers (``--router EP1 --router EP2``: one per site whose radio may reach it)
+keeps one client session per router, so that losing a site costs no interruption: the other
+sessions are already up, with the same subscriptions and queryables declared (make-before-break at
+the transport, as the authority does it for the command link).
+
+* A ``SessionPath`` opens its session in the background and keeps trying (a site out of radio
+  range at start is normal); once open, Zenoh's client retries its router by itself. The node's
+  loop thread adopts the session (``poll``) and only then declares on it, so every declaration
+  happens on one thread.
+* Everything a node receives arrives once per path that carries it (each site's router delivers
+  it). ``RecentPayloads`` lets the first copy through and refuses the others, counted as
+  ``duplicate_path`` (they are byte-identical; the envelope's replay window would drop them anyway).
+* A node publishes through one path: the first, in the order given, whose session has a router
+  right now (``connected``). The others stand by.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import OrderedDict
+from typing import Any, Callable
+
+import zenoh
+
+log = logging.getLogger(__name__)
+
+#: Payloads remembered per node to recognise the copies other paths deliver.
+RECENT_PAYLOADS = 8192
+
+
+class RecentPayloads:
+    """Thread-safe memory of the last ``size`` payloads seen (per kind and peer), to drop copies."""
+
+    def __init__(self, size: int = RECENT_PAYLOADS) -> None:
+        self.size = size
+        self._seen: OrderedDict[tuple[str, str, int, int], None] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def first(self, kind: str, peer: str, data: bytes) -> bool:
+        """True the first time these bytes are seen from ``peer``; False for a copy."""
+        key = (kind, peer, len(data), hash(data))
+        with self._lock:
+            if key in self._seen:
+                self._seen.move_to_end(key)
+                return False
+            self._seen[key] = None
+            if len(self._seen) > self.size:
+                self._seen.popitem(last=False)
+            return True
+
+
+class SessionPath:
+    """One client session to one router, opened in the background until it succeeds."""
+
+    def __init__(self, endpoint: str, opener: Callable[[str], zenoh.Session], background: bool = True) -> None:
+        self.endpoint = endpoint
+        self._opener = opener
+        self.session: zenoh.Session | None = None  # adopted by the loop thread
+        self._opened: zenoh.Session | None = None  # set by the opening thread
+        self._lock = threading.Lock()
+        self._closed = threading.Event()
+        self.failures = 0
+        if not background:
+            self.session = opener(endpoint)  # raises: a single path fails fast with one line
+            return
+        threading.Thread(target=self._open_loop, name=f"path-{endpoint}", daemon=True).start()
+
+    def _open_loop(self) -> None:
+        delay = 0.1
+        while not self._closed.is_set():
+            try:
+                s = self._opener(self.endpoint)
+            except Exception as exc:  # out of range, router down: try again
+                self.failures += 1
+                if self.failures in (1, 10) or self.failures % 100 == 0:
+                    log.info("path %s: not open yet (%d tries): %s", self.endpoint, self.failures, exc)
+                self._closed.wait(delay)
+                delay = min(delay * 1.5, 0.4)
+                continue
+            with self._lock:
+                if not self._closed.is_set():
+                    self._opened = s
+                    return
+            s.close()  # closed while it opened
+            return
+
+    def poll(self) -> bool:
+        """Adopt a session the background thread opened (loop thread); True if one was adopted."""
+        if self.session is not None:
+            return False
+        with self._lock:
+            s, self._opened = self._opened, None
+        if s is None:
+            return False
+        self.session = s
+        return True
+
+    def connected(self) -> bool:
+        """Whether this path's session reaches a router right now."""
+        s = self.session
+        if s is None:
+            return False
+        try:
+            return any(True for _ in s.info.routers_zid())
+        except Exception:  # a closed session
+            return False
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed.set()
+            s, self._opened = self._opened, None
+        for sess in (s, self.session):
+            if sess is not None:
+                try:
+                    sess.close()
+                except Exception as exc:
+                    log.warning("close %s: %s", self.endpoint, exc)
+        self.session = None
+
+
+class PathQueryable:
+    """A queryable declared on every adopted path; ``try_recv`` takes from each in turn and hands
+    over only the first copy of a query that several paths delivered (the others are dropped)."""
+
+    def __init__(self, keyexpr: str, recent: RecentPayloads | None, on_duplicate: Callable[[], None]) -> None:
+        self.keyexpr = keyexpr
+        self.per_path: list[Any] = []
+        self._recent = recent
+        self._on_duplicate = on_duplicate
+        self._turn = 0
+
+    def try_recv(self) -> Any:
+        n = len(self.per_path)
+        for i in range(n):
+            q_able = self.per_path[(self._turn + i) % n]
+            while True:
+                q = q_able.try_recv()
+                if q is None:
+                    break
+                self._turn = (self._turn + i + 1) % n
+                if self._recent is not None and not self._is_first(q):
+                    self._on_duplicate()
+                    q.drop()
+                    continue
+                return q
+        return None
+
+    def _is_first(self, q: Any) -> bool:
+        assert self._recent is not None
+        payload = q.payload
+        data = payload.to_bytes() if payload is not None and len(payload) <= 4096 else b""
+        return self._recent.first("query", str(q.key_expr), data)
+
+    def undeclare(self) -> None:
+        for q in self.per_path:
+            q.undeclare()
+        self.per_path.clear()

@@ -1,0 +1,212 @@
+"""TESTBED ONLY: radio coverage as real links, on loopback.
+
+Theory of operation
+-------------------
+Each (drone, site) radio is a ``RadioLink``: a TCP relay on a loopback port in front of the site's
+router. The drone's per-site Zenoh session connects to the relay, never to the router itself, so
+the bytes of that session (TLS included) pass through it untouched. While the link is **up** the
+relay accepts connections and pumps bytes both ways; taking it **down** closes every connection it
+carries and refuses new ones at once, exactly what the drone's Zenoh session sees when the vehicle
+flies out of the site's radio range: its transport to that router ends, and its retries fail until
+the link is up again. The backhaul between two sites' routers is a ``RadioLink`` too (always up
+unless a scenario cuts it).
+
+``SiteCoverage`` decides, from the vehicle's true position (the simulator's ``--truth`` datagrams),
+which sites' radios reach it: a site reaches the vehicle when the vehicle is inside the coverage
+circle of any of the site's ground stations (fleet.json5). It brings each site's link up or down
+and logs every change. No frame filter is involved: what does not reach a site's router simply
+does not arrive. With network namespaces (root) the same links would be veth pairs; on loopback
+the relay plays that part.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import threading
+from collections import Counter
+from collections.abc import Mapping
+from typing import Any, Callable
+
+from ..core.fleet import Fleet
+from ..core.geometry import Circle, GeoPoint
+
+log = logging.getLogger(__name__)
+
+CHUNK = 65536
+
+
+class RadioLink:
+    """One emulated link: a loopback TCP relay to ``target`` that can be brought up and down."""
+
+    def __init__(self, name: str, target: tuple[str, int], up: bool = True) -> None:
+        self.name = name
+        self.target = target
+        self._up = up
+        self._lock = threading.Lock()
+        self._conns: set[socket.socket] = set()
+        self.counters: Counter[str] = Counter()
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self._listener.settimeout(0.2)
+        self.port: int = self._listener.getsockname()[1]
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._accept_loop, name=f"radio-{name}", daemon=True)
+        self._thread.start()
+
+    @property
+    def endpoint(self) -> str:
+        return f"127.0.0.1:{self.port}"
+
+    @property
+    def up(self) -> bool:
+        return self._up
+
+    def set_up(self, up: bool) -> bool:
+        """Bring the link up or down; True if that changed it. Down closes every connection at once."""
+        with self._lock:
+            if up == self._up:
+                return False
+            self._up = up
+            doomed = list(self._conns) if not up else []
+            self._conns.difference_update(doomed)
+        for s in doomed:
+            _hang_up(s)
+        self.counters["up" if up else "down"] += 1
+        return True
+
+    def close(self) -> None:
+        self._closed.set()
+        self.set_up(False)
+        self._listener.close()
+        self._thread.join(2.0)
+
+    # ------------------------------------------------------------------ relay
+    def _accept_loop(self) -> None:
+        while not self._closed.is_set():
+            try:
+                client, _ = self._listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            if not self._up:
+                self.counters["refused"] += 1
+                _hang_up(client)
+                continue
+            try:
+                server = socket.create_connection(self.target, timeout=2.0)
+            except OSError:
+                self.counters["target_unreachable"] += 1
+                _hang_up(client)
+                continue
+            for s in (client, server):
+                s.settimeout(None)
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                if not self._up:  # went down meanwhile
+                    _hang_up(client)
+                    _hang_up(server)
+                    continue
+                self._conns.update((client, server))
+            self.counters["connections"] += 1
+            for a, b in ((client, server), (server, client)):
+                threading.Thread(target=self._pump, args=(a, b), name=f"radio-{self.name}-pump", daemon=True).start()
+
+    def _pump(self, src: socket.socket, dst: socket.socket) -> None:
+        try:
+            while True:
+                data = src.recv(CHUNK)
+                if not data:
+                    break
+                dst.sendall(data)
+        except OSError:
+            pass
+        with self._lock:
+            self._conns.discard(src)
+            self._conns.discard(dst)
+        _hang_up(src)
+        _hang_up(dst)
+
+
+def _hang_up(s: socket.socket) -> None:
+    try:
+        s.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+    try:
+        s.close()
+    except OSError:
+        pass
+
+
+def site_circles(fleet: Fleet, sites: Mapping[str, Mapping[str, Any]]) -> dict[str, list[Circle]]:
+    """Each site's radio coverage: the circles of its ground stations."""
+    out: dict[str, list[Circle]] = {}
+    for site, info in sites.items():
+        out[site] = [fleet.nodes[g].coverage.circle() for g in info.get("ground_stations", ())
+                     if g in fleet.nodes and fleet.nodes[g].coverage is not None]
+    return out
+
+
+class SiteCoverage:
+    """Brings each site's radio link up or down from the vehicle's true position."""
+
+    def __init__(self, circles: Mapping[str, list[Circle]], links: Mapping[str, RadioLink],
+                 on_change: Callable[[str, bool, GeoPoint], None] | None = None) -> None:
+        self.circles = dict(circles)
+        self.links = dict(links)
+        self.on_change = on_change
+        self.position: GeoPoint | None = None
+        self.updates = 0
+
+    def reaches(self, site: str, pos: GeoPoint) -> bool:
+        return any(c.contains(pos) for c in self.circles.get(site, ()))
+
+    def update(self, pos: GeoPoint) -> None:
+        self.position = pos
+        self.updates += 1
+        for site, link in self.links.items():
+            inside = self.reaches(site, pos)
+            if link.set_up(inside):
+                log.info("radio %s %s at %.6f,%.6f", site, "up" if inside else "down", pos.lat, pos.lon)
+                if self.on_change is not None:
+                    self.on_change(site, inside, pos)
+
+
+class TruthReceiver:
+    """Receives the simulator's true position (``zdrone sim --truth``) on a loopback UDP port and
+    hands each one to ``on_position`` (from its own thread). Undecodable datagrams are counted."""
+
+    def __init__(self, on_position: Callable[[GeoPoint], None]) -> None:
+        self.on_position = on_position
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port: int = self.sock.getsockname()[1]
+        self.counters: Counter[str] = Counter()
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="truth", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while not self._closed.is_set():
+            try:
+                data = self.sock.recv(512)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            try:
+                d = json.loads(data)
+                pos = GeoPoint(float(d["lat"]), float(d["lon"]), float(d.get("alt", 0.0)))
+            except (ValueError, KeyError, TypeError):
+                self.counters["malformed"] += 1
+                continue
+            self.counters["positions"] += 1
+            self.on_position(pos)
+
+    def close(self) -> None:
+        self._closed.set()
+        self.sock.close()
+        self._thread.join(2.0)
