@@ -16,11 +16,14 @@ from typing import Any
 
 from .core.fleet import ConfigError, parse_fleet
 from .core.geometry import GeoPoint, ne_of
+from .core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
+                           LinkStateChanged, Start, Subscribe, Unsubscribe, fields_of, only, record_type)
 from .core.reference import COVERAGE_RADIUS_M, GS_A, GS_B, HOME
-from .net.eventlog import read_events
+from .net.eventlog import read_records
 
 COLOURS = {"A": "#1f77b4", "B": "#ff7f0e", None: "#999999"}
-HIDDEN = {"status", "subscribe", "unsubscribe", "link_state", "drop", "start", "stop", "closed"}
+#: records left out of the events table (the status is in the plots)
+HIDDEN = (DroneState, Subscribe, Unsubscribe, LinkStateChanged, Drop, Start, Closed)
 
 
 def _resolve(log: str | Path) -> tuple[Path, Path]:
@@ -50,7 +53,7 @@ def _png(fig: Any) -> bytes:
     return buf.getvalue()
 
 
-def _track_figure(status: list[dict], events: list[dict], cov: dict[str, tuple[GeoPoint, float]]) -> Any:
+def _track_figure(status: list[DroneStatus], events: list[AnyRecord], cov: dict[str, tuple[GeoPoint, float]]) -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -75,7 +78,7 @@ def _track_figure(status: list[dict], events: list[dict], cov: dict[str, tuple[G
         inside = ((X - e1) ** 2 + (Y - n1) ** 2 <= r1 ** 2) & ((X - e2) ** 2 + (Y - n2) ** 2 <= r2 ** 2)
         ax.contourf(X, Y, inside.astype(float), levels=[0.5, 1.5], colors=["#2ca02c"], alpha=0.12)
         ax.plot([], [], color="#2ca02c", alpha=0.4, lw=6, label="hand-over region")
-    pts = [(s["t"], s["position"], s.get("owner")) for s in status if s.get("position")]
+    pts = [(s.t, s.position, s.owner) for s in status if s.position]
     for (t1, p1, o1), (_, p2, _) in zip(pts, pts[1:]):
         n1, e1 = ne_of(HOME, GeoPoint(p1[0], p1[1]))
         n2, e2 = ne_of(HOME, GeoPoint(p2[0], p2[1]))
@@ -83,15 +86,15 @@ def _track_figure(status: list[dict], events: list[dict], cov: dict[str, tuple[G
     for owner in ("A", "B"):
         ax.plot([], [], color=COLOURS[owner], lw=2.5, label=f"authority {owner}")
     for ev in events:
-        if ev["type"] == "handover_complete" and ev.get("position"):
-            n, e = ne_of(HOME, GeoPoint(ev["position"][0], ev["position"][1]))
-            ax.plot(e, n + (6 if ev.get("to") == "B" else -6), marker="*", ms=15, color="#d62728" if ev.get("kind") == "emergency" else "black")
-            ax.annotate(f"{ev.get('from')}→{ev.get('to')}", (e, n), textcoords="offset points",
-                        xytext=(0, 12 if ev.get("to") == "B" else -18), ha="center", fontsize=9)
-        if ev["type"] == "failsafe" and ev.get("position"):
-            n, e = ne_of(HOME, GeoPoint(ev["position"][0], ev["position"][1]))
+        if isinstance(ev, HandoverComplete) and ev.position:
+            n, e = ne_of(HOME, GeoPoint(ev.position[0], ev.position[1]))
+            ax.plot(e, n + (6 if ev.to == "B" else -6), marker="*", ms=15, color="#d62728" if ev.kind == "emergency" else "black")
+            ax.annotate(f"{ev.from_}→{ev.to}", (e, n), textcoords="offset points",
+                        xytext=(0, 12 if ev.to == "B" else -18), ha="center", fontsize=9)
+        if isinstance(ev, Failsafe) and ev.position:
+            n, e = ne_of(HOME, GeoPoint(ev.position[0], ev.position[1]))
             ax.plot(e, n, marker="X", ms=14, color="red")
-            ax.annotate(f"failsafe {ev.get('action')}", (e, n), textcoords="offset points", xytext=(0, 12), ha="center",
+            ax.annotate(f"failsafe {ev.action}", (e, n), textcoords="offset points", xytext=(0, 12), ha="center",
                         color="red", fontsize=9)
     ax.plot([], [], marker="*", ls="", color="black", ms=12, label="hand-over")
     ax.set_aspect("equal")
@@ -103,14 +106,14 @@ def _track_figure(status: list[dict], events: list[dict], cov: dict[str, tuple[G
     return fig
 
 
-def _tbm_figure(status: list[dict], t0: float) -> Any:
+def _tbm_figure(status: list[DroneStatus], t0: float) -> Any:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 3))
-    links = sorted({gs for s in status for gs in (s.get("links") or {})})
+    links = sorted({gs for s in status for gs in s.links})
     for gs in links:
-        xs = [s["t"] - t0 for s in status if gs in (s.get("links") or {})]
-        ys = [min(s["links"][gs]["since_last"], 6.0) for s in status if gs in (s.get("links") or {})]
+        xs = [s.t - t0 for s in status if gs in s.links]
+        ys = [min(s.links[gs].since_last, 6.0) for s in status if gs in s.links]
         ax.plot(xs, ys, label=f"link {gs}", color=COLOURS.get(gs, "#777"))
     ax.axhline(1.0, ls="--", color="#bcbd22", label="DEGRADED (1 s)")
     ax.axhline(3.0, ls="--", color="#d62728", label="LOST (3 s)")
@@ -123,16 +126,16 @@ def _tbm_figure(status: list[dict], t0: float) -> Any:
     return fig
 
 
-def _alt_figure(status: list[dict], events: list[dict], t0: float) -> Any:
+def _alt_figure(status: list[DroneStatus], events: list[AnyRecord], t0: float) -> Any:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 2.6))
-    xs = [s["t"] - t0 for s in status if s.get("position")]
-    ys = [s["position"][2] for s in status if s.get("position")]
+    xs = [s.t - t0 for s in status if s.position]
+    ys = [s.position[2] for s in status if s.position]
     ax.plot(xs, ys, color="#333")
     for ev in events:
-        if ev["type"] in ("handover_complete", "failsafe"):
-            ax.axvline(ev["t"] - t0, color="red" if ev["type"] == "failsafe" else "#555", ls=":")
+        if isinstance(ev, (HandoverComplete, Failsafe)):
+            ax.axvline(ev.t - t0, color="red" if isinstance(ev, Failsafe) else "#555", ls=":")
     ax.set_ylabel("altitude (m)")
     ax.set_xlabel("time (s)")
     ax.set_title("Altitude (dotted: hand-overs, red: failsafe)")
@@ -140,9 +143,8 @@ def _alt_figure(status: list[dict], events: list[dict], t0: float) -> Any:
     return fig
 
 
-def _detail(ev: dict) -> str:
-    keep = {k: v for k, v in ev.items() if k not in ("t", "node", "type")}
-    return ", ".join(f"{k}={v}" for k, v in keep.items())
+def _detail(ev: AnyRecord) -> str:
+    return ", ".join(f"{k}={v}" for k, v in fields_of(ev).items())
 
 
 def write_report(log: str | Path) -> Path:
@@ -153,34 +155,35 @@ def write_report(log: str | Path) -> Path:
     import matplotlib.pyplot as plt
 
     path, run = _resolve(log)
-    events = read_events(path)
-    status = [e for e in events if e["type"] == "status"]
+    events = read_records(path).records
+    status = only(events, DroneStatus)
     if not status:
         raise ConfigError(f"{path}: no status events: not a drone event log")
-    t0 = events[0]["t"]
+    t0 = events[0].t
     cov = _coverage(run)
     figs = {"track": _track_figure(status, events, cov), "tbm": _tbm_figure(status, t0), "alt": _alt_figure(status, events, t0)}
     pngs = {k: _png(f) for k, f in figs.items()}
     for f in figs.values():
         plt.close(f)
     (run / "track.png").write_bytes(pngs["track"])
-    final = next((e for e in reversed(events) if e["type"] == "stop"), status[-1])
+    stops = only(events, DroneStop)
+    final: DroneState = stops[-1] if stops else status[-1]
     drops: dict[str, int] = {}
-    for gs, ln in (final.get("links") or {}).items():
-        for reason, n in ln.get("dropped", {}).items():
+    for gs, ln in final.links.items():
+        for reason, n in ln.dropped.items():
             drops[f"security: {reason} (link {gs})"] = n
-    for reason, n in (final.get("ha_drops") or {}).items():
+    for reason, n in final.ha_drops.items():
         drops[f"authority: {reason}"] = n
-    for reason, n in (final.get("rejects") or {}).items():
+    for reason, n in final.rejects.items():
         drops[f"authority reject: {reason}"] = n
-    for k, n in (final.get("out_of_coverage") or {}).items():
+    for k, n in final.out_of_coverage.items():
         drops[f"testbed coverage: {k}"] = n
-    for k, n in (final.get("counters") or {}).items():
+    for k, n in final.counters.items():
         drops[f"node: {k}"] = n
     summary_file = run / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
-    rows = "".join(f"<tr><td>{e['t'] - t0:8.2f}</td><td>{html.escape(e['type'])}</td><td>{html.escape(_detail(e))}</td></tr>"
-                   for e in events if e["type"] not in HIDDEN)
+    rows = "".join(f"<tr><td>{e.t - t0:8.2f}</td><td>{html.escape(record_type(e))}</td><td>{html.escape(_detail(e))}</td></tr>"
+                   for e in events if not isinstance(e, HIDDEN))
     drop_rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{n}</td></tr>" for k, n in sorted(drops.items())) or \
         "<tr><td colspan=2>none</td></tr>"
     img = {k: base64.b64encode(v).decode() for k, v in pngs.items()}
