@@ -229,7 +229,7 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
 def _demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .sil.launcher import SCENARIO_SITES, DemoOptions, run_demo
+    from .sil.launcher import SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
 
     live = True if args.live else (False if args.no_live else None)
     if args.vehicle:
@@ -239,7 +239,8 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=args.speedup,
                                 live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
                                 autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ()),
-                                sites=args.sites or SCENARIO_SITES.get(args.scenario, False)))
+                                sites=args.sites or SCENARIO_SITES.get(args.scenario, False),
+                                tls=args.tls or SCENARIO_TLS.get(args.scenario, False)))
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
@@ -258,6 +259,8 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--live", action="store_true", help="force the live view")
     g.add_argument("--no-live", action="store_true", help="plain event lines (default when not a terminal)")
     p.add_argument("--no-report", action="store_true", help="do not write the HTML flight report")
+    p.add_argument("--tls", action="store_true",
+                   help="mutual TLS on every hop: a fleet CA and a certificate per node and router (--sites has it too)")
     p.add_argument("--sites", action="store_true",
                    help="a Zenoh router per ground-station site (two, meshed over the backhaul): GS A at site 1, B at "
                         "site 2; the drone reaches both and moves to the other when one dies")

@@ -185,3 +185,18 @@ def test_bench_attack_quick():
     f = r["failsafe_under_pairing_flood"]
     assert f["missing"] == 0 and all(0 <= v <= 100.0 for v in f["detect_to_command_ms"]["values"])
     assert f["trials"][0]["queries_handled"] > 1000 and f["cpu_us_per_query"]["values"][0] > 0
+
+
+@pytest.mark.slow
+def test_rogue_without_a_fleet_certificate_gets_nothing_through(tmp_path):
+    """Mutual TLS (``--tls``), A's stolen router password: no client certificate, a certificate for
+    A from another CA, and X's real certificate, each from the attacker's own process and Zenoh
+    configuration. The first two are refused at connect; X's certificate as A speaks on no key."""
+    s, out = run_demo(tmp_path, "rogue-no-cert")
+    _unaffected(s)
+    done = _attack(s, "no-cert")
+    assert done["no_certificate"] == "refused" and done["other_ca"] == "refused"
+    if done["x_certificate"] == "connected":  # the router's ACL wants CN *and* user A: nothing gets through
+        assert done["sent"] > 0 and done["pair_answered"] == 0 and done["captured"] == 0
+    assert s["security_drops"] == {}  # not one of its frames reached the drone to be dropped there
+    _clean_shutdown(s, out)

@@ -256,23 +256,51 @@ def test_the_reference_flight_and_its_faults_on_the_ardupilot_personality(tmp_pa
 
 
 @pytest.mark.slow
-def test_the_reference_flight_across_two_site_routers(tmp_path):
+def test_the_reference_flight_across_two_sites_with_the_backhaul_cut_after_key_sharing(tmp_path):
     """Issue 13: a router per site, meshed over mutual TLS; GS A at site 1, B at site 2; the drone has
     a session through each site's radio link, which the testbed brings up and down from the
-    vehicle's true position: coverage is which links exist, no frame filter."""
-    s, out = run_demo(tmp_path, "nominal", extra=("--sites",))
+    vehicle's true position: coverage is which links exist, no frame filter. The backhaul between
+    the sites is cut after take-off (after key sharing): both hand-overs still complete, gap 0,
+    nothing lost, because each site hears the drone through its own radio."""
+    s, out = run_demo(tmp_path, "backhaul-cut-late")
     assert s["_rc"] == 0 and s["ok"], s
-    assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
-    assert s["authority_gap_ms"] == 0 and s["commands"]["lost"] == 0
+    assert [(h["from"], h["to"], h["kind"]) for h in s["handovers"]] == [("A", "B", "handover"), ("B", "A", "handover")]
+    assert s["authority_gap_ms"] == 0 and s["commands"]["lost"] == 0 and s["failsafe"] is None
     assert s["exit_codes"].get("router2") == 0  # two routers ran
     radio = s["radio_links"]
-    changes = [(c["site"], c["up"]) for c in radio["changes"]]
-    # in range of site 1 at home; site 2 comes into range, site 1 goes out of range, and back
-    assert changes == [("site-1", True), ("site-2", True), ("site-1", False), ("site-1", True), ("site-2", False)]
+    changes = [(c["site"] or c["link"], c["up"]) for c in radio["changes"]]
+    # in range of site 1 at home; the backhaul cut; site 2 comes into range, site 1 goes out of range, and back
+    assert changes == [("site-1", True), ("backhaul-site-1-site-2", False), ("site-2", True), ("site-1", False),
+                       ("site-1", True), ("site-2", False)], changes
     assert s["out_of_coverage"] == {}  # nothing was filtered by a gate
-    # leaving site 1 moved the downlink to site 2 at once; the uplink arrived on both paths meanwhile
-    assert len(radio["downlink_switch_ms"]) == 1 and radio["downlink_switch_ms"][0] < 100
-    assert radio["path_duplicates"] > 0 and s["security_drops"] == {}
+    # each site lost while the other path was connected already: the C2 link went on without a break
+    assert [(x["site"], x["other_paths_connected"]) for x in radio["site_losses"]] == [("site-1", ["site-2"]),
+                                                                                       ("site-2", ["site-1"])]
+    assert all(x["noticed_ms"] is not None and x["noticed_ms"] < 500 for x in radio["site_losses"])
+    assert s["security_drops"] == {}
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_a_backhaul_cut_before_key_sharing_refuses_the_hand_over_cleanly(tmp_path):
+    """A cannot share B's key over the cut backhaul: no hand-over, A keeps authority and brings the
+    drone home; no failsafe; B never holds a link key of the drone."""
+    s, out = run_demo(tmp_path, "backhaul-cut")
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    assert s["handovers"] == [] and s["final_owner"] == "A" and s["failsafe"] is None
+    assert s["commands"]["lost"] == 0
+    a_events = read_events(out / "A.jsonl")
+    assert any(e["type"] == "handover_failed" for e in a_events)
+    assert not any(e["type"] == "linkkey_shared" for e in read_events(out / "B.jsonl"))
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_the_authoritys_site_router_dying_out_of_the_overlap_is_a_failsafe_on_time(tmp_path):
+    s, out = run_demo(tmp_path, "site-router-down-alone")
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    assert s["handovers"] == [] and s["failsafe"]["action"] == "LAND"
+    assert s["failsafe"]["detect_to_command_ms"] <= 100
     _clean_shutdown(s, out)
 
 

@@ -54,11 +54,12 @@ class PathOpen(Record, frozen=True, tag="path_open"):
     router: str
 
 
-class PathPublish(Record, frozen=True, tag="path_publish"):
-    """The node publishes through ``router`` now (None: no path has its router), ``previous`` before."""
+class PathState(Record, frozen=True, tag="path_state"):
+    """The path through ``router`` has its router now (``connected``) or lost it; the node publishes
+    through every connected path."""
 
-    router: str | None
-    previous: str | None
+    router: str
+    connected: bool
 
 
 # ----------------------------------------------------------------------------- the drone node
@@ -112,7 +113,7 @@ class DroneState(Record, frozen=True, kw_only=True):
     inbox_dropped: dict[str, int] = {}
     out_of_coverage: dict[str, int]
     radio_lost: dict[str, int] = {}
-    paths: dict[str, dict[str, Any]] = {}  # with a router per site: each path (open, connected, publishing)
+    paths: dict[str, dict[str, Any]] = {}  # with a router per site: each path (open, connected)
 
 
 class DroneStatus(DroneState, frozen=True, tag="status"):
@@ -640,10 +641,32 @@ class PairedAs(Record, frozen=True, tag="paired_as"):
     gs: str
 
 
+class TlsAttempt(Record, frozen=True, tag="tls_attempt"):
+    """The no-cert attacker tried the TLS router with ``attempt`` (no_certificate, other_ca): ``result``."""
+
+    attempt: str
+    result: str
+
+
+class RadioLinkChanged(Record, frozen=True, tag="radio_link"):
+    """The testbed brought site ``site``'s radio link up or down, from the vehicle's true ``position``."""
+
+    site: str
+    up: bool
+    position: Position | None
+
+
+class LinkFault(Record, frozen=True, tag="link_fault"):
+    """A scenario cut (or mended) a testbed link (``backhaul-site-1-site-2``, or a site's radio)."""
+
+    link: str
+    up: bool
+
+
 # ----------------------------------------------------------------------------- vocabularies
 #: the drone node's records
 DRONE_RECORDS: tuple[type[Record], ...] = (
-    Start, DroneStatus, DroneStop, Closed, PathOpen, PathPublish, Subscribe, Unsubscribe, LinkInstalled,
+    Start, DroneStatus, DroneStop, Closed, PathOpen, PathState, Subscribe, Unsubscribe, LinkInstalled,
     LinkCandidate, LinkConfirmed, AuthorityChange, HandoverComplete, Failsafe, AuthorityForgotten, Restarted,
     Drop, Paired, PairAnswered, PairRefused, LinkStateChanged, RestoreRefused, Restored, HandoverStart,
     HandoverRequested, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
@@ -651,7 +674,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)
 GS_RECORDS: tuple[type[Record], ...] = (
-    GsStart, GsStatus, GsStop, Closed, PathOpen, PathPublish, ControlRequested, GsPairRefused, PairFailed,
+    GsStart, GsStatus, GsStop, Closed, PathOpen, PathState, ControlRequested, GsPairRefused, PairFailed,
     PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
@@ -661,6 +684,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
 TESTBED_RECORDS: tuple[type[Record], ...] = (
     Closed, RogueReady, RogueGo, RogueNoGo, RouterAcceptedWrongPassword, RouterRefused, PairAttempt,
     UnauthorizedAttempt, ForgedReply, NothingCaptured, Captured, FloodStart, RoguePairFailed, PairedAs,
+    TlsAttempt, RadioLinkChanged, LinkFault,
 )
 VOCABULARIES: tuple[tuple[type[Record], ...], ...] = (DRONE_RECORDS, GS_RECORDS, TESTBED_RECORDS)
 #: every typed record class, each once

@@ -14,8 +14,10 @@ the transport, as the authority does it for the command link).
 * Everything a node receives arrives once per path that carries it (each site's router delivers
   it). ``RecentPayloads`` lets the first copy through and refuses the others, counted as
   ``duplicate_path`` (they are byte-identical; the envelope's replay window would drop them anyway).
-* A node publishes through one path: the first, in the order given, whose session has a router
-  right now (``connected``). The others stand by.
+* A node publishes through every path whose session has a router right now (``connected``): a
+  site cut off from the others (backhaul down) still hears the drone through its own radio, and a
+  path that dies costs nothing, since the others carried the same frames already. A GS in a fleet
+  of sites drops the copies the mesh then delivers in the same way.
 """
 
 from __future__ import annotations

@@ -7,8 +7,9 @@ A node (the drone companion, a ground station) is a pure machine plus this runti
 * **identity**: the fleet file, the node's entry (checked for its role) and its secret;
 * **the session**: a Zenoh client of the router, authenticated with the node's password; or, given
   several routers (one per site, ``paths``), one session per router, every declaration on each,
-  copies of what several paths deliver dropped and counted (``duplicate_path``), publishing through
-  the first path that has its router (see ``paths.py``);
+  publishing through every path that has its router (see ``paths.py``). In a fleet of sites
+  anything may arrive more than once (through each path, or through a site router and the mesh):
+  the copies are dropped and counted (``duplicate_path``) before the envelope's replay window;
 * **the inbox**: every subscriber and query reply only puts bytes on the bounded, per-sender
   ``Inbox`` (refusing oversized payloads by length); the node's single loop thread drains it;
 * **queryables** (bounded rings, drained by the loop) and **subscriptions**, tracked so that
@@ -31,7 +32,7 @@ import zenoh
 
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet, Node
-from ..fleet.files import NodeSecret, load_fleet, load_secret
+from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
 from ..fleet.tls import node_files
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, Inbox, reply_bytes
@@ -64,7 +65,8 @@ class NodeRuntime:
         self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
         self._queryables: list[PathQueryable] = []
         self.multipath = len(routers) > 1
-        self.recent = RecentPayloads() if self.multipath else None
+        sites = (fleet_path(fleet_dir).parent / "router" / "sites.json").exists()
+        self.recent = RecentPayloads() if self.multipath or sites else None
         tls = {r: node_files(fleet_dir, name).check() for r in routers if r.startswith("tls/")}
         password = self.secret.router_password
 
@@ -72,7 +74,7 @@ class NodeRuntime:
             return open_client(r, name, password, tls.get(r))
 
         self.paths = [SessionPath(r, opener, background=self.multipath) for r in routers]
-        self._publish_path: SessionPath | None = None
+        self._connected: dict[str, bool] = {}  # the last connectivity seen of each path (for the log)
 
     @property
     def session(self) -> Any:
@@ -88,17 +90,16 @@ class NodeRuntime:
                 self.events.write("path_open", router=p.endpoint)
                 log.info("path %s open", p.endpoint)
         if self.multipath:
-            chosen = next((p for p in self.paths if p.connected()), None)
-            if chosen is not self._publish_path:
-                self.events.write("path_publish", router=chosen.endpoint if chosen else None,
-                                  previous=self._publish_path.endpoint if self._publish_path else None)
-                log.info("publishing through %s", chosen.endpoint if chosen else "no path")
-                self._publish_path = chosen
+            for p in self.paths:
+                up = p.connected()
+                if up != self._connected.get(p.endpoint):
+                    self._connected[p.endpoint] = up
+                    self.events.write("path_state", router=p.endpoint, connected=up)
+                    log.info("path %s %s", p.endpoint, "connected" if up else "without its router")
 
     def path_status(self) -> dict[str, dict[str, Any]]:
-        """Each path: open, has its router now, publishing through it."""
-        return {p.endpoint: {"open": p.session is not None, "connected": p.connected(),
-                             "publishing": p is self._publish_path} for p in self.paths}
+        """Each path: open, has its router now."""
+        return {p.endpoint: {"open": p.session is not None, "connected": p.connected()} for p in self.paths}
 
     def _declare_on(self, p: SessionPath) -> None:
         assert p.session is not None
@@ -153,23 +154,22 @@ class NodeRuntime:
         entity.undeclare()
 
     # ------------------------------------------------------------------- send
-    def _out(self) -> Any:
+    def _out(self) -> list[Any]:
+        """The sessions to send through: the only one, or every path's that has its router now."""
         if not self.multipath:
-            return self.paths[0].session
-        p = self._publish_path
-        if p is None or not p.connected():
-            p = self._publish_path = next((x for x in self.paths if x.connected()), None)
-        return p.session if p is not None else None
+            return [self.paths[0].session]
+        return [p.session for p in self.paths if p.connected()]
 
     def put(self, keyexpr: str, payload: bytes) -> None:
         """Publish (``session.put``: through an ACL router, a declared publisher's samples after the
         first are not delivered in zenoh 1.10; ``session.put``'s are). Never blocks: DROP. With
-        several paths: through the first that has its router (none: counted ``no_path``)."""
-        s = self._out()
-        if s is None:
+        several paths: through every one that has its router, so that losing one costs nothing and
+        a site cut off from the others still hears us (none: counted ``put:no_path``)."""
+        sessions = self._out()
+        if not sessions:
             self.inbox.drop("put:no_path")
-            return
-        s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP)
+        for s in sessions:
+            s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP)
 
     def ask(self, keyexpr: str, payload: bytes, timeout: float, kind: str, peer: str,
             wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r) -> None:
@@ -181,11 +181,11 @@ class NodeRuntime:
         def on_reply(reply: Any) -> None:
             inbox.put(kind, peer, wrap(reply_bytes(reply)))
 
-        s = self._out()
-        if s is None:
+        sessions = self._out()
+        if not sessions:
             self.inbox.drop("ask:no_path")
             return
-        s.get(keyexpr, on_reply, payload=payload, timeout=timeout,
+        sessions[0].get(keyexpr, on_reply, payload=payload, timeout=timeout,
               target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
 
     # ------------------------------------------------------------- lifecycle

@@ -88,6 +88,7 @@ class Scenario:
     faults: tuple[Fault, ...] = ()
     gs_a_extra: tuple[str, ...] = ()  # further options of GS A
     sites: bool = False  # needs a router per site (``zdrone demo --sites``)
+    tls: bool = False  # needs mutual TLS (``zdrone demo --tls``; a router per site has it anyway)
     radio: tuple[str, ...] = ()  # the drone's emulated radio (``--sil-loss 0.2`` ...)
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
@@ -335,6 +336,40 @@ def _check_site_router_down(o: Outcome) -> list[str]:
     return why
 
 
+def _check_site_router_down_alone(o: Outcome) -> list[str]:
+    """``site-router-down-alone``: no other site reaches the drone: the failsafe, on time."""
+    s, fs = o.summary, o.summary["failsafe"]
+    why = _need(any("router restarted" in n for n in s["notes"]), "site 1's router did not die")
+    why += _need(fs is not None, "no failsafe")
+    why += _need(fs is not None and fs.get("detect_to_command_ms") is not None and fs["detect_to_command_ms"] <= 100,
+                 f"failsafe late: {fs}")
+    return why + _need(not s["handovers"], f"a hand-over out of the overlap: {s['handovers']}")
+
+
+def _check_backhaul_cut_early(o: Outcome) -> list[str]:
+    """``backhaul-cut``: A could not share B's key over the cut backhaul: the hand-over is refused
+    cleanly, A keeps authority and brings the drone home; no failsafe, B never holds a link."""
+    s = o.summary
+    why = _need(not s["handovers"], f"a hand-over happened: {s['handovers']}")
+    why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}, expected A")
+    why += _need(s["failsafe"] is None, "failsafe")
+    why += _need(not any(e["type"] == "link_installed" and e.get("gs") == "B" for e in o.drone), "B got a key")
+    why += _need(any(e["type"] == "handover_failed" for e in o.gs.get("A", [])), "A did not report the failed hand-over")
+    return why + _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0, "not landed at home")
+
+
+def _check_no_cert(o: Outcome) -> list[str]:
+    """``rogue-no-cert``: no certificate and another CA's are refused at connect; X's certificate with
+    A's password gets nothing through on A's keys; the flight is unaffected."""
+    done = o.rogue_done("no-cert")
+    why = flight_unaffected(o) + _need(bool(done), "the attacker did not report")
+    why += _need(done.get("no_certificate") == "refused", f"no certificate: {done.get('no_certificate')}")
+    why += _need(done.get("other_ca") == "refused", f"another CA's certificate: {done.get('other_ca')}")
+    why += _need(done.get("x_certificate") == "refused" or (done.get("pair_answered") == 0 and done.get("captured") == 0),
+                 f"X's certificate as A: {done}")
+    return why + _need(o.drops("auth_failed") + o.drops("unknown_epoch") == 0, "its frames reached the drone")
+
+
 def _check_router_restart(o: Outcome) -> list[str]:
     """``router-restart``: an outage shorter than the loss threshold costs nothing: no failsafe, no
     new pairing, the same authority and both hand-overs."""
@@ -388,6 +423,10 @@ _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 
 _RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
                        after=1.0)
 _SITE1_DOWN = Fault(REGION_ENTERED, "router", RESTART, "site 1's router dies; back 6 s later", down=6.0, after=0.5)
+_SITE1_DOWN_ALONE = Fault(AIRBORNE, "router", RESTART, "site 1's router dies before the overlap; back 6 s later",
+                          down=6.0, after=0.5)
+_BACKHAUL_CUT_EARLY = Fault(BEFORE_GS_A, "backhaul", LINK_DOWN, "the backhaul between the sites is cut before A pairs")
+_BACKHAUL_CUT = Fault(AIRBORNE, "backhaul", LINK_DOWN, "the backhaul between the sites is cut in flight")
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
@@ -429,6 +468,27 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the drone moves to site 2's router at once; A is cut off: the emergency hand-over to B (proven), no "
              "failsafe; B hands back to A when the flight returns",
              _check_site_router_down, faults=(_SITE1_DOWN,), sites=True),
+    Scenario("site-router-down-alone",
+             "two sites; the router of A's site dies after take-off, before the overlap (only site 1 in range)",
+             "A's link is silent: failsafe LAND <= 100 ms after the 3 s threshold; no hand-over",
+             _check_site_router_down_alone, faults=(_SITE1_DOWN_ALONE,), sites=True),
+    Scenario("backhaul-cut",
+             "two sites; the backhaul between their routers is cut before A pairs (before key sharing)",
+             "A cannot share B's key: the hand-over is refused cleanly, authority stays with A, which brings the "
+             "drone home; no failsafe",
+             _check_backhaul_cut_early, faults=(_BACKHAUL_CUT_EARLY,), sites=True),
+    Scenario("backhaul-cut-late",
+             "two sites; the backhaul between their routers is cut after take-off (after key sharing)",
+             "both hand-overs still complete (they need no backhaul: each site's radio reaches the drone); "
+             "gap 0, no failsafe",
+             flight_unaffected, faults=(_BACKHAUL_CUT,), sites=True),
+    Scenario("rogue-no-cert",
+             "mutual TLS (--tls): with A's stolen password, a client without a certificate, one with another CA's "
+             "certificate for A, and one with X's real certificate, in flight",
+             "the first two refused at connect; X's certificate as A gets nothing through (ACL: CN and user); "
+             "flight unaffected",
+             _check_no_cert, rogues=(RogueSpec("no-cert", MISSION_STARTED, go=AIRBORNE, sim_s=20.0, min_wall=5.0),),
+             tls=True),
     Scenario("failsafe-recover",
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
@@ -478,6 +538,8 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
 #: Scenarios that need a router per site.
 SCENARIO_SITES: dict[str, bool] = {s.name: s.sites for s in SCENARIO_TABLE}
+#: Scenarios that need mutual TLS.
+SCENARIO_TLS: dict[str, bool] = {s.name: s.tls for s in SCENARIO_TABLE}
 SCENARIOS = tuple(SCENARIO_BY_NAME)
 ATTACK_SCENARIOS = tuple(s.name for s in SCENARIO_TABLE if s.rogues)
 assert len(SCENARIOS) == len(SCENARIO_TABLE) and all(
@@ -520,6 +582,7 @@ class DemoOptions:
     radio: tuple[str, ...] = ()  # the drone's --sil-loss/--sil-bursts/--sil-delay-ms/--sil-jitter-ms options
     spec: "Scenario | None" = None  # a scenario made on the fly (bench chaos) instead of ``scenario``
     sites: bool = False  # a router per GS site (two, meshed) instead of one
+    tls: bool = False  # one router, mutual TLS only (a fleet CA and certificates)
     vehicle: str | None = None  # an autopilot already running (no simulator started)
 
 
@@ -628,10 +691,13 @@ class Demo:
         o = self.opts
         rport, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
         self.router = f"tcp/127.0.0.1:{rport}"
-        if o.sites:  # a router per site, meshed; GS A (and X) at site 1, B at site 2
+        if o.sites or self.spec.sites:  # a router per site, meshed; GS A (and X) at site 1, B at site 2
             self._start_sites(rport)
         else:
-            init_fleet(self.out / "fleet")
+            tls = o.tls or self.spec.tls
+            if tls:
+                self.router = f"tls/127.0.0.1:{rport}"
+            init_fleet(self.out / "fleet", tls=tls)
             r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
                            + (["--tap", "tap.json"] if o.tap else []))
             self.wait_line(r, "listening", 20)
@@ -685,7 +751,7 @@ class Demo:
             log_ = self.radio_log
             self.coverage = SiteCoverage(site_circles(fleet, self.sites), radios,
                                          lambda site, up, p: log_.write("radio_link", site=site, up=up,
-                                                                        position=[round(p.lat, 7), round(p.lon, 7)]))
+                                                                        position=[round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)]))
             self.truth = TruthReceiver(self.coverage.update)
         else:
             self.notes.append("--vehicle with --sites: no true position, every site's radio stays up")
@@ -707,7 +773,7 @@ class Demo:
             if name == target or (target == "backhaul" and name.startswith("backhaul-")):
                 link.set_up(up)
                 if self.radio_log is not None:
-                    self.radio_log.write("backhaul" if name.startswith("backhaul-") else "radio_link", link=name, up=up)
+                    self.radio_log.write("link_fault", link=name, up=up)
 
     def close_links(self) -> None:
         if self.truth is not None:
@@ -986,23 +1052,31 @@ class Demo:
         return summary
 
     def _radio_summary(self, drone_events: list[dict[str, Any]]) -> dict[str, Any]:
-        """With sites: each radio/backhaul link change, and for each site lost while the drone published
-        through it, how long until it published through another (the downlink's only interruption;
-        the uplink arrives on every path)."""
+        """With sites: each radio/backhaul link change; for each site's radio taken down, whether
+        another path was connected at that moment (then the C2 link went on through it without a
+        break: the drone sends through every connected path and hears on each) and how long the drone
+        took to notice the lost path."""
         path = self.out / "radio.jsonl"
         if not path.exists():
             return {}
-        changes = [e for e in read_events(path) if e["type"] in ("radio_link", "backhaul")]
-        switches = [e for e in drone_events if e["type"] == "path_publish" and e.get("previous")]
-        switch_ms = []
-        for sw in switches:
-            site = self.site_of_endpoint.get(sw["previous"])
-            downs = [e["t"] for e in changes if e.get("site") == site and e.get("up") is False and e["t"] <= sw["t"] + 0.05]
-            if downs:
-                switch_ms.append(round(max(0.0, sw["t"] - max(downs)) * 1000.0, 1))
-        return {"changes": [{k: e.get(k) for k in ("t", "site", "link", "up")} for e in changes],
-                "downlink_switch_ms": switch_ms, "path_duplicates": sum(
-                    v for k, v in self._drone_final(drone_events).get("inbox_dropped", {}).items() if k.endswith("duplicate_path"))}
+        changes = [e for e in read_events(path) if e["type"] in ("radio_link", "link_fault")]
+        states = [e for e in drone_events if e["type"] == "path_state"]
+        losses = []
+        for ch in changes:
+            if ch["type"] != "radio_link" or ch.get("up") is not False:
+                continue
+            endpoint = next((ep for ep, site in self.site_of_endpoint.items() if site == ch["site"]), None)
+            others_up = []
+            for ep in self.site_of_endpoint:
+                last = [e for e in states if e["router"] == ep and e["t"] <= ch["t"]]
+                if ep != endpoint and last and last[-1]["connected"]:
+                    others_up.append(self.site_of_endpoint[ep])
+            noticed = next((e["t"] for e in states if e["router"] == endpoint and not e["connected"] and e["t"] >= ch["t"] - 0.05), None)
+            losses.append({"site": ch["site"], "other_paths_connected": others_up,
+                           "noticed_ms": round(max(0.0, noticed - ch["t"]) * 1000.0, 1) if noticed else None})
+        final = self._drone_final(drone_events)
+        return {"changes": [{k: e.get(k) for k in ("t", "site", "link", "up")} for e in changes], "site_losses": losses,
+                "path_duplicates": sum(v for k, v in final.get("inbox_dropped", {}).items() if k.endswith("duplicate_path"))}
 
     @staticmethod
     def _drone_final(drone_events: list[dict[str, Any]]) -> dict[str, Any]:
@@ -1179,7 +1253,9 @@ def run_demo(opts: DemoOptions) -> int:
           f"final position {summary['distance_from_home_m']} m from home")
     radio = summary.get("radio_links") or {}
     if radio:
-        print(f"radio links: {len(radio['changes'])} changes; downlink moved to another site in "
-              f"{radio['downlink_switch_ms']} ms; copies from the second path dropped {radio['path_duplicates']}")
+        lost = "; ".join(f"{x['site']} lost (noticed in {x['noticed_ms']} ms), carried on through "
+                         f"{', '.join(x['other_paths_connected']) or 'nothing'}" for x in radio["site_losses"])
+        print(f"radio links: {len(radio['changes'])} changes; {lost or 'no site lost'}; copies dropped at the drone "
+              f"{radio['path_duplicates']}")
     print(f"summary: {out / 'summary.json'}; events: {out / 'drone.jsonl'}")
     return 0 if summary["ok"] else 1

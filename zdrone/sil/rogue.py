@@ -52,6 +52,13 @@ router drops messages over 64 KiB; the nodes refuse the rest by their length bef
 distinct UDP source ports and garbage datagrams to A's GCS gateway; A must keep flying and count
 the applications it refused (``app_table_full``).
 
+``no-cert``: a fleet with mutual TLS (``--tls``, ``--sites``). A's stolen router password, and in
+turn: no client certificate at all (its own Zenoh configuration, trusting the fleet CA for the
+router), a certificate for "A" from a CA of its own, and X's real certificate and key (a fleet
+member, not A). The first two must be refused at connect; with X's certificate the router's ACL
+wants CN *and* user to be A, so nothing it publishes on A's keys arrives and its pairing query as A
+gets no answer.
+
 Modes that take ``--wait-go`` set up, print ``ready``, and attack when they receive SIGUSR2 (the
 launcher sends it at the scenario's moment). All modes stop at SIGTERM or after ``--duration``.
 
@@ -61,6 +68,7 @@ Run: ``python -m zdrone.sil.rogue --mode MODE --fleet DIR --router EP --events F
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import queue
@@ -68,14 +76,17 @@ import random
 import signal
 import socket
 import sys
+import tempfile
 import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import msgspec
 import zenoh
+from cryptography.hazmat.primitives import serialization
 from pymavlink.dialects.v20 import common as mav
 
 from ..core.envelope import Opened, SecureLink
@@ -87,13 +98,14 @@ from ..core.mavlink import FrameCodec
 from ..core.pairing import PairingInitiator
 from ..fleet.files import load_fleet, load_secret
 from ..fleet import keyexprs as kx
+from ..fleet.tls import issue, make_ca, node_files
 from ..net.eventlog import EventLog
 from ..net.session import open_client
 
 log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
-         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood")
+         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "no-cert")
 ROGUE_COMPID = 190
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
 GO_TIMEOUT = 600.0
@@ -590,11 +602,74 @@ def big_flood(c: Ctx) -> None:
         s.close()
 
 
+def _tls_session(router: str, user: str, password: str, ca: Path, cert: Path | None, key: Path | None) -> zenoh.Session:
+    """A client of its own making: the fleet CA trusted for the router, any (or no) certificate."""
+    tls: dict[str, Any] = {"root_ca_certificate": str(ca)}
+    if cert is not None and key is not None:
+        tls.update({"connect_certificate": str(cert), "connect_private_key": str(key), "enable_mtls": True})
+    cfg = {"mode": "client", "connect": {"endpoints": [router], "timeout_ms": 3000, "exit_on_failure": True},
+           "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+           "transport": {"auth": {"usrpwd": {"user": user, "password": password}}, "link": {"tls": tls}}}
+    return zenoh.open(zenoh.Config.from_json5(json.dumps(cfg)))
+
+
+def no_cert(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    if not c.router.startswith("tls/"):
+        raise ConfigError(f"--router {c.router}: no-cert needs the fleet's TLS router (demo --tls)")
+    ca = node_files(c.fleet_dir, "A").ca
+    c.ready()
+    if not c.wait_for_go():
+        return
+    outcome: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        other_ca, other_key = make_ca()
+        cert, key = issue(other_ca, other_key, "A")
+        fcert, fkey = Path(tmp) / "A.crt", Path(tmp) / "A.key"
+        fcert.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        fkey.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                           serialization.NoEncryption()))
+        for attempt, (crt, k) in {"no_certificate": (None, None), "other_ca": (fcert, fkey)}.items():
+            try:
+                _tls_session(c.router, "A", c.password("A"), ca, crt, k).close()
+                outcome[attempt] = "accepted"
+            except zenoh.ZError:
+                outcome[attempt] = "refused"
+            c.events.write("tls_attempt", attempt=attempt, result=outcome[attempt])
+    x = node_files(c.fleet_dir, "X")
+    try:
+        s = _tls_session(c.router, "A", c.password("A"), ca, x.cert, x.key)
+    except zenoh.ZError:
+        outcome["x_certificate"] = "refused"
+        c.events.write("attack_done", **outcome, sent=0, pair_answered=0, captured=0)
+        return
+    outcome["x_certificate"] = "connected"
+    captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    sub = s.declare_subscriber(kx.down(drone, "A"), lambda smp: captured.put(b""))
+    sent, answered = 0, 0
+    try:
+        ini = PairingInitiator(Identity.generate(), "A", drone, fleet.nodes[drone].public_bytes)
+        answered = sum(1 for r in s.get(kx.pair(drone, "A"), payload=ini.start(), timeout=2.0) if r.ok is not None)
+        forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=kx.up(drone, "A"),
+                            rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
+        sysid_a = fleet.nodes["A"].sysid
+        going = c.attack_window()
+        while going():
+            s.put(kx.up(drone, "A"), _land(sysid_a))
+            s.put(kx.up(drone, "A"), forged.seal(_land(sysid_a)))
+            sent += 2
+            c.stop.wait(0.2)
+    finally:
+        sub.undeclare()
+        s.close()
+    c.events.write("attack_done", **outcome, sent=sent, pair_answered=answered, captured=captured.qsize())
+
+
 ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
     "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
-    "big-flood": big_flood,
+    "big-flood": big_flood, "no-cert": no_cert,
 }
 assert set(ATTACKS) == set(MODES)
 
