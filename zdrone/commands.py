@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import math
 from typing import Any, Callable
 
@@ -44,9 +45,13 @@ def _sim(args: argparse.Namespace) -> int:
     truth = None
     if args.truth is not None:
         host, _, port = args.truth.rpartition(":")
-        if host not in ("127.0.0.1", "localhost") or not port.isdigit() or not 0 < int(port) < 65536:
-            raise UsageError(f"--truth {args.truth}: must be 127.0.0.1:PORT")
-        truth = ("127.0.0.1", int(port))
+        try:
+            ipaddress.IPv4Address(host)
+        except ValueError:
+            host = ""
+        if not host or not port.isdigit() or not 0 < int(port) < 65536:
+            raise UsageError(f"--truth {args.truth}: must be IPv4:PORT (e.g. 127.0.0.1:9000)")
+        truth = (host, int(port))
     return run_sim(SimOptions(mavlink=args.mavlink, home=home, speedup=args.speedup, seed=args.seed,
                               sysid=args.sysid, gps_noise=args.gps_noise, duration=args.duration,
                               personality=personality(args.autopilot), ready_after=args.ready_after, truth=truth))
@@ -69,7 +74,7 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--home", metavar="LAT,LON[,ALT]", help="take-off point (default: the reference home)")
     p.add_argument("--sysid", type=int, default=1, help="MAVLink system id (default 1)")
     p.add_argument("--duration", type=positive, default=None, help="stop after this many wall seconds")
-    p.add_argument("--truth", metavar="127.0.0.1:PORT", default=None,
+    p.add_argument("--truth", metavar="IPV4:PORT", default=None,
                    help="testbed only: send the true position there (UDP JSON, 20/s), for radio links from coverage")
     p.set_defaults(func=_sim)
 
@@ -232,6 +237,14 @@ def _demo(args: argparse.Namespace) -> int:
     from .sil.launcher import SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
 
     live = True if args.live else (False if args.no_live else None)
+    if args.netns:
+        from .sil.netns import netns_refusal
+
+        refusal = netns_refusal()
+        if refusal:
+            raise UsageError(f"--netns: {refusal}; without it the same topology runs on loopback")
+        if args.vehicle:
+            raise UsageError("--netns: the built-in simulator runs in the drone's namespace; no --vehicle")
     if args.vehicle:
         from .vehicle.transport import parse_endpoint
 
@@ -239,7 +252,8 @@ def _demo(args: argparse.Namespace) -> int:
     return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=args.speedup,
                                 live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
                                 autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ()),
-                                sites=args.sites or SCENARIO_SITES.get(args.scenario, False),
+                                sites=args.sites or args.netns or SCENARIO_SITES.get(args.scenario, False),
+                                netns=args.netns,
                                 tls=args.tls or SCENARIO_TLS.get(args.scenario, False)))
 
 
@@ -259,6 +273,9 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--live", action="store_true", help="force the live view")
     g.add_argument("--no-live", action="store_true", help="plain event lines (default when not a terminal)")
     p.add_argument("--no-report", action="store_true", help="do not write the HTML flight report")
+    p.add_argument("--netns", action="store_true",
+                   help="with --sites (implied): each site and the drone in their own network namespace, radios and "
+                        "backhaul as veth pairs (root only; without it, loopback relays)")
     p.add_argument("--tls", action="store_true",
                    help="mutual TLS on every hop: a fleet CA and a certificate per node and router (--sites has it too)")
     p.add_argument("--sites", action="store_true",

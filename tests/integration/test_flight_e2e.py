@@ -14,6 +14,7 @@ from tests.procs import ZDRONE
 from zdrone.core.fleet import parse_fleet
 from zdrone.core.geometry import GeoPoint
 from zdrone.net.eventlog import read_events
+from zdrone.sil.netns import netns_refusal
 
 SPEEDUP = "4"
 
@@ -261,8 +262,13 @@ def test_the_reference_flight_across_two_sites_with_the_backhaul_cut_after_key_s
     a session through each site's radio link, which the testbed brings up and down from the
     vehicle's true position: coverage is which links exist, no frame filter. The backhaul between
     the sites is cut after take-off (after key sharing): both hand-overs still complete, gap 0,
-    nothing lost, because each site hears the drone through its own radio."""
-    s, out = run_demo(tmp_path, "backhaul-cut-late")
+    nothing lost, because each site hears the drone through its own radio.
+
+    As root, each site and the drone run in their own network namespace and the links are veth pairs
+    (a radio out of range is a link without carrier: only the Zenoh lease notices); otherwise the
+    same topology runs on loopback, the links being relays that close the drone's connections."""
+    netns = netns_refusal() is None
+    s, out = run_demo(tmp_path, "backhaul-cut-late", extra=("--netns",) if netns else ())
     assert s["_rc"] == 0 and s["ok"], s
     assert [(h["from"], h["to"], h["kind"]) for h in s["handovers"]] == [("A", "B", "handover"), ("B", "A", "handover")]
     assert s["authority_gap_ms"] == 0 and s["commands"]["lost"] == 0 and s["failsafe"] is None
@@ -276,7 +282,8 @@ def test_the_reference_flight_across_two_sites_with_the_backhaul_cut_after_key_s
     # each site lost while the other path was connected already: the C2 link went on without a break
     assert [(x["site"], x["other_paths_connected"]) for x in radio["site_losses"]] == [("site-1", ["site-2"]),
                                                                                        ("site-2", ["site-1"])]
-    assert all(x["noticed_ms"] is not None and x["noticed_ms"] < 500 for x in radio["site_losses"])
+    # a closed connection is noticed at once; a silent one within the 1 s lease, well inside the 3 s threshold
+    assert all(x["noticed_ms"] is not None and x["noticed_ms"] < (1500 if netns else 500) for x in radio["site_losses"])
     assert s["security_drops"] == {}
     _clean_shutdown(s, out)
 

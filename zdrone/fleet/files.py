@@ -103,7 +103,12 @@ def init_fleet(directory: str | Path, force: bool = False,
     if tls or sites:  # sites are meshed over mutual TLS
         from .tls import init_tls
 
-        init_tls(d, fleet, sites=site_names)
+        from .tls import DEFAULT_ROUTER_HOSTS
+
+        # a site router's certificate also names the host of its endpoint (its radio address)
+        hosts = tuple(dict.fromkeys(DEFAULT_ROUTER_HOSTS + tuple(ep.split("/", 1)[-1].rsplit(":", 1)[0]
+                                                                   for ep in sites or ())))
+        init_tls(d, fleet, router_hosts=hosts, sites=site_names)
     (d / "router" / "router.json5").write_text(render(router_config(fleet, "credentials.txt", tls=tls), HEADER))
     if sites:
         _write_sites(d, fleet, sites, site_passwords)

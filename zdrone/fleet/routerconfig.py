@@ -98,6 +98,12 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
     }
 
 
+#: A site router's and a drone's per-site session's lease (ms) and keep-alives per lease: a dead path
+#: (radio out of range, router hung) is given up after 1 s of silence.
+SITE_LEASE_MS = 1000
+SITE_KEEP_ALIVE = 4
+
+
 def site_router_config(fleet: Fleet, credentials_file: str, site: str, listen: str, peers: list[str],
                        peer_routers: tuple[str, ...], password: str) -> dict[str, Any]:
     """The router of one site, mutual TLS only: the fleet's ACL for its clients (certificate CN and
@@ -110,6 +116,9 @@ def site_router_config(fleet: Fleet, credentials_file: str, site: str, listen: s
     for field in ("listen_private_key", "connect_private_key"):
         tls[field] = f"{site}.key"
     cfg["connect"] = {"endpoints": peers, "retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 1.5}}
+    # a radio out of range or a hung router closes nothing: each side must notice the silence, well
+    # inside the drone's 3 s loss threshold (Zenoh's default lease is 10 s)
+    cfg["transport"]["link"]["tx"] = {"lease": SITE_LEASE_MS, "keep_alive": SITE_KEEP_ALIVE}
     cfg["transport"]["auth"]["usrpwd"].update({"user": f"router-{site}", "password": password})  # to the others
     cfg["access_control"] = access_control(fleet, tls=True, routers=peer_routers)
     return cfg

@@ -33,6 +33,7 @@ import zenoh
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet, Node
 from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
+from ..fleet.routerconfig import SITE_LEASE_MS
 from ..fleet.tls import node_files
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, Inbox, reply_bytes
@@ -70,8 +71,10 @@ class NodeRuntime:
         tls = {r: node_files(fleet_dir, name).check() for r in routers if r.startswith("tls/")}
         password = self.secret.router_password
 
+        lease = SITE_LEASE_MS if self.multipath else None  # a dead path given up well inside the loss threshold
+
         def opener(r: str) -> zenoh.Session:
-            return open_client(r, name, password, tls.get(r))
+            return open_client(r, name, password, tls.get(r), lease)
 
         self.paths = [SessionPath(r, opener, background=self.multipath) for r in routers]
         self._connected: dict[str, bool] = {}  # the last connectivity seen of each path (for the log)

@@ -11,15 +11,17 @@ import json5
 import zenoh
 
 from ..core.fleet import ConfigError
-from ..fleet.routerconfig import MAX_MESSAGE_SIZE, TLS_FILE_FIELDS
+from ..fleet.routerconfig import MAX_MESSAGE_SIZE, SITE_KEEP_ALIVE, TLS_FILE_FIELDS
 from ..fleet.tls import TlsFiles
 
 log = logging.getLogger(__name__)
 
 
-def client_config(router: str, user: str, password: str, tls: "TlsFiles | None" = None) -> zenoh.Config:
+def client_config(router: str, user: str, password: str, tls: "TlsFiles | None" = None,
+                  lease_ms: int | None = None) -> zenoh.Config:
     """A client that connects only to ``router`` (e.g. ``tcp/127.0.0.1:7447``), never to peers;
-    with ``tls`` (for a ``tls/`` endpoint) it shows its fleet certificate and checks the router's."""
+    with ``tls`` (for a ``tls/`` endpoint) it shows its fleet certificate and checks the router's;
+    with ``lease_ms``, the router gives it up after that long without a word (a path per site)."""
     cfg: dict[str, Any] = {
         "mode": "client",
         # after losing the router (a restart), try again every 100-400 ms: back within ~0.2 s of its
@@ -32,6 +34,8 @@ def client_config(router: str, user: str, password: str, tls: "TlsFiles | None" 
                       "link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}},
                       "shared_memory": {"enabled": False}},  # see routerconfig: no way around the size limit
     }
+    if lease_ms is not None:
+        cfg["transport"]["link"]["tx"] = {"lease": lease_ms, "keep_alive": SITE_KEEP_ALIVE}
     if tls is not None:
         cfg["transport"]["link"]["tls"] = {"root_ca_certificate": str(tls.ca), "connect_certificate": str(tls.cert),
                                            "connect_private_key": str(tls.key), "enable_mtls": True}
@@ -48,12 +52,13 @@ def query_queue() -> "zenoh.handlers.RingChannel":
     return zenoh.handlers.RingChannel(QUERY_QUEUE_SIZE)
 
 
-def open_client(router: str, user: str, password: str, tls: "TlsFiles | None" = None) -> zenoh.Session:
+def open_client(router: str, user: str, password: str, tls: "TlsFiles | None" = None,
+                lease_ms: int | None = None) -> zenoh.Session:
     """Open a client session; ``ConfigError`` (one line) if the router refuses or is not there."""
     if router.startswith("tls/") and tls is None:
         raise ConfigError(f"router {router}: a TLS endpoint needs the node's fleet certificate (zdrone fleet init --tls)")
     try:
-        return zenoh.open(client_config(router, user, password, tls))
+        return zenoh.open(client_config(router, user, password, tls, lease_ms))
     except zenoh.ZError as exc:
         detail = str(exc).split(" at ")[0].splitlines()[0]
         raise ConfigError(f"cannot connect to router {router} as {user!r} (wrong password or no router): {detail}") from None

@@ -35,6 +35,7 @@ from ..core.reference import HOME
 from ..core.tbm import TbmThresholds
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, read_events
+from .netns import NetnsTopology
 from .radiolink import RadioLink, SiteCoverage, TruthReceiver, site_circles
 
 PY = sys.executable
@@ -584,6 +585,7 @@ class DemoOptions:
     sites: bool = False  # a router per GS site (two, meshed) instead of one
     tls: bool = False  # one router, mutual TLS only (a fleet CA and certificates)
     vehicle: str | None = None  # an autopilot already running (no simulator started)
+    netns: bool = False  # with sites: each site and the drone in their own network namespace (root)
 
 
 @dataclass
@@ -593,6 +595,7 @@ class Child:
     log: Path
     stopped: bool = False
     args: list[str] = field(default_factory=list)
+    ns: str | None = None  # the network namespace it runs in (``--netns``)
 
 
 @dataclass
@@ -614,19 +617,21 @@ class Demo:
     truth: "TruthReceiver | None" = None
     radio_log: "EventLog | None" = None
     site_of_endpoint: dict[str, str] = field(default_factory=dict)  # the drone's path endpoint -> site
+    netns: "NetnsTopology | None" = None  # with --netns: the namespaces of the sites and the drone
 
     @property
     def spec(self) -> Scenario:
         return self.opts.spec or SCENARIO_BY_NAME[self.opts.scenario]
 
     # --------------------------------------------------------------- processes
-    def start(self, name: str, args: list[str], append: bool = False) -> Child:
+    def start(self, name: str, args: list[str], append: bool = False, ns: str | None = None) -> Child:
         log = self.out / f"{name}.log"
         fh = open(log, "a" if append else "w")
-        proc = subprocess.Popen([PY, *args], stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        prefix = self.netns.exec_prefix(ns) if (ns and self.netns) else []  # ``ip netns exec`` execs: same PID
+        proc = subprocess.Popen([*prefix, PY, *args], stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 cwd=self.out, start_new_session=True)
         fh.close()
-        child = Child(name, proc, log, args=list(args))
+        child = Child(name, proc, log, args=list(args), ns=ns)
         self.children[name] = child
         return child
 
@@ -637,7 +642,7 @@ class Demo:
             os.kill(child.proc.pid, signal.SIGKILL)
         child.proc.wait(5.0)
         time.sleep(down)
-        self.start(name, child.args, append=True)
+        self.start(name, child.args, append=True, ns=child.ns)
 
     def wait_line(self, child: Child, needle: str, timeout: float) -> None:
         deadline = time.monotonic() + timeout
@@ -706,12 +711,12 @@ class Demo:
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
             tport = free_port(socket.SOCK_STREAM)
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
-                                                 "--speedup", str(o.speedup)] + self._truth_args())
+                                                 "--speedup", str(o.speedup)] + self._truth_args(), ns=self._ns())
             self.wait_line(sim, "zdrone sim:", 20)
             vehicle = f"tcp:127.0.0.1:{tport}"
         else:
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "px4", "--mavlink", f"udpin:127.0.0.1:{sport}",
-                                                 "--speedup", str(o.speedup)] + self._truth_args())
+                                                 "--speedup", str(o.speedup)] + self._truth_args(), ns=self._ns())
             self.wait_line(sim, "zdrone sim:", 20)
             self._wait_coverage()
             vehicle = f"udpout:127.0.0.1:{sport}"
@@ -721,13 +726,19 @@ class Demo:
         coverage = [] if self.links else ["--sil-coverage"]  # with sites: the radio links are the coverage
         drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", vehicle,
                                                   *coverage, "--events", "drone.jsonl", "--handover-timeout",
-                                                  str(ho_timeout), *self._bench_extra(), *self.spec.radio, *o.radio])
+                                                  str(ho_timeout), *self._bench_extra(), *self.spec.radio, *o.radio],
+                           ns=self._ns())
         self.wait_line(drone, "ready", 40)
 
     def _start_sites(self, rport: int) -> None:
         """A router per site, meshed through a backhaul link per pair of sites; the drone reaches each
         site through that site's radio link, up only while the vehicle is inside the site's coverage
-        (from the simulator's true position). No frame filter: coverage is which links exist."""
+        (from the simulator's true position). No frame filter: coverage is which links exist.
+        On loopback the links are relays the testbed opens and closes; with ``--netns`` each site and
+        the drone have their own network namespace and the links are veth pairs."""
+        if self.opts.netns:
+            self._start_sites_netns()
+            return
         site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
         self.router = site_eps[0]
         fleet = init_fleet(self.out / "fleet", sites=site_eps)
@@ -743,21 +754,55 @@ class Demo:
             name = "router" if n == 0 else f"router{n + 1}"
             r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5", *connect])
             self.wait_line(r, "listening", 20)
-        self.radio_log = EventLog(self.out / "radio.jsonl", "radio")
         radios = {site: RadioLink(site, ("127.0.0.1", ports[site]), up=self.opts.vehicle is not None) for site in names}
         self.links.update(radios)
         self.site_of_endpoint = {f"tls/{link.endpoint}": site for site, link in radios.items()}
+        self._start_coverage(fleet, radios, "127.0.0.1")
+
+    def _start_sites_netns(self) -> None:
+        """Each site and the drone in their own namespace: the site's router listens on 127.0.0.1
+        (its GSs) and on its radio address (the drone, and the higher sites over the backhaul)."""
+        names = ["site-1", "site-2"]
+        topo = self.netns = NetnsTopology(names)
+        topo.create()
+        port = 7447  # each router alone in its namespace
+        fleet = init_fleet(self.out / "fleet", sites=[f"tls/{topo.radio_ip[site]}:{port}" for site in names])
+        self.sites = load_sites(self.out / "fleet")
+        self.router = f"tls/127.0.0.1:{port}"  # inside site 1's namespace (the attackers run there)
+        for n, site in enumerate(names):
+            name = "router" if n == 0 else f"router{n + 1}"
+            r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5", "--listen",
+                                              f"tls/127.0.0.1:{port}", "--listen", f"tls/{topo.radio_ip[site]}:{port}"],
+                           ns=topo.site_ns[site])
+            self.wait_line(r, "listening", 20)
+        self.links.update(topo.backhauls)
+        self.links.update(topo.radios)
+        self.site_of_endpoint = {f"tls/{topo.radio_ip[site]}:{port}": site for site in names}
+        if self.opts.vehicle is not None:
+            raise RuntimeError("--netns runs the built-in simulator in the drone's namespace: no --vehicle")
+        self._start_coverage(fleet, dict(topo.radios), topo.control_host)
+
+    def _start_coverage(self, fleet: Any, radios: dict[str, Any], truth_host: str) -> None:
+        self.radio_log = EventLog(self.out / "radio.jsonl", "radio")
         if self.opts.vehicle is None:  # the built-in simulator tells where the vehicle truly is
             log_ = self.radio_log
             self.coverage = SiteCoverage(site_circles(fleet, self.sites), radios,
                                          lambda site, up, p: log_.write("radio_link", site=site, up=up,
                                                                         position=[round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)]))
-            self.truth = TruthReceiver(self.coverage.update)
+            self.truth = TruthReceiver(self.coverage.update, truth_host)
         else:
             self.notes.append("--vehicle with --sites: no true position, every site's radio stays up")
 
+    def _ns(self, gs: str | None = None) -> str | None:
+        """With --netns: the drone's namespace, or GS ``gs``'s site's."""
+        if self.netns is None:
+            return None
+        if gs is None:
+            return self.netns.drone_ns
+        return next(self.netns.site_ns[site] for site, info in self.sites.items() if gs in info["ground_stations"])
+
     def _truth_args(self) -> list[str]:
-        return ["--truth", f"127.0.0.1:{self.truth.port}"] if self.truth is not None else []
+        return ["--truth", f"{self.truth.host}:{self.truth.port}"] if self.truth is not None else []
 
     def _wait_coverage(self, timeout: float = 20.0) -> None:
         """With radio links: the first true position has set them (the drone starts in range)."""
@@ -782,11 +827,15 @@ class Demo:
         for link in self.links.values():
             link.close()
         self.links.clear()
+        if self.netns is not None:
+            self.netns.destroy()
+            self.netns = None
         if self.radio_log is not None:
             self.radio_log.close()
 
     def start_gs(self, gs: str, *extra: str) -> Child:
-        child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(gs), "--events", f"{gs}.jsonl", *extra])
+        child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(gs), "--events", f"{gs}.jsonl", *extra],
+                           ns=self._ns(gs))
         self.wait_line(child, f"zdrone gs {gs}", 20)
         return child
 
@@ -797,7 +846,7 @@ class Demo:
         args += ["--wait-go"] if r.go else []
         args += ["--rate", str(r.rate)] if r.rate else []
         args += ["--gcs-port", str(self.gcs_port)] if self.gcs_port else []
-        return self.start(f"rogue-{r.mode}", args + list(r.args))
+        return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns("A"))  # beside A, on site 1
 
     def run(self) -> dict[str, Any]:
         o, spec = self.opts, self.spec
@@ -815,7 +864,7 @@ class Demo:
         self.start_gs("A", *a_extra)
         if spec.gs_x:
             self.start("gsX", self._z() + ["gs", "--id", "X", *self._common("X"), "--drone", "d1", "--pair", "--mission",
-                                           "reference", "--events", "X.jsonl"])
+                                           "reference", "--events", "X.jsonl"], ns=self._ns("X"))
         return self._watch()
 
     def _z(self) -> list[str]:
@@ -837,8 +886,10 @@ class Demo:
         """Fleet and router options of a node: with sites, a GS uses its site's router and the drone
         every site's (Zenoh moves it to another when its router dies)."""
         if self.sites and node is None:  # the drone: one session per site, through that site's radio
-            return ["--fleet", "fleet"] + [a for site in self.sites for a in ("--router", f"tls/{self.links[site].endpoint}")]
+            return ["--fleet", "fleet"] + [a for ep in self.site_of_endpoint for a in ("--router", ep)]
         router = self.router
+        if self.netns is not None:  # each GS reaches its own site's router inside the site's namespace
+            return ["--fleet", "fleet", "--router", router]
         if self.sites:
             router = next(s["endpoint"] for s in self.sites.values() if node in s["ground_stations"])
         return ["--fleet", "fleet", "--router", router]

@@ -175,13 +175,15 @@ class SiteCoverage:
 
 
 class TruthReceiver:
-    """Receives the simulator's true position (``zdrone sim --truth``) on a loopback UDP port and
+    """Receives the simulator's true position (``zdrone sim --truth``) on a UDP port (loopback, or the
+    host's end of the control link with ``--netns``) and
     hands each one to ``on_position`` (from its own thread). Undecodable datagrams are counted."""
 
-    def __init__(self, on_position: Callable[[GeoPoint], None]) -> None:
+    def __init__(self, on_position: Callable[[GeoPoint], None], host: str = "127.0.0.1") -> None:
         self.on_position = on_position
+        self.host = host
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
+        self.sock.bind((host, 0))
         self.sock.settimeout(0.2)
         self.port: int = self.sock.getsockname()[1]
         self.counters: Counter[str] = Counter()
