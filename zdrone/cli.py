@@ -97,7 +97,15 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
     if ks and not all(1 <= k <= 150 for k in ks) or not 2 <= args.stations <= 26:
         raise UsageError("--drones: each 1..150; --stations: 2..26")
-    _emit(args, scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json), scale.render)
+    if args.sites is not None and not 2 <= args.sites <= args.stations:
+        raise UsageError(f"--sites {args.sites}: must be 2..{args.stations} (a site per ground station at most)")
+    if args.drone_router is not None and args.sites is None:
+        raise UsageError("--drone-router: only with --sites")
+    if args.inbox_senders is not None and not 64 <= args.inbox_senders <= 100_000:
+        raise UsageError(f"--inbox-senders {args.inbox_senders}: must be 64..100000")
+    result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
+                       drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders)
+    _emit(args, result, scale.render)
     return 0
 
 
@@ -181,11 +189,23 @@ def build_parser() -> argparse.ArgumentParser:
     bh.add_argument("--trials", type=int, metavar="M", help="link-loss trials (default 3)")
     bh.set_defaults(func=_bench_handover)
 
-    bs = bsub.add_parser("scale", help="K drones x G ground stations through one router, each drone doing hand-overs")
+    bs = bsub.add_parser("scale", help="K drones x G ground stations through one router (or a router per site), "
+                                       "each drone doing hand-overs; CPU per process and message rates")
     bs.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    bs.add_argument("--quick", action="store_true", help="3 drones only")
-    bs.add_argument("--drones", metavar="K,K,…", help="drone counts to try (default 10,25,50)")
+    bs.add_argument("--quick", action="store_true", help="3 drones only (with --sites: the sites run only)")
+    bs.add_argument("--drones", metavar="K,K,…", help="drone counts to try (default 10,25,50; with --sites 25,50,100)")
     bs.add_argument("--stations", type=int, default=3, metavar="G", help="ground stations (default 3)")
+    bs.add_argument("--sites", type=int, metavar="N",
+                    help="N site routers meshed over mutual TLS (site n connects to sites 1..n-1), GS i at site i; "
+                         "each K is also flown through one TLS router for comparison; the load table adds the "
+                         "mesh's message rate")
+    bs.add_argument("--drone-router", choices=("spread", "all"),
+                    help="with --sites: spread = drone i connects to site (i mod N)'s router (default); "
+                         "all = every drone is given every site's endpoint and Zenoh picks one")
+    bs.add_argument("--inbox-senders", type=int, metavar="N",
+                    help="what-if: lift the GSs' inbox bound on distinct (kind, sender) queues from 64 to N in the "
+                         "GSs host (GS A needs 3 per drone: beyond 21 drones it refuses the newest senders); "
+                         "every row says so")
     bs.set_defaults(func=_bench_scale)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood")

@@ -145,3 +145,22 @@ def test_fleet_with_sites_makes_a_meshed_router_per_site(tmp_path):
     assert (tmp_path / "f" / "router" / "site-2.key").stat().st_mode & 0o077 == 0
     with pytest.raises(ConfigError):
         init_fleet(tmp_path / "g", sites=["tcp/127.0.0.1:1", "tcp/127.0.0.1:2"])  # the mesh is TLS only
+
+
+def test_fleet_with_three_sites_puts_gs_i_at_site_i_in_a_full_mesh(tmp_path):
+    import json5
+
+    from zdrone.fleet.files import init_fleet, load_sites, scale_nodes
+
+    eps = [f"tls/127.0.0.1:{p}" for p in (17450, 17451, 17452)]
+    init_fleet(tmp_path / "f", nodes_spec=scale_nodes(4, 3), tls=True, sites=eps)
+    sites = load_sites(tmp_path / "f")
+    assert {s: v["ground_stations"] for s, v in sites.items()} == {"site-1": ["A"], "site-2": ["B"], "site-3": ["C"]}
+    for n, site in enumerate(sites):  # site n connects to sites 1..n-1: one link per pair
+        cfg = json5.loads((tmp_path / "f" / "router" / f"{site}.json5").read_text())
+        assert cfg["connect"]["endpoints"] == eps[:n] and cfg["listen"]["endpoints"] == [eps[n]]
+        routers = next(x for x in cfg["access_control"]["subjects"] if x["id"] == "routers")
+        assert routers["cert_common_names"] == [f"router-site-{i + 1}" for i in range(3) if i != n]
+    creds = (tmp_path / "f" / "router" / "credentials.txt").read_text().split()
+    assert sorted(c.split(":")[0] for c in creds if c.startswith("router-")) == [f"router-site-{i}" for i in (1, 2, 3)]
+    assert all((tmp_path / "f" / "tls" / f"d{i}.crt").is_file() for i in range(1, 5))

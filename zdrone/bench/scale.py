@@ -1,30 +1,102 @@
-"""``zdrone bench scale``: K drones x G ground stations through one router on this machine.
+"""``zdrone bench scale``: K drones x G ground stations through one router, or through a router per
+site (``--sites N``), on this machine.
 
-Layout (three processes plus this one): the router; one process hosting the K drone nodes, each
-with its own Zenoh session, authority machine, security module and an in-process simulator (no
-sockets; all stepped by one loop); one process hosting the G ground stations, each with its own
-session, serving all K drones. GSs stand 500 m apart eastwards (A, B, C, …); every drone is paired
-by A, gets the other GSs' keys over the backhaul, and flies a shuttle from A's area to the last
-GS's area and back, so it makes 2 x (G - 1) hand-overs; each authority GS sends it a 1 Hz command
-stream. A drone is *correct* if it made every hand-over, never had an authority gap, lost no
-command, never entered failsafe, and its authority link stayed healthy (TBM never LOST).
+Layout: the router (or one router per site, meshed over mutual TLS: site n connects to sites
+1..n-1); one process hosting the K drone nodes, each with its own Zenoh session, authority machine,
+security module and an in-process simulator (no sockets; all stepped by one loop); one process
+hosting the G ground stations, each with its own session, serving all K drones. GSs stand 500 m
+apart eastwards (A, B, C, …); with sites, GS i belongs to site i (``router/sites.json``) and
+connects to its site's router, and drone i to site (i mod N)'s router (``spread``) or to the list of
+every site's router (``all``: Zenoh picks one). Coverage stays the in-process gate. Every drone is
+paired by A and gets the other GSs' keys over the backhaul on the ground: each GS shares at most one
+link key per second with an asker (bursts of 3), so the vehicles report "not ready to arm" until
+every drone holds every GS's key (about K s; the table shows it), then all take off at once and fly
+a shuttle from A's area to the last GS's area and back, so each makes 2 x (G - 1) hand-overs; each
+authority GS sends it a 1 Hz command stream. A drone is *correct* if it made every hand-over, never
+had an authority gap, lost no command, never entered failsafe, and its authority link stayed
+healthy (TBM never LOST).
+
+Load, over the flight (take-off -> drones host done): CPU of every process (100 % = one
+core, from ``/proc/<pid>/stat``; the drones host measures its own); samples delivered to the nodes
+per second, and those whose sender is on another site's router (each crossed one mesh link),
+counted per (receiver, sender) in the hosts and placed by each session's router; and the wire of the
+router-to-router links (TCP data segments and bytes, both ways, from ``ss -ti``: every Zenoh message,
+query and declaration that crossed the mesh, batched). Zenoh 1.x's admin space (``@/<zid>/router``)
+lists sessions and links but carries no message counters in the Python build (no ``stats`` feature).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
+import os
+import re
+import shutil
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 CROSSINGS = 2
 SPEEDUP = 4.0
+#: How long the drones host may take to open its K sessions before the run counts as failed.
+READY_TIMEOUT_S = 180.0
+#: Readiness of a held vehicle (simulated seconds after boot before it may arm): never, until released.
+HOLD_READY_AFTER = 1e9
+
+
+def hold_limit(k: int) -> float:
+    """The longest pre-flight hold: each GS shares at most one link key per second with an asker
+    (bursts of 3), so A needs about K s to get B's (and, in parallel, C's) keys for K drones."""
+    return 60.0 + 2.5 * k
+
+
+log = logging.getLogger(__name__)
+
+
+class DeliveryCounter:
+    """Samples delivered to one node, per sender: wraps its inbox's ``put``, which every subscribed
+    sample reaches (called from Zenoh's threads); query replies (pairing, key sharing) are not counted."""
+
+    DATA_KINDS = frozenset({"up", "down"})
+
+    def __init__(self, inbox: Any) -> None:
+        self.lock = threading.Lock()
+        self.by_sender: Counter[str] = Counter()
+        original = inbox.put
+
+        def counted(kind: str, peer: str, data: Any) -> None:
+            if kind in self.DATA_KINDS:
+                with self.lock:
+                    self.by_sender[peer] += 1
+            original(kind, peer, data)
+
+        inbox.put = counted
+
+    def snapshot(self) -> dict[str, int]:
+        with self.lock:
+            return dict(self.by_sender)
+
+    def since(self, baseline: dict[str, int]) -> dict[str, int]:
+        """Samples delivered since ``baseline`` (an earlier snapshot)."""
+        return {peer: n - baseline.get(peer, 0) for peer, n in self.snapshot().items()}
+
+
+def _router_zid(session: Any) -> str | None:
+    """The router this client session is connected to."""
+    try:
+        zids = session.info.routers_zid()
+        return str(zids[0]) if zids else None
+    except Exception as exc:  # a closed session: nothing to report
+        log.warning("router zid: %s", exc)
+        return None
 
 
 def _host_drones(args: argparse.Namespace) -> int:
@@ -36,23 +108,43 @@ def _host_drones(args: argparse.Namespace) -> int:
     from ..sil.coverage import CoverageGate
     from ..vehicle.inproc import InProcessVehicle
 
+    routers = args.router.split(",")
     nodes = []
     for i in range(args.k):
         name = f"d{i + 1}"
-        opts = DroneOptions(drone=name, fleet=args.fleet, router=args.router, vehicle="inproc", gate=CoverageGate(load_fleet(args.fleet)),
+        router = routers[i % len(routers)] if args.drone_router == "spread" else args.router
+        opts = DroneOptions(drone=name, fleet=args.fleet, router=router, vehicle="inproc", gate=CoverageGate(load_fleet(args.fleet)),
                             events=str(Path(args.out) / f"{name}.jsonl"), handover_timeout=max(1.5, 5.0 / args.speedup),
                             status_period=2.0)
         nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=i + 1, speedup=args.speedup, seed=i)))
+    deliveries = {n.name: DeliveryCounter(n.rt.inbox) for n in nodes}
+    router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
+    gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
+    for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
+        n.vehicle.sim.ready_after = HOLD_READY_AFTER
     print(f"drones host: {args.k} drones ready", flush=True)
     stop = [False]
     signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
     armed_seen = [False] * len(nodes)
     worst_owner_silence = [0.0] * len(nodes)
     owner_lost = [0] * len(nodes)
-    deadline = time.monotonic() + args.duration
+    t_ready = time.monotonic()
+    t0, cpu0 = t_ready, time.process_time()
+    deadline = t_ready + args.hold + args.duration
+    released: str | None = None
+    baseline: dict[str, dict[str, int]] = {}
     loops = 0
     try:
         while not stop[0] and time.monotonic() < deadline:
+            if released is None and (all(gss[n.name] <= set(n.links) for n in nodes)
+                                     or time.monotonic() - t_ready >= args.hold):
+                released = "keys" if time.monotonic() - t_ready < args.hold else "hold timeout"
+                for n in nodes:
+                    n.vehicle.sim.ready_after = 0.0
+                t0, cpu0 = time.monotonic(), time.process_time()
+                deadline = t0 + args.duration
+                baseline = {d: c.snapshot() for d, c in deliveries.items()}
+                print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
             for i, n in enumerate(nodes):
                 n.step(0.0)
                 m = n.machine
@@ -68,6 +160,7 @@ def _host_drones(args: argparse.Namespace) -> int:
             if all(armed_seen) and all(not n.vehicle.armed for n in nodes):
                 break
             time.sleep(0.002)
+        flight_s, cpu_s = time.monotonic() - t0, time.process_time() - cpu0
         results = {}
         for i, n in enumerate(nodes):
             m = n.machine
@@ -78,8 +171,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "forwarded": dict(n.forwarded), "not_authority": m.drops[HaDrop.NOT_AUTHORITY],
                 "worst_owner_silence_s": round(worst_owner_silence[i], 3), "owner_lost_samples": owner_lost[i],
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.links.items()}}
-        Path(args.out, "drones.json").write_text(json.dumps({"results": results, "loops": loops,
-                                                              "timed_out": time.monotonic() >= deadline}))
+        Path(args.out, "drones.json").write_text(json.dumps({
+            "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
+            "cpu_s": cpu_s, "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
         for n in nodes:
             n.close()
@@ -90,54 +184,196 @@ def _host_stations(args: argparse.Namespace) -> int:
     from gs.planner import shuttle_mission
     from gs.station import GroundStation, StationOptions
 
+    deliveries: dict[str, DeliveryCounter] = {}
+    baseline: dict[str, dict[str, int]] = {}
+    # the drones took off (from the bench, at once): count deliveries from now on
+    signal.signal(signal.SIGUSR1, lambda *_: baseline.update({g: c.snapshot() for g, c in deliveries.items()}))
+    if args.inbox_senders:  # testbed what-if: the GS inbox's bound on (kind, sender) queues
+        from ..net import inbox
+
+        inbox.MAX_SENDERS = args.inbox_senders
     names = [chr(ord("A") + i) for i in range(args.stations)]
+    routers = args.router.split(",")  # one for all, or one per station in order
     mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (args.stations - 1) - 60.0)
-    stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=args.router, pair=(g == "A"),
+    stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=routers[i % len(routers)], pair=(g == "A"),
                                              mission=mission if g == "A" else None, command_rate=1.0,
-                                             events=None)) for g in names]
+                                             events=None)) for i, g in enumerate(names)]
+    deliveries.update({st.name: DeliveryCounter(st.rt.inbox) for st in stations})
+    router_zids = {st.name: _router_zid(st.rt.session) for st in stations}
     print(f"stations host: {len(stations)} stations ready", flush=True)
     # one thread per station: a GS's blocking backhaul query must not wait on another GS's loop
-    import threading
-
     threads = [threading.Thread(target=st.run, daemon=True) for st in stations]
     for t in threads:
         t.start()
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    stop.wait()
+    while not stop.wait(0.2):
+        pass
     sent = {st.name: {d: sum(v.commands_sent.values()) for d, v in st.views.items()} for st in stations}
+    counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
+    delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}
     for st in stations:
         st.stop()
     for t in threads:
         t.join(15)
-    Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent}))
+    Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "router_zid": router_zids,
+                                                           "delivered": delivered, "counters": counters}))
     return 0
 
 
-def _one(k: int, g: int, base: Path, timeout: float) -> dict[str, Any]:
-    from ..fleet.files import init_fleet, scale_nodes
+# ------------------------------------------------------------------ measuring the processes
+def _cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a live process (all its threads), from ``/proc/<pid>/stat``."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+
+
+_SS_FIELDS = re.compile(r"\b(bytes_sent|bytes_received|data_segs_out|data_segs_in):(\d+)")
+
+
+def _tcp_sockets(pids: set[int]) -> dict[tuple[str, str], dict[str, int]] | None:
+    """Established TCP sockets of ``pids``: (local, peer) -> pid, bytes and data segments each way
+    (``ss -tinp``; None without ``ss``)."""
+    if shutil.which("ss") is None:
+        return None
+    try:
+        text = subprocess.run(["ss", "-tinpH", "state", "established"], capture_output=True, text=True, timeout=10).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    socks: dict[tuple[str, str], dict[str, int]] = {}
+    current: dict[str, int] | None = None
+    for line in text.splitlines():
+        if line and not line[0].isspace():  # the socket line; its TCP info follows, indented
+            current = None
+            parts = line.split()
+            pid = re.search(r"pid=(\d+)", line)
+            if len(parts) >= 4 and pid and int(pid.group(1)) in pids:
+                current = socks.setdefault((parts[2], parts[3]), {"pid": int(pid.group(1))})
+        elif current is not None:
+            current.update({k: int(v) for k, v in _SS_FIELDS.findall(line)})
+    return socks
+
+
+def _port(addr: str) -> int:
+    return int(addr.rsplit(":", 1)[1])
+
+
+def _mesh_links(socks: dict[tuple[str, str], dict[str, int]], router_pids: set[int], site_ports: set[int]) -> list[tuple[str, str]]:
+    """Router-to-router links, each once: from the connecting router's side (its peer is a site's port)."""
+    return [key for key, s in socks.items() if s["pid"] in router_pids and _port(key[1]) in site_ports]
+
+
+def _traffic(before: dict | None, after: dict | None, keys: list[tuple[str, str]]) -> dict[str, int]:
+    """Bytes and data segments, both ways, that crossed ``keys`` between two ``_tcp_sockets`` snapshots."""
+    total = {"bytes": 0, "segments": 0}
+    for key in keys:
+        a, b = (after or {}).get(key, {}), (before or {}).get(key, {})
+        total["bytes"] += sum(a.get(f, 0) - b.get(f, 0) for f in ("bytes_sent", "bytes_received"))
+        total["segments"] += sum(a.get(f, 0) - b.get(f, 0) for f in ("data_segs_out", "data_segs_in"))
+    return total
+
+
+def _wait_line(path: Path, text: str, timeout: float, proc: subprocess.Popen) -> str | None:
+    """The first line of ``path`` holding ``text`` (None if ``proc`` ended or the time ran out)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            for line in path.read_text(errors="replace").splitlines():
+                if text in line:
+                    return line
+        except OSError:
+            pass
+        if proc.poll() is not None:
+            return None
+        time.sleep(0.1)
+    return None
+
+
+def _free_ports(n: int) -> list[int]:
     from ..sil.launcher import free_port
 
-    d = base / f"k{k}"
+    ports: list[int] = []
+    while len(ports) < n:
+        p = free_port(socket.SOCK_STREAM)
+        if p not in ports:
+            ports.append(p)
+    return ports
+
+
+def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
+         drone_router: str = "spread", inbox_senders: int | None = None) -> dict[str, Any]:
+    """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
+    from ..fleet.files import init_fleet, load_sites, scale_nodes
+
+    layout = f"{sites} sites" if sites else ("1 router, TLS" if tls else "1 router")
+    d = base / f"k{k}-{f'sites{sites}' if sites else 'one'}"
     d.mkdir(parents=True, exist_ok=True)
-    init_fleet(d / "fleet", nodes_spec=scale_nodes(k, g))
-    router = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    ports = _free_ports(max(1, sites))
+    scheme = "tls" if tls or sites else "tcp"
+    endpoints = [f"{scheme}/127.0.0.1:{p}" for p in ports]
+    init_fleet(d / "fleet", nodes_spec=scale_nodes(k, g), tls=tls, sites=endpoints if sites else None)
+    gs_names = [chr(ord("A") + i) for i in range(g)]
     py = [sys.executable, "-m"]
-    logs = {n: open(d / f"{n}.log", "w") for n in ("router", "drones", "stations")}
+    if sites:
+        site_map = load_sites(d / "fleet")
+        router_cmds = {site: ["zdrone", "router", "-c", str(d / "fleet" / "router" / f"{site}.json5")] for site in site_map}
+        gs_routers = [next(s["endpoint"] for s in site_map.values() if gs in s["ground_stations"]) for gs in gs_names]
+    else:
+        router_cmds = {"router": ["zdrone", "router", "-c", str(d / "fleet/router/router.json5"), "--listen", endpoints[0]]}
+        gs_routers = endpoints[:1]
+    logs = {n: open(d / f"{n}.log", "w") for n in (*router_cmds, "drones", "stations")}
     procs: dict[str, subprocess.Popen] = {}
     t0 = time.monotonic()
+    error = ""
+    window: dict[str, Any] = {}
+    zid_site: dict[str, str] = {}
+    router_pids: set[int] = set()
     try:
-        procs["router"] = subprocess.Popen(py + ["zdrone", "router", "-c", str(d / "fleet/router/router.json5"), "--listen", router],
-                                           stdout=logs["router"], stderr=subprocess.STDOUT)
-        time.sleep(1.0)
-        common = ["--fleet", str(d / "fleet"), "--router", router, "--out", str(d)]
+        for name, cmd in router_cmds.items():
+            procs[name] = subprocess.Popen(py + cmd, stdout=logs[name], stderr=subprocess.STDOUT)
+        for name in router_cmds:
+            line = _wait_line(d / f"{name}.log", "listening", 20, procs[name])
+            if line is None:
+                raise RuntimeError(f"router {name} did not start; see {d / f'{name}.log'}")
+            zid = re.search(r"zid (\w+)", line)
+            zid_site[zid.group(1) if zid else name] = name
+        router_pids = {procs[n].pid for n in router_cmds}
+        links_wanted = sites * (sites - 1) // 2
+        deadline = time.monotonic() + 15
+        while links_wanted and time.monotonic() < deadline:  # the mesh is up before any node connects
+            socks = _tcp_sockets(router_pids)
+            if socks is None or len(_mesh_links(socks, router_pids, set(ports))) >= links_wanted:
+                break
+            time.sleep(0.2)
+        common = ["--fleet", str(d / "fleet"), "--out", str(d)]
         procs["drones"] = subprocess.Popen(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(SPEEDUP),
-                                                 "--duration", str(timeout), *common], stdout=logs["drones"], stderr=subprocess.STDOUT)
-        procs["stations"] = subprocess.Popen(py + ["zdrone.bench.scale", "host-stations", "--stations", str(g), *common],
+                                                 "--duration", str(timeout), "--hold", str(hold_limit(k)),
+                                                 "--router", ",".join(endpoints),
+                                                 "--drone-router", drone_router, *common],
+                                           stdout=logs["drones"], stderr=subprocess.STDOUT)
+        procs["stations"] = subprocess.Popen(py + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
+                                                   "--router", ",".join(gs_routers), *common,
+                                                   *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
                                              stdout=logs["stations"], stderr=subprocess.STDOUT)
-        procs["drones"].wait(timeout + 60)
+        others = {**{f"router {n}" if sites else "router": procs[n].pid for n in router_cmds}, "stations host": procs["stations"].pid}
+        if (_wait_line(d / "drones.log", "drones ready", READY_TIMEOUT_S, procs["drones"]) is not None
+                and _wait_line(d / "drones.log", "take-off", hold_limit(k) + 30, procs["drones"]) is not None):
+            procs["stations"].send_signal(signal.SIGUSR1)
+            window["t"], window["cpu"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
+            window["socks"] = _tcp_sockets(router_pids)
+            try:
+                procs["drones"].wait(timeout + 60)
+            except subprocess.TimeoutExpired:
+                error = "drones host did not finish"
+            window["t_end"], window["cpu_end"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
+            window["socks_end"] = _tcp_sockets(router_pids)
+    except RuntimeError as exc:
+        error = str(exc)
     finally:
-        for name in ("stations", "router", "drones"):
+        for name in ("stations", *router_cmds, "drones"):
             p = procs.get(name)
             if p is not None and p.poll() is None:
                 p.terminate()
@@ -145,14 +381,16 @@ def _one(k: int, g: int, base: Path, timeout: float) -> dict[str, Any]:
                     p.wait(20)
                 except subprocess.TimeoutExpired:
                     p.kill()
+                    p.wait(5)
         for f in logs.values():
             f.close()
     wall = time.monotonic() - t0
     try:
         drones = json.loads((d / "drones.json").read_text())
-        sent = json.loads((d / "stations.json").read_text())["commands_sent"]
+        stations = json.loads((d / "stations.json").read_text())
     except (OSError, ValueError) as exc:
-        return {"k": k, "g": g, "error": f"no results ({exc}); see {d}"}
+        return {"layout": layout, "k": k, "g": g, "error": error or f"no results ({exc}); see {d}"}
+    sent = stations["commands_sent"]
     expected = 2 * (g - 1)
     per: dict[str, Any] = {}
     for name, r in drones["results"].items():
@@ -171,45 +409,137 @@ def _one(k: int, g: int, base: Path, timeout: float) -> dict[str, Any]:
             why.append("not landed")
         per[name] = {"ok": not why, "why": why, "worst_owner_silence_s": r["worst_owner_silence_s"]}
     ok = sum(1 for v in per.values() if v["ok"])
-    return {"k": k, "g": g, "correct": ok, "all_correct": ok == k and not drones["timed_out"], "wall_s": round(wall, 1),
-            "worst_owner_silence_s": max(v["worst_owner_silence_s"] for v in per.values()),
-            "failures": {n: v["why"] for n, v in per.items() if not v["ok"]}, "runs": str(d)}
+    handovers = [r["handovers"] for r in drones["results"].values()]
+    row: dict[str, Any] = {
+        "layout": layout, "sites": sites or 1, "tls": bool(tls or sites), "drone_router": drone_router if sites else None,
+        "gs_inbox_senders": inbox_senders, "gs_inbox_drops": {g: {k: v for k, v in c.items() if k.startswith("inbox:")}
+                                                              for g, c in stations.get("counters", {}).items()},
+        "k": k, "g": g, "correct": ok,
+        "all_correct": ok == k and not drones["timed_out"] and not error and drones.get("released") == "keys",
+        "wall_s": round(wall, 1), "ground_s": drones.get("ground_s"), "released": drones.get("released"),
+        "worst_owner_silence_s": max(v["worst_owner_silence_s"] for v in per.values()),
+        "handovers": {"expected_each": expected, "min": min(handovers), "max": max(handovers), "total": sum(handovers)},
+        "failures": {n: v["why"] for n, v in per.items() if not v["ok"]}, "runs": str(d)}
+    if error:
+        row["error"] = error
+    refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in row["gs_inbox_drops"].items()}
+    row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
+    row.update(_load(drones, stations, window, zid_site, router_pids, set(ports)))
+    return row
 
 
-def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True) -> dict[str, Any]:
-    ks = ks or ([3] if quick else [10, 25, 50])
+def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, Any], zid_site: dict[str, str],
+          router_pids: set[int], site_ports: set[int]) -> dict[str, Any]:
+    """CPU per process and message rates over the flight window."""
+    if "t_end" not in window:
+        return {}
+    span = max(1e-6, window["t_end"] - window["t"])
+    cpu = {n: round(100.0 * (window["cpu_end"][n] - c) / span, 1) if c is not None and window["cpu_end"][n] is not None else None
+           for n, c in window["cpu"].items()}
+    cpu["drones host"] = round(100.0 * drones["cpu_s"] / max(1e-6, drones["flight_s"]), 1)
+    zids = {**drones["router_zid"], **stations["router_zid"]}
+    site_of = {node: zid_site.get(z or "", "?") for node, z in zids.items()}
+    delivered = across = 0
+    for receiver, by_sender in [*drones["delivered"].items(), *stations["delivered"].items()]:
+        for sender, n in by_sender.items():
+            delivered += n
+            across += n if site_of.get(sender) != site_of.get(receiver) else 0
+    out: dict[str, Any] = {
+        "window_s": round(span, 1), "cpu_percent": cpu,
+        "drones_per_site": dict(Counter(site_of[n] for n in drones["router_zid"])),
+        "samples_per_s": round(delivered / span, 1)}
+    before, after = window.get("socks"), window.get("socks_end")
+    if after is not None:
+        links = _mesh_links(after, router_pids, site_ports)
+        mesh = _traffic(before, after, links)
+        routers = _traffic(before, after, list(after))
+        out["mesh"] = {"links": len(links), "samples_per_s": round(across / span, 1),
+                       "tcp_segments_per_s": round(mesh["segments"] / span, 1), "kbytes_per_s": round(mesh["bytes"] / span / 1000, 1)}
+        out["routers_tcp_segments_per_s"] = round(routers["segments"] / span, 1)
+    return out
+
+
+def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
+        drone_router: str = "spread", inbox_senders: int | None = None) -> dict[str, Any]:
+    """Fly each K; with ``sites``, each K through the site routers and (unless ``quick``) through one
+    TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported)."""
+    ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
     rows = []
-    status = None
-    if progress:
-        from rich.console import Console
+    from .table import ProgressLine
 
-        status = Console(stderr=True).status("")
-        status.start()
+    status = ProgressLine(progress)
     try:
         for k in ks:
-            if status:
-                status.update(f"{k} drones x {stations} GSs flying…")
-            rows.append(_one(k, stations, base, timeout=150.0))
+            if sites:
+                status.say(f"{k} drones x {stations} GSs flying over {sites} site routers…")
+                rows.append(_one(k, stations, base, timeout=150.0, sites=sites, drone_router=drone_router,
+                                 inbox_senders=inbox_senders))
+                if not quick:
+                    status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
+                    rows.append(_one(k, stations, base, timeout=150.0, tls=True, inbox_senders=inbox_senders))
+            else:
+                status.say(f"{k} drones x {stations} GSs flying…")
+                rows.append(_one(k, stations, base, timeout=150.0, inbox_senders=inbox_senders))
     finally:
-        if status:
-            status.stop()
-    good = [r["k"] for r in rows if r.get("all_correct")]
-    return {"rows": rows, "largest_k_all_correct": max(good) if good else 0, "stations": stations,
-            "layout": "router | one process hosting K drone nodes (in-process simulators) | one hosting the G GSs",
-            "target": {"k": 50, "g": 3}}
+        status.close()
+
+    def largest(of: list[dict[str, Any]]) -> int:
+        good = [r["k"] for r in of if r.get("all_correct")]
+        return max(good) if good else 0
+
+    main_rows = [r for r in rows if r.get("sites", 1) == (sites or 1)]
+    result: dict[str, Any] = {"rows": rows, "largest_k_all_correct": largest(main_rows), "stations": stations,
+                              "gs_inbox_senders": inbox_senders}
+    if sites:
+        result.update({"sites": sites, "drone_router": drone_router,
+                       "largest_k_all_correct_one_router": largest([r for r in rows if r.get("sites") == 1]),
+                       "layout": f"{sites} site routers meshed over mutual TLS (GS i at site i; drones "
+                                 f"{'spread round-robin over the sites' if drone_router == 'spread' else 'given every site'}) | "
+                                 "one process hosting K drone nodes (in-process simulators) | one hosting the G GSs",
+                       "target": {"k": 100, "g": 3, "sites": 3}})
+    else:
+        result.update({"layout": "router | one process hosting K drone nodes (in-process simulators) | one hosting the G GSs",
+                       "target": {"k": 50, "g": 3}})
+    return result
 
 
 def render(r: dict[str, Any]) -> None:
     from .table import print_table
 
-    rows = [[f"{x['k']} x {x['g']}", x.get("correct", "error"), "yes" if x.get("all_correct") else "no",
-             x.get("worst_owner_silence_s", "-"), x.get("wall_s", "-"),
-             "; ".join(f"{n}: {', '.join(w)}" for n, w in list(x.get("failures", {}).items())[:3]) or x.get("error", "")]
+    rows = [[x.get("layout", "1 router"), f"{x['k']} x {x['g']}", x.get("correct", "error"), "yes" if x.get("all_correct") else "no",
+             x.get("worst_owner_silence_s", "-"), x.get("ground_s", "-"), x.get("wall_s", "-"),
+             "; ".join([*(f"{n}: {', '.join(w)}" for n, w in list(x.get("failures", {}).items())[:3]), *x.get("notes", [])[:1]])
+             or x.get("error", "")]
             for x in r["rows"]]
-    print_table("Scale: drones x ground stations through one router", ["drones x GSs", "correct", "all correct",
-                "worst authority silence s", "wall s", "first failures"], rows,
-                caption=f"largest K with all hand-overs correct and TBM healthy: {r['largest_k_all_correct']} (target 50 x 3)")
+    target = r["target"]
+    where = f"over {r['sites']} site routers" if r.get("sites") else "through one router"
+    caption = (f"largest K with all hand-overs correct and TBM healthy: {r['largest_k_all_correct']} "
+               f"(target {target['k']} x {target['g']})")
+    if any(x.get("sites") == 1 for x in r["rows"]) and r.get("sites"):
+        caption += f"; through one TLS router: {r['largest_k_all_correct_one_router']}"
+    if r.get("gs_inbox_senders"):
+        caption += f"; what-if: GS inbox bound lifted from 64 to {r['gs_inbox_senders']} (kind, sender) queues"
+    print_table(f"Scale: drones x ground stations {where}", ["layout", "drones x GSs", "correct", "all correct",
+                "worst authority silence s", "key sharing on the ground s", "wall s", "first failures"], rows, caption=caption)
+
+    def cpu(x: dict[str, Any], which: str) -> str:
+        c = x.get("cpu_percent", {})
+        vals = [v for n, v in c.items() if n.startswith(which)]
+        return "/".join("-" if v is None else f"{v:.0f}" for v in vals) or "-"
+
+    load = [[x.get("layout", "1 router"), f"{x['k']} x {x['g']}", cpu(x, "router"), cpu(x, "drones host"), cpu(x, "stations host"),
+             x.get("samples_per_s", "-"), x.get("mesh", {}).get("samples_per_s", "-") if x.get("sites", 1) > 1 else "-",
+             x.get("mesh", {}).get("tcp_segments_per_s", "-") if x.get("sites", 1) > 1 else "-",
+             x.get("mesh", {}).get("kbytes_per_s", "-") if x.get("sites", 1) > 1 else "-",
+             x.get("routers_tcp_segments_per_s", "-")] for x in r["rows"] if "cpu_percent" in x]
+    if load:
+        print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers",
+                    "CPU % drones", "CPU % GSs", "samples/s", "mesh samples/s", "mesh TCP seg/s",
+                    "mesh kB/s", "routers TCP seg/s"], load,
+                    caption="CPU: each router, the drones host, the GSs host; samples: pub/sub samples delivered to "
+                            "the nodes; mesh samples: those from a node on another site's router; TCP segments and kB: "
+                            "router-to-router links (mesh) or all router sockets, both ways, TLS included")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -218,14 +548,19 @@ def main(argv: list[str] | None = None) -> int:
     hd = sub.add_parser("host-drones")
     hd.add_argument("--k", type=int, required=True)
     hd.add_argument("--speedup", type=float, default=SPEEDUP)
-    hd.add_argument("--duration", type=float, default=150.0)
+    hd.add_argument("--duration", type=float, default=150.0, help="flight time limit, from take-off")
+    hd.add_argument("--hold", type=float, default=60.0, help="longest pre-flight hold (key sharing), s")
+    hd.add_argument("--drone-router", choices=("spread", "all"), default="spread",
+                    help="spread: drone i uses the (i mod N)-th router of --router; all: every drone gets the whole list")
     hs = sub.add_parser("host-stations")
     hs.add_argument("--stations", type=int, required=True)
+    hs.add_argument("--inbox-senders", type=int, help="lift the GS inbox's bound on (kind, sender) queues to this")
     for sp in (hd, hs):
         sp.add_argument("--fleet", required=True)
-        sp.add_argument("--router", required=True)
+        sp.add_argument("--router", required=True, help="router endpoint(s), comma-separated")
         sp.add_argument("--out", required=True)
     args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     return _host_drones(args) if args.role == "host-drones" else _host_stations(args)
 
 
