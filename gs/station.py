@@ -11,6 +11,12 @@ One thread runs the loop; Zenoh callbacks only queue what they receive. No call 
 blocks: pairing and key-sharing queries are asynchronous (their replies come back through the
 inbox), and the handshakes for incoming key-sharing queries are bounded per loop turn
 (``LINKKEY_PER_TURN``) and rate-limited per asker in the core.
+
+The loop sleeps until input arrives (an envelope, a query reply) or its next tick is due. The
+core's periodic work (heartbeats, the command stream, retries, mission stages) is looked at every
+``tick_period`` (a quarter of the shortest period it keeps, ``MAX_SLEEP_S`` at most), the status
+event at its own time. Loop hooks that poll sockets (the GCS gateway) keep the loop at
+``HOOK_POLL_S``.
 """
 
 from __future__ import annotations
@@ -37,6 +43,11 @@ log = logging.getLogger(__name__)
 LINKKEY_PER_TURN = 2
 #: Key-sharing queries looked at per loop turn (refusals cost microseconds each).
 LINKKEY_QUERIES_PER_TURN = 256
+#: The loop sleeps at most this long without input (the key-sharing queryable's ring is looked at
+#: on every wake).
+MAX_SLEEP_S = 0.05
+#: The loop's period while a hook polls sockets of its own (the GCS gateway's endpoints).
+HOOK_POLL_S = 0.005
 
 __all__ = ["GCS_COMPID", "DroneView", "GroundStation", "StationOptions", "run_station"]
 
@@ -193,13 +204,25 @@ class GroundStation:
     def drain(self, timeout: float) -> None:
         self.rx.drain(timeout, self._on_inbox)
 
+    def tick_period(self) -> float:
+        """How often the core's periodic work is looked at without input: a quarter of the shortest
+        period it keeps (heartbeats, the command stream), ``MAX_SLEEP_S`` at most, and
+        ``HOOK_POLL_S`` while a loop hook polls sockets."""
+        if self.loop_hooks:
+            return HOOK_POLL_S
+        periods = [1.0 / self.opts.heartbeat_hz] if self.opts.heartbeat_hz > 0 else []
+        if self.opts.command_rate > 0:
+            periods.append(1.0 / self.opts.command_rate)
+        return min([MAX_SLEEP_S] + [p / 4 for p in periods])
+
     def run(self) -> None:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)
         self.events.write("start", drones=list(self.views))
         next_status = next_view = 0.0
+        tick = self.tick_period()
         try:
             while self.rt.running:
-                self.drain(0.005 if self.loop_hooks else 0.01)
+                self.drain(max(0.0, min(next_status - time.monotonic(), tick)))
                 now = time.monotonic()
                 self.step(now)
                 for hook in self.loop_hooks:

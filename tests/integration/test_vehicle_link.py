@@ -98,3 +98,41 @@ def _arm(link: VehicleLink) -> bool:
     if not link.armed:
         link.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
     return link.armed
+
+
+@pytest.mark.slow
+def test_the_reader_thread_hands_every_frame_to_the_inbox_and_wakes_its_loop():
+    """The drone node's loop sleeps on its inbox: the vehicle link's reader thread queues each message
+    (it tracks nothing itself); the loop takes it up with ``accept``."""
+    from zdrone.net.inbox import Inbox
+
+    port = free_port()
+    with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "4", "--ready-after", "0") as sim:
+        sim.wait_line("zdrone sim:", 20)
+        link = VehicleLink(f"udpout:127.0.0.1:{port}")
+        try:
+            assert link.wait_vehicle(10)
+            inbox = Inbox()
+            assert link.start_reader(lambda msg: inbox.put("vehicle", "vehicle", msg)) and link.reading
+            with pytest.raises(RuntimeError):
+                link.recv(0.0)  # one reader at a time
+            frames: list[bytes] = []
+
+            def take(kind: str, peer: str, msg: object, now: float) -> None:
+                assert (kind, peer) == ("vehicle", "vehicle")
+                frames.append(link.accept(msg, now))
+
+            t0 = time.monotonic()
+            while not any(read_header(f).msgid == mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT for f in frames):
+                assert time.monotonic() - t0 < 5, "no position through the inbox"
+                inbox.drain(1.0, take)
+                link.heartbeat()
+            assert all(read_header(f).sysid == 1 for f in frames) and link.position is not None
+            waited = time.monotonic()
+            assert inbox.drain(2.0, take) >= 1  # the next message wakes the drain well before its 2 s
+            assert time.monotonic() - waited < 1.0
+            link.command_rtl()  # sends while the reader reads
+            assert link.next_due() <= time.monotonic() + 1.0
+        finally:
+            link.close()
+        assert not link.reading

@@ -1,7 +1,8 @@
 """The hand-off between Zenoh's callback threads and a node's single loop thread.
 
 Callbacks only put ``(kind, peer, data)`` on a bounded queue per (kind, sender) (envelopes, query
-replies); the loop thread drains them in turn. Nothing that arrives is handled on a Zenoh thread, and
+replies, and the drone's vehicle messages from its vehicle link's reader thread); the loop thread
+drains them in turn, sleeping on the queue until the first item or its own next deadline. Nothing that arrives is handled on a Zenoh thread, and
 nothing a sender can do grows a node's memory, stalls its loop or crowds out another sender: a
 payload above its kind's size limit is refused by its length before it is even copied out of Zenoh,
 a full queue refuses the newest item, and each drain handles a bounded batch, one item per sender in

@@ -1,9 +1,16 @@
 """``zdrone drone``: the onboard companion node (vehicle link + security module + handover authority).
 
-One thread owns everything: Zenoh callbacks only put received samples on a queue (they never
-block and never call Zenoh); the main loop opens envelopes, feeds the ``AuthorityMachine``, carries
-out its actions, forwards vehicle telemetry to the GSs the machine talks to, and polls each link's
-TBM so that a silent authority link is noticed within one loop period (5 ms) of the threshold.
+One thread owns everything: Zenoh callbacks and the vehicle link's reader thread only put what they
+received on the inbox (they never block and never call Zenoh); the loop opens envelopes, feeds the
+``AuthorityMachine``, carries out its actions and forwards vehicle telemetry to the GSs the machine
+talks to.
+
+The loop sleeps until the next input or the next deadline, whichever comes first (``next_deadline``):
+the machine's timer (``get_timer``), each link's next TBM threshold (DEGRADED, LOST), the radio's
+late frames, a pairing's probation, the status event, the status beacon and the vehicle link's
+heartbeat. An envelope or a vehicle frame wakes it at once, and a silent authority link is noticed
+at its LOST instant. It never sleeps longer than ``MAX_SLEEP_S``: the pairing queryable's ring and
+the paths' state, which nothing wakes the loop for, are looked at on every wake.
 """
 
 from __future__ import annotations
@@ -14,7 +21,7 @@ import os
 import time
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
 import zenoh
 from pymavlink.dialects.v20 import common as mav
@@ -26,10 +33,10 @@ from ..core.geometry import GeoPoint
 from ..core.keys import LinkKey
 from ..core.linkslot import LinkSlot, Promoted
 from ..core.pairing import PairingResponder
-from ..core.tbm import TbmThresholds
+from ..core.tbm import TimeBetweenMessages, TbmThresholds
 from ..core import wire
 from ..core.wire import KeyGrant, KeyGrantAck
-from ..vehicle.link import VehicleLink
+from ..vehicle.link import VehicleLink, VehicleState
 from ..fleet import keyexprs as kx
 from ..net.authstore import AuthorityStore, SavedAuthority
 from ..net.inbox import payload_bytes
@@ -46,6 +53,11 @@ PAIRING_TTL = 10.0
 #: The authority status goes to every linked GS at least this often (besides every change), so a
 #: GS that was hung or missed a change learns who holds authority within a second.
 STATUS_BEACON_S = 1.0
+#: The loop sleeps at most this long, whatever its deadlines (a safety net, and the bound on how long
+#: a pairing query waits in its ring).
+MAX_SLEEP_S = 0.05
+#: The inbox kind (and sender) of the vehicle link's messages.
+VEHICLE = "vehicle"
 
 
 class LinkGate(Protocol):
@@ -64,6 +76,56 @@ class RadioPath(Protocol):
     lost: Counter[str]
 
     def admit(self, gs: str, direction: str, now: float) -> float | None: ...
+
+
+class Vehicle(Protocol):
+    """The flight controller as the node sees it (``VehicleLink``; ``InProcessVehicle`` in benches)."""
+
+    @property
+    def sysid(self) -> int | None: ...
+
+    @property
+    def position(self) -> Any: ...
+
+    @property
+    def armed(self) -> bool: ...
+
+    @property
+    def landed_state(self) -> int: ...
+
+    def heartbeat(self, now: float | None = None) -> None: ...
+
+    def next_due(self) -> float: ...
+
+    def recv(self, timeout: float = 0.0) -> list[bytes]: ...
+
+    def start_reader(self, deliver: Callable[[Any], None]) -> bool: ...
+
+    def accept(self, msg: Any, now: float) -> bytes: ...
+
+    def send(self, frame: bytes) -> None: ...
+
+    def state(self) -> VehicleState: ...
+
+    def stream_stats(self) -> dict[str, Any]: ...
+
+    def command_land(self) -> None: ...
+
+    def command_rtl(self) -> None: ...
+
+    def wait_vehicle(self, timeout: float) -> bool: ...
+
+    def close(self) -> None: ...
+
+
+def next_link_change(tbm: TimeBetweenMessages, now: float) -> float | None:
+    """When the link's TBM state next changes if nothing arrives (DEGRADED, then LOST), or None."""
+    if tbm.last_seen is None:
+        return None
+    for threshold in (tbm.thresholds.degraded, tbm.thresholds.lost):
+        if tbm.since_last(now) < threshold:  # the comparison ``tbm.state`` makes
+            return tbm.last_seen + threshold
+    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,7 +147,7 @@ class DroneOptions:
 class DroneNode:
     """The companion computer of one drone."""
 
-    def __init__(self, opts: DroneOptions, vehicle: Any = None) -> None:
+    def __init__(self, opts: DroneOptions, vehicle: Vehicle | None = None) -> None:
         self.opts = opts
         self.rt = NodeRuntime(opts.fleet, opts.drone, "drone", opts.router, opts.events)
         self.fleet, self.secret, self.events, self.rx = self.rt.fleet, self.rt.secret, self.rt.events, self.rt.inbox
@@ -113,7 +175,10 @@ class DroneNode:
         self._next_status = 0.0
         self._next_beacon = 0.0
         self._inside: frozenset[str] = frozenset()
-        self.vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
+        self._last_pass = 0.0  # the ``now`` of the loop's last pass
+        self._timer_handled = float("-inf")  # the machine's timer last handled (a stale one never spins the loop)
+        self.vehicle: Vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
+        self._vehicle_pushes = False  # True once the vehicle's frames come through the inbox
         self.pairing = self.rt.queryable(kx.pair_all(self.name))
 
     # ------------------------------------------------------------------ zenoh
@@ -262,6 +327,12 @@ class DroneNode:
         self._sync_subscriptions(now)
 
     # --------------------------------------------------------------- receiving
+    def _on_inbox(self, kind: str, peer: str, data: Any, now: float) -> None:
+        if kind == VEHICLE:
+            self._telemetry([self.vehicle.accept(data, now)])
+        else:
+            self._on_envelope(kind, peer, data, now)
+
     def _on_envelope(self, kind: str, gs: str, data: bytes, now: float) -> None:
         if self.gate is not None and not self.gate.allow(gs, "up"):
             return
@@ -453,28 +524,53 @@ class DroneNode:
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
         self._restore(time.monotonic())
+        inbox = self.rx
+        self._vehicle_pushes = self.vehicle.start_reader(lambda msg: inbox.put(VEHICLE, VEHICLE, msg))
         try:
             while self.rt.running:
-                self.step(0.005)
+                self.step(self.sleep_time())
         finally:
             self.close()
 
+    def next_deadline(self, now: float) -> float:
+        """The earliest instant after ``now`` (the last pass) at which something is due if no input
+        comes (see the module's docstring)."""
+        due = [self._next_status, self._next_beacon, self.vehicle.next_due()]
+        timer = self.machine.get_timer()
+        if timer is not None and timer > self._timer_handled:
+            due.append(timer)
+        due += [t for link in self.links.values() if (t := next_link_change(link.tbm, now)) is not None]
+        if self._late:
+            due.append(self._late[0][0])
+        if self.probation:
+            due.append(min(self.probation.values()))
+        return min(due)
+
+    def sleep_time(self) -> float:
+        """How long the loop may wait for input now: until the next deadline (as of the last pass),
+        ``MAX_SLEEP_S`` at most."""
+        return min(MAX_SLEEP_S, max(0.0, self.next_deadline(self._last_pass) - time.monotonic()))
+
     def step(self, wait: float) -> None:
-        """One pass of the loop: wait up to ``wait`` s for the first envelope, then do everything."""
-        self.rx.drain(wait, self._on_envelope)
+        """One pass of the loop: wait up to ``wait`` s for the first input (an envelope, a vehicle
+        message), handle what came, then whatever is due. ``step(0.0)`` never waits (benches step
+        many nodes in turn); a vehicle without a reader thread is polled here."""
+        self.rx.drain(wait, self._on_inbox)
         self.rt.poll_paths()
-        now = time.monotonic()
+        now = self._last_pass = time.monotonic()
         if self._late:
             self._release_late(now)
         self._serve_pairing(now)
         self.vehicle.heartbeat(now)
-        self._telemetry(self.vehicle.recv(0.0))
+        if not self._vehicle_pushes:
+            self._telemetry(self.vehicle.recv(0.0))
         if self.probation and min(self.probation.values()) <= now:
             self._sync_subscriptions(now)
         self._region(now)
         self._poll_links(now)
         timer = self.machine.get_timer()
         if timer is not None and now >= timer:  # a hand-over's or a re-pairing's deadline
+            self._timer_handled = timer
             self._apply(self.machine.handle_timer(now), now)
             self._save()
         if now >= self._next_beacon:

@@ -1,16 +1,21 @@
 """A vehicle link to a simulator inside the same process (no sockets): for hosting many drones in
-one process in ``zdrone bench scale``. Same interface as ``VehicleLink``."""
+one process in ``zdrone bench scale``. Same interface as ``VehicleLink``, read by polling: there is
+nothing to wait on, the simulator advances when the node's loop calls ``recv`` (``start_reader``
+says so, and ``next_due`` asks for a look every ``STEP_S``)."""
 
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Callable
 
 from ..core.geometry import GeoPoint
 from .link import VehicleState
 from .modes import mode_name
 from .px4modes import FlightMode
 from .sim import SimAutopilot
+
+#: How often a node's loop that sleeps until its next deadline steps the simulator.
+STEP_S = 0.02
 
 
 class InProcessVehicle:
@@ -46,6 +51,17 @@ class InProcessVehicle:
     def recv(self, timeout: float = 0.0) -> list[bytes]:
         self.sim.step(self._sim_time())
         return self.sim.drain()
+
+    def start_reader(self, deliver: Callable[[Any], None]) -> bool:
+        """No reader thread: the simulator is stepped by the caller's ``recv`` (False: keep polling)."""
+        return False
+
+    def accept(self, msg: Any, now: float) -> bytes:
+        return bytes(msg)
+
+    def next_due(self) -> float:
+        """The next step of the simulator, for a caller's timer."""
+        return time.monotonic() + STEP_S
 
     def send(self, frame: bytes) -> None:
         self.sim.receive(frame, self.sim.t)

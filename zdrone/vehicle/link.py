@@ -7,15 +7,23 @@ whatever its message id; its ``VehicleTracker`` (``zdrone.vehicle.tracker``) kee
 node needs to know (sysid, autopilot, position, mode, armed, landed state), asks the vehicle for the
 streams the drone node and the GSs depend on (on connect and after a reboot), and the link commands
 LAND / RTL itself with the autopilot's own mode numbers.
+
+Two ways to read it: ``recv`` (the caller polls; ``wait_vehicle`` and the tests), or, once
+``start_reader`` is called, a reader thread of its own that waits on the connection and hands every
+message to the caller's ``deliver`` at once (the drone node's inbox, which wakes its loop). The
+reader only reads and hands over: the loop thread takes each message up with ``accept`` (the
+tracker is only ever touched there). The connection is used by both threads, one call at a time
+(``_io``): the reader holds it only for a non-blocking read, never while it waits.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -29,6 +37,13 @@ from .tracker import DEFAULT_STREAMS, StreamWant, Timing, VehicleTracker  # noqa
 
 log = logging.getLogger(__name__)
 COMPANION_COMPID = mav.MAV_COMP_ID_ONBOARD_COMPUTER
+#: The companion's own HEARTBEAT goes to the vehicle this often.
+HEARTBEAT_PERIOD_S = 1.0
+#: The tracker's timeouts (command resends, stream requests) are a second and more: it is looked at
+#: at least this often.
+TRACKER_POLL_S = 0.25
+#: The reader thread waits for the connection this long at most between looks at ``close``.
+READ_WAIT_S = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,6 +72,11 @@ class VehicleLink:
         self.conn = conn
         self.tracker = VehicleTracker(companion_sysid, COMPANION_COMPID, streams, timing)
         self._last_hb_sent = 0.0
+        self._last_flush = 0.0
+        self._io = threading.Lock()  # one call on the connection at a time (loop thread, reader thread)
+        self._closing = threading.Event()
+        self._reader: threading.Thread | None = None
+        self.read_errors = 0
 
     # ------------------------------------------------------------ tracked state
     @property
@@ -104,41 +124,96 @@ class VehicleLink:
         """Send the companion's own HEARTBEAT (at most 1 Hz) so UDP autopilots know where we are, and
         whatever the tracker has to ask of the vehicle."""
         now = time.monotonic() if now is None else now
-        if now - self._last_hb_sent >= 1.0:
+        if now - self._last_hb_sent >= HEARTBEAT_PERIOD_S:
             self._last_hb_sent = now
-            self.m.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE)
+            with self._io:
+                self.m.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                                          mav.MAV_STATE_ACTIVE)
         self._flush(now)
 
+    def next_due(self) -> float:
+        """When ``heartbeat`` has something to do next (the companion's HEARTBEAT, the tracker's
+        timeouts), for the caller's timer."""
+        return min(self._last_hb_sent + HEARTBEAT_PERIOD_S, self._last_flush + TRACKER_POLL_S)
+
     def _flush(self, now: float) -> None:
+        self._last_flush = now
         for msg in self.tracker.poll(now):
-            self.m.mav.send(msg)
+            with self._io:
+                self.m.mav.send(msg)
+
+    def _read_one(self) -> Any:
+        """The next well-formed message already received, or None (never waits)."""
+        while True:
+            with self._io:
+                msg = self.m.recv_msg()
+            if msg is None or msg.get_type() != "BAD_DATA":
+                return msg
+
+    def accept(self, msg: Any, now: float) -> bytes:
+        """Take up one message from the vehicle (on the loop thread): track it; its raw frame."""
+        self.tracker.on_message(msg, now)
+        return bytes(msg.get_msgbuf())
 
     def recv(self, timeout: float = 0.0) -> list[bytes]:
-        """Frames from the vehicle (raw bytes, as received), waiting up to ``timeout`` for the first."""
+        """Frames from the vehicle (raw bytes, as received), waiting up to ``timeout`` for the first.
+        Only while no reader thread runs (``start_reader``)."""
+        if self._reader is not None:
+            raise RuntimeError("recv() while the reader thread reads the vehicle")
         out: list[bytes] = []
         deadline = time.monotonic() + timeout
         while True:
-            msg = self.m.recv_msg()
+            msg = self._read_one()
             if msg is None:
                 if out or time.monotonic() >= deadline:
                     break
                 self.m.select(min(0.01, max(0.0, deadline - time.monotonic())))
                 continue
-            if msg.get_type() == "BAD_DATA":
-                continue
-            self.tracker.on_message(msg, time.monotonic())
-            out.append(bytes(msg.get_msgbuf()))
+            out.append(self.accept(msg, time.monotonic()))
         self._flush(time.monotonic())
         return out
 
+    def start_reader(self, deliver: Callable[[Any], None]) -> bool:
+        """From now on read the vehicle on a thread of its own, handing every message to ``deliver``
+        as it arrives (it must only queue it: the loop thread takes it up with ``accept``). Returns
+        True: the frames come this way, ``recv`` is no longer used."""
+        if self._reader is not None:
+            raise RuntimeError("the reader thread runs already")
+        self._reader = threading.Thread(target=self._read, args=(deliver,), name=f"vehicle {self.conn}", daemon=True)
+        self._reader.start()
+        return True
+
+    @property
+    def reading(self) -> bool:
+        """The reader thread runs."""
+        return self._reader is not None and self._reader.is_alive()
+
+    def _read(self, deliver: Callable[[Any], None]) -> None:
+        """The reader thread: wait for the connection, read what came, hand it over; until ``close``."""
+        while not self._closing.is_set():
+            try:
+                msg = self._read_one()
+                if msg is None:
+                    self.m.select(READ_WAIT_S)
+                    continue
+                deliver(msg)
+            except Exception as exc:  # a connection that fails while reconnecting: counted, tried again
+                self.read_errors += 1
+                if self.read_errors <= 5:
+                    log.warning("vehicle %s: read failed: %s", self.conn, exc)
+                self._closing.wait(READ_WAIT_S)
+
     def send(self, frame: bytes) -> None:
         """Send one raw MAVLink frame to the vehicle."""
-        self.m.write(frame)
+        with self._io:
+            self.m.write(frame)
 
     # ---------------------------------------------------------------- commands
     def command(self, cmd: int, *params: float) -> None:
         """COMMAND_LONG to the vehicle now; resent until acknowledged (bounded, see ``Timing``)."""
-        self.m.mav.send(self.tracker.command(cmd, params, time.monotonic()))
+        msg = self.tracker.command(cmd, params, time.monotonic())
+        with self._io:
+            self.m.mav.send(msg)
 
     def _set_mode(self, name: str, fallback: int) -> None:
         params = set_mode_params(self.autopilot, name) if self.autopilot == ARDUPILOT else None
@@ -165,4 +240,9 @@ class VehicleLink:
         return self.sysid is not None
 
     def close(self) -> None:
-        self.m.close()
+        """Stop the reader thread (within ``READ_WAIT_S``), then close the connection."""
+        self._closing.set()
+        if self._reader is not None:
+            self._reader.join(2 * READ_WAIT_S + 1.0)
+        with self._io:
+            self.m.close()
