@@ -8,11 +8,13 @@ from hypothesis import strategies as st
 
 from zdrone.core import authority as ha
 from zdrone.core.authority import (AuthorityChanged, AuthorityMachine, CommandVehicle, Config, DropFrame, Forward,
-                                   Frame, HaDrop, HandoverRequest, IllegalTransition, KeyGranted, LinkChanged,
-                                   Paired, RegionChanged, Release, SendControl, State, Subscribe, Tick, Unsubscribe)
+                                   Frame, GrantAccepted, GrantRejected, GrantRejection, HaDrop, HandoverRequest,
+                                   IllegalTransition, KeyGranted, LinkChanged, Paired, RegionChanged, Release,
+                                   SendControl, State, Subscribe, Tick, Unsubscribe, check_grant)
+from zdrone.core.pairing import PairRefusal, PairRefused
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import UplinkClass
-from zdrone.core.wire import FailsafeNotice, Reject
+from zdrone.core.wire import FailsafeNotice, KeyGrant, Reject
 
 AUTH = frozenset({"A", "B"})
 RO, AO, DENIED = UplinkClass.READ_ONLY, UplinkClass.AUTHORITY_ONLY, UplinkClass.DENIED
@@ -228,13 +230,32 @@ def check_invariants(m: AuthorityMachine) -> None:
     assert epochs == sorted(epochs)
 
 
+def _rejects(acts: list) -> list[SendControl]:
+    return [a for a in acts if isinstance(a, SendControl) and isinstance(a.msg, Reject)]
+
+
+def check_grant_result(m: AuthorityMachine, ev: KeyGranted, result, acts: list, expected) -> None:
+    """A grant's typed result says what its actions do: accepted, the GS is linked and nothing is
+    rejected; rejected, exactly one ``Reject`` to the sender with the result's text."""
+    assert result == (expected or GrantAccepted(ev.gs))
+    if isinstance(result, GrantAccepted):
+        assert not _rejects(acts) and ev.gs in m.links
+    else:
+        assert [(a.gs, a.msg.reason) for a in _rejects(acts)] == [(ev.sender, result.detail)]
+
+
 @settings(max_examples=400, deadline=None)
 @given(st.lists(EVENTS, max_size=40), EVENTS)
 def test_every_state_event_pair_ends_valid(prefix, last):
     m = machine()
     for ev in prefix + [last]:
         before_owner, before_state, before_links = m.owner, m.state, set(m.links)
-        acts = m.handle(ev)  # never raises for these events
+        if isinstance(ev, KeyGranted):  # never raises; its typed result agrees with its actions
+            expected = m.grant_rejection(ev.sender, ev.gs)
+            result, acts = m.grant(ev)
+            check_grant_result(m, ev, result, acts, expected)
+        else:
+            acts = m.handle(ev)  # never raises for these events
         check_invariants(m)
         if isinstance(ev, Frame):
             verdicts = [a for a in acts if isinstance(a, (Forward, DropFrame))]
@@ -353,3 +374,42 @@ def test_one_pass_after_any_event_completes_a_proven_hand_over_and_sends_one_sta
     statuses = [a for a in acts if isinstance(a, SendControl) and a.msg.__class__.__name__ == "AuthorityStatus"]
     assert len({a.gs for a in statuses}) == len(statuses)  # once per GS
     assert all(a.msg.state is State.LINKED and a.msg.owner == "B" for a in statuses)  # the state after the step
+
+
+# ------------------------------------------------------------------ typed results
+def test_a_grant_is_accepted_from_the_authority_only_and_for_authorized_gss_only():
+    m = machine()
+    result, acts = m.grant(KeyGranted(0.5, "A", "B"))
+    assert result == GrantRejected("B", GrantRejection.ILLEGAL_STATE, "illegal in state unpaired")
+    assert _rejects(acts) == [SendControl("A", Reject("KeyGranted", "illegal in state unpaired"))]
+    m.handle(Paired(1.0, "A"))
+    result, acts = m.grant(KeyGranted(1.0, "B", "B"))
+    assert result.reason is GrantRejection.NOT_AUTHORITY and "B" not in m.links
+    assert _rejects(acts) == [SendControl("B", Reject("key_grant", "not the authority: only the authority grants keys"))]
+    result, acts = m.grant(KeyGranted(1.0, "A", "X"))
+    assert result == GrantRejected("X", GrantRejection.UNAUTHORIZED, "unauthorized: X is not authorized for this drone")
+    result, acts = m.grant(KeyGranted(1.0, "A", "B"))
+    assert result == GrantAccepted("B") and "B" in m.links and not _rejects(acts)
+    assert dict(m.rejects) == {"illegal in state unpaired": 1, "not the authority": 1, "unauthorized": 1}
+
+
+def test_a_grant_that_does_not_fit_the_fleet_is_bad():
+    sysids = {"A": 4, "B": 5}
+    assert check_grant(KeyGrant("B", 5, bytes(32), 1), sysids) is None
+    for grant in (KeyGrant("B", 6, bytes(32), 1), KeyGrant("Q", 5, bytes(32), 1), KeyGrant("B", 5, bytes(31), 1)):
+        bad = check_grant(grant, sysids)
+        assert bad == GrantRejected(grant.gs, GrantRejection.BAD_GRANT,
+                                    f"unknown ground station or sysid: {grant.gs}/{grant.sysid}")
+
+
+def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
+    m = machine()
+    assert m.pair_refusal("X", True) == PairRefused(PairRefusal.UNAUTHORIZED, "X is not authorized for this drone")
+    acts = m.handle(Paired(0.0, "X"))
+    assert _rejects(acts) == [SendControl("X", Reject("pair", "unauthorized: X is not authorized for this drone"))]
+    m = _failsafe_with_b_linked()
+    assert m.pair_refusal("B", on_ground=False) == PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
+    assert m.pair_refusal("B", on_ground=True) is None
+    acts = m.handle(Paired(3.0, "B", on_ground=False))
+    assert _rejects(acts) == [SendControl("B", Reject("pair", "failsafe: re-pair only on the ground"))]
+    assert m.rejects["failsafe"] == 1

@@ -1,5 +1,12 @@
+import dataclasses
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from zdrone.core.keys import Identity
-from zdrone.core.pairing import PairingFailed, PairingInitiator, respond
+from zdrone.core.pairing import (SILENT_REFUSALS, PairAccepted, PairingFailed, PairingInitiator, PairRefusal, PairRefused,
+                                 PairRepeated, respond)
 
 DRONE, GS, STRANGER = Identity(bytes([1]) * 32), Identity(bytes([2]) * 32), Identity(bytes([3]) * 32)
 GS2 = Identity(bytes([4]) * 32)
@@ -80,17 +87,20 @@ def _responder(rate: float = 1.0, burst: float = 2.0):
 def test_pairing_responder_refuses_cheapest_first_and_rate_limits_only_authentic_queries():
     r = _responder()
     m1 = PairingInitiator(GS, "A", "d1", DRONE.public).start()
-    assert r.answer("Z", m1, 0.0, SECRET).refused == "unknown"
-    assert r.answer("X", m1, 0.0, SECRET).refused == "unauthorized"
-    assert r.answer("A", m1, 0.0, SECRET, policy="failsafe: re-pair only on the ground").refused.startswith("failsafe")
+    assert r.answer("Z", m1, 0.0, SECRET) == PairRefused(PairRefusal.UNKNOWN)
+    assert r.answer("X", m1, 0.0, SECRET) == PairRefused(PairRefusal.UNAUTHORIZED)
+    policy = PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
+    assert r.answer("A", m1, 0.0, SECRET, policy=policy) is policy
+    assert policy.text == "failsafe: re-pair only on the ground" and not policy.silent
     # forged in B's name (not B's key): silent, no crypto, no token spent
     for _ in range(20):
         forged = PairingInitiator(GS, "B", "d1", DRONE.public).start()
         ans = r.answer("B", forged, 0.0, SECRET)
-        assert ans.refused == "bad_mac" and ans.silent and ans.reply is None and not ans.crypto
+        assert ans == PairRefused(PairRefusal.BAD_MAC) and ans.silent and not ans.crypto and ans.refused == "bad_mac"
     answers = [r.answer("B", PairingInitiator(GS2, "B", "d1", DRONE.public).start(), 0.0, SECRET) for _ in range(3)]
-    assert [a.key is not None for a in answers] == [True, True, False] and answers[2].refused == "rate_limited"
-    assert r.answer("A", m1, 0.0, SECRET).key is not None  # per GS
+    assert [type(a) for a in answers] == [PairAccepted, PairAccepted, PairRefused]
+    assert answers[2] == PairRefused(PairRefusal.RATE_LIMITED) and answers[2].silent
+    assert isinstance(r.answer("A", m1, 0.0, SECRET), PairAccepted)  # per GS
 
 
 def test_pairing_responder_answers_a_repeated_message1_with_the_same_reply_and_no_key():
@@ -98,11 +108,77 @@ def test_pairing_responder_answers_a_repeated_message1_with_the_same_reply_and_n
     ini = PairingInitiator(GS, "A", "d1", DRONE.public)
     m1 = ini.start()
     first = r.answer("A", m1, 0.0, SECRET)
-    assert first.key is not None and first.reply is not None
+    assert isinstance(first, PairAccepted) and first.crypto
     for t in (0.5, 10.0, 59.0):
-        again = r.answer("A", m1, t, bytes(32))
-        assert again.reply == first.reply and again.key is None and again.refused == "repeated"
+        assert r.answer("A", m1, t, bytes(32)) == PairRepeated(first.reply)
     key = ini.finish(first.reply)
     assert not isinstance(key, PairingFailed) and key.same_as(first.key)
     late = r.answer("A", m1, 61.0, bytes(32))  # the cache forgot it: a new candidate, which only A could prove
-    assert late.key is not None and not late.key.same_as(first.key)
+    assert isinstance(late, PairAccepted) and not late.key.same_as(first.key)
+
+
+def test_pair_results_are_frozen_and_each_refusal_has_one_tier():
+    refused = PairRefused(PairRefusal.BAD_MAC)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        refused.reason = PairRefusal.STALE  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        PairRepeated(b"m2").reply = b""  # type: ignore[misc]
+    # bad input: no answer, no crypto; authentic-looking but illegal: answered with the reason
+    answered = {PairRefusal.UNKNOWN, PairRefusal.UNAUTHORIZED, PairRefusal.FAILSAFE, PairRefusal.AUTH_FAILED}
+    assert SILENT_REFUSALS | answered == set(PairRefusal) and not SILENT_REFUSALS & answered
+    for reason in PairRefusal:
+        r = PairRefused(reason)
+        assert r.silent == (reason in SILENT_REFUSALS) and r.text == r.refused == reason.value
+        assert r.crypto == (reason is PairRefusal.AUTH_FAILED)  # the only refusal after a handshake
+    assert PairAccepted.crypto and not PairRepeated.crypto
+
+
+def test_a_link_secret_of_the_wrong_length_is_a_programming_error():
+    with pytest.raises(ValueError):
+        _responder().answer("A", PairingInitiator(GS, "A", "d1", DRONE.public).start(), 0.0, bytes(31))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=300), st.sampled_from(["A", "B", "X", "Z"]))
+def test_any_bytes_as_message1_are_refused_silently_before_any_crypto(junk, gs):
+    r = _responder()
+    ans = r.answer(gs, junk, 0.0, SECRET)
+    assert isinstance(ans, PairRefused) and not ans.crypto
+    if gs in ("A", "B"):
+        assert ans.reason in (PairRefusal.MALFORMED, PairRefusal.BAD_MAC) and ans.silent
+        # no rate-limit token spent: the GS's genuine handshakes still go through
+        for _ in range(2):
+            m1 = PairingInitiator(GS if gs == "A" else GS2, gs, "d1", DRONE.public).start()
+            assert isinstance(r.answer(gs, m1, 0.0, SECRET), PairAccepted)
+
+
+QUERY = st.tuples(st.sampled_from(["A", "B", "X", "Z"]), st.sampled_from(["fresh", "forged", "again"]),
+                  st.floats(0.0, 0.5, allow_nan=False))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(QUERY, min_size=1, max_size=12))
+def test_every_query_gets_one_result_that_matches_what_was_asked(queries):
+    r = _responder(rate=1.0, burst=2.0)
+    keys = {"A": GS, "B": GS2, "X": Identity(bytes([9]) * 32), "Z": STRANGER}
+    sent: dict[str, tuple[bytes, bytes]] = {}  # gs -> (message 1, its first reply)
+    now = 0.0
+    for gs, kind, dt in queries:
+        now += dt
+        if kind == "again" and gs in sent:
+            m1 = sent[gs][0]
+        else:
+            m1 = PairingInitiator(keys[gs] if kind != "forged" else STRANGER, gs, "d1", DRONE.public).start()
+        ans = r.answer(gs, m1, now, SECRET)
+        if gs == "Z":
+            assert ans == PairRefused(PairRefusal.UNKNOWN)
+        elif gs == "X":
+            assert ans == PairRefused(PairRefusal.UNAUTHORIZED)
+        elif kind == "forged":
+            assert ans == PairRefused(PairRefusal.BAD_MAC)
+        elif kind == "again" and gs in sent:
+            assert ans == PairRepeated(sent[gs][1])  # the first answer again, whatever the rate limit
+        elif isinstance(ans, PairAccepted):
+            sent[gs] = (m1, ans.reply)
+        else:
+            assert ans == PairRefused(PairRefusal.RATE_LIMITED)

@@ -38,6 +38,13 @@ from the state alone (a proven pending recipient takes authority), so each such 
 once. The per-event behaviour is the table ``TRANSITIONS``: (state, event type) -> (handler,
 allowed next states). A pair missing from the table is an illegal step: a GS-originated event
 gets a ``Reject`` action, anything else raises ``IllegalTransition`` (a programming error).
+
+Key grants and pairings have typed results. ``grant(KeyGranted)`` returns ``GrantAccepted`` (the
+adapter installs the key: live if the link has none, else a candidate the GS must prove) or
+``GrantRejected(reason)`` (its ``Reject`` is among the actions), with the actions; ``check_grant``
+refuses a grant whose content does not fit the fleet before it reaches the machine.
+``pair_refusal`` gives the machine's rule for pairing as a ``PairRefused`` (the pairing responder's
+result type), or None.
 """
 
 from __future__ import annotations
@@ -46,12 +53,14 @@ import enum
 import logging
 from collections import Counter
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Mapping
 
 from .errors import ProtocolError
+from .keys import KEY_LEN
+from .pairing import PairRefusal, PairRefused
 from .tbm import LinkState
 from .uplink import UplinkClass
-from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, Reject
+from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyGrant, Reject
 
 log = logging.getLogger(__name__)
 
@@ -177,11 +186,6 @@ class Unsubscribe(Action):
 
 
 @dataclass(frozen=True, slots=True)
-class InstallKey(Action):
-    gs: str
-
-
-@dataclass(frozen=True, slots=True)
 class CommandVehicle(Action):
     command: str  # "LAND" | "RTL"
     reason: str
@@ -207,6 +211,44 @@ class Note(Action):
 
 class IllegalTransition(ProtocolError):
     """An event that no table entry covers and that no GS sent: a programming error."""
+
+
+# ------------------------------------------------------------------------- key grants
+class GrantRejection(enum.Enum):
+    """Why the drone rejected a key grant (each answered with a ``Reject`` to its sender)."""
+
+    BAD_GRANT = "bad_grant"  # names no GS of the fleet, or a wrong sysid, or a secret of the wrong length
+    ILLEGAL_STATE = "illegal_state"  # no grants while unpaired or in failsafe
+    NOT_AUTHORITY = "not_authority"  # only the authority grants keys
+    UNAUTHORIZED = "unauthorized"  # the key is for a GS not authorized for this drone
+
+
+@dataclass(frozen=True, slots=True)
+class GrantAccepted:
+    """The grant of a link key for ``gs`` stands: install it and acknowledge it."""
+
+    gs: str
+
+
+@dataclass(frozen=True, slots=True)
+class GrantRejected:
+    """The grant of a link key for ``gs`` is rejected; ``detail`` is the ``Reject``'s text."""
+
+    gs: str
+    reason: GrantRejection
+    detail: str
+
+
+GrantResult = GrantAccepted | GrantRejected
+
+
+def check_grant(grant: KeyGrant, gs_sysids: Mapping[str, int]) -> GrantRejected | None:
+    """A grant's content against the fleet (``gs_sysids``: each ground station's sysid): it must name
+    a GS of the fleet with its sysid and carry a whole link secret. None if it does."""
+    if gs_sysids.get(grant.gs) != grant.sysid or len(grant.secret) != KEY_LEN:
+        return GrantRejected(grant.gs, GrantRejection.BAD_GRANT,
+                             f"unknown ground station or sysid: {grant.gs}/{grant.sysid}")
+    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -275,6 +317,23 @@ class AuthorityMachine:
     def handle_timer(self, now: float) -> list[Action]:
         """Time has reached ``get_timer()``: apply what the deadlines decide."""
         return self.handle(Tick(now))
+
+    def grant_rejection(self, sender: str, gs: str) -> GrantRejected | None:
+        """Why a key grant from ``sender`` for ``gs`` would be rejected now, or None (a query: the
+        ``KeyGranted`` handler applies the same rules)."""
+        if (self.state, KeyGranted) not in TRANSITIONS:
+            return GrantRejected(gs, GrantRejection.ILLEGAL_STATE, f"illegal in state {self.state.value}")
+        if sender != self.owner:
+            return GrantRejected(gs, GrantRejection.NOT_AUTHORITY, "not the authority: only the authority grants keys")
+        if not self.is_authorized(gs):
+            return GrantRejected(gs, GrantRejection.UNAUTHORIZED, f"unauthorized: {gs} is not authorized for this drone")
+        return None
+
+    def grant(self, ev: KeyGranted) -> tuple[GrantResult, list[Action]]:
+        """Apply a key grant: its result (accepted: the adapter installs the key and acknowledges
+        it; rejected: the ``Reject`` is among the actions) and the actions to carry out."""
+        result = self.grant_rejection(ev.sender, ev.gs) or GrantAccepted(ev.gs)
+        return result, self.handle(ev)
 
     def restore(self, owner: str, epoch: int, now: float, grace: float) -> list[Action]:
         """Come back after a companion restart with the authority it had: LINKED(owner, epoch), with
@@ -383,44 +442,42 @@ class AuthorityMachine:
         return acts
 
     # ----------------------------------------------------------------- handlers
-    def pair_refusal(self, gs: str, on_ground: bool) -> str | None:
+    def pair_refusal(self, gs: str, on_ground: bool) -> PairRefused | None:
         """Why a pairing with ``gs`` would be refused now (a query: the adapter asks before any
         crypto, the ``Paired`` handlers apply the same rule), or None."""
         if not self.is_authorized(gs):
-            return f"unauthorized: {gs} is not authorized for this drone"
+            return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")
         if self.state is State.FAILSAFE and not on_ground:
-            return "failsafe: re-pair only on the ground"
+            return PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
         return None
 
     def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
-            return State.UNPAIRED, self._reject(ev.gs, "pair", why)
+            return State.UNPAIRED, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
         acts = self._switch(ev.gs, ev.now, "paired")
         return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
 
     def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
-            return self.state, self._reject(ev.gs, "pair", why)
+            return self.state, self._reject(ev.gs, "pair", why.text)
         if ev.gs == self.owner:
             self.repair_deadline = None  # the owner is back (after a restart, or re-keying)
         self.links.setdefault(ev.gs, _Link())
-        return self.state, self._update_subscriptions() + [InstallKey(ev.gs)] + self._status_to_all()
+        return self.state, self._update_subscriptions() + self._status_to_all()
 
     def _on_pair_failsafe(self, ev: Paired) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
-            return State.FAILSAFE, self._reject(ev.gs, "pair", why)
+            return State.FAILSAFE, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
         acts = self._switch(ev.gs, ev.now, "repaired")
         return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
 
     def _on_key_granted(self, ev: KeyGranted) -> tuple[State, list[Action]]:
-        if ev.sender != self.owner:
-            return self.state, self._reject(ev.sender, "key_grant", "not the authority: only the authority grants keys")
-        if not self.is_authorized(ev.gs):
-            return self.state, self._reject(ev.sender, "key_grant", f"unauthorized: {ev.gs} is not authorized for this drone")
-        self.links.setdefault(ev.gs, _Link())
-        return self.state, [InstallKey(ev.gs), Note("key_installed", ev.gs)] + self._update_subscriptions()
+        if (why := self.grant_rejection(ev.sender, ev.gs)) is not None:
+            return self.state, self._reject(ev.sender, "key_grant", why.detail)
+        self.links.setdefault(ev.gs, _Link())  # the adapter installs the key (``grant``: GrantAccepted)
+        return self.state, [Note("key_installed", ev.gs)] + self._update_subscriptions()
 
     def _on_frame(self, ev: Frame) -> tuple[State, list[Action]]:
         link = self.links.get(ev.gs)

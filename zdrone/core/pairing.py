@@ -13,12 +13,20 @@ and it treats the key of every pairing as a *candidate*: it replaces nothing unt
 with an authentic frame under it (see ``linkslot``). ``PairingResponder`` orders the checks
 cheapest first; a forged message 1 fails a 16-byte tag (``kk``) before any Diffie-Hellman and
 before it can spend the GS's rate-limit tokens.
+
+Each query gets one typed result: ``PairAccepted`` (message 2 and a candidate key),
+``PairRepeated`` (message 1 seen before: its first message 2 again, no key) or
+``PairRefused(reason)``. Refusals come in two tiers: bad input (oversized, malformed, a failed tag,
+over the rate limit) is dropped without an answer, counted by reason; an authentic-looking but
+illegal query (unknown or unauthorized GS, re-pairing in failsafe in the air) is answered with the
+reason. A programming error (a link secret of the wrong length) raises.
 """
 
 from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import ClassVar
 
 import msgspec
 
@@ -95,19 +103,71 @@ def respond(
     return msg2, LinkKey.from_secret(drone, gs, secret)
 
 
+class PairRefusal(enum.Enum):
+    """Why the drone refused a pairing query (counted as ``pair_refused:<value>``)."""
+
+    OVERSIZE = "oversize"  # the query is longer than any handshake (checked by the adapter, not copied)
+    UNKNOWN = "unknown"  # no ground station of the fleet
+    UNAUTHORIZED = "unauthorized"  # not authorized for this drone
+    FAILSAFE = "failsafe"  # the authority's rule: in failsafe, re-pair only on the ground
+    MALFORMED = "malformed"  # message 1 too short or too long
+    BAD_MAC = "bad_mac"  # message 1's tag failed: forged or garbage, no crypto spent
+    STALE = "stale"  # message 1's tagged time stamp is too old
+    RATE_LIMITED = "rate_limited"  # the GS's handshakes per second are spent
+    AUTH_FAILED = "auth_failed"  # the tag passed but the Noise handshake did not (should not happen)
+
+
+#: Bad input: dropped without an answer (counted; an answer would only help a prober).
+SILENT_REFUSALS = frozenset({PairRefusal.OVERSIZE, PairRefusal.MALFORMED, PairRefusal.BAD_MAC, PairRefusal.STALE,
+                             PairRefusal.RATE_LIMITED})
+
+
 @dataclass(frozen=True, slots=True)
-class PairAnswer:
-    """What the drone does with one pairing query.
+class PairAccepted:
+    """A fresh handshake: send ``reply`` (message 2); ``key`` is a candidate until the GS proves it."""
 
-    ``reply`` is message 2 to send (None: send ``refused`` as an error, or nothing if ``silent``);
-    ``key`` is a new candidate link key (None for a repeated message 1: its answer is re-sent);
-    ``crypto`` says whether a handshake was computed (the adapter's per-turn budget)."""
+    reply: bytes
+    key: LinkKey
+    crypto: ClassVar[bool] = True  # a handshake was computed (the adapter's per-turn budget)
 
-    reply: bytes | None = None
-    key: LinkKey | None = None
-    refused: str | None = None
-    silent: bool = False
-    crypto: bool = False
+
+@dataclass(frozen=True, slots=True)
+class PairRepeated:
+    """Message 1 seen before (a replay or a retransmission): send its first ``reply`` again; no key."""
+
+    reply: bytes
+    crypto: ClassVar[bool] = False
+
+
+@dataclass(frozen=True, slots=True)
+class PairRefused:
+    """The query is refused for ``reason``; ``detail`` says more to the GS (may be empty)."""
+
+    reason: PairRefusal
+    detail: str = ""
+
+    @property
+    def silent(self) -> bool:
+        """No answer at all (bad input), else the GS gets ``text`` as an error reply."""
+        return self.reason in SILENT_REFUSALS
+
+    @property
+    def crypto(self) -> bool:
+        """Whether a handshake was computed before the refusal."""
+        return self.reason is PairRefusal.AUTH_FAILED
+
+    @property
+    def text(self) -> str:
+        """The refusal in one line: the GS's error reply and the event's ``reason``."""
+        return f"{self.reason.value}: {self.detail}" if self.detail else self.reason.value
+
+    @property
+    def refused(self) -> str:
+        """The reason's name, as counted (``pair_refused:<refused>``)."""
+        return self.reason.value
+
+
+PairResult = PairAccepted | PairRepeated | PairRefused
 
 
 #: A message 1 seen within this time gets its first answer again (a replay creates nothing).
@@ -134,32 +194,34 @@ class PairingResponder:
         self.limiter = RateLimiter(rate, burst)
         self.cache = ResponseCache(PAIR_RESPONSE_TTL)
 
-    def admit(self, gs: str) -> str | None:
+    def admit(self, gs: str) -> PairRefused | None:
         """Why a query from ``gs`` is refused before looking at it, or None."""
         if gs not in self.ground_stations:
-            return "unknown"
+            return PairRefused(PairRefusal.UNKNOWN)
         if gs not in self.authorized:
-            return "unauthorized"
+            return PairRefused(PairRefusal.UNAUTHORIZED)
         return None
 
-    def answer(self, gs: str, message1: bytes, now: float, secret: bytes, policy: str | None = None,
-               holds_key: bool = False) -> PairAnswer:
-        """``holds_key``: the drone has a live key for ``gs`` (told to the GS inside message 2)."""
+    def answer(self, gs: str, message1: bytes, now: float, secret: bytes, policy: PairRefused | None = None,
+               holds_key: bool = False) -> PairResult:
+        """The result of one pairing query from ``gs``. ``policy``: the authority machine's refusal
+        (``AuthorityMachine.pair_refusal``), if any; ``holds_key``: the drone has a live key for
+        ``gs`` (told to the GS inside message 2)."""
         why = self.admit(gs) or policy
         if why is not None:
-            return PairAnswer(refused=why)
+            return why
         prologue = _prologue(self.drone, gs)
         fail = check_message1(self.me, self.ground_stations[gs], prologue, message1)
         if fail is not None:
-            return PairAnswer(refused=fail.value, silent=True)
+            return PairRefused(PairRefusal(fail.value))
         cached = self.cache.get(message1, now)
         if cached is not None:
-            return PairAnswer(reply=cached, refused="repeated")
+            return PairRepeated(cached)
         if not self.limiter.allow(gs, now):
-            return PairAnswer(refused="rate_limited", silent=True)
+            return PairRefused(PairRefusal.RATE_LIMITED)
         out = respond(self.me, self.drone, gs, self.ground_stations[gs], message1, secret, holds_key)
         if isinstance(out, PairingFailed):
-            return PairAnswer(refused="auth_failed", crypto=True)
+            return PairRefused(PairRefusal.AUTH_FAILED)
         msg2, key = out
         self.cache.put(message1, msg2, now)
-        return PairAnswer(reply=msg2, key=key, crypto=True)
+        return PairAccepted(msg2, key)

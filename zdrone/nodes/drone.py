@@ -32,7 +32,7 @@ from ..core.fleet import ConfigError
 from ..core.geometry import GeoPoint
 from ..core.keys import LinkKey
 from ..core.linkslot import LinkSlot, Promoted
-from ..core.pairing import PairingResponder
+from ..core.pairing import PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult
 from ..core.tbm import TimeBetweenMessages, TbmThresholds
 from ..core import wire
 from ..core.wire import KeyGrant, KeyGrantAck
@@ -163,7 +163,7 @@ class DroneNode:
         self._late_seq = 0
         self.slots: dict[str, LinkSlot] = {}
         self.links: dict[str, SecureLink] = {}  # the live link of each slot
-        self.candidates: dict[str, LinkKey] = {}  # keys granted by the authority, until the HA decides
+        self.gs_sysids = {name: n.sysid for name, n in self.fleet.nodes.items() if n.role == "gs"}
         self.probation: dict[str, float] = {}  # GS -> until when we listen for its proof of a new key
         self.responder = PairingResponder(self.secret.identity, self.name,
                                           {g: self.fleet.nodes[g].public_bytes for g in self.fleet.ground_stations()},
@@ -274,10 +274,6 @@ class DroneNode:
                 self._send_control(a.gs, a.msg)
             elif isinstance(a, (ha.Subscribe, ha.Unsubscribe)):
                 self._sync_subscriptions(now)
-            elif isinstance(a, ha.InstallKey):
-                key = self.candidates.pop(a.gs, None)
-                if key is not None:
-                    self._install(a.gs, key, now)
             elif isinstance(a, ha.CommandVehicle):
                 self._failsafe(a, now)
             elif isinstance(a, ha.AuthorityChanged):
@@ -374,10 +370,12 @@ class DroneNode:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
 
     def _on_grant(self, sender: str, msg: KeyGrant, now: float) -> None:
-        target = self.fleet.nodes.get(msg.gs)
-        if target is None or target.role != "gs" or target.sysid != msg.sysid or len(msg.secret) != 32:
+        """A key grant from ``sender``: bad content is counted and rejected; a key the link holds
+        already is acknowledged again; else the authority machine accepts or rejects it."""
+        bad = ha.check_grant(msg, self.gs_sysids)
+        if bad is not None:
             self.counters["bad_grant"] += 1
-            self._send_control(sender, wire.Reject("key_grant", f"unknown ground station or sysid: {msg.gs}/{msg.sysid}"))
+            self._send_control(sender, wire.Reject("key_grant", bad.detail))
             return
         key = LinkKey.from_secret(self.name, msg.gs, msg.secret)
         slot = self.slots.get(msg.gs)
@@ -385,11 +383,13 @@ class DroneNode:
         if any(link.key.same_as(key) for link in known):
             self._send_control(sender, KeyGrantAck(msg.gs, msg.grant_id))  # a repeated grant
             return
-        self.candidates[msg.gs] = key
-        self._handle(ha.KeyGranted(now, sender, msg.gs))
-        if msg.gs not in self.candidates and msg.gs in self.links:
+        result, actions = self.machine.grant(ha.KeyGranted(now, sender, msg.gs))
+        if isinstance(result, ha.GrantAccepted):
+            self._install(result.gs, key, now)
+        self._apply(actions, now)  # a rejection's Reject is among them
+        self._save()
+        if isinstance(result, ha.GrantAccepted):
             self._send_control(sender, KeyGrantAck(msg.gs, msg.grant_id))
-        self.candidates.pop(msg.gs, None)
 
     def _on_promoted(self, gs: str, promoted: Promoted, now: float) -> None:
         """GS ``gs`` proved a candidate key with the frame just opened: it is now the live key."""
@@ -403,7 +403,7 @@ class DroneNode:
             refusal = self.machine.pair_refusal(gs, self._on_ground())
             if refusal is not None:  # the HA's state changed since message 1 (e.g. failsafe in the air)
                 self.counters["pair_refused"] += 1
-                self.events.write("pair_refused", gs=gs, reason=refusal)
+                self.events.write("pair_refused", gs=gs, reason=refusal.text)
             else:
                 self.events.write("paired", gs=gs)
                 self._handle(ha.Paired(now, gs, self._on_ground()))
@@ -432,33 +432,32 @@ class DroneNode:
         gs = kx.gs_of(q.key_expr)
         payload = payload_bytes(q.payload)
         if payload is None:
-            self._pair_refused(gs, "oversize")
-            return 0
-        policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self._on_ground())
-        ans = self.responder.answer(gs, payload, now, os.urandom(32), policy, holds_key=gs in self.links)
-        if ans.refused == "repeated":
-            self.counters["pair_repeated"] += 1  # a replay or a retransmission: the same answer again
-        elif ans.refused is not None:
-            self._pair_refused(gs, ans.refused)
-        if ans.reply is None:
-            if not ans.silent:
-                q.reply_err(ans.refused.encode() if ans.refused else b"refused")
-            return int(ans.crypto)
-        if ans.key is not None:
+            ans: PairResult = PairRefused(PairRefusal.OVERSIZE)
+        else:
+            policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self._on_ground())
+            ans = self.responder.answer(gs, payload, now, os.urandom(32), policy, holds_key=gs in self.links)
+        if isinstance(ans, PairAccepted):
             # The key is a candidate until the GS proves it (the newest pairing replaces an older one).
             self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, ans.key, now), now, "pair", PAIRING_TTL)
             self.probation[gs] = now + PAIRING_TTL
             self._sync_subscriptions(now)
             self.counters["pair_answered"] += 1
             self.events.write("pair_answered", gs=gs)
-        q.reply(q.key_expr, ans.reply)
+            q.reply(q.key_expr, ans.reply)
+        elif isinstance(ans, PairRepeated):
+            self.counters["pair_repeated"] += 1  # a replay or a retransmission: the same answer again
+            q.reply(q.key_expr, ans.reply)
+        else:
+            self._pair_refused(gs, ans)
+            if not ans.silent:
+                q.reply_err(ans.text.encode())
         return int(ans.crypto)
 
-    def _pair_refused(self, gs: str, reason: str) -> None:
-        key = f"pair_refused:{reason.split(':')[0]}"
+    def _pair_refused(self, gs: str, refusal: PairRefused) -> None:
+        key = f"pair_refused:{refusal.reason.value}"
         self.counters[key] += 1
         if self.counters[key] <= 5:  # the first few of each reason in the log; all of them in the counters
-            self.events.write("pair_refused", gs=gs, reason=reason)
+            self.events.write("pair_refused", gs=gs, reason=refusal.text)
 
     # -------------------------------------------------------------------- loop
     def _telemetry(self, frames: list[bytes]) -> None:
