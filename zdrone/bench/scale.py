@@ -507,39 +507,56 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
 def render(r: dict[str, Any]) -> None:
     from .table import print_table
 
-    rows = [[x.get("layout", "1 router"), f"{x['k']} x {x['g']}", x.get("correct", "error"), "yes" if x.get("all_correct") else "no",
-             x.get("worst_owner_silence_s", "-"), x.get("ground_s", "-"), x.get("wall_s", "-"),
-             "; ".join([*(f"{n}: {', '.join(w)}" for n, w in list(x.get("failures", {}).items())[:3]), *x.get("notes", [])[:1]])
-             or x.get("error", "")]
-            for x in r["rows"]]
+    def layout(x: dict[str, Any]) -> str:
+        return f"{x['sites']} sites" if x.get("sites", 1) > 1 else "1 router"
+
+    def rate(v: Any) -> str:
+        return "-" if v is None else f"{v:,.0f}"
+
+    def failures(x: dict[str, Any]) -> str:
+        """The failures grouped by reason (first drones named), then the GS inbox's refusals."""
+        by_why: dict[str, list[str]] = {}
+        for name, why in x.get("failures", {}).items():
+            by_why.setdefault(", ".join(why), []).append(name)
+        parts = [f"{why}: {', '.join(names[:3])}{'…' if len(names) > 3 else ''}" for why, names in by_why.items()]
+        refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in x.get("gs_inbox_drops", {}).items()}
+        parts += [f"GS {g} inbox: {n} refused (sender bound)" for g, n in refused.items() if n]
+        return "; ".join(parts) or x.get("error", "")
+
+    rows = [[layout(x) if "sites" in x else x.get("layout", "-"), f"{x['k']} x {x['g']}", x.get("correct", "error"),
+             "yes" if x.get("all_correct") else "no", x.get("worst_owner_silence_s", "-"), x.get("ground_s", "-"),
+             x.get("wall_s", "-"), failures(x)] for x in r["rows"]]
     target = r["target"]
     where = f"over {r['sites']} site routers" if r.get("sites") else "through one router"
     caption = (f"largest K with all hand-overs correct and TBM healthy: {r['largest_k_all_correct']} "
                f"(target {target['k']} x {target['g']})")
-    if any(x.get("sites") == 1 for x in r["rows"]) and r.get("sites"):
-        caption += f"; through one TLS router: {r['largest_k_all_correct_one_router']}"
+    if r.get("sites"):
+        if any(x.get("sites") == 1 for x in r["rows"]):
+            caption += f"; through one router: {r['largest_k_all_correct_one_router']}"
+        caption += "; every link mutual TLS"
     if r.get("gs_inbox_senders"):
         caption += f"; what-if: GS inbox bound lifted from 64 to {r['gs_inbox_senders']} (kind, sender) queues"
-    print_table(f"Scale: drones x ground stations {where}", ["layout", "drones x GSs", "correct", "all correct",
-                "worst authority silence s", "key sharing on the ground s", "wall s", "first failures"], rows, caption=caption)
+    print_table(f"Scale: drones x ground stations {where}", ["layout", "K x G", "correct", "all correct",
+                "worst authority silence s", "ground s", "wall s", "failures"], rows,
+                caption=caption + "; ground: key sharing before take-off")
 
     def cpu(x: dict[str, Any], which: str) -> str:
-        c = x.get("cpu_percent", {})
-        vals = [v for n, v in c.items() if n.startswith(which)]
+        vals = [v for n, v in x.get("cpu_percent", {}).items() if n.startswith(which)]
         return "/".join("-" if v is None else f"{v:.0f}" for v in vals) or "-"
 
-    load = [[x.get("layout", "1 router"), f"{x['k']} x {x['g']}", cpu(x, "router"), cpu(x, "drones host"), cpu(x, "stations host"),
-             x.get("samples_per_s", "-"), x.get("mesh", {}).get("samples_per_s", "-") if x.get("sites", 1) > 1 else "-",
-             x.get("mesh", {}).get("tcp_segments_per_s", "-") if x.get("sites", 1) > 1 else "-",
-             x.get("mesh", {}).get("kbytes_per_s", "-") if x.get("sites", 1) > 1 else "-",
-             x.get("routers_tcp_segments_per_s", "-")] for x in r["rows"] if "cpu_percent" in x]
+    def mesh(x: dict[str, Any], field: str) -> str:
+        return rate(x.get("mesh", {}).get(field)) if x.get("sites", 1) > 1 else "-"
+
+    load = [[layout(x), f"{x['k']} x {x['g']}", cpu(x, "router"), cpu(x, "drones host"), cpu(x, "stations host"),
+             rate(x.get("samples_per_s")), mesh(x, "samples_per_s"), mesh(x, "tcp_segments_per_s"), mesh(x, "kbytes_per_s")]
+            for x in r["rows"] if "cpu_percent" in x]
     if load:
-        print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers",
-                    "CPU % drones", "CPU % GSs", "samples/s", "mesh samples/s", "mesh TCP seg/s",
-                    "mesh kB/s", "routers TCP seg/s"], load,
-                    caption="CPU: each router, the drones host, the GSs host; samples: pub/sub samples delivered to "
-                            "the nodes; mesh samples: those from a node on another site's router; TCP segments and kB: "
-                            "router-to-router links (mesh) or all router sockets, both ways, TLS included")
+        print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers", "CPU % drones",
+                    "CPU % GSs", "samples /s", "mesh samples /s", "mesh TCP segs /s", "mesh kB /s"], load,
+                    caption="CPU: each router, the drones host, the GSs host; samples: pub/sub samples delivered to the "
+                            "nodes; mesh samples: those from a node on another site's router (each crossed one "
+                            "router-to-router link); mesh TCP segments and kB: the router-to-router links, both ways, "
+                            "TLS included (--json: every router socket too)")
 
 
 def main(argv: list[str] | None = None) -> int:
