@@ -1,7 +1,12 @@
 """Test-wide settings: hypothesis without per-example deadlines (CI machines are shared and loaded;
-speed targets live in ``zdrone bench``, not in timed tests)."""
+speed targets live in ``zdrone bench``, not in timed tests); every event log strict (an event that
+fits no record is an error, in the tests and in every node process they start)."""
+
+import os
 
 from hypothesis import settings
+
+os.environ.setdefault("ZDRONE_STRICT_EVENTS", "1")
 
 settings.register_profile("zdrone", deadline=None)
 settings.load_profile("zdrone")

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import json
+from typing import Any
+
 from zdrone.bench.chaos import invariants, schedule
+from zdrone.core.records import AnyRecord, UntypedRecord, decode_record
 from zdrone.sil.launcher import Outcome
 
 
@@ -14,12 +18,28 @@ def test_a_seed_always_gives_the_same_schedule():
         assert 1 <= len(text) <= 3 and (faults or radio)
 
 
-def _outcome(drone: list[dict]) -> Outcome:
+def _outcome(drone: list[AnyRecord]) -> Outcome:
     return Outcome({"exit_codes": {}, "timed_out": False}, drone, {}, [])
 
 
-def _ev(t: float, type_: str, **kw) -> dict:
-    return {"t": t, "type": type_, **kw}
+#: neutral values of the fields a test leaves out, per drone event type
+_NEUTRAL: dict[str, dict[str, Any]] = {
+    "start": {"vehicle": "udpout:127.0.0.1:14540"},
+    "authority": {"from": None, "kind": "paired", "time": 0.0, "position": None},
+    "handover_complete": {"from": None, "kind": "handover", "time": 0.0, "position": None},
+    "failsafe": {"action": "LAND", "reason": "authority link lost", "detect_to_command_ms": 0.0, "position": None},
+    "link_state": {},
+    "status": {"owner": None, "epoch": 0, "state": "linked", "pending_to": None, "position": None, "armed": True,
+               "mode": "MISSION", "landed_state": 2, "in_region": False, "subscribed": [], "links": {}, "keys": {},
+               "ha_drops": {}, "rejects": {}, "counters": {}, "forwarded_commands": {}, "out_of_coverage": {}},
+}
+
+
+def _ev(t: float, type_: str, **kw: Any) -> AnyRecord:
+    """The drone's record of one event: the fields given, neutral values for the rest."""
+    rec = decode_record(json.dumps({"t": t, "node": "d1", "type": type_, **_NEUTRAL[type_], **kw}))
+    assert not isinstance(rec, UntypedRecord), rec
+    return rec
 
 
 def test_two_commanders_in_one_epoch_or_a_non_authority_commander_is_a_violation():

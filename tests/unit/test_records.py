@@ -86,6 +86,14 @@ ROGUE_LOG = r'''
 {"t": 1795338239.4536, "node": "rogue-pair-replay", "type": "closed"}
 {"t": 1795338683.5956, "node": "rogue-unauthorized", "type": "unauthorized_attempt", "pair_answered": 0, "pair_refused": 0, "linkkey_replies": 0}
 '''
+# The testbed's radio log (``zdrone demo --sites``): a site's radio brought up and down from the
+# vehicle's true position, the backhaul cut by a scenario.
+RADIO_LOG = r'''
+{"t": 1795340375.0189, "node": "radio", "type": "radio_link", "site": "site-1", "up": true, "position": [47.397742, 8.545594, 0.0]}
+{"t": 1795340382.5018, "node": "radio", "type": "radio_link", "site": "site-2", "up": true, "position": [47.397742, 8.5475892, 30.0]}
+{"t": 1795340383.1, "node": "radio", "type": "link_fault", "link": "backhaul-site-1-site-2", "up": false}
+{"t": 1795340386.7048, "node": "radio", "type": "radio_link", "site": "site-1", "up": false, "position": [47.397742, 8.550269, 30.0]}
+'''
 #: event types without a record on purpose: the attacker's account has fields of its own per attack
 UNTYPED_BY_DESIGN = {"attack_done"}
 
@@ -186,7 +194,8 @@ def test_records_written_to_a_log_are_read_back(tmp_path):
 # ----------------------------------------------------------------------------------- real logs
 @pytest.mark.parametrize("name, text, vocabulary", [
     ("drone.jsonl", DRONE_LOG, rec.DRONE_RECORDS), ("A.jsonl", GS_LOG, rec.GS_RECORDS),
-    ("rogue.jsonl", ROGUE_LOG, rec.TESTBED_RECORDS)], ids=["drone", "gs", "rogue"])
+    ("rogue.jsonl", ROGUE_LOG, rec.TESTBED_RECORDS), ("radio.jsonl", RADIO_LOG, rec.TESTBED_RECORDS)],
+    ids=["drone", "gs", "rogue", "radio"])
 def test_real_logs_decode_to_typed_records_and_keep_every_field(tmp_path, name, text, vocabulary):
     lines = text.strip().splitlines()
     got = read_records(_log(tmp_path, name, text))
@@ -210,6 +219,75 @@ def test_typed_fields_read_as_attributes(tmp_path):
     assert rec.only(drone, rec.AuthorityMoved) == rec.only(drone, rec.AuthorityChange) + [hand]
     gs_status = rec.only(read_records(_log(tmp_path, "A.jsonl", GS_LOG)).records, rec.GsStatus)
     assert [s.drones["d1"].linked for s in gs_status] == [True]
+
+
+@pytest.mark.parametrize("text", [DRONE_LOG, GS_LOG, ROGUE_LOG, RADIO_LOG], ids=["drone", "gs", "rogue", "radio"])
+def test_a_record_as_logged_is_its_line(text):
+    """Every field of the line, as written; besides them only the defaults of fields it left out."""
+    for line in text.strip().splitlines():
+        r = rec.decode_record(line)
+        written, logged = msgspec.json.decode(line), rec.logged(r)
+        assert list(logged)[:3] == ["t", "node", "type"] and {k: logged[k] for k in written} == written, line
+        defaults = set() if isinstance(r, rec.UntypedRecord) else {
+            f.encode_name for f in msgspec.structs.fields(r) if not f.required}
+        assert set(logged) - set(written) <= defaults, line
+
+
+def test_the_launcher_reads_typed_records(tmp_path):
+    """The watch loop and the summary of ``zdrone demo`` on typed records: summary.json is plain JSON
+    with the logged values, and a scenario's predicate sees the records."""
+    import json
+
+    from zdrone.sil.launcher import Demo, DemoOptions, LiveView, Outcome, watch_state
+
+    for name, text in (("drone.jsonl", DRONE_LOG), ("A.jsonl", GS_LOG), ("rogue.jsonl", ROGUE_LOG)):
+        _log(tmp_path, name, text)
+    demo = Demo(DemoOptions(out=tmp_path, live=False, quiet=True, report=False), tmp_path)
+    demo._fire = lambda *args, **kw: None  # type: ignore[method-assign]  # no processes to start or signal
+    state, live = watch_state(), LiveView("nominal", enabled=False, quiet=True)
+    drone = read_records(tmp_path / "drone.jsonl").records
+    for ev in drone:
+        demo._on_event(ev, state, live)
+    summary = demo._summarize(state, 1.0, {}, timed_out=False)
+    assert json.loads((tmp_path / "summary.json").read_text()) == json.loads(json.dumps(summary))
+    assert summary["handovers"] == [{"from": "A", "to": "B", "epoch": 2, "time": 1795338614.8907, "kind": "handover",
+                                     "position": [47.397742, 8.5490506, 30.0]}]
+    assert summary["failsafe"] == {"action": "LAND", "reason": "authority link to A lost",
+                                   "detect_to_command_ms": 1.2257340003998252, "position": [47.397742, 8.5466507, 30.0]}
+    assert summary["final_owner"] == "A" and summary["final_position"] == [47.397742, 8.545594, 0.0]
+    assert summary["keys"]["A"] == {"live": True, "candidates": 0, "expired": 0, "dropped_unlinked": {}}
+    assert summary["attacks"] == {"pair-replay": {"replayed": 12, "replies": {"ok": 12}}}
+    assert summary["authority_link"]["worst_state"] == "ok" and summary["gs_counters"] == {"A": {}}
+    assert demo.progress["status"]["owner"] == "A"  # the benches' displays: the status as logged
+    assert "authority A -> B (epoch 2, handover)" in "\n".join(live.lines)
+    o = Outcome(summary, drone, {"A": read_records(tmp_path / "A.jsonl").records, "B": [], "X": []},
+                read_records(tmp_path / "rogue.jsonl").records)
+    assert o.rogue_done("pair-replay")["replayed"] == 12 and o.rogue_done("no-key") == {}
+    assert [c.gs for c in o.confirmed("A", "pair")] == ["A"] and len(o.rogue_events("pair-replay", rec.Captured)) == 1
+
+
+def test_the_launcher_reads_the_radio_log(tmp_path):
+    """Each radio/backhaul change, and for a site's radio lost: the paths still connected, how soon
+    the drone noticed, and the copies the other paths delivered."""
+    from zdrone.sil.launcher import Demo, DemoOptions
+
+    _log(tmp_path, "radio.jsonl", RADIO_LOG)
+    ep1, ep2 = "tls/10.0.0.1:7447", "tls/10.0.0.2:7447"
+    drone = [rec.PathState(t=1795340375.5, node="d1", router=ep1, connected=True),
+             rec.PathState(t=1795340382.6, node="d1", router=ep2, connected=True),
+             rec.PathState(t=1795340387.0, node="d1", router=ep1, connected=False)]
+    drone.append(msgspec.structs.replace(rec.only(read_records(_log(tmp_path, "drone.jsonl", DRONE_LOG)).records,
+                                                  rec.DroneStop)[0], inbox_dropped={"up:duplicate_path": 77}))
+    demo = Demo(DemoOptions(out=tmp_path, live=False, quiet=True, report=False), tmp_path)
+    demo.site_of_endpoint = {ep1: "site-1", ep2: "site-2"}
+    radio = demo._radio_summary(drone)
+    assert radio["changes"] == [
+        {"t": 1795340375.0189, "site": "site-1", "link": None, "up": True},
+        {"t": 1795340382.5018, "site": "site-2", "link": None, "up": True},
+        {"t": 1795340383.1, "site": None, "link": "backhaul-site-1-site-2", "up": False},
+        {"t": 1795340386.7048, "site": "site-1", "link": None, "up": False}]
+    assert radio["site_losses"] == [{"site": "site-1", "other_paths_connected": ["site-2"], "noticed_ms": 295.2}]
+    assert radio["path_duplicates"] == 77
 
 
 def test_the_report_reads_typed_records(tmp_path):

@@ -26,7 +26,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..net.eventlog import read_events
+from ..core.records import AnyRecord, DroneStatus, Failsafe, Paired, R, fields_of, only, record_type
+from ..net.eventlog import read_records
 from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec
 from .table import ProgressLine
 
@@ -69,20 +70,21 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (fields 14, 15)
 
 
-def _pairing_queries(events: list[dict[str, Any]], until: float) -> int:
+def _pairing_queries(events: list[AnyRecord], until: float) -> int:
     """Pairing queries the drone had handled by wall time ``until`` (its last status before it)."""
-    st = [e for e in events if e["type"] == "status" and e["t"] <= until]
+    st = [e for e in only(events, DroneStatus) if e.t <= until]
     if not st:
         return 0
-    c = st[-1].get("counters", {})
+    c = st[-1].counters
     return sum(int(v) for k, v in c.items() if k.startswith(("pair_refused", "pair_answered", "pair_failed", "pair_deferred")))
 
 
-def _wait_event(path: Path, type_: str, timeout: float) -> dict[str, Any] | None:
+def _wait_event(path: Path, cls: type[R], timeout: float) -> R | None:
+    """The first record of class ``cls`` in the log at ``path``, waiting up to ``timeout`` s for it."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if path.exists():
-            ev = next((e for e in read_events(path) if e["type"] == type_), None)
+            ev = next(iter(only(read_records(path).records, cls)), None)
             if ev is not None:
                 return ev
         time.sleep(0.05)
@@ -98,7 +100,7 @@ def _failsafe_trial(base: Path, i: int, rate: float | None) -> dict[str, Any]:
     try:
         demo.start_core()
         demo.start_gs("A", "--pair")
-        if _wait_event(d / "drone.jsonl", "paired", 30.0) is None:
+        if _wait_event(d / "drone.jsonl", Paired, 30.0) is None:
             raise RuntimeError("A did not pair")
         pid = demo.children["drone"].proc.pid
         time.sleep(1.0)
@@ -113,15 +115,16 @@ def _failsafe_trial(base: Path, i: int, rate: float | None) -> dict[str, Any]:
         time.sleep(STOP_AFTER if rate else 1.0)
         demo.signal("gsA", signal.SIGSTOP)
         demo.children["gsA"].stopped = True
-        fs = _wait_event(d / "drone.jsonl", "failsafe", 10.0)
-        row["detect_to_command_ms"] = None if fs is None else round(float(fs["detect_to_command_ms"]), 2)
+        fs = _wait_event(d / "drone.jsonl", Failsafe, 10.0)
+        row["detect_to_command_ms"] = None if fs is None else round(float(fs.detect_to_command_ms), 2)
         if rate:
             demo.wait_line(rogue, "rogue: flood done", FLOOD_SECONDS + 20)
             f_cpu1, f_t1 = _cpu_seconds(pid), time.time()
             time.sleep(0.7)  # the drone's next status carries its counters
-            events = read_events(d / "drone.jsonl")
+            events = read_records(d / "drone.jsonl").records
             n = _pairing_queries(events, f_t1 + 0.6) - _pairing_queries(events, f_t0)
-            done = next((e for e in read_events(d / "rogue.jsonl") if e["type"] == "attack_done"), {})
+            done = next((fields_of(e) for e in read_records(d / "rogue.jsonl").records
+                         if record_type(e) == "attack_done"), {})
             cpu = f_cpu1 - f_cpu0
             row |= {"flood_rate_per_s": done.get("rate"), "queries_sent": done.get("sent"), "queries_handled": n,
                     "drone_cpu_pct_during_flood": round(100 * cpu / (f_t1 - f_t0), 2),
@@ -136,9 +139,10 @@ def _failsafe_trial(base: Path, i: int, rate: float | None) -> dict[str, Any]:
     return row
 
 
-def _counter(events: list[dict[str, Any]], name: str) -> int:
-    st = [e for e in events if e["type"] == "status"]
-    return int(st[-1].get("counters", {}).get(name, 0)) if st else 0
+def _counter(events: list[AnyRecord], name: str) -> int:
+    """The drone's counter ``name`` in its last status (0 if none)."""
+    st = only(events, DroneStatus)
+    return int(st[-1].counters.get(name, 0)) if st else 0
 
 
 def _stats(vals: list[float]) -> dict[str, float | None]:

@@ -28,6 +28,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..core.records import (AnyRecord, AuthorityMoved, DroneState, Failsafe, HandoverComplete, LinkStateChanged,
+                            Restarted, Start, only)
+from ..core.tbm import LinkState
 from ..sil.launcher import (AIRBORNE, HANDOVERS_DONE, MISSION_STARTED, REGION_ENTERED, RESTART, Demo, DemoOptions,
                             Fault, Outcome, Scenario)
 from .table import ProgressLine
@@ -69,13 +72,14 @@ def schedule(seed: int) -> tuple[tuple[Fault, ...], tuple[str, ...], list[str]]:
     return tuple(faults), tuple(radio), text
 
 
-def _owners_by_epoch(drone: list[dict[str, Any]]) -> dict[int, str]:
+def _owners_by_epoch(drone: list[AnyRecord]) -> dict[int, str]:
+    """Who held authority in each epoch: the GS it moved to, else a restarted node's saved owner."""
     owners: dict[int, str] = {}
     for e in drone:
-        if e["type"] in ("authority", "handover_complete") and e.get("epoch") is not None:
-            owners[int(e["epoch"])] = e["to"]
-        elif e["type"] == "restarted" and e.get("owner"):
-            owners.setdefault(int(e["epoch"]), e["owner"])
+        if isinstance(e, AuthorityMoved):
+            owners[e.epoch] = e.to
+        elif isinstance(e, Restarted) and e.owner:
+            owners.setdefault(e.epoch, e.owner)
     return owners
 
 
@@ -85,10 +89,10 @@ def invariants(o: Outcome) -> list[str]:
     owners = _owners_by_epoch(o.drone)
     last_by_run: list[dict[str, int]] = []
     for e in o.drone:  # forwarded per epoch, summed over the node's runs (a restart counts from zero)
-        if e["type"] == "start":
+        if isinstance(e, Start):
             last_by_run.append({})
-        elif "forwarded_epochs" in e and last_by_run:
-            last_by_run[-1] = e["forwarded_epochs"]
+        elif isinstance(e, DroneState) and last_by_run:
+            last_by_run[-1] = e.forwarded_epochs
     per_epoch: dict[int, set[str]] = {}
     for run in last_by_run:
         for key, n in run.items():
@@ -100,21 +104,20 @@ def invariants(o: Outcome) -> list[str]:
             why.append(f"epoch {epoch}: commands forwarded from {sorted(senders)}")
         elif owners.get(epoch) not in senders:
             why.append(f"epoch {epoch}: commands from {sorted(senders)}, authority was {owners.get(epoch)}")
-    for e in o.drone:
-        if e["type"] == "failsafe" and e.get("detect_to_command_ms") is not None \
-                and e["detect_to_command_ms"] > FAILSAFE_LATE_MS:
-            why.append(f"failsafe {e['detect_to_command_ms']:.0f} ms after the threshold")
+    for fs in only(o.drone, Failsafe):
+        if fs.detect_to_command_ms is not None and fs.detect_to_command_ms > FAILSAFE_LATE_MS:
+            why.append(f"failsafe {fs.detect_to_command_ms:.0f} ms after the threshold")
     owner: str | None = None
     failsafe = False  # in the failsafe nobody holds authority: a LOST link then asks for nothing more
     for i, e in enumerate(o.drone):
-        if e["type"] in ("authority", "handover_complete"):
-            owner, failsafe = e.get("to"), False
-        elif e["type"] == "restarted":
-            owner, failsafe = e.get("owner"), False
-        elif e["type"] == "failsafe":
+        if isinstance(e, AuthorityMoved):
+            owner, failsafe = e.to, False
+        elif isinstance(e, Restarted):
+            owner, failsafe = e.owner, False
+        elif isinstance(e, Failsafe):
             failsafe = True
-        elif e["type"] == "link_state" and e.get("state") == "lost" and e.get("gs") == owner and not failsafe:
-            acted = any(x["type"] in ("failsafe", "handover_complete") and x["t"] - e["t"] <= SILENT_AUTHORITY_S
+        elif isinstance(e, LinkStateChanged) and e.state is LinkState.LOST and e.gs == owner and not failsafe:
+            acted = any(isinstance(x, (Failsafe, HandoverComplete)) and x.t - e.t <= SILENT_AUTHORITY_S
                         for x in o.drone[i:i + 40])
             if not acted:
                 why.append(f"authority link to {owner} LOST without hand-over or failsafe")

@@ -19,7 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..net.eventlog import read_events
+from ..core.records import AnyRecord, HandoverComplete, RegionEntered
+from ..net.eventlog import read_records
 from ..sil.launcher import Demo, DemoOptions
 from .table import ProgressLine
 
@@ -30,17 +31,7 @@ def _shuttle(base: Path, crossings: int, speedup: float) -> dict[str, Any]:
     demo = Demo(DemoOptions(out=d, speedup=speedup, quiet=True, live=False, command_rate=20.0, report=False,
                             mission=f"shuttle:{crossings}"), d.resolve())
     summary = demo.run()
-    events = read_events(d / "drone.jsonl")
-    handovers, durations = [], []
-    entered: float | None = None
-    for e in events:
-        if e["type"] == "region_entered":
-            entered = e["t"]
-        elif e["type"] == "handover_complete":
-            handovers.append(e)
-            if entered is not None:
-                durations.append((e["t"] - entered) * speedup)  # simulated seconds of flight in the region
-                entered = None
+    handovers, durations = _region_to_switch(read_records(d / "drone.jsonl").records, speedup)
     c = summary["commands"]
     sent = sum(c["sent_as_authority"].values())
     fwd = sum(int(v) for v in c["forwarded"].values())
@@ -50,6 +41,23 @@ def _shuttle(base: Path, crossings: int, speedup: float) -> dict[str, Any]:
             "region_to_switch_s": {"mean": round(statistics.mean(durations), 2) if durations else None,
                                    "max": round(max(durations), 2) if durations else None},
             "flight_ok": summary["ok"] or summary["distance_from_home_m"] is not None and summary["distance_from_home_m"] < 3}
+
+
+def _region_to_switch(events: list[AnyRecord], speedup: float) -> tuple[list[HandoverComplete], list[float]]:
+    """The hand-overs, and for each one after an entry into the region, the simulated seconds of
+    flight from that entry to the switch."""
+    handovers: list[HandoverComplete] = []
+    durations: list[float] = []
+    entered: float | None = None
+    for e in events:
+        if isinstance(e, RegionEntered):
+            entered = e.t
+        elif isinstance(e, HandoverComplete):
+            handovers.append(e)
+            if entered is not None:
+                durations.append((e.t - entered) * speedup)  # simulated seconds of flight in the region
+                entered = None
+    return handovers, durations
 
 
 def _link_loss(base: Path, trials: int, speedup: float) -> list[float | None]:

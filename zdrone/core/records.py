@@ -772,6 +772,12 @@ def fields_of(rec: AnyRecord) -> dict[str, Any]:
     return {k: v for k, v in _ANY.decode(_ENCODER.encode(rec)).items() if k not in ("t", "node", "type")}
 
 
+def logged(rec: AnyRecord) -> dict[str, Any]:
+    """The event as its log line holds it: ``t``, ``node``, ``type``, then its fields (JSON values; a
+    field the line left out has its default)."""
+    return {"t": rec.t, "node": rec.node, "type": record_type(rec), **fields_of(rec)}
+
+
 def only(records: Iterable[AnyRecord], cls: type[R]) -> list[R]:
     """The records of one class (and its subclasses), in order."""
     return [r for r in records if isinstance(r, cls)]

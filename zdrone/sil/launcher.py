@@ -28,13 +28,19 @@ import textwrap
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from ..core.geometry import GeoPoint, distance_m
+from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, Captured, ControlRequested,
+                            Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState, HandoverComplete,
+                            HandoverFailed, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
+                            MissionFailed, MissionStarted, Paired, PathState, R, RadioLinkChanged, RegionEntered,
+                            Restarted, Start, Subscribe, UnauthorizedAttempt, Unsubscribe, VehicleText, fields_of,
+                            logged, only, record_type)
 from ..core.reference import HOME
-from ..core.tbm import TbmThresholds
+from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
-from ..net.eventlog import EventLog, read_events
+from ..net.eventlog import EventLog, read_records
 from .netns import NetnsTopology
 from .radiolink import RadioLink, SiteCoverage, TruthReceiver, site_circles
 
@@ -97,12 +103,13 @@ class Scenario:
 
 @dataclass
 class Outcome:
-    """What a scenario's predicate looks at: the summary figures and every node's event log."""
+    """What a scenario's predicate looks at: the summary figures and every node's event log (typed
+    records, in the order written)."""
 
     summary: dict[str, Any]
-    drone: list[dict[str, Any]]
-    gs: dict[str, list[dict[str, Any]]]
-    rogue: list[dict[str, Any]]
+    drone: list[AnyRecord]
+    gs: dict[str, list[AnyRecord]]
+    rogue: list[AnyRecord]
 
     @property
     def pairs(self) -> list[tuple[str, str]]:
@@ -121,15 +128,17 @@ class Outcome:
         return int(self.summary["ha_drops"].get(reason, 0))
 
     def rogue_done(self, mode: str) -> dict[str, Any]:
-        """The attacker's own account of what it did (its ``attack_done`` event), {} if none."""
-        return next((e for e in self.rogue if e["type"] == "attack_done" and e["node"] == f"rogue-{mode}"), {})
+        """The attacker's own account of what it did (its ``attack_done`` event as logged: the fields
+        differ per attack), {} if none."""
+        return next((logged(e) for e in self.rogue if record_type(e) == "attack_done" and e.node == f"rogue-{mode}"), {})
 
-    def rogue_events(self, mode: str, type_: str) -> list[dict[str, Any]]:
-        return [e for e in self.rogue if e["node"] == f"rogue-{mode}" and e["type"] == type_]
+    def rogue_events(self, mode: str, cls: type[R]) -> list[R]:
+        """The attacker ``mode``'s records of one class."""
+        return [e for e in only(self.rogue, cls) if e.node == f"rogue-{mode}"]
 
-    def confirmed(self, gs: str, how: str) -> list[dict[str, Any]]:
-        """The drone's ``link_confirmed`` events: a new key of ``gs`` proven (``how``: pair, grant)."""
-        return [e for e in self.drone if e["type"] == "link_confirmed" and e.get("gs") == gs and e.get("how") == how]
+    def confirmed(self, gs: str, how: str) -> list[LinkConfirmed]:
+        """The drone's ``link_confirmed`` records: a new key of ``gs`` proven (``how``: pair, grant)."""
+        return [e for e in only(self.drone, LinkConfirmed) if e.gs == gs and e.how == how]
 
 
 def _need(cond: bool, text: str) -> list[str]:
@@ -158,10 +167,10 @@ def _check_no_key(o: Outcome) -> list[str]:
 def _check_unauthorized(o: Outcome) -> list[str]:
     """The router's ACL stops X's pairing and key-sharing queries (no reply at all); were they let
     through, the drone would refuse X before any crypto (``pair_refused:unauthorized``)."""
-    tries = o.rogue_events("unauthorized", "unauthorized_attempt")
-    x_linked = any(e.get("drones", {}).get("d1", {}).get("linked") for e in o.gs.get("X", []) if e["type"] in ("status", "stop"))
+    tries = o.rogue_events("unauthorized", UnauthorizedAttempt)
+    x_linked = any(s.drones["d1"].linked for s in only(o.gs.get("X", []), GsState) if "d1" in s.drones)
     why = flight_unaffected(o) + _need(bool(tries), "the attacker made no attempt")
-    why += _need(all(e["pair_answered"] == 0 and e["linkkey_replies"] == 0 for e in tries), "X got a pairing answer or a key")
+    why += _need(all(e.pair_answered == 0 and e.linkkey_replies == 0 for e in tries), "X got a pairing answer or a key")
     return why + _need(not x_linked, "GS X holds a link")
 
 
@@ -184,7 +193,7 @@ def _check_key_injection(o: Outcome) -> list[str]:
     why = flight_unaffected(o)
     why += _need(done.get("random", 0) > 0 and done.get("noise_own_key", 0) > 0, "the attacker sent no forged reply")
     why += _need(a.get("linkkey_reply:bad_mac", 0) > 0, "A counted no linkkey_reply:bad_mac")
-    why += _need(any(e["type"] == "linkkey_received" and e.get("gs") == "B" for e in o.gs["A"]), "A never got B's key")
+    why += _need(any(e.gs == "B" for e in only(o.gs["A"], LinkkeyReceived)), "A never got B's key")
     return why
 
 
@@ -211,7 +220,7 @@ def _check_pair_replay(o: Outcome) -> list[str]:
     seen = (o.drone_counter("pair_answered") + o.drone_counter("pair_repeated")
             + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred"))
     why = flight_unaffected(o)
-    why += _need(bool(o.rogue_events("pair-replay", "captured")) and done.get("replayed", 0) > 0, "nothing captured or replayed")
+    why += _need(bool(o.rogue_events("pair-replay", Captured)) and done.get("replayed", 0) > 0, "nothing captured or replayed")
     why += _need(seen >= 1 + done.get("replayed", 0) // 2, f"the drone saw {seen} pairing queries of A")
     why += _need(len(o.confirmed("A", "pair")) == 1, "a replayed pairing key was proven")
     why += _need(o.drone_counter("pair_repeated") > 0, "no replay was answered from the response cache")
@@ -279,7 +288,7 @@ def _check_gs_hang(o: Outcome) -> list[str]:
     kinds = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
     why = _need(bool(kinds) and kinds[0] == ("A", "B", "emergency"), f"no emergency hand-over to B: {kinds}")
     why += _need(s["failsafe"] is None, "failsafe")
-    woke = next((e["t"] for e in o.gs["A"] if e["type"] == "authority_status" and e.get("owner") == "B"), None)
+    woke = next((e.t for e in only(o.gs["A"], AuthorityStatus) if e.owner == "B"), None)
     why += _need(woke is not None, "A never learned that B holds authority")
     c = s["commands"]
     why += _need(c["forwarded"].get("A", 0) <= c["sent_as_authority"].get("A", 0), "more forwarded from A than it sent")
@@ -300,29 +309,35 @@ def _check_lossy_radio(o: Outcome) -> list[str]:
 def _check_companion_restart(o: Outcome) -> list[str]:
     """``companion-restart``: the restarted node restores LINKED(A, epoch 1), A pairs again in time (no
     failsafe), the flight goes on with both hand-overs."""
-    restored = [e for e in o.drone if e["type"] == "restarted"]
+    restored = only(o.drone, Restarted)
     why = flight_unaffected(o)
-    why += _need(len(restored) == 1 and restored[0].get("owner") == "A" and restored[0].get("epoch") == 1,
-                 f"not restored as A, epoch 1: {restored}")
-    why += _need(len([e for e in o.drone if e["type"] == "paired" and e.get("gs") == "A"]) == 2, "A did not pair again")
+    why += _need(len(restored) == 1 and restored[0].owner == "A" and restored[0].epoch == 1,
+                 f"not restored as A, epoch 1: {[logged(e) for e in restored]}")
+    why += _need(len([e for e in only(o.drone, Paired) if e.gs == "A"]) == 2, "A did not pair again")
     return why
 
 
-def _forwarded_over_restarts(drone_events: list[dict[str, Any]]) -> dict[str, int]:
+def _forwarded_over_restarts(drone_events: list[AnyRecord]) -> dict[str, int]:
     """Commands the drone node forwarded, per GS, summed over every run of the node (a restarted
     node counts from zero; the last report of each run is its total)."""
     total: dict[str, int] = {}
     last: dict[str, int] = {}
     for e in drone_events:
-        if e["type"] == "start":
+        if isinstance(e, Start):
             for g, n in last.items():
                 total[g] = total.get(g, 0) + n
             last = {}
-        elif "forwarded_commands" in e:
-            last = {g: int(n) for g, n in e["forwarded_commands"].items()}
+        elif isinstance(e, DroneState):
+            last = {g: int(n) for g, n in e.forwarded_commands.items()}
     for g, n in last.items():
         total[g] = total.get(g, 0) + n
     return total
+
+
+def _commands_sent(gs_state: GsState | None, drone: str) -> dict[str, int]:
+    """The commands a GS sent to ``drone`` (per MAVLink command id), as its status reports them."""
+    report = gs_state.drones.get(drone) if gs_state else None
+    return report.commands_sent if report else {}
 
 
 def _check_site_router_down(o: Outcome) -> list[str]:
@@ -354,8 +369,8 @@ def _check_backhaul_cut_early(o: Outcome) -> list[str]:
     why = _need(not s["handovers"], f"a hand-over happened: {s['handovers']}")
     why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}, expected A")
     why += _need(s["failsafe"] is None, "failsafe")
-    why += _need(not any(e["type"] == "link_installed" and e.get("gs") == "B" for e in o.drone), "B got a key")
-    why += _need(any(e["type"] == "handover_failed" for e in o.gs.get("A", [])), "A did not report the failed hand-over")
+    why += _need(not any(e.gs == "B" for e in only(o.drone, LinkInstalled)), "B got a key")
+    why += _need(bool(only(o.gs.get("A", []), HandoverFailed)), "A did not report the failed hand-over")
     return why + _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0, "not landed at home")
 
 
@@ -378,7 +393,7 @@ def _check_router_restart(o: Outcome) -> list[str]:
     why = flight_unaffected(o)
     why += _need(any("router restarted" in n for n in s["notes"]), "the router was not restarted")
     why += _need(s["failsafe"] is None, "failsafe")
-    why += _need(len([e for e in o.drone if e["type"] == "paired"]) == 1, "paired again")
+    why += _need(len(only(o.drone, Paired)) == 1, "paired again")
     return why
 
 
@@ -386,15 +401,15 @@ def _check_failsafe_recover(o: Outcome) -> list[str]:
     """``failsafe-recover``: the failsafe fires; A, back, takes control by its operator's request (never
     automatically: only a GS that asks gets it), in the next epoch; exactly one authority throughout."""
     s = o.summary
-    fs_t = next((e["t"] for e in o.drone if e["type"] == "failsafe"), None)
-    fs_epoch = next((e.get("epoch") for e in reversed(o.drone) if fs_t is not None and e["t"] <= fs_t
-                     and e["type"] in ("authority", "handover_complete")), None)  # the epoch the failsafe ended
+    fs_t = next((e.t for e in only(o.drone, Failsafe)), None)
+    fs_epoch = next((e.epoch for e in reversed(only(o.drone, AuthorityMoved)) if fs_t is not None and e.t <= fs_t),
+                    None)  # the epoch the failsafe ended
     regained = s.get("regained", [])
     why = _need(s["failsafe"] is not None, "no failsafe")
     why += _need(len(regained) == 1 and regained[0]["to"] == "A", f"control not regained by A: {regained}")
     why += _need(bool(regained) and fs_epoch is not None and regained[0]["epoch"] == fs_epoch + 1,
                  f"regained in epoch {regained[0]['epoch'] if regained else None}, failsafe epoch {fs_epoch}")
-    why += _need(any(e["type"] == "control_requested" for e in o.gs["A"]), "A never asked for control")
+    why += _need(bool(only(o.gs["A"], ControlRequested)), "A never asked for control")
     why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}")
     return why
 
@@ -950,13 +965,12 @@ class Demo:
         live = LiveView(o.scenario, enabled=o.live if o.live is not None else sys.stdout.isatty(), quiet=o.quiet)
         if o.max_wall is not None:
             deadline = min(deadline, time.monotonic() + o.max_wall)
-        state: dict[str, Any] = {"handovers": [], "failsafe": None, "armed_seen": False, "status": {}, "region_entered": 0,
-                                 "done": False}
-        self.progress = state  # read by the benches' progress displays
+        state = watch_state()
+        self.progress = {}  # the last status as logged ("status"): read by the benches' progress displays
         seen = 0
         with live:
             while time.monotonic() < deadline and not state["done"]:
-                events = read_events(drone_log) if drone_log.exists() else []
+                events = read_records(drone_log).records if drone_log.exists() else []
                 for ev in events[seen:]:
                     self._on_event(ev, state, live)
                 seen = len(events)
@@ -978,79 +992,75 @@ class Demo:
         a_log = self.out / "A.jsonl"
         if MISSION_STARTED in self.fired or not a_log.exists():
             return
-        for e in read_events(a_log):
-            if e["type"] == "mission_started":
+        for e in read_records(a_log).records:
+            if isinstance(e, MissionStarted):
                 self._fire(MISSION_STARTED, live)
-            elif e["type"] == "mission_failed":  # the GS gave up (it said why): the demo ends, not ok
-                self.notes.append(f"GS A: mission failed: {e.get('reason')}")
-                live.event(e["t"], f"GS A: mission failed: {e.get('reason')}")
+            elif isinstance(e, MissionFailed):  # the GS gave up (it said why): the demo ends, not ok
+                self.notes.append(f"GS A: mission failed: {e.reason}")
+                live.event(e.t, f"GS A: mission failed: {e.reason}")
                 state["done"] = True
-                state["mission_failed"] = e.get("reason")
+                state["mission_failed"] = e.reason
                 return
 
-    def _on_event(self, ev: dict[str, Any], state: dict[str, Any], live: "LiveView") -> None:
-        t = ev["type"]
-        if t == "status":
+    def _on_event(self, ev: AnyRecord, state: dict[str, Any], live: "LiveView") -> None:
+        """Follow one drone event: the flight's progress in ``state``, the scenario's moments, the live view."""
+        if isinstance(ev, DroneStatus):
             state["status"] = ev
-            pos = ev.get("position")
-            if ev.get("armed"):
+            self.progress["status"] = fields_of(ev)  # the benches' displays read the status as logged
+            pos = ev.position
+            if ev.armed:
                 state["armed_seen"] = True
                 if pos and pos[2] > 5.0:
                     state["flown"] = True  # an arm refused or undone on the ground is not the end
                 if pos and pos[2] > 15.0:
-                    self._fire(AIRBORNE, live, ev["t"])
-            landed = ev.get("landed_state") == 1 and not ev.get("armed")
+                    self._fire(AIRBORNE, live, ev.t)
+            landed = ev.landed_state == 1 and not ev.armed
             if state.get("flown") and landed:
                 state["done"] = True
-                state["final_position"] = pos
+                state["final_position"] = list(pos) if pos else pos
             return
-        if t == "region_entered":
+        if isinstance(ev, RegionEntered):
             state["region_entered"] += 1
-            self._fire(REGION_ENTERED, live, ev["t"])
-        if t == "handover_complete":
-            state["handovers"].append({k: ev.get(k) for k in ("from", "to", "epoch", "time", "kind", "position")})
+            self._fire(REGION_ENTERED, live, ev.t)
+        if isinstance(ev, HandoverComplete):
+            state["handovers"].append(_picked(ev, ("from", "to", "epoch", "time", "kind", "position")))
             if len(state["handovers"]) == 2:
-                self._fire(HANDOVERS_DONE, live, ev["t"])
-        if t == "failsafe":
+                self._fire(HANDOVERS_DONE, live, ev.t)
+        if isinstance(ev, Failsafe):
             state["failsafe"] = ev
-            self._fire(FAILSAFE_FIRED, live, ev["t"])
-        if t == "authority" and ev.get("kind") == "regained":
-            state.setdefault("regained", []).append({k: ev.get(k) for k in ("from", "to", "epoch", "time", "position")})
-        shown = t not in ("subscribe", "unsubscribe", "link_state", "drop") or (t == "drop" and len(live.lines) < 200)
-        if shown:
-            live.event(ev["t"], _describe(ev))
+            self._fire(FAILSAFE_FIRED, live, ev.t)
+        if isinstance(ev, AuthorityChange) and ev.kind == "regained":
+            state.setdefault("regained", []).append(_picked(ev, ("from", "to", "epoch", "time", "position")))
+        quiet = isinstance(ev, (Subscribe, Unsubscribe, LinkStateChanged, Drop))
+        if not quiet or (isinstance(ev, Drop) and len(live.lines) < 200):
+            live.event(ev.t, _describe(ev))
 
     # ----------------------------------------------------------------- summary
     def _summarize(self, state: dict[str, Any], wall: float, codes: dict[str, int | None], timed_out: bool) -> dict[str, Any]:
         sc = self.opts.scenario
-        drone_events = read_events(self.out / "drone.jsonl") if (self.out / "drone.jsonl").exists() else []
-        final = next((e for e in reversed(drone_events) if e["type"] == "stop"), state["status"]) or {}
-        gs_events: dict[str, list[dict[str, Any]]] = {}
-        gs_final = {}
-        for g in ("A", "B", "X"):
-            p = self.out / f"{g}.jsonl"
-            gs_events[g] = read_events(p) if p.exists() else []
-            if gs_events[g]:
-                gs_final[g] = next((e for e in reversed(gs_events[g]) if e["type"] in ("stop", "status")), {})
-        rogue_log = self.out / "rogue.jsonl"
-        rogue_events = read_events(rogue_log) if rogue_log.exists() else []
-        sent = {g: sum(int(v) for v in (f.get("drones", {}).get("d1", {}).get("commands_sent") or {}).values())
-                for g, f in gs_final.items()}
+        drone_events = self._records("drone.jsonl")
+        # the drone's last word: its final status, else the last status the watch loop saw
+        final: DroneState | None = next((e for e in reversed(drone_events) if isinstance(e, DroneStop)), state["status"])
+        gs_events = {g: self._records(f"{g}.jsonl") for g in ("A", "B", "X")}
+        gs_final = {g: next((e for e in reversed(evs) if isinstance(e, GsState)), None)
+                    for g, evs in gs_events.items() if evs}
+        rogue_events = self._records("rogue.jsonl")
+        sent = {g: sum(int(v) for v in _commands_sent(f, "d1").values()) for g, f in gs_final.items()}
         forwarded = _forwarded_over_restarts(drone_events)
-        ha_drops = final.get("ha_drops", {})
+        ha_drops = final.ha_drops if final else {}
         drops: dict[str, int] = {}
-        for link in (final.get("links") or {}).values():
-            for reason, n in link.get("dropped", {}).items():
+        for link in (final.links if final else {}).values():
+            for reason, n in link.dropped.items():
                 drops[reason] = drops.get(reason, 0) + n
         unlinked: dict[str, int] = {}
-        for slot in (final.get("keys") or {}).values():
-            for reason, n in slot.get("dropped_unlinked", {}).items():
+        for slot in (final.keys if final else {}).values():
+            for reason, n in slot.dropped_unlinked.items():
                 unlinked[reason] = unlinked.get(reason, 0) + n
-        pos = state.get("final_position") or final.get("position")
+        pos = state.get("final_position") or (list(final.position) if final and final.position else None)
         home_dist = distance_m(HOME, GeoPoint(pos[0], pos[1])) if pos else None
         violations = [f"authority to {h['to']}" for h in state["handovers"] if h["to"] not in ("A", "B")]
-        violations += [f"paired with {e['gs']}" for e in drone_events if e["type"] == "paired" and e["gs"] not in ("A", "B")]
-        history = [(e["t"], e.get("owner")) for e in drone_events if e["type"] == "status"]
+        violations += [f"paired with {e.gs}" for e in only(drone_events, Paired) if e.gs not in ("A", "B")]
+        history = [(e.t, e.owner) for e in only(drone_events, DroneStatus)]
         gap_ms = 0.0
         first_owned = next((i for i, (_, o) in enumerate(history) if o), None)
         if first_owned is not None:
@@ -1065,22 +1075,23 @@ class Demo:
         summary: dict[str, Any] = {
             "scenario": sc, "ok": False, "timed_out": timed_out, "wall_time_s": round(wall, 2), "speedup": self.opts.speedup,
             "handovers": state["handovers"], "authority_gap_ms": gap_ms, "regained": state.get("regained", []),
-            "failsafe": None if state["failsafe"] is None else {k: state["failsafe"].get(k) for k in ("action", "reason", "detect_to_command_ms", "position")},
+            "failsafe": None if state["failsafe"] is None
+            else _picked(state["failsafe"], ("action", "reason", "detect_to_command_ms", "position")),
             "final_position": pos, "distance_from_home_m": None if home_dist is None else round(home_dist, 2),
-            "final_owner": final.get("owner"),
+            "final_owner": final.owner if final else None,
             "authority_link": authority_link(drone_events),
-            "delivered_at_b": any(e["type"] == "vehicle_text" and "payload released" in str(e.get("text")) for e in gs_events["B"]),
+            "delivered_at_b": any("payload released" in e.text for e in only(gs_events["B"], VehicleText)),
             "commands": {"sent_as_authority": sent, "forwarded": forwarded, "lost": cmd_sent - cmd_fwd - refused,
                          "refused_not_authority": ha_drops.get("not_authority", 0)},
             "security_drops": drops, "security_drops_unlinked": unlinked, "ha_drops": ha_drops,
-            "ha_rejects": final.get("rejects", {}),
-            "pairing": final.get("counters", {}), "drone_counters": final.get("counters", {}), "keys": final.get("keys", {}),
-            "drone_inbox_dropped": final.get("inbox_dropped", {}), "radio_lost": final.get("radio_lost", {}),
-            "gs_counters": {g: f.get("counters", {}) for g, f in gs_final.items()},
-            "gateway_A": self._gateway_counters(gs_final.get("A", {})),
-            "out_of_coverage": final.get("out_of_coverage", {}), "vehicle": self._vehicle_counters(),
-            "attacks": {e["node"].removeprefix("rogue-"): {k: v for k, v in e.items() if k not in ("t", "node", "type")}
-                        for e in rogue_events if e["type"] == "attack_done"},
+            "ha_rejects": final.rejects if final else {},
+            "pairing": final.counters if final else {}, "drone_counters": final.counters if final else {},
+            "keys": fields_of(final)["keys"] if final else {},
+            "drone_inbox_dropped": final.inbox_dropped if final else {}, "radio_lost": final.radio_lost if final else {},
+            "gs_counters": {g: f.counters if f else {} for g, f in gs_final.items()},
+            "gateway_A": self._gateway_counters(gs_final.get("A")),
+            "out_of_coverage": final.out_of_coverage if final else {}, "vehicle": self._vehicle_counters(),
+            "attacks": {e.node.removeprefix("rogue-"): fields_of(e) for e in rogue_events if record_type(e) == "attack_done"},
             "violations": violations, "exit_codes": codes, "notes": self.notes,
             "radio_links": self._radio_summary(drone_events),
         }
@@ -1102,7 +1113,12 @@ class Demo:
         (self.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         return summary
 
-    def _radio_summary(self, drone_events: list[dict[str, Any]]) -> dict[str, Any]:
+    def _records(self, name: str) -> list[AnyRecord]:
+        """The records of the run's event log ``name`` ([] if it was never written)."""
+        path = self.out / name
+        return read_records(path).records if path.exists() else []
+
+    def _radio_summary(self, drone_events: list[AnyRecord]) -> dict[str, Any]:
         """With sites: each radio/backhaul link change; for each site's radio taken down, whether
         another path was connected at that moment (then the C2 link went on through it without a
         break: the drone sends through every connected path and hears on each) and how long the drone
@@ -1110,28 +1126,30 @@ class Demo:
         path = self.out / "radio.jsonl"
         if not path.exists():
             return {}
-        changes = [e for e in read_events(path) if e["type"] in ("radio_link", "link_fault")]
-        states = [e for e in drone_events if e["type"] == "path_state"]
+        changes = [e for e in read_records(path).records if isinstance(e, (RadioLinkChanged, LinkFault))]
+        states = only(drone_events, PathState)
         losses = []
         for ch in changes:
-            if ch["type"] != "radio_link" or ch.get("up") is not False:
+            if not isinstance(ch, RadioLinkChanged) or ch.up is not False:
                 continue
-            endpoint = next((ep for ep, site in self.site_of_endpoint.items() if site == ch["site"]), None)
+            endpoint = next((ep for ep, site in self.site_of_endpoint.items() if site == ch.site), None)
             others_up = []
             for ep in self.site_of_endpoint:
-                last = [e for e in states if e["router"] == ep and e["t"] <= ch["t"]]
-                if ep != endpoint and last and last[-1]["connected"]:
+                last = [e for e in states if e.router == ep and e.t <= ch.t]
+                if ep != endpoint and last and last[-1].connected:
                     others_up.append(self.site_of_endpoint[ep])
-            noticed = next((e["t"] for e in states if e["router"] == endpoint and not e["connected"] and e["t"] >= ch["t"] - 0.05), None)
-            losses.append({"site": ch["site"], "other_paths_connected": others_up,
-                           "noticed_ms": round(max(0.0, noticed - ch["t"]) * 1000.0, 1) if noticed else None})
+            noticed = next((e.t for e in states if e.router == endpoint and not e.connected and e.t >= ch.t - 0.05), None)
+            losses.append({"site": ch.site, "other_paths_connected": others_up,
+                           "noticed_ms": round(max(0.0, noticed - ch.t) * 1000.0, 1) if noticed else None})
         final = self._drone_final(drone_events)
-        return {"changes": [{k: e.get(k) for k in ("t", "site", "link", "up")} for e in changes], "site_losses": losses,
-                "path_duplicates": sum(v for k, v in final.get("inbox_dropped", {}).items() if k.endswith("duplicate_path"))}
+        inbox_dropped = final.inbox_dropped if final else {}
+        return {"changes": [_picked(e, ("t", "site", "link", "up")) for e in changes], "site_losses": losses,
+                "path_duplicates": sum(v for k, v in inbox_dropped.items() if k.endswith("duplicate_path"))}
 
     @staticmethod
-    def _drone_final(drone_events: list[dict[str, Any]]) -> dict[str, Any]:
-        return next((e for e in reversed(drone_events) if e["type"] == "stop"), {})
+    def _drone_final(drone_events: list[AnyRecord]) -> DroneStop | None:
+        """The drone node's final status (None if it wrote none)."""
+        return next((e for e in reversed(drone_events) if isinstance(e, DroneStop)), None)
 
     def _vehicle_counters(self) -> dict[str, Any]:
         """What the simulator counted (frames it ignored, refused, could not parse), from its log: the
@@ -1145,10 +1163,10 @@ class Demo:
             counters = None
         return {"counters": counters, "ignored": sorted(set(re.findall(r"sim: ignored (\w+)", text)))}
 
-    def _gateway_counters(self, a_final: dict[str, Any]) -> dict[str, int]:
+    def _gateway_counters(self, a_final: GsState | None) -> dict[str, int]:
         """GS A's GCS gateway drop counters: from its status when the station reports them, else the
         gateway's (rate-limited) table-full warnings in A's log, which give a lower bound."""
-        gw = a_final.get("gateway")
+        gw = a_final.gateway if a_final else None
         if isinstance(gw, dict) and isinstance(gw.get("counters"), dict):
             return dict(gw["counters"])
         log = self.out / "gsA.log"
@@ -1158,48 +1176,62 @@ class Demo:
         return {"app_table_full": sum(int(n) for n in found), "from_log": 1} if found else {}
 
 
-def authority_link(drone_events: list[dict[str, Any]], thresholds: TbmThresholds = TbmThresholds()) -> dict[str, Any]:
+def authority_link(drone_events: list[AnyRecord], thresholds: TbmThresholds = TbmThresholds()) -> dict[str, Any]:
     """The worst TBM state of the link to the GS holding authority at each instant, its longest
     silence (from the DEGRADED->OK transitions, and the 0.5 s status samples for shorter ones) and
     how many times it went DEGRADED."""
-    rank = {"ok": 0, "degraded": 1, "lost": 2}
+    rank = {LinkState.OK: 0, LinkState.DEGRADED: 1, LinkState.LOST: 2}
     owner: str | None = None
-    worst, longest, episodes = "ok", 0.0, 0
+    worst, longest, episodes = LinkState.OK, 0.0, 0
     degraded_at: float | None = None
     for e in drone_events:
-        t = e["type"]
-        if t in ("authority", "handover_complete"):
-            owner, degraded_at = e.get("to"), None
-        elif t in ("status", "stop"):
-            owner = e.get("owner") or owner
-            link = (e.get("links") or {}).get(owner or "")
+        if isinstance(e, AuthorityMoved):
+            owner, degraded_at = e.to, None
+        elif isinstance(e, DroneState):
+            owner = e.owner or owner
+            link = e.links.get(owner or "")
             if link is not None:
-                longest = max(longest, float(link.get("since_last", 0.0)))
-        elif t == "link_state" and owner is not None and e.get("gs") == owner:
-            st = e.get("state", "ok")
-            if rank.get(st, 0) > rank[worst]:
+                longest = max(longest, float(link.since_last))
+        elif isinstance(e, LinkStateChanged) and owner is not None and e.gs == owner:
+            st = e.state
+            if rank[st] > rank[worst]:
                 worst = st
-            if st == "degraded":
+            if st is LinkState.DEGRADED:
                 episodes += 1
-                degraded_at = e["t"]
-            elif st == "ok" and degraded_at is not None:
-                longest = max(longest, e["t"] - degraded_at + thresholds.degraded)
+                degraded_at = e.t
+            elif st is LinkState.OK and degraded_at is not None:
+                longest = max(longest, e.t - degraded_at + thresholds.degraded)
                 degraded_at = None
-            elif st == "lost":
+            elif st is LinkState.LOST:
                 longest = max(longest, thresholds.lost)
-    return {"worst_state": worst, "longest_silence_s": round(longest, 3), "degraded_episodes": episodes}
+    return {"worst_state": worst.value, "longest_silence_s": round(longest, 3), "degraded_episodes": episodes}
 
 
-def _describe(ev: dict[str, Any]) -> str:
-    t = ev["type"]
-    if t in ("handover_complete", "authority"):
-        return f"authority {ev.get('from')} -> {ev.get('to')} (epoch {ev.get('epoch')}, {ev.get('kind')})"
-    if t == "failsafe":
-        return f"FAILSAFE {ev.get('action')}: {ev.get('reason')} ({ev.get('detect_to_command_ms', 0) or 0:.0f} ms after threshold)"
-    if "detail" in ev:
-        return f"{t}: {ev['detail']}"
-    if "gs" in ev:
-        return f"{t}: {ev['gs']}" + (f" ({ev['reason']})" if "reason" in ev else "")
+def watch_state() -> dict[str, Any]:
+    """What the watch loop gathers from the drone's log as the flight goes (read by the summary):
+    the hand-overs and regained controls (their fields as logged), the failsafe and the last status
+    (records), the moments seen."""
+    return {"handovers": [], "failsafe": None, "armed_seen": False, "status": None, "region_entered": 0, "done": False}
+
+
+def _picked(rec: AnyRecord, names: tuple[str, ...]) -> dict[str, Any]:
+    """Some fields of an event as logged (JSON values; None for one it lacks): for the summary."""
+    line = logged(rec)
+    return {k: line.get(k) for k in names}
+
+
+def _describe(ev: AnyRecord) -> str:
+    """One line of the live view for a drone event."""
+    t = record_type(ev)
+    if isinstance(ev, AuthorityMoved):
+        return f"authority {ev.from_} -> {ev.to} (epoch {ev.epoch}, {ev.kind})"
+    if isinstance(ev, Failsafe):
+        return f"FAILSAFE {ev.action}: {ev.reason} ({ev.detect_to_command_ms or 0:.0f} ms after threshold)"
+    fields = fields_of(ev)
+    if "detail" in fields:
+        return f"{t}: {fields['detail']}"
+    if "gs" in fields:
+        return f"{t}: {fields['gs']}" + (f" ({fields['reason']})" if "reason" in fields else "")
     return t
 
 
@@ -1218,7 +1250,7 @@ class LiveView:
         if self.enabled:
             from rich.live import Live
 
-            self._live = Live(self._render({}, 0.0), refresh_per_second=4, transient=False)
+            self._live = Live(self._render(None, 0.0), refresh_per_second=4, transient=False)
             self._live.__enter__()
         return self
 
@@ -1234,30 +1266,34 @@ class LiveView:
         if not self.enabled and not self.quiet:
             print(line, flush=True)
 
-    def update(self, status: dict[str, Any], elapsed: float) -> None:
+    def update(self, status: DroneStatus | None, elapsed: float) -> None:
         if self._live is not None:
             self._live.update(self._render(status, elapsed))
 
-    def _render(self, st: dict[str, Any], elapsed: float) -> Any:
+    def _render(self, st: DroneStatus | None, elapsed: float) -> Any:
         from rich.console import Group
         from rich.table import Table
 
         top = Table(title=f"zdrone demo — {self.scenario} — {elapsed:5.1f} s", show_header=False, expand=True)
         top.add_column(style="bold")
         top.add_column()
-        pos = st.get("position")
+        pos = st.position if st else None
         if pos:
             n_e = _ne(pos)
             top.add_row("position", f"{pos[0]:.6f}, {pos[1]:.6f}  alt {pos[2]:.1f} m  ({n_e[1]:+.0f} m east of A)")
-        top.add_row("authority", f"{st.get('owner')} (epoch {st.get('epoch')}, {st.get('state')})"
-                    + (f" -> {st['pending_to']}" if st.get("pending_to") else ""))
-        top.add_row("vehicle", f"{'ARMED' if st.get('armed') else 'disarmed'}  mode {st.get('mode')}  region {'yes' if st.get('in_region') else 'no'}")
+        if st is None:  # no status yet
+            top.add_row("authority", "None (epoch None, None)")
+            top.add_row("vehicle", "disarmed  mode None  region no")
+        else:
+            top.add_row("authority", f"{st.owner} (epoch {st.epoch}, {st.state.value})"
+                        + (f" -> {st.pending_to}" if st.pending_to else ""))
+            top.add_row("vehicle", f"{'ARMED' if st.armed else 'disarmed'}  mode {st.mode}  region {'yes' if st.in_region else 'no'}")
         links = Table(title="links (TBM)", expand=True)
         for col in ("GS", "state", "silence s", "opened", "sent", "dropped"):
             links.add_column(col)
-        for gs, ln in (st.get("links") or {}).items():
-            links.add_row(gs, ln["state"], f"{ln['since_last']:.2f}", str(ln["opened"]), str(ln["sent"]),
-                          ", ".join(f"{k}={v}" for k, v in ln.get("dropped", {}).items()) or "-")
+        for gs, ln in (st.links if st else {}).items():
+            links.add_row(gs, ln.state.value, f"{ln.since_last:.2f}", str(ln.opened), str(ln.sent),
+                          ", ".join(f"{k}={v}" for k, v in ln.dropped.items()) or "-")
         ev = Table(title="events", show_header=False, expand=True)
         ev.add_column()
         for line in self.lines[-10:]:
@@ -1265,7 +1301,7 @@ class LiveView:
         return Group(top, links, ev)
 
 
-def _ne(pos: list[float]) -> tuple[float, float]:
+def _ne(pos: Sequence[float]) -> tuple[float, float]:
     from ..core.geometry import ne_of
 
     return ne_of(HOME, GeoPoint(pos[0], pos[1]))
