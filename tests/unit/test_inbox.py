@@ -44,3 +44,18 @@ def test_drain_waits_for_the_first_item_from_another_thread():
     threading.Timer(0.05, lambda: ib.put("down", "d1", b"x")).start()
     got: list[bytes] = []
     assert ib.drain(2.0, lambda kind, peer, data, now: got.append(data)) == 1 and got == [b"x"]
+
+
+def test_a_drained_sender_frees_its_queue_so_many_senders_in_turn_are_served():
+    """The sender bound counts senders with a backlog, not every sender ever heard (a GS serving
+    100 drones hears 300 (kind, sender) pairs)."""
+    from zdrone.net.inbox import MAX_SENDERS
+
+    box, got = Inbox(), []
+    for i in range(3 * MAX_SENDERS):
+        box.put("down", f"d{i}", b"x")
+        box.drain(0.0, lambda kind, peer, data, now: got.append(peer))
+    assert len(got) == 3 * MAX_SENDERS and box.stats() == {}
+    for i in range(MAX_SENDERS + 1):  # all waiting at once: the bound holds
+        box.put("down", f"d{i}", b"x")
+    assert box.stats() == {"down:too_many_senders": 1}

@@ -20,8 +20,11 @@ from typing import Any, Callable
 MAX_BATCH = 512
 #: Items waiting per (kind, sender) at most; beyond it, new ones are refused (``<kind>:inbox_full``).
 INBOX_SIZE = 1024
-#: Distinct (kind, sender) queues at most (senders are GS names from key expressions).
-MAX_SENDERS = 64
+#: (kind, sender) queues holding items at once, at most (senders are node names from key expressions,
+#: which the router's ACL ties to the fleet). A queue is freed as soon as it is drained, so this bounds
+#: the senders with a backlog, not the senders a node ever hears from: a GS serving 100 drones has
+#: three kinds per drone (down, pair, linkkey) but only those with something waiting hold a queue.
+MAX_SENDERS = 256
 #: A sealed envelope carries one MAVLink frame (<= 280 bytes) or one small control message.
 MAX_ENVELOPE = 1024
 #: A pairing or key-sharing query or reply: a Noise message (<= 512 bytes) and a few names.
@@ -84,6 +87,8 @@ class Inbox:
             out.append((key[0], key[1], q.popleft()))
             if q:
                 self._order.append(key)
+            else:
+                del self._queues[key]  # drained: the sender holds no queue until it sends again
         return out
 
     def drain(self, wait: float, handle: Callable[[str, str, Any, float], None]) -> int:
