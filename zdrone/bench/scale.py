@@ -535,7 +535,7 @@ def render(r: dict[str, Any]) -> None:
             caption += f"; through one router: {r['largest_k_all_correct_one_router']}"
         caption += "; every link mutual TLS"
     if r.get("gs_inbox_senders"):
-        caption += f"; what-if: GS inbox bound lifted from 64 to {r['gs_inbox_senders']} (kind, sender) queues"
+        caption += f"; what-if: GS inbox bound set to {r['gs_inbox_senders']} (kind, sender) queues with items"
     print_table(f"Scale: drones x ground stations {where}", ["layout", "K x G", "correct", "all correct",
                 "worst authority silence s", "ground s", "wall s", "failures"], rows,
                 caption=caption + "; ground: key sharing before take-off")
