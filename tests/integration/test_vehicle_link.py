@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import socket
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 from pymavlink.dialects.v20 import common as mav
@@ -35,27 +37,34 @@ def _rtl_then_land(link: VehicleLink) -> None:
     assert _until(link, lambda: link.landed_state == mav.MAV_LANDED_STATE_ON_GROUND, 3)
 
 
-@pytest.mark.slow
-def test_vehicle_link_tracks_and_commands_the_sim():
+@contextmanager
+def _px4_sim_link() -> Iterator[VehicleLink]:
+    """A ``zdrone sim`` process (PX4 personality) and a vehicle link that has seen it; both closed after."""
     port = free_port()
     with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "4", "--ready-after", "0") as sim:
         sim.wait_line("zdrone sim:", 20)
         link = VehicleLink(f"udpout:127.0.0.1:{port}")
         try:
             assert link.wait_vehicle(10)
-            assert link.sysid == 1 and link.autopilot == "px4"
-            frames = link.recv(1.0)
-            assert frames and all(read_header(f).sysid == 1 for f in frames)
-            # raw frames from a GS (sysid 4) go through unchanged
-            gs = FrameCodec(4, 190)
-            link.send(gs.encode(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)))
-            link.send(gs.encode(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, float("nan"),
-                                                                 float("nan"), float("nan"), float("nan"))))
-            assert _until(link, lambda: link.position is not None and link.position.alt > 8, 20)
-            assert link.state().armed and link.state().mode in ("TAKEOFF", "HOLD")
-            _rtl_then_land(link)
+            yield link
         finally:
             link.close()
+
+
+@pytest.mark.slow
+def test_vehicle_link_tracks_and_commands_the_sim():
+    with _px4_sim_link() as link:
+        assert link.sysid == 1 and link.autopilot == "px4"
+        frames = link.recv(1.0)
+        assert frames and all(read_header(f).sysid == 1 for f in frames)
+        # raw frames from a GS (sysid 4) go through unchanged
+        gs = FrameCodec(4, 190)
+        link.send(gs.encode(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)))
+        link.send(gs.encode(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, float("nan"),
+                                                             float("nan"), float("nan"), float("nan"))))
+        assert _until(link, lambda: link.position is not None and link.position.alt > 8, 20)
+        assert link.state().armed and link.state().mode in ("TAKEOFF", "HOLD")
+        _rtl_then_land(link)
 
 
 @pytest.mark.slow
@@ -106,33 +115,26 @@ def test_the_reader_thread_hands_every_frame_to_the_inbox_and_wakes_its_loop():
     (it tracks nothing itself); the loop takes it up with ``accept``."""
     from zdrone.net.inbox import Inbox
 
-    port = free_port()
-    with spawn(ZDRONE, "sim", "--mavlink", f"udpin:127.0.0.1:{port}", "--speedup", "4", "--ready-after", "0") as sim:
-        sim.wait_line("zdrone sim:", 20)
-        link = VehicleLink(f"udpout:127.0.0.1:{port}")
-        try:
-            assert link.wait_vehicle(10)
-            inbox = Inbox()
-            assert link.start_reader(lambda msg: inbox.put("vehicle", "vehicle", msg)) and link.reading
-            with pytest.raises(RuntimeError):
-                link.recv(0.0)  # one reader at a time
-            frames: list[bytes] = []
+    with _px4_sim_link() as link:
+        inbox = Inbox()
+        assert link.start_reader(lambda msg: inbox.put("vehicle", "vehicle", msg)) and link.reading
+        with pytest.raises(RuntimeError):
+            link.recv(0.0)  # one reader at a time
+        frames: list[bytes] = []
 
-            def take(kind: str, peer: str, msg: object, now: float) -> None:
-                assert (kind, peer) == ("vehicle", "vehicle")
-                frames.append(link.accept(msg, now))
+        def take(kind: str, peer: str, msg: object, now: float) -> None:
+            assert (kind, peer) == ("vehicle", "vehicle")
+            frames.append(link.accept(msg, now))
 
-            t0 = time.monotonic()
-            while not any(read_header(f).msgid == mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT for f in frames):
-                assert time.monotonic() - t0 < 5, "no position through the inbox"
-                inbox.drain(1.0, take)
-                link.heartbeat()
-            assert all(read_header(f).sysid == 1 for f in frames) and link.position is not None
-            waited = time.monotonic()
-            assert inbox.drain(2.0, take) >= 1  # the next message wakes the drain well before its 2 s
-            assert time.monotonic() - waited < 1.0
-            link.command_rtl()  # sends while the reader reads
-            assert link.next_due() <= time.monotonic() + 1.0
-        finally:
-            link.close()
-        assert not link.reading
+        t0 = time.monotonic()
+        while not any(read_header(f).msgid == mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT for f in frames):
+            assert time.monotonic() - t0 < 5, "no position through the inbox"
+            inbox.drain(1.0, take)
+            link.heartbeat()
+        assert all(read_header(f).sysid == 1 for f in frames) and link.position is not None
+        waited = time.monotonic()
+        assert inbox.drain(2.0, take) >= 1  # the next message wakes the drain well before its 2 s
+        assert time.monotonic() - waited < 1.0
+        link.command_rtl()  # sends while the reader reads
+        assert link.next_due() <= time.monotonic() + 1.0
+    assert not link.reading

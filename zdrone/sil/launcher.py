@@ -42,7 +42,7 @@ from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, read_records
 from .netns import NetnsTopology
-from .radiolink import RadioLink, SiteCoverage, TruthReceiver, site_circles
+from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
 
 PY = sys.executable
 
@@ -627,7 +627,7 @@ class Demo:
     pending_go: set[str] = field(default_factory=set)
     scheduled: list[tuple[float, Fault]] = field(default_factory=list)  # (monotonic due time, fault)
     sites: dict[str, dict[str, Any]] = field(default_factory=dict)  # with --sites: site -> endpoint, GSs
-    links: dict[str, RadioLink] = field(default_factory=dict)  # with --sites: radio per site, backhaul per pair
+    links: dict[str, SwitchedLink] = field(default_factory=dict)  # with --sites: radio per site, backhaul per pair
     coverage: "SiteCoverage | None" = None
     truth: "TruthReceiver | None" = None
     radio_log: "EventLog | None" = None
@@ -797,7 +797,7 @@ class Demo:
             raise RuntimeError("--netns runs the built-in simulator in the drone's namespace: no --vehicle")
         self._start_coverage(fleet, dict(topo.radios), topo.control_host)
 
-    def _start_coverage(self, fleet: Any, radios: dict[str, Any], truth_host: str) -> None:
+    def _start_coverage(self, fleet: Any, radios: dict[str, SwitchedLink], truth_host: str) -> None:
         self.radio_log = EventLog(self.out / "radio.jsonl", "radio")
         if self.opts.vehicle is None:  # the built-in simulator tells where the vehicle truly is
             log_ = self.radio_log

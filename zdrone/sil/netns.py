@@ -53,7 +53,8 @@ def netns_refusal() -> str | None:
 
 
 class VethLink:
-    """One veth pair, brought down and up from one end (the other end loses its carrier)."""
+    """One veth pair, brought down and up from one end (the other end loses its carrier); a
+    ``radiolink.SwitchedLink``."""
 
     def __init__(self, name: str, ns: str, ifname: str, up: bool = True, routes: tuple[tuple[str, str, str], ...] = ()) -> None:
         self.name, self.ns, self.ifname = name, ns, ifname
@@ -64,10 +65,6 @@ class VethLink:
     @property
     def up(self) -> bool:
         return self._up
-
-    @property
-    def endpoint(self) -> str:
-        return self.name
 
     def set_up(self, up: bool) -> bool:
         with self._lock:

@@ -27,7 +27,7 @@ import socket
 import threading
 from collections import Counter
 from collections.abc import Mapping
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 from ..core.fleet import Fleet
 from ..core.geometry import Circle, GeoPoint
@@ -35,6 +35,19 @@ from ..core.geometry import Circle, GeoPoint
 log = logging.getLogger(__name__)
 
 CHUNK = 65536
+
+
+class SwitchedLink(Protocol):
+    """A testbed link the testbed brings up and down: a loopback relay here, a veth pair in ``netns``."""
+
+    name: str
+
+    @property
+    def up(self) -> bool: ...
+
+    def set_up(self, up: bool) -> bool: ...
+
+    def close(self) -> None: ...
 
 
 class RadioLink:
@@ -152,7 +165,7 @@ def site_circles(fleet: Fleet, sites: Mapping[str, Mapping[str, Any]]) -> dict[s
 class SiteCoverage:
     """Brings each site's radio link up or down from the vehicle's true position."""
 
-    def __init__(self, circles: Mapping[str, list[Circle]], links: Mapping[str, RadioLink],
+    def __init__(self, circles: Mapping[str, list[Circle]], links: Mapping[str, SwitchedLink],
                  on_change: Callable[[str, bool, GeoPoint], None] | None = None) -> None:
         self.circles = dict(circles)
         self.links = dict(links)
