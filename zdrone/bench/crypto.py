@@ -60,7 +60,7 @@ def seal_open_us(cipher: str, frame: bytes, n: int) -> float:
 def handshake_us(n: int) -> dict[str, float]:
     """What a pairing query costs the drone: refusing a forged one by its tag, and a full handshake."""
     from ..core.keys import Identity
-    from ..core.pairing import PairingInitiator, PairingResponder
+    from ..core.pairing import PairAccepted, PairingInitiator, PairingResponder, PairRefusal, PairRefused
 
     drone, gs, fake = Identity.generate(), Identity.generate(), Identity.generate()
     responder = PairingResponder(drone, "d1", {"A": gs.public}, frozenset({"A"}), rate=1e9, burst=1e9)
@@ -70,11 +70,11 @@ def handshake_us(n: int) -> dict[str, float]:
     secret = bytes(32)
     t0 = time.perf_counter()
     for m1 in forged:
-        assert responder.answer("A", m1, 0.0, secret).refused == "bad_mac"
+        assert responder.answer("A", m1, 0.0, secret) == PairRefused(PairRefusal.BAD_MAC)
     tag = (time.perf_counter() - t0) / len(forged) * 1e6
     t0 = time.perf_counter()
     for m1 in genuine[1:]:
-        assert responder.answer("A", m1, 0.0, secret).key is not None
+        assert isinstance(responder.answer("A", m1, 0.0, secret), PairAccepted)
     full = (time.perf_counter() - t0) / max(1, len(genuine) - 1) * 1e6
     return {"forged_refused_us": round(tag, 2), "handshake_us": round(full, 1)}
 
