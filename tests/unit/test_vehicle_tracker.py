@@ -17,7 +17,9 @@ from zdrone.vehicle.sim import SimAutopilot
 from zdrone.vehicle.tracker import DEFAULT_STREAMS, VIEW_STREAMS, StreamWant, Timing, VehicleTracker
 
 COMPANION = (1, mav.MAV_COMP_ID_ONBOARD_COMPUTER)
-NEEDED = ("GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE", "SYS_STATUS", "MISSION_CURRENT", "HOME_POSITION")
+PX4_NEEDED = ("GLOBAL_POSITION_INT", "EXTENDED_SYS_STATE", "SYS_STATUS", "MISSION_CURRENT", "HOME_POSITION",
+              "GPS_RAW_INT")
+NEEDED = PX4_NEEDED + ("EKF_STATUS_REPORT",)  # ArduPilot's: its EKF says whether the position is absolute
 
 
 class Bench:
@@ -70,7 +72,7 @@ class Bench:
 
 
 def _ids(*names: str) -> set[int]:
-    return {getattr(mav, f"MAVLINK_MSG_ID_{n}") for n in names}
+    return {193 if n == "EKF_STATUS_REPORT" else getattr(mav, f"MAVLINK_MSG_ID_{n}") for n in names}
 
 
 # ---------------------------------------------------------------------------- ArduPilot
@@ -150,7 +152,8 @@ def test_px4_streams_what_is_needed_unasked_and_the_tracker_leaves_its_rates_alo
     b.run(6.0)
     t = b.tracker
     assert t.autopilot == "px4" and t.mode == "HOLD"
-    for name in NEEDED:
+    assert "EKF_STATUS_REPORT" not in t.stats()["streams"]  # asked of ArduPilot only
+    for name in PX4_NEEDED:
         assert b.stream(name) == {"state": "seen", "via": "unasked", "interval_asks": 0, "stream_asks": 0,
                                   "lapses": 0, "refusal": None}, name
     assert not b.sent and t.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
@@ -187,9 +190,10 @@ def test_a_vehicle_that_answers_nothing_is_asked_a_bounded_number_of_times():
     assert all(b.stream(n)["state"] == "failed" for n in NEEDED)
     intervals = b.sent_of("COMMAND_LONG", mav.MAV_CMD_SET_MESSAGE_INTERVAL)
     assert len(intervals) == 3 * len(NEEDED)
-    # the groups: POSITION 3 times; EXTENDED_STATUS for SYS_STATUS and MISSION_CURRENT: 3 + 2
-    # (MISSION_CURRENT's first ask rides on SYS_STATUS's); EXTENDED_SYS_STATE and HOME_POSITION have none
-    assert len(b.sent_of("REQUEST_DATA_STREAM")) == 8
+    # the groups: POSITION 3 times; EXTENDED_STATUS for SYS_STATUS, MISSION_CURRENT and GPS_RAW_INT: 3 + 2 + 2
+    # (the first asks of the latter two ride on SYS_STATUS's); EXTRA3 (EKF_STATUS_REPORT) 3 times;
+    # EXTENDED_SYS_STATE and HOME_POSITION have none
+    assert len(b.sent_of("REQUEST_DATA_STREAM")) == 13
     assert t.counters["interval_no_ack"] == 3 * len(NEEDED) and t.counters["stream_failed"] == len(NEEDED)
     b.sent.clear()
     b.run(30.0)
@@ -261,3 +265,47 @@ def test_a_stream_that_stops_while_heartbeats_go_on_is_asked_for_again():
     t = b.tracker
     assert t.connections == 1 and t.counters["stream_lapsed"] == len(NEEDED)
     assert all(b.stream(n)["state"] == "seen" and b.stream(n)["lapses"] == 1 for n in NEEDED)
+
+
+# ---------------------------------------------------------------------------- position only after a fix
+def _feed(t: VehicleTracker, *msgs: Any, now: float = 1.0) -> None:
+    codec = FrameCodec(1, 1)
+    for m in msgs:
+        t.on_message(codec.decode(codec.encode(m)), now)
+
+
+def _gpi(lat: float, lon: float) -> Any:
+    return mav.MAVLink_global_position_int_message(1000, int(lat * 1e7), int(lon * 1e7), 488_000, 0, 0, 0, 0, 0)
+
+
+def _gps(fix: int) -> Any:
+    return mav.MAVLink_gps_raw_int_message(0, fix, 0, 0, 0, 65535, 65535, 0, 65535, 0)
+
+
+def test_no_position_while_the_autopilot_has_no_fix_and_the_status_says_why():
+    """Issue 22: ArduCopter sends lat = lon = 0 before its GPS fix, and its EKF uses GPS only later;
+    the tracker used to take (0, 0) for the vehicle's position."""
+    from pymavlink.dialects.v20 import ardupilotmega as apm
+
+    t = VehicleTracker(*COMPANION)
+    _feed(t, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 3, 3))
+    assert t.position is None and t.stats()["position"]["why"] == "no position report"
+    _feed(t, _gpi(0.0, 0.0))
+    assert t.position is None and t.stats()["position"] == {"known": False, "why": "position 0, 0 (no fix)",
+                                                            "fix_type": None, "ekf_flags": None}
+    _feed(t, _gps(1), _gpi(HOME.lat, HOME.lon))  # a position, but GPS_RAW_INT says no fix
+    assert t.position is None and t.stats()["position"]["why"] == "no GPS fix (fix type 1)"
+    attitude_only = apm.EKF_ATTITUDE | apm.EKF_VELOCITY_HORIZ | apm.EKF_POS_HORIZ_REL | apm.EKF_CONST_POS_MODE
+    _feed(t, _gps(6), apm.MAVLink_ekf_status_report_message(attitude_only, 0, 0, 0, 0, 0, 0))
+    assert t.position is None and t.stats()["position"]["why"] == "estimate not absolute (EKF not using GPS)"
+    _feed(t, apm.MAVLink_ekf_status_report_message(attitude_only | apm.EKF_POS_HORIZ_ABS, 0, 0, 0, 0, 0, 0))
+    assert t.position is not None and abs(t.position.lat - HOME.lat) < 1e-6 and t.stats()["position"]["known"]
+    _feed(t, _gpi(0.0, 0.0))  # zeros again (a GPS glitch): unknown again, never (0, 0)
+    assert t.position is None
+
+
+def test_px4_position_is_known_from_its_global_position_alone():
+    t = VehicleTracker(*COMPANION)
+    _feed(t, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, 0, 0, 3, 3))
+    _feed(t, _gps(3), _gpi(HOME.lat, HOME.lon))  # no EKF_STATUS_REPORT from PX4: not held against it
+    assert t.position is not None and t.stats()["position"]["why"] is None

@@ -56,6 +56,7 @@ class VehicleState:
     mode: str  # ``modes.mode_name``: PX4 "HOLD", "MISSION", ...; ArduPilot "GUIDED", "AUTO", ...
     landed_state: int  # MAV_LANDED_STATE_*
     autopilot: str | None  # "px4", "ardupilot" or None
+    position_unknown: str | None = None  # why ``position`` is None (no GPS fix, 0/0, estimate not absolute)
 
 
 class VehicleLink:
@@ -90,6 +91,7 @@ class VehicleLink:
 
     @property
     def position(self) -> GeoPoint | None:
+        """None while the autopilot has no position of its own (``VehicleTracker.position``)."""
         return self.tracker.position
 
     @property
@@ -117,7 +119,8 @@ class VehicleLink:
         return self.tracker.stats()
 
     def state(self) -> VehicleState:
-        return VehicleState(self.sysid, self.position, self.armed, self.mode, self.landed_state, self.autopilot)
+        return VehicleState(self.sysid, self.position, self.armed, self.mode, self.landed_state, self.autopilot,
+                            self.tracker.fix.unknown_because)
 
     # ------------------------------------------------------------------ frames
     def heartbeat(self, now: float | None = None) -> None:

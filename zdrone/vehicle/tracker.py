@@ -11,6 +11,9 @@ fixes the vehicle's sysid/compid and which autopilot it is. **Reboot.** Its hear
 a gap of ``Timing.reboot_gap`` seconds, or a ``time_boot_ms`` of its messages goes back by more than
 ``Timing.boot_back_ms``. Both (re)start a round of stream requests.
 
+**Position.** A position is one only while the autopilot vouches for it (``fix.PositionFix``: a GPS
+fix, not lat = lon = 0, an absolute estimate); until then ``position`` is None and ``stats`` says why.
+
 **Streams.** The drone node needs GLOBAL_POSITION_INT (region, coverage) and the landed state; the
 GSs need those, HEARTBEAT, MISSION_CURRENT, SYS_STATUS, HOME_POSITION and the unsolicited protocol
 replies (COMMAND_ACK, MISSION_*, STATUSTEXT). PX4 streams them unasked; ArduPilot streams nothing
@@ -48,6 +51,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mav
 
 from ..core.geometry import GeoPoint
+from .fix import MSG_EKF_STATUS_REPORT, PositionFix
 from .modes import autopilot_name, landed_from_heartbeat, mode_name
 
 log = logging.getLogger(__name__)
@@ -64,6 +68,10 @@ class StreamWant:
     interval: float  # seconds
     group: int | None  # MAV_DATA_STREAM_* for REQUEST_DATA_STREAM; None: no group carries it
     why: str = ""
+    autopilots: tuple[str, ...] | None = None  # asked of these autopilots only (None: of every one)
+
+    def wanted_of(self, autopilot: str | None) -> bool:
+        return self.autopilots is None or autopilot in self.autopilots
 
 
 #: What the drone node and the ground stations depend on (gs.core.USED_MSGIDS besides the replies).
@@ -76,6 +84,10 @@ DEFAULT_STREAMS: tuple[StreamWant, ...] = (
     StreamWant(mav.MAVLINK_MSG_ID_MISSION_CURRENT, "MISSION_CURRENT", 1.0, mav.MAV_DATA_STREAM_EXTENDED_STATUS,
                "GS: mission progress"),
     StreamWant(mav.MAVLINK_MSG_ID_HOME_POSITION, "HOME_POSITION", 2.0, None, "GS: home, position estimate"),
+    StreamWant(mav.MAVLINK_MSG_ID_GPS_RAW_INT, "GPS_RAW_INT", 1.0, mav.MAV_DATA_STREAM_EXTENDED_STATUS,
+               "drone and GS: a position only with a GPS fix"),
+    StreamWant(MSG_EKF_STATUS_REPORT, "EKF_STATUS_REPORT", 1.0, mav.MAV_DATA_STREAM_EXTRA3,
+               "drone and GS: a position only once the EKF uses GPS", autopilots=("ardupilot",)),
 )
 #: Not asked by default (nothing here depends on them): what gives a GCS application behind a GS
 #: that does not hold authority (whose own stream requests never reach the vehicle) a live view.
@@ -160,7 +172,7 @@ class VehicleTracker:
         self.compid: int | None = None
         self.mav_autopilot: int | None = None
         self.autopilot: str | None = None  # "px4", "ardupilot", None
-        self.position: GeoPoint | None = None
+        self.fix = PositionFix()
         self.armed = False
         self.custom_mode = 0
         self.system_status = mav.MAV_STATE_UNINIT
@@ -171,12 +183,18 @@ class VehicleTracker:
         self._ext_landed: int | None = None
         self._ext_at: float | None = None
         self._boot_ms: int | None = None
-        self._streams = {w.msgid: _Stream(w) for w in streams}
+        self._streams = self._fresh_streams()
         self._pending: _Pending | None = None
         self._groups: dict[int, int] = {}  # REQUEST_DATA_STREAM group -> rate (Hz) asked this connection
         self._commands: list[_Command] = []
 
     # ------------------------------------------------------------------ state
+    @property
+    def position(self) -> GeoPoint | None:
+        """The vehicle's position, None while the autopilot has none (no GPS fix, lat = lon = 0, or an
+        estimate that is not absolute: ``PositionFix``)."""
+        return self.fix.position
+
     @property
     def mode(self) -> str:
         return mode_name(self.autopilot, self.custom_mode)
@@ -196,7 +214,7 @@ class VehicleTracker:
                 "streams": {s.want.name: {"state": s.state.value, "via": s.via, "interval_asks": s.interval_asks,
                                           "stream_asks": s.stream_asks, "lapses": s.lapses, "refusal": s.refusal}
                             for s in self._streams.values()},
-                "counters": dict(self.counters)}
+                "position": self.fix.describe(), "counters": dict(self.counters)}
 
     # ------------------------------------------------------------------ input
     def on_message(self, msg: Any, now: float) -> None:
@@ -216,9 +234,9 @@ class VehicleTracker:
         stream = self._streams.get(msg.get_msgId())
         if stream is not None:
             self._seen(stream, now)
-        if t == "GLOBAL_POSITION_INT":
-            self.position = GeoPoint(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
-        elif t == "EXTENDED_SYS_STATE":
+        if src[1] == self.compid:
+            self.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT
+        if t == "EXTENDED_SYS_STATE":
             self._ext_landed, self._ext_at = msg.landed_state, now
         elif t == "COMMAND_ACK":
             self._on_ack(msg, now)
@@ -244,6 +262,9 @@ class VehicleTracker:
         self.system_status = msg.system_status
         self.last_heartbeat = now
 
+    def _fresh_streams(self) -> dict[int, _Stream]:
+        return {w.msgid: _Stream(w) for w in self.wants if w.wanted_of(self.autopilot)}
+
     def _silent(self, now: float) -> bool:
         return self.last_heartbeat is None or now - self.last_heartbeat > self.timing.reboot_gap
 
@@ -254,7 +275,8 @@ class VehicleTracker:
         self._ext_landed = self._ext_at = None
         self._pending = None
         self._groups.clear()
-        self._streams = {w.msgid: _Stream(w) for w in self.wants}
+        self.fix = PositionFix()  # a rebooted autopilot has no fix yet; a link back: the next report says
+        self._streams = self._fresh_streams()
         if self.connections > 1:
             self.counters["reconnects"] += 1
             log.warning("vehicle %s: %s: asking for its streams again", self.sysid, why)
