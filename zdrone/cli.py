@@ -245,6 +245,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     return run_parsed(args)
 
 
+#: Commands that start processes of their own: they stop them however they end (``zdrone.sil.procs``).
+LAUNCHER_COMMANDS = ("demo", "bench")
+
+
 def run_parsed(args: argparse.Namespace) -> int:
     """Run a parsed subcommand: logging, signal thread, one-line errors with exit code 2."""
     try:
@@ -256,12 +260,25 @@ def run_parsed(args: argparse.Namespace) -> int:
             block_signals()  # before any library starts a thread: see zdrone.net.shutdown
         level = logging.WARNING - 10 * min(args.verbose, 2)
         logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-        code = args.func(args)
+        if getattr(args, "command", None) in LAUNCHER_COMMANDS:
+            from .sil.procs import on_signals
+
+            with on_signals():  # SIGTERM/SIGHUP unwind like Ctrl-C; every child is stopped on the way out
+                code = args.func(args)
+        else:
+            code = args.func(args)
     except (UsageError, ConfigError) as exc:
         print(f"zdrone: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    except BaseException as exc:
+        from .sil.procs import Terminated
+
+        if isinstance(exc, Terminated):
+            print(f"zdrone: {exc}", file=sys.stderr)
+            return 128 + exc.signum
+        raise
     if getattr(args, "func", None) in SIGNAL_THREAD_COMMANDS:
         _exit_now(int(code or 0))
     return int(code or 0)

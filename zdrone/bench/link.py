@@ -33,6 +33,7 @@ from ..fleet.files import init_fleet, load_secret
 from ..fleet import keyexprs as kx
 from ..net.session import open_client
 from ..sil.launcher import free_port
+from ..sil.procs import spawn  # the router dies with the bench, however it ends
 
 
 def _frames(n: int) -> list[bytes]:
@@ -189,8 +190,8 @@ def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
     init_fleet(tmp / "fleet")
     port = free_port(socket.SOCK_STREAM)
     router = f"tcp/127.0.0.1:{port}"
-    proc = subprocess.Popen([sys.executable, "-m", "zdrone", "router", "-c", str(tmp / "fleet/router/router.json5"),
-                             "--listen", router], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = spawn([sys.executable, "-m", "zdrone", "router", "-c", str(tmp / "fleet/router/router.json5"),
+                  "--listen", router], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         assert proc.stdout is not None
         proc.stdout.readline()  # the ready line

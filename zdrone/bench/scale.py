@@ -307,6 +307,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
          drone_router: str = "spread", inbox_senders: int | None = None) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
     from ..fleet.files import init_fleet, load_sites, scale_nodes
+    from ..sil.procs import spawn  # dies with the bench, however it ends
 
     layout = f"{sites} sites" if sites else ("1 router, TLS" if tls else "1 router")
     d = base / f"k{k}-{f'sites{sites}' if sites else 'one'}"
@@ -333,7 +334,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     router_pids: set[int] = set()
     try:
         for name, cmd in router_cmds.items():
-            procs[name] = subprocess.Popen(py + cmd, stdout=logs[name], stderr=subprocess.STDOUT)
+            procs[name] = spawn(py + cmd, stdout=logs[name], stderr=subprocess.STDOUT)
         for name in router_cmds:
             line = _wait_line(d / f"{name}.log", "listening", 20, procs[name])
             if line is None:
@@ -349,12 +350,12 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
                 break
             time.sleep(0.2)
         common = ["--fleet", str(d / "fleet"), "--out", str(d)]
-        procs["drones"] = subprocess.Popen(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(SPEEDUP),
+        procs["drones"] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(SPEEDUP),
                                                  "--duration", str(timeout), "--hold", str(hold_limit(k)),
                                                  "--router", ",".join(endpoints),
                                                  "--drone-router", drone_router, *common],
                                            stdout=logs["drones"], stderr=subprocess.STDOUT)
-        procs["stations"] = subprocess.Popen(py + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
+        procs["stations"] = spawn(py + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
                                                    "--router", ",".join(gs_routers), *common,
                                                    *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
                                              stdout=logs["stations"], stderr=subprocess.STDOUT)

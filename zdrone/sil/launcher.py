@@ -41,6 +41,7 @@ from ..core.reference import HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, read_records
+from . import procs
 from .netns import NetnsTopology
 from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
 
@@ -643,9 +644,11 @@ class Demo:
         log = self.out / f"{name}.log"
         fh = open(log, "a" if append else "w")
         prefix = self.netns.exec_prefix(ns) if (ns and self.netns) else []  # ``ip netns exec`` execs: same PID
-        proc = subprocess.Popen([*prefix, PY, *args], stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                cwd=self.out, start_new_session=True)
-        fh.close()
+        try:  # dies with the launcher, however it ends (zdrone.sil.procs)
+            proc = procs.spawn([*prefix, PY, *args], stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                               cwd=self.out)
+        finally:
+            fh.close()
         child = Child(name, proc, log, args=list(args), ns=ns)
         self.children[name] = child
         return child
@@ -701,6 +704,7 @@ class Demo:
                     child.proc.kill()
                     child.proc.wait(5)
                     self.notes.append(f"{child.name} had to be killed (stacks in {child.log.name})")
+                procs.forget(child.proc)
                 codes[child.name] = child.proc.returncode
         self.close_links()
         return {n: codes.get(n) for n in self.children}
@@ -864,6 +868,15 @@ class Demo:
         return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns("A"))  # beside A, on site 1
 
     def run(self) -> dict[str, Any]:
+        """Fly the run; whatever ends it (a child that fails to start, an exception, a signal turned
+        into one) stops every process it started before the exception goes on."""
+        try:
+            return self._run()
+        except BaseException:
+            self.shutdown()
+            raise
+
+    def _run(self) -> dict[str, Any]:
         o, spec = self.opts, self.spec
         self.start_core()
         gs_extra = ["--command-rate", str(o.command_rate), *self._bench_extra()] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
@@ -1315,15 +1328,17 @@ def run_demo(opts: DemoOptions) -> int:
     out = out.resolve()
     print(f"zdrone demo: scenario {opts.scenario}, speed-up {opts.speedup:g}, output in {out}", flush=True)
     demo = Demo(opts, out)
-    try:
+    try:  # Demo.run has stopped every child whatever ends it
         summary = demo.run()
     except (RuntimeError, OSError) as exc:
-        demo.shutdown()
         print(f"zdrone demo: failed: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        demo.shutdown()
+        print("zdrone demo: interrupted; every process of the run stopped", file=sys.stderr)
         return 130
+    except procs.Terminated as exc:
+        print(f"zdrone demo: {exc}; every process of the run stopped", file=sys.stderr)
+        return 128 + exc.signum
     if opts.report:
         try:
             from ..report import write_report
