@@ -194,6 +194,32 @@ def test_forged_next_epoch_does_not_move_receiver():
     assert isinstance(p.drone.open(p.gs.seal(p.heartbeat()), 1.0), Opened)
 
 
+def test_next_epoch_junk_costs_no_key_derivation(monkeypatch):
+    """Frames claiming the peer's next epoch: its key is derived once and kept (one AEAD attempt per
+    frame), and once the peer really moves there, the epoch after it is derived once too."""
+    from zdrone.core import keys
+
+    p = make_pair(rekey_after=4)
+    derived = []
+    real = keys.hkdf
+    monkeypatch.setattr(keys, "hkdf", lambda *a, **k: derived.append(a[1]) or real(*a, **k))
+    for i in range(500):
+        junk = bytes([1]) + i.to_bytes(7, "big") + bytes(30)
+        assert p.drone.open(junk, 1.0).reason is DropReason.AUTH_FAILED
+    assert len(derived) <= 2  # the next chain key and its AEAD key, once
+    assert p.drone.stats(1.0).rx_epoch == 0
+    sealed = [p.gs.seal(p.heartbeat()) for _ in range(6)]  # epochs 0,0,0,0,1,1
+    derived.clear()
+    for s in sealed:
+        assert isinstance(p.drone.open(s, 1.0), Opened)
+    assert p.drone.stats(1.0).rx_epoch == 1
+    for i in range(500):
+        junk = bytes([2]) + i.to_bytes(7, "big") + bytes(30)
+        assert p.drone.open(junk, 1.0).reason is DropReason.AUTH_FAILED
+    assert len(derived) <= 2
+    assert p.drone.stats(1.0).rx_epoch == 1
+
+
 def test_fernet_cipher_same_interface():
     from zdrone.core.envelope import enable_bench_ciphers
 

@@ -252,6 +252,7 @@ class SecureLink:
         self._rx_chain = KeyChain.start(key.direction(rx_dir))
         self._rx_current = _RxEpoch(0, self.cipher.make(self._rx_chain.aead_key()), ReplayWindow(window))
         self._rx_previous: _RxEpoch | None = None
+        self._rx_next: _RxEpoch | None = None  # the peer's next epoch, derived once (see ``_rx_for``)
         self.tbm = TimeBetweenMessages(now, thresholds)
         self.sent = 0
         self.opened = 0
@@ -291,9 +292,19 @@ class SecureLink:
         if prev is not None and epoch_byte == prev.epoch & 0xFF:
             return prev, False
         if epoch_byte == (cur.epoch + 1) & 0xFF:
-            nxt = _RxEpoch(cur.epoch + 1, self.cipher.make(self._rx_chain.peek_next()), ReplayWindow(self.window_size))
-            return nxt, True
+            return self._next_epoch(), True
         return None, False
+
+    def _next_epoch(self) -> _RxEpoch:
+        """The peer's next epoch: key derived and cipher set up once, kept until the peer moves to
+        it, so a frame claiming that epoch (authentic or junk) costs one AEAD attempt and no key
+        derivation. Its replay window is marked only by authentic frames."""
+        nxt = self._rx_next
+        if nxt is None:
+            cur = self._rx_current
+            nxt = self._rx_next = _RxEpoch(cur.epoch + 1, self.cipher.make(self._rx_chain.peek_next()),
+                                           ReplayWindow(self.window_size))
+        return nxt
 
     def count_drop(self, dropped: Dropped) -> None:
         """Count a drop that an ``open(..., count=False)`` returned (see ``LinkSlot``)."""
@@ -325,7 +336,7 @@ class SecureLink:
             rx.window.mark(counter)
         if is_next:  # first authentic frame of the peer's new epoch: follow it
             self._rx_chain.advance()
-            self._rx_previous, self._rx_current = self._rx_current, rx
+            self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None
             log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
         header: FrameHeader | None = None
         control: wire.Control | None = None
