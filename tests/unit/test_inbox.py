@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 
-from zdrone.net.inbox import MAX_BATCH, Inbox
+from zdrone.net.inbox import MAX_BATCH, MAX_PER_SENDER, Inbox
 
 
 class _Payload:
@@ -29,7 +29,28 @@ def test_a_flood_from_one_sender_does_not_crowd_out_another():
     ib.drain(0.0, lambda kind, peer, data, now: got.append((peer, data)))
     assert [d for p, d in got if p == "A"] == [bytes([i]) for i in range(5)]  # all of A's, in the first batch
     assert ib.stats() == {"up:inbox_full": 10_000 - 100}
-    assert len(got) == 105 <= MAX_BATCH
+    assert len(got) == 5 + MAX_PER_SENDER <= MAX_BATCH  # the rest of B's in the next drains
+    while ib.drain(0.0, lambda kind, peer, data, now: got.append((peer, data))):
+        pass
+    assert len(got) == 105
+
+
+def test_a_frame_arriving_during_a_flood_waits_for_few_items():
+    """While the loop works through a flooded queue, a frame from another sender that arrives
+    meanwhile is handled after at most ``MAX_PER_SENDER`` more items of the flood, not a whole batch."""
+    ib = Inbox(size=1024)
+    for _ in range(1024):
+        ib.put("up", "B", b"junk")
+    order: list[str] = []
+
+    def handle(kind: str, peer: str, data: bytes, now: float) -> None:
+        order.append(peer)
+        if len(order) == 1:
+            ib.put("up", "A", b"heartbeat")  # arrives while the first drain runs
+
+    while len(order) < 1025:
+        assert ib.drain(0.0, handle) <= MAX_PER_SENDER + 1
+    assert order.index("A") <= 2 * MAX_PER_SENDER
 
 
 def test_oversized_payloads_are_refused_by_length_and_counted():

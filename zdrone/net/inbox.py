@@ -6,7 +6,8 @@ drains them in turn, sleeping on the queue until the first item or its own next 
 nothing a sender can do grows a node's memory, stalls its loop or crowds out another sender: a
 payload above its kind's size limit is refused by its length before it is even copied out of Zenoh,
 a full queue refuses the newest item, and each drain handles a bounded batch, one item per sender in
-turn. Every refusal is counted per reason (``Inbox.dropped``).
+turn and at most ``MAX_PER_SENDER`` of one sender (a flooded queue cannot fill a whole batch, so a
+frame from another sender that arrives meanwhile waits for a few dozen items at most, not hundreds). Every refusal is counted per reason (``Inbox.dropped``).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from typing import Any, Callable
 
 #: Items handled per drain at most, so the rest of the loop still runs under load.
 MAX_BATCH = 512
+#: Items of one (kind, sender) handled per drain at most: the rest waits for the next drain.
+MAX_PER_SENDER = 64
 #: Items waiting per (kind, sender) at most; beyond it, new ones are refused (``<kind>:inbox_full``).
 INBOX_SIZE = 1024
 #: (kind, sender) queues holding items at once, at most (senders are node names from key expressions,
@@ -79,16 +82,23 @@ class Inbox:
             return dict(self.dropped)
 
     def _take(self, n: int) -> list[tuple[str, str, Any]]:
-        """Up to ``n`` items, one per sender in turn (the caller holds the lock)."""
+        """Up to ``n`` items, one per sender in turn and ``MAX_PER_SENDER`` of one sender at most
+        (the caller holds the lock)."""
         out: list[tuple[str, str, Any]] = []
+        rounds: dict[tuple[str, str], int] = {}
+        capped: list[tuple[str, str]] = []
         while self._order and len(out) < n:
             key = self._order.popleft()
             q = self._queues[key]
             out.append((key[0], key[1], q.popleft()))
-            if q:
-                self._order.append(key)
-            else:
+            taken = rounds[key] = rounds.get(key, 0) + 1
+            if not q:
                 del self._queues[key]  # drained: the sender holds no queue until it sends again
+            elif taken >= MAX_PER_SENDER:
+                capped.append(key)  # its turn again in the next drain, after the senders still waiting
+            else:
+                self._order.append(key)
+        self._order.extend(capped)
         return out
 
     def drain(self, wait: float, handle: Callable[[str, str, Any, float], None]) -> int:
