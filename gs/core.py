@@ -51,6 +51,9 @@ from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.fleet import keyexprs as kx
 
+from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
+from zdrone.vehicle.modes import mode_name, set_mode_params
+
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
 log = logging.getLogger(__name__)
@@ -61,16 +64,42 @@ USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG
                          mav.MAVLINK_MSG_ID_STATUSTEXT, mav.MAVLINK_MSG_ID_COMMAND_ACK,
                          mav.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mav.MAVLINK_MSG_ID_MISSION_REQUEST,
                          mav.MAVLINK_MSG_ID_MISSION_ACK, mav.MAVLINK_MSG_ID_SYS_STATUS,
-                         mav.MAVLINK_MSG_ID_PARAM_VALUE})
+                         mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_GPS_RAW_INT, MSG_EKF_STATUS_REPORT,
+                         mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED})
 AUTOPILOT_NAMES = {mav.MAV_AUTOPILOT_PX4: "px4", mav.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 #: ArduPilot's "continue after land" mission option (MIS_OPTIONS bit 2): the reference flight
 #: lands at the delivery point and goes on.
 ARDUPILOT_CONTINUE_AFTER_LAND = 4
-#: Tries of a refused or unanswered ARM / MISSION_START / PARAM_SET before the mission is given up.
+#: Tries of an unconfirmed PARAM_SET before the mission is given up.
 MAX_TRIES = 30
+#: Refusals of ARM / MISSION_START that neither the vehicle's state nor its words explain, before the
+#: mission is given up (a refusal while not ready never counts: the GS waits for the vehicle).
+MAX_UNEXPLAINED = 5
 RETRY_AFTER_S = 2.0
 #: Without a pre-arm health report, try to arm after this long (the vehicle's refusal decides).
 READY_WAIT_S = 3.0
+#: A refusal is classified this long after its COMMAND_ACK (ArduPilot says why after the ACK) ...
+REASON_WAIT_S = 0.5
+#: ... from the texts since this long before the ACK.
+REASON_BEFORE_S = 1.0
+#: The autopilot's PreArm text shown while the pre-arm checks fail is at most this old.
+PREARM_TEXT_S = 35.0
+PREARM_PREFIXES = ("prearm", "arm:", "arming denied", "preflight fail")
+#: Words of a refusal that says the vehicle is not ready yet (lower case) ...
+NOT_READY = ("requires position", "prearm", "arm:", "not ready", "resolve system health", "need position",
+             "ekf", "gps", "position estimate", "currently not available", "temporarily")
+#: ... and of one that waiting cannot fix.
+REFUSED_FOR_GOOD = ("mission rejected", "no valid mission", "missing takeoff")
+#: ArduCopter's modes that cannot be armed in (AUTO 3, RTL 6, LAND 9): a GS arming again after an
+#: auto-disarm in AUTO first switches to GUIDED.
+ARDUPILOT_NOT_ARMABLE = frozenset({3, 6, 9})
+MODE_SETTLE_S = 1.0
+#: After the mission start: the vehicle must report leaving the ground (landed state, or this height)
+#: within ``TAKEOFF_CONFIRM_S`` (said once if not), or a disarm on the ground starts it again; a
+#: HEARTBEAT must report it armed within ``ARMED_REPORT_S``.
+LEFT_GROUND_M = 1.0
+TAKEOFF_CONFIRM_S = 5.0
+ARMED_REPORT_S = 2.5
 TEXTS_KEPT = 8
 #: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
 LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
@@ -94,10 +123,12 @@ class Stage(enum.Enum):
     IDLE = "idle"  # waiting to know the autopilot (its HEARTBEAT)
     PREPARING = "preparing"  # ArduPilot: MIS_OPTIONS "continue after land" set and confirmed
     UPLOADING = "uploading"
-    WAITING_READY = "waiting_ready"  # pre-arm checks (SYS_STATUS) or the next try after a refusal
+    WAITING_READY = "waiting_ready"  # pre-arm checks, position estimate, or the next try after a refusal
     ARMING = "arming"
     STARTING = "starting"
-    FLYING = "flying"
+    REFUSED = "refused"  # ARM or MISSION_START refused: the vehicle's reasons are gathered a moment
+    TAKING_OFF = "taking_off"  # started: armed and leaving the ground is awaited
+    FLYING = "flying"  # left the ground
     FAILED = "failed"
 
 
@@ -186,6 +217,15 @@ class FlightParam:
 
 
 @dataclass(frozen=True, slots=True)
+class Refusal:
+    """A refused ARM / MISSION_START awaiting its reasons."""
+
+    what: str
+    result: int
+    at: float
+
+
+@dataclass(frozen=True, slots=True)
 class CoreOptions:
     """What the GS core needs of the command line."""
 
@@ -210,8 +250,9 @@ class DroneView:
     pairing: PairingInitiator | None = None
     pairing_deadline: float = 0.0
     asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
-    position: GeoPoint | None = None
+    fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     armed: bool = False
+    disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
     custom_mode: int = 0
     landed_state: int = 0
     mission_seq: int | None = None
@@ -236,10 +277,24 @@ class DroneView:
     texts: list[tuple[float, str]] = field(default_factory=list)  # the vehicle's recent STATUSTEXTs
     tries: int = 0  # of the current stage's command (arm, start, parameter)
     next_try: float = 0.0
+    waiting: str | None = None  # what the GS last said it waits for before arming
+    refusal: Refusal | None = None
+    restarts: int = 0  # armed and started again after a disarm on the ground
+    takeoff_late_said: bool = False
     last_pair_try: float | None = None
     last_share_try: float | None = None
     last_command: float | None = None
     last_take_control: float | None = None
+
+    @property
+    def position(self) -> GeoPoint | None:
+        """Where the vehicle is, None while its autopilot has no position of its own (``PositionFix``)."""
+        return self.fix.position
+
+    @position.setter
+    def position(self, value: GeoPoint | None) -> None:
+        self.fix = PositionFix()
+        self.fix.reported = value
 
 
 def _due(last: float | None, now: float, period: float) -> bool:
@@ -515,10 +570,12 @@ class StationCore:
         if msg is None:
             return out
         t = msg.get_type()
-        if t == "GLOBAL_POSITION_INT":
-            view.position = GeoPoint(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
-        elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:
-            view.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+        view.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT: the position
+        if t == "HEARTBEAT" and msg.get_srcComponent() == 1:
+            armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+            if view.armed and not armed:
+                view.disarmed_at = now
+            view.armed = armed
             view.custom_mode = msg.custom_mode
             if view.autopilot is None:
                 view.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, "other")
@@ -531,8 +588,8 @@ class StationCore:
             out += self._flight(view, FlightParam(now, name, float(msg.param_value)))
         elif t == "EXTENDED_SYS_STATE":
             view.landed_state = msg.landed_state
-        elif t == "MISSION_CURRENT":
-            view.mission_seq = msg.seq
+        elif t in ("MISSION_CURRENT", "MISSION_ITEM_REACHED"):
+            out += self._progress(view, msg.seq, t == "MISSION_ITEM_REACHED")
         elif t == "STATUSTEXT":
             text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
             view.texts = (view.texts + [(now, text)])[-TEXTS_KEPT:]
@@ -601,22 +658,9 @@ class StationCore:
         handler = FLIGHT.get((view.stage, type(ev)))
         return handler(self, view, ev) if handler is not None else []
 
-    def _reasons(self, view: DroneView, now: float) -> list[str]:
-        """What the vehicle said in the last seconds: the reason of a refusal, as far as it gives one."""
-        return [t for (when, t) in view.texts if now - when <= 3.0]
-
-    def _try_again(self, view: DroneView, stage: Stage, now: float, what: str, result: int | None) -> list[Action]:
-        """A refused or unanswered step: try again after ``RETRY_AFTER_S``, at most ``MAX_TRIES`` times."""
-        view.tries += 1
-        reasons = self._reasons(view, now)
-        log_ = Log("vehicle_refused", {"drone": view.name, "what": what, "result": result, "try": view.tries,
-                                        "texts": reasons})
-        if view.tries >= MAX_TRIES:
-            return [log_, *self._give_up(view, now, f"{what} refused {view.tries} times: "
-                                                    f"{'; '.join(reasons) or f'result {result}'}")]
-        view.next_try = now + RETRY_AFTER_S
-        self._set_stage(view, stage, now)
-        return [log_]
+    def _reasons(self, view: DroneView, since: float) -> list[str]:
+        """What the vehicle said since ``since``: the reason of a refusal, as far as it gives one."""
+        return [t for (when, t) in view.texts if when >= since]
 
     def _give_up(self, view: DroneView, now: float, reason: str) -> list[Action]:
         """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
@@ -679,48 +723,137 @@ class StationCore:
                 out += self._give_up(view, ev.now, f"mission upload refused (MISSION_ACK {view.uploader.result})")
         return out
 
+    # ------------------------------------------------------- ready, arm, start
+    def not_ready(self, view: DroneView, now: float) -> str | None:
+        """What the vehicle still lacks to arm and fly its mission (None: nothing), in the operator's
+        words: the pre-arm checks of SYS_STATUS (with the autopilot's own PreArm text) and, for the
+        mission mode, an absolute horizontal position (ArduPilot: its EKF uses GPS; PX4: a global
+        position estimate)."""
+        if view.prearm_ok is False:
+            said = next((t for (when, t) in reversed(view.texts)
+                         if now - when <= PREARM_TEXT_S and t.lower().startswith(PREARM_PREFIXES)), None)
+            return "pre-arm checks failing" + (f" ({said})" if said else "")
+        if view.prearm_ok is None and now - view.stage_time < READY_WAIT_S:
+            return "waiting for the pre-arm report (SYS_STATUS)"
+        why = view.fix.unknown_because
+        if why is None and view.fix.estimate_absolute:
+            return None
+        if why is not None and why.startswith(("no GPS fix", "position 0, 0")):
+            return f"waiting for a GPS fix ({why})"
+        if view.autopilot == "ardupilot" and view.fix.ekf_flags is not None:
+            return "waiting for the EKF to use GPS (EKF_STATUS_REPORT: no absolute position)"
+        if view.autopilot == "px4":
+            return "waiting for a global position estimate"
+        return f"waiting for a position ({why or 'estimate not absolute'})"
+
+    def _show_waiting(self, view: DroneView, waiting: str | None, now: float) -> list[Action]:
+        """Say what the GS waits for, once each time it changes."""
+        if waiting == view.waiting:
+            return []
+        view.waiting = waiting
+        text = f"{view.name} ready: arming" if waiting is None else f"{view.name} not ready: {waiting}"
+        return [Log("vehicle_waiting", {"drone": view.name, "waiting": waiting}), Say(f"zdrone gs {self.name}: {text}")]
+
     def _ready_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        """Arm once the vehicle reports its pre-arm checks passed (or, if it reports nothing, after a
-        short wait: its refusal then says why and the GS tries again)."""
+        """Arm once the vehicle says it can fly the mission (``not_ready``); no retry counter runs out
+        while it is not ready, the GS says what it waits for."""
         if ev.now < view.next_try:
             return []
-        if view.armed:  # armed already (e.g. a retried start): go on with the start
+        if view.armed:  # armed already (e.g. a start refused while armed): go on with the start
             self._set_stage(view, Stage.STARTING, ev.now)
             return self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
-        if view.prearm_ok is False or (view.prearm_ok is None and ev.now - view.stage_time < READY_WAIT_S):
-            return []
+        out = self._show_waiting(view, self.not_ready(view, ev.now), ev.now)
+        if view.waiting is not None:
+            return out
+        if view.autopilot == "ardupilot" and view.custom_mode in ARDUPILOT_NOT_ARMABLE:
+            view.next_try = ev.now + MODE_SETTLE_S  # left in AUTO (or RTL, LAND) by a disarm: arm in GUIDED
+            return out + self._command(view, mav.MAV_CMD_DO_SET_MODE, *set_mode_params("ardupilot", "GUIDED"))
         self._set_stage(view, Stage.ARMING, ev.now)
-        return self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        return out + self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def _stage_timeout(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        if ev.now - view.stage_time > STAGE_TIMEOUT:
-            what = "arm" if view.stage is Stage.ARMING else "mission start"
-            return self._try_again(view, Stage.WAITING_READY, ev.now, f"{what} (no answer)", None)
-        if view.stage is Stage.STARTING and not view.armed and ev.now - view.stage_time > 2.0:
-            return self._try_again(view, Stage.WAITING_READY, ev.now, "mission start (disarmed meanwhile)", None)
+        """No answer to ARM / MISSION_START within ``STAGE_TIMEOUT``: tried again once ready."""
+        if ev.now - view.stage_time <= STAGE_TIMEOUT:
+            return []
+        what = "arm" if view.stage is Stage.ARMING else "mission start"
+        view.next_try = ev.now + RETRY_AFTER_S
+        self._set_stage(view, Stage.WAITING_READY, ev.now)
+        return [Log("vehicle_refused", {"drone": view.name, "what": f"{what} (no answer)", "result": None,
+                                        "try": view.tries, "texts": []})]
+
+    def _step_refused(self, view: DroneView, ev: FlightAck, what: str) -> list[Action]:
+        """A refusal: classified only after ``REASON_WAIT_S`` (ArduPilot says why after its ACK)."""
+        view.refusal = Refusal(what, ev.result, ev.now)
+        self._set_stage(view, Stage.REFUSED, ev.now)
         return []
 
     def _arm_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
         if ev.command != mav.MAV_CMD_COMPONENT_ARM_DISARM:
             return []
         if not ev.accepted:
-            return self._try_again(view, Stage.WAITING_READY, ev.now, "arm", ev.result)
+            return self._step_refused(view, ev, "arm")
+        view.armed = True  # the ACK says so before the next HEARTBEAT does
         self._set_stage(view, Stage.STARTING, ev.now)
         return self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
 
     def _start_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
         if ev.command != mav.MAV_CMD_MISSION_START:
             return []
-        if ev.accepted:
+        if not ev.accepted:
+            return self._step_refused(view, ev, "mission start")
+        self._set_stage(view, Stage.TAKING_OFF, ev.now)
+        return [Log("mission_started", {"drone": view.name, "result": ev.result})]
+
+    def _classify_refusal(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        """``REASON_WAIT_S`` after a refusal, with the texts that came before and after its ACK: not
+        ready yet (its result code, its texts, or what the vehicle reports) is waited for; a refusal
+        waiting cannot fix gives the mission up."""
+        r = view.refusal
+        assert r is not None
+        if ev.now - r.at < REASON_WAIT_S:
+            return []
+        view.refusal = None
+        texts = self._reasons(view, r.at - REASON_BEFORE_S)
+        said = " ".join(texts).lower()
+        view.tries += 1
+        out: list[Action] = [Log("vehicle_refused", {"drone": view.name, "what": r.what, "result": r.result,
+                                                     "try": view.tries, "texts": texts})]
+        reason = "; ".join(texts) or f"result {r.result}"
+        final = any(p in said for p in REFUSED_FOR_GOOD)
+        not_ready = (r.result == mav.MAV_RESULT_TEMPORARILY_REJECTED or any(p in said for p in NOT_READY)
+                     or self.not_ready(view, ev.now) is not None)
+        if final or not (not_ready or view.tries < MAX_UNEXPLAINED):
+            out.append(Log("mission_start_failed", {"drone": view.name, "result": r.result, "texts": texts}))
+            return out + self._give_up(view, ev.now, f"{r.what} refused (result {r.result}): {reason}")
+        view.next_try = ev.now + RETRY_AFTER_S
+        self._set_stage(view, Stage.WAITING_READY, ev.now)
+        return out + [Say(f"zdrone gs {self.name}: {view.name}: {r.what} refused ({reason}); "
+                          f"{'not ready yet, waiting' if not_ready else 'trying again'}")]
+
+    # ----------------------------------------------------------- take-off
+    def _takeoff_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
+        """After the start: the vehicle must leave the ground; if it disarmed on the ground (ArduCopter's
+        auto-disarm, PX4's preflight disarm) it is armed and started again."""
+        left = view.landed_state in (mav.MAV_LANDED_STATE_IN_AIR, mav.MAV_LANDED_STATE_TAKEOFF) or (
+            view.fix.position is not None and view.fix.position.alt > LEFT_GROUND_M)
+        if left and view.armed:
             self._set_stage(view, Stage.FLYING, ev.now)
-            return [Log("mission_started", {"drone": view.name, "result": ev.result})]
-        reasons = " ".join(self._reasons(view, ev.now)).lower()
-        if "requires position" in reasons or ev.result == mav.MAV_RESULT_TEMPORARILY_REJECTED:
-            return self._try_again(view, Stage.WAITING_READY, ev.now, "mission start", ev.result)  # not ready yet
-        # a refusal that waiting cannot fix (e.g. PX4: the mission is not feasible)
-        out = [Log("mission_start_failed", {"drone": view.name, "result": ev.result, "texts": self._reasons(view, ev.now)})]
-        return out + self._give_up(view, ev.now, f"mission start refused (result {ev.result}): "
-                                                 f"{'; '.join(self._reasons(view, ev.now)) or 'no reason given'}")
+            return [Log("takeoff_confirmed", {"drone": view.name, "restarts": view.restarts}),
+                    Say(f"zdrone gs {self.name}: {view.name} took off")]
+        disarmed = (view.disarmed_at is not None and view.disarmed_at > view.stage_time) or (
+            not view.armed and ev.now - view.stage_time > ARMED_REPORT_S)
+        if disarmed:
+            view.restarts += 1
+            view.next_try = ev.now + RETRY_AFTER_S
+            self._set_stage(view, Stage.WAITING_READY, ev.now)
+            reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"
+            return [Log("takeoff_restart", {"drone": view.name, "reason": reason, "restarts": view.restarts}),
+                    Say(f"zdrone gs {self.name}: {view.name} {reason}: arming and starting again")]
+        if ev.now - view.stage_time > TAKEOFF_CONFIRM_S and not view.takeoff_late_said:
+            view.takeoff_late_said = True
+            return [Say(f"zdrone gs {self.name}: {view.name} started but still on the ground after "
+                        f"{TAKEOFF_CONFIRM_S:g} s (mode {mode_name(view.autopilot, view.custom_mode)})")]
+        return []
 
     def _coordinate(self, view: DroneView, now: float) -> list[Action]:
         """Release authority toward the GS whose coverage the drone is flying into."""
@@ -759,6 +892,18 @@ class StationCore:
         view.last_command = now
         return self._command(view, mav.MAV_CMD_REQUEST_MESSAGE, mav.MAVLINK_MSG_ID_HOME_POSITION)
 
+    def _progress(self, view: DroneView, seq: int, reached: bool) -> list[Action]:
+        """The mission's progress (MISSION_CURRENT moving on, MISSION_ITEM_REACHED), logged with where
+        the vehicle is and whether it is on the ground: what a delivery is judged by."""
+        if not reached and seq == view.mission_seq:
+            return []
+        if not reached:
+            view.mission_seq = seq
+        p = view.fix.position
+        return [Log("mission_progress", {"drone": view.name, "seq": seq, "reached": reached,
+                                         "landed_state": view.landed_state,
+                                         "position": None if p is None else [round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)]})]
+
     # ------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:
         out = {}
@@ -766,6 +911,7 @@ class StationCore:
             out[d] = {"linked": v.link is not None, "owner": v.owner, "epoch": v.epoch,
                       "state": v.ha_state.value if v.ha_state else "unknown", "stage": v.stage.value,
                       "position": [v.position.lat, v.position.lon, v.position.alt] if v.position else None,
+                      "waiting": v.waiting,
                       "commands_sent": {str(k): c for k, c in v.commands_sent.items()},
                       "link": None if v.link is None else {"opened": v.link.opened, "sent": v.link.sent,
                                                              "dropped": {r.value: c for r, c in v.link.drops.items() if c}},
@@ -786,4 +932,6 @@ FLIGHT: dict[tuple[Stage, type], Handler] = {
     (Stage.STARTING, FlightTick): StationCore._stage_timeout,
     (Stage.ARMING, FlightAck): StationCore._arm_ack,
     (Stage.STARTING, FlightAck): StationCore._start_ack,
+    (Stage.REFUSED, FlightTick): StationCore._classify_refusal,
+    (Stage.TAKING_OFF, FlightTick): StationCore._takeoff_tick,
 }

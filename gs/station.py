@@ -187,7 +187,7 @@ class GroundStation:
         for d, v in self.views.items():
             if v.link is None:
                 continue
-            pos = f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position else "position ?"
+            pos = f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position else f"position unknown ({v.fix.unknown_because})"
             state = v.ha_state.value if v.ha_state else "unknown"
             print(f"gs {self.name} | {d}: authority {v.owner} (epoch {v.epoch}, {state}) | {pos} | "
                   f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.autopilot, v.custom_mode)} | mission item {v.mission_seq} | "

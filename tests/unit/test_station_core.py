@@ -9,6 +9,7 @@ from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from gs.core import Ask, AskKind, CoreOptions, Log, Put, Say, StationCore, Stage
+from zdrone.core.mavlink import FrameCodec
 
 
 @pytest.fixture(scope="module")
@@ -199,51 +200,134 @@ def _uploaded(a: StationCore) -> None:
     view.stage, view.stage_time, view.tries, view.next_try = Stage.WAITING_READY, 10.0, 0, 0.0
 
 
-def test_arming_waits_for_the_pre_arm_checks_and_retries_a_refusal_with_its_reason(fleet_dir):
+def _says(out) -> list[str]:
+    return [x.text for x in out if isinstance(x, Say)]
+
+
+def _ekf(view, absolute: bool) -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as apm
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import MAX_TRIES, FlightAck, FlightTick
+    from zdrone.core.reference import HOME
+
+    codec = FrameCodec(1, 1)
+    flags = apm.EKF_ATTITUDE | apm.EKF_POS_HORIZ_REL | (apm.EKF_POS_HORIZ_ABS if absolute else apm.EKF_CONST_POS_MODE)
+    for m in (mav.MAVLink_gps_raw_int_message(0, 6, 0, 0, 0, 80, 120, 0, 65535, 14),
+              mav.MAVLink_global_position_int_message(0, int(HOME.lat * 1e7), int(HOME.lon * 1e7), 0, 0, 0, 0, 0, 0),
+              apm.MAVLink_ekf_status_report_message(flags, 0, 0, 0, 0, 0, 0)):
+        view.fix.on_message(codec.decode(codec.encode(m)))
+
+
+def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_waits_for(fleet_dir):
+    """Issue 22: the GS armed on the pre-arm bit alone and gave up after a retry counter ran out;
+    ArduCopter's AUTO needs its EKF to use GPS, which comes long after its pre-arm checks pass."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.core import FlightAck, FlightTick
 
     a = _flying_core(fleet_dir, "ardupilot")
     view = a.views["d1"]
     _uploaded(a)
     view.prearm_ok = False
-    assert a._flight(view, FlightTick(20.0)) == [] and view.stage is Stage.WAITING_READY  # not ready: no ARM
-    view.prearm_ok = None
-    assert a._flight(view, FlightTick(11.0)) == []  # no report: a short wait first
-    assert any(isinstance(x, Put) for x in a._flight(view, FlightTick(13.5))) and view.stage is Stage.ARMING
-    view.texts = [(13.6, "Arm: EKF attitude is bad")]
-    out = a._flight(view, FlightAck(13.7, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+    view.texts = [(9.0, "PreArm: EKF attitude is bad")]
+    out = a._flight(view, FlightTick(11.0))
+    assert not [x for x in out if isinstance(x, Put)] and view.stage is Stage.WAITING_READY  # not ready: no ARM
+    assert _says(out) == ["zdrone gs A: d1 not ready: pre-arm checks failing (PreArm: EKF attitude is bad)"]
+    assert a._flight(view, FlightTick(11.5)) == []  # said once, until it changes
+    view.prearm_ok = True
+    _ekf(view, absolute=False)  # a GPS fix and a position, but the EKF does not use GPS yet
+    assert view.position is None
+    out = a._flight(view, FlightTick(12.0))
+    assert _says(out) == ["zdrone gs A: d1 not ready: waiting for the EKF to use GPS "
+                          "(EKF_STATUS_REPORT: no absolute position)"]
+    for i in range(200):  # no retry counter runs out while the vehicle is not ready
+        a._flight(view, FlightTick(13.0 + i))
+    assert view.stage is Stage.WAITING_READY
+    _ekf(view, absolute=True)
+    out = a._flight(view, FlightTick(300.0))
+    assert _says(out) == ["zdrone gs A: d1 ready: arming"] and view.stage is Stage.ARMING
+    assert len([x for x in out if isinstance(x, Put)]) == 1  # the ARM
+    # refused all the same, with its reason: waited for, however often
+    for i in range(20):
+        view.stage, view.texts = Stage.ARMING, [(301.0 + i, "Arm: Accels inconsistent")]
+        a._flight(view, FlightAck(301.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+        out = a._flight(view, FlightTick(301.6 + i))
+        assert view.stage is Stage.WAITING_READY, i
     refused = [x for x in out if isinstance(x, Log) and x.kind == "vehicle_refused"]
-    assert refused and refused[0].fields["texts"] == ["Arm: EKF attitude is bad"] and view.stage is Stage.WAITING_READY
-    for i in range(MAX_TRIES - 1):  # the first refusal above was the first try
-        view.stage = Stage.ARMING
-        out = a._flight(view, FlightAck(14.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
-    assert view.stage is Stage.FAILED
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "mission_failed"]
-    assert failed and failed[0].fields["reason"].startswith(f"arm refused {MAX_TRIES} times")
+    assert refused and refused[0].fields["texts"] == ["Arm: Accels inconsistent"]
 
 
-def test_a_start_refusal_waiting_cannot_fix_disarms_and_says_why(fleet_dir):
+def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir):
+    """Issue 22: ArduCopter answers MISSION_START FAILED first and says "requires position" 0.3 ms
+    later; the GS read only the texts before the ACK and gave up."""
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import FlightAck
+    from gs.core import FlightAck, FlightTick
 
+    b = _flying_core(fleet_dir, "ardupilot")
+    vb = b.views["d1"]
+    _ekf(vb, absolute=True)
+    vb.stage, vb.armed, vb.prearm_ok = Stage.STARTING, True, True
+    assert b._flight(vb, FlightAck(30.0, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED)) == []
+    vb.texts = [(30.0003, "Mode change to AUTO failed: requires position")]  # after the ACK
+    assert b._flight(vb, FlightTick(30.2)) == [] and vb.stage is Stage.REFUSED  # a moment for the reasons
+    out = b._flight(vb, FlightTick(30.6))
+    assert vb.stage is Stage.WAITING_READY and vb.next_try > 30.6
+    assert "not ready yet" in _says(out)[0] and "requires position" in _says(out)[0]
+    # PX4's infeasible mission: refused for good, whatever order its words and its ACK come in
     a = _flying_core(fleet_dir, "px4")
     view = a.views["d1"]
     view.stage, view.armed, view.landed_state = Stage.STARTING, True, mav.MAV_LANDED_STATE_ON_GROUND
-    view.texts = [(30.0, "Mission rejected: takeoff not first waypoint item")]
-    out = a._flight(view, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
+    a._flight(view, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
+    view.texts = [(30.1, "Mission rejected: takeoff not first waypoint item")]
+    out = a._flight(view, FlightTick(30.7))
     failed = [x for x in out if isinstance(x, Log) and x.kind == "mission_failed"]
     assert view.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
     assert any(isinstance(x, Say) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
-    # ArduPilot before its position estimate: not a failure, a later try
-    b = _flying_core(fleet_dir, "ardupilot")
-    vb = b.views["d1"]
-    vb.stage, vb.armed = Stage.STARTING, True
-    vb.texts = [(30.0, "Mode change to AUTO failed: requires position")]
-    b._flight(vb, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED))
-    assert vb.stage is Stage.WAITING_READY and vb.next_try > 30.1
+
+
+def test_take_off_is_verified_and_a_disarm_on_the_ground_arms_and_starts_again(fleet_dir):
+    """Issue 22: ArduCopter disarmed itself on the ground after the start, and the GS believed it flew."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.core import FlightAck, FlightTick
+
+    a = _flying_core(fleet_dir, "ardupilot")
+    view = a.views["d1"]
+    _ekf(view, absolute=True)
+    view.stage, view.prearm_ok, view.armed = Stage.STARTING, True, True
+    view.landed_state = mav.MAV_LANDED_STATE_ON_GROUND
+    a._flight(view, FlightAck(40.0, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
+    assert view.stage is Stage.TAKING_OFF  # not flying: it has not left the ground
+    assert a._flight(view, FlightTick(41.0)) == [] and a.status()["drones"]["d1"]["stage"] == "taking_off"
+    view.armed, view.disarmed_at, view.custom_mode = False, 42.0, 3  # disarmed by itself, left in AUTO
+    out = a._flight(view, FlightTick(42.1))
+    assert view.stage is Stage.WAITING_READY and view.restarts == 1
+    assert _says(out) == ["zdrone gs A: d1 disarmed on the ground before taking off (the autopilot's auto-disarm): "
+                          "arming and starting again"]
+    out = a._flight(view, FlightTick(44.5))  # AUTO cannot be armed in: GUIDED first
+    assert view.stage is Stage.WAITING_READY and len([x for x in out if isinstance(x, Put)]) == 1
+    view.custom_mode = 4
+    a._flight(view, FlightTick(45.6))
+    assert view.stage is Stage.ARMING
+    a._flight(view, FlightAck(45.7, mav.MAV_CMD_COMPONENT_ARM_DISARM, True, mav.MAV_RESULT_ACCEPTED))
+    a._flight(view, FlightAck(45.8, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
+    view.landed_state = mav.MAV_LANDED_STATE_IN_AIR
+    out = a._flight(view, FlightTick(46.5))
+    assert view.stage is Stage.FLYING and _says(out) == ["zdrone gs A: d1 took off"]
+    assert [x.fields["restarts"] for x in out if isinstance(x, Log) and x.kind == "takeoff_confirmed"] == [1]
+
+
+def test_the_gs_takes_no_position_from_an_autopilot_without_a_fix(fleet_dir):
+    """Issue 22: lat = lon = 0 before the fix is no position: no hand-over decision on it."""
+    from pymavlink.dialects.v20 import common as mav
+
+    a = paired_a(fleet_dir)
+    view = a.views["d1"]
+    codec = FrameCodec(1, 1)
+    view.fix.on_message(codec.decode(codec.encode(mav.MAVLink_global_position_int_message(0, 0, 0, 0, 0, 0, 0, 0, 0))))
+    assert view.position is None and a.status()["drones"]["d1"]["position"] is None
+    assert a._coordinate(view, 5.0) == []
 
 
 def _repair(fleet_dir, holds_key: bool):

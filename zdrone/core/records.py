@@ -311,7 +311,7 @@ class GsLinkReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     dropped: dict[str, int]
 
 
-class GsDroneReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+class GsDroneReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
     """What the GS knows of one drone."""
 
     linked: bool
@@ -324,6 +324,7 @@ class GsDroneReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     link: GsLinkReport | None
     key_candidates: int
     dropped_unlinked: dict[str, int]
+    waiting: str | None = None  # what the GS waits for before it arms (None: nothing)
 
 
 class GsState(Record, frozen=True, kw_only=True):
@@ -522,6 +523,39 @@ class MissionStarted(Record, frozen=True, tag="mission_started"):
     result: int
 
 
+class VehicleWaiting(Record, frozen=True, tag="vehicle_waiting"):
+    """What the GS now waits for before it arms ``drone`` (None: ready, arming)."""
+
+    drone: str
+    waiting: str | None
+
+
+class TakeoffConfirmed(Record, frozen=True, tag="takeoff_confirmed"):
+    """After the mission start the vehicle left the ground (``restarts``: starts again before that)."""
+
+    drone: str
+    restarts: int
+
+
+class TakeoffRestart(Record, frozen=True, tag="takeoff_restart"):
+    """Started, the vehicle disarmed on the ground: the GS arms and starts it again."""
+
+    drone: str
+    reason: str
+    restarts: int
+
+
+class MissionProgress(Record, frozen=True, tag="mission_progress"):
+    """The mission moved on to item ``seq`` (MISSION_CURRENT) or reached it (MISSION_ITEM_REACHED),
+    with the vehicle's landed state and position (None: unknown) at that moment."""
+
+    drone: str
+    seq: int
+    reached: bool
+    landed_state: int
+    position: Position | None
+
+
 class MissionStartFailed(Record, frozen=True, tag="mission_start_failed"):
     """The vehicle refused the mission start for good."""
 
@@ -678,7 +712,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
     PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
-    HandoverRelease, GcsApp, GcsAppGone, OperatorControlRequested,
+    VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, GcsApp, GcsAppGone, OperatorControlRequested,
 )
 #: the testbed attacker's records (its ``attack_done`` has fields of its own per attack: untyped)
 TESTBED_RECORDS: tuple[type[Record], ...] = (
