@@ -49,6 +49,7 @@ from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareR
 from zdrone.core.linkslot import LinkSlot
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
+from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
@@ -115,6 +116,10 @@ RELEASE_RESEND_S = 0.25
 #: The authority GS pairs again when the drone has been silent this long (and again as often): a
 #: restarted companion has lost every key and must have its owner back within the loss threshold.
 SILENT_REPAIR_S = 1.0
+#: ... and then tries every this often, each try waiting this long for its answer: a companion that
+#: comes back is re-paired within this time of its pairing queryable being up (a query to a drone
+#: that is down gets no answer; the drone answers a live one in milliseconds).
+SILENT_RETRY_S = 0.2
 
 
 class Stage(enum.Enum):
@@ -376,10 +381,11 @@ class StationCore:
         """One pass of the GS's periodic work (``wall``: the time of day, for key-sharing stamps)."""
         out: list[Action] = []
         for view in self.views.values():
+            stamp = now if wall is None else wall
             if view.link is None and self.opts.pair:
-                out += self._try_pair(view, now)
+                out += self._try_pair(view, now, stamp)
             elif self._silent_authority(view, now):  # a restarted companion waits for its owner to re-pair
-                out += self._try_pair(view, now, retry=SILENT_REPAIR_S)
+                out += self._try_pair(view, now, stamp, retry=SILENT_RETRY_S, timeout=SILENT_RETRY_S)
             if view.link is None:
                 continue
             if view.owner == self.name:
@@ -399,15 +405,19 @@ class StationCore:
         return out
 
     # ------------------------------------------------------------------ pairing
-    def _try_pair(self, view: DroneView, now: float, retry: float = RETRY_S) -> list[Action]:
+    def _try_pair(self, view: DroneView, now: float, stamp: float, retry: float = RETRY_S,
+                  timeout: float = PAIR_TIMEOUT) -> list[Action]:
+        """Send a pairing message 1 (stamped with ``stamp``, our time of day: the drone refuses an
+        old one) unless one is pending or the last try was less than ``retry`` ago."""
         if view.pairing is not None and now < view.pairing_deadline:
             return []
         if not _due(view.last_pair_try, now, retry):
             return []
         view.last_pair_try = now
-        view.pairing = PairingInitiator(self.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes)
-        view.pairing_deadline = now + PAIR_TIMEOUT
-        return [Ask(AskKind.PAIR, view.name, self.name, kx.pair(view.name, self.name), view.pairing.start(), PAIR_TIMEOUT)]
+        view.pairing = PairingInitiator(self.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes,
+                                        stamp=stamp)
+        view.pairing_deadline = now + timeout
+        return [Ask(AskKind.PAIR, view.name, self.name, kx.pair(view.name, self.name), view.pairing.start(), timeout)]
 
     def on_pair_reply(self, drone: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply to our pairing query (``ok`` payload, or the drone's error text)."""
@@ -473,6 +483,11 @@ class StationCore:
         if (drone not in self.views or not self.fleet.is_authorized(drone, req.asker)
                 or not self.fleet.is_authorized(drone, self.name)):
             return self._refused(logs, ShareRefusal.UNAUTHORIZED, drone, req.asker), logs
+        view = self.views[drone]
+        if view.link is not None and view.link.tbm.state(now) is not LinkState.LOST:
+            # our own link is alive (we may even hold authority): nobody needs a new key for it, and a
+            # secret handed out now could only serve whoever asked (issue 18: key escrow)
+            return self._refused(logs, ShareRefusal.LIVE_LINK, drone, req.asker), logs
         out = self.keyshare.answer(drone, req.asker, asker.public_bytes, req.m1, now, secret, wall)
         if isinstance(out, Refused):  # forged, over the rate limit, or claimed without the key
             return self._refused(logs, out.reason, drone, req.asker, out.detail), logs
@@ -480,7 +495,6 @@ class StationCore:
         if not fresh:
             self.counters["linkkey_repeated"] += 1  # a replay or a retransmission: same answer, nothing new
             return QueryAnswer(reply=reply), logs
-        view = self.views[drone]
         # Never touch the live link: the secret is a candidate until the drone speaks under it
         # (one per asker: the newest replaces an older one).
         candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)

@@ -293,8 +293,10 @@ def _failsafe_with_b_linked() -> AuthorityMachine:
 
 
 def test_failsafe_is_left_only_on_an_explicit_request_of_a_proven_authorized_gs():
-    """Issue 11: regain control after the failsafe, never automatically."""
+    """Issue 11: regain control after the failsafe, never automatically (and, issue 18, only from
+    inside the GS's coverage)."""
     m = _failsafe_with_b_linked()
+    m.handle(RegionChanged(2.5, frozenset({"B"})))
     prove(m, "B", 3.0)
     assert m.state is State.FAILSAFE  # a proven link alone changes nothing
     acts = m.handle(HandoverRequest(4.0, "B", "B"))
@@ -306,6 +308,7 @@ def test_failsafe_is_left_only_on_an_explicit_request_of_a_proven_authorized_gs(
 
 def test_failsafe_request_refused_unless_proven_for_itself_and_authorized():
     m = _failsafe_with_b_linked()
+    m.handle(RegionChanged(2.9, frozenset({"B"})))
     acts = m.handle(HandoverRequest(3.0, "B", "B"))  # B's link not proven yet
     assert m.state is State.FAILSAFE and any(isinstance(a, SendControl) and isinstance(a.msg, Reject) for a in acts)
     prove(m, "B", 3.5)
@@ -335,6 +338,7 @@ def test_a_restarted_companion_whose_owner_never_comes_back_fails_safe_or_hands_
     assert m.state is State.FAILSAFE and CommandVehicle("LAND", "authority link to A lost") in acts
     m2 = machine()
     m2.restore("A", 4, 100.0, grace=3.0)
+    m2.handle(RegionChanged(100.2, frozenset({"A", "B"})))
     m2.handle(Paired(100.5, "B", on_ground=False))
     prove(m2, "B", 101.0)
     m2.handle(Tick(103.1))
@@ -413,3 +417,67 @@ def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
     acts = m.handle(Paired(3.0, "B", on_ground=False))
     assert _rejects(acts) == [SendControl("B", Reject("pair", "failsafe: re-pair only on the ground"))]
     assert m.rejects["failsafe"] == 1
+
+
+# ------------------------------------------------------------- least privilege (issue 18)
+def test_an_heir_outside_its_coverage_never_takes_authority():
+    """B re-pairs and proves its link while the drone is outside B's coverage; A's link is lost:
+    failsafe, never B."""
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(5.0, frozenset({"A"})))
+    prove(m, "B", 6.0, n=20)
+    assert m.is_proven("B") and not m.is_heir("B")
+    acts = m.handle(LinkChanged(9.0, "A", LinkState.LOST))
+    assert m.state is State.FAILSAFE and m.owner == "A"
+    assert any(isinstance(a, CommandVehicle) for a in acts)
+    m.handle(HandoverRequest(9.5, "B", "B"))  # nor after the failsafe, from outside
+    assert m.state is State.FAILSAFE and m.rejects["outside coverage"] == 1
+
+
+def test_a_proof_made_outside_coverage_does_not_count_once_inside():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(5.0, frozenset({"A"})))
+    prove(m, "B", 6.0, n=20)
+    m.handle(RegionChanged(7.0, frozenset({"A", "B"})))  # now inside, no frame since
+    assert not m.is_heir("B")
+    m.handle(Frame(7.1, "B", RO))
+    assert not m.is_heir("B")
+    m.handle(Frame(7.2, "B", RO))
+    assert m.is_heir("B")
+    m.handle(RegionChanged(8.0, frozenset({"A"})))  # leaving the coverage starts the count again
+    m.handle(RegionChanged(8.5, frozenset({"A", "B"})))
+    assert not m.is_heir("B")
+
+
+def test_an_unknown_position_is_inside_no_coverage():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(5.0, frozenset({"A", "B"})))
+    prove(m, "B", 6.0)
+    m.handle(RegionChanged(6.5, frozenset()))  # the vehicle lost its fix
+    m.handle(LinkChanged(9.0, "A", LinkState.LOST))
+    assert m.state is State.FAILSAFE
+
+
+def test_a_consented_release_may_go_to_a_gs_outside_coverage():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(5.0, frozenset({"A"})))
+    prove(m, "B", 6.0)
+    m.handle(Release(7.0, "A", "B", 1))
+    assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(EVENTS, max_size=30))
+def test_least_privilege_over_any_event_sequence(events):
+    """Whatever the events, authority taken without the owner's release (an emergency, regained after
+    the failsafe) lands on a GS whose coverage holds the drone at that instant."""
+    m = machine()
+    for ev in sorted(events, key=lambda e: e.now):
+        acts = m.handle(ev)
+        for a in acts:
+            if isinstance(a, AuthorityChanged) and a.kind in ("emergency", "regained"):
+                assert a.new in m.inside, (a, m.inside)

@@ -106,3 +106,21 @@ def test_garbage_never_raises_nor_promotes(blobs):
         res, promoted = slot.open(b, 0.1)
         assert isinstance(res, Dropped) and promoted is None
     assert slot.live is p.drone
+
+
+def test_a_third_partys_candidate_never_replaces_a_live_link_that_is_alive():
+    """Issue 18, key escrow: a secret handed out over the backhaul (or granted by the authority) is a
+    candidate; an authentic frame under it, forged by whoever obtained the secret, changes nothing
+    while the live link is alive, and is counted."""
+    for origin in ("linkkey:B", "grant"):
+        p, slot = drone_slot()
+        slot.open(p.gs.seal(p.heartbeat()), 0.1)
+        q = make_pair(NEW, now=1.0)
+        slot.offer(q.drone, 1.0, origin)
+        res, promoted = slot.open(q.gs.seal(q.heartbeat()), 1.1)
+        assert isinstance(res, Dropped) and promoted is None and slot.live is p.drone and slot.live_protected == 1
+        res, _ = slot.open(p.gs.seal(p.heartbeat()), 1.2)  # the real peer goes on under the live key
+        assert isinstance(res, Opened)
+        # once the live link is LOST (3 s of silence), the candidate may be proven
+        res, promoted = slot.open(q.gs.seal(q.heartbeat()), 4.5)
+        assert isinstance(res, Opened) and promoted is not None and slot.live is q.drone

@@ -1,4 +1,4 @@
-"""zdrone/core and gs/core.py are sans-IO: it imports no zenoh, socket, threading, asyncio, time (nor their kin)."""
+"""zdrone/core, gs/core.py and zdrone/nodes/drone_core.py are sans-IO: it imports no zenoh, socket, threading, asyncio, time (nor their kin)."""
 
 import ast
 import subprocess
@@ -10,7 +10,8 @@ import zdrone.core
 
 CORE = Path(zdrone.core.__file__).parent
 #: the ground station's pure parts (its protocol core and mission planner)
-GS_PURE = [Path(gs.__file__).parent / "core.py", Path(gs.__file__).parent / "planner.py"]
+GS_PURE = [Path(gs.__file__).parent / "core.py", Path(gs.__file__).parent / "planner.py",
+           CORE.parent / "nodes" / "drone_core.py"]  # and the drone's protocol core
 FORBIDDEN = {"zenoh", "socket", "threading", "asyncio", "time", "subprocess", "multiprocessing", "select",
              "selectors", "datetime"}
 

@@ -27,9 +27,18 @@ authentic frames arrived since it last was LOST); otherwise the machine waits in
 HANDOVER_PENDING, the owner keeping authority, until the proof arrives (switch, epoch+1) or the
 timeout passes (authority stays where it was). There is never an instant with no owner or two.
 
-Failsafe: when the owner's link becomes LOST, authority passes to another authorized GS whose link
-is proven (an emergency hand-over, epoch+1); if there is none, the machine enters FAILSAFE and
-commands the vehicle to LAND (or RTL).
+Least privilege. Authority moves only (a) by the owner's release (``Release``, or the owner's own
+``HandoverRequest``: the owner operator's consent to another GS's request travels as the owner's
+release), or (b) in an emergency, to an *heir*. When the owner's link becomes LOST, authority
+passes to an heir (an emergency hand-over, epoch+1): an authorized GS whose coverage contains the
+drone's own position (``RegionChanged``: computed on the drone from the vehicle's GPS; an unknown
+position is inside no coverage) and whose link was proven *while the drone was inside that
+coverage* (``PROOF_FRAMES`` authentic frames counted only while inside; leaving the coverage or a
+LOST link starts the count again). Re-pairing from outside coverage, or frames that arrive over the
+backhaul mesh, confirm a key but never make an heir. With no heir the machine enters FAILSAFE and
+commands the vehicle to LAND (or RTL); an operator's request to take control back after the
+failsafe obeys the same heir rule. A consented release may go to a GS outside coverage (an
+operations centre over the backhaul): its proof is that of its link, wherever the drone is.
 
 The machine is pure: every event carries ``now``; ``handle(event)`` returns a list of actions that
 the drone node adapter carries out (forward a frame, send a control message, subscribe, command
@@ -261,7 +270,8 @@ class Config:
 @dataclass(slots=True)
 class _Link:
     state: LinkState = LinkState.LOST
-    frames_since_ok: int = 0
+    frames_since_ok: int = 0  # authentic frames since the link last was LOST (the proof of a release)
+    frames_in_cover: int = 0  # the same, counted only while the drone is inside the GS's coverage (an heir's proof)
 
 
 Handler = Callable[["AuthorityMachine", Event], "tuple[State, list[Action]]"]
@@ -294,6 +304,25 @@ class AuthorityMachine:
     def is_proven(self, gs: str) -> bool:
         link = self.links.get(gs)
         return link is not None and link.state is LinkState.OK and link.frames_since_ok >= PROOF_FRAMES
+
+    def proven_in_cover(self, gs: str) -> bool:
+        """``gs`` is authorized, its coverage holds the drone now, and its link was proven while it did."""
+        link = self.links.get(gs)
+        return (link is not None and self.is_authorized(gs) and gs in self.inside
+                and link.state is LinkState.OK and link.frames_in_cover >= PROOF_FRAMES)
+
+    def is_heir(self, gs: str) -> bool:
+        """May ``gs`` take authority from the owner without its consent (its link LOST)? Only a GS
+        other than the owner that is ``proven_in_cover``."""
+        return gs != self.owner and self.proven_in_cover(gs)
+
+    def heirs(self) -> list[str]:
+        """The GSs that may take authority in an emergency, best first (the pending recipient, then by name)."""
+        found = sorted(g for g in self.links if self.is_heir(g))
+        if self.pending_to in found:
+            found.remove(self.pending_to)
+            found.insert(0, self.pending_to)
+        return found
 
     @property
     def in_region(self) -> bool:
@@ -485,6 +514,8 @@ class AuthorityMachine:
             self.drops[HaDrop.NOT_LINKED] += 1
             return self.state, [DropFrame(ev.gs, HaDrop.NOT_LINKED)]
         link.frames_since_ok += 1
+        if ev.gs in self.inside:
+            link.frames_in_cover += 1
         acts: list[Action] = []
         if ev.uplink is UplinkClass.DENIED:
             self.drops[HaDrop.DENIED_BY_POLICY] += 1
@@ -503,6 +534,8 @@ class AuthorityMachine:
     def _on_frame_failsafe(self, ev: Frame) -> tuple[State, list[Action]]:
         if ev.gs in self.links:
             self.links[ev.gs].frames_since_ok += 1  # still proving its link: it may take control back
+            if ev.gs in self.inside:
+                self.links[ev.gs].frames_in_cover += 1
         if ev.gs not in self.links:
             reason = HaDrop.NOT_LINKED
         elif ev.uplink is UplinkClass.DENIED:
@@ -555,8 +588,10 @@ class AuthorityMachine:
             return State.FAILSAFE, self._reject(ev.sender, "handover_request", "failsafe: a GS may only take control itself")
         if not self.is_authorized(ev.sender):
             return State.FAILSAFE, self._reject(ev.sender, "handover_request", f"unauthorized: {ev.sender} is not authorized")
-        if not self.is_proven(ev.sender):
-            return State.FAILSAFE, self._reject(ev.sender, "handover_request", f"not proven: no live link from {ev.sender}")
+        if not self.proven_in_cover(ev.sender):
+            why = ("outside coverage: the drone is not inside its coverage" if ev.sender not in self.inside
+                   else f"not proven: no live link from {ev.sender} proven inside its coverage")
+            return State.FAILSAFE, self._reject(ev.sender, "handover_request", f"{why}")
         acts: list[Action] = [Note("failsafe_recovered", f"{ev.sender} took control after the failsafe")]
         acts += self._switch(ev.sender, ev.now, "regained")
         return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
@@ -565,8 +600,8 @@ class AuthorityMachine:
         link = self.links.get(ev.gs)
         if link is None:
             return self.state, []
-        if ev.state is not LinkState.OK:
-            link.frames_since_ok = 0 if ev.state is LinkState.LOST else link.frames_since_ok
+        if ev.state is LinkState.LOST:
+            link.frames_since_ok = link.frames_in_cover = 0
         link.state = ev.state
         if ev.state is not LinkState.LOST:
             return self.state, []  # a proof of the pending recipient is applied by ``_settle``
@@ -577,9 +612,8 @@ class AuthorityMachine:
             return State.LINKED, [Note("handover_aborted", f"link to {ev.gs} lost")] + self._update_subscriptions() + self._status_to_all()
         if ev.gs != self.owner:
             return self.state, []
-        # the authority link is lost: another proven authorized link takes over, else failsafe
-        heirs = [self.pending_to] if self.pending_to and self.is_proven(self.pending_to) else []
-        heirs += sorted(g for g in self.links if g != self.owner and self.is_authorized(g) and self.is_proven(g))
+        # the authority link is lost: an heir (in coverage, proven there) takes over, else failsafe
+        heirs = self.heirs()
         if heirs:
             self.pending_to = heirs[0]
             acts = [Note("authority_link_lost", f"{ev.gs}: authority to {heirs[0]}")]
@@ -595,6 +629,9 @@ class AuthorityMachine:
 
     def _on_region(self, ev: RegionChanged) -> tuple[State, list[Action]]:
         was = self.in_region
+        for gs in self.inside - ev.inside:  # out of its coverage: its proof as an heir starts again
+            if gs in self.links:
+                self.links[gs].frames_in_cover = 0
         self.inside = ev.inside
         acts: list[Action] = []
         if self.in_region and not was:

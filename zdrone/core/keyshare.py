@@ -63,6 +63,7 @@ class ShareRefusal(enum.Enum):
     RATE_LIMITED = "rate_limited"
     EXHAUSTED = "exhausted"  # too many tag-valid replies to one ask
     NOT_WAITING = "not_waiting"  # a reply after the ask finished, expired or was never made
+    LIVE_LINK = "live_link"  # the answering GS's own link to the drone is alive: it needs no new key
 
 
 class Refused(msgspec.Struct, frozen=True):

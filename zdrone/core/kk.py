@@ -163,6 +163,12 @@ def check_message1(me: Identity, peer_public: bytes, prologue: bytes, message1: 
     return None
 
 
+def stamp_of(message1: bytes) -> float:
+    """The initiator's tagged time stamp of a message 1 (call after ``check_message1`` passed)."""
+    parts = _split1(bytes(message1))
+    return parts[1] if parts is not None else float("-inf")
+
+
 def ephemeral_of(message1: bytes) -> bytes:
     """The initiator's ephemeral public key (sent in clear): the identity of one exchange."""
     return bytes(message1[:EPHEMERAL_LEN])

@@ -12,6 +12,14 @@ already in flight under it are not lost). The first candidate that opens an auth
 are forgotten, and the new link's liveness monitor continues the old one's reporting (so a state
 change is never lost across a key change). Candidates that nobody proves expire.
 
+A candidate that came from someone else's action (a key grant from the authority, a secret this
+end handed out over the backhaul) never replaces a live key whose link is still alive: it is
+proven only when the slot has no live key or the live link is LOST. Only the peer itself replacing
+its own key (``SELF_ORIGINS``: a pairing, which only the holder of the peer's static key completes)
+may replace a live key at any time. So nothing any third party sends changes a live link: a
+malicious GS that obtained a candidate's secret (by asking for it over the backhaul) and forges a
+frame under it is counted as ``live_protected`` and changes nothing.
+
 Failures are counted once, on the live link (or, when the slot has none yet, in ``unlinked``):
 trying a candidate never inflates the drop counters. Work per envelope is bounded by
 ``MAX_CANDIDATES`` + 2 AEAD attempts.
@@ -23,8 +31,12 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from .envelope import Dropped, DropReason, Opened, SecureLink
+from .tbm import LinkState
 
 MAX_CANDIDATES = 3
+#: Origins of keys that only the peer itself can prove (its own re-pairing): they may replace a live
+#: key that is still alive. Every other origin waits for the live link to be LOST.
+SELF_ORIGINS = frozenset({"pair"})
 CANDIDATE_TTL = 30.0
 PREVIOUS_GRACE = 3.0
 
@@ -54,6 +66,11 @@ class LinkSlot:
     previous_until: float = 0.0
     unlinked: Counter = field(default_factory=Counter)  # drops while no live key exists
     expired: int = 0
+    live_protected: int = 0  # authentic frames under a third party's candidate refused: the live link is alive
+
+    def may_replace_live(self, origin: str, now: float) -> bool:
+        """Whether a candidate of ``origin`` may replace the live key now (see the module doc)."""
+        return self.live is None or origin in SELF_ORIGINS or self.live.tbm.state(now) is LinkState.LOST
 
     def install(self, link: SecureLink, now: float) -> None:
         """Make ``link`` live at once (a key this end chose and the peer proved, or the first key
@@ -100,6 +117,12 @@ class LinkSlot:
         for cand in self.candidates:
             res = cand.link.open(data, now, count=False)
             if isinstance(res, Opened):
+                if not self.may_replace_live(cand.origin, now):
+                    self.live_protected += 1  # authentic under a third party's key while ours is alive
+                    dropped = Dropped(DropReason.AUTH_FAILED, "candidate refused: the live link is alive")
+                    assert self.live is not None
+                    self.live.count_drop(dropped)
+                    return dropped, None
                 replaced = self.live is not None
                 self.install(cand.link, now)
                 return res, Promoted(cand.origin, replaced)

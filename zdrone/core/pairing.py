@@ -7,10 +7,16 @@ a fresh 32-byte link secret chosen by the drone. Both sides then derive the same
 key per direction). The prologue binds the protocol version and both names, so a transcript for
 one (drone, gs) pair cannot be replayed for another.
 
-Message 1 can be replayed (KK cannot tell a replay from a fresh one). The drone answers a message 1
-it has seen with the message 2 it sent then (``kk.ResponseCache``), so a replay makes no new key;
-and it treats the key of every pairing as a *candidate*: it replaces nothing until the GS proves it
-with an authentic frame under it (see ``linkslot``). ``PairingResponder`` orders the checks
+Message 1 can be replayed (KK cannot tell a replay from a fresh one). It is therefore *fresh*: it
+carries the GS's clock under its tag (``kk``), and the drone refuses (``stale``, silently, before
+any other work) a message 1 made more than ``PAIR_MAX_AGE`` ago or before the drone's companion
+started (``not_before``: a restarted companion has forgotten its answers, and a captured message 1
+from before the restart must not buy a new handshake). Within that age, the drone answers a message
+1 it has seen with the message 2 it sent then (``kk.ResponseCache``, kept twice as long), so a
+replay makes no new key, spends no rate-limit token and displaces no pending candidate; and it
+treats the key of every pairing as a *candidate*: it replaces nothing until the GS proves it with
+an authentic frame under it (see ``linkslot``). GS and drone clocks must agree to a few seconds
+(GPS or NTP time on both; see the deployment guide). ``PairingResponder`` orders the checks
 cheapest first; a forged message 1 fails a 16-byte tag (``kk``) before any Diffie-Hellman and
 before it can spend the GS's rate-limit tokens.
 
@@ -31,7 +37,7 @@ from typing import ClassVar
 import msgspec
 
 from .keys import KEY_LEN, Identity, LinkKey
-from .kk import KKFail, KKInitiator, ResponseCache, check_message1, respond as kk_respond
+from .kk import KKFail, KKInitiator, ResponseCache, check_message1, respond as kk_respond, stamp_of
 from .ratelimit import RateLimiter
 
 
@@ -59,11 +65,14 @@ class PairingInitiator:
     genuine reply may still come. The first authentic reply finishes it (``DONE``).
     """
 
-    def __init__(self, me: Identity, gs: str, drone: str, drone_public: bytes, ephemeral: bytes | None = None) -> None:
+    def __init__(self, me: Identity, gs: str, drone: str, drone_public: bytes, ephemeral: bytes | None = None,
+                 stamp: float = 0.0) -> None:
+        """``stamp``: the GS's clock (time of day) when message 1 is made: the drone refuses it
+        once older than ``PAIR_MAX_AGE``."""
         self.gs, self.drone = gs, drone
         self.state = PairingState.IDLE
         self.peer_kept_key = False
-        self._kk = KKInitiator(me, drone_public, _prologue(drone, gs), ephemeral)
+        self._kk = KKInitiator(me, drone_public, _prologue(drone, gs), ephemeral, stamp=stamp)
 
     def start(self) -> bytes:
         if self.state is not PairingState.IDLE:
@@ -170,8 +179,13 @@ class PairRefused:
 PairResult = PairAccepted | PairRepeated | PairRefused
 
 
-#: A message 1 seen within this time gets its first answer again (a replay creates nothing).
-PAIR_RESPONSE_TTL = 60.0
+#: A message 1 made longer ago than this (by its tagged stamp, against the drone's clock) is stale.
+PAIR_MAX_AGE = 30.0
+#: How far the GS's and the drone's clocks may disagree when the drone compares a stamp with its start.
+MAX_SKEW = 1.0
+#: A message 1 seen within this time gets its first answer again (a replay creates nothing); at
+#: least twice the maximum age, so a replay is either answered from the cache or stale.
+PAIR_RESPONSE_TTL = 2 * PAIR_MAX_AGE
 
 
 class PairingResponder:
@@ -179,7 +193,9 @@ class PairingResponder:
 
     1. the GS is in the fleet and authorized for this drone (``policy``: the authority machine's
        extra rule, e.g. no re-pairing in failsafe in the air) -- refused with a reason;
-    2. message 1's tag (``kk`` module: ~2 µs, no Diffie-Hellman) -- forged: silently dropped;
+    2. message 1's tag (``kk`` module: ~2 µs, no Diffie-Hellman) -- forged: silently dropped; and its
+       stamp, given the drone's clock (``wall``) -- older than ``max_age`` or than ``not_before``:
+       silently dropped as ``stale``;
     3. a message 1 seen before gets the same message 2 again, and no new key;
     4. the GS's rate limit (``rate`` handshakes per second, bursts of ``burst``), charged only now,
        so nobody without the GS's key can spend its tokens;
@@ -187,8 +203,13 @@ class PairingResponder:
     """
 
     def __init__(self, me: Identity, drone: str, ground_stations: dict[str, bytes], authorized: frozenset[str],
-                 rate: float = 1.0, burst: float = 3.0) -> None:
+                 rate: float = 1.0, burst: float = 3.0, max_age: float = PAIR_MAX_AGE,
+                 not_before: float | None = None) -> None:
+        """``not_before``: the drone's clock when its companion started (message 1s stamped earlier
+        than that, less ``max_skew``, are stale)."""
         self.me, self.drone = me, drone
+        self.max_age = max_age
+        self.not_before = not_before
         self.ground_stations = ground_stations
         self.authorized = authorized
         self.limiter = RateLimiter(rate, burst)
@@ -203,17 +224,21 @@ class PairingResponder:
         return None
 
     def answer(self, gs: str, message1: bytes, now: float, secret: bytes, policy: PairRefused | None = None,
-               holds_key: bool = False) -> PairResult:
+               holds_key: bool = False, wall: float | None = None) -> PairResult:
         """The result of one pairing query from ``gs``. ``policy``: the authority machine's refusal
         (``AuthorityMachine.pair_refusal``), if any; ``holds_key``: the drone has a live key for
-        ``gs`` (told to the GS inside message 2)."""
+        ``gs`` (told to the GS inside message 2); ``wall``: the drone's clock (time of day), to
+        check message 1's stamp (None: no freshness check, for tests of other rules)."""
         why = self.admit(gs) or policy
         if why is not None:
             return why
         prologue = _prologue(self.drone, gs)
-        fail = check_message1(self.me, self.ground_stations[gs], prologue, message1)
+        fail = check_message1(self.me, self.ground_stations[gs], prologue, message1, wall,
+                              None if wall is None else self.max_age)
         if fail is not None:
             return PairRefused(PairRefusal(fail.value))
+        if wall is not None and self.not_before is not None and stamp_of(message1) < self.not_before - MAX_SKEW:
+            return PairRefused(PairRefusal.STALE, "made before the companion started")
         cached = self.cache.get(message1, now)
         if cached is not None:
             return PairRepeated(cached)

@@ -91,6 +91,17 @@ class TimeBetweenMessages:
             return None
         return self.last_seen + self.thresholds.lost
 
+    def next_change(self) -> float | None:
+        """When ``poll`` will next report a change if nothing arrives (DEGRADED after OK, LOST after
+        DEGRADED), or None (LOST reported, or never heard: only a frame changes that)."""
+        if self.last_seen is None:
+            return None
+        if self._reported is LinkState.OK:
+            return self.last_seen + self.thresholds.degraded
+        if self._reported is LinkState.DEGRADED:
+            return self.last_seen + self.thresholds.lost
+        return None
+
     def poll(self, now: float) -> LinkState | None:
         """Return the current state if it differs from the last one polled, else None."""
         st = self.state(now)

@@ -214,11 +214,10 @@ def _check_linkkey_knockout(o: Outcome) -> list[str]:
 
 def _check_pair_replay(o: Outcome) -> list[str]:
     """``pair-replay``: Noise KK cannot tell a replayed message 1, so the drone answers it with the
-    message 2 it sent the first time (``pair_repeated``): no new key. After the response cache's 60 s a
-    replay draws one new key, a candidate that only the real A could prove. The only pairing proven is
-    A's genuine one."""
+    message 2 it sent the first time (``pair_repeated``): no new key. Once older than 30 s (its tagged
+    stamp) a replay is ``stale``: dropped before any work. The only pairing proven is A's genuine one."""
     done = o.rogue_done("pair-replay")
-    seen = (o.drone_counter("pair_answered") + o.drone_counter("pair_repeated")
+    seen = (o.drone_counter("pair_answered") + o.drone_counter("pair_repeated") + o.drone_counter("pair_refused:stale")
             + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred"))
     why = flight_unaffected(o)
     why += _need(bool(o.rogue_events("pair-replay", Captured)) and done.get("replayed", 0) > 0, "nothing captured or replayed")

@@ -267,7 +267,7 @@ def unauthorized(c: Ctx) -> None:
         going = c.attack_window()
         tries = 0
         while going():
-            ini = PairingInitiator(me.identity, "X", drone, fleet.nodes[drone].public_bytes)
+            ini = PairingInitiator(me.identity, "X", drone, fleet.nodes[drone].public_bytes, stamp=time.time())
             refused = answered = 0
             for r in s.get(kx.pair(drone, "X"), payload=ini.start(), timeout=3.0):
                 answered += r.ok is not None
@@ -422,13 +422,15 @@ def pair_flood(c: Ctx) -> None:
     fleet, drone = c.fleet, c.drone
     me = load_secret(c.fleet_dir, "B", fleet)  # B's private key and router password
     s = open_client(c.router, "B", me.router_password)
-    pool = [PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes).start() for _ in range(64)]
     replies = _Replies()
     key = kx.pair(drone, "B")
     try:
         c.ready()
         if not c.wait_for_go():
             return
+        # genuine, fresh message 1s (stamped now: the drone refuses stale ones before anything else)
+        pool = [PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes, stamp=time.time()).start()
+                for _ in range(64)]
         print(f"rogue: flooding at {c.rate:.0f} queries/s for {c.duration:.0f} s", flush=True)
         c.events.write("flood_start", target_rate=c.rate)
         t0 = time.monotonic()
@@ -465,7 +467,7 @@ def uplink_sealed(c: Ctx) -> None:
         c.ready()
         if not c.wait_for_go():
             return
-        ini = PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes)
+        ini = PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes, stamp=time.time())
         key = None
         refusals = []
         for r in s.get(kx.pair(drone, "B"), payload=ini.start(), timeout=2.0):

@@ -1,0 +1,454 @@
+"""The drone companion's protocol logic, sans-IO: link keys, pairing answers, key grants, the
+handover authority, the region, forwarding. ``zdrone/nodes/drone.py`` is its thin adapter.
+
+Theory of operation
+-------------------
+``DroneCore`` holds everything the companion decides: one ``LinkSlot`` per ground station (the
+live key, candidates waiting for their proof, the key just replaced), the pairing responder, the
+``AuthorityMachine`` and the counters. Time comes in as ``now`` (monotonic seconds) and, where a
+peer's time stamp is compared, ``wall`` (time of day); bytes and facts come in through ``on_*``
+methods; what the adapter must do comes out as values:
+
+* ``PutDown(gs, payload)``: publish a sealed envelope on ``down/<gs>``;
+* ``ToVehicle(frame)``: send a MAVLink frame to the flight controller;
+* ``CommandVehicle(command, reason, ...)``: the failsafe (LAND or RTL);
+* ``Listen(gss)``: the uplinks to subscribe from now on (only when the set changes);
+* ``Emit(record)``: a typed event-log record (``zdrone.core.records``);
+* ``Persist(owner, epoch, state)``: the authority to keep across a restart (only when it changes).
+
+The inputs: ``on_envelope`` (an uplink envelope of GS ``gs``), ``on_pair_query`` (a pairing message
+1; the adapter replies with the typed result), ``on_vehicle`` (the vehicle's own position, None
+while it has no fix, and whether it is on the ground), ``on_telemetry`` (a vehicle frame for the
+GSs), ``restore`` (the authority saved before a restart) and ``handle_timer`` at ``get_timer()``:
+link-state thresholds, the machine's deadlines, a pairing probation's end, the status beacon.
+
+Side effects that follow from the state (which uplinks to listen to, what to persist) are computed
+once at the end of every input from the old and the new state (``_effects``), never appended by
+hand in handlers. The rules of authority are the machine's alone: the core never asks it twice.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any, Callable, Union
+
+from zdrone.core import authority as ha
+from zdrone.core import records as rec
+from zdrone.core import wire
+from zdrone.core.envelope import Dropped, Opened, SecureLink
+from zdrone.core.fleet import Fleet
+from zdrone.core.geometry import GeoPoint
+from zdrone.core.keys import Identity, LinkKey
+from zdrone.core.linkslot import LinkSlot, Promoted
+from zdrone.core.pairing import PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult
+from zdrone.core.tbm import LinkState, TbmThresholds, TimeBetweenMessages
+from zdrone.core.uplink import UplinkClass
+from zdrone.core.wire import KeyGrant, KeyGrantAck
+from zdrone.fleet import keyexprs as kx
+
+log = logging.getLogger(__name__)
+
+#: A pairing candidate must be proven by the GS within this time (the drone listens to it meanwhile).
+PAIRING_TTL = 10.0
+#: The authority status goes to every linked GS at least this often (besides every change), so a
+#: GS that was hung or missed a change learns who holds authority within a second.
+STATUS_BEACON_S = 1.0
+#: The first few of each drop or refusal reason go to the event log; all of them to the counters.
+LOGGED_PER_REASON = 5
+
+Position = tuple[float, float, float]
+
+
+# ------------------------------------------------------------------------------ outputs
+@dataclass(frozen=True, slots=True)
+class PutDown:
+    """Publish ``payload`` (a sealed envelope) on ``down/<gs>``."""
+
+    gs: str
+    payload: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class ToVehicle:
+    """Send ``frame`` (MAVLink, as a GS sent it) to the flight controller."""
+
+    frame: bytes
+
+
+@dataclass(frozen=True, slots=True)
+class CommandVehicle:
+    """The failsafe: command the vehicle to ``command`` (LAND, RTL)."""
+
+    command: str
+    reason: str
+    detect_to_command_ms: float | None  # from the loss threshold to this decision
+
+
+@dataclass(frozen=True, slots=True)
+class Listen:
+    """Subscribe to the uplinks of exactly these GSs from now on."""
+
+    gss: frozenset[str]
+
+
+@dataclass(frozen=True, slots=True)
+class Emit:
+    """Write ``record`` to the event log (``AuthorityMoved.time`` 0: the adapter stamps the time of day)."""
+
+    record: rec.Record
+
+
+@dataclass(frozen=True, slots=True)
+class Persist:
+    """Keep this authority across a restart (``owner`` None: forget what was kept)."""
+
+    owner: str | None
+    epoch: int
+    state: str
+
+
+Out = Union[PutDown, ToVehicle, CommandVehicle, Listen, Emit, Persist]
+
+_NOTE_RECORDS: dict[str, type[rec.AuthorityNote]] = {
+    cls.__struct_config__.tag: cls for cls in rec.AuthorityNote.__subclasses__()  # type: ignore[misc]
+}
+
+
+@dataclass(frozen=True, slots=True)
+class DroneCoreOptions:
+    thresholds: TbmThresholds = TbmThresholds()
+    failsafe: str = "LAND"
+    handover_timeout: float = ha.DEFAULT_HANDOVER_TIMEOUT
+    cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
+    status_beacon: float = STATUS_BEACON_S
+    pairing_ttl: float = PAIRING_TTL
+
+
+def next_link_change(tbm: TimeBetweenMessages, now: float) -> float | None:
+    """When the link's TBM state next changes if nothing arrives (DEGRADED, then LOST), or None."""
+    if tbm.last_seen is None:
+        return None
+    for threshold in (tbm.thresholds.degraded, tbm.thresholds.lost):
+        if tbm.since_last(now) < threshold:  # the comparison ``tbm.state`` makes
+            return tbm.last_seen + threshold
+    return None
+
+
+class DroneCore:
+    """The companion of drone ``name``: feed it inputs, carry out what they return."""
+
+    def __init__(self, fleet: Fleet, name: str, identity: Identity, opts: DroneCoreOptions = DroneCoreOptions(),
+                 started_wall: float | None = None) -> None:
+        """``started_wall``: the time of day the companion started (pairing message 1s stamped
+        before it are stale: a restarted companion has forgotten its answers)."""
+        node = fleet.nodes[name]
+        self.fleet, self.name, self.opts = fleet, name, opts
+        self.uplink = node.uplink
+        self.machine = ha.AuthorityMachine(ha.Config(frozenset(node.authorized_gs), opts.handover_timeout,
+                                                     opts.failsafe))
+        self.responder = PairingResponder(identity, name,
+                                          {g: fleet.nodes[g].public_bytes for g in fleet.ground_stations()},
+                                          frozenset(node.authorized_gs), not_before=started_wall)
+        self.gs_sysids = {n: fleet.nodes[n].sysid for n in fleet.ground_stations()}
+        self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
+                         if fleet.nodes[n].coverage is not None}
+        self.slots: dict[str, LinkSlot] = {}
+        self.links: dict[str, SecureLink] = {}  # the live link of each slot
+        self.probation: dict[str, float] = {}  # GS -> until when we listen for its proof of a new pairing key
+        self.counters: Counter[str] = Counter()
+        self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
+        self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
+        self.position: Position | None = None
+        self.on_ground = True
+        self._listening: frozenset[str] = frozenset()
+        self._persisted: tuple[str | None, int, str] | None = None
+        self._next_beacon = 0.0
+        self._timer_handled = float("-inf")
+
+    # ---------------------------------------------------------------- inputs
+    def on_envelope(self, gs: str, data: bytes, now: float) -> list[Out]:
+        """One uplink envelope on ``up/<gs>`` (the adapter has applied the radio, if any)."""
+        out: list[Out] = []
+        slot = self.slots.get(gs)
+        if slot is None:
+            self.counters["no_link"] += 1
+            return out
+        res, promoted = slot.open(data, now)
+        if isinstance(res, Dropped):
+            drops = slot.live.drops if slot.live is not None else slot.unlinked
+            if drops[res.reason] <= LOGGED_PER_REASON:
+                out.append(Emit(rec.Drop(gs=gs, reason=res.reason.value, detail=res.detail)))
+            return out + self._effects(now)
+        assert isinstance(res, Opened)
+        if promoted is not None:
+            out += self._on_promoted(gs, promoted, now)
+        if res.header is not None:
+            uplink = self.uplink.classify(res.header.msgid)
+            out += self._handle(ha.Frame(now, gs, uplink), now, res.plaintext)
+        else:
+            out += self._on_control(gs, res.control, now)
+        return out + self._effects(now)
+
+    def on_pair_query(self, gs: str, payload: bytes | None, now: float, secret: bytes,
+                      wall: float | None) -> tuple[PairResult, list[Out]]:
+        """One pairing query of ``gs`` (``payload`` None: oversized); ``secret``: fresh randomness for
+        a new link key; ``wall``: the drone's time of day (message 1's stamp must be fresh). The
+        adapter replies with the result's message 2, its error text, or nothing."""
+        out: list[Out] = []
+        if payload is None:
+            ans: PairResult = PairRefused(PairRefusal.OVERSIZE)
+        else:
+            policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self.on_ground)
+            ans = self.responder.answer(gs, payload, now, secret, policy, holds_key=gs in self.links, wall=wall)
+        if isinstance(ans, PairAccepted):
+            # a candidate until the GS proves it (the newest pairing replaces an older one)
+            self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, ans.key, now), now, "pair",
+                                                        self.opts.pairing_ttl)
+            self.probation[gs] = now + self.opts.pairing_ttl
+            self.counters["pair_answered"] += 1
+            out.append(Emit(rec.PairAnswered(gs=gs)))
+        elif isinstance(ans, PairRepeated):
+            self.counters["pair_repeated"] += 1  # a replay or a retransmission: the same answer again
+        else:
+            out += self._pair_refused(gs, ans)
+        return ans, out + self._effects(now)
+
+    def on_vehicle(self, position: Position | None, on_ground: bool, now: float) -> list[Out]:
+        """The vehicle's own position (None while it has no fix: inside no coverage) and whether it
+        is on the ground. Updates the coverage circles the drone is inside."""
+        self.position, self.on_ground = position, on_ground
+        inside = frozenset() if position is None else frozenset(
+            g for g, circle in self.coverage.items() if circle.contains(GeoPoint(position[0], position[1])))
+        out: list[Out] = []
+        if inside != self.machine.inside:
+            out += self._handle(ha.RegionChanged(now, inside), now)
+        return out + self._effects(now)
+
+    def on_telemetry(self, frame: bytes, now: float) -> list[Out]:
+        """A vehicle frame: sealed to every GS the drone talks to."""
+        return [PutDown(gs, link.seal(frame)) for gs in self.machine.telemetry_targets()
+                if (link := self.links.get(gs)) is not None]
+
+    def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
+        """At start, the authority saved before: back to it in the air (its owner must re-pair within
+        the loss threshold); forgotten on the ground, after a failsafe, or with nothing to come back to."""
+        if owner is None or state == ha.State.FAILSAFE.value or self.on_ground:
+            self._persisted = None
+            return [Emit(rec.AuthorityForgotten(owner=owner, epoch=epoch, state=wire.AuthorityState(state))),
+                    Persist(None, 0, ha.State.UNPAIRED.value)]
+        out: list[Out] = [Emit(rec.Restarted(owner=owner, epoch=epoch, state=wire.AuthorityState(state),
+                                             position=self.position))]
+        log.warning("restarted in the air: authority %s (epoch %d); waiting for it to re-pair", owner, epoch)
+        out += self._apply(self.machine.restore(owner, epoch, now, self.opts.thresholds.lost), now)
+        return out + self._effects(now)
+
+    def get_timer(self) -> float | None:
+        """When ``handle_timer`` must next be called if no input comes."""
+        due = [self._next_beacon]
+        timer = self.machine.get_timer()
+        if timer is not None and timer > self._timer_handled:
+            due.append(timer)
+        due += [t for link in self.links.values() if (t := link.tbm.next_change()) is not None]
+        if self.probation:
+            due.append(min(self.probation.values()))
+        return min(due)
+
+    def handle_timer(self, now: float) -> list[Out]:
+        """What is due at ``now``: the machine's deadlines, the probations' ends, the status beacon
+        (link-state thresholds are looked at after every input, this one included)."""
+        out: list[Out] = []
+        timer = self.machine.get_timer()
+        if timer is not None and now >= timer:  # a hand-over's or a re-pairing's deadline
+            self._timer_handled = timer
+            out += self._apply(self.machine.handle_timer(now), now)
+        if now >= self._next_beacon:
+            self._next_beacon = now + self.opts.status_beacon
+            st = self.machine.status()
+            out += [PutDown(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
+        return out + self._effects(now)
+
+    # -------------------------------------------------------------- reports
+    def report(self, now: float) -> dict[str, Any]:
+        """The core's part of the drone's status record."""
+        m = self.machine
+        for slot in self.slots.values():
+            slot.expire(now)
+        return {
+            "owner": m.owner, "epoch": m.epoch, "state": m.state.value, "pending_to": m.pending_to,
+            "position": list(self.position) if self.position else None,
+            "in_region": m.in_region, "subscribed": sorted(m.subscribed),
+            "links": {gs: {"state": link.tbm.state(now).value, "since_last": round(link.tbm.since_last(now), 3),
+                           "opened": link.opened, "sent": link.sent,
+                           "dropped": {r.value: c for r, c in link.drops.items() if c}}
+                      for gs, link in self.links.items()},
+            "keys": {gs: {"live": slot.live is not None, "candidates": len(slot.candidates), "expired": slot.expired,
+                          "dropped_unlinked": {r.value: c for r, c in slot.unlinked.items() if c}}
+                     for gs, slot in self.slots.items()},
+            "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
+            "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
+            "forwarded_epochs": dict(self.forwarded_epochs),
+        }
+
+    def failsafe_latency_ms(self, now: float) -> float | None:
+        """How long after the loss threshold ``now`` is, for the authority's link (None: never heard)."""
+        link = self.links.get(self.machine.owner or "")
+        if link is None or link.tbm.last_seen is None:
+            return None
+        return (now - link.tbm.last_seen - self.opts.thresholds.lost) * 1000.0
+
+    # ------------------------------------------------------------- internals
+    def _new_link(self, gs: str, key: LinkKey, now: float) -> SecureLink:
+        return SecureLink(
+            key=key, role="drone", tx_keyexpr=kx.down(self.name, gs), rx_keyexpr=kx.up(self.name, gs),
+            peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds, cipher=self.opts.cipher,
+            authorize=lambda g: self.fleet.is_authorized(self.name, g))
+
+    def _control(self, gs: str, msg: wire.Control) -> list[Out]:
+        link = self.links.get(gs)
+        return [] if link is None else [PutDown(gs, link.seal_control(msg))]
+
+    def _handle(self, event: ha.Event, now: float, frame: bytes | None = None) -> list[Out]:
+        owner, epoch = self.machine.owner, self.machine.epoch  # the forward is decided before any switch
+        acts = self.machine.handle(event)
+        if (frame is not None and isinstance(event, ha.Frame) and event.uplink is UplinkClass.AUTHORITY_ONLY
+                and ha.Forward(event.gs) in acts):
+            assert event.gs == owner  # the machine forwards commanding frames from the owner only
+            self.forwarded[event.gs] += 1
+            self.forwarded_epochs[f"{epoch}:{event.gs}"] += 1
+        return self._apply(acts, now, frame)
+
+    def _apply(self, actions: list[ha.Action], now: float, frame: bytes | None = None) -> list[Out]:
+        out: list[Out] = []
+        for a in actions:
+            if isinstance(a, ha.Forward):
+                if frame is not None:
+                    out.append(ToVehicle(frame))
+            elif isinstance(a, ha.DropFrame):
+                self.counters[f"ha_drop:{a.reason.value}"] += 1
+            elif isinstance(a, ha.SendControl):
+                out += self._control(a.gs, a.msg)
+            elif isinstance(a, ha.CommandVehicle):
+                latency = self.failsafe_latency_ms(now)
+                out.append(CommandVehicle(a.command, a.reason, latency))
+                out.append(Emit(rec.Failsafe(action=a.command, reason=a.reason, detect_to_command_ms=latency,
+                                             position=self.position)))
+                log.warning("FAILSAFE: %s (%s), %.1f ms after the threshold", a.command, a.reason, latency or -1)
+            elif isinstance(a, ha.AuthorityChanged):
+                cls = rec.HandoverComplete if a.kind in ("handover", "emergency") else rec.AuthorityChange
+                out.append(Emit(cls(from_=a.old, to=a.new, epoch=a.epoch, kind=a.kind, time=0.0,
+                                    position=self.position)))
+                log.warning("authority %s -> %s (epoch %d, %s)", a.old, a.new, a.epoch, a.kind)
+            elif isinstance(a, ha.Note):
+                note = _NOTE_RECORDS.get(a.kind)
+                if note is not None:
+                    out.append(Emit(note(detail=a.detail, position=self.position)))
+                log.info("%s: %s", a.kind, a.detail)
+            # Subscribe / Unsubscribe: what to listen to follows from the state (``_effects``)
+        return out
+
+    def _on_control(self, gs: str, msg: wire.Control | None, now: float) -> list[Out]:
+        if isinstance(msg, KeyGrant):
+            return self._on_grant(gs, msg, now)
+        if isinstance(msg, wire.HandoverRelease):
+            return self._handle(ha.Release(now, gs, msg.to, msg.epoch), now)
+        if isinstance(msg, wire.HandoverRequest):
+            return self._handle(ha.HandoverRequest(now, gs, msg.to), now)
+        if isinstance(msg, wire.SmHeartbeat):
+            self.counters["sm_heartbeat"] += 1
+        else:
+            self.counters[f"control_ignored:{type(msg).__name__}"] += 1
+        return []
+
+    def _on_grant(self, sender: str, msg: KeyGrant, now: float) -> list[Out]:
+        """A key grant from ``sender``: bad content is counted and rejected; a key the link holds
+        already is acknowledged again; else the authority machine accepts or rejects it."""
+        bad = ha.check_grant(msg, self.gs_sysids)
+        if bad is not None:
+            self.counters["bad_grant"] += 1
+            return self._control(sender, wire.Reject("key_grant", bad.detail))
+        key = LinkKey.from_secret(self.name, msg.gs, msg.secret)
+        slot = self.slots.get(msg.gs)
+        known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
+        if any(link.key.same_as(key) for link in known):
+            return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id))  # a repeated grant
+        result, actions = self.machine.grant(ha.KeyGranted(now, sender, msg.gs))
+        out: list[Out] = []
+        if isinstance(result, ha.GrantAccepted):
+            out += self._install(result.gs, key, now)
+        out += self._apply(actions, now)  # a rejection's Reject is among them
+        if isinstance(result, ha.GrantAccepted):
+            out += self._control(sender, KeyGrantAck(msg.gs, msg.grant_id))
+        return out
+
+    def _install(self, gs: str, key: LinkKey, now: float) -> list[Out]:
+        """A key granted by the authority: live at once if the link has none, else a candidate that
+        GS ``gs`` must prove (and only once its live link is LOST: ``linkslot``). The drone then
+        speaks under a new live key once, so the GS can confirm it too."""
+        slot = self.slots.setdefault(gs, LinkSlot())
+        link = self._new_link(gs, key, now)
+        if slot.live is None:
+            slot.install(link, now)
+            self.links[gs] = link
+            return [Emit(rec.LinkInstalled(gs=gs, how="grant")), *self._control(gs, self.machine.status())]
+        slot.offer(link, now, "grant")
+        return [Emit(rec.LinkCandidate(gs=gs, how="grant"))]
+
+    def _on_promoted(self, gs: str, promoted: Promoted, now: float) -> list[Out]:
+        """GS ``gs`` proved a candidate key with the frame just opened: it is now the live key."""
+        slot = self.slots[gs]
+        assert slot.live is not None
+        self.links[gs] = slot.live
+        self.probation.pop(gs, None)
+        out: list[Out] = [Emit(rec.LinkConfirmed(gs=gs, how=promoted.origin, replaced=promoted.replaced))]
+        log.info("link to %s: new key proven (%s)", gs, promoted.origin)
+        if promoted.origin == "pair":
+            refusal = self.machine.pair_refusal(gs, self.on_ground)
+            if refusal is not None:  # the authority's state changed since message 1 (e.g. failsafe in the air)
+                self.counters["pair_refused"] += 1
+                out.append(Emit(rec.PairRefused(gs=gs, reason=refusal.text)))
+            else:
+                out.append(Emit(rec.Paired(gs=gs)))
+                out += self._handle(ha.Paired(now, gs, self.on_ground), now)
+        return out
+
+    def _pair_refused(self, gs: str, refusal: PairRefused) -> list[Out]:
+        key = f"pair_refused:{refusal.reason.value}"
+        self.counters[key] += 1
+        return [Emit(rec.PairRefused(gs=gs, reason=refusal.text))] if self.counters[key] <= LOGGED_PER_REASON else []
+
+    def _poll_links(self, now: float) -> list[Out]:
+        out: list[Out] = []
+        for gs, link in list(self.links.items()):
+            st = link.tbm.poll(now)
+            if st is not None:
+                out.append(Emit(rec.LinkStateChanged(gs=gs, state=st)))
+                out += self._handle(ha.LinkChanged(now, gs, st), now)
+        return out
+
+    def _effects(self, now: float) -> list[Out]:
+        """What follows from the state after an input: link-state changes, the machine's expired
+        deadlines, the uplinks to listen to (the machine's plus every GS whose new pairing key waits
+        for its proof), and what to persist."""
+        out = self._poll_links(now)
+        timer = self.machine.get_timer()
+        if timer is not None and now >= timer:
+            self._timer_handled = timer
+            out += self._apply(self.machine.handle_timer(now), now)
+        self.probation = {gs: t for gs, t in self.probation.items() if t > now}
+        want = frozenset(self.machine.subscribed) | frozenset(self.probation)
+        if want != self._listening:
+            out += [Emit(rec.Subscribe(gs=g)) for g in sorted(want - self._listening)]
+            out += [Emit(rec.Unsubscribe(gs=g)) for g in sorted(self._listening - want)]
+            self._listening = want
+            out.append(Listen(want))
+        m = self.machine
+        kept = (m.owner, m.epoch, m.state.value)
+        if m.owner is not None and kept != self._persisted:
+            self._persisted = kept
+            out.append(Persist(*kept))
+        return out
+
+
+OutHandler = Callable[[Out], None]
