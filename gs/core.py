@@ -120,6 +120,17 @@ SILENT_REPAIR_S = 1.0
 #: comes back is re-paired within this time of its pairing queryable being up (a query to a drone
 #: that is down gets no answer; the drone answers a live one in milliseconds).
 SILENT_RETRY_S = 0.2
+#: After this long without a word from the drone (our site cut off, our process hung) our view of the
+#: authority may be stale: authority may have moved meanwhile. Until the drone's authority status
+#: (a beacon, at least once a second) says who holds it, the GS acts on no authority it thinks it has.
+STALE_VIEW_S = 1.0
+#: A hand-over that failed (timed out: the target was not heard; refused) is tried again this often
+#: while the vehicle is still where it should happen: a target that comes back takes authority.
+HANDOVER_RETRY_S = 2.0
+#: A failed hand-over commands RTL only if the vehicle is leaving our coverage: farther from our
+#: centre than when we released, by at least this much (else it is flying into our coverage and
+#: needs nothing but the retry).
+LEAVING_M = 5.0
 
 
 class Stage(enum.Enum):
@@ -275,7 +286,11 @@ class DroneView:
     released_epoch: int | None = None
     release_sent: float = 0.0
     release_confirmed: bool = False  # the drone reported HANDOVER_PENDING for our release
+    release_from: tuple[int, float] | None = None  # (epoch, distance from our centre) at its first release
     handover_failed_epoch: int | None = None
+    handover_failed_at: float = 0.0  # the last failure in ``handover_failed_epoch`` (a retry waits)
+    rtl_epoch: int | None = None  # the epoch in which a failed hand-over commanded RTL (once per epoch)
+    stale: bool = False  # the drone was silent: our view of the authority waits for its status
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
     autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
     prearm_ok: bool | None = None  # SYS_STATUS pre-arm health (None: not reported)
@@ -351,7 +366,7 @@ class StationCore:
     def request_control(self, view: DroneView, now: float) -> list[Action]:
         """Ask the drone for authority (an operator's request): honoured in its failsafe if our link is
         proven, else passed to the authority. Sent at most once a second."""
-        if view.link is None or view.owner == self.name and view.ha_state is not HaState.FAILSAFE:
+        if view.link is None or view.stale or view.owner == self.name and view.ha_state is not HaState.FAILSAFE:
             return []
         if not _due(view.last_take_control, now, 1.0):
             return []
@@ -366,7 +381,16 @@ class StationCore:
 
     def holds_authority(self, view: DroneView) -> bool:
         return (view.owner == self.name and view.released_epoch != view.epoch
-                and view.ha_state is not HaState.FAILSAFE)
+                and view.ha_state is not HaState.FAILSAFE and not view.stale)
+
+    def _mark_stale(self, view: DroneView, now: float) -> None:
+        """The drone was silent for ``STALE_VIEW_S`` (once heard): whatever we think of the authority
+        waits for its next status."""
+        link = view.link
+        if (not view.stale and link is not None and link.tbm.last_seen is not None
+                and link.tbm.since_last(now) > STALE_VIEW_S):
+            view.stale = True
+            self.counters["authority_view_stale"] += 1
 
     def _heartbeat(self, view: DroneView) -> list[Action]:
         return self.send_msg(view, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -388,7 +412,8 @@ class StationCore:
                 out += self._try_pair(view, now, stamp, retry=SILENT_RETRY_S, timeout=SILENT_RETRY_S)
             if view.link is None:
                 continue
-            if view.owner == self.name:
+            self._mark_stale(view, now)
+            if view.owner == self.name and not view.stale:
                 out += self._share_keys(view, now, now if wall is None else wall)
             out += self._flight(view, FlightTick(now))
             out += self._coordinate(view, now)
@@ -567,6 +592,7 @@ class StationCore:
         if view.link is None and not view.slot.candidates:
             self.counters["no_link"] += 1
             return []
+        self._mark_stale(view, now)  # before the frame counts: a long silence ends here
         res, promoted = view.slot.open(data, now)
         if isinstance(res, Dropped):
             return []
@@ -620,8 +646,9 @@ class StationCore:
         if isinstance(msg, wire.AuthorityStatus):
             state = msg.state  # an enum on the wire: an unknown state does not even decode
             changed = (msg.owner, msg.epoch, state, msg.pending_to) != (view.owner, view.epoch, view.ha_state, view.pending_to)
-            was_mine = view.owner == self.name
+            was_mine = view.owner == self.name and not view.stale
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
+            view.stale = False  # the drone's own word: our view is current again
             view.drone_links = set(msg.linked)
             if changed:
                 out.append(Log("authority_status", {"drone": view.name, "owner": msg.owner, "epoch": msg.epoch,
@@ -629,8 +656,8 @@ class StationCore:
             if was_mine and msg.owner == self.name and view.released_epoch == msg.epoch:
                 if state is HaState.HANDOVER_PENDING:
                     view.release_confirmed = True
-                elif state is HaState.LINKED and view.release_confirmed and view.handover_failed_epoch != msg.epoch:
-                    out += self._handover_failed(view, "release timed out")  # authority stayed here
+                elif state is HaState.LINKED and view.release_confirmed:
+                    out += self._handover_failed(view, "release timed out", now)  # authority stayed here
         elif isinstance(msg, wire.KeyGrantAck):
             if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
                 del view.grants[msg.gs]
@@ -639,9 +666,8 @@ class StationCore:
         elif isinstance(msg, wire.Reject):
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
             out.append(Log("rejected", {"drone": view.name, "what": msg.what, "reason": msg.reason}))
-            if (msg.what == "release" and view.owner == self.name and view.released_epoch == view.epoch
-                    and view.handover_failed_epoch != view.epoch):
-                out += self._handover_failed(view, f"release refused: {msg.reason}")
+            if msg.what == "release" and view.owner == self.name and view.released_epoch == view.epoch:
+                out += self._handover_failed(view, f"release refused: {msg.reason}", now)
         elif isinstance(msg, wire.FailsafeNotice):
             view.ha_state = HaState.FAILSAFE  # nobody holds authority until a GS takes control back
             log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
@@ -650,15 +676,37 @@ class StationCore:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
         return out
 
-    def _handover_failed(self, view: DroneView, reason: str) -> list[Action]:
-        """The hand-over cannot happen: authority stays here, and the vehicle comes home while it is
-        still in our coverage rather than flying out of it into a failsafe."""
-        view.handover_failed_epoch = view.epoch
+    def _handover_failed(self, view: DroneView, reason: str, now: float) -> list[Action]:
+        """The hand-over cannot happen now: authority stays here and the hand-over is tried again
+        every ``HANDOVER_RETRY_S`` while the vehicle is in the overlap (a target that comes back takes
+        it). If the vehicle is leaving our coverage, it comes home (RTL, once per epoch) rather than
+        flying out of it into a failsafe; flying into our coverage, it flies on."""
+        first = view.handover_failed_epoch != view.epoch
+        view.handover_failed_epoch, view.handover_failed_at = view.epoch, now
         view.released_epoch = None
-        log.warning("hand-over of %s failed (%s): authority stays here; commanding RTL", view.name, reason)
-        return [Log("handover_failed", {"drone": view.name, "epoch": view.epoch, "action": "RTL", "reason": reason}),
-                Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); commanding RTL"),
-                *self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)]
+        self.counters["handover_failed"] += 1
+        rtl = view.rtl_epoch != view.epoch and self._leaving(view)
+        if not rtl and not first:
+            return []  # a retry that failed again: counted, not logged
+        action = "RTL" if rtl else "retry"
+        log.warning("hand-over of %s failed (%s): authority stays here; %s", view.name, reason,
+                    "commanding RTL" if rtl else f"trying again every {HANDOVER_RETRY_S:g} s")
+        out: list[Action] = [Log("handover_failed", {"drone": view.name, "epoch": view.epoch, "action": action,
+                                                     "reason": reason}),
+                             Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); "
+                                 + ("commanding RTL" if rtl else "trying again"))]
+        if rtl:
+            view.rtl_epoch = view.epoch
+            out += self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+        return out
+
+    def _leaving(self, view: DroneView) -> bool:
+        """The vehicle is moving out of our coverage: farther from our centre than at the release (no
+        release made, or no position: assume it is)."""
+        if self.coverage is None or view.position is None or view.release_from is None or view.release_from[0] != view.epoch:
+            return True
+        here = GeoPoint(view.position.lat, view.position.lon)
+        return distance_m(self.coverage.centre, here) > view.release_from[1] + LEAVING_M
 
     # ----------------------------------------------------------------- flying
     def _set_stage(self, view: DroneView, stage: Stage, now: float) -> None:
@@ -871,10 +919,10 @@ class StationCore:
 
     def _coordinate(self, view: DroneView, now: float) -> list[Action]:
         """Release authority toward the GS whose coverage the drone is flying into."""
-        if view.owner != self.name or view.position is None or self.coverage is None:
+        if view.owner != self.name or view.stale or view.position is None or self.coverage is None:
             return []
-        if view.handover_failed_epoch == view.epoch:
-            return []
+        if view.handover_failed_epoch == view.epoch and now - view.handover_failed_at < HANDOVER_RETRY_S:
+            return []  # failed a moment ago: the retry waits
         if view.released_epoch == view.epoch and (view.release_confirmed or now - view.release_sent < RELEASE_RESEND_S):
             return []  # released: wait for the drone (re-send only if it never confirmed)
         here = GeoPoint(view.position.lat, view.position.lon)
@@ -888,10 +936,12 @@ class StationCore:
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
                 if g not in view.drone_links and g not in view.granted:  # the drone holds no key for g
-                    return self._handover_failed(view, f"the drone has no link to {g}")
+                    return self._handover_failed(view, f"the drone has no link to {g}", now)
                 out: list[Action] = []
                 if view.released_epoch != view.epoch:
                     view.release_confirmed = False
+                    if view.release_from is None or view.release_from[0] != view.epoch:  # the epoch's first
+                        view.release_from = (view.epoch, mine)
                     out.append(Log("handover_release", {"drone": view.name, "to": g, "epoch": view.epoch,
                                                         "position": [here.lat, here.lon]}))
                 view.released_epoch, view.release_sent = view.epoch, now

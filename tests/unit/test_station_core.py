@@ -148,16 +148,88 @@ def test_no_release_toward_a_gs_the_drone_has_no_key_for_the_vehicle_comes_home(
 
 
 def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
+    """Refused while the vehicle is not leaving A's coverage: authority stays, the release is tried again
+    after ``HANDOVER_RETRY_S``; refused again once it is flying out of A's coverage: RTL, once."""
     from zdrone.core import wire
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+    from gs.core import HANDOVER_RETRY_S
 
     a = paired_a(fleet_dir)
+    view = a.views["d1"]
     _in_overlap_nearer_b(a, {"A", "B"})
     out = a.tick(10.0)
     assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["B"]
-    out = a._on_control(a.views["d1"], wire.Reject("release", "no link: no key installed for B"), 10.5)
+    out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 10.5)
     failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
     assert len(failed) == 1 and failed[0].fields["reason"].startswith("release refused")
-    assert a.holds_authority(a.views["d1"]) and any(isinstance(x, Put) for x in out)  # the RTL command
+    assert failed[0].fields["action"] == "retry" and a.holds_authority(view)
+    assert not [x for x in a.tick(10.6) if isinstance(x, Log) and x.kind == "handover_release"]  # the retry waits
+    view.position = offset(HOME, 0.0, 340.0)  # 40 m farther from A's centre: leaving A's coverage
+    assert [x for x in a.tick(10.5 + HANDOVER_RETRY_S + 0.01) if isinstance(x, Put)]  # the release again
+    out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 13.0)
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    assert [x.fields["action"] for x in failed] == ["RTL"] and a.holds_authority(view)
+    assert any(isinstance(x, Put) for x in out)  # the RTL command
+    a.tick(15.1)
+    out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 15.2)
+    assert not [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]  # counted, not logged again
+    assert not [x for x in out if isinstance(x, Put)]  # RTL once per epoch
+
+
+def test_a_timed_out_hand_back_is_tried_again_when_the_vehicle_flies_into_our_coverage(fleet_dir):
+    """B got authority by the emergency rule in the overlap, nearer A: its hand-back to A times out
+    (A's site is down) while the vehicle flies toward B. No RTL (that would take it out of B's
+    coverage); the hand-back is tried again, and a target that came back takes authority."""
+    from zdrone.core import wire
+    from zdrone.core.authority import State as HaState
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+    from gs.core import HANDOVER_RETRY_S
+
+    b = core(fleet_dir, "B")
+    view = b.views["d1"]
+    from zdrone.core.keys import LinkKey
+    view.slot.install(b._new_link(view, LinkKey.from_secret("d1", "B", bytes(32)), 0.0), 0.0)
+    view.link = view.slot.live
+    view.owner, view.epoch, view.drone_links = "B", 2, {"A", "B"}
+    view.position = offset(HOME, 0.0, 200.0)  # nearer A's centre than B's
+    out = b.tick(1.0)
+    assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["A"]
+    b._on_control(view, wire.AuthorityStatus("B", 2, HaState.HANDOVER_PENDING, "A", ["A", "B"]), 1.1)
+    view.position = offset(HOME, 0.0, 220.0)  # flying toward B
+    out = b._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.6)
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    assert [(x.fields["action"], x.fields["reason"]) for x in failed] == [("retry", "release timed out")]
+    assert not [x for x in out if isinstance(x, Put)]  # no RTL
+    assert not [x for x in b.tick(4.0) if isinstance(x, Log) and x.kind == "handover_release"]
+    out = b.tick(3.6 + HANDOVER_RETRY_S + 0.01)
+    assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["A"]
+
+
+def test_a_gs_cut_off_learns_who_holds_authority_before_it_acts(fleet_dir):
+    """A held authority, then heard nothing for more than ``STALE_VIEW_S`` (its site was down): the
+    drone may have handed authority on meanwhile. A sends no release, no command, until the drone's
+    authority status says who holds it."""
+    from zdrone.core import wire
+    from zdrone.core.authority import State as HaState
+    from gs.core import STALE_VIEW_S
+
+    a = paired_a(fleet_dir)
+    view = a.views["d1"]
+    _in_overlap_nearer_b(a, {"A", "B"})
+    a.opts = CoreOptions(pair=True, command_rate=5.0)
+    view.armed = True
+    view.link.tbm.observe(1.0)  # the drone was heard, then fell silent
+    out = a.tick(1.0 + STALE_VIEW_S + 0.5)
+    assert view.stale and not a.holds_authority(view)
+    assert not [x for x in out if isinstance(x, Log) and x.kind in ("handover_release", "handover_failed")]
+    assert not [x for x in out if isinstance(x, Put) and len(x.payload) > 60]  # no command (heartbeats only)
+    a._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.0)
+    assert not view.stale and view.owner == "B" and not a.holds_authority(view)
+    assert not [x for x in a.tick(3.1) if isinstance(x, Log) and x.kind in ("handover_release", "handover_failed")]
+    a._on_control(view, wire.AuthorityStatus("A", 3, HaState.LINKED, None, ["A", "B"]), 4.0)
+    assert a.holds_authority(view)  # handed back: A acts again
 
 
 def test_after_a_failsafe_the_gs_asks_for_control_only_with_the_operators_request(fleet_dir):
