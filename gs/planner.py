@@ -21,6 +21,7 @@ the station seals and sends them.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -67,20 +68,31 @@ _PX4_NON_POSITIONAL = frozenset({
 
 
 def encode_mission(items: list[PlannedItem], autopilot: str = "px4", home: GeoPoint = HOME) -> list[PlannedItem]:
-    """``items`` as ``autopilot`` flies them (see the module docstring); ``ValueError`` for an
-    autopilot not in ``AUTOPILOTS``."""
+    """``items`` as ``autopilot`` flies them (see the module docstring); a DO_JUMP's target follows
+    its item to where it lands; ``ValueError`` for an autopilot not in ``AUTOPILOTS``."""
     if autopilot == "px4":
         out: list[PlannedItem] = []
+        where: list[int] = []  # index in ``out`` of each planned item (a dropped one: the next item's)
         positional = False
         for it in items:
+            where.append(len(out))
             if it.command == mav.MAV_CMD_NAV_TAKEOFF and positional:
                 continue  # PX4 would refuse the whole mission; it takes off again by itself
             positional = positional or it.command not in _PX4_NON_POSITIONAL
             out.append(it)
-        return out
+        return [_jump_moved(it, where) for it in out]
     if autopilot == "ardupilot":
-        return [_nav(mav.MAV_CMD_NAV_WAYPOINT, home, 0.0, (0.0, 0.0, 0.0, 0.0)), *items]  # item 0: home
+        where = list(range(1, len(items) + 1))
+        return [_nav(mav.MAV_CMD_NAV_WAYPOINT, home, 0.0, (0.0, 0.0, 0.0, 0.0)),  # item 0: home
+                *(_jump_moved(it, where) for it in items)]
     raise ValueError(f"autopilot {autopilot!r}: expected one of {', '.join(AUTOPILOTS)}")
+
+
+def _jump_moved(it: PlannedItem, where: list[int]) -> PlannedItem:
+    """A DO_JUMP aimed at the planned item's new index (any other item as it is)."""
+    if it.command != mav.MAV_CMD_DO_JUMP or not 0 <= int(it.params[0]) < len(where):
+        return it
+    return dataclasses.replace(it, params=(float(where[int(it.params[0])]), *it.params[1:]))
 
 
 def reference_plan(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt: float = CRUISE_ALT_M,
@@ -106,18 +118,33 @@ def reference_mission(home: GeoPoint = HOME, delivery: GeoPoint = DELIVERY, alt:
     return encode_mission(reference_plan(home, delivery, alt, speed), autopilot, home)
 
 
+#: the most crossings a shuttle mission flies: its loop is one DO_JUMP, whose repeat count the
+#: autopilots keep in 16 bits (ArduPilot: signed, at most 32767 repeats of two crossings each)
+MAX_SHUTTLE_CROSSINGS = 65_000
+
+
 def shuttle_mission(crossings: int, home: GeoPoint = HOME, alt: float = CRUISE_ALT_M,
                     speed: float = CRUISE_SPEED_MS, far_east_m: float = 440.0, autopilot: str = "px4") -> list[PlannedItem]:
-    """Fly back and forth across the hand-over region ``crossings`` times, then land at home."""
+    """Fly back and forth across the hand-over region ``crossings`` times, then land at home. The
+    back-and-forth is one pair of waypoints and a DO_JUMP, so the mission stays 7 items long
+    however many crossings it flies (a mission's size is bounded: 500 items in the simulator)."""
     from zdrone.core.geometry import offset
 
-    if not 1 <= crossings <= 100:
-        raise ValueError("crossings must be 1..100")
+    if not 1 <= crossings <= MAX_SHUTTLE_CROSSINGS:
+        raise ValueError(f"{crossings} crossings: must be 1..{MAX_SHUTTLE_CROSSINGS} (the loop is one DO_JUMP, "
+                         f"whose repeat count autopilots keep in 16 bits)")
     near_a, near_b = offset(home, 0.0, 80.0), offset(home, 0.0, far_east_m)
+    do = mav.MAV_FRAME_MISSION
     items = [_nav(mav.MAV_CMD_NAV_TAKEOFF, home, alt),
-             PlannedItem(mav.MAV_FRAME_MISSION, mav.MAV_CMD_DO_CHANGE_SPEED, (1.0, speed, -1.0, 0.0), NAN, NAN, 0.0)]
-    for i in range(crossings):
-        items.append(_nav(mav.MAV_CMD_NAV_WAYPOINT, near_b if i % 2 == 0 else near_a, alt))
+             PlannedItem(do, mav.MAV_CMD_DO_CHANGE_SPEED, (1.0, speed, -1.0, 0.0), NAN, NAN, 0.0)]
+    loop = len(items)  # where the loop starts in the neutral plan
+    pairs, odd = divmod(crossings, 2)
+    if pairs:
+        items += [_nav(mav.MAV_CMD_NAV_WAYPOINT, near_b, alt), _nav(mav.MAV_CMD_NAV_WAYPOINT, near_a, alt)]
+        if pairs > 1:  # the pair once, then pairs - 1 times again
+            items.append(PlannedItem(do, mav.MAV_CMD_DO_JUMP, (float(loop), float(pairs - 1), 0.0, 0.0), NAN, NAN, 0.0))
+    if odd:
+        items.append(_nav(mav.MAV_CMD_NAV_WAYPOINT, near_b, alt))
     items += [_nav(mav.MAV_CMD_NAV_WAYPOINT, home, alt), _nav(mav.MAV_CMD_NAV_LAND, home, 0.0)]
     return encode_mission(items, autopilot, home)
 

@@ -109,9 +109,27 @@ def _thresholds(args: argparse.Namespace):
         raise UsageError(f"--degraded-after/--lost-after: {exc}") from None
 
 
+def _event_limits(args: argparse.Namespace) -> None:
+    """Every event log of this node process rotates at ``--events-max-mb`` (``net.eventlog``)."""
+    from .net.eventlog import configure
+
+    if not 0.01 <= args.events_max_mb <= 100_000:
+        raise UsageError(f"--events-max-mb {args.events_max_mb:g}: must be 0.01..100000")
+    configure(max_bytes=int(args.events_max_mb * 1024 * 1024))
+
+
+def _add_event_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    p.add_argument("--events-max-mb", type=float, default=64.0, metavar="MB",
+                   help="rotate the event log at this size: FILE.1 .. FILE.3 are kept, older ones dropped (64); "
+                        "events a peer can trigger are also rate-limited per type and reason, with exact counts "
+                        "of what was left out ('suppressed' lines)")
+
+
 def _drone(args: argparse.Namespace) -> int:
     from .nodes.drone import DroneOptions, run_drone
 
+    _event_limits(args)
     routers = args.router or ["tcp/127.0.0.1:7447"]
     router: str | tuple[str, ...] = routers[0] if len(routers) == 1 else tuple(routers)
     return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=router, vehicle=args.vehicle,
@@ -167,7 +185,7 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--sil-delay-ms", type=float, default=0.0, metavar="MS", help="TESTBED ONLY: radio delay")
     p.add_argument("--sil-jitter-ms", type=float, default=0.0, metavar="MS", help="TESTBED ONLY: radio jitter (±MS)")
     p.add_argument("--sil-seed", type=int, default=0, help="TESTBED ONLY: seed of the radio's randomness")
-    p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    _add_event_options(p)
     if bench:
         p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
                        help="envelope; fernet/plain exist only to measure against (bench traffic)")
@@ -182,6 +200,7 @@ def _gs(args: argparse.Namespace) -> int:
 
     for conn in args.gcs or ():
         parse_endpoint(conn)  # a bad endpoint is a usage error before anything connects
+    _event_limits(args)
     mission = None
     if args.mission == "reference":
         mission = reference_plan()  # autopilot-neutral: the GS encodes it for the autopilot it finds
@@ -189,9 +208,13 @@ def _gs(args: argparse.Namespace) -> int:
         from gs.planner import shuttle_mission
 
         try:
-            mission = shuttle_mission(int(args.mission.split(":", 1)[1]))
+            crossings = int(args.mission.split(":", 1)[1])
         except ValueError:
             raise UsageError(f"--mission {args.mission}: expected shuttle:N with N crossings") from None
+        try:
+            mission = shuttle_mission(crossings)
+        except ValueError as exc:
+            raise UsageError(f"--mission {args.mission}: {exc}") from None
     elif args.mission:
         mission = load_plan(args.mission)
     return run_station(StationOptions(gs=args.id, fleet=args.fleet, router=args.router,
@@ -215,7 +238,7 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--heartbeat-hz", type=positive, default=2.0, help="sealed HEARTBEAT rate (2 Hz)")
     p.add_argument("--command-rate", type=float, default=0.0, metavar="HZ",
                    help="while in authority, send a harmless command stream (for hand-over checks)")
-    p.add_argument("--events", metavar="FILE", help="write a JSONL event log")
+    _add_event_options(p)
     p.add_argument("--take-control", action="store_true",
                    help="the operator's standing request: if the drone enters its failsafe, take control back as soon as "
                         "this GS's link is proven (the vehicle goes on with the failsafe action until commanded)")

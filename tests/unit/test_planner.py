@@ -75,3 +75,18 @@ def test_mission_encoded_per_autopilot():
     assert shuttle_mission(2, autopilot="ardupilot")[1:] == shuttle_mission(2)
     with pytest.raises(ValueError, match="expected one of px4, ardupilot"):
         encode_mission(plan, "betaflight")
+
+
+def test_a_shuttle_mission_stays_small_for_any_length_and_says_why_it_refuses():
+    for n in (1, 2, 3, 1000, 65_000):
+        plan = shuttle_mission(n)
+        assert len(plan) <= 7
+        jumps = [it for it in plan if it.command == mav.MAV_CMD_DO_JUMP]
+        pairs, odd = divmod(n, 2)
+        waypoints = sum(1 for it in plan if it.command == mav.MAV_CMD_NAV_WAYPOINT) - 1  # less the way home
+        assert waypoints + sum(2 * int(j.params[1]) for j in jumps) == n
+        ardu = shuttle_mission(n, autopilot="ardupilot")  # home is item 0: the jump's target moves with its item
+        assert [j.params[0] + 1 for j in jumps] == [j.params[0] for j in ardu if j.command == mav.MAV_CMD_DO_JUMP]
+    for n in (0, 65_001):
+        with pytest.raises(ValueError, match=r"must be 1\.\.65000 \(the loop is one DO_JUMP"):
+            shuttle_mission(n)

@@ -283,3 +283,39 @@ def test_land_command_lands_where_the_vehicle_is():
     s.command(mav.MAV_CMD_NAV_LAND)
     assert s.run_until(lambda: not s.sim.armed, 60)
     assert distance_m(here, s.sim.position) < 15.0  # stops within braking distance, no further
+
+
+def test_a_do_jump_loop_flies_every_crossing_then_goes_on():
+    """The shuttle mission of 5 crossings: far, near, a DO_JUMP back to far once more, then far, home
+    and land: the far waypoint is reached three times and the near one twice as turns."""
+    from gs.planner import shuttle_mission
+
+    plan = shuttle_mission(5)
+    assert [it.command for it in plan].count(mav.MAV_CMD_DO_JUMP) == 1
+    s = SimPair()
+    assert s.upload([it.message(i, (1, 1)) for i, it in enumerate(plan)]) == mav.MAV_MISSION_ACCEPTED
+    assert s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
+    assert s.command(mav.MAV_CMD_MISSION_START, 0, 0) == mav.MAV_RESULT_ACCEPTED
+    far, near = offset(HOME, 0.0, 440.0), offset(HOME, 0.0, 80.0)
+    visits = {"far": 0, "near": 0}
+    inside = {"far": False, "near": False}
+    while s.now < 600 and s.sim.armed:
+        s.run(0.5)
+        for name, point in (("far", far), ("near", near)):
+            now_inside = distance_m(point, s.sim.position) < 3.0
+            visits[name] += now_inside and not inside[name]
+            inside[name] = now_inside
+    assert s.sim.landed and not s.sim.armed and distance_m(HOME, s.sim.position) < 1.0
+    assert visits == {"far": 3, "near": 2 + 2}  # out and home over the near waypoint, besides its two turns
+    assert [m.seq for m in s.take("MISSION_ITEM_REACHED")] == [0, 1, 2, 3, 4, 2, 3, 4, 5, 6, 7]
+
+
+@pytest.mark.parametrize("target, repeat, code", [(7.0, 1.0, mav.MAV_MISSION_INVALID_PARAM1),  # forwards
+                                                  (1.5, 1.0, mav.MAV_MISSION_INVALID_PARAM1),
+                                                  (1.0, -2.0, mav.MAV_MISSION_INVALID_PARAM2),
+                                                  (1.0, 40000.0, mav.MAV_MISSION_INVALID_PARAM2)])
+def test_a_bad_do_jump_is_refused_with_its_parameter(target, repeat, code):
+    items = [waypoint(0, 0, 0, 20, cmd=mav.MAV_CMD_NAV_TAKEOFF), waypoint(1, 100, 0, 20),
+             mav.MAVLink_mission_item_int_message(1, 1, 2, mav.MAV_FRAME_MISSION, mav.MAV_CMD_DO_JUMP, 0, 1,
+                                                  target, repeat, 0, 0, 0, 0, 0)]
+    assert SimPair().upload(items) == code

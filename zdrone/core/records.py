@@ -48,6 +48,17 @@ class Closed(Record, frozen=True, tag="closed"):
     """The node closed its session (the last line of a clean exit); written by every node."""
 
 
+class Suppressed(Record, frozen=True, tag="suppressed"):
+    """Events of type ``of`` (and ``reason``) the event log left out, beyond its rate for them:
+    ``count`` of them between ``first`` and ``last`` (written by the event log of every node)."""
+
+    of: str
+    reason: str | None
+    count: int
+    first: float
+    last: float
+
+
 class PathOpen(Record, frozen=True, tag="path_open"):
     """A session to router ``router`` opened (a node given a router per site has a path to each)."""
 
@@ -700,7 +711,7 @@ class LinkFault(Record, frozen=True, tag="link_fault"):
 # ----------------------------------------------------------------------------- vocabularies
 #: the drone node's records
 DRONE_RECORDS: tuple[type[Record], ...] = (
-    Start, DroneStatus, DroneStop, Closed, PathOpen, PathState, Subscribe, Unsubscribe, LinkInstalled,
+    Start, DroneStatus, DroneStop, Closed, Suppressed, PathOpen, PathState, Subscribe, Unsubscribe, LinkInstalled,
     LinkCandidate, LinkConfirmed, AuthorityChange, HandoverComplete, Failsafe, AuthorityForgotten, Restarted,
     Drop, Paired, PairAnswered, PairRefused, LinkStateChanged, RestoreRefused, Restored, HandoverStart,
     HandoverRequested, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
@@ -708,7 +719,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)
 GS_RECORDS: tuple[type[Record], ...] = (
-    GsStart, GsStatus, GsStop, Closed, PathOpen, PathState, ControlRequested, GsPairRefused, PairFailed,
+    GsStart, GsStatus, GsStop, Closed, Suppressed, PathOpen, PathState, ControlRequested, GsPairRefused, PairFailed,
     PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
@@ -716,7 +727,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
 )
 #: the testbed attacker's records (its ``attack_done`` has fields of its own per attack: untyped)
 TESTBED_RECORDS: tuple[type[Record], ...] = (
-    Closed, RogueReady, RogueGo, RogueNoGo, RouterAcceptedWrongPassword, RouterRefused, PairAttempt,
+    Closed, Suppressed, RogueReady, RogueGo, RogueNoGo, RouterAcceptedWrongPassword, RouterRefused, PairAttempt,
     UnauthorizedAttempt, ForgedReply, NothingCaptured, Captured, FloodStart, RoguePairFailed, PairedAs,
     TlsAttempt, RadioLinkChanged, LinkFault,
 )

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -40,7 +41,7 @@ from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, Authorit
 from ..core.reference import HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
-from ..net.eventlog import EventLog, read_records
+from ..net.eventlog import EventLog, LogTail, read_records
 from . import procs
 from .netns import NetnsTopology
 from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
@@ -633,6 +634,7 @@ class Demo:
     radio_log: "EventLog | None" = None
     site_of_endpoint: dict[str, str] = field(default_factory=dict)  # the drone's path endpoint -> site
     netns: "NetnsTopology | None" = None  # with --netns: the namespaces of the sites and the drone
+    _a_tail: "LogTail | None" = None  # GS A's log, read as it grows until the mission starts
 
     @property
     def spec(self) -> Scenario:
@@ -979,13 +981,11 @@ class Demo:
             deadline = min(deadline, time.monotonic() + o.max_wall)
         state = watch_state()
         self.progress = {}  # the last status as logged ("status"): read by the benches' progress displays
-        seen = 0
+        drone_tail = LogTail(drone_log)  # only what is new each turn: the cost is flat in the flight's length
         with live:
             while time.monotonic() < deadline and not state["done"]:
-                events = read_records(drone_log).records if drone_log.exists() else []
-                for ev in events[seen:]:
+                for ev in drone_tail.read():
                     self._on_event(ev, state, live)
-                seen = len(events)
                 self._on_gs_events(live, state)
                 self._inject_due(live)
                 self._send_go(live)
@@ -996,15 +996,19 @@ class Demo:
                         self.notes.append(f"{name} exited early ({child.proc.returncode})")
                         state["done"] = True
                 time.sleep(0.1)
+        drone_tail.close()
+        if self._a_tail is not None:
+            self._a_tail.close()
         wall = time.monotonic() - self.t0
         codes = self.shutdown()
         return self._summarize(state, wall, codes, timed_out=not state["done"] and o.max_wall is None)
 
     def _on_gs_events(self, live: "LiveView", state: dict[str, Any]) -> None:
-        a_log = self.out / "A.jsonl"
-        if MISSION_STARTED in self.fired or not a_log.exists():
+        if MISSION_STARTED in self.fired:
             return
-        for e in read_records(a_log).records:
+        if self._a_tail is None:
+            self._a_tail = LogTail(self.out / "A.jsonl")
+        for e in self._a_tail.read():
             if isinstance(e, MissionStarted):
                 self._fire(MISSION_STARTED, live)
             elif isinstance(e, MissionFailed):  # the GS gave up (it said why): the demo ends, not ok
@@ -1254,7 +1258,7 @@ class LiveView:
         self.scenario = scenario
         self.enabled = enabled and not quiet
         self.quiet = quiet
-        self.lines: list[str] = []
+        self.lines: deque[str] = deque(maxlen=200)  # the last lines only: the view's cost stays flat
         self._live: Any = None
         self._t0: float | None = None
 
@@ -1308,7 +1312,7 @@ class LiveView:
                           ", ".join(f"{k}={v}" for k, v in ln.dropped.items()) or "-")
         ev = Table(title="events", show_header=False, expand=True)
         ev.add_column()
-        for line in self.lines[-10:]:
+        for line in list(self.lines)[-10:]:
             ev.add_row(line)
         return Group(top, links, ev)
 

@@ -55,7 +55,8 @@ UPLOAD_RETRIES = 5  # ... this many times, then the upload is cancelled
 MAX_DISTANCE_M = 50_000  # farther from home is refused
 NAV_COMMANDS = frozenset({mav.MAV_CMD_NAV_WAYPOINT, mav.MAV_CMD_NAV_TAKEOFF, mav.MAV_CMD_NAV_LAND,
                           mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, mav.MAV_CMD_NAV_LOITER_TIME})
-DO_COMMANDS = frozenset({mav.MAV_CMD_DO_CHANGE_SPEED, mav.MAV_CMD_DO_GRIPPER})
+DO_COMMANDS = frozenset({mav.MAV_CMD_DO_CHANGE_SPEED, mav.MAV_CMD_DO_GRIPPER, mav.MAV_CMD_DO_JUMP})
+MAX_JUMP_REPEAT = 32767  # ArduPilot keeps a DO_JUMP's repeat count in 16 bits (signed); -1 repeats for ever
 GLOBAL_FRAMES = frozenset({mav.MAV_FRAME_GLOBAL, mav.MAV_FRAME_GLOBAL_INT, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT,
                            mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
 DO_FRAMES = GLOBAL_FRAMES | {mav.MAV_FRAME_MISSION}
@@ -135,6 +136,12 @@ def check_item(item: MissionItem, home: GeoPoint, home_amsl: float) -> int | Non
         return mav.MAV_MISSION_INVALID_PARAM2
     if item.command == mav.MAV_CMD_NAV_WAYPOINT and not (math.isnan(item.params[0]) or 0 <= item.params[0] <= 3600):
         return mav.MAV_MISSION_INVALID_PARAM1
+    if item.command == mav.MAV_CMD_DO_JUMP:
+        target, repeat = item.params[0], item.params[1]
+        if not (math.isfinite(target) and target == int(target) and 0 <= target < item.seq):
+            return mav.MAV_MISSION_INVALID_PARAM1  # only backwards, to an item already uploaded
+        if not (math.isfinite(repeat) and repeat == int(repeat) and -1 <= repeat <= MAX_JUMP_REPEAT):
+            return mav.MAV_MISSION_INVALID_PARAM2
     return None
 
 
@@ -152,6 +159,7 @@ class MissionProtocol:
         self.finished = False
         self.refusal: Say | None = None  # why the stored mission cannot be flown (PX4 feasibility)
         self.reached: set[int] = set()
+        self.jumps: dict[int, int] = {}  # DO_JUMP item -> jumps it made since the mission (re)started
         self.upload: Upload | None = None
         self.item_started: float | None = None
         self.reached_at = 0.0  # when the current waypoint was reached (its hold time runs from here)
@@ -237,6 +245,7 @@ class MissionProtocol:
         self.current = self.first_flown if self.flyable else 0
         self.finished = False
         self.reached.clear()
+        self.jumps.clear()
         self.ack(up.peer, mav.MAV_MISSION_ACCEPTED, up.mission_type)
         log.info("sim: mission of %d items accepted", len(self.items))
         # PX4 checks feasibility after the upload is ACKed; a refusal only shows at MISSION_START
@@ -284,7 +293,7 @@ class MissionProtocol:
         self.ack(_peer(msg), mav.MAV_MISSION_ACCEPTED, mtype)  # other types: nothing stored
 
     def clear(self) -> None:
-        self.items, self.current, self.reached = [], 0, set()
+        self.items, self.current, self.reached, self.jumps = [], 0, set(), {}
         self.refusal = None
         if self.ap.mode is FlightMode.MISSION:
             self.ap.set_mode(FlightMode.HOLD)
@@ -306,6 +315,7 @@ class MissionProtocol:
         first = max(first, self.first_flown)
         if self.finished or first != self.current:
             self.reached.clear()
+            self.jumps.clear()
             self.finished = False
             self.current = first
         self.item_started = None
@@ -345,6 +355,19 @@ class MissionProtocol:
             self.current += 1
         self.send_current()
 
+    def _jump(self, item: MissionItem) -> None:
+        """DO_JUMP: back to item param1, param2 times in all (-1: for ever), then on to the next item."""
+        done, repeat = self.jumps.get(item.seq, 0), int(item.params[1])
+        if repeat >= 0 and done >= repeat:
+            self._advance()
+            return
+        self.jumps[item.seq] = done + 1
+        self._item_reached(item.seq)
+        target = max(int(item.params[0]), self.first_flown)
+        self.reached -= {s for s in self.reached if s >= target}  # the items ahead are reached again
+        self.current, self.item_started, self.landing_since = target, None, None
+        self.send_current()
+
     def fly(self, now: float) -> None:
         """Fly the current item: set the vehicle's target, complete items, move on."""
         ap = self.ap
@@ -364,6 +387,9 @@ class MissionProtocol:
             if item.command == mav.MAV_CMD_DO_GRIPPER:
                 ap.operate_gripper(item.params[1])
                 self._advance()
+                continue
+            if item.command == mav.MAV_CMD_DO_JUMP:
+                self._jump(item)
                 continue
             break
         if self.finished:
