@@ -439,6 +439,7 @@ class StationCore:
         if not _due(view.last_pair_try, now, retry):
             return []
         view.last_pair_try = now
+        self.counters["pair_sent"] += 1
         view.pairing = PairingInitiator(self.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes,
                                         stamp=stamp)
         view.pairing_deadline = now + timeout

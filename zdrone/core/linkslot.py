@@ -41,6 +41,13 @@ CANDIDATE_TTL = 30.0
 PREVIOUS_GRACE = 3.0
 
 
+def replaces_live(origin: str, live: LinkState | None) -> bool:
+    """The key-confirmation rule: may a proven candidate of ``origin`` become live, the live link
+    being in state ``live`` (None: no live key)? Always with no live key or for the peer's own
+    re-pairing (``SELF_ORIGINS``); a third party's key only once the live link is LOST."""
+    return live is None or origin in SELF_ORIGINS or live is LinkState.LOST
+
+
 @dataclass(slots=True)
 class _Candidate:
     link: SecureLink
@@ -69,8 +76,8 @@ class LinkSlot:
     live_protected: int = 0  # authentic frames under a third party's candidate refused: the live link is alive
 
     def may_replace_live(self, origin: str, now: float) -> bool:
-        """Whether a candidate of ``origin`` may replace the live key now (see the module doc)."""
-        return self.live is None or origin in SELF_ORIGINS or self.live.tbm.state(now) is LinkState.LOST
+        """Whether a candidate of ``origin`` may replace the live key now (``replaces_live``)."""
+        return replaces_live(origin, None if self.live is None else self.live.tbm.state(now))
 
     def install(self, link: SecureLink, now: float) -> None:
         """Make ``link`` live at once (a key this end chose and the peer proved, or the first key

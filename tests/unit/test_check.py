@@ -1,0 +1,45 @@
+"""``zdrone check``: the bounded exploration passes on the shipped rules and finds every planted flaw."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from zdrone.bench import check
+
+
+def test_the_shipped_rules_hold_over_every_interleaving_at_the_ci_bound():
+    r = check.run(depth=7, faults=2)
+    assert r["ok"], r.get("violation")
+    assert r["states"] > 5000 and r["depth_reached"] == 7
+
+
+@pytest.mark.parametrize("flaw, invariant, last_step", [
+    ("heir-without-position", "no authority outside coverage without consent", "A's link goes LOST"),
+    ("promotion-over-live", "nobody replaces another's live link", "B (owner) grants a key for A and proves it as A"),
+    ("unstamped-pairing", "owner re-pairs after a restart", "outsider replays"),
+])
+def test_each_planted_flaw_is_found_with_a_short_trace(flaw, invariant, last_step):
+    r = check.run(depth=7, faults=2, flaw=flaw)
+    assert not r["ok"]
+    v = r["violation"]
+    assert v["invariant"] == invariant and last_step in v["trace"][-1] and v["length"] <= 5
+
+
+def test_a_trace_is_the_shortest():
+    """Breadth-first: no shorter trace reaches the violation (the heir flaw needs A's radio cut, B's
+    proof of two frames, and A's link lost: four moves)."""
+    assert check.run(depth=7, flaw="heir-without-position")["violation"]["length"] == 4
+
+
+def test_the_command_prints_json_and_exits_1_on_a_violation():
+    ok = subprocess.run([sys.executable, "-m", "zdrone", "check", "--depth", "4", "--json"], capture_output=True, text=True)
+    assert ok.returncode == 0 and json.loads(ok.stdout)["ok"] is True
+    bad = subprocess.run([sys.executable, "-m", "zdrone", "check", "--depth", "5", "--flaw", "unstamped-pairing"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 1 and "VIOLATION of 'owner re-pairs after a restart'" in bad.stdout
+    usage = subprocess.run([sys.executable, "-m", "zdrone", "check", "--depth", "0"], capture_output=True, text=True)
+    assert usage.returncode == 2 and usage.stderr.count("\n") == 1
