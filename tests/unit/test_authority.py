@@ -14,7 +14,7 @@ from zdrone.core.authority import (AuthorityChanged, AuthorityMachine, CommandVe
 from zdrone.core.pairing import PairRefusal, PairRefused
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import UplinkClass
-from zdrone.core.wire import FailsafeNotice, KeyGrant, Reject
+from zdrone.core.wire import FailsafeNotice, KeyGrant, OperatorRequest, Reject
 
 AUTH = frozenset({"A", "B"})
 RO, AO, DENIED = UplinkClass.READ_ONLY, UplinkClass.AUTHORITY_ONLY, UplinkClass.DENIED
@@ -189,6 +189,38 @@ def test_request_from_non_authority_is_passed_to_the_owner():
     assert any(isinstance(a, SendControl) and a.gs == "A" for a in acts)
     acts = m.handle(HandoverRequest(2.0, "A", "B"))  # the owner asking = releasing
     assert m.state is State.HANDOVER_PENDING
+
+
+def test_a_request_reaches_the_owner_naming_its_sealed_sender_and_moves_nothing():
+    m = machine()
+    linked_with_b(m)
+    prove(m, "B", 2.0)
+    acts = m.handle(HandoverRequest(3.0, "B", "B", timeout=20.0))
+    asks = [a.msg for a in acts if isinstance(a, SendControl) and isinstance(a.msg, OperatorRequest)]
+    assert asks == [OperatorRequest("B", "B", 1, 20.0)]
+    assert all(a.gs == "A" for a in acts if isinstance(a, SendControl))  # nobody but the owner hears of it
+    assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 1)
+    m.handle(Tick(60.0))
+    assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 1)  # no consent: nothing moves, ever
+
+
+def test_the_owners_takeover_setting_is_in_the_status_of_its_epoch_only():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(2.0, frozenset({"A", "B"})))  # the drone listens to B
+    prove(m, "B", 2.0)
+    assert not m.status().takeover
+    acts = m.handle(HandoverRequest(3.0, "B", "B", takeover=True))  # not the owner: no setting of its own
+    assert not m.status().takeover and any(isinstance(a, SendControl) and isinstance(a.msg, OperatorRequest) for a in acts)
+    acts = m.handle(HandoverRequest(3.0, "A", "A", takeover=True))
+    assert m.status().takeover and m.owner == "A" and m.state is State.LINKED
+    assert any(isinstance(a, SendControl) and a.gs == "B" and a.msg.takeover for a in acts)  # every GS it talks to sees it
+    m.handle(Release(4.0, "A", "B", 1))  # consent: the owner releases; the new owner's epoch starts without it
+    assert (m.owner, m.epoch) == ("B", 2) and not m.status().takeover
+    m.handle(HandoverRequest(5.0, "B", "B", takeover=True))
+    assert m.status().takeover
+    m.handle(HandoverRequest(6.0, "B", "B", takeover=False))
+    assert not m.status().takeover
 
 
 def test_non_gs_event_missing_from_table_is_a_programming_error():

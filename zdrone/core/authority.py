@@ -69,7 +69,7 @@ from .keys import KEY_LEN
 from .pairing import PairRefusal, PairRefused
 from .tbm import LinkState
 from .uplink import UplinkClass
-from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyGrant, Reject
+from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyGrant, OperatorRequest, Reject
 
 log = logging.getLogger(__name__)
 
@@ -136,10 +136,13 @@ class RegionChanged(Event):
 
 @dataclass(frozen=True, slots=True)
 class HandoverRequest(Event):
-    """``sender`` asks that authority pass to ``to``."""
+    """``sender`` asks that authority pass to ``to`` (passed on to the owner, whose operator has
+    ``timeout`` seconds to consent); from the owner for itself, its "allow takeover" setting."""
 
     sender: str
     to: str
+    timeout: float = 0.0
+    takeover: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,6 +299,7 @@ class AuthorityMachine:
         self.rejects: Counter[str] = Counter()
         self.history: list[tuple[float, str | None, int]] = []  # (time, owner, epoch) after each change
         self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
+        self.takeover_epoch: int | None = None  # the epoch whose owner allows takeover (its operator's setting)
 
     # ------------------------------------------------------------------ queries
     def is_authorized(self, gs: str) -> bool:
@@ -334,7 +338,8 @@ class AuthorityMachine:
         return sorted(self.subscribed)
 
     def status(self) -> AuthorityStatus:
-        return AuthorityStatus(self.owner, self.epoch, self.state, self.pending_to, sorted(self.links))
+        return AuthorityStatus(self.owner, self.epoch, self.state, self.pending_to, sorted(self.links),
+                               takeover=self.takeover_epoch == self.epoch)
 
     def get_timer(self) -> float | None:
         """When the machine must next be woken with ``handle_timer`` (a hand-over's deadline, the
@@ -574,11 +579,20 @@ class AuthorityMachine:
             return self.state, self._reject(ev.sender, "handover_request", f"unauthorized: {ev.sender} is not authorized")
         if not self.is_authorized(ev.to) or ev.to not in self.links:
             return self.state, self._reject(ev.sender, "handover_request", f"no link: {ev.to} cannot take authority")
+        if ev.sender == self.owner and ev.to == self.owner:  # the owner's "allow takeover" setting, told to all
+            self.takeover_epoch = self.epoch if ev.takeover else None
+            return self.state, [Note("takeover_setting", f"{ev.sender}: takeover {'allowed' if ev.takeover else 'refused'}"
+                                                         f" in epoch {self.epoch}")] + self._status_to_all()
         if ev.sender == self.owner:  # the owner asking is a release
             return self._on_release(Release(ev.now, ev.sender, ev.to, self.epoch))
         st = self.status()
         note = Note("handover_requested", f"{ev.sender} asks for {ev.to}")
-        return self.state, [note, SendControl(self.owner, st)] if self.owner else [note]
+        if not self.owner:
+            return self.state, [note]
+        # the owner's operator decides (it releases, or lets the request time out): the requester is
+        # the sealed request's sender, whatever it claims
+        ask = OperatorRequest(ev.sender, ev.to, self.epoch, ev.timeout)
+        return self.state, [note, SendControl(self.owner, ask), SendControl(self.owner, st)]
 
     def _on_request_failsafe(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
         """An operator's explicit request to take control back after the failsafe (never automatic):

@@ -271,6 +271,10 @@ class HandoverRequested(AuthorityNote, frozen=True, tag="handover_requested"):
     """A GS asked for authority."""
 
 
+class TakeoverSetting(AuthorityNote, frozen=True, tag="takeover_setting"):
+    """The owner told the drone whether its operator allows takeover in this epoch."""
+
+
 class HandoverTimeout(AuthorityNote, frozen=True, tag="handover_timeout"):
     """The recipient did not prove its link in time: authority stays."""
 
@@ -714,7 +718,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
     Start, DroneStatus, DroneStop, Closed, Suppressed, PathOpen, PathState, Subscribe, Unsubscribe, LinkInstalled,
     LinkCandidate, LinkConfirmed, AuthorityChange, HandoverComplete, Failsafe, AuthorityForgotten, Restarted,
     Drop, Paired, PairAnswered, PairRefused, LinkStateChanged, RestoreRefused, Restored, HandoverStart,
-    HandoverRequested, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
+    HandoverRequested, TakeoverSetting, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
     AuthorityLinkLost, RegionEntered, RegionLeft,
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)

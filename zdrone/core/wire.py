@@ -41,10 +41,24 @@ class KeyGrantAck(Control, frozen=True, tag="key_grant_ack"):
 
 
 class HandoverRequest(Control, frozen=True, tag="handover_request"):
-    """A GS asks for authority (``to`` is the GS that should receive it)."""
+    """A GS asks for authority (``to`` is the GS that should receive it): the drone passes it on to
+    the owner as an ``OperatorRequest`` whose operator may consent within ``timeout`` seconds. From
+    the owner for itself: its operator's "allow takeover" setting (``takeover``) for this epoch."""
 
     to: str
     epoch: int
+    timeout: float = 0.0  # seconds the requester waits for the owner's consent (0: the owner's default)
+    takeover: bool = False  # from the owner for itself: grant requests without asking its operator
+
+
+class OperatorRequest(Control, frozen=True, tag="operator_request"):
+    """Drone -> owner: GS ``requester`` (the sender of a sealed ``HandoverRequest``, never a name or
+    sysid it claims) asks that authority of ``epoch`` pass to ``to``; its operator waits ``timeout`` s."""
+
+    requester: str
+    to: str
+    epoch: int
+    timeout: float = 0.0
 
 
 class HandoverRelease(Control, frozen=True, tag="handover_release"):
@@ -62,6 +76,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     state: AuthorityState
     pending_to: str | None = None
     linked: list[str] = []  # GSs the drone holds a link key for
+    takeover: bool = False  # the owner allows takeover in this epoch (its operator's setting)
 
 
 class Reject(Control, frozen=True, tag="reject"):
@@ -86,7 +101,7 @@ class SmHeartbeat(Control, frozen=True, tag="sm_heartbeat"):
 
 
 ControlMessage = (KeyGrant | KeyGrantAck | HandoverRequest | HandoverRelease | AuthorityStatus | Reject | FailsafeNotice
-                  | SmHeartbeat)
+                  | SmHeartbeat | OperatorRequest)
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(ControlMessage)
