@@ -47,6 +47,7 @@ from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
 from zdrone.core.linkslot import LinkSlot
+from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.core.tbm import LinkState
@@ -55,6 +56,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import mode_name, set_mode_params
 
+from .opcontrol import Answer, OperatorControl, Step
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
 log = logging.getLogger(__name__)
@@ -253,6 +255,7 @@ class CoreOptions:
     cipher: str = "zdrone"
     paper_heartbeat: bool = False
     take_control: bool = False  # after a failsafe, ask for control as soon as our link is proven
+    allow_takeover: bool = False  # the operator's standing "allow takeover" (MAVLink operator control)
 
 
 @dataclass
@@ -305,6 +308,8 @@ class DroneView:
     last_share_try: float | None = None
     last_command: float | None = None
     last_take_control: float | None = None
+    takeover: bool = False  # the owner allows takeover (the drone's AuthorityStatus)
+    operator: OperatorControl = field(default_factory=lambda: OperatorControl(""))  # set by StationCore
 
     @property
     def position(self) -> GeoPoint | None:
@@ -333,7 +338,8 @@ class StationCore:
         node = fleet.node(name)
         self.sysid = node.sysid
         self.coverage: Circle | None = node.coverage.circle() if node.coverage else None
-        self.views = {d: DroneView(d, fleet.nodes[d].sysid) for d in drones}
+        self.views = {d: DroneView(d, fleet.nodes[d].sysid,
+                                   operator=OperatorControl(name, allow_takeover=opts.allow_takeover)) for d in drones}
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
         self.counters: Counter[str] = Counter()
         self.keyshare = KeyShareResponder(identity, name, LINKKEY_RATE, LINKKEY_BURST)
@@ -416,7 +422,9 @@ class StationCore:
             if view.owner == self.name and not view.stale:
                 out += self._share_keys(view, now, now if wall is None else wall)
             out += self._flight(view, FlightTick(now))
-            out += self._coordinate(view, now)
+            out += self._operator(view, view.operator.tick(view, now))
+            if not view.operator.holds(view):  # an epoch our operator took stays ours until it lets go
+                out += self._coordinate(view, now)
             if self.opts.take_control and view.ha_state is HaState.FAILSAFE:
                 out += self.request_control(view, now)
             out += self._command_stream(view, now)
@@ -651,6 +659,7 @@ class StationCore:
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
             view.stale = False  # the drone's own word: our view is current again
             view.drone_links = set(msg.linked)
+            view.takeover = msg.takeover
             if changed:
                 out.append(Log("authority_status", {"drone": view.name, "owner": msg.owner, "epoch": msg.epoch,
                                                     "state": msg.state.value, "pending_to": msg.pending_to}))
@@ -669,12 +678,27 @@ class StationCore:
             out.append(Log("rejected", {"drone": view.name, "what": msg.what, "reason": msg.reason}))
             if msg.what == "release" and view.owner == self.name and view.released_epoch == view.epoch:
                 out += self._handover_failed(view, f"release refused: {msg.reason}", now)
+        elif isinstance(msg, wire.OperatorRequest):
+            out += self._operator(view, view.operator.on_request(view, msg, now))
         elif isinstance(msg, wire.FailsafeNotice):
             view.ha_state = HaState.FAILSAFE  # nobody holds authority until a GS takes control back
             log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
             out.append(Log("failsafe_notice", {"drone": view.name, "action": msg.action, "reason": msg.reason}))
         else:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
+        return out
+
+    # ---------------------------------------------------------- operator control
+    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float) -> tuple[Answer, list[Action]]:
+        """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL (``gs.opcontrol``): the answer it gets at once."""
+        answer, step = view.operator.command(view, req, now)
+        return answer, self._operator(view, step)
+
+    def _operator(self, view: DroneView, step: Step) -> list[Action]:
+        out: list[Action] = [Log(kind, fields) for kind, fields in step.logs]
+        out += [Say(text) for text in step.say]
+        for msg in step.send:
+            out += self.send_control(view, msg)
         return out
 
     def _handover_failed(self, view: DroneView, reason: str, now: float) -> list[Action]:

@@ -31,6 +31,7 @@ import zenoh
 
 from zdrone.core import wire
 from zdrone.core.errors import ConfigError
+from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.fleet import keyexprs as kx
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
@@ -69,6 +70,7 @@ class StationOptions:
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
     paper_heartbeat: bool = False  # also send the paper's separate 2 Hz security heartbeat
     take_control: bool = False  # take control back after a failsafe (the operator's standing request)
+    allow_takeover: bool = False  # MAVLink operator control: another GS's request takes authority at once
 
 
 class GroundStation:
@@ -87,7 +89,7 @@ class GroundStation:
         self.core = StationCore(self.name, self.fleet, self.secret.identity, tuple(drones), CoreOptions(
             pair=opts.pair, mission=opts.mission, heartbeat_hz=opts.heartbeat_hz, command_rate=opts.command_rate,
             hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
-            take_control=opts.take_control))
+            take_control=opts.take_control, allow_takeover=opts.allow_takeover))
         self.views = self.core.views
         self.counters = self.core.counters
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
@@ -133,6 +135,12 @@ class GroundStation:
 
     def holds_authority(self, view: DroneView) -> bool:
         return self.core.holds_authority(view)
+
+    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float) -> int:
+        """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL: carried out; the MAV_RESULT it gets at once."""
+        answer, actions = self.core.operator_command(view, req, now)
+        self._do(actions)
+        return int(answer)
 
     # ------------------------------------------------------------------ inbox
     def _on_inbox(self, kind: str, drone: str, data: Any, now: float) -> None:

@@ -186,6 +186,11 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--sil-jitter-ms", type=float, default=0.0, metavar="MS", help="TESTBED ONLY: radio jitter (±MS)")
     p.add_argument("--sil-seed", type=int, default=0, help="TESTBED ONLY: seed of the radio's randomness")
     _add_event_options(p)
+    p.add_argument("--allow-takeover", action="store_true",
+                   help="MAVLink operator control: while this GS holds authority, another authorized GS's request "
+                        "takes it at once (CONTROL_STATUS says takeover allowed); without it, this GS's operator is "
+                        "asked and must consent (its GCS applications can change the setting with p2 of "
+                        "MAV_CMD_REQUEST_OPERATOR_CONTROL)")
     if bench:
         p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
                        help="envelope; fernet/plain exist only to measure against (bench traffic)")
@@ -222,7 +227,8 @@ def _gs(args: argparse.Namespace) -> int:
                                       heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
                                       events=args.events, cipher=getattr(args, "cipher", "zdrone"),
                                       paper_heartbeat=getattr(args, "paper_heartbeat", False),
-                                      gcs=tuple(args.gcs or ()), take_control=args.take_control))
+                                      gcs=tuple(args.gcs or ()), take_control=args.take_control,
+                                      allow_takeover=args.allow_takeover))
 
 
 def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
@@ -242,6 +248,11 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--take-control", action="store_true",
                    help="the operator's standing request: if the drone enters its failsafe, take control back as soon as "
                         "this GS's link is proven (the vehicle goes on with the failsafe action until commanded)")
+    p.add_argument("--allow-takeover", action="store_true",
+                   help="MAVLink operator control: while this GS holds authority, another authorized GS's request "
+                        "takes it at once (CONTROL_STATUS says takeover allowed); without it, this GS's operator is "
+                        "asked and must consent (its GCS applications can change the setting with p2 of "
+                        "MAV_CMD_REQUEST_OPERATOR_CONTROL)")
     if bench:
         p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
                        help="envelope; fernet/plain exist only to measure against (bench traffic)")

@@ -612,6 +612,94 @@ class OperatorControlRequested(Record, frozen=True, tag="operator_control_reques
     by_sysid: int
 
 
+class OperatorControlEvent(Record, frozen=True):
+    """A step of MAVLink operator control at a GS (``gs.opcontrol``) about ``drone``."""
+
+    drone: str
+
+
+class OperatorControlAsked(OperatorControlEvent, frozen=True, tag="operator_control_asked"):
+    """Our operator asked for control (``owner_allows``: the owner allowed takeover then)."""
+
+    owner: str | None
+    timeout: float
+    owner_allows: bool
+
+
+class OperatorRequestWithdrawn(OperatorControlEvent, frozen=True, tag="operator_request_withdrawn"):
+    """Our operator withdrew its request."""
+
+
+class OperatorRequestTimedOut(OperatorControlEvent, frozen=True, tag="operator_request_timed_out"):
+    """Our request's timeout passed without control (``owner``: who still holds it)."""
+
+    owner: str | None
+
+
+class OperatorControlTaken(OperatorControlEvent, frozen=True, tag="operator_control_taken"):
+    """Our request succeeded: control is ours (held by our operator) in ``epoch``."""
+
+    epoch: int
+
+
+class OperatorControlLetGo(OperatorControlEvent, frozen=True, tag="operator_control_let_go"):
+    """Our operator let go of held control: automatic hand-overs again."""
+
+
+class OperatorTakeoverSetting(OperatorControlEvent, frozen=True, tag="operator_takeover_setting"):
+    """Our operator's standing "allow takeover" setting changed."""
+
+    allowed: bool
+
+
+class OperatorRequestReceived(OperatorControlEvent, frozen=True, tag="operator_request"):
+    """As owner: the drone passed on ``requester``'s request (shown to our operator)."""
+
+    requester: str
+    to: str
+    epoch: int
+    timeout: float
+    takeover_allowed: bool
+
+
+class OperatorRequestStale(OperatorControlEvent, frozen=True, tag="operator_request_stale"):
+    """A passed-on request for an epoch or an authority that is not ours: ignored."""
+
+    requester: str
+    epoch: int
+
+
+class OperatorRequestGranted(OperatorControlEvent, frozen=True, tag="operator_request_granted"):
+    """As owner: authority released to ``to`` (``why``: takeover allowed, or the operator's consent)."""
+
+    requester: str
+    to: str
+    why: str
+
+
+class OperatorRequestDeclined(OperatorControlEvent, frozen=True, tag="operator_request_declined"):
+    """As owner: our operator declined ``requester``'s request."""
+
+    requester: str
+
+
+class OperatorRequestExpired(OperatorControlEvent, frozen=True, tag="operator_request_expired"):
+    """As owner: ``requester``'s request timed out without consent (nothing moved)."""
+
+    requester: str
+
+
+class TakeoverWindowClosed(OperatorControlEvent, frozen=True, tag="takeover_window_closed"):
+    """As owner: the window a consent opened for takeover closed."""
+
+
+OPERATOR_CONTROL_RECORDS: tuple[type[Record], ...] = (
+    OperatorControlAsked, OperatorRequestWithdrawn, OperatorRequestTimedOut, OperatorControlTaken,
+    OperatorControlLetGo, OperatorTakeoverSetting, OperatorRequestReceived, OperatorRequestStale,
+    OperatorRequestGranted, OperatorRequestDeclined, OperatorRequestExpired, TakeoverWindowClosed,
+)
+
+
 # ----------------------------------------------------------------------------- the testbed's attacker
 class RogueReady(Record, frozen=True, tag="ready"):
     """The attacker is set up (``wait_go``: it waits for its signal to start)."""
@@ -728,6 +816,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
     VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, GcsApp, GcsAppGone, OperatorControlRequested,
+    *OPERATOR_CONTROL_RECORDS,
 )
 #: the testbed attacker's records (its ``attack_done`` has fields of its own per attack: untyped)
 TESTBED_RECORDS: tuple[type[Record], ...] = (
