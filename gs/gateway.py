@@ -12,10 +12,21 @@ application's component id) goes back to that application only, its target rewri
 application's own ids; frames addressed to another GS are not shown.
 
 Authority is visible: while this GS does not hold authority, commanding frames are answered here with
-the MAVLink-correct refusal (COMMAND_ACK ``DENIED``, MISSION_ACK ``DENIED``, a STATUSTEXT for the
-rest) instead of vanishing at the drone. The operator-control protocol is spoken on the vehicle's
-behalf: CONTROL_STATUS (512) every second says which GS (sysid) is in control, and
-MAV_CMD_REQUEST_OPERATOR_CONTROL (32100) asks the drone's authority for a hand-over to this GS.
+the MAVLink-correct refusal (COMMAND_ACK ``MAV_RESULT_NOT_IN_CONTROL``, MISSION_ACK ``DENIED``, a
+STATUSTEXT for the rest) instead of vanishing at the drone; read-only requests (parameters, heartbeats)
+pass. MAVLink operator control (``gs.opcontrol``) is spoken on the vehicle's behalf, bound to fleet
+identities:
+
+* CONTROL_STATUS (512, ``zdrone.core.mavcontrol``) to each application every second and whenever it
+  changes: ``gcs_main`` is the application's own sysid while this GS is in control, else the owner
+  GS's fleet sysid (never the application's own: several applications share sysid 255), 0 when nobody
+  is; TAKEOVER_ALLOWED is the owner's setting.
+* MAV_CMD_REQUEST_OPERATOR_CONTROL (32100) from an application is this GS's operator speaking: a
+  request (answered FAILED while the owner's operator is asked, IN_PROGRESS then ACCEPTED when the
+  owner allows takeover), a release or a consent when this GS is the owner.
+* Another GS's request, passed on by the drone to this GS as the owner, is presented to every
+  application as the vehicle's COMMAND_LONG 32100 (p4: the requester's sysid); their COMMAND_ACKs of it
+  are taken here, never sent to the vehicle. The vehicle's own CONTROL_STATUS is not passed on.
 
 Whatever arrives on an endpoint, the station keeps flying. At most ``max_apps`` applications (16 by
 default) hold a component id at once; one silent for ``app_expiry`` seconds (30) or whose TCP
@@ -36,15 +47,17 @@ from typing import Any, Iterator
 from pymavlink.dialects.v20 import common as mav
 from zenoh import ZError
 
-from zdrone.core import wire
-from zdrone.core.mavlink import MESSAGE_CLASSES, FrameCodec, FrameError, encode_raw, read_header, rewrite_source
+from zdrone.core.authority import State as HaState
+from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
+                                    MAV_RESULT_NOT_IN_CONTROL, MSG_ID_CONTROL_STATUS, ControlStatus,
+                                    encode_control_status, parse_operator_request)
+from zdrone.core.mavlink import MESSAGE_CLASSES, FrameCodec, FrameError, read_header, rewrite_source
 from zdrone.vehicle.transport import MavTransport
 
 log = logging.getLogger(__name__)
 
-MAV_CMD_REQUEST_OPERATOR_CONTROL = 32100
-MSG_ID_CONTROL_STATUS, CRC_CONTROL_STATUS = 512, 184
-GCS_CONTROL_STATUS_FLAGS_SYSTEM_MANAGER, GCS_CONTROL_STATUS_FLAGS_TAKEOVER_ALLOWED = 1, 2
+#: CONTROL_STATUS at least this often (and at once on a change)
+CONTROL_STATUS_PERIOD_S = 1.0
 #: the station's own component id (``gs.station.GCS_COMPID``), never given to an application
 STATION_COMPID = mav.MAV_COMP_ID_MISSIONPLANNER
 FIRST_APP_COMPID = 100
@@ -215,7 +228,10 @@ class GcsGateway:
         self.codecs: dict[tuple[int, int], FrameCodec] = {}
         self._now = 0.0  # the latest ``now`` of the station's loop
         self._next_status = 0.0
-        self._last_owner: str | None = "?"
+        self._last_control: tuple[Any, ...] | None = None
+        self._awaiting: dict[AppKey, float] = {}  # applications told IN_PROGRESS: their request's deadline
+        self._shown_seq = 0  # the last request of another GS presented to the applications
+        self._seq = 0
         self._error_log = RateLimit()
         station.frame_listeners.append(self.on_drone_frame)
         station.loop_hooks.append(self.poll)
@@ -318,10 +334,7 @@ class GcsGateway:
             for frame, peer in frames:
                 self.on_app_frame(ti, peer, frame, now)
         self._forget_apps(now)
-        if now >= self._next_status or self.view.owner != self._last_owner:
-            self._next_status = now + 1.0
-            self._last_owner = self.view.owner
-            self._control_status()
+        self._operator_poll(now)
 
     def on_app_frame(self, ti: int, peer: Any, frame: bytes, now: float) -> None:
         """One frame from an application. Never raises: a frame that cannot be handled is counted."""
@@ -345,14 +358,19 @@ class GcsGateway:
         if hdr.msgid in COMMAND_MSGIDS:
             msg = app.decoder.decode(frame)
             if msg is not None and msg.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
-                self._operator_control(app, msg)
+                self._operator_control(app, msg, now)
+                return
+        elif hdr.msgid == mav.MAVLINK_MSG_ID_COMMAND_ACK:
+            msg = app.decoder.decode(frame)
+            if msg is not None and msg.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
+                self.counters["operator_request_acked"] += 1  # the answer to a request we presented: ours
                 return
         if view.link is None:
             self.counters["no_link"] += 1
             self._refuse(app, hdr, frame, mav.MAV_RESULT_TEMPORARILY_REJECTED, "no link to the drone")
             return
         if hdr.commanding and not self.station.holds_authority(view):
-            self._refuse(app, hdr, frame, mav.MAV_RESULT_DENIED, f"{self.station.name} is not in control"
+            self._refuse(app, hdr, frame, MAV_RESULT_NOT_IN_CONTROL, f"{self.station.name} is not in control"
                          f" ({view.owner or 'nobody'} is)")
             return
         try:
@@ -380,39 +398,83 @@ class GcsGateway:
             app.last_text = self._now
             self._reply(app, codec, mav.MAVLink_statustext_message(mav.MAV_SEVERITY_WARNING, why.encode()[:50]))
 
-    def _operator_control(self, app: App, msg: Any) -> None:
-        """MAV_CMD_REQUEST_OPERATOR_CONTROL: ours already, or ask the drone's authority for it."""
-        codec = self._vehicle_codec(self.view.sysid, 1)
+    def _operator_control(self, app: App, msg: Any, now: float) -> None:
+        """MAV_CMD_REQUEST_OPERATOR_CONTROL from an application: this GS's operator requests, releases
+        or consents (``gs.opcontrol``); answered at once, and again when an IN_PROGRESS one ends."""
         view = self.view
-        if self.station.holds_authority(view):
-            result = mav.MAV_RESULT_ACCEPTED
-        elif view.link is None:
-            result = mav.MAV_RESULT_TEMPORARILY_REJECTED
+        req = parse_operator_request(msg.param1, msg.param2, msg.param3, msg.param4)
+        if req is None:
+            self.counters["operator_request_bad"] += 1
+            result = mav.MAV_RESULT_DENIED
         else:
             try:
-                self.station.send_control(view, wire.HandoverRequest(self.station.name, view.epoch))
+                result = self.station.operator_command(view, req, now)
             except SEND_ERRORS:
                 self.counters["send_failed"] += 1
                 result = mav.MAV_RESULT_FAILED
-            else:
+            if req.request:
                 self.station.events.write("operator_control_requested", drone=self.drone, by_sysid=app.sysid)
-                result = mav.MAV_RESULT_IN_PROGRESS
-        self._reply(app, codec, mav.MAVLink_command_ack_message(msg.command, result, 0, 0, app.sysid, app.compid))
+            if result == mav.MAV_RESULT_IN_PROGRESS:
+                self._awaiting[app.key] = now + req.timeout
+        self._ack(app, msg.command, result)
 
-    def _control_status(self) -> None:
-        """CONTROL_STATUS (512) on the vehicle's behalf: which GS (sysid) is in control."""
+    def _ack(self, app: App, command: int, result: int) -> None:
+        codec = self._vehicle_codec(self.view.sysid, 1)
+        self._reply(app, codec, mav.MAVLink_command_ack_message(command, result, 0, 0, app.sysid, app.compid))
+
+    def _operator_poll(self, now: float) -> None:
+        """Operator control's periodic part: the final answers of requests in progress, another GS's
+        request presented to the applications, CONTROL_STATUS."""
+        view = self.view
+        op = view.operator
+        owner = op.is_owner(view)
+        for key, deadline in list(self._awaiting.items()):
+            if not owner and now < deadline:
+                continue
+            del self._awaiting[key]
+            app = next((a for a in self.apps if a.key == key), None)
+            if app is not None:  # still there: the request's final answer
+                self._ack(app, MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED if owner else mav.MAV_RESULT_FAILED)
+        req = op.live_request(view, now)
+        if req is not None and req.seq != self._shown_seq and self.apps:
+            self._shown_seq = req.seq
+            requester = self._sysid_of(req.requester)
+            codec = self._vehicle_codec(view.sysid, 1)
+            for app in self.apps:
+                p4 = _not_the_apps(requester, app.sysid)
+                self._reply(app, codec, mav.MAVLink_command_long_message(
+                    app.sysid, app.compid, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, req.timeout, p4, 0, 0, 0))
+            self.station.events.write("operator_request_shown", drone=self.drone, requester=req.requester,
+                                      apps=len(self.apps))
+        takeover = op.shown_takeover(view, now)
+        control = (view.link is not None, view.owner, view.epoch, view.ha_state, owner, takeover)
+        if now >= self._next_status or control != self._last_control:
+            self._next_status = now + CONTROL_STATUS_PERIOD_S
+            self._last_control = control
+            self._control_status(owner, takeover)
+
+    def _sysid_of(self, gs: str | None) -> int:
+        node = self.station.fleet.nodes.get(gs) if gs else None
+        return node.sysid if node is not None else 0
+
+    def _control_status(self, mine: bool, takeover: bool) -> None:
+        """CONTROL_STATUS (512) on the vehicle's behalf, to each application: who is in control as that
+        application should see it (itself while this GS is; never itself while another GS is)."""
         view = self.view
         if view.link is None or not self.apps:
             return
-        owner = view.owner
-        sysid = self.station.fleet.nodes[owner].sysid if owner in self.station.fleet.nodes else 0
-        flags = GCS_CONTROL_STATUS_FLAGS_SYSTEM_MANAGER | GCS_CONTROL_STATUS_FLAGS_TAKEOVER_ALLOWED
-        try:
-            frame = encode_raw(MSG_ID_CONTROL_STATUS, CRC_CONTROL_STATUS, struct.pack("<BB", sysid, flags), view.sysid, 1)
-        except ENCODE_ERRORS:
-            self.counters["encode_failed"] += 1
-            return
-        self._broadcast(frame)
+        in_control = None if view.ha_state is HaState.FAILSAFE else view.owner
+        owner_sysid = self._sysid_of(in_control)
+        flags = FLAG_SYSTEM_MANAGER | (FLAG_TAKEOVER_ALLOWED if takeover and in_control else 0)
+        for app in self.apps:
+            main = app.sysid if mine else _not_the_apps(owner_sysid, app.sysid)
+            self._seq = (self._seq + 1) % 256
+            try:
+                frame = encode_control_status(ControlStatus(flags, main), view.sysid, 1, self._seq)
+            except ENCODE_ERRORS:
+                self.counters["encode_failed"] += 1
+                continue
+            self._to_app(app, frame)
 
     # ------------------------------------------------------------ drone -> app
     def on_drone_frame(self, drone: str, frame: bytes) -> None:
@@ -429,6 +491,9 @@ class GcsGateway:
             hdr = read_header(frame)
         except FrameError:
             self.counters["drone_malformed"] += 1
+            return
+        if hdr.msgid == MSG_ID_CONTROL_STATUS:
+            self.counters["vehicle_control_status"] += 1  # the gateway speaks operator control for the vehicle
             return
         cls = _TARGETED.get(hdr.msgid)
         if cls is None:
@@ -461,6 +526,13 @@ class GcsGateway:
     def close(self) -> None:
         for t in self.transports:
             t.close()
+
+
+def _not_the_apps(sysid: int, app_sysid: int) -> int:
+    """``sysid`` as an application should see another GCS: never its own sysid (0 stays 0, nobody)."""
+    if sysid == 0 or sysid != app_sysid:
+        return sysid
+    return 255 if app_sysid != 255 else 254
 
 
 #: addressed messages of every dialect the GS decodes (common, development, ardupilotmega)

@@ -83,6 +83,7 @@ class PendingRequest:
     timeout: float
     since: float
     seq: int  # one number per request shown to the operator
+    ask_id: int  # the requester's number for it
 
     def alive(self, now: float) -> bool:
         return now < self.since + self.timeout
@@ -96,10 +97,11 @@ class OperatorControl:
     allow_takeover: bool = False  # the standing setting
     window_until: float | None = None  # consent: takeover allowed until then
     request: PendingRequest | None = None  # as owner: the request shown to the operator
-    closed: tuple[str, int, float] | None = None  # (requester, epoch, until): declined or expired, its re-sends ignored
+    closed: tuple[str, int, int] | None = None  # (requester, epoch, ask id) declined or expired: its re-sends ignored
     seq: int = 0
     asked_until: float | None = None  # as requester: our operator's request stands until then
     asked_timeout: float = DEFAULT_REQUEST_TIMEOUT_S
+    ask_id: int = 0  # our operator's requests, numbered
     last_ask: float | None = None
     last_tell: float | None = None
     release_to: str | None = None  # as owner: released by the operator's decision, in ``release_epoch``
@@ -141,6 +143,7 @@ class OperatorControl:
             return Answer.ACCEPTED, self._log("operator_request_withdrawn", view, {}) if was else NOTHING
         self.allow_takeover = req.takeover  # our setting once in control
         self.asked_until, self.asked_timeout, self.last_ask = now + req.timeout, req.timeout, now
+        self.ask_id += 1
         step = self._log("operator_control_asked", view, {"owner": view.owner, "timeout": req.timeout,
                                                           "owner_allows": bool(view.takeover)})
         step += Step(send=(self._ask(view),))
@@ -172,13 +175,13 @@ class OperatorControl:
         if not self.is_owner(view) or msg.epoch != view.epoch:
             return self._log("operator_request_stale", view, {"requester": msg.requester, "epoch": msg.epoch})
         live = self.live_request(view, now)
-        if live is not None and (live.requester, live.to) == (msg.requester, msg.to):
+        if live is not None and (live.requester, live.ask_id) == (msg.requester, msg.ask_id):
             return NOTHING  # the requester sending its standing request again
-        if self.closed is not None and self.closed[:2] == (msg.requester, msg.epoch) and now < self.closed[2]:
+        if self.closed == (msg.requester, msg.epoch, msg.ask_id):
             return NOTHING  # re-sends of a request declined or expired: decided already
         self.seq += 1
         timeout = msg.timeout if msg.timeout > 0 else DEFAULT_REQUEST_TIMEOUT_S
-        self.request = PendingRequest(msg.requester, msg.to, msg.epoch, timeout, now, self.seq)
+        self.request = PendingRequest(msg.requester, msg.to, msg.epoch, timeout, now, self.seq, msg.ask_id)
         allowed = self.takeover_allowed(now)
         step = self._log("operator_request", view, {"requester": msg.requester, "to": msg.to, "epoch": msg.epoch,
                                                      "timeout": timeout, "takeover_allowed": allowed})
@@ -235,10 +238,10 @@ class OperatorControl:
     def _close(self, req: PendingRequest) -> None:
         """``req`` is decided (declined, expired): the requester's re-sends of it change nothing."""
         self.request = None
-        self.closed = (req.requester, req.epoch, req.since + req.timeout + 2 * ASK_RESEND_S)
+        self.closed = (req.requester, req.epoch, req.ask_id)
 
     def _ask(self, view: Any) -> wire.HandoverRequest:
-        return wire.HandoverRequest(self.gs, view.epoch, timeout=self.asked_timeout)
+        return wire.HandoverRequest(self.gs, view.epoch, timeout=self.asked_timeout, ask_id=self.ask_id)
 
     def _log(self, kind: str, view: Any, fields: dict[str, Any]) -> Step:
         return Step(logs=((kind, {"drone": view.name, **fields}),))

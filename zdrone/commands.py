@@ -186,11 +186,6 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--sil-jitter-ms", type=float, default=0.0, metavar="MS", help="TESTBED ONLY: radio jitter (±MS)")
     p.add_argument("--sil-seed", type=int, default=0, help="TESTBED ONLY: seed of the radio's randomness")
     _add_event_options(p)
-    p.add_argument("--allow-takeover", action="store_true",
-                   help="MAVLink operator control: while this GS holds authority, another authorized GS's request "
-                        "takes it at once (CONTROL_STATUS says takeover allowed); without it, this GS's operator is "
-                        "asked and must consent (its GCS applications can change the setting with p2 of "
-                        "MAV_CMD_REQUEST_OPERATOR_CONTROL)")
     if bench:
         p.add_argument("--cipher", choices=["zdrone", "fernet", "plain"], default="zdrone",
                        help="envelope; fernet/plain exist only to measure against (bench traffic)")

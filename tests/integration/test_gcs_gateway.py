@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import common as mav
 from gs.planner import reference_mission
 from tests.procs import ZDRONE, free_port, spawn
 from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.mavcontrol import MAV_RESULT_NOT_IN_CONTROL, ControlStatus, decode_control_status
 from zdrone.core.reference import DELIVERY, HOME
 from zdrone.fleet.files import init_fleet
 from zdrone.net.eventlog import read_events
@@ -135,12 +136,12 @@ class RawApp:
             self.buf = self.buf[total:]
         return out
 
-    def wait_control_status(self, timeout: float) -> int | None:
+    def wait_control_status(self, timeout: float) -> ControlStatus | None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             for f in self._frames(0.5):
-                if f[7:10] == bytes([0, 2, 0]):  # msgid 512
-                    return f[10]  # sysid_in_control
+                if (status := decode_control_status(f)) is not None:  # msgid 512, today's three fields
+                    return status
         return None
 
     def wait(self, pred, timeout: float):
@@ -182,7 +183,7 @@ def test_mavproxy_reads_parameters_and_switches_mode(tmp_path):
             assert mp.wait_for("Detected vehicle 1:1", 30), mp.text()
             # operator control: A holds authority; the gateway says so (CONTROL_STATUS) and grants the request
             status = raw.wait_control_status(10)
-            assert status == 4, status  # GS A's sysid
+            assert status is not None and status.gcs_main == 251, status  # A is in control: "you are", to each app
             raw.send(mav.MAVLink_command_long_message(1, 1, 32100, 0, 0, 0, 0, 0, 0, 0, 0))
             ack = raw.wait(lambda m: m.get_type() == "COMMAND_ACK" and m.command == 32100, 10)
             assert ack.result == mav.MAV_RESULT_ACCEPTED and (ack.target_system, ack.target_component) == (251, 190)
@@ -245,7 +246,7 @@ def test_mavsdk_flies_through_a_while_b_is_refused_until_it_holds_authority(tmp_
                     b.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                                             hold[0], hold[1], 0, 0, 0, 0)
                     ack = _ack(b, mav.MAV_CMD_DO_SET_MODE, 1.0)
-                    if ack is not None and ack.result == mav.MAV_RESULT_DENIED:
+                    if ack is not None and ack.result == MAV_RESULT_NOT_IN_CONTROL:
                         refused = True  # B's application while B is not in control
                     elif ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED:
                         accepted = True  # after the hand-over to B

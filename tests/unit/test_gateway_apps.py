@@ -23,6 +23,8 @@ from zenoh import ZError
 import gs.gateway as gateway_mod
 from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, STATION_COMPID, AppKey, AppTable,
                         GcsGateway)
+from gs.opcontrol import OperatorControl
+from zdrone.core import wire
 from zdrone.core.mavlink import FrameCodec, FrameError, crc_seed, encode_raw, read_header
 
 GS_SYSID = 4
@@ -40,6 +42,9 @@ class StubView:
     owner: str | None = "A"
     epoch: int = 1
     link: object | None = field(default_factory=object)
+    ha_state: object | None = None
+    takeover: bool = False
+    operator: OperatorControl = field(default_factory=lambda: OperatorControl("A"))
 
 
 class StubEvents:
@@ -76,6 +81,12 @@ class StubStation:
 
     def send_control(self, view: Any, msg: Any) -> None:
         self.controls.append(msg)
+
+    def operator_command(self, view: Any, req: Any, now: float) -> int:
+        if self.authority:
+            return mav.MAV_RESULT_ACCEPTED
+        self.send_control(view, wire.HandoverRequest(self.name, view.epoch, timeout=req.timeout))
+        return mav.MAV_RESULT_FAILED
 
 
 class MemTransport:

@@ -7,20 +7,26 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import pytest
+from pymavlink.dialects.v20 import common as mav
 
 from gs.core import Log, Put, Say, StationCore
+from gs.gateway import GcsGateway
 from gs.opcontrol import GRANT_WINDOW_S, Answer
 from zdrone.core import authority as ha
 from zdrone.core import wire
 from zdrone.core.envelope import Opened, SecureLink
 from zdrone.core.geometry import offset
-from zdrone.core.mavcontrol import OperatorControlRequest
+from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
+                                    MAV_RESULT_NOT_IN_CONTROL, ControlStatus, OperatorControlRequest,
+                                    decode_control_status, encode_control_status)
+from zdrone.core.mavlink import FrameCodec
 from zdrone.core.pairing import respond
 from zdrone.core.reference import HOME
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import UplinkClass
 from zdrone.fleet import keyexprs as kx
 
+from tests.unit.test_gateway_apps import MemTransport, StubEvents
 from tests.unit.test_station_core import core, fleet_dir, ident  # noqa: F401  (fixture)
 
 
@@ -39,6 +45,7 @@ class Net:
     logs: dict[str, list[Log]] = field(default_factory=lambda: {"A": [], "B": []})
     said: list[str] = field(default_factory=list)
     queue: deque = field(default_factory=deque)
+    gateways: dict[str, GcsGateway] = field(default_factory=dict)
     pumping: bool = False
 
     def deliver(self, gs: str, actions: list) -> None:
@@ -70,7 +77,7 @@ class Net:
                 self.drone_acts(self.machine.handle(ha.Frame(self.now, gs, UplinkClass.READ_ONLY)))
             elif isinstance(res.control, wire.HandoverRequest):
                 m = res.control
-                self.drone_acts(self.machine.handle(ha.HandoverRequest(self.now, gs, m.to, m.timeout, m.takeover)))
+                self.drone_acts(self.machine.handle(ha.HandoverRequest(self.now, gs, m.to, m.timeout, m.takeover, m.ask_id)))
             elif isinstance(res.control, wire.HandoverRelease):
                 self.drone_acts(self.machine.handle(ha.Release(self.now, gs, res.control.to, res.control.epoch)))
 
@@ -87,6 +94,8 @@ class Net:
             self.drone_acts(self.machine.handle(ha.Tick(self.now)))
             for g, c in self.cores.items():
                 self.deliver(g, c.tick(self.now))
+            for gw in self.gateways.values():
+                gw.poll(self.now)
 
     def command(self, gs: str, req: OperatorControlRequest) -> Answer:
         answer, actions = self.cores[gs].operator_command(self.cores[gs].views["d1"], req, self.now)
@@ -236,3 +245,139 @@ def test_the_grant_window_closes(fleet_dir):
     net.run(1.5 + GRANT_WINDOW_S + 0.5)
     a = net.cores["A"].views["d1"].operator
     assert a.window_until is None and "takeover_window_closed" in net.kinds("A")
+
+
+# ------------------------------------------------------------------ through the GCS gateways
+class CoreStation:
+    """The parts of ``GroundStation`` the gateway uses, over a real station core in the ``Net``."""
+
+    def __init__(self, net: Net, gs: str) -> None:
+        self.net, self.core = net, net.cores[gs]
+        self.name, self.sysid, self.fleet, self.views = gs, self.core.sysid, self.core.fleet, self.core.views
+        self.frame_listeners: list = []
+        self.loop_hooks: list = []
+        self.events = StubEvents()
+
+    def holds_authority(self, view) -> bool:
+        return self.core.holds_authority(view)
+
+    def send_frame(self, view, frame: bytes) -> None:
+        self.net.deliver(self.name, self.core.send_frame(view, frame))
+
+    def send_control(self, view, msg) -> None:
+        self.net.deliver(self.name, self.core.send_control(view, msg))
+
+    def operator_command(self, view, req, now: float) -> int:
+        answer, actions = self.core.operator_command(view, req, now)
+        self.net.deliver(self.name, actions)
+        return int(answer)
+
+
+class App:
+    """One MAVLink application on a gateway (sysid 255, as QGroundControl and MAVProxy by default)."""
+
+    def __init__(self, net: Net, gs: str, sysid: int = 255) -> None:
+        self.gw = net.gateways[gs]
+        self.t = self.gw.transports[0]
+        self.codec = FrameCodec(sysid, 190)
+        self.peer = ("127.0.0.1", 14550 + len(net.gateways))
+        self.net = net
+        self.seen = 0
+
+    def send(self, msg) -> None:
+        self.gw.on_app_frame(0, self.peer, self.codec.encode(msg), self.net.now)
+
+    def request(self, p1: float, p2: float = 0, p3: float = 5, p4: float = 255) -> None:
+        self.send(mav.MAVLink_command_long_message(1, 1, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, p1, p2, p3, p4, 0, 0, 0))
+
+    def frames(self) -> list[bytes]:
+        return [f for f, _ in self.t.out]
+
+    def acks(self) -> list[tuple[int, int]]:
+        out = []
+        for f in self.frames():
+            m = self.codec.decode(f)
+            if m is not None and m.get_type() == "COMMAND_ACK":
+                out.append((m.command, m.result))
+        return out
+
+    def statuses(self) -> list[ControlStatus]:
+        return [st for f in self.frames() if (st := decode_control_status(f)) is not None]
+
+    def presented(self) -> list:
+        out = []
+        for f in self.frames():
+            m = self.codec.decode(f)
+            if m is not None and m.get_type() == "COMMAND_LONG" and m.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
+                out.append(m)
+        return out
+
+
+def with_gateways(net: Net) -> tuple[App, App]:
+    for g in ("A", "B"):
+        gw = GcsGateway(CoreStation(net, g), [])
+        gw.transports = [MemTransport()]
+        net.gateways[g] = gw
+    a, b = App(net, "A"), App(net, "B")
+    a.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+    b.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+    return a, b
+
+
+def test_through_the_gateways_a_request_is_presented_refused_then_consented(fleet_dir):
+    net = make_net(fleet_dir)
+    a, b = with_gateways(net)
+    net.run(net.now + 1.5)
+    assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER, 4)  # A (sysid 4) in control, no takeover
+    assert a.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER, 255)  # A's own application: "you are"
+    b.send(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, 1, 4, 3, 0, 0, 0, 0))
+    assert b.acks()[-1] == (mav.MAV_CMD_DO_SET_MODE, MAV_RESULT_NOT_IN_CONTROL)
+    b.send(mav.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1))  # a read: passes
+    assert net.drone_links["B"].opened >= 1 and net.cores["B"].counters["no_link"] == 0
+    b.request(1, 0, 4)
+    assert b.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_FAILED)
+    net.run(net.now + 0.5)
+    shown = a.presented()
+    assert len(shown) == 1 and (shown[0].param1, shown[0].param3, shown[0].param4) == (1, 4, 3)  # B's sysid
+    assert (shown[0].target_system, shown[0].target_component) == (255, 190)
+    a.send(mav.MAVLink_command_ack_message(MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 0, 0, 1, 1))  # the app's ACK: kept
+    assert net.gateways["A"].counters["operator_request_acked"] == 1
+    net.run(net.now + 5.0)
+    assert net.owner == "A" and b.statuses()[-1].gcs_main == 4  # no consent: nothing moved
+    b.request(1, 0, 10)
+    net.run(net.now + 0.5)
+    assert len(a.presented()) == 2
+    a.request(0)  # A's operator releases to the requester
+    assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)
+    net.run(net.now + 1.0)
+    assert net.owner == "B"
+    assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER, 255)  # B's application: "you are in control"
+    assert a.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER, 3)  # A's: B (sysid 3) is
+
+
+def test_through_the_gateways_takeover_allowed_is_shown_and_taken_at_once(fleet_dir):
+    net = make_net(fleet_dir, allow_takeover=True)
+    a, b = with_gateways(net)
+    net.run(net.now + 1.5)
+    assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER | FLAG_TAKEOVER_ALLOWED, 4)
+    assert a.statuses()[-1].takeover_allowed
+    b.request(1, 1, 5)  # p2 = 1: B allows takeover once in control
+    assert b.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_IN_PROGRESS)
+    net.run(net.now + 0.3, step=0.05)
+    assert net.owner == "B"
+    assert b.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)  # the final answer
+    assert not a.presented()  # takeover allowed: A's operator was not asked
+    net.run(net.now + 1.0)
+    assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER | FLAG_TAKEOVER_ALLOWED, 255)
+
+
+def test_the_vehicles_own_control_status_and_bad_requests_stay_at_the_gateway(fleet_dir):
+    net = make_net(fleet_dir)
+    a, _ = with_gateways(net)
+    gw = net.gateways["A"]
+    before = len(a.frames())
+    gw.on_drone_frame("d1", encode_control_status(ControlStatus(1, 9), 1, 1))
+    assert len(a.frames()) == before and gw.counters["vehicle_control_status"] == 1
+    a.request(2)  # p1 must be 0 or 1
+    assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)
+    assert gw.counters["operator_request_bad"] == 1

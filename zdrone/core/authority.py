@@ -143,6 +143,7 @@ class HandoverRequest(Event):
     to: str
     timeout: float = 0.0
     takeover: bool = False
+    ask_id: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -591,7 +592,7 @@ class AuthorityMachine:
             return self.state, [note]
         # the owner's operator decides (it releases, or lets the request time out): the requester is
         # the sealed request's sender, whatever it claims
-        ask = OperatorRequest(ev.sender, ev.to, self.epoch, ev.timeout)
+        ask = OperatorRequest(ev.sender, ev.to, self.epoch, ev.timeout, ev.ask_id)
         return self.state, [note, SendControl(self.owner, ask), SendControl(self.owner, st)]
 
     def _on_request_failsafe(self, ev: HandoverRequest) -> tuple[State, list[Action]]:

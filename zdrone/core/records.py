@@ -693,10 +693,17 @@ class TakeoverWindowClosed(OperatorControlEvent, frozen=True, tag="takeover_wind
     """As owner: the window a consent opened for takeover closed."""
 
 
+class OperatorRequestShown(OperatorControlEvent, frozen=True, tag="operator_request_shown"):
+    """The GCS gateway presented ``requester``'s request to its ``apps`` applications."""
+
+    requester: str
+    apps: int
+
+
 OPERATOR_CONTROL_RECORDS: tuple[type[Record], ...] = (
     OperatorControlAsked, OperatorRequestWithdrawn, OperatorRequestTimedOut, OperatorControlTaken,
     OperatorControlLetGo, OperatorTakeoverSetting, OperatorRequestReceived, OperatorRequestStale,
-    OperatorRequestGranted, OperatorRequestDeclined, OperatorRequestExpired, TakeoverWindowClosed,
+    OperatorRequestGranted, OperatorRequestDeclined, OperatorRequestExpired, TakeoverWindowClosed, OperatorRequestShown,
 )
 
 

@@ -49,6 +49,7 @@ class HandoverRequest(Control, frozen=True, tag="handover_request"):
     epoch: int
     timeout: float = 0.0  # seconds the requester waits for the owner's consent (0: the owner's default)
     takeover: bool = False  # from the owner for itself: grant requests without asking its operator
+    ask_id: int = 0  # the requester's number for its operator's request (re-sends keep it)
 
 
 class OperatorRequest(Control, frozen=True, tag="operator_request"):
@@ -59,6 +60,7 @@ class OperatorRequest(Control, frozen=True, tag="operator_request"):
     to: str
     epoch: int
     timeout: float = 0.0
+    ask_id: int = 0
 
 
 class HandoverRelease(Control, frozen=True, tag="handover_release"):

@@ -354,7 +354,7 @@ class DroneCore:
         if isinstance(msg, wire.HandoverRelease):
             return self._handle(ha.Release(now, gs, msg.to, msg.epoch), now)
         if isinstance(msg, wire.HandoverRequest):
-            return self._handle(ha.HandoverRequest(now, gs, msg.to, msg.timeout, msg.takeover), now)
+            return self._handle(ha.HandoverRequest(now, gs, msg.to, msg.timeout, msg.takeover, msg.ask_id), now)
         if isinstance(msg, wire.SmHeartbeat):
             self.counters["sm_heartbeat"] += 1
         else:
