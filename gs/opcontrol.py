@@ -112,7 +112,8 @@ class OperatorControl:
 
     # ------------------------------------------------------------------ queries
     def is_owner(self, view: Any) -> bool:
-        return bool(view.link is not None and view.owner == self.gs and view.ha_state is not HaState.FAILSAFE)
+        return bool(view.link is not None and view.owner == self.gs and view.ha_state is not HaState.FAILSAFE
+                    and not getattr(view, "stale", False))
 
     def takeover_allowed(self, now: float) -> bool:
         """Our own setting now: standing, or within a consent's window."""

@@ -46,6 +46,7 @@ class Net:
     said: list[str] = field(default_factory=list)
     queue: deque = field(default_factory=deque)
     gateways: dict[str, GcsGateway] = field(default_factory=dict)
+    vehicle: FrameCodec = field(default_factory=lambda: FrameCodec(1, 1))
     pumping: bool = False
 
     def deliver(self, gs: str, actions: list) -> None:
@@ -92,6 +93,9 @@ class Net:
         while self.now < until:
             self.now = round(self.now + step, 6)
             self.drone_acts(self.machine.handle(ha.Tick(self.now)))
+            for g in self.machine.telemetry_targets():  # the vehicle's heartbeat: the GSs hear the drone
+                frame = self.vehicle.encode(mav.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3))
+                self.deliver(g, self.cores[g].on_envelope("d1", self.drone_links[g].seal(frame), self.now))
             for g, c in self.cores.items():
                 self.deliver(g, c.tick(self.now))
             for gw in self.gateways.values():
