@@ -105,6 +105,7 @@ class World:
         n = m.__class__.__new__(m.__class__)
         n.config, n.state, n.owner, n.epoch = m.config, m.state, m.owner, m.epoch
         n.pending_to, n.pending_deadline, n.repair_deadline = m.pending_to, m.pending_deadline, m.repair_deadline
+        n.takeover_epoch = m.takeover_epoch
         n.links = {g: ha._Link(l.state, l.frames_since_ok, l.frames_in_cover) for g, l in m.links.items()}
         n.subscribed, n.inside = set(m.subscribed), m.inside
         n.drops, n.rejects = Counter(), Counter()
