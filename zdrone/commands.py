@@ -278,7 +278,9 @@ def _demo(args: argparse.Namespace) -> int:
         from .vehicle.transport import parse_endpoint
 
         parse_endpoint(args.vehicle)  # a bad connection is a usage error before anything starts
-    return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=args.speedup,
+    # an autopilot already running flies in real time: its speed-up (deadline, timers) is 1 unless given
+    speedup = args.speedup if args.speedup is not None else (1.0 if args.vehicle else 2.0)
+    return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=speedup,
                                 live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
                                 autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ()),
                                 sites=args.sites or args.netns or SCENARIO_SITES.get(args.scenario, False),
@@ -294,7 +296,8 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenario", choices=SCENARIOS, default="nominal", metavar="NAME",
                    help="nominal flight, or an attack / fault case (listed below)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a fresh runs/demo-... folder)")
-    p.add_argument("--speedup", type=positive, default=2.0, help="simulator speed-up (default 2)")
+    p.add_argument("--speedup", type=positive, default=None,
+                   help="simulator speed-up (default 2; with --vehicle 1: a real autopilot runs in real time)")
     p.add_argument("--timeout", type=positive, default=None, metavar="S", help="give up after S wall seconds")
     p.add_argument("--command-rate", type=float, default=5.0, metavar="HZ",
                    help="command stream of the authority GS, to check none is lost across hand-overs (5 Hz)")

@@ -87,8 +87,14 @@ def test_nominal_reference_flight(tmp_path):
     assert c["forwarded"] == {g: n for g, n in c["sent_as_authority"].items() if n}  # none lost, none doubled
     assert s["distance_from_home_m"] < 3.0
     drone = read_events(out / "drone.jsonl")
-    # B held authority at the delivery and heard the vehicle report it
-    assert any(e["type"] == "vehicle_text" and "payload released" in e["text"] for e in read_events(out / "B.jsonl"))
+    # B held authority at the delivery and saw the mission go past its gripper item on the ground there
+    # (issue 22: from MAVLink both autopilots send; PX4 says nothing of its gripper)
+    b_events = read_events(out / "B.jsonl")
+    assert s["delivered_at_b"] and any(e["type"] == "mission_progress" for e in b_events)
+    assert not any(e["type"] == "vehicle_text" and "payload" in e["text"].lower() for e in b_events)
+    a_events = read_events(out / "A.jsonl")
+    assert [e["type"] for e in a_events if e["type"] in ("mission_started", "takeoff_confirmed")] == \
+        ["mission_started", "takeoff_confirmed"]  # flying only once it left the ground
     delivery = fleet.nodes["B"].coverage
     near_delivery = [e for e in drone if e["type"] == "status" and e["position"]
                      and abs(e["position"][1] - delivery.lon) < 3e-5 and e["position"][2] < 0.5]
@@ -247,9 +253,11 @@ def test_the_reference_flight_and_its_faults_on_the_ardupilot_personality(tmp_pa
     uploads = [e for e in a if e["type"] == "mission_upload"]
     assert uploads and uploads[0]["items"] == 9  # home placeholder + the plan with both take-offs
     assert any(e["type"] == "vehicle_param" and e["name"] == "MIS_OPTIONS" for e in a)
+    assert any(e["type"] == "takeoff_confirmed" for e in a)
     if scenario == "nominal":
         assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
         assert s["delivered_at_b"] and s["distance_from_home_m"] < 5.0
+        assert any(e["type"] == "vehicle_text" and e["text"] == "Gripper Released" for e in read_events(out / "B.jsonl"))
     elif scenario == "link-loss":
         assert s["failsafe"]["action"] == "LAND" and s["failsafe"]["detect_to_command_ms"] <= 100.0
     _clean_shutdown(s, out, **({"stopped": ("gsA",), "nodes": ("drone", "B")} if scenario == "link-loss" else

@@ -247,8 +247,8 @@ def test_ardupilot_keeps_item_0_as_home_and_loses_a_takeoff_sent_there():
     assert s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
     s.inbox.clear()
     s.send(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0))
-    assert texts_and_acks(s) == ["Auto: Missing Takeoff Cmd", "Mode change to AUTO failed: init failed",
-                                 f"ACK {mav.MAV_CMD_MISSION_START} {mav.MAV_RESULT_FAILED}"]
+    assert texts_and_acks(s) == [f"ACK {mav.MAV_CMD_MISSION_START} {mav.MAV_RESULT_FAILED}",  # its reasons after it
+                                 "Auto: Missing Takeoff Cmd", "Mode change to AUTO failed: init failed"]
     assert s.sim.mode_row.name == "STABILIZE" and s.sim.landed
     # first/last item in MISSION_START: not supported
     assert s.command(mav.MAV_CMD_MISSION_START, 1, 2) == mav.MAV_RESULT_DENIED
@@ -452,3 +452,72 @@ def test_ardupilot_any_command_gets_one_ack_and_never_raises(cmd, params):
     assert len(acks) == 1 and acks[0].command == cmd
     s.run(0.3)
     assert s.sim.counters["handler_error"] == 0
+
+
+# =================================================================== the real start-up (issue 22)
+def _positions(s: SimPair) -> list[tuple[float, int, int]]:
+    """(time since boot, lat, lon) of the GLOBAL_POSITION_INTs in the inbox, taken from it."""
+    return [(m.time_boot_ms / 1000.0, m.lat, m.lon) for m in s.take("GLOBAL_POSITION_INT")]
+
+
+def test_ardupilot_boots_like_arducopter_zeros_then_fix_then_origin_then_gps_in_its_estimate():
+    """At its real timeline (40 s): lat = lon = 0 and no GPS fix until ~10 s, the EKF origin ~19 s,
+    the EKF using GPS at 40 s; only then is AUTO accepted, and its refusal's reason comes after the ACK."""
+    from pymavlink.dialects.v20 import ardupilotmega as apm
+
+    s = ap(ready_after=40.0)
+    s.send(mav.MAVLink_request_data_stream_message(1, 1, mav.MAV_DATA_STREAM_ALL, 4, 1))
+    s.run(9.5)
+    assert {(lat, lon) for _, lat, lon in _positions(s)} == {(0, 0)}
+    assert {m.fix_type for m in s.take("GPS_RAW_INT")} == {mav.GPS_FIX_TYPE_NO_FIX}
+    s.run(0.6)  # the fix at 10 s
+    s.inbox.clear()
+    s.run(0.5)
+    assert all(abs(lat / 1e7 - HOME.lat) < 1e-5 for _, lat, _lon in _positions(s)) and \
+        s.take("GPS_RAW_INT")[-1].fix_type == mav.GPS_FIX_TYPE_3D_FIX
+    assert not s.take("EKF_STATUS_REPORT")[-1].flags & apm.EKF_POS_HORIZ_ABS
+    s.run(19.4)  # 30.5 s: ready to arm (STABILIZE), AUTO still refused
+    assert "EKF3 IMU0 origin set" in s.texts() and not s.take("EKF_STATUS_REPORT")[-1].flags & apm.EKF_POS_HORIZ_ABS
+    assert s.take("SYS_STATUS")[-1].onboard_control_sensors_health & mav.MAV_SYS_STATUS_PREARM_CHECK
+    set_param(s, "MIS_OPTIONS", 4.0, mav.MAV_PARAM_TYPE_INT16)  # continue after the landing at the delivery
+    assert s.upload(msgs(reference_mission(autopilot="ardupilot"))) == mav.MAV_MISSION_ACCEPTED
+    assert s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
+    s.inbox.clear()
+    s.send(mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_MISSION_START, 0, 0, 0, 0, 0, 0, 0, 0))
+    assert texts_and_acks(s) == [f"ACK {mav.MAV_CMD_MISSION_START} {mav.MAV_RESULT_FAILED}",
+                                 "Mode change to AUTO failed: requires position"]
+    assert s.run_until(lambda: not s.sim.armed, 11.0) and 9.5 <= s.now - 30.5 <= 10.6  # disarms itself on the ground
+    said = s.texts()
+    assert "Disarming motors" in said
+    s.run(max(0.0, 40.2 - s.now))
+    said += s.texts()
+    assert said.index("Disarming motors") < said.index("EKF3 IMU0 is using GPS")
+    assert s.take("EKF_STATUS_REPORT")[-1].flags & apm.EKF_POS_HORIZ_ABS
+    assert s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
+    assert s.command(mav.MAV_CMD_MISSION_START, 0, 0) == mav.MAV_RESULT_ACCEPTED
+    assert s.run_until(lambda: s.sim.payload_released, 300)
+    assert "Gripper Released" in s.texts() and not any("payload" in t for t in s.texts())
+
+
+def test_px4_sends_no_global_position_before_its_estimate_and_says_nothing_of_its_gripper():
+    s = SimPair(ready_after=10.0)
+    s.run(5.5)
+    assert _positions(s) == [] and s.take("GPS_RAW_INT")[-1].fix_type == mav.GPS_FIX_TYPE_3D_FIX  # fix at 4 s
+    s.run(1.0)
+    assert _positions(s) and all(t >= 6.0 for t, _, _ in _positions(s) or [(6.0, 0, 0)])
+    s.run(4.0)
+    assert "Ready for takeoff!" in s.texts()
+    assert s.upload(msgs(reference_mission())) == mav.MAV_MISSION_ACCEPTED
+    assert s.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
+    assert s.command(mav.MAV_CMD_MISSION_START, 0, 0) == mav.MAV_RESULT_ACCEPTED
+    assert s.run_until(lambda: s.sim.payload_released, 300)
+    s.run(1.0)
+    assert not [t for t in s.texts() if "payload" in t.lower() or "gripper" in t.lower()]
+
+
+def test_the_boot_timeline_keeps_the_real_order_at_any_length():
+    for p in (PX4, ARDUPILOT):
+        r = p.readiness
+        marks = [r.gps_fix_at] + ([r.origin_at] if r.origin_at is not None else []) + [r.position_at]
+        assert marks == sorted(marks) and 0 < r.gps_fix_at < r.position_at <= 1.0, p.name
+        assert p.default_ready_after <= 6.0 < p.real_ready_after or p.name == "px4"  # short by default

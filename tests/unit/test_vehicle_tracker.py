@@ -9,6 +9,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
+from zdrone.core.geometry import distance_m
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.reference import HOME
 from zdrone.vehicle.modes import set_mode_params
@@ -309,3 +310,14 @@ def test_px4_position_is_known_from_its_global_position_alone():
     _feed(t, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, 0, 0, 3, 3))
     _feed(t, _gps(3), _gpi(HOME.lat, HOME.lon))  # no EKF_STATUS_REPORT from PX4: not held against it
     assert t.position is not None and t.stats()["position"]["why"] is None
+
+
+def test_against_the_ardupilot_personality_the_position_comes_only_once_its_ekf_uses_gps():
+    b = Bench(ARDUPILOT, ready_after=12.0)  # fix at 3 s, EKF origin at 5.7 s, EKF using GPS at 12 s
+    b.run(2.8)
+    t = b.tracker
+    assert t.position is None and t.stats()["position"]["why"] in ("position 0, 0 (no fix)", "no GPS fix (fix type 1)")
+    b.run(5.0)
+    assert t.position is None and t.stats()["position"]["why"] == "estimate not absolute (EKF not using GPS)"
+    b.run(5.0)
+    assert t.position is not None and distance_m(HOME, t.position) < 1.0 and t.stats()["position"]["known"]

@@ -31,14 +31,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from pymavlink.dialects.v20 import common as mav
+
+from gs.planner import AUTOPILOTS, reference_mission
+
 from ..core.geometry import GeoPoint, distance_m
-from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, Captured, ControlRequested,
+from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound, Captured,
+                            ControlRequested,
                             Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState, HandoverComplete,
                             HandoverFailed, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
-                            MissionFailed, MissionStarted, Paired, PathState, R, RadioLinkChanged, RegionEntered,
-                            Restarted, Start, Subscribe, UnauthorizedAttempt, Unsubscribe, VehicleText, fields_of,
+                            MissionFailed, MissionProgress, MissionStarted, Paired, PathState, R, RadioLinkChanged,
+                            RegionEntered, Restarted, Start, Subscribe, UnauthorizedAttempt, Unsubscribe, fields_of,
                             logged, only, record_type)
-from ..core.reference import HOME
+from ..core.reference import DELIVERY, HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, LogTail, read_records
@@ -159,6 +164,29 @@ def flight_unaffected(o: Outcome) -> list[str]:
     why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
                  f"not landed at home ({s['distance_from_home_m']} m)")
     return why
+
+
+#: The deadline of a flight with an autopilot already running (``--vehicle``) allows for its start-up.
+EXTERNAL_BOOT_S = 60.0
+#: A delivery counts where the vehicle is on the ground this near the delivery point.
+DELIVERY_RADIUS_M = 5.0
+
+
+def delivered_at(gs_records: Sequence[AnyRecord], autopilot: str | None, point: GeoPoint = DELIVERY) -> bool:
+    """The reference mission went past its DO_GRIPPER item (MISSION_CURRENT beyond it, or
+    MISSION_ITEM_REACHED of it) while the vehicle was on the ground within ``DELIVERY_RADIUS_M`` of
+    ``point``, as a GS heard it: what both autopilots send (ArduCopter says "Gripper Released", PX4
+    says nothing)."""
+    items = reference_mission(autopilot=autopilot if autopilot in AUTOPILOTS else "px4")
+    gripper = next(i for i, it in enumerate(items) if it.command == mav.MAV_CMD_DO_GRIPPER)
+    for e in only(gs_records, MissionProgress):
+        past = e.seq >= gripper if e.reached else e.seq > gripper
+        if not past or e.position is None:
+            continue
+        on_ground = e.landed_state == mav.MAV_LANDED_STATE_ON_GROUND or e.position[2] < 1.0
+        if on_ground and distance_m(point, GeoPoint(e.position[0], e.position[1])) <= DELIVERY_RADIUS_M:
+            return True
+    return False
 
 
 def _check_no_key(o: Outcome) -> list[str]:
@@ -973,7 +1001,8 @@ class Demo:
 
     def _watch(self) -> dict[str, Any]:
         o = self.opts
-        timeout = o.timeout or (60.0 + 240.0 / o.speedup)
+        # the flight at the speed-up, plus a real autopilot's own start-up (ArduCopter: ~40 s until its EKF uses GPS)
+        timeout = o.timeout or (60.0 + 240.0 / o.speedup + (EXTERNAL_BOOT_S if o.vehicle is not None else 0.0))
         deadline = time.monotonic() + timeout
         drone_log = self.out / "drone.jsonl"
         live = LiveView(o.scenario, enabled=o.live if o.live is not None else sys.stdout.isatty(), quiet=o.quiet)
@@ -1096,7 +1125,8 @@ class Demo:
             "final_position": pos, "distance_from_home_m": None if home_dist is None else round(home_dist, 2),
             "final_owner": final.owner if final else None,
             "authority_link": authority_link(drone_events),
-            "delivered_at_b": any("payload released" in e.text for e in only(gs_events["B"], VehicleText)),
+            "delivered_at_b": delivered_at(gs_events["B"], next((e.autopilot for e in only(gs_events["A"], AutopilotFound)),
+                                                                 None)),
             "commands": {"sent_as_authority": sent, "forwarded": forwarded, "lost": cmd_sent - cmd_fwd - refused,
                          "refused_not_authority": ha_drops.get("not_authority", 0)},
             "security_drops": drops, "security_drops_unlinked": unlinked, "ha_drops": ha_drops,

@@ -9,7 +9,9 @@ a companion or a ground station:
 * texts: STATUSTEXT wording and severity, and for PX4 the EVENT (410) that carries the same refusal
   (PX4 marks such STATUSTEXTs with a trailing tab);
 * readiness: arming refused, with the real texts, until ``ready_after`` simulated seconds after boot
-  (stages scale with it), AUTO needing a position estimate on ArduPilot;
+  (stages scale with it), in the real order: GPS fix, (ArduPilot) EKF origin, position estimate;
+  before the fix ArduPilot reports lat = lon = 0 and PX4 no GLOBAL_POSITION_INT until its estimate is
+  global; AUTO needing the position estimate on ArduPilot, which says why after its COMMAND_ACK;
 * mission rules: PX4's feasibility check at MISSION_START, ArduPilot's item 0 = home, its
   "Missing Takeoff Cmd" and its disarm at a mid-mission landing unless ``MIS_OPTIONS`` bit 2;
 * auto-disarm, streams (ArduPilot sends nothing but HEARTBEAT until asked), extra message ids,
@@ -175,6 +177,9 @@ class Readiness:
     on_ready: Say | None = None  # said once when arming becomes possible
     on_position: Say | None = None  # said once when the position estimate is there
     prearm_every: float = 0.0
+    gps_fix_at: float = 0.0  # from here the GPS has a 3D fix (GPS_RAW_INT), before the estimate uses it
+    origin_at: float | None = None  # ArduPilot: the EKF's origin is set (between the fix and the estimate)
+    on_origin: Say | None = None  # said once when the origin is set
 
     def arm_refusal(self, since_boot: float, ready_after: float) -> Say | None:
         for st in self.stages:
@@ -383,7 +388,6 @@ PX4_TEXTS: Mapping[str, Say] = MappingProxyType({
     "mode_refused": Say("Switching to {label} is currently not available", _CRIT, "commander_modeswitch_not_avail", 0x62),
     "ready": Say("Ready for takeoff!", _INFO),
     "link_lost": Say("Connection to ground station lost: {action}", _CRIT),
-    "payload_released": Say("payload released", _INFO),
 })
 
 ARDUPILOT_TEXTS: Mapping[str, Say] = MappingProxyType({
@@ -398,7 +402,8 @@ ARDUPILOT_TEXTS: Mapping[str, Say] = MappingProxyType({
     "position_ready": Say("EKF3 IMU0 is using GPS", _INFO),
     "link_lost": Say("GCS Failsafe: {action}", _CRIT),
     "interval_unknown": Say("No ap_message for mavlink id ({msgid})", _INFO),
-    "payload_released": Say("payload released", _INFO),
+    "origin_set": Say("EKF3 IMU0 origin set", _INFO),
+    "payload_released": Say("Gripper Released", _INFO),  # PX4 says nothing for DO_GRIPPER
 })
 
 
@@ -452,6 +457,9 @@ class Personality:
     boots_on_first_client: bool  # ArduPilot SITL waits for a client on its TCP port before it boots
     extra_ids: frozenset[int] = field(default_factory=frozenset)  # ids outside pymavlink's common dialect it sends
     ftp_refuses: bool = False  # answer MAVLink FTP with NAK (no such file) so clients fall back at once
+    says_after_ack: bool = False  # what a command makes it say comes after its COMMAND_ACK (ArduPilot)
+    zeros_before_fix: bool = False  # GLOBAL_POSITION_INT with lat = lon = 0 before the GPS fix (ArduPilot);
+    # otherwise none at all until the position estimate is there (PX4)
 
     def text(self, key: str) -> Say | None:
         return self.texts.get(key)
@@ -485,9 +493,10 @@ _PHYSICS_AP = MappingProxyType({
 PX4 = Personality(
     name="px4", label="PX4 v1.16", autopilot=M.MAV_AUTOPILOT_PX4, modes=PX4_MODES, boot_mode="HOLD",
     heartbeat=px4_heartbeat, texts=PX4_TEXTS, events=True, chunk_statustext=True,
+    # the real one (speed-up 1): first HEARTBEAT ~3 s, "Ready for takeoff!" ~10-15 s after start
     readiness=Readiness(stages=(ReadyStage(1.0, PX4_TEXTS["arm_not_ready"]),),
-                        refused_result=M.MAV_RESULT_TEMPORARILY_REJECTED, position_at=1.0,
-                        on_ready=PX4_TEXTS["ready"]),
+                        refused_result=M.MAV_RESULT_TEMPORARILY_REJECTED, position_at=0.6,
+                        on_ready=PX4_TEXTS["ready"], gps_fix_at=0.4),
     real_ready_after=10.0, default_ready_after=1.0,
     params=px4_params, param_bytewise=True, param_range_checked=True, physics=_PHYSICS_PX4,
     default_streams=MappingProxyType({**_COMMON_STREAMS, **_PX4_EXTRA}),
@@ -509,9 +518,12 @@ PX4 = Personality(
 ARDUPILOT = Personality(
     name="ardupilot", label="ArduCopter V4.7.0-dev", autopilot=M.MAV_AUTOPILOT_ARDUPILOTMEGA, modes=ARDUCOPTER_MODES,
     boot_mode="STABILIZE", heartbeat=ardupilot_heartbeat, texts=ARDUPILOT_TEXTS, events=False, chunk_statustext=False,
+    # the real one at speed-up 1: GPS fix ~10 s (lat = lon = 0 before), "EKF3 IMU0 origin set" ~19 s,
+    # "EKF3 IMU0 is using GPS" ~40 s (only then AUTO); arming refused for the first ~20-30 s
     readiness=Readiness(stages=(_ap_stage(0.5, "Accels inconsistent"), _ap_stage(0.75, "EKF attitude is bad")),
                         refused_result=M.MAV_RESULT_FAILED, position_at=1.0,
-                        on_position=ARDUPILOT_TEXTS["position_ready"], prearm_every=30.0),
+                        on_position=ARDUPILOT_TEXTS["position_ready"], prearm_every=30.0,
+                        gps_fix_at=0.25, origin_at=0.475, on_origin=ARDUPILOT_TEXTS["origin_set"]),
     real_ready_after=40.0, default_ready_after=6.0,
     params=ardupilot_params, param_bytewise=False, param_range_checked=False, physics=_PHYSICS_AP,
     default_streams=MappingProxyType({M.MAVLINK_MSG_ID_HEARTBEAT: 1.0}),
@@ -532,6 +544,7 @@ ARDUPILOT = Personality(
     endpoint="tcpin:127.0.0.1:5760", send_to=None, boots_on_first_client=True,
     extra_ids=frozenset({MSG_MEMINFO, MSG_AHRS2, MSG_EKF_STATUS_REPORT}),
     ftp_refuses=True,  # MAVProxy asks ArduPilot for @PARAM/param.pck first; a NAK makes it use PARAM_REQUEST_LIST
+    says_after_ack=True, zeros_before_fix=True,
 )
 
 PERSONALITIES: Mapping[str, Personality] = MappingProxyType({p.name: p for p in (PX4, ARDUPILOT)})

@@ -56,6 +56,10 @@ from .modes import autopilot_name, landed_from_heartbeat, mode_name
 
 log = logging.getLogger(__name__)
 
+#: A STATUSTEXT this soon after a refused SET_MESSAGE_INTERVAL is its reason (ArduPilot says why after
+#: the ACK).
+REASON_AFTER_ACK_S = 0.5
+
 _RESULT_NAMES = MappingProxyType({v: e.name.removeprefix("MAV_RESULT_") for v, e in mav.enums["MAV_RESULT"].items()})
 
 
@@ -185,6 +189,7 @@ class VehicleTracker:
         self._boot_ms: int | None = None
         self._streams = self._fresh_streams()
         self._pending: _Pending | None = None
+        self._refused: tuple[_Stream, float] | None = None  # the last interval refused without a reason, when
         self._groups: dict[int, int] = {}  # REQUEST_DATA_STREAM group -> rate (Hz) asked this connection
         self._commands: list[_Command] = []
 
@@ -240,8 +245,19 @@ class VehicleTracker:
             self._ext_landed, self._ext_at = msg.landed_state, now
         elif t == "COMMAND_ACK":
             self._on_ack(msg, now)
-        elif t == "STATUSTEXT" and self._pending is not None:
-            self._pending.texts.append(str(msg.text).rstrip("\x00\t "))
+        elif t == "STATUSTEXT":
+            self._on_text(str(msg.text).rstrip("\x00\t "), now)
+
+    def _on_text(self, text: str, now: float) -> None:
+        """A STATUSTEXT: the reason of the SET_MESSAGE_INTERVAL in flight, or of the one just refused
+        (ArduPilot says why after its ACK)."""
+        if self._pending is not None:
+            self._pending.texts.append(text)
+        elif self._refused is not None and now - self._refused[1] <= REASON_AFTER_ACK_S:
+            stream, _ = self._refused
+            self._refused = None
+            stream.refusal = f"{stream.refusal}: {text}"
+            log.warning("vehicle refused SET_MESSAGE_INTERVAL %s: %s", stream.want.name, text)
 
     def _on_heartbeat(self, msg: Any, src: tuple[int, int], now: float) -> None:
         if msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
@@ -273,7 +289,7 @@ class VehicleTracker:
         self.connected_at = now
         self._boot_ms = None
         self._ext_landed = self._ext_at = None
-        self._pending = None
+        self._pending = self._refused = None
         self._groups.clear()
         self.fix = PositionFix()  # a rebooted autopilot has no fix yet; a link back: the next report says
         self._streams = self._fresh_streams()
@@ -330,6 +346,7 @@ class VehicleTracker:
             s.state, s.deadline, s.via = StreamState.ASKED, now + self.timing.seen_within(s.want), "interval"
             return
         s.refusal = f"{_RESULT_NAMES.get(result, result)}" + (f": {texts[-1]}" if texts else "")
+        self._refused = None if texts else (s, now)  # its reason may still come
         s.state = StreamState.WAITING  # no use asking again: the next poll falls back
         self.counters["interval_refused"] += 1
         log.warning("vehicle refused SET_MESSAGE_INTERVAL %s (%d): %s", s.want.name, s.want.msgid, s.refusal)

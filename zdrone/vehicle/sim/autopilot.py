@@ -105,7 +105,7 @@ class SimAutopilot:
         self.takeoff_alt = self.phys("takeoff_alt")
         self._rtl_descend = False
         # readiness announcements
-        self._said_ready = self._said_position = False
+        self._said_ready = self._said_position = self._said_origin = False
         self._next_prearm = now
         # the protocols
         self.mission_protocol = MissionProtocol(self)
@@ -211,6 +211,11 @@ class SimAutopilot:
         now = self.t if now is None else now
         return self.p.readiness.arm_refusal(now - self.boot, self.ready_after) is None
 
+    def gps_fixed(self, now: float | None = None) -> bool:
+        """True once the GPS has a 3D fix (before the estimate uses it)."""
+        now = self.t if now is None else now
+        return now - self.boot >= self.p.readiness.gps_fix_at * self.ready_after
+
     def position_ok(self, now: float | None = None) -> bool:
         """True once the autopilot has a position estimate (ArduPilot: EKF using GPS)."""
         now = self.t if now is None else now
@@ -233,6 +238,11 @@ class SimAutopilot:
             self._said_ready = True
             if r.on_ready is not None:
                 self.out.say(r.on_ready)
+        if (not self._said_origin and r.origin_at is not None
+                and now - self.boot >= r.origin_at * self.ready_after):
+            self._said_origin = True
+            if r.on_origin is not None:
+                self.out.say(r.on_origin)
         if not self._said_position and self.position_ok(now):
             self._said_position = True
             if r.on_position is not None:

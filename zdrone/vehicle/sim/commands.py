@@ -251,11 +251,17 @@ class CommandProtocol:
         })
 
     def handle(self, c: Command, now: float) -> None:
+        out = self.ap.out
+        before = len(out.frames)
         handler = COMMANDS.get(c.command)
         reply = handler(self.ap, c, now) if handler is not None else UNSUPPORTED
         if not isinstance(reply, Reply):
             reply = Reply(reply)
+        said: list[bytes] = []
+        if self.ap.p.says_after_ack:  # ArduPilot queues its texts: the reason comes after the ACK
+            said, out.frames = out.frames[before:], out.frames[:before]
         self._ack(c, reply.result)
+        out.frames.extend(said)
         if reply.message is not None:
             self.ap.telemetry.send_message(reply.message)
         for say in reply.texts:

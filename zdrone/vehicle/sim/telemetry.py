@@ -183,7 +183,14 @@ class Telemetry:
                                                    800 if ap.armed else 50, int(ap.battery), 0, 0, 0, 0, 0, 0))
 
     def _global_position_int(self, boot_ms: int, pos: GeoPoint) -> None:
+        """ArduPilot: lat = lon = 0 until the GPS fix, then the GPS position; PX4: nothing until its
+        estimate is global."""
         ap, k = self.ap, self.ap.k
+        if ap.p.zeros_before_fix and not ap.gps_fixed(ap.t):
+            ap.out.send(mav.MAVLink_global_position_int_message(boot_ms, 0, 0, 0, 0, 0, 0, 0, 0))
+            return
+        if not ap.p.zeros_before_fix and not ap.position_ok(ap.t):
+            return
         hdg = int(math.degrees(k.yaw) % 360 * 100)
         ap.out.send(mav.MAVLink_global_position_int_message(
             boot_ms, int(pos.lat * 1e7), int(pos.lon * 1e7), int((ap.home_amsl + k.alt) * 1000), int(k.alt * 1000),
@@ -213,6 +220,10 @@ class Telemetry:
         ap, k = self.ap, self.ap.k
         speed = math.hypot(k.vn, k.ve)
         cog = int(math.degrees(math.atan2(k.ve, k.vn)) % 360 * 100) if speed > 0.1 else 65535
+        if not ap.gps_fixed(ap.t):
+            ap.out.send(mav.MAVLink_gps_raw_int_message(int(ap.t * 1e6), mav.GPS_FIX_TYPE_NO_FIX, 0, 0, 0, 65535, 65535,
+                                                        0, 65535, 0))
+            return
         ap.out.send(mav.MAVLink_gps_raw_int_message(int(ap.t * 1e6), mav.GPS_FIX_TYPE_3D_FIX, int(pos.lat * 1e7),
                                                     int(pos.lon * 1e7), int((ap.home_amsl + k.alt) * 1000), 80, 120,
                                                     int(speed * 100), cog, 14))
