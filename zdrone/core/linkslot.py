@@ -12,9 +12,9 @@ already in flight under it are not lost). The first candidate that opens an auth
 are forgotten, and the new link's liveness monitor continues the old one's reporting (so a state
 change is never lost across a key change). Candidates that nobody proves expire.
 
-A candidate that came from someone else's action (a key grant from the authority, a secret this
-end handed out over the backhaul) never replaces a live key whose link is still alive: it is
-proven only when the slot has no live key or the live link is LOST. Only the peer itself replacing
+A candidate that came from someone else's action never replaces a live key whose link is alive
+(``replaces_live``): a key grant from the authority replaces no live key at all, and a secret this
+end handed out over the backhaul replaces its live key only once that link is LOST. Only the peer itself replacing
 its own key (``SELF_ORIGINS``: a pairing, which only the holder of the peer's static key completes)
 may replace a live key at any time. So nothing any third party sends changes a live link: a
 malicious GS that obtained a candidate's secret (by asking for it over the backhaul) and forges a
@@ -44,8 +44,14 @@ PREVIOUS_GRACE = 3.0
 def replaces_live(origin: str, live: LinkState | None) -> bool:
     """The key-confirmation rule: may a proven candidate of ``origin`` become live, the live link
     being in state ``live`` (None: no live key)? Always with no live key or for the peer's own
-    re-pairing (``SELF_ORIGINS``); a third party's key only once the live link is LOST."""
-    return live is None or origin in SELF_ORIGINS or live is LinkState.LOST
+    re-pairing (``SELF_ORIGINS``). A key the authority granted (``grant``, on the drone) never
+    replaces a live key: the authority grants only keys the drone lacks, so a grant over a live key
+    can only be someone using the authority's position against another GS. A secret this GS handed
+    out over the backhaul (``linkkey:<asker>``) replaces its live key only once that link is LOST (the
+    drone restarted and lost the old key; the GS answers no query while its link is alive)."""
+    if live is None or origin in SELF_ORIGINS:
+        return True
+    return origin != "grant" and live is LinkState.LOST
 
 
 @dataclass(slots=True)

@@ -1,0 +1,159 @@
+"""An in-memory fleet for unit tests (like h11's ConnectionPair, for a whole fleet): the drone's pure
+``DroneCore`` and the ground stations' pure ``StationCore``s wired by a synchronous network, with the
+real crypto, explicit time, no sockets. Pairing, key sharing and hand-overs run in milliseconds.
+
+``FleetNet.step(dt)`` advances time: every GS ticks, the drone handles its timer and the vehicle's
+position (and a GLOBAL_POSITION_INT telemetry frame), and every message each of them emits is
+delivered at once (an uplink only while the drone listens to it; ``cut`` blocks a GS both ways).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymavlink.dialects.v20 import common as mav
+
+from gs.core import Ask, AskKind, CoreOptions, Put, StationCore
+from zdrone.core.geometry import GeoPoint
+from zdrone.core.mavlink import FrameCodec
+from zdrone.fleet import keyexprs as kx
+from zdrone.fleet.files import init_fleet, load_fleet, load_secret
+from zdrone.nodes.drone_core import (CommandVehicle, DroneCore, DroneCoreOptions, Emit, Listen, Out, Persist, PutDown,
+                                     ToVehicle)
+
+WALL0 = 1_800_000_000.0  # the time of day at now = 0
+
+
+def make_fleet(directory: Path) -> Path:
+    init_fleet(directory)
+    return directory
+
+
+@dataclass
+class FleetNet:
+    fleet_dir: Path
+    gss: dict[str, StationCore] = field(default_factory=dict)
+    drone: DroneCore | None = None
+    now: float = 0.0
+    position: GeoPoint | None = None
+    on_ground: bool = True
+    listening: frozenset[str] = frozenset()
+    cut: set[str] = field(default_factory=set)  # GSs whose radio is down (both ways)
+    hung: set[str] = field(default_factory=set)  # GSs that neither tick nor answer
+    to_vehicle: list[bytes] = field(default_factory=list)
+    commands: list[CommandVehicle] = field(default_factory=list)
+    records: list = field(default_factory=list)
+    persisted: Persist | None = None
+    captured_pairings: list[tuple[str, bytes]] = field(default_factory=list)  # (gs, message 1) seen on the wire
+
+    def __post_init__(self) -> None:
+        self.fleet = load_fleet(self.fleet_dir)
+        self.codec = FrameCodec(1, 1)
+        if self.drone is None:
+            self.drone = self.new_drone()
+        home = self.fleet.home
+        self.position = GeoPoint(home.lat, home.lon)
+
+    def new_drone(self) -> DroneCore:
+        ident = load_secret(self.fleet_dir, "d1", self.fleet).identity
+        return DroneCore(self.fleet, "d1", ident, DroneCoreOptions(), started_wall=WALL0 + self.now)
+
+    def add_gs(self, name: str, **opts) -> StationCore:
+        fleet = self.fleet
+        core = StationCore(name, fleet, load_secret(self.fleet_dir, name, fleet).identity, ("d1",), CoreOptions(**opts))
+        self.gss[name] = core
+        return core
+
+    def centre(self, gs: str) -> GeoPoint:
+        cov = self.fleet.nodes[gs].coverage
+        assert cov is not None
+        return GeoPoint(cov.lat, cov.lon)
+
+    def between(self, a: GeoPoint, b: GeoPoint, f: float) -> GeoPoint:
+        return GeoPoint(a.lat + (b.lat - a.lat) * f, a.lon + (b.lon - a.lon) * f)
+
+    # ------------------------------------------------------------------ delivery
+    def drone_outs(self, outs: list[Out]) -> None:
+        for o in outs:
+            if isinstance(o, PutDown):
+                if o.gs not in self.cut and o.gs in self.gss and o.gs not in self.hung:
+                    self.gs_outs(o.gs, self.gss[o.gs].on_envelope("d1", o.payload, self.now))
+            elif isinstance(o, Listen):
+                self.listening = o.gss
+            elif isinstance(o, ToVehicle):
+                self.to_vehicle.append(o.frame)
+            elif isinstance(o, CommandVehicle):
+                self.commands.append(o)
+            elif isinstance(o, Emit):
+                self.records.append(o.record)
+            elif isinstance(o, Persist):
+                self.persisted = o
+
+    def gs_outs(self, gs: str, outs: list) -> None:
+        assert self.drone is not None
+        for a in outs:
+            if isinstance(a, Put):
+                if gs not in self.cut and a.keyexpr == kx.up("d1", gs) and gs in self.listening:
+                    self.drone_outs(self.drone.on_envelope(gs, a.payload, self.now))
+            elif isinstance(a, Ask) and a.kind is AskKind.PAIR:
+                self.captured_pairings.append((gs, a.payload))
+                if gs in self.cut:
+                    continue
+                ans, outs2 = self.drone.on_pair_query(gs, a.payload, self.now, os.urandom(32), WALL0 + self.now)
+                self.drone_outs(outs2)
+                reply = getattr(ans, "reply", None)
+                if reply is not None:
+                    self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", reply, None, self.now))
+                elif not getattr(ans, "silent", True):
+                    self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", None, ans.text.encode(), self.now))
+            elif isinstance(a, Ask) and a.kind is AskKind.LINKKEY:
+                owner = self.gss.get(a.gs)
+                if owner is None or a.gs in self.hung:
+                    continue
+                answer, logs = owner.on_linkkey_query("d1", a.payload, self.now, os.urandom(32), WALL0 + self.now)
+                if answer.reply is not None or answer.error is not None:
+                    self.gs_outs(gs, self.gss[gs].on_linkkey_reply("d1", a.gs, answer.reply, answer.error, self.now))
+
+    # ---------------------------------------------------------------------- time
+    def step(self, dt: float = 0.1) -> None:
+        assert self.drone is not None
+        self.now = round(self.now + dt, 6)
+        for name, core in self.gss.items():
+            if name not in self.hung:
+                self.gs_outs(name, core.tick(self.now, WALL0 + self.now))
+        pos = None if self.position is None else (self.position.lat, self.position.lon, 30.0)
+        self.drone_outs(self.drone.on_vehicle(pos, self.on_ground, self.now))
+        if self.position is not None:
+            frame = self.codec.encode(mav.MAVLink_global_position_int_message(
+                int(self.now * 1000), int(self.position.lat * 1e7), int(self.position.lon * 1e7), 30000, 30000,
+                0, 0, 0, 0))
+            self.drone_outs(self.drone.on_telemetry(frame, self.now))
+        timer = self.drone.get_timer()
+        if timer is not None and self.now >= timer:
+            self.drone_outs(self.drone.handle_timer(self.now))
+
+    def run(self, seconds: float, dt: float = 0.1) -> None:
+        for _ in range(int(round(seconds / dt))):
+            self.step(dt)
+
+    def fly(self, a: GeoPoint, b: GeoPoint, seconds: float, dt: float = 0.1) -> None:
+        """Move the vehicle from ``a`` to ``b`` in ``seconds``."""
+        n = int(round(seconds / dt))
+        for i in range(1, n + 1):
+            self.position = self.between(a, b, i / n)
+            self.step(dt)
+
+    def restart_drone(self) -> None:
+        """The companion restarts (all keys lost), coming back with the authority it had persisted."""
+        p = self.persisted
+        self.drone = self.new_drone()
+        self.listening = frozenset()
+        pos = None if self.position is None else (self.position.lat, self.position.lon, 30.0)
+        self.drone_outs(self.drone.on_vehicle(pos, self.on_ground, self.now))
+        if p is not None:
+            self.drone_outs(self.drone.restore(p.owner, p.epoch, p.state, self.now))
+
+    def record_types(self) -> list[str]:
+        return [type(r).__struct_config__.tag for r in self.records]

@@ -1,0 +1,159 @@
+"""The drone's pure core with the ground stations' pure cores, in memory (``tests.fleetnet``): pairing,
+key sharing, both hand-overs, the failsafe and the least-privilege rules of issue 18, with real crypto
+and explicit time — no sockets, no processes."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from tests.fleetnet import FleetNet, make_fleet
+from zdrone.core.authority import State
+from zdrone.core.keyshare import KeyShareAsk
+from zdrone.core.pairing import PairingInitiator
+from zdrone.core import records as rec
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    return make_fleet(tmp_path_factory.mktemp("fleet"))
+
+
+def linked(fleet_dir) -> FleetNet:
+    """A paired with the drone on the ground at home, B's key shared and granted."""
+    net = FleetNet(fleet_dir)
+    net.add_gs("A", pair=True)
+    net.add_gs("B")
+    net.run(4.0)
+    m = net.drone.machine
+    assert m.owner == "A" and m.state is State.LINKED and m.epoch == 1
+    assert set(net.drone.links) == {"A", "B"}, "B's key was shared by A and granted to the drone"
+    return net
+
+
+def test_pairing_key_sharing_and_both_hand_overs_in_memory(fleet_dir):
+    net = linked(fleet_dir)
+    a, b = net.centre("A"), net.centre("B")
+    net.on_ground = False
+    net.fly(a, b, 30.0)
+    m = net.drone.machine
+    assert m.owner == "B" and m.epoch == 2, net.record_types()
+    net.fly(b, a, 30.0)
+    assert m.owner == "A" and m.epoch == 3
+    moves = [(r.from_, r.to, r.kind) for r in net.records if isinstance(r, rec.HandoverComplete)]
+    assert moves == [("A", "B", "handover"), ("B", "A", "handover")]
+    assert not net.commands  # no failsafe
+    # the drone's owner changes were persisted as they happened
+    assert net.persisted is not None and (net.persisted.owner, net.persisted.epoch) == ("A", 3)
+
+
+def test_a_silent_authority_lands_the_drone_on_time_when_no_heir_covers_it(fleet_dir):
+    net = linked(fleet_dir)
+    net.on_ground = False
+    net.fly(net.centre("A"), net.between(net.centre("A"), net.centre("B"), 0.2), 5.0)
+    net.hung.add("A")
+    net.run(4.0, dt=0.01)
+    assert [c.command for c in net.commands] == ["LAND"]
+    assert 0.0 <= net.commands[0].detect_to_command_ms <= 20.0  # at the threshold, to the step
+    assert net.drone.machine.state is State.FAILSAFE and net.drone.machine.owner == "A"
+
+
+def test_insider_heir_b_repairing_from_outside_its_coverage_never_takes_authority(fleet_dir):
+    """Issue 18, finding 1: B re-pairs again and again in flight and keeps its link proven while the
+    drone is outside B's coverage; A hangs. Failsafe, never B."""
+    net = linked(fleet_dir)
+    net.on_ground = False
+    home = net.centre("A")
+    net.fly(home, net.between(home, net.centre("B"), 0.1), 3.0)
+    b = net.gss["B"]
+    for _ in range(3):  # B's operator (or an attacker holding B's keys) pairs again in flight
+        b.views["d1"].link = None
+        b.opts = dataclasses.replace(b.opts, pair=True)
+        net.run(1.0)
+    assert "B" in net.drone.links and net.drone.machine.is_proven("B") and not net.drone.machine.is_heir("B")
+    net.hung.add("A")
+    net.run(4.0)
+    m = net.drone.machine
+    assert m.state is State.FAILSAFE and m.owner == "A"
+    assert not any(isinstance(r, rec.AuthorityMoved) and r.to == "B" for r in net.records)
+
+
+def test_an_heir_inside_its_coverage_takes_authority_when_the_owner_is_lost(fleet_dir):
+    net = linked(fleet_dir)
+    net.on_ground = False
+    a, b = net.centre("A"), net.centre("B")
+    net.fly(a, net.between(a, b, 0.5), 10.0)  # the overlap, A still the owner (nearer A)
+    assert net.drone.machine.owner == "A" and net.drone.machine.is_heir("B")
+    net.hung.add("A")
+    net.run(4.0)
+    assert net.drone.machine.owner == "B" and not net.commands
+
+
+def test_key_escrow_a_asked_for_its_own_key_answers_nothing_while_its_link_is_alive(fleet_dir):
+    """Issue 18, finding 2: B asks A (genuinely) for a key of link (d1, A): A refuses (live_link) and
+    keeps no candidate; its live link is untouched."""
+    net = linked(fleet_dir)
+    a, b = net.gss["A"], net.gss["B"]
+    ask = KeyShareAsk(b.identity, "B", "A", net.fleet.nodes["A"].public_bytes, "d1", net.now, wall=1_800_000_000.0 + net.now)
+    answer, _logs = a.on_linkkey_query("d1", ask.payload, net.now, bytes(32), 1_800_000_000.0 + net.now)
+    assert answer.reply is None and answer.error == b"live_link" and not answer.crypto
+    assert a.views["d1"].slot.candidates == [] and a.counters["linkkey_refused:live_link"] == 1
+
+
+def test_stale_pairing_replays_around_a_companion_restart_cost_nothing_and_the_owner_comes_back(fleet_dir):
+    """Issue 18, finding 3: captured message 1s of A replayed right after a companion restart are stale
+    (made before the companion started): no handshake, no token, no candidate displaced; A re-pairs
+    within the grace and keeps its epoch."""
+    net = linked(fleet_dir)
+    net.on_ground = False
+    net.fly(net.centre("A"), net.between(net.centre("A"), net.centre("B"), 0.2), 5.0)
+    captured = [m1 for gs, m1 in net.captured_pairings if gs == "A"]
+    assert captured
+    net.restart_drone()
+    drone = net.drone
+    for m1 in captured * 5:  # replayed at once, before A's own re-pairing
+        ans, _ = drone.on_pair_query("A", m1, net.now, bytes(32), 1_800_000_000.0 + net.now)
+        assert ans.refused == "stale"  # type: ignore[union-attr]
+    assert drone.counters["pair_refused:stale"] == len(captured) * 5 and "A" not in drone.slots
+    restarted = net.now
+    net.run(3.0, dt=0.05)
+    m = drone.machine
+    assert m.owner == "A" and m.state is State.LINKED and m.epoch == 1 and not net.commands
+    paired = [r for r in net.records if isinstance(r, rec.Paired) and r.gs == "A"]
+    assert paired, "A re-paired"
+    # A notices the silence after 1 s and then tries every 0.2 s: back well inside the 3 s grace
+    assert drone.machine.links["A"].state.value == "ok" and net.now - restarted <= 3.0
+
+
+def test_a_pairing_message_older_than_30_s_is_stale_even_for_a_fresh_companion(fleet_dir):
+    net = FleetNet(fleet_dir)
+    gs = net.add_gs("A")
+    old = PairingInitiator(gs.identity, "A", "d1", net.fleet.nodes["d1"].public_bytes, stamp=1_800_000_000.0 - 40).start()
+    ans, _ = net.drone.on_pair_query("A", old, 0.0, bytes(32), 1_800_000_000.0)
+    assert ans.refused == "stale" and ans.silent  # type: ignore[union-attr]
+
+
+def test_a_third_partys_grant_never_replaces_a_live_link_on_the_drone(fleet_dir):
+    """The authority (here A, as if malicious) grants a fresh key for B while B's link is alive and
+    proves it as B: the drone keeps B's live key and counts the attempt."""
+    from zdrone.core.wire import KeyGrant
+
+    net = linked(fleet_dir)
+    a = net.gss["A"]
+    view = a.views["d1"]
+    net.run(1.0)
+    live_b = net.drone.links["B"]
+    secret = bytes(range(32))
+    net.gs_outs("A", a.send_control(view, KeyGrant("B", net.fleet.nodes["B"].sysid, secret, 99)))
+    assert len(net.drone.slots["B"].candidates) == 1
+    from zdrone.core.envelope import SecureLink
+    from zdrone.core.keys import LinkKey
+    from zdrone.core.mavlink import FrameCodec
+    from pymavlink.dialects.v20 import common as mav
+
+    forged = SecureLink(key=LinkKey.from_secret("d1", "B", secret), role="gs", tx_keyexpr="zdrone/d1/up/B",
+                        rx_keyexpr="zdrone/d1/down/B", peer_sysid=1, now=net.now)
+    hb = FrameCodec(net.fleet.nodes["B"].sysid, 190).encode(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+    net.drone_outs(net.drone.on_envelope("B", forged.seal(hb), net.now))
+    assert net.drone.links["B"] is live_b and net.drone.slots["B"].live_protected == 1
