@@ -29,12 +29,32 @@ def _fleet_init(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fleet_show(args: argparse.Namespace) -> int:
-    from .fleet.files import load_fleet, load_secret
+def _fleet_export(args: argparse.Namespace) -> int:
+    from .fleet.bundle import export_bundle
 
+    b = export_bundle(args.dir, args.node, args.out)
+    print(f"wrote {args.out}: the bundle of {b.node} ({b.role}{', TLS' if b.tls else ''}): " + ", ".join(b.files))
+    return 0
+
+
+def _fleet_show(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .fleet.bundle import BUNDLE_FILE, check_bundle
+    from .fleet.files import fleet_path, load_fleet, load_secret
+
+    if (fleet_path(args.dir).parent / BUNDLE_FILE).is_file():
+        b = check_bundle(fleet_path(args.dir).parent) if args.check_secrets else None
+        if b is not None:
+            print(f"bundle of {b.node} ({b.role}{', TLS' if b.tls else ''}): its own secrets only, "
+                  f"files: {', '.join(b.files)}")
+    elif args.check_secrets and (Path(fleet_path(args.dir).parent) / "tls" / "ca.key").exists():
+        print("a whole fleet directory (every node's secret and the CA key): for the issuing machine, not a host; "
+              "give each host its bundle (zdrone fleet export NODE)")
     fleet = load_fleet(args.dir)
+    in_bundle = (fleet_path(args.dir).parent / BUNDLE_FILE).is_file()
     for name, node in fleet.nodes.items():
-        load_secret(args.dir, name, fleet) if args.check_secrets else None
+        load_secret(args.dir, name, fleet) if args.check_secrets and not in_bundle else None
         extra = f" authorized: {','.join(node.authorized_gs) or '-'}" if node.role == "drone" else (
             f" coverage: {node.coverage.lat:.6f},{node.coverage.lon:.6f} r={node.coverage.radius_m:g} m" if node.coverage else "")
         print(f"{name:6} {node.role:5} sysid {node.sysid:3}{extra}")
@@ -168,8 +188,15 @@ def build_parser() -> argparse.ArgumentParser:
     fi.set_defaults(func=_fleet_init)
     fs = fsub.add_parser("show", help="validate and list a fleet")
     fs.add_argument("--dir", default="fleet", help="fleet directory or fleet.json5 path")
-    fs.add_argument("--check-secrets", action="store_true", help="also load and check every secret file")
+    fs.add_argument("--check-secrets", action="store_true",
+                    help="also load and check every secret file; on a bundle: say whose it is, and refuse it if it "
+                         "holds any other node's secret or the CA key")
     fs.set_defaults(func=_fleet_show)
+    fe = fsub.add_parser("export", help="write one host's bundle: exactly the files that node (or the router) needs")
+    fe.add_argument("node", metavar="NODE", help="a node of the fleet (d1, A, …), router, or a site router (site-1, …)")
+    fe.add_argument("--dir", default="fleet", help="the fleet directory (default: ./fleet)")
+    fe.add_argument("--out", required=True, metavar="DIR", help="the bundle's folder (new or empty)")
+    fe.set_defaults(func=_fleet_export)
 
     bench = sub.add_parser("bench", help="measure sizes, speeds and hand-over figures")
     bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH", parser_class=_Parser)

@@ -71,7 +71,11 @@ def test_a_signal_to_the_demo_in_flight_leaves_no_process(run_dir, sig):
     terminal, or the OOM killer)."""
     with spawn(ZDRONE, "demo", "--out", str(run_dir), "--no-live", "--no-report", "--speedup", "4") as demo:
         demo.wait_line("authority None -> A", 120)
-        assert len(processes_of(run_dir)) == 5, processes_of(run_dir)
+        running = processes_of(run_dir)
+        assert len(running) == 5, running
+        for node in ("drone --id d1 --fleet bundles/d1", "gs --id A --fleet bundles/A", "gs --id B --fleet bundles/B",
+                     "router -c bundles/router/router/router.json5"):  # each from its own bundle alone
+            assert any(node in cmd for cmd in running), (node, running)
         sent = time.monotonic()
         demo.p.send_signal(sig)
         rc = demo.p.wait(30)

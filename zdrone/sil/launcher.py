@@ -751,7 +751,8 @@ class Demo:
             if tls:
                 self.router = f"tls/127.0.0.1:{rport}"
             init_fleet(self.out / "fleet", tls=tls)
-            r = self.start("router", self._z() + ["router", "-c", "fleet/router/router.json5", "--listen", self.router]
+            self._export_bundles(["router"])
+            r = self.start("router", self._z() + ["router", "-c", "bundles/router/router/router.json5", "--listen", self.router]
                            + (["--tap", "tap.json"] if o.tap else []))
             self.wait_line(r, "listening", 20)
         if o.vehicle is not None:
@@ -791,6 +792,7 @@ class Demo:
         self.router = site_eps[0]
         fleet = init_fleet(self.out / "fleet", sites=site_eps)
         self.sites = load_sites(self.out / "fleet")
+        self._export_bundles(list(self.sites))
         names = list(self.sites)
         ports = {site: int(self.sites[site]["endpoint"].rsplit(":", 1)[1]) for site in names}
         for n, site in enumerate(names):
@@ -800,7 +802,7 @@ class Demo:
                 self.links[link.name] = link
                 connect += ["--connect", f"tls/{link.endpoint}"]
             name = "router" if n == 0 else f"router{n + 1}"
-            r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5", *connect])
+            r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", *connect])
             self.wait_line(r, "listening", 20)
         radios = {site: RadioLink(site, ("127.0.0.1", ports[site]), up=self.opts.vehicle is not None) for site in names}
         self.links.update(radios)
@@ -816,10 +818,11 @@ class Demo:
         port = 7447  # each router alone in its namespace
         fleet = init_fleet(self.out / "fleet", sites=[f"tls/{topo.radio_ip[site]}:{port}" for site in names])
         self.sites = load_sites(self.out / "fleet")
+        self._export_bundles(list(self.sites))
         self.router = f"tls/127.0.0.1:{port}"  # inside site 1's namespace (the attackers run there)
         for n, site in enumerate(names):
             name = "router" if n == 0 else f"router{n + 1}"
-            r = self.start(name, self._z() + ["router", "-c", f"fleet/router/{site}.json5", "--listen",
+            r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", "--listen",
                                               f"tls/127.0.0.1:{port}", "--listen", f"tls/{topo.radio_ip[site]}:{port}"],
                            ns=topo.site_ns[site])
             self.wait_line(r, "listening", 20)
@@ -942,14 +945,25 @@ class Demo:
     def _common(self, node: str | None = None) -> list[str]:
         """Fleet and router options of a node: with sites, a GS uses its site's router and the drone
         every site's (Zenoh moves it to another when its router dies)."""
+        bundle = ["--fleet", f"bundles/{node or 'd1'}"]  # every node runs from its own bundle alone
         if self.sites and node is None:  # the drone: one session per site, through that site's radio
-            return ["--fleet", "fleet"] + [a for ep in self.site_of_endpoint for a in ("--router", ep)]
+            return bundle + [a for ep in self.site_of_endpoint for a in ("--router", ep)]
         router = self.router
         if self.netns is not None:  # each GS reaches its own site's router inside the site's namespace
-            return ["--fleet", "fleet", "--router", router]
+            return bundle + ["--router", router]
         if self.sites:
             router = next(s["endpoint"] for s in self.sites.values() if node in s["ground_stations"])
-        return ["--fleet", "fleet", "--router", router]
+        return bundle + ["--router", router]
+
+    def _export_bundles(self, routers: list[str]) -> None:
+        """A bundle per host from the run's fleet (``bundles/<node>``: ``zdrone fleet export``), which
+        each node and router runs from: nothing of the run's nodes sees another's secret. The
+        attackers keep the whole fleet directory (they stand for stolen secrets)."""
+        from ..fleet.bundle import export_bundle
+        from ..fleet.files import load_fleet
+
+        for node in [*load_fleet(self.out / "fleet").nodes, *routers]:
+            export_bundle(self.out / "fleet", node, self.out / "bundles" / node)
 
     def _fire(self, trigger: str, live: "LiveView | None", t: float | None = None) -> None:
         """The flight reached ``trigger``: start, unleash or fault what the scenario ties to it."""
