@@ -104,8 +104,8 @@ class GroundStation:
     def _do(self, actions: list[Action]) -> None:
         """Carry out the core's actions."""
         for a in actions:
-            if isinstance(a, Put):
-                self.rt.put(a.keyexpr, a.payload)
+            if isinstance(a, Put):  # a link frame on an uplink key: paced, priority, express
+                self.rt.put_link(a.keyexpr, a.payload, time.monotonic())
             elif isinstance(a, FrameUp):
                 for listener in self.frame_listeners:
                     listener(a.drone, a.frame)
@@ -208,6 +208,17 @@ class GroundStation:
         """One pass of the loop."""
         self._serve_linkkeys(now)
         self._do(self.core.tick(now, time.time()))
+        self.rt.flush(now)
+
+    def wait_time(self, until: float) -> float:
+        """How long the loop may wait for input: until ``until``, the next tick or the next paced
+        frame, whichever comes first."""
+        now = time.monotonic()
+        due = [until - now, self.tick_period()]
+        paced = self.rt.next_flush()
+        if paced is not None:
+            due.append(paced - now)
+        return max(0.0, min(due))
 
     def drain(self, timeout: float) -> None:
         self.rx.drain(timeout, self._on_inbox)
@@ -227,14 +238,14 @@ class GroundStation:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)
         self.events.write("start", drones=list(self.views))
         next_status = next_view = 0.0
-        tick = self.tick_period()
         try:
             while self.rt.running:
-                self.drain(max(0.0, min(next_status - time.monotonic(), tick)))
+                self.drain(self.wait_time(next_status))
                 now = time.monotonic()
                 self.step(now)
                 for hook in self.loop_hooks:
                     hook(now)
+                self.rt.flush(now)
                 if now >= next_status:
                     next_status = now + self.opts.status_period
                     self.events.write("status", **self.status())

@@ -1,13 +1,19 @@
-"""The router's size limit holds for a client on the same host (no shared-memory way around it)."""
+"""The router's limits: the size limit holds for a client on the same host (no shared-memory way
+around it); each uplink key's rate is limited, so a flood on one GS's key leaves another's alone."""
 
 from __future__ import annotations
 
 import socket
+import sys
 import threading
+import time
+
+import zenoh
 
 from tests.procs import ZDRONE, free_port, spawn
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet import keyexprs as kx
+from zdrone.fleet.routerconfig import UPLINK_MAX_HZ, UPLINK_PACE_S
 from zdrone.net.session import open_client
 
 
@@ -32,9 +38,68 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
                 threading.Event().wait(0.1)
             assert got, "no route from A to the drone"
             a.put(kx.up("d1", "A"), b"x" * 70_000)
+            time.sleep(UPLINK_PACE_S)  # puts on one uplink key further apart than the router's rate limit
             a.put(kx.up("d1", "A"), b"y" * 500)
             assert small.wait(10.0), "the small message after the big one never arrived"
             assert 70_000 not in got
+        finally:
+            sub.undeclare()
+            a.close()
+            d.close()
+
+
+FLOODER = """
+import sys, time, zenoh
+from zdrone.net.session import open_client
+s = open_client(sys.argv[1], "B", sys.argv[2])
+print("flooding", flush=True)
+n, t0 = 0, time.monotonic()
+while time.monotonic() - t0 < float(sys.argv[3]):
+    for _ in range(500):
+        s.put("zdrone/d1/up/B", b"j" * 40, congestion_control=zenoh.CongestionControl.DROP)
+    n += 500
+print("sent", n, round(time.monotonic() - t0, 3), flush=True)
+s.close()
+"""
+
+
+def test_a_flood_on_one_uplink_key_is_cut_to_its_rate_and_another_key_is_not_held_back(tmp_path):
+    """Bounded ingress, in the router of zenoh-python: a process with B's password floods up/B as fast
+    as it can while A sends a frame every 20 ms on up/A; the drone gets up/B at the key's rate limit
+    at most, and A's frames keep coming (a few may be lost while the flood saturates the machine)."""
+    init_fleet(tmp_path / "fleet")
+    fleet = tmp_path / "fleet"
+    ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    with spawn(ZDRONE, "router", "-c", str(fleet / "router" / "router.json5"), "--listen", ep) as router:
+        router.wait_line("listening", 20)
+        d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
+        a = open_client(ep, "A", load_secret(fleet, "A").router_password)
+        got: dict[str, list[float]] = {"A": [], "B": []}
+        sub = d.declare_subscriber(kx.up("d1", "*"), lambda s: got[kx.gs_of(s.key_expr)].append(time.monotonic()))
+        try:
+            for _ in range(50):  # until the route exists
+                a.put(kx.up("d1", "A"), b"a")
+                time.sleep(0.1)
+                if got["A"]:
+                    break
+            assert got["A"], "no route from A to the drone"
+            with spawn(sys.executable, "-c", FLOODER, ep, load_secret(fleet, "B").router_password, "2.0") as flooder:
+                flooder.wait_line("flooding", 20)
+                t0, sent_a = time.monotonic(), 0
+                got["A"].clear()
+                while flooder.p.poll() is None and time.monotonic() - t0 < 20.0:
+                    time.sleep(0.02)
+                    a.put(kx.up("d1", "A"), b"a" * 40, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
+                    sent_a += 1
+                _, n, seconds = flooder.wait_line("sent", 10).split()
+            time.sleep(0.3)
+            flood_rate = int(n) / float(seconds)
+            nb = sum(1 for t in got["B"] if t >= t0)
+            assert flood_rate > 20 * UPLINK_MAX_HZ, f"the flood was not one: {flood_rate:.0f}/s"
+            assert nb <= 1.2 * UPLINK_MAX_HZ * float(seconds) + 20, f"up/B not limited: {nb} in {seconds} s"
+            gaps = [y - x for x, y in zip(got["A"], got["A"][1:])]
+            assert len(got["A"]) >= 0.9 * sent_a and max(gaps) < 0.5, \
+                f"A's frames held back: {len(got['A'])} of {sent_a}, longest gap {max(gaps):.3f} s"
         finally:
             sub.undeclare()
             a.close()

@@ -35,3 +35,16 @@ def test_acl_is_default_deny_and_scoped_per_identity():
     assert not any(r["id"].startswith("d1-") and "query" in r["messages"] and "ingress" in r["flows"] for r in acl["rules"])
     subjects = {s["id"]: s["usernames"] for s in acl["subjects"]}
     assert subjects == {"user-d1": ["d1"], "user-A": ["A"], "user-B": ["B"], "user-X": ["X"]}
+
+
+def test_each_uplink_key_has_its_own_rate_limit_per_sending_session():
+    """Bounded ingress: one downsampling rule per (drone, GS) uplink key, on ingress (per sending
+    session), so a flood on up/B spends up/B's budget only; a GS paces its frames well above the
+    router's interval."""
+    from zdrone.fleet.routerconfig import UPLINK_MAX_HZ, UPLINK_PACE_S
+
+    (ds,) = router_config(default_fleet(), "c.txt")["downsampling"]
+    assert ds["flows"] == ["ingress"] and ds["messages"] == ["put"]
+    assert {r["key_expr"] for r in ds["rules"]} == {"zdrone/d1/up/A", "zdrone/d1/up/B", "zdrone/d1/up/X"}
+    assert all(r["freq"] == UPLINK_MAX_HZ for r in ds["rules"])
+    assert UPLINK_PACE_S >= 4 / UPLINK_MAX_HZ

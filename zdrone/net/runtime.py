@@ -14,8 +14,10 @@ A node (the drone companion, a ground station) is a pure machine plus this runti
   ``Inbox`` (refusing oversized payloads by length); the node's single loop thread drains it;
 * **queryables** (bounded rings, drained by the loop) and **subscriptions**, tracked so that
   ``close`` undeclares them all;
-* **publishing** (``put``: ``session.put`` with congestion control DROP) and **asking** (``ask``:
-  an asynchronous query to every queryable, every reply back through the inbox);
+* **publishing** (``put``: ``session.put`` with congestion control DROP; ``put_link``: a link frame
+  from a GS, paced per key to the router's uplink rate limit and sent at a priority above the data
+  class, express) and **asking** (``ask``: an asynchronous query to every queryable, every reply back
+  through the inbox);
 * **the event log**, **stop** (from the signal thread), and **close** (each step on its own, so a
   session the signal thread closed does not stop the rest).
 
@@ -33,16 +35,21 @@ import zenoh
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet, Node
 from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
-from ..fleet.routerconfig import SITE_LEASE_MS
+from ..fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
 from ..fleet.tls import node_files
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, Inbox, reply_bytes
+from .pacing import Pacer
 from .paths import PathQueryable, RecentPayloads, SessionPath
 from .session import open_client, query_queue
 
 log = logging.getLogger(__name__)
 
 ROLE_NAMES = {"drone": "a drone", "gs": "a ground station"}
+#: The Zenoh priority of link frames from a GS (heartbeats, commands, control messages): above the
+#: data class every other publication uses, so in a router's queue to the drone they pass before
+#: bulk traffic (each priority has its own queue).
+LINK_PRIORITY = zenoh.Priority.INTERACTIVE_HIGH
 
 
 class NodeRuntime:
@@ -61,6 +68,7 @@ class NodeRuntime:
         self.router = " + ".join(routers)
         self.events = EventLog(events, name)
         self.inbox = Inbox()
+        self.pacer = Pacer(UPLINK_PACE_S, self.inbox.drop)
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
         self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
@@ -163,16 +171,34 @@ class NodeRuntime:
             return [self.paths[0].session]
         return [p.session for p in self.paths if p.connected()]
 
-    def put(self, keyexpr: str, payload: bytes) -> None:
+    def put(self, keyexpr: str, payload: bytes, link: bool = False) -> None:
         """Publish (``session.put``: through an ACL router, a declared publisher's samples after the
         first are not delivered in zenoh 1.10; ``session.put``'s are). Never blocks: DROP. With
         several paths: through every one that has its router, so that losing one costs nothing and
-        a site cut off from the others still hears us (none: counted ``put:no_path``)."""
+        a site cut off from the others still hears us (none: counted ``put:no_path``). A ``link``
+        frame goes at ``LINK_PRIORITY``, express (not held back to fill a batch)."""
         sessions = self._out()
         if not sessions:
             self.inbox.drop("put:no_path")
+        qos: dict[str, Any] = {"priority": LINK_PRIORITY, "express": True} if link else {}
         for s in sessions:
-            s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP)
+            s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP, **qos)
+
+    def put_link(self, keyexpr: str, payload: bytes, now: float) -> None:
+        """Publish a GS's link frame on an uplink key, paced: at once if the key's last put is
+        ``UPLINK_PACE_S`` old, else in its turn (``flush``), so that the router's per-key rate limit
+        never drops it. The node's loop calls ``flush`` every pass and wakes by ``next_flush``."""
+        if self.pacer.offer(keyexpr, payload, now):
+            self.put(keyexpr, payload, link=True)
+
+    def flush(self, now: float) -> None:
+        """Publish the paced frames whose turn has come."""
+        for keyexpr, payload in self.pacer.due(now):
+            self.put(keyexpr, payload, link=True)
+
+    def next_flush(self) -> float | None:
+        """When the next paced frame is due, or None if none waits."""
+        return self.pacer.next_due()
 
     def ask(self, keyexpr: str, payload: bytes, timeout: float, kind: str, peer: str,
             wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r) -> None:
