@@ -149,11 +149,16 @@ def _bench_attack(args: argparse.Namespace) -> int:
         bad = [n for n in names if n not in ATTACK_SCENARIOS]
         if bad:
             raise UsageError(f"--scenarios: unknown {bad[0]!r} (attack scenarios: {', '.join(ATTACK_SCENARIOS)})")
-    if args.trials is not None and not 1 <= args.trials <= 20:
-        raise UsageError(f"--trials {args.trials}: must be 1..20")
+    if args.trials is not None and not 0 <= args.trials <= 20:
+        raise UsageError(f"--trials {args.trials}: must be 0..20")
+    if args.junk_trials is not None and not 0 <= args.junk_trials <= 20:
+        raise UsageError(f"--junk-trials {args.junk_trials}: must be 0..20")
     if not 1.0 <= args.rate <= 100_000.0:
         raise UsageError(f"--rate {args.rate:g}: must be 1..100000 queries/s")
-    result = attack.run(quick=args.quick, scenarios=names, trials=args.trials, rate=args.rate, progress=not args.json)
+    if not 1.0 <= args.junk_rate <= 1_000_000.0:
+        raise UsageError(f"--junk-rate {args.junk_rate:g}: must be 1..1000000 puts/s")
+    result = attack.run(quick=args.quick, scenarios=names, trials=args.trials, rate=args.rate, progress=not args.json,
+                        junk_rate=args.junk_rate, junk_trials=args.junk_trials)
     _emit(args, result, attack.render)
     return 0 if result["all_ok"] else 1
 
@@ -244,12 +249,16 @@ def build_parser() -> argparse.ArgumentParser:
                          "(default 256; a drained queue is freed) to N in the GSs host; every row says so")
     bs.set_defaults(func=_bench_scale)
 
-    ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood")
+    ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "
+                                          "the authority's link under junk on another GS's key")
     ba.add_argument("--json", action="store_true", help="print JSON instead of a table")
     ba.add_argument("--quick", action="store_true", help="the pair-flood scenario and 1 flood trial only")
     ba.add_argument("--scenarios", metavar="S,S,…", help="attack scenarios to fly (default: all; '' for none)")
     ba.add_argument("--trials", type=int, metavar="N", help="failsafe-under-flood trials (default 3)")
     ba.add_argument("--rate", type=float, default=2500.0, metavar="Q", help="pairing queries per second of the flood (2500)")
+    ba.add_argument("--junk-trials", type=int, metavar="N",
+                    help="trials of A's link under junk on B's key (default 3; --quick: none)")
+    ba.add_argument("--junk-rate", type=float, default=80_000.0, metavar="P", help="junk puts per second on up/B (80000)")
     ba.set_defaults(func=_bench_attack)
     bc = bsub.add_parser("chaos", help="seeded random fault schedules over the reference flight; safety invariants")
     bc.add_argument("--json", action="store_true", help="print JSON instead of a table")

@@ -14,27 +14,46 @@ stopped (SIGSTOP). The drone's ``failsafe`` event gives ``detect_to_command_ms``
 CPU time (``/proc/PID/stat`` utime + stime) over the flood, divided by the pairing queries it
 handled, is the cost of one refused query; "net" subtracts the CPU the drone spent per second just
 before the flood. A trial without a flood gives the baseline lateness.
+
+Part 3 floods another GS's key. Router, simulator, drone, GS A and GS B; the vehicle stands on the
+ground inside both coverages, nearer A (``JUNK_EAST_M`` east of home), so A pairs, holds authority,
+shares B's key, and the drone listens to B's uplink too. An attacker holding B's router password
+publishes junk on ``zdrone/<drone>/up/B`` at ``--junk-rate`` puts per second (80 000) for 10 s. From
+the drone's log: the worst TBM state of A's link and its longest stretch out of OK during the flood,
+the longest silence of A's link seen in its status, and how much of the flood reached the drone
+(its security module's drops on B's link). Goal: A never LOST, never out of OK for more than 1 s.
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import socket
 import statistics
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
-from ..core.records import AnyRecord, DroneStatus, Failsafe, Paired, R, fields_of, only, record_type
+from ..core.geometry import offset
+from ..core.records import (AnyRecord, DroneStatus, Failsafe, LinkConfirmed, LinkStateChanged, Paired, R, fields_of,
+                            only, record_type)
+from ..core.reference import HOME
 from ..net.eventlog import read_records
-from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec
+from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec, free_port
 from .table import ProgressLine
 
 SPEEDUP = 4.0
 FLOOD_SECONDS = 10.0
 STOP_AFTER = 3.0  # seconds into the flood at which GS A goes silent
 DEFAULT_RATE = 2500.0
+JUNK_RATE = 80_000.0
+JUNK_SECONDS = 10.0
+#: Where the vehicle stands during the junk flood: inside A's and B's coverage, nearer A (A releases
+#: authority only toward a GS nearer than itself by the hysteresis).
+JUNK_EAST_M = 200.0
+#: A's link may leave OK for at most this long under the flood (and never be LOST).
+JUNK_NOT_OK_GOAL_S = 1.0
 
 
 # ----------------------------------------------------------------- part 1: scenarios
@@ -139,6 +158,97 @@ def _failsafe_trial(base: Path, i: int, rate: float | None) -> dict[str, Any]:
     return row
 
 
+# ------------------------------------------------------------ part 3: junk on another GS's key
+def _not_ok_periods(events: list[AnyRecord], gs: str, t0: float, t1: float) -> tuple[str, float]:
+    """The worst TBM state of ``gs``'s link in [t0, t1] (wall time) and its longest stretch out of OK
+    (a stretch that began before t0 or lasts past t1 counts from or until then)."""
+    rank = {"ok": 0, "degraded": 1, "lost": 2}
+    changes = [(e.t, str(getattr(e.state, "value", e.state))) for e in only(events, LinkStateChanged) if e.gs == gs]
+    state = "ok"  # the state at t0
+    for t, st in changes:
+        if t < t0:
+            state = st
+    worst, since, longest = state, (t0 if state != "ok" else None), 0.0
+    for t, st in changes:
+        if not t0 <= t <= t1:
+            continue
+        worst = st if rank.get(st, 0) > rank.get(worst, 0) else worst
+        if st == "ok" and since is not None:
+            longest, since = max(longest, t - since), None
+        elif st != "ok" and since is None:
+            since = t
+    if since is not None:
+        longest = max(longest, t1 - since)
+    return worst, round(longest, 3)
+
+
+def _junk_flood_trial(base: Path, i: int, rate: float) -> dict[str, Any]:
+    """One trial: A holds authority with the vehicle in the overlap, B linked; junk on up/B."""
+    d = base / f"junk-flood-{i}"
+    d.mkdir(parents=True, exist_ok=True)
+    port = free_port(socket.SOCK_DGRAM)
+    spot = offset(HOME, 0.0, JUNK_EAST_M)
+    demo = Demo(DemoOptions(out=d, speedup=1.0, quiet=True, live=False, report=False, command_rate=0.0,
+                            vehicle=f"udpout:127.0.0.1:{port}"), d.resolve())
+    row: dict[str, Any] = {"target_rate_per_s": rate}
+    try:
+        sim = demo.start("sim", ["-m", "zdrone", "-v", "sim", "--mavlink", f"udpin:127.0.0.1:{port}",
+                                 "--home", f"{spot.lat:.7f},{spot.lon:.7f}"])
+        demo.wait_line(sim, "zdrone sim:", 20)
+        demo.start_core()
+        demo.start_gs("B")
+        demo.start_gs("A", "--pair")
+        if _wait_event(d / "drone.jsonl", Paired, 30.0) is None:
+            raise RuntimeError("A did not pair")
+        deadline = time.monotonic() + 30.0
+        while not _b_heard(d / "drone.jsonl"):  # B's shared key proven and B's uplink listened to
+            if time.monotonic() > deadline:
+                raise RuntimeError("the drone never listened to B's uplink")
+            time.sleep(0.2)
+        pid = demo.children["drone"].proc.pid
+        time.sleep(2.0)
+        rogue = demo.start_rogue(RogueSpec("junk-flood", "bench", rate=rate), duration=JUNK_SECONDS)
+        demo.wait_line(rogue, "rogue: flooding", 30)
+        c0, t0 = _cpu_seconds(pid), time.time()
+        demo.wait_line(rogue, "rogue: flood done", JUNK_SECONDS + 30)
+        c1, t1 = _cpu_seconds(pid), time.time()
+        time.sleep(1.5)  # the drone's next statuses
+        events = read_records(d / "drone.jsonl").records
+        done = next((fields_of(e) for e in read_records(d / "rogue.jsonl").records if record_type(e) == "attack_done"), {})
+        worst, not_ok = _not_ok_periods(events, "A", t0, t1 + 1.0)
+        during = [e for e in only(events, DroneStatus) if t0 <= e.t <= t1 + 1.0]
+        silence = max((e.links["A"].since_last for e in during if "A" in e.links), default=None)
+        owners = sorted({e.owner or "-" for e in during})
+        last = during[-1] if during else None
+        b_drops = dict(last.links["B"].dropped) if last is not None and "B" in last.links else {}
+        b_drops_before = next((dict(e.links["B"].dropped) for e in reversed(only(events, DroneStatus))
+                               if e.t < t0 and "B" in e.links), {})
+        reached = sum(b_drops.values()) - sum(b_drops_before.values())
+        row |= {"flood_rate_per_s": done.get("rate"), "sent": done.get("sent"), "a_worst_state": worst.upper(),
+                "a_longest_not_ok_s": not_ok, "a_longest_silence_s": silence, "owners": owners,
+                "junk_reached_drone": reached, "junk_reached_per_s": round(reached / (t1 - t0), 1),
+                "drone_cpu_pct_during_flood": round(100 * (c1 - c0) / (t1 - t0), 1),
+                "subscribed_b": bool(last is not None and "B" in last.subscribed),
+                "inbox_dropped": dict(last.inbox_dropped) if last is not None else {}}
+        row["ok"] = (worst != "lost" and not_ok <= JUNK_NOT_OK_GOAL_S and owners == ["A"] and row["subscribed_b"])
+    except RuntimeError as exc:
+        row |= {"error": str(exc), "ok": False}
+    finally:
+        demo.shutdown()
+    return row
+
+
+def _b_heard(path: Path) -> bool:
+    """B's key is proven on the drone and the drone listens to B's uplink."""
+    if not path.exists():
+        return False
+    events = read_records(path).records
+    confirmed = any(e.gs == "B" for e in only(events, LinkConfirmed)) or any(
+        "B" in e.links for e in only(events, DroneStatus))
+    st = only(events, DroneStatus)
+    return confirmed and bool(st) and "B" in st[-1].subscribed and "B" in st[-1].links
+
+
 def _counter(events: list[AnyRecord], name: str) -> int:
     """The drone's counter ``name`` in its last status (0 if none)."""
     st = only(events, DroneStatus)
@@ -150,10 +260,10 @@ def _stats(vals: list[float]) -> dict[str, float | None]:
 
 
 def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | None = None, rate: float = DEFAULT_RATE,
-        progress: bool = True) -> dict[str, Any]:
+        progress: bool = True, junk_rate: float = JUNK_RATE, junk_trials: int | None = None) -> dict[str, Any]:
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-attack-"))
     names = scenarios if scenarios is not None else (["pair-flood"] if quick else list(ATTACK_SCENARIOS))
-    m = trials or (1 if quick else 3)
+    m = trials if trials is not None else (1 if quick else 3)
     t0 = time.monotonic()
     status = ProgressLine(progress)
     rows = []
@@ -165,9 +275,13 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
         status.say(f"failsafe under a {rate:.0f}/s pairing flood: trial {i + 1}/{m}")
         flood.append(_failsafe_trial(base, i, rate))
     baseline = []
-    if not quick:
+    if not quick and m > 0:
         status.say("failsafe without a flood (baseline)")
         baseline.append(_failsafe_trial(base, 0, None))
+    junk = []
+    for i in range(junk_trials if junk_trials is not None else (0 if quick else 3)):
+        status.say(f"A's link under {junk_rate:.0f}/s junk on up/B: trial {i + 1}")
+        junk.append(_junk_flood_trial(base, i, junk_rate))
     status.close()
     late = [r["detect_to_command_ms"] for r in flood if r.get("detect_to_command_ms") is not None]
     per_q = [r["cpu_us_per_query"] for r in flood if r.get("cpu_us_per_query") is not None]
@@ -181,7 +295,10 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
                 "cpu_us_per_query": {"values": per_q, **_stats(per_q)},
                 "cpu_us_per_query_net": {"values": per_q_net, **_stats(per_q_net)},
                 "missing": m - len(late), "goal_ms": 100.0},
-            "all_ok": all(r["ok"] for r in rows) and len(late) == m and all(v <= 100.0 for v in late),
+            "authority_link_under_junk_flood": {"target_rate_per_s": junk_rate, "flood_s": JUNK_SECONDS,
+                                                "goal_not_ok_s": JUNK_NOT_OK_GOAL_S, "trials": junk},
+            "all_ok": all(r["ok"] for r in rows) and len(late) == m and all(v <= 100.0 for v in late)
+            and all(t["ok"] for t in junk),
             "wall_s": round(time.monotonic() - t0, 1), "runs": str(base)}
 
 
@@ -216,3 +333,15 @@ def render(r: dict[str, Any]) -> None:
                 ["trial", "queries/s sent", "queries handled", "LAND after threshold ms", "drone CPU µs/query",
                  "net µs/query", "drone CPU %", "answered"], rows,
                 caption="goal: LAND <= threshold + 100 ms under any input load")
+    j = r.get("authority_link_under_junk_flood")
+    if j and j["trials"]:
+        rows = [[f"junk {i + 1}", t.get("flood_rate_per_s", "-"), t.get("sent", "-"), t.get("junk_reached_per_s", "-"),
+                 t.get("a_worst_state", "-"), t.get("a_longest_not_ok_s", "-"), t.get("a_longest_silence_s", "-"),
+                 ",".join(t.get("owners", [])) or "-", t.get("drone_cpu_pct_during_flood", "-"),
+                 "OK" if t["ok"] else "FAILED" + (f": {t['error']}" if "error" in t else "")]
+                for i, t in enumerate(j["trials"])]
+        print_table(f"A's link under junk on up/B ({j['target_rate_per_s']:.0f} puts/s for {j['flood_s']:.0f} s; "
+                    "A holds authority, vehicle in the overlap, B linked)",
+                    ["trial", "junk puts/s sent", "junk puts sent", "reached drone /s", "A worst", "A out of OK s",
+                     "A silence s (status)", "authority", "drone CPU %", "result"], rows,
+                    caption=f"goal: A never LOST, out of OK <= {j['goal_not_ok_s']:.0f} s")

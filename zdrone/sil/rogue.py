@@ -48,6 +48,12 @@ envelopes on ``zdrone/<drone>/up/B``, pairing queries to the drone as B and key-
 router drops messages over 64 KiB; the nodes refuse the rest by their length before copying them
 (``up:oversize``, ``pair_refused:oversize``, ``linkkey_refused:oversize``) and fly on.
 
+``junk-flood``: B's router password only. Publishes junk envelopes on ``zdrone/<drone>/up/B`` as fast
+as ``--rate`` asks (default 80 000/s), paced in 5 ms slices: 40 random bytes whose epoch byte is, in
+turn, 0 and 1 (the live epoch and the next one of a fresh link: each costs the drone one AEAD
+attempt) and any other value (unknown epoch). The router cuts the key to its rate limit; GS A's
+link, on its own key, must stay OK.
+
 ``gateway-flood``: a local process on GS A's machine (no credentials). Sends HEARTBEATs from 300+
 distinct UDP source ports and garbage datagrams to A's GCS gateway; A must keep flying and count
 the applications it refused (``app_table_full``).
@@ -105,7 +111,7 @@ from ..net.session import open_client
 log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
-         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "no-cert")
+         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert")
 ROGUE_COMPID = 190
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
 GO_TIMEOUT = 600.0
@@ -604,6 +610,40 @@ def big_flood(c: Ctx) -> None:
         s.close()
 
 
+def junk_flood(c: Ctx) -> None:
+    drone = c.drone
+    s = open_client(c.router, "B", c.password("B"))
+    rng = random.Random(19)
+    pool = [bytes([e]) + rng.randbytes(39) for e in (0, 1, 7) for _ in range(64)]  # epochs 0, 1, unknown
+    rng.shuffle(pool)
+    key = kx.up(drone, "B")
+    drop = zenoh.CongestionControl.DROP
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        print(f"rogue: flooding at {c.rate:.0f} puts/s for {c.duration:.0f} s", flush=True)
+        c.events.write("flood_start", target_rate=c.rate)
+        t0 = time.monotonic()
+        going = c.attack_window()
+        sent = 0
+        while going():
+            due = int((time.monotonic() - t0) * c.rate)
+            if sent >= due:
+                time.sleep(0.0005)
+                continue
+            for i in range(sent, min(due, sent + max(1, int(c.rate / 200)))):  # at most a 5 ms slice at once
+                s.put(key, pool[i % len(pool)], congestion_control=drop)
+            sent = min(due, sent + max(1, int(c.rate / 200)))
+        elapsed = time.monotonic() - t0
+        rate = sent / elapsed if elapsed > 0 else 0.0
+        print(f"rogue: flood done: {sent} puts in {elapsed:.2f} s ({rate:.0f}/s)", flush=True)
+        c.events.write("attack_done", sent=sent, seconds=round(elapsed, 3), rate=round(rate, 1), target_rate=c.rate,
+                       t_start=round(time.time() - elapsed, 4))
+    finally:
+        s.close()
+
+
 def _tls_session(router: str, user: str, password: str, ca: Path, cert: Path | None, key: Path | None) -> zenoh.Session:
     """A client of its own making: the fleet CA trusted for the router, any (or no) certificate."""
     tls: dict[str, Any] = {"root_ca_certificate": str(ca)}
@@ -671,7 +711,7 @@ ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
     "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
-    "big-flood": big_flood, "no-cert": no_cert,
+    "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert,
 }
 assert set(ATTACKS) == set(MODES)
 
