@@ -139,6 +139,16 @@ def _bench_chaos(args: argparse.Namespace) -> int:
     return 0 if result["violations"] == 0 else 1
 
 
+def _bench_restart(args: argparse.Namespace) -> int:
+    from .bench import restart
+
+    if not 1 <= args.runs <= 200:
+        raise UsageError(f"--runs {args.runs}: must be 1..200")
+    result = restart.run(args.runs, quick=args.quick, progress=not args.json)
+    _emit(args, result, restart.render)
+    return 0 if result["ok"] else 1
+
+
 def _bench_attack(args: argparse.Namespace) -> int:
     from .bench import attack
     from .sil.launcher import ATTACK_SCENARIOS
@@ -266,6 +276,11 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--runs", type=int, default=50, metavar="N", help="schedules to fly (default 50, ~40 s each)")
     bc.add_argument("--seed", type=int, default=1, help="seed of the first schedule (the next ones count up)")
     bc.set_defaults(func=_bench_chaos)
+    br = bsub.add_parser("restart", help="companion restarts in flight: time for the owner to re-pair (worst of N)")
+    br.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    br.add_argument("--quick", action="store_true", help="2 runs at most")
+    br.add_argument("--runs", type=int, default=20, metavar="N", help="flights, two at a time (default 20, ~40 s each)")
+    br.set_defaults(func=_bench_restart)
 
     ck = sub.add_parser("check", help="exhaustive bounded exploration of the authority protocol's decisions "
                         "(every interleaving of honest moves, faults and attackers), with invariants")

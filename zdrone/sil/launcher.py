@@ -342,7 +342,10 @@ def _check_companion_restart(o: Outcome) -> list[str]:
     why = flight_unaffected(o)
     why += _need(len(restored) == 1 and restored[0].owner == "A" and restored[0].epoch == 1,
                  f"not restored as A, epoch 1: {[logged(e) for e in restored]}")
-    why += _need(len([e for e in only(o.drone, Paired) if e.gs == "A"]) == 2, "A did not pair again")
+    paired = [e.t for e in only(o.drone, Paired) if e.gs == "A"]
+    why += _need(len(paired) == 2, "A did not pair again")
+    if restored and len(paired) == 2:  # the owner is back well inside the loss threshold (bench restart: <= 0.5 s)
+        why += _need(paired[1] - restored[0].t < 2.0, f"A re-paired {paired[1] - restored[0].t:.2f} s after the restart")
     return why
 
 
