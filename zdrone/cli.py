@@ -149,6 +149,31 @@ def _bench_restart(args: argparse.Namespace) -> int:
     return 0 if result["ok"] else 1
 
 
+def _bench_sweep(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .bench import sweep
+    from .sil.launcher import MOMENTS, SCENARIO_BY_NAME
+
+    names = [n for n in (args.scenarios or "").split(",") if n]
+    bad = [n for n in names if n not in SCENARIO_BY_NAME]
+    if bad:
+        raise UsageError(f"--scenarios: unknown scenario {bad[0]!r}")
+    moments = [m for m in (args.moments or "").split(",") if m]
+    if any(m not in MOMENTS for m in moments):
+        raise UsageError(f"--moments: one of {', '.join(MOMENTS)}")
+    try:
+        speedups = [float(x) for x in (args.speedups or "").split(",") if x]
+    except ValueError:
+        raise UsageError(f"--speedups {args.speedups}: numbers, e.g. 1,2,4") from None
+    if not 1 <= args.jobs <= 8:
+        raise UsageError(f"--jobs {args.jobs}: must be 1..8")
+    result = sweep.run(quick=args.quick, jobs=args.jobs, scenarios=names, speedups=speedups, moments=moments,
+                       out=Path(args.out) if args.out else None, progress=not args.json)
+    _emit(args, result, sweep.render)
+    return 0 if result["failed"] == 0 and result["cells"] > 0 else 1
+
+
 def _bench_attack(args: argparse.Namespace) -> int:
     from .bench import attack
     from .sil.launcher import ATTACK_SCENARIOS
@@ -281,6 +306,15 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--quick", action="store_true", help="2 runs at most")
     br.add_argument("--runs", type=int, default=20, metavar="N", help="flights, two at a time (default 20, ~40 s each)")
     br.set_defaults(func=_bench_restart)
+    bw = bsub.add_parser("sweep", help="every scenario at speed-ups 1, 2, 4 and each fault at every moment of the flight")
+    bw.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bw.add_argument("--quick", action="store_true", help="3 cells (~80 s, 2 at a time): the CI subset")
+    bw.add_argument("--jobs", type=int, default=2, metavar="N", help="flights at once (default 2)")
+    bw.add_argument("--scenarios", metavar="S,S,…", help="only these scenarios")
+    bw.add_argument("--speedups", metavar="X,X,…", help="only these speed-ups (of 1,2,4)")
+    bw.add_argument("--moments", metavar="M,M,…", help="only these fault moments")
+    bw.add_argument("--out", metavar="DIR", help="folder of the runs and cells.jsonl (default: a fresh temporary one)")
+    bw.set_defaults(func=_bench_sweep)
 
     ck = sub.add_parser("check", help="exhaustive bounded exploration of the authority protocol's decisions "
                         "(every interleaving of honest moves, faults and attackers), with invariants")

@@ -266,6 +266,15 @@ def _demo(args: argparse.Namespace) -> int:
     from .sil.launcher import SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
 
     live = True if args.live else (False if args.no_live else None)
+    moment = None
+    if args.moment:
+        from .sil.launcher import SCENARIO_BY_NAME
+
+        spec = SCENARIO_BY_NAME[args.scenario]
+        if args.moment not in spec.moments():
+            raise UsageError(f"--moment {args.moment}: scenario {args.scenario} can move its fault to "
+                             f"{', '.join(spec.moments()) or 'no other moment'}")
+        moment = args.moment if args.moment != spec.own_moment() else None
     if args.netns:
         from .sil.netns import netns_refusal
 
@@ -285,11 +294,11 @@ def _demo(args: argparse.Namespace) -> int:
                                 autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ()),
                                 sites=args.sites or args.netns or SCENARIO_SITES.get(args.scenario, False),
                                 netns=args.netns,
-                                tls=args.tls or SCENARIO_TLS.get(args.scenario, False)))
+                                tls=args.tls or SCENARIO_TLS.get(args.scenario, False), moment=moment))
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
-    from .sil.launcher import SCENARIOS, scenario_help
+    from .sil.launcher import MOMENTS, SCENARIOS, scenario_help
 
     p = sub.add_parser("demo", help="fly the reference flight with router, sim, drone and two GSs as processes",
                        epilog=scenario_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -299,6 +308,8 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speedup", type=positive, default=None,
                    help="simulator speed-up (default 2; with --vehicle 1: a real autopilot runs in real time)")
     p.add_argument("--timeout", type=positive, default=None, metavar="S", help="give up after S wall seconds")
+    p.add_argument("--moment", choices=tuple(MOMENTS), metavar="M",
+                   help=f"land the scenario's fault at another moment of the flight: {', '.join(MOMENTS)}")
     p.add_argument("--command-rate", type=float, default=5.0, metavar="HZ",
                    help="command stream of the authority GS, to check none is lost across hand-overs (5 Hz)")
     g = p.add_mutually_exclusive_group()

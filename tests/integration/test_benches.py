@@ -94,3 +94,14 @@ def test_bench_scale_bad_sites_are_one_line():
     for args in (["--sites", "4"], ["--sites", "1"], ["--drone-router", "all"], ["--sites", "3", "--drone-router", "near"]):
         out = subprocess.run([ZDRONE, "bench", "scale", *args], capture_output=True, text=True)
         assert out.returncode == 2 and out.stderr.count("\n") == 1 and "Traceback" not in out.stderr, (args, out.stderr)
+
+
+@pytest.mark.slow
+def test_bench_sweep_quick_every_cell_passes():
+    r = bench("sweep")
+    assert r["cells"] == 3 and r["jobs"] == 2
+    for row in r["rows"]:
+        assert row["ok"], (row["replay"], row["why"], row["run"])
+        assert row["faults"], row  # the fault landed at its moment
+    assert {(row["scenario"], row["moment"]) for row in r["rows"]} == {
+        ("site-router-down", "in_overlap"), ("site-router-down", "handover"), ("gs-crash", "way_back")}

@@ -28,16 +28,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..core.records import (AnyRecord, AuthorityMoved, DroneState, Failsafe, HandoverComplete, LinkStateChanged,
-                            Restarted, Start, only)
-from ..core.tbm import LinkState
 from ..sil.launcher import (AIRBORNE, HANDOVERS_DONE, MISSION_STARTED, REGION_ENTERED, RESTART, Demo, DemoOptions,
-                            Fault, Outcome, Scenario)
+                            Fault, Outcome, Scenario, safety_invariants)
 from .table import ProgressLine
 
 SPEEDUP = 4.0
-FAILSAFE_LATE_MS = 100.0
-SILENT_AUTHORITY_S = 0.1
 MOMENTS = (MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE)
 
 
@@ -72,56 +67,9 @@ def schedule(seed: int) -> tuple[tuple[Fault, ...], tuple[str, ...], list[str]]:
     return tuple(faults), tuple(radio), text
 
 
-def _owners_by_epoch(drone: list[AnyRecord]) -> dict[int, str]:
-    """Who held authority in each epoch: the GS it moved to, else a restarted node's saved owner."""
-    owners: dict[int, str] = {}
-    for e in drone:
-        if isinstance(e, AuthorityMoved):
-            owners[e.epoch] = e.to
-        elif isinstance(e, Restarted) and e.owner:
-            owners.setdefault(e.epoch, e.owner)
-    return owners
-
-
 def invariants(o: Outcome) -> list[str]:
     """The violated invariants of one run (see the module docstring); [] = safe."""
-    why: list[str] = []
-    owners = _owners_by_epoch(o.drone)
-    last_by_run: list[dict[str, int]] = []
-    for e in o.drone:  # forwarded per epoch, summed over the node's runs (a restart counts from zero)
-        if isinstance(e, Start):
-            last_by_run.append({})
-        elif isinstance(e, DroneState) and last_by_run:
-            last_by_run[-1] = e.forwarded_epochs
-    per_epoch: dict[int, set[str]] = {}
-    for run in last_by_run:
-        for key, n in run.items():
-            epoch, gs = key.split(":", 1)
-            if n:
-                per_epoch.setdefault(int(epoch), set()).add(gs)
-    for epoch, senders in sorted(per_epoch.items()):
-        if len(senders) > 1:
-            why.append(f"epoch {epoch}: commands forwarded from {sorted(senders)}")
-        elif owners.get(epoch) not in senders:
-            why.append(f"epoch {epoch}: commands from {sorted(senders)}, authority was {owners.get(epoch)}")
-    for fs in only(o.drone, Failsafe):
-        if fs.detect_to_command_ms is not None and fs.detect_to_command_ms > FAILSAFE_LATE_MS:
-            why.append(f"failsafe {fs.detect_to_command_ms:.0f} ms after the threshold")
-    owner: str | None = None
-    failsafe = False  # in the failsafe nobody holds authority: a LOST link then asks for nothing more
-    for i, e in enumerate(o.drone):
-        if isinstance(e, AuthorityMoved):
-            owner, failsafe = e.to, False
-        elif isinstance(e, Restarted):
-            owner, failsafe = e.owner, False
-        elif isinstance(e, Failsafe):
-            failsafe = True
-        elif isinstance(e, LinkStateChanged) and e.state is LinkState.LOST and e.gs == owner and not failsafe:
-            acted = any(isinstance(x, (Failsafe, HandoverComplete)) and x.t - e.t <= SILENT_AUTHORITY_S
-                        for x in o.drone[i:i + 40])
-            if not acted:
-                why.append(f"authority link to {owner} LOST without hand-over or failsafe")
-    return why  # exit codes and the timeout: checked by the launcher for every run (``why_not_ok``)
+    return safety_invariants(o)  # exit codes and the timeout: checked by the launcher for every run
 
 
 def run(runs: int, seed: int, quick: bool = False, progress: bool = True) -> dict[str, Any]:

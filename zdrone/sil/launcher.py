@@ -27,7 +27,7 @@ import sys
 import textwrap
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -39,7 +39,7 @@ from ..core.geometry import GeoPoint, distance_m
 from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound, Captured,
                             ControlRequested,
                             Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState, HandoverComplete,
-                            HandoverFailed, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
+                            HandoverFailed, HandoverStart, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
                             MissionFailed, MissionProgress, MissionStarted, Paired, PathState, R, RadioLinkChanged,
                             RegionEntered, Restarted, Start, Subscribe, UnauthorizedAttempt, Unsubscribe, fields_of,
                             logged, only, record_type)
@@ -61,7 +61,20 @@ AIRBORNE = "airborne"  # armed and above 15 m
 REGION_ENTERED = "region_entered"  # first entry into the hand-over region
 HANDOVERS_DONE = "handovers_done"  # both hand-overs done: authority back at A, drone still in the overlap
 FAILSAFE_FIRED = "failsafe_fired"  # the drone entered its failsafe
-TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED)
+HANDOVER_STARTED = "handover_started"  # the drone took the first release (the hand-over A->B begins)
+RETURNING = "returning"  # on the way back: the first entry into the hand-over region after the delivery point
+TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED, HANDOVER_STARTED,
+            RETURNING)
+#: The moments of the flight a scenario's fault can be moved to (``zdrone demo --moment``, ``zdrone bench
+#: sweep``): name -> (trigger, wall seconds after it).
+MOMENTS: dict[str, tuple[str, float]] = {
+    "before_overlap": (AIRBORNE, 0.5),  # climbing out near home, only A's coverage
+    "in_overlap": (REGION_ENTERED, 0.5),  # inside both coverages, before the hand-over
+    "handover": (HANDOVER_STARTED, 0.0),  # as the drone takes A's release
+    "way_back": (RETURNING, 0.5),  # back in the overlap after the delivery, B holding authority
+}
+#: Within this distance of the delivery point the vehicle has reached it (``RETURNING`` can come next).
+NEAR_DELIVERY_M = 60.0
 
 
 @dataclass(frozen=True)
@@ -106,6 +119,36 @@ class Scenario:
     radio: tuple[str, ...] = ()  # the drone's emulated radio (``--sil-loss 0.2`` ...)
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
+    fixed_moment: bool = False  # its fault's moment is what the scenario is (``moments()`` gives none to move to)
+
+    def own_moment(self) -> str | None:
+        """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
+        if not self.faults:
+            return None
+        f = self.faults[0]
+        return next((m for m, (trig, _) in MOMENTS.items() if trig == f.trigger), None)
+
+    def moments(self) -> tuple[str, ...]:
+        """The moments its fault can land at and still be this scenario (none without a fault)."""
+        return () if not self.faults or self.fixed_moment or self.own_moment() is None else tuple(MOMENTS)
+
+    def at_moment(self, moment: str) -> "Scenario":
+        """The scenario with its faults moved to ``moment``: the faults of its first fault's trigger move,
+        their offsets kept relative to the first; at its own moment, the scenario itself. Away from
+        it, success is what holds at any moment: the safety invariants, and a completed flight
+        whenever no fault is still active when the drone returns (``fault_over_check``)."""
+        if moment not in MOMENTS:
+            raise ValueError(f"unknown moment {moment!r}: one of {', '.join(MOMENTS)}")
+        if moment not in self.moments():
+            raise ValueError(f"{self.name}: its fault does not move (moments: {', '.join(self.moments()) or 'none'})")
+        if moment == self.own_moment():
+            return self
+        trigger, after = MOMENTS[moment]
+        first = self.faults[0]
+        moved = tuple(replace(f, trigger=trigger, after=round(after + f.after - first.after, 3))
+                      if f.trigger == first.trigger else f for f in self.faults)
+        return replace(self, faults=moved, check=fault_over_check,
+                       description=f"{self.description} — the fault moved to {moment}")
 
 
 @dataclass
@@ -187,6 +230,111 @@ def delivered_at(gs_records: Sequence[AnyRecord], autopilot: str | None, point: 
         if on_ground and distance_m(point, GeoPoint(e.position[0], e.position[1])) <= DELIVERY_RADIUS_M:
             return True
     return False
+
+
+def delivered(o: Outcome) -> bool:
+    """The vehicle landed at the delivery point (the drone's own status), or a GS heard it say so."""
+    return bool(o.summary.get("delivered")) or bool(o.summary.get("delivered_at_b"))
+
+
+def flight_completes(o: Outcome) -> list[str]:
+    """Delivered, no failsafe, landed at home, authority with A (the GS that covers home)."""
+    s = o.summary
+    why = _need(delivered(o), "not delivered")
+    why += _need(s["failsafe"] is None, "failsafe triggered")
+    why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
+                 f"not landed at home ({s['distance_from_home_m']} m)")
+    return why + _need(s["final_owner"] == "A", f"final authority {s['final_owner']}, expected A (home's GS)")
+
+
+def return_time(o: Outcome) -> float:
+    """When the drone turned for home: the first of its re-entry into the overlap after the delivery,
+    an RTL a GS commanded, the failsafe; else the end of the run."""
+    times = [t for t in (o.summary.get("moments", {}).get(RETURNING),) if t is not None]
+    times += [e.t for g in o.gs.values() for e in only(g, HandoverFailed) if e.action == "RTL"]
+    times += [e.t for e in only(o.drone, Failsafe)]
+    return min(times) if times else float(o.summary.get("ended_at") or 0.0)
+
+
+def active_faults(o: Outcome, t: float) -> list[str]:
+    """The faults (as the summary lists them) still active at time ``t`` (never ended, or later)."""
+    return [f["text"] for f in o.summary.get("faults", []) if f["ends"] is None or f["ends"] > t]
+
+
+def fault_over_check(o: Outcome) -> list[str]:
+    """What holds wherever a fault lands: the safety invariants; and if no fault is still active when
+    the drone returns, the flight completes (``flight_completes``)."""
+    why = safety_invariants(o)
+    if not o.summary.get("faults"):
+        return why + ["the fault never landed (its moment never came)"]
+    if not active_faults(o, return_time(o)):
+        why += flight_completes(o)
+    return why
+
+
+def _owners_by_epoch(drone: list[AnyRecord]) -> dict[int, str]:
+    """Who held authority in each epoch: the GS it moved to, else a restarted node's saved owner."""
+    owners: dict[int, str] = {}
+    for e in drone:
+        if isinstance(e, AuthorityMoved):
+            owners[e.epoch] = e.to
+        elif isinstance(e, Restarted) and e.owner:
+            owners.setdefault(e.epoch, e.owner)
+    return owners
+
+
+#: The failsafe must be commanded within this long after the loss threshold.
+FAILSAFE_LATE_MS = 100.0
+#: A LOST authority link must be followed by a hand-over or the failsafe within this long.
+SILENT_AUTHORITY_S = 0.1
+
+
+def safety_invariants(o: Outcome) -> list[str]:
+    """The safety invariants of one run, whatever its faults; [] = safe:
+
+    1. one commander per epoch: the commanding frames forwarded in each epoch all came from one GS,
+       the one that held authority in that epoch;
+    2. the failsafe on time: commanded within threshold + ``FAILSAFE_LATE_MS``;
+    3. no silent authority: whenever the authority's link was LOST, the drone handed over or entered
+       its failsafe within ``SILENT_AUTHORITY_S``.
+    (Clean exits and the timeout are checked by the launcher for every run.)"""
+    why: list[str] = []
+    owners = _owners_by_epoch(o.drone)
+    last_by_run: list[dict[str, int]] = []
+    for e in o.drone:  # forwarded per epoch, summed over the node's runs (a restart counts from zero)
+        if isinstance(e, Start):
+            last_by_run.append({})
+        elif isinstance(e, DroneState) and last_by_run:
+            last_by_run[-1] = e.forwarded_epochs
+    per_epoch: dict[int, set[str]] = {}
+    for run in last_by_run:
+        for key, n in run.items():
+            epoch, gs = key.split(":", 1)
+            if n:
+                per_epoch.setdefault(int(epoch), set()).add(gs)
+    for epoch, senders in sorted(per_epoch.items()):
+        if len(senders) > 1:
+            why.append(f"epoch {epoch}: commands forwarded from {sorted(senders)}")
+        elif owners.get(epoch) not in senders:
+            why.append(f"epoch {epoch}: commands from {sorted(senders)}, authority was {owners.get(epoch)}")
+    for fs in only(o.drone, Failsafe):
+        if fs.detect_to_command_ms is not None and fs.detect_to_command_ms > FAILSAFE_LATE_MS:
+            why.append(f"failsafe {fs.detect_to_command_ms:.0f} ms after the threshold")
+    owner: str | None = None
+    failsafe = False  # in the failsafe nobody holds authority: a LOST link then asks for nothing more
+    for i, e in enumerate(o.drone):
+        if isinstance(e, AuthorityMoved):
+            owner, failsafe = e.to, False
+        elif isinstance(e, Restarted):
+            owner, failsafe = e.owner, False
+        elif isinstance(e, Failsafe):
+            failsafe = True
+        elif isinstance(e, LinkStateChanged) and e.state is LinkState.LOST and e.gs == owner and not failsafe:
+            acted = any(isinstance(x, (Failsafe, HandoverComplete)) and x.t - e.t <= SILENT_AUTHORITY_S
+                        for x in o.drone[i:i + 40])
+            if not acted:
+                why.append(f"authority link to {owner} LOST without hand-over or failsafe")
+    return why
 
 
 def _check_no_key(o: Outcome) -> list[str]:
@@ -519,12 +667,12 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("site-router-down-alone",
              "two sites; the router of A's site dies after take-off, before the overlap (only site 1 in range)",
              "A's link is silent: failsafe LAND <= 100 ms after the 3 s threshold; no hand-over",
-             _check_site_router_down_alone, faults=(_SITE1_DOWN_ALONE,), sites=True),
+             _check_site_router_down_alone, faults=(_SITE1_DOWN_ALONE,), sites=True, fixed_moment=True),
     Scenario("backhaul-cut",
              "two sites; the backhaul between their routers is cut before A pairs (before key sharing)",
              "A cannot share B's key: the hand-over is refused cleanly, authority stays with A, which brings the "
              "drone home; no failsafe",
-             _check_backhaul_cut_early, faults=(_BACKHAUL_CUT_EARLY,), sites=True),
+             _check_backhaul_cut_early, faults=(_BACKHAUL_CUT_EARLY,), sites=True, fixed_moment=True),
     Scenario("backhaul-cut-late",
              "two sites; the backhaul between their routers is cut after take-off (after key sharing)",
              "both hand-overs still complete (they need no backhaul: each site's radio reaches the drone); "
@@ -541,7 +689,7 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "GS A goes silent after take-off (SIGSTOP), the drone enters its failsafe; A wakes (SIGCONT) and its "
              "operator's standing request (--take-control) asks for control back",
              "failsafe LAND, then LINKED(A, epoch+1) by A's explicit request; the vehicle goes on landing",
-             _check_failsafe_recover, faults=(_STOP_A, _RESUME_A), gs_a_extra=("--take-control",)),
+             _check_failsafe_recover, faults=(_STOP_A, _RESUME_A), gs_a_extra=("--take-control",), fixed_moment=True),
     Scenario("key-injection",
              "B's router password only: a second queryable on backhaul/B/linkkey/* answers A's key-sharing "
              "queries with forged replies (random bytes, a Noise message 2 made with its own key)",
@@ -629,6 +777,7 @@ class DemoOptions:
     autopilot: str = "px4"  # personality of the built-in simulator
     radio: tuple[str, ...] = ()  # the drone's --sil-loss/--sil-bursts/--sil-delay-ms/--sil-jitter-ms options
     spec: "Scenario | None" = None  # a scenario made on the fly (bench chaos) instead of ``scenario``
+    moment: str | None = None  # the scenario's fault moved to this moment (``MOMENTS``); None: its own
     sites: bool = False  # a router per GS site (two, meshed) instead of one
     tls: bool = False  # one router, mutual TLS only (a fleet CA and certificates)
     vehicle: str | None = None  # an autopilot already running (no simulator started)
@@ -656,6 +805,8 @@ class Demo:
     router: str = ""
     gcs_port: int | None = None
     fired: set[str] = field(default_factory=set)
+    fired_at: dict[str, float] = field(default_factory=dict)  # trigger -> time of day it came
+    fault_log: list[dict[str, Any]] = field(default_factory=list)  # each fault injected: t, target, text, ends
     pending_go: set[str] = field(default_factory=set)
     scheduled: list[tuple[float, Fault]] = field(default_factory=list)  # (monotonic due time, fault)
     sites: dict[str, dict[str, Any]] = field(default_factory=dict)  # with --sites: site -> endpoint, GSs
@@ -669,7 +820,8 @@ class Demo:
 
     @property
     def spec(self) -> Scenario:
-        return self.opts.spec or SCENARIO_BY_NAME[self.opts.scenario]
+        spec = self.opts.spec or SCENARIO_BY_NAME[self.opts.scenario]
+        return spec.at_moment(self.opts.moment) if self.opts.moment else spec
 
     # --------------------------------------------------------------- processes
     def start(self, name: str, args: list[str], append: bool = False, ns: str | None = None) -> Child:
@@ -973,6 +1125,7 @@ class Demo:
         if trigger in self.fired:
             return
         self.fired.add(trigger)
+        self.fired_at[trigger] = time.time()
         spec = self.spec
         for r in spec.rogues:
             if r.launch == trigger:
@@ -993,12 +1146,23 @@ class Demo:
         due = [f for (when, f) in self.scheduled if when <= now]
         self.scheduled = [(w, f) for (w, f) in self.scheduled if w > now]
         for fault in due:
+            t = time.time()
             if live is not None:
-                live.event(time.time(), f"scenario: {fault.text}")
+                live.event(t, f"scenario: {fault.text}")
+            ends_one = fault.sig in (LINK_UP, signal.SIGCONT)  # the end of an earlier fault, not one of its own
+            if ends_one:
+                for entry in reversed(self.fault_log):
+                    if entry["target"] == fault.target and entry["ends"] is None:
+                        entry["ends"] = t
+                        break
+            else:
+                entry = {"t": t, "target": fault.target, "text": fault.text, "ends": None}  # SIGKILL: never ends
+                self.fault_log.append(entry)
             if fault.sig in (LINK_DOWN, LINK_UP):
                 self.link_fault(fault.target, fault.sig == LINK_UP)
             elif fault.sig == RESTART:
                 self.restart(fault.target, fault.down)
+                entry["ends"] = time.time()
                 self.notes.append(f"{fault.target} restarted after {fault.down} s down")
             else:
                 self.signal(fault.target, fault.sig)
@@ -1076,6 +1240,11 @@ class Demo:
                     state["flown"] = True  # an arm refused or undone on the ground is not the end
                 if pos and pos[2] > 15.0:
                     self._fire(AIRBORNE, live, ev.t)
+            if pos and distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) < NEAR_DELIVERY_M:
+                state["near_delivery"] = True
+                if ev.landed_state == 1 and pos[2] < 1.0 and \
+                        distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) <= DELIVERY_RADIUS_M:
+                    state["delivered"] = True  # on the ground at the delivery point (the drone's own status)
             landed = ev.landed_state == 1 and not ev.armed
             if state.get("flown") and landed:
                 state["done"] = True
@@ -1084,6 +1253,10 @@ class Demo:
         if isinstance(ev, RegionEntered):
             state["region_entered"] += 1
             self._fire(REGION_ENTERED, live, ev.t)
+            if state.get("near_delivery"):
+                self._fire(RETURNING, live, ev.t)
+        if isinstance(ev, HandoverStart):
+            self._fire(HANDOVER_STARTED, live, ev.t)
         if isinstance(ev, HandoverComplete):
             state["handovers"].append(_picked(ev, ("from", "to", "epoch", "time", "kind", "position")))
             if len(state["handovers"]) == 2:
@@ -1144,6 +1317,10 @@ class Demo:
             "authority_link": authority_link(drone_events),
             "delivered_at_b": delivered_at(gs_events["B"], next((e.autopilot for e in only(gs_events["A"], AutopilotFound)),
                                                                  None)),
+            "delivered": bool(state.get("delivered")) or delivered_at(gs_events["A"] + gs_events["B"], next(
+                (e.autopilot for e in only(gs_events["A"], AutopilotFound)), None)),
+            "moment": self.opts.moment, "moments": dict(self.fired_at), "faults": list(self.fault_log),
+            "ended_at": time.time(),
             "commands": {"sent_as_authority": sent, "forwarded": forwarded, "lost": cmd_sent - cmd_fwd - refused,
                          "refused_not_authority": ha_drops.get("not_authority", 0)},
             "security_drops": drops, "security_drops_unlinked": unlinked, "ha_drops": ha_drops,
