@@ -203,7 +203,7 @@ def _check(args: argparse.Namespace) -> int:
 
     if args.depth < 1 or args.faults < 0:
         raise UsageError("check: --depth must be >= 1 and --faults >= 0")
-    result = check.run(args.depth, args.faults, args.flaw, args.max_states)
+    result = check.run(args.depth, args.faults, args.flaw, args.max_states, cores=args.cores)
     _emit(args, result, check.render)
     return 0 if result["ok"] else 1
 
@@ -323,6 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--max-states", type=int, default=None, metavar="N", help="stop after N distinct states")
     ck.add_argument("--flaw", choices=("heir-without-position", "promotion-over-live", "unstamped-pairing"),
                     help="plant a known flaw (the checker must find it)")
+    ck.add_argument("--cores", action="store_true",
+                    help="explore the shipped cores themselves (DroneCore, StationCores A and B, real crypto, in memory) "
+                         "instead of the abstract world; much slower: use --depth 3 to 5")
     ck.add_argument("--json", action="store_true", help="print JSON instead of text")
     ck.set_defaults(func=_check)
 

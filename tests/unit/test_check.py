@@ -43,3 +43,26 @@ def test_the_command_prints_json_and_exits_1_on_a_violation():
     assert bad.returncode == 1 and "VIOLATION of 'owner re-pairs after a restart'" in bad.stdout
     usage = subprocess.run([sys.executable, "-m", "zdrone", "check", "--depth", "0"], capture_output=True, text=True)
     assert usage.returncode == 2 and usage.stderr.count("\n") == 1
+
+
+# ------------------------------------------------------------------ the shipped cores themselves
+def test_the_shipped_cores_hold_at_depth_3():
+    """DroneCore with StationCores A and B (real pairing, key sharing, sealed frames, in memory)."""
+    r = check.run(depth=3, faults=2, cores=True)
+    assert r["ok"], r.get("violation")
+    assert r["states"] > 100 and r["world"] == "cores"
+
+
+@pytest.mark.parametrize("flaw, invariant", [
+    ("heir-without-position", "no authority outside coverage without consent"),
+    ("promotion-over-live", "nobody replaces another's live link"),
+    ("unstamped-pairing", "a replay changes nothing"),
+])
+def test_each_flaw_planted_in_the_shipped_cores_is_found(flaw, invariant):
+    r = check.run(depth=3, faults=2, flaw=flaw, cores=True)
+    assert not r["ok"] and r["violation"]["invariant"] == invariant and r["violation"]["length"] <= 3
+    # and the rule is back afterwards
+    from zdrone.core import authority, linkslot
+
+    assert linkslot.replaces_live("grant", linkslot.LinkState.OK) is False
+    assert "proven_in_cover" in authority.AuthorityMachine.__dict__

@@ -8,7 +8,7 @@ import dataclasses
 
 import pytest
 
-from tests.fleetnet import FleetNet, make_fleet
+from zdrone.bench.fleetnet import FleetNet, make_fleet
 from zdrone.core.authority import State
 from zdrone.core.keyshare import KeyShareAsk
 from zdrone.core.pairing import PairingInitiator

@@ -1,6 +1,7 @@
-"""An in-memory fleet for unit tests (like h11's ConnectionPair, for a whole fleet): the drone's pure
-``DroneCore`` and the ground stations' pure ``StationCore``s wired by a synchronous network, with the
-real crypto, explicit time, no sockets. Pairing, key sharing and hand-overs run in milliseconds.
+"""An in-memory fleet (like h11's ConnectionPair, for a whole fleet): the drone's pure ``DroneCore``
+and the ground stations' pure ``StationCore``s wired by a synchronous network, with the real crypto,
+explicit time, no sockets. Pairing, key sharing and hand-overs run in milliseconds. Used by the unit
+tests and by ``zdrone check --concrete``; testbed only.
 
 ``FleetNet.step(dt)`` advances time: every GS ticks, the drone handles its timer and the vehicle's
 position (and a GLOBAL_POSITION_INT telemetry frame), and every message each of them emits is
@@ -47,6 +48,7 @@ class FleetNet:
     records: list = field(default_factory=list)
     persisted: Persist | None = None
     captured_pairings: list[tuple[str, bytes]] = field(default_factory=list)  # (gs, message 1) seen on the wire
+    captured_up: dict[str, bytes] = field(default_factory=dict)  # gs -> the last envelope it sent up (for replays)
 
     def __post_init__(self) -> None:
         self.fleet = load_fleet(self.fleet_dir)
@@ -95,6 +97,8 @@ class FleetNet:
         assert self.drone is not None
         for a in outs:
             if isinstance(a, Put):
+                if a.keyexpr == kx.up("d1", gs):
+                    self.captured_up[gs] = a.payload
                 if gs not in self.cut and a.keyexpr == kx.up("d1", gs) and gs in self.listening:
                     self.drone_outs(self.drone.on_envelope(gs, a.payload, self.now))
             elif isinstance(a, Ask) and a.kind is AskKind.PAIR:
