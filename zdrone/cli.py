@@ -61,6 +61,28 @@ def _fleet_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _service(args: argparse.Namespace) -> int:
+    import os
+    import shutil
+
+    from .fleet.service import render_unit, service_spec
+    from .vehicle.transport import parse_endpoint
+
+    if args.vehicle and not args.vehicle.startswith("/dev/"):
+        parse_endpoint(args.vehicle)  # a bad connection is a usage error
+    if not 0.01 <= args.events_max_mb <= 100_000:
+        raise UsageError(f"--events-max-mb {args.events_max_mb:g}: must be 0.01..100000")
+    exe = args.exec or shutil.which("zdrone") or os.path.abspath(sys.argv[0])
+    if not os.path.isabs(exe):
+        raise UsageError(f"--exec {exe}: must be an absolute path")
+    import shlex
+
+    extra = tuple(shlex.split(args.node_options or ""))
+    print(render_unit(service_spec(args.node, args.bundle, exe, router=args.router, vehicle=args.vehicle,
+                                   events_max_mb=args.events_max_mb, extra=extra)), end="")
+    return 0
+
+
 def _emit(args: argparse.Namespace, result: dict, render: Callable[[dict], None]) -> None:
     """Every bench prints a table for people, or ``--json`` for tools."""
     from .bench import table
@@ -238,6 +260,24 @@ def build_parser() -> argparse.ArgumentParser:
     fe.add_argument("--out", required=True, metavar="DIR", help="the bundle's folder (new or empty)")
     fe.set_defaults(func=_fleet_export)
 
+    sv = sub.add_parser("service", help="print a hardened systemd unit that runs one host's node from its bundle")
+    sv.add_argument("node", metavar="NODE", help="the node the bundle is for (d1, A, router, site-1, …)")
+    sv.add_argument("--bundle", required=True, metavar="DIR",
+                    help="the bundle's folder on that host (zdrone fleet export), e.g. /etc/zdrone/d1, owned by the "
+                         "user zdrone")
+    sv.add_argument("--vehicle", metavar="CONN",
+                    help="drone only: the flight controller, e.g. /dev/ttyACM0,921600 (the unit allows that device "
+                         "only) or udpin:0.0.0.0:14540 (default udpout:127.0.0.1:14580, zdrone sim)")
+    sv.add_argument("--router", metavar="ENDPOINT",
+                    help="the router the node connects to (default tcp/127.0.0.1:7447, tls/… with a TLS bundle); for "
+                         "a router, the endpoint it listens on instead of its config's")
+    sv.add_argument("--events-max-mb", type=float, default=64.0, metavar="MB", help="event log rotation size (64)")
+    sv.add_argument("--exec", metavar="PATH", help="the zdrone command on that host (default: this one's full path)")
+    sv.add_argument("--node-options", metavar="'OPTIONS'",
+                    help="further options of the node command, e.g. --node-options='--pair --gcs udpin:0.0.0.0:14550' "
+                         "(a --gcs endpoint is added to the unit's IP allow-list; 0.0.0.0 lifts it)")
+    sv.set_defaults(func=_service)
+
     bench = sub.add_parser("bench", help="measure sizes, speeds and hand-over figures")
     bsub = bench.add_subparsers(dest="bench_command", metavar="BENCH", parser_class=_Parser)
     bsub.required = True
@@ -367,7 +407,12 @@ def run_parsed(args: argparse.Namespace) -> int:
 
             block_signals()  # before any library starts a thread: see zdrone.net.shutdown
         level = logging.WARNING - 10 * min(args.verbose, 2)
-        logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+        import os
+
+        # under systemd (stderr is the journal, which stamps each line): plain lines, no time of ours
+        journal = bool(os.environ.get("JOURNAL_STREAM")) and os.environ.get("INVOCATION_ID") is not None
+        logging.basicConfig(level=level, format="%(name)s %(levelname)s %(message)s" if journal
+                            else "%(asctime)s %(name)s %(levelname)s %(message)s")
         if getattr(args, "command", None) in LAUNCHER_COMMANDS:
             from .sil.procs import on_signals
 

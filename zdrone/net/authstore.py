@@ -3,7 +3,9 @@
 A companion computer may reboot in flight. Its link keys die with it (they are never written down),
 but the authority must not: the restarted node comes back with the owner and epoch it had, and that
 owner must re-pair (fresh keys, so no nonce is ever reused under a key). The file sits beside the
-node's secret (``secrets/<drone>.authority.json``, mode 0600) and is replaced atomically: written to
+node's secret (``secrets/<drone>.authority.json``, mode 0600; under systemd in the service's state
+directory, ``$ZDRONE_STATE_DIR/<drone>.authority.json``, as ``zdrone service`` sets it, the bundle
+staying read-only) and is replaced atomically: written to
 a temporary file, fsync'ed, renamed over the old one, and the directory fsync'ed, so a crash at any
 moment leaves either the old state or the new one, never a torn file.
 """
@@ -20,6 +22,9 @@ from ..fleet.files import fleet_path
 
 log = logging.getLogger(__name__)
 
+#: where the authority state goes instead of beside the secret (the unit ``zdrone service`` writes sets it)
+STATE_DIR_ENV = "ZDRONE_STATE_DIR"
+
 
 @dataclass(frozen=True, slots=True)
 class SavedAuthority:
@@ -32,7 +37,9 @@ class AuthorityStore:
     """Reads and writes one drone's ``SavedAuthority``."""
 
     def __init__(self, fleet: str | Path, drone: str) -> None:
-        self.path = fleet_path(fleet).parent / "secrets" / f"{drone}.authority.json"
+        state_dir = os.environ.get(STATE_DIR_ENV)
+        base = Path(state_dir) if state_dir else fleet_path(fleet).parent / "secrets"
+        self.path = base / f"{drone}.authority.json"
         self._last: SavedAuthority | None = None
 
     def load(self) -> SavedAuthority | None:
