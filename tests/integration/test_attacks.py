@@ -43,6 +43,7 @@ def test_scenario_table_is_consistent_and_listed():
         for r in spec.rogues:
             assert r.mode in MODES and r.launch in TRIGGERS and (r.go is None or r.go in TRIGGERS), (spec.name, r)
         assert spec.gcs_a == any(r.mode == "gateway-flood" for r in spec.rogues)
+        assert spec.operators is None or spec.operators in TRIGGERS, spec.name
     out = subprocess.run([ZDRONE, "demo", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and all(f"  {s.name} " in out.stdout for s in SCENARIO_TABLE)
     bad = subprocess.run([ZDRONE, "bench", "attack", "--scenarios", "nominal"], capture_output=True, text=True)

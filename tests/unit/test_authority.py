@@ -184,7 +184,7 @@ def test_authority_link_lost_with_proven_heir_is_emergency_handover():
 def test_request_from_non_authority_is_passed_to_the_owner():
     m = machine()
     linked_with_b(m)
-    acts = m.handle(HandoverRequest(2.0, "B", "B"))
+    acts = m.handle(HandoverRequest(2.0, "B", "B", ask_id=1))  # its operator's request
     assert m.state is State.LINKED and m.owner == "A"
     assert any(isinstance(a, SendControl) and a.gs == "A" for a in acts)
     acts = m.handle(HandoverRequest(2.0, "A", "B"))  # the owner asking = releasing
@@ -195,9 +195,9 @@ def test_a_request_reaches_the_owner_naming_its_sealed_sender_and_moves_nothing(
     m = machine()
     linked_with_b(m)
     prove(m, "B", 2.0)
-    acts = m.handle(HandoverRequest(3.0, "B", "B", timeout=20.0))
+    acts = m.handle(HandoverRequest(3.0, "B", "B", timeout=20.0, ask_id=1))
     asks = [a.msg for a in acts if isinstance(a, SendControl) and isinstance(a.msg, OperatorRequest)]
-    assert asks == [OperatorRequest("B", "B", 1, 20.0)]
+    assert asks == [OperatorRequest("B", "B", 1, 20.0, 1)]
     assert all(a.gs == "A" for a in acts if isinstance(a, SendControl))  # nobody but the owner hears of it
     assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 1)
     m.handle(Tick(60.0))
@@ -210,8 +210,9 @@ def test_the_owners_takeover_setting_is_in_the_status_of_its_epoch_only():
     m.handle(RegionChanged(2.0, frozenset({"A", "B"})))  # the drone listens to B
     prove(m, "B", 2.0)
     assert not m.status().takeover
-    acts = m.handle(HandoverRequest(3.0, "B", "B", takeover=True))  # not the owner: no setting of its own
-    assert not m.status().takeover and any(isinstance(a, SendControl) and isinstance(a.msg, OperatorRequest) for a in acts)
+    acts = m.handle(HandoverRequest(3.0, "B", "B", takeover=True))  # not the owner: no setting, and no request
+    assert not m.status().takeover and not any(isinstance(a, SendControl) for a in acts)
+    assert (m.owner, m.epoch) == ("A", 1)
     acts = m.handle(HandoverRequest(3.0, "A", "A", takeover=True))
     assert m.status().takeover and m.owner == "A" and m.state is State.LINKED
     assert any(isinstance(a, SendControl) and a.gs == "B" and a.msg.takeover for a in acts)  # every GS it talks to sees it

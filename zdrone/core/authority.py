@@ -580,7 +580,9 @@ class AuthorityMachine:
             return self.state, self._reject(ev.sender, "handover_request", f"unauthorized: {ev.sender} is not authorized")
         if not self.is_authorized(ev.to) or ev.to not in self.links:
             return self.state, self._reject(ev.sender, "handover_request", f"no link: {ev.to} cannot take authority")
-        if ev.sender == self.owner and ev.to == self.owner:  # the owner's "allow takeover" setting, told to all
+        if ev.to == ev.sender and ev.ask_id == 0:  # no operator's request: the owner's "allow takeover" setting
+            if ev.sender != self.owner:  # sent while it still was the owner: stale, and never a request
+                return self.state, [Note("takeover_setting", f"{ev.sender} is not the owner: setting ignored")]
             self.takeover_epoch = self.epoch if ev.takeover else None
             return self.state, [Note("takeover_setting", f"{ev.sender}: takeover {'allowed' if ev.takeover else 'refused'}"
                                                          f" in epoch {self.epoch}")] + self._status_to_all()

@@ -42,8 +42,9 @@ class KeyGrantAck(Control, frozen=True, tag="key_grant_ack"):
 
 class HandoverRequest(Control, frozen=True, tag="handover_request"):
     """A GS asks for authority (``to`` is the GS that should receive it): the drone passes it on to
-    the owner as an ``OperatorRequest`` whose operator may consent within ``timeout`` seconds. From
-    the owner for itself: its operator's "allow takeover" setting (``takeover``) for this epoch."""
+    the owner as an ``OperatorRequest`` whose operator may consent within ``timeout`` seconds. For
+    itself with ``ask_id`` 0 (no operator's request): the owner's "allow takeover" setting
+    (``takeover``) for this epoch, ignored from anyone else."""
 
     to: str
     epoch: int

@@ -120,6 +120,7 @@ class Scenario:
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
     fixed_moment: bool = False  # its fault's moment is what the scenario is (``moments()`` gives none to move to)
+    operators: str | None = None  # at this moment, start the two operators (``zdrone.sil.operator``) on A's and B's gateways
 
     def own_moment(self) -> str | None:
         """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
@@ -609,6 +610,30 @@ def _check_big_flood(o: Outcome) -> list[str]:
     return why
 
 
+def _check_operator_consent(o: Outcome) -> list[str]:
+    """``operator-consent``: MAVLink operator control through the gateways (``zdrone.sil.operator``).
+    B's request without consent moves nothing; with A's consent B takes control within the 10 s
+    window; with takeover allowed each takes it at once; back with A, the flight goes on (its own
+    hand-overs), with no emergency hand-over, no failsafe and the authority link never LOST."""
+    s, op = o.summary, o.summary.get("operator", {})
+    done = op.get("operator_done", {})
+    why = _need(done.get("ok") is True, f"the operators' script failed: {done.get('failed') or 'it did not finish'}")
+    window = op.get("no_consent", {}).get("window")
+    moved = [h for h in s["handovers"] if window and window[0] <= (h["time"] or 0) <= window[1]]
+    why += _need(window is not None and not moved, f"authority moved without consent: {moved}")
+    why += _need(op.get("consent", {}).get("within_window") is True, f"consent: {op.get('consent')}")
+    pairs = o.pairs
+    why += _need(pairs[:5] == [("A", "B"), ("B", "A"), ("A", "B"), ("B", "A"), ("A", "B")],
+                 f"hand-overs {pairs}: expected A->B (consent), B->A, A->B (takeover), B->A (release), then the flight's")
+    why += _need(pairs[-1:] == [("B", "A")], f"the flight did not end under A: {pairs}")
+    why += _need(all(h["kind"] == "handover" for h in s["handovers"]), "an emergency hand-over")
+    why += _need(s["failsafe"] is None, "failsafe triggered")
+    why += _need(s["authority_link"]["worst_state"] != "lost", "the authority link was LOST")
+    why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
+                 f"not landed at home ({s['distance_from_home_m']} m)")
+    return why
+
+
 _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
@@ -724,6 +749,13 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "A keeps flying and counts the refused applications (app_table_full)",
              _check_gateway_flood, rogues=(RogueSpec("gateway-flood", MISSION_STARTED, go=AIRBORNE, sim_s=100.0, min_wall=10.0),),
              gcs_a=True),
+    Scenario("operator-consent",
+             "MAVLink operator control through A's and B's GCS gateways (pymavlink applications) in the overlap: B "
+             "asks without consent, then with A's consent, then each takes control with takeover allowed; B "
+             "releases back to A and the mission goes on",
+             "nothing moves without consent; B in control within the 10 s window after consent and at once with "
+             "takeover allowed; no emergency hand-over, no failsafe, landing at home",
+             _check_operator_consent, operators=MISSION_STARTED),
     Scenario("big-flood",
              "B's router password only: 60 KiB envelopes, pairing and key-sharing queries (20/s each) and 4 MiB "
              "ones (1/s each), from the overlap on (through the hand-over)",
@@ -804,6 +836,7 @@ class Demo:
     progress: dict[str, Any] = field(default_factory=dict)
     router: str = ""
     gcs_port: int | None = None
+    gcs_port_b: int | None = None  # GS B's gateway, for the operators
     fired: set[str] = field(default_factory=set)
     fired_at: dict[str, float] = field(default_factory=dict)  # trigger -> time of day it came
     fault_log: list[dict[str, Any]] = field(default_factory=list)  # each fault injected: t, target, text, ends
@@ -1067,13 +1100,17 @@ class Demo:
         o, spec = self.opts, self.spec
         self.start_core()
         gs_extra = ["--command-rate", str(o.command_rate), *self._bench_extra()] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
-        self.start_gs("B", *gs_extra)
+        b_extra = list(gs_extra)
+        if spec.operators:
+            self.gcs_port_b = free_port(socket.SOCK_DGRAM)
+            b_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port_b}"]
+        self.start_gs("B", *b_extra)
         self._fire(BEFORE_GS_A, None)
         for r in spec.rogues:  # attackers that must be in place before A starts (and pairs)
             if r.launch == BEFORE_GS_A:
                 self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
         a_extra = ["--pair", "--mission", o.mission, *gs_extra, *spec.gs_a_extra]
-        if spec.gcs_a:
+        if spec.gcs_a or spec.operators:
             self.gcs_port = free_port(socket.SOCK_DGRAM)
             a_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port}"]
         self.start_gs("A", *a_extra)
@@ -1137,6 +1174,11 @@ class Demo:
         for fault in spec.faults:
             if fault.trigger == trigger:
                 self.scheduled.append((time.monotonic() + fault.after, fault))
+        if spec.operators == trigger and self.gcs_port and self.gcs_port_b:
+            self.start("operators", ["-m", "zdrone.sil.operator", "--a-port", str(self.gcs_port), "--b-port",
+                                     str(self.gcs_port_b), "--events", "operator.jsonl"], ns=self._ns("A"))
+            if live is not None:
+                live.event(t or time.time(), "scenario: the operators of A and B start")
         self._inject_due(live)
         self._send_go(live)
 
@@ -1201,7 +1243,7 @@ class Demo:
                 self._send_go(live)
                 live.update(state["status"], time.monotonic() - self.t0)
                 for name, child in self.children.items():
-                    if child.proc.poll() is not None and name not in ("gsB", "gsA") and not name.startswith("rogue") \
+                    if child.proc.poll() is not None and name not in ("gsB", "gsA", "operators") and not name.startswith("rogue") \
                             and not child.stopped:
                         self.notes.append(f"{name} exited early ({child.proc.returncode})")
                         state["done"] = True
@@ -1332,6 +1374,8 @@ class Demo:
             "gateway_A": self._gateway_counters(gs_final.get("A")),
             "out_of_coverage": final.out_of_coverage if final else {}, "vehicle": self._vehicle_counters(),
             "attacks": {e.node.removeprefix("rogue-"): fields_of(e) for e in rogue_events if record_type(e) == "attack_done"},
+            "operator": {str(f.get("step", record_type(e))): f for e in self._records("operator.jsonl")
+                         if (f := fields_of(e))},
             "violations": violations, "exit_codes": codes, "notes": self.notes,
             "radio_links": self._radio_summary(drone_events),
         }

@@ -1,0 +1,32 @@
+"""MAVLink operator control bound to fleet keys, end to end: ``zdrone demo --scenario operator-consent``
+(real router, simulator, drone and both GSs as processes; two pymavlink applications, one on each GS's
+GCS gateway, as the operators)."""
+
+from __future__ import annotations
+
+import pytest
+from pymavlink.dialects.v20 import common as mav
+
+from tests.integration.test_flight_e2e import run_demo
+from zdrone.net.eventlog import read_events
+
+
+@pytest.mark.slow
+def test_operator_consent_no_consent_moves_nothing_consent_and_takeover_move_control(tmp_path):
+    s, out = run_demo(tmp_path, "operator-consent")
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    op = s["operator"]
+    assert op["operator_done"]["ok"] is True
+    assert op["no_consent"]["answer"] == mav.MAV_RESULT_FAILED and op["no_consent"]["shown_p4"] == 3  # B's sysid
+    assert op["consent"]["within_window"] and op["consent"]["to_control_s"] < 10.0
+    assert op["takeover"]["b_first_answer"] == mav.MAV_RESULT_IN_PROGRESS and op["takeover"]["b_to_control_s"] < 1.0
+    moves = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
+    assert moves[:4] == [("A", "B", "handover"), ("B", "A", "handover"), ("A", "B", "handover"), ("B", "A", "handover")]
+    assert s["failsafe"] is None and s["distance_from_home_m"] < 5.0
+    # every step went through sealed messages between fleet identities: the drone passed B's requests on
+    drone = read_events(out / "drone.jsonl")
+    asked = [e for e in drone if e["type"] == "handover_requested"]
+    assert any("B asks for B" in e["detail"] for e in asked) and any("A asks for A" in e["detail"] for e in asked)
+    a = read_events(out / "A.jsonl")
+    assert [e["requester"] for e in a if e["type"] == "operator_request_shown"][:2] == ["B", "B"]
+    assert any(e["type"] == "operator_request_expired" for e in a)  # the first, never consented to
