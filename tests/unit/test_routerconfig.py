@@ -48,3 +48,12 @@ def test_each_uplink_key_has_its_own_rate_limit_per_sending_session():
     assert {r["key_expr"] for r in ds["rules"]} == {"zdrone/d1/up/A", "zdrone/d1/up/B", "zdrone/d1/up/X"}
     assert all(r["freq"] == UPLINK_MAX_HZ for r in ds["rules"])
     assert UPLINK_PACE_S >= 4 / UPLINK_MAX_HZ
+
+
+def test_every_site_router_limits_the_uplink_keys_too():
+    """A site router's clients (and the mesh's copies) meet the same per-key limit."""
+    from zdrone.fleet.routerconfig import site_router_config, uplink_downsampling
+
+    cfg = site_router_config(default_fleet(), "c.txt", "site-2", "tls/127.0.0.1:7448", ["tls/127.0.0.1:7447"],
+                             ("router-site-1",), "pw")
+    assert cfg["downsampling"] == uplink_downsampling(default_fleet()) != []
