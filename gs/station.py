@@ -32,6 +32,7 @@ import zenoh
 from zdrone.core import wire
 from zdrone.core.errors import ConfigError
 from zdrone.core.mavcontrol import OperatorControlRequest
+from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
@@ -188,18 +189,11 @@ class GroundStation:
         extra = {name: source() for name, source in self.status_sources.items()}
         return {**self.core.status(), "inbox_dropped": self.rx.stats(), **extra}
 
-    def print_view(self) -> None:
-        """The telemetry view: one line per linked drone on stdout."""
-        from zdrone.vehicle.modes import mode_name
-
+    def print_view(self, now: float) -> None:
+        """The telemetry view: one line per linked drone on stdout (``view_line``)."""
         for d, v in self.views.items():
-            if v.link is None:
-                continue
-            pos = f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position else f"position unknown ({v.fix.unknown_because})"
-            state = v.ha_state.value if v.ha_state else "unknown"
-            print(f"gs {self.name} | {d}: authority {v.owner} (epoch {v.epoch}, {state}) | {pos} | "
-                  f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.autopilot, v.custom_mode)} | mission item {v.mission_seq} | "
-                  f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}", flush=True)
+            if v.link is not None:
+                print(view_line(self.name, d, v, now), flush=True)
 
     def stop(self, *_: object) -> None:
         self.rt.stop()
@@ -251,12 +245,36 @@ class GroundStation:
                     self.events.write("status", **self.status())
                     if now >= next_view:
                         next_view = now + 5.0
-                        self.print_view()
+                        self.print_view(now)
         finally:
             self.close()
 
     def close(self) -> None:
         self.rt.close(self.status())
+
+
+def view_line(gs: str, drone: str, v: DroneView, now: float) -> str:
+    """One drone as this GS sees it: how old its last report is and whether this GS holds its
+    authority. A drone not heard for the TBM's DEGRADED threshold is shown as STALE with the age of
+    what is shown (its authority, position, state are as of then, not now), never as a live line."""
+    from zdrone.vehicle.modes import mode_name
+
+    assert v.link is not None
+    age = v.link.tbm.since_last(now)
+    state = v.link.tbm.state(now)
+    mine = "this GS" if v.owner == gs else "not this GS"
+    authority = f"authority {v.owner} (epoch {v.epoch}, {v.ha_state.value if v.ha_state else 'unknown'}), {mine}"
+    pos = (f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position
+           else f"position unknown ({v.fix.unknown_because})")
+    vehicle = f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.autopilot, v.custom_mode)} | mission item {v.mission_seq}"
+    link = f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}"
+    if v.link.tbm.last_seen is None:
+        return f"gs {gs} | {drone}: nothing heard yet ({age:.1f} s since the link was made) | {link}"
+    if state is LinkState.OK:
+        return f"gs {gs} | {drone}: report {age:.1f} s old | {authority} | {pos} | {vehicle} | {link}"
+    since = "may have moved since" if v.owner == gs else "may have changed"
+    return (f"gs {gs} | {drone}: STALE, last report {age:.1f} s ago (link {state.value}): as of then {authority} "
+            f"(it {since}) | last position {pos} | was {vehicle} | {link}")
 
 
 def run_station(opts: StationOptions) -> int:
