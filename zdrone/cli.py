@@ -156,7 +156,9 @@ def _bench_chaos(args: argparse.Namespace) -> int:
 
     if not 1 <= args.runs <= 1000:
         raise UsageError(f"--runs {args.runs}: must be 1..1000")
-    result = chaos.run(args.runs, args.seed, quick=args.quick, progress=not args.json)
+    if not 1 <= args.jobs <= 8:
+        raise UsageError(f"--jobs {args.jobs}: must be 1..8")
+    result = chaos.run(args.runs, args.seed, quick=args.quick, progress=not args.json, sites=args.sites, jobs=args.jobs)
     _emit(args, result, chaos.render)
     return 0 if result["violations"] == 0 else 1
 
@@ -340,6 +342,10 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--quick", action="store_true", help="5 schedules at most")
     bc.add_argument("--runs", type=int, default=50, metavar="N", help="schedules to fly (default 50, ~40 s each)")
     bc.add_argument("--seed", type=int, default=1, help="seed of the first schedule (the next ones count up)")
+    bc.add_argument("--sites", action="store_true",
+                    help="a router per site: site routers killed and hung, the backhaul cut, radio links flapping; "
+                         "and the flight completes when the faults are over")
+    bc.add_argument("--jobs", type=int, default=1, metavar="N", help="schedules flown at once (default 1)")
     bc.set_defaults(func=_bench_chaos)
     br = bsub.add_parser("restart", help="companion restarts in flight: time for the owner to re-pair (worst of N)")
     br.add_argument("--json", action="store_true", help="print JSON instead of a table")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 from typing import Any
 
 from zdrone.bench.chaos import invariants, schedule
@@ -66,3 +67,46 @@ def test_a_link_lost_again_while_already_in_the_failsafe_asks_for_nothing():
           _ev(5.001, "failsafe", detect_to_command_ms=1.0), _ev(6.0, "link_state", gs="A", state="ok"),
           _ev(10.0, "link_state", gs="A", state="lost")]
     assert invariants(_outcome(ev)) == []
+
+
+def test_a_sites_schedule_draws_site_faults_at_every_moment_and_ends_each_it_starts():
+    from zdrone.bench.chaos import SITE_MOMENTS, schedule_sites
+    from zdrone.sil.launcher import LINK_DOWN, LINK_UP, RESTART
+
+    assert schedule_sites(11) == schedule_sites(11)
+    kinds: set[str] = set()
+    moments: set[str] = set()
+    for s in range(200):
+        faults, radio, text = schedule_sites(s)
+        assert 1 <= len({t.split(" ")[0] for t in text}) and (faults or radio)
+        moments |= {f.trigger for f in faults}
+        for f in faults:
+            if f.target in ("router", "router2"):
+                kinds.add("site router killed" if f.sig == RESTART else "site router hung")
+            elif f.target == "backhaul":
+                kinds.add("backhaul cut")
+            elif f.target.startswith("site-"):
+                kinds.add("radio flap")
+        for target in {f.target for f in faults if f.sig in (LINK_DOWN, signal.SIGSTOP)}:  # each one ends
+            downs = [f for f in faults if f.target == target and f.sig in (LINK_DOWN, signal.SIGSTOP)]
+            ups = [f for f in faults if f.target == target and f.sig in (LINK_UP, signal.SIGCONT)]
+            assert len(downs) == len(ups) and all(u.after > d.after for d, u in zip(downs, ups))
+    assert kinds == {"site router killed", "site router hung", "backhaul cut", "radio flap"}
+    assert moments == set(SITE_MOMENTS)
+
+
+def test_over_sites_the_flight_must_complete_when_no_fault_is_active_as_the_drone_returns():
+    from zdrone.bench.chaos import site_invariants
+
+    def outcome(ends: float | None, **summary: Any) -> Outcome:
+        base = {"exit_codes": {}, "timed_out": False, "failsafe": None, "delivered": True, "final_owner": "A",
+                "distance_from_home_m": 0.3, "moments": {"returning": 50.0}, "ended_at": 80.0,
+                "faults": [{"t": 20.0, "target": "router2", "text": "site-2's router killed", "ends": ends}]}
+        return Outcome(base | summary, [], {"A": [], "B": []}, [])
+
+    assert site_invariants(outcome(26.0)) == []
+    assert site_invariants(outcome(26.0, final_owner="B")) == ["faults over, yet final authority B, expected A (home's GS)"]
+    assert site_invariants(outcome(26.0, delivered=False)) == ["faults over, yet not delivered"]
+    assert site_invariants(outcome(60.0, delivered=False)) == []  # still down as the drone came back
+    assert site_invariants(outcome(None, delivered=False)) == []
+    assert site_invariants(outcome(26.0, delivered=False), whole_flight=True) == []  # e.g. loss bursts all flight

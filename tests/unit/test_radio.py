@@ -77,3 +77,33 @@ def test_command_line_models():
         parse_models(["1.5"], [], 0.0, 0.0)
     with pytest.raises(ValueError):
         parse_models([], ["3"], 0.0, 0.0)
+
+
+def test_a_jammed_site_radio_stays_down_wherever_the_vehicle_is_and_the_position_decides_again_after():
+    from zdrone.core.geometry import Circle, offset
+    from zdrone.core.reference import HOME
+    from zdrone.sil.radiolink import SiteCoverage
+
+    class Link:
+        def __init__(self) -> None:
+            self.up = False
+
+        def set_up(self, up: bool) -> bool:
+            changed, self.up = self.up != up, up
+            return changed
+
+        def close(self) -> None:
+            pass
+
+    links = {"site-1": Link(), "site-2": Link()}
+    changes: list[tuple[str, bool]] = []
+    cov = SiteCoverage({"site-1": [Circle(HOME, 350.0)], "site-2": [Circle(offset(HOME, 0, 500), 350.0)]}, links,
+                       lambda site, up, _p: changes.append((site, up)))
+    cov.update(offset(HOME, 0, 300))  # the overlap
+    assert links["site-1"].up and links["site-2"].up
+    cov.jam("site-1", True)
+    cov.update(offset(HOME, 0, 310))
+    assert not links["site-1"].up and links["site-2"].up
+    cov.jam("site-1", False)
+    assert links["site-1"].up
+    assert changes == [("site-1", True), ("site-2", True), ("site-1", False), ("site-1", True)]

@@ -1052,10 +1052,14 @@ class Demo:
             time.sleep(0.05)
 
     def link_fault(self, target: str, up: bool) -> None:
-        """Cut or mend a testbed link (``backhaul``: every backhaul link)."""
+        """Cut or mend a testbed link (``backhaul``: every backhaul link; a site's name: its radio, held
+        down whatever the vehicle's position until mended, when the position decides again)."""
         for name, link in self.links.items():
             if name == target or (target == "backhaul" and name.startswith("backhaul-")):
-                link.set_up(up)
+                if self.coverage is not None and name in self.coverage.links:
+                    self.coverage.jam(name, not up)
+                else:
+                    link.set_up(up)
                 if self.radio_log is not None:
                     self.radio_log.write("link_fault", link=name, up=up)
 

@@ -172,15 +172,30 @@ class SiteCoverage:
         self.on_change = on_change
         self.position: GeoPoint | None = None
         self.updates = 0
+        self.jammed: set[str] = set()  # sites whose radio is held down whatever the position (a flap)
+        self._lock = threading.Lock()
 
     def reaches(self, site: str, pos: GeoPoint) -> bool:
         return any(c.contains(pos) for c in self.circles.get(site, ()))
 
     def update(self, pos: GeoPoint) -> None:
-        self.position = pos
-        self.updates += 1
+        with self._lock:
+            self.position = pos
+            self.updates += 1
+            self._apply(pos)
+
+    def jam(self, site: str, jammed: bool) -> None:
+        """Hold ``site``'s radio down (a radio-link flap), or let the position decide again."""
+        with self._lock:
+            (self.jammed.add if jammed else self.jammed.discard)(site)
+            if self.position is not None:
+                self._apply(self.position)
+            elif jammed and site in self.links:
+                self.links[site].set_up(False)
+
+    def _apply(self, pos: GeoPoint) -> None:
         for site, link in self.links.items():
-            inside = self.reaches(site, pos)
+            inside = self.reaches(site, pos) and site not in self.jammed
             if link.set_up(inside):
                 log.info("radio %s %s at %.6f,%.6f", site, "up" if inside else "down", pos.lat, pos.lon)
                 if self.on_change is not None:
