@@ -105,3 +105,16 @@ def test_bench_sweep_quick_every_cell_passes():
         assert row["faults"], row  # the fault landed at its moment
     assert {(row["scenario"], row["moment"]) for row in r["rows"]} == {
         ("site-router-down", "in_overlap"), ("site-router-down", "handover"), ("gs-crash", "way_back")}
+
+
+@pytest.mark.slow
+def test_bench_chaos_over_sites_a_site_router_down_at_the_hand_over_and_the_flight_still_completes():
+    """Seed 39: site 1's router (A's) dies as the hand-over starts and is back 2.7 s later; no fault is
+    active when the drone returns, so the flight must complete: delivered, home, authority with A."""
+    out = subprocess.run([ZDRONE, "bench", "chaos", "--sites", "--runs", "1", "--seed", "39", "--json"],
+                         capture_output=True, text=True, timeout=400)
+    assert out.returncode == 0, out.stderr[-2000:] + out.stdout[-2000:]
+    r = json.loads(out.stdout)
+    (row,) = r["schedules"]
+    assert r["sites"] and row["faults"] == ["site-1 router down 2.68s at handover_started+0.1s"]
+    assert row["violations"] == [] and row["delivered"] and row["final_owner"] == "A" and not row["failsafe"]
