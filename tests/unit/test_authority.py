@@ -204,6 +204,18 @@ def test_a_request_reaches_the_owner_naming_its_sealed_sender_and_moves_nothing(
     assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 1)  # no consent: nothing moves, ever
 
 
+def test_a_consented_transfer_may_go_to_a_gs_whose_coverage_does_not_hold_the_drone():
+    m = machine()
+    linked_with_b(m)
+    m.handle(RegionChanged(2.0, frozenset({"A"})))  # only A covers the drone: B is an operations centre, say
+    prove(m, "B", 2.0)
+    assert not m.proven_in_cover("B")  # no heir: an emergency could never go to B
+    m.handle(HandoverRequest(3.0, "B", "B", timeout=10.0, ask_id=1))
+    assert m.owner == "A"
+    m.handle(Release(4.0, "A", "B", 1))  # A's operator consents
+    assert (m.owner, m.epoch, m.state) == ("B", 2, State.LINKED)
+
+
 def test_the_owners_takeover_setting_is_in_the_status_of_its_epoch_only():
     m = machine()
     linked_with_b(m)

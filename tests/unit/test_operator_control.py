@@ -21,6 +21,7 @@ from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, 
                                     decode_control_status, encode_control_status)
 from zdrone.core.mavlink import FrameCodec
 from zdrone.core.pairing import respond
+from zdrone.core.records import HandoverComplete
 from zdrone.core.reference import HOME
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import UplinkClass
@@ -385,3 +386,37 @@ def test_the_vehicles_own_control_status_and_bad_requests_stay_at_the_gateway(fl
     a.request(2)  # p1 must be 0 or 1
     assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)
     assert gw.counters["operator_request_bad"] == 1
+
+
+# ------------------------------------------------------------------ with the drone's own core
+def test_with_the_drone_core_a_request_needs_consent_and_takeover_allowed_grants_it(tmp_path_factory):
+    """The same steps over the shipped DroneCore (``zdrone.bench.fleetnet``): its sealed links, its
+    listening rules and its pass-on of the request."""
+    from zdrone.bench.fleetnet import FleetNet, make_fleet
+
+    net = FleetNet(make_fleet(tmp_path_factory.mktemp("fleetnet")))
+    a, b = net.add_gs("A", pair=True), net.add_gs("B")
+    net.run(4.0)
+    net.on_ground = False
+    net.fly(net.centre("A"), net.between(net.centre("A"), net.centre("B"), 0.35), 8.0)  # in both coverages, nearer A
+    net.run(2.0)
+    m = net.drone.machine
+    assert m.owner == "A" and "B" in net.listening
+
+    def command(core: StationCore, req: OperatorControlRequest) -> Answer:
+        answer, actions = core.operator_command(core.views["d1"], req, net.now)
+        net.gs_outs(core.name, actions)
+        return answer
+
+    assert command(b, ask(timeout=3.0)) is Answer.FAILED
+    net.run(1.0)
+    assert a.views["d1"].operator.request is not None and a.views["d1"].operator.request.requester == "B"
+    net.run(4.0)
+    assert (m.owner, m.epoch) == ("A", 1)  # no consent: nothing moved
+    command(b, ask(timeout=10.0))
+    net.run(1.0)
+    command(a, ask(takeover=True))  # A's operator consents (allow takeover for the window)
+    net.run(1.0)
+    assert (m.owner, m.epoch) == ("B", 2) and b.holds_authority(b.views["d1"])
+    moves = [(r.from_, r.to, r.kind) for r in net.records if isinstance(r, HandoverComplete)]
+    assert moves == [("A", "B", "handover")]
