@@ -39,11 +39,11 @@ from ..core.geometry import GeoPoint, distance_m
 from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound, Captured,
                             ControlRequested,
                             Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState, HandoverComplete,
-                            HandoverFailed, HandoverStart, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
+                            HandoverFailed, HandoverStart, GsLinkConfirmed, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
                             MissionFailed, MissionProgress, MissionStarted, Paired, PathState, R, RadioLinkChanged,
                             RegionEntered, Restarted, Start, Subscribe, UnauthorizedAttempt, Unsubscribe, fields_of,
                             logged, only, record_type)
-from ..core.reference import DELIVERY, HOME
+from ..core.reference import COVERAGE_RADIUS_M, DELIVERY, GS_B, HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, LogTail, read_records
@@ -63,8 +63,9 @@ HANDOVERS_DONE = "handovers_done"  # both hand-overs done: authority back at A, 
 FAILSAFE_FIRED = "failsafe_fired"  # the drone entered its failsafe
 HANDOVER_STARTED = "handover_started"  # the drone took the first release (the hand-over A->B begins)
 RETURNING = "returning"  # on the way back: the first entry into the hand-over region after the delivery point
+DRONE_RESTARTED = "drone_restarted"  # a fault restarted the drone's companion (just started again)
 TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED, HANDOVER_STARTED,
-            RETURNING)
+            RETURNING, DRONE_RESTARTED)
 #: The moments of the flight a scenario's fault can be moved to (``zdrone demo --moment``, ``zdrone bench
 #: sweep``): name -> (trigger, wall seconds after it).
 MOMENTS: dict[str, tuple[str, float]] = {
@@ -121,6 +122,7 @@ class Scenario:
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
     fixed_moment: bool = False  # its fault's moment is what the scenario is (``moments()`` gives none to move to)
     operators: str | None = None  # at this moment, start the two operators (``zdrone.sil.operator``) on A's and B's gateways
+    linger: float = 0.0  # wall seconds the run goes on after the vehicle landed (what happens on the ground)
 
     def own_moment(self) -> str | None:
         """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
@@ -634,6 +636,80 @@ def _check_operator_consent(o: Outcome) -> list[str]:
     return why
 
 
+def _outside_b(position: Any) -> bool:
+    """The vehicle's position (as logged) lies outside GS B's coverage (the reference fleet's)."""
+    return position is None or distance_m(GS_B, GeoPoint(position[0], position[1])) > COVERAGE_RADIUS_M
+
+
+def insider_takeovers(o: Outcome) -> tuple[list[AuthorityMoved], list[AuthorityMoved], int]:
+    """Authority moves to B while the vehicle was outside B's coverage: in the air, on the ground, and
+    how many of B's commands the drone forwarded in those epochs."""
+    to_b = [e for e in only(o.drone, AuthorityMoved) if e.to == "B" and _outside_b(e.position)]
+    final = next((e for e in reversed(o.drone) if isinstance(e, DroneState)), None)
+    by_epoch = final.forwarded_epochs if final else {}
+    forwarded = sum(int(by_epoch.get(f"{e.epoch}:B", 0)) for e in to_b)
+    in_air = [e for e in to_b if e.position is None or e.position[2] > 1.0]
+    return in_air, [e for e in to_b if e not in in_air], forwarded
+
+
+def _check_insider_heir(o: Outcome) -> list[str]:
+    """``insider-heir``: B (its own key, password and certificate) pairs again and again from outside
+    its coverage while A, the authority, hangs. Authority may go to an heir only inside its
+    coverage: the outcome is the failsafe (or A keeping authority), never B -- neither in the air
+    nor once the failsafe has landed the vehicle -- and none of B's commands reaches the vehicle."""
+    s, done = o.summary, o.rogue_done("insider-heir")
+    in_air, landed, forwarded = insider_takeovers(o)
+
+    def where(moves: list[AuthorityMoved]) -> str:
+        return "; ".join(f"{e.kind} epoch {e.epoch} "
+                         f"{distance_m(GS_B, GeoPoint(e.position[0], e.position[1])) if e.position else 0:.0f} m from B"
+                         for e in moves)
+
+    why = _need(done.get("pairings", 0) >= 2 and done.get("commands", 0) > 0,
+                f"the attacker did not pair again and again: {done}")
+    why += _need(not in_air, f"authority to B in the air outside its coverage: {where(in_air)}")
+    why += _need(not landed, f"authority to B on the ground outside its coverage: {where(landed)}")
+    why += _need(forwarded == 0, f"{forwarded} of B's commands forwarded ({done.get('command_acks')})")
+    why += _need(s["failsafe"] is not None or s["final_owner"] == "A",
+                 f"neither the failsafe nor A: final authority {s['final_owner']}")
+    return why
+
+
+def _check_key_escrow(o: Outcome) -> list[str]:
+    """``key-escrow``: B's genuine key-sharing query gets an answer from A (B is authorized; were A to
+    refuse it, nothing could be injected), but the secret A handed out must never replace A's live
+    link, whatever is sent under it: A's link and the flight must not notice."""
+    done = o.rogue_done("key-escrow")
+    replaced = [e for e in only(o.gs["A"], GsLinkConfirmed) if e.how.startswith("linkkey")]
+    why = flight_unaffected(o)
+    why += _need(done.get("queries", 0) > 0 and (done.get("secrets", 0) == 0 or done.get("injected_down", 0) > 0),
+                 f"the attacker asked nothing, or injected nothing under the secrets it got: {done}")
+    why += _need(not replaced, f"A's live link replaced by the secret it handed out ({len(replaced)}x)")
+    return why
+
+
+def repair_after_restart(drone: list[AnyRecord]) -> float | None:
+    """Seconds from the restarted companion's ``restarted`` event to the owner's pairing (None: none)."""
+    restarted = next((e for e in only(drone, Restarted)), None)
+    if restarted is None:
+        return None
+    paired = next((e.t for e in only(drone, Paired) if e.t >= restarted.t and e.gs == restarted.owner), None)
+    return None if paired is None else round(paired - restarted.t, 3)
+
+
+def _check_stale_pairing(o: Outcome) -> list[str]:
+    """``stale-pairing``: A's pairing message 1s, recorded earlier and captured in this flight, are
+    replayed right after a companion restart. A replay must spend none of A's pairing tokens: the
+    owner re-pairs in time (no failsafe) and no pairing query of A is refused for its rate."""
+    done = o.rogue_done("stale-pairing")
+    why = _check_companion_restart(o)
+    why += _need(done.get("held", 0) >= 3 and done.get("replayed", 0) > 0, f"the attacker replayed nothing: {done}")
+    why += _need(o.drone_counter("pair_refused:rate_limited") == 0,
+                 f"{o.drone_counter('pair_refused:rate_limited')} pairing queries of A refused for their rate: "
+                 "replays spent A's tokens")
+    return why
+
+
 _STOP_A = Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)")
 _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
@@ -643,6 +719,8 @@ _HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in 
 _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
 _RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
                        after=1.0)
+_SLOW_RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL), back 1.5 s later",
+                            down=1.5, after=1.0)
 _SITE1_DOWN = Fault(REGION_ENTERED, "router", RESTART, "site 1's router dies; back 6 s later", down=6.0, after=0.5)
 _SITE1_DOWN_ALONE = Fault(AIRBORNE, "router", RESTART, "site 1's router dies before the overlap; back 6 s later",
                           down=6.0, after=0.5)
@@ -762,6 +840,30 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the router drops > 64 KiB, the nodes refuse the rest by length (oversize); telemetry never stops",
              _check_big_flood,
              rogues=(RogueSpec("big-flood", MISSION_STARTED, go=REGION_ENTERED, sim_s=40.0, min_wall=10.0, rate=20.0),)),
+    Scenario("insider-heir",
+             "two sites (mutual TLS, meshed); B's own key, router password and certificate (an authorized GS "
+             "gone bad): pairs about once a second from take-off on, outside its coverage, sends RETURN_TO_LAUNCH, "
+             "asks for control, and once in command ARM and TAKEOFF; A, the authority, hangs (SIGSTOP) after "
+             "take-off; watched 3 s on after the landing",
+             "never B: the failsafe (or A keeps authority); no authority to B outside its coverage, in the air or "
+             "landed, none of B's commands forwarded",
+             _check_insider_heir, rogues=(RogueSpec("insider-heir", MISSION_STARTED, sim_s=120.0, min_wall=30.0),),
+             faults=(Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) after take-off"),),
+             sites=True, linger=3.0, fixed_moment=True),
+    Scenario("key-escrow",
+             "B's own key and router password, the drone's password: a genuine key-sharing query to A for link "
+             "(drone, A), then frames under the secret A handed out, to A as the drone and to the drone as A, in flight",
+             "A answers, but its live link is never replaced (no link_confirmed of the secret at A); flight unaffected",
+             _check_key_escrow,
+             rogues=(RogueSpec("key-escrow", MISSION_STARTED, go=AIRBORNE, sim_s=24.0, min_wall=6.0),)),
+    Scenario("stale-pairing",
+             "A's pairing message 1s (recorded in earlier flights, and captured all flight long with the drone's "
+             "password) replayed with A's password around a companion restart (killed, back 1.5 s later: A is "
+             "re-pairing while it boots)",
+             "no replay spends A's pairing tokens (no pair_refused:rate_limited): A re-pairs in time, no failsafe; "
+             "both hand-overs",
+             _check_stale_pairing, faults=(_SLOW_RESTART_DRONE,),
+             rogues=(RogueSpec("stale-pairing", BEFORE_GS_A, go=DRONE_RESTARTED, sim_s=24.0, min_wall=6.0),)),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
 #: Scenarios that need a router per site.
@@ -1210,6 +1312,8 @@ class Demo:
                 self.restart(fault.target, fault.down)
                 entry["ends"] = time.time()
                 self.notes.append(f"{fault.target} restarted after {fault.down} s down")
+                if fault.target == "drone":
+                    self._fire(DRONE_RESTARTED, live)
             else:
                 self.signal(fault.target, fault.sig)
                 self.children[fault.target].stopped = fault.sig != signal.SIGCONT
@@ -1292,9 +1396,10 @@ class Demo:
                         distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) <= DELIVERY_RADIUS_M:
                     state["delivered"] = True  # on the ground at the delivery point (the drone's own status)
             landed = ev.landed_state == 1 and not ev.armed
-            if state.get("flown") and landed:
-                state["done"] = True
-                state["final_position"] = list(pos) if pos else pos
+            if state.get("flown") and landed:  # the end (or, with ``linger``, that much later)
+                state.setdefault("final_position", list(pos) if pos else pos)
+                landed_at = state.setdefault("landed_at", time.monotonic())
+                state["done"] = time.monotonic() >= landed_at + self.spec.linger
             return
         if isinstance(ev, RegionEntered):
             state["region_entered"] += 1
@@ -1382,6 +1487,7 @@ class Demo:
                          if (f := fields_of(e))},
             "violations": violations, "exit_codes": codes, "notes": self.notes,
             "radio_links": self._radio_summary(drone_events),
+            "repair_after_restart_s": repair_after_restart(drone_events),
         }
         why: list[str] = []
         if timed_out:

@@ -65,6 +65,30 @@ member, not A). The first two must be refused at connect; with X's certificate t
 wants CN *and* user to be A, so nothing it publishes on A's keys arrives and its pairing query as A
 gets no answer.
 
+``insider-heir``: B's private key, router password and certificate (an authorized GS, malicious or
+compromised), connected where B is (with sites: B's own site router; the backhaul mesh carries its
+frames to the drone). It pairs as B again and again in flight, every ``PAIR_EVERY_S``, from outside
+B's coverage, proves each key with a burst of sealed HEARTBEATs (then 5/s), and sends RETURN_TO_LAUNCH commands
+twice a second; once the drone reports B as the authority, or is in its failsafe, it also asks for
+control (``HANDOVER_REQUEST`` for itself), and once in command it also sends ARM and TAKEOFF. The drone must never make it the authority while the
+vehicle is outside B's coverage (it is, from take-off on, while GS A hangs): failsafe, or A keeps it.
+
+``key-escrow``: B's private key and router password, and the drone's router password (the attacker
+is assumed to hold every password). It sends GS A a genuine key-sharing query for link (drone, A)
+(A answers: B is authorized for the drone) and then injects, under the secret A handed out, a
+sealed frame on ``down/<drone>/A`` as if from the drone (and one on ``up/<drone>/A`` as if from A).
+A must not let that secret replace its live link (``link_confirmed`` at A): were it to, A would seal
+under a key the drone never had and the drone would go into its failsafe.
+
+``stale-pairing``: the drone's and A's router passwords. From before A starts, a queryable on
+``zdrone/<drone>/pair/A`` (the drone's account) records every pairing message 1 A sends, all flight
+long (never answered: the real drone answers A); it also holds ``--recorded`` message 1s of A recorded in
+earlier flights (made with the genuine pairing code when the attacker starts, i.e. before this
+flight, and never made again). When told (right after a companion restart) it replays them as A: a
+few every 10 ms until the restarted drone answers one, then each one not yet answered every 0.1 s
+(newest first; those A sends meanwhile too), for ``--duration``. A replay must spend none of
+A's pairing tokens: the owner re-pairs at once and the drone never goes into its failsafe.
+
 Modes that take ``--wait-go`` set up, print ``ready``, and attack when they receive SIGUSR2 (the
 launcher sends it at the scenario's moment). All modes stop at SIGTERM or after ``--duration``.
 
@@ -102,7 +126,8 @@ from ..core.keyshare import KeyShareAsk, LinkKeyQuery, _prologue as linkkey_prol
 from ..core.kk import KKInitiator, respond as kk_respond
 from ..core.mavlink import FrameCodec
 from ..core.pairing import PairingInitiator
-from ..fleet.files import load_fleet, load_secret
+from ..core import wire
+from ..fleet.files import load_fleet, load_secret, load_sites
 from ..fleet import keyexprs as kx
 from ..fleet.tls import issue, make_ca, node_files
 from ..net.eventlog import EventLog
@@ -111,7 +136,8 @@ from ..net.session import open_client
 log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
-         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert")
+         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert", "insider-heir",
+         "key-escrow", "stale-pairing")
 ROGUE_COMPID = 190
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
 GO_TIMEOUT = 600.0
@@ -130,6 +156,7 @@ class Ctx:
     gcs_port: int | None
     wait_go: bool
     replies: int = 1  # key-injection: forged replies of each kind per query
+    recorded: int = 8  # stale-pairing: message 1s of A recorded in earlier flights
     stop: threading.Event = field(default_factory=threading.Event)
     go: threading.Event = field(default_factory=threading.Event)
     _fleet: Fleet | None = None
@@ -707,11 +734,272 @@ def no_cert(c: Ctx) -> None:
     c.events.write("attack_done", **outcome, sent=sent, pair_answered=answered, captured=captured.qsize())
 
 
+# ------------------------------------------------------------------- the insider: an authorized GS gone bad
+#: insider-heir: how often the attacker pairs again: the drone stops listening to B once a new key is
+#: proven (outside the overlap), so each pairing brings a few frames, and B's link stays OK (< 1 s
+#: of silence) only if it pairs about once a second (its allowance: 1/s, bursts of 3)
+PAIR_EVERY_S = 1.0
+#: insider-heir: HEARTBEATs sent at once under each new key (they reach the drone before it stops listening)
+PROOF_BURST = 5
+
+
+def _session_as(c: Ctx, node: str) -> zenoh.Session:
+    """A session as fleet member ``node`` with its real credentials: its router password and, with a
+    TLS router, its own certificate; with a router per site, at ``node``'s own site's router."""
+    if not c.router.startswith("tls/"):
+        return open_client(c.router, node, c.password(node))
+    router = c.router
+    try:
+        sites = load_sites(c.fleet_dir)
+    except ConfigError:
+        sites = {}
+    router = next((s["endpoint"] for s in sites.values() if node in s["ground_stations"]), router)
+    return open_client(router, node, c.password(node), node_files(c.fleet_dir, node).check())
+
+
+class _Pairing:
+    """One pairing exchange started without blocking: replies land on Zenoh's threads."""
+
+    def __init__(self, ini: PairingInitiator) -> None:
+        self.ini = ini
+        self.replies: "queue.SimpleQueue[tuple[bytes | None, bytes | None]]" = queue.SimpleQueue()
+
+    def __call__(self, reply: Any) -> None:
+        try:
+            if reply.ok is not None:
+                self.replies.put((reply.ok.payload.to_bytes(), None))
+            elif reply.err is not None:
+                self.replies.put((None, reply.err.payload.to_bytes()))
+        except Exception:  # never raise into Zenoh
+            pass
+
+
+def insider_heir(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    me = load_secret(c.fleet_dir, "B", fleet)  # B's own static key: the drone cannot tell it from B
+    s = _session_as(c, "B")
+    down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    sub = s.declare_subscriber(kx.down(drone, "B"), lambda smp: down.put(smp.payload.to_bytes()))
+    codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
+    target = fleet.nodes[drone].sysid
+    rtl = mav.MAVLink_command_long_message(target, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0)
+    arm = mav.MAVLink_command_long_message(target, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+    takeoff = mav.MAVLink_command_long_message(target, 1, mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, float("nan"),
+                                               float("nan"), float("nan"), 20.0)
+    names = {mav.MAV_CMD_NAV_RETURN_TO_LAUNCH: "rtl", mav.MAV_CMD_COMPONENT_ARM_DISARM: "arm",
+             mav.MAV_CMD_NAV_TAKEOFF: "takeoff"}
+    sent: Counter[str] = Counter()
+    refusals: Counter[str] = Counter()
+    links: list[SecureLink] = []  # every key it paired with, newest last (the drone speaks under the newest)
+    pairing: _Pairing | None = None
+    owner_at: float | None = None  # wall time the drone first said B holds authority
+    failsafe_at: float | None = None
+    acks: Counter[str] = Counter()
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        next_pair = next_beat = next_cmd = 0.0
+        epoch = 0
+        while going():
+            now = time.monotonic()
+            if pairing is not None:
+                while True:
+                    try:
+                        ok, err = pairing.replies.get_nowait()
+                    except queue.Empty:
+                        break
+                    if err is not None:
+                        refusals[err.decode(errors="replace").split(":")[0][:40]] += 1
+                        continue
+                    out = pairing.ini.finish(ok or b"")
+                    if isinstance(out, LinkKey):
+                        links = (links + [SecureLink(key=out, role="gs", tx_keyexpr=kx.up(drone, "B"),
+                                                     rx_keyexpr=kx.down(drone, "B"), peer_sysid=target, now=now)])[-3:]
+                        sent["pairings"] += 1
+                        for _ in range(PROOF_BURST):  # the proof, and frames towards "proven"
+                            s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
+                        sent["heartbeats"] += PROOF_BURST
+                        c.events.write("paired_as", gs="B")
+            if now >= next_pair:
+                next_pair = now + PAIR_EVERY_S
+                pairing = _Pairing(PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes,
+                                                     stamp=time.time()))
+                s.get(kx.pair(drone, "B"), pairing, payload=pairing.ini.start(), timeout=2.0)
+                sent["pair_queries"] += 1
+            if links and now >= next_beat:
+                next_beat = now + 0.2
+                s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
+                sent["heartbeats"] += 1
+            if links and now >= next_cmd:
+                next_cmd = now + 0.5
+                s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(rtl)))
+                sent["commands"] += 1
+                if owner_at is not None or failsafe_at is not None:  # and ask for control, for itself
+                    s.put(kx.up(drone, "B"), links[-1].seal_control(wire.HandoverRequest("B", epoch)))
+                    sent["control_requests"] += 1
+                if owner_at is not None:  # in command: a landed vehicle is armed and taken off again
+                    for msg in (arm, takeoff):
+                        s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(msg)))
+                        sent["commands"] += 1
+            while True:  # what the drone says to B: who holds authority, the vehicle's answers
+                try:
+                    data = down.get_nowait()
+                except queue.Empty:
+                    break
+                for link in reversed(links):
+                    res = link.open(data, now)
+                    if not isinstance(res, Opened):
+                        continue
+                    if isinstance(res.control, wire.AuthorityStatus):
+                        epoch = res.control.epoch
+                        if res.control.owner == "B" and owner_at is None:
+                            owner_at = time.time()
+                        if res.control.state is wire.AuthorityState.FAILSAFE and failsafe_at is None:
+                            failsafe_at = time.time()
+                    elif isinstance(res.control, wire.FailsafeNotice) and failsafe_at is None:
+                        failsafe_at = time.time()
+                    elif res.header is not None and res.header.msgid == mav.MAVLINK_MSG_ID_COMMAND_ACK:
+                        ack = codec.decode(res.plaintext)
+                        if ack is not None and ack.command in names:
+                            result = "accepted" if ack.result == mav.MAV_RESULT_ACCEPTED else f"result_{ack.result}"
+                            acks[f"{names[ack.command]}:{result}"] += 1
+                    break
+            c.stop.wait(0.02)
+        c.events.write("attack_done", **sent, refusals=dict(refusals), owner_at=owner_at, failsafe_at=failsafe_at,
+                       command_acks=dict(acks))
+    finally:
+        sub.undeclare()
+        s.close()
+
+
+def key_escrow(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    if c.router.startswith("tls/"):
+        raise ConfigError("key-escrow injects as the drone: with mutual TLS that needs the drone's certificate")
+    me = load_secret(c.fleet_dir, "B", fleet)
+    s_b = _session_as(c, "B")
+    s_d = open_client(c.router, drone, c.password(drone))  # the drone's router password: may publish on down/*
+    s_a = open_client(c.router, "A", c.password("A"))  # A's: may publish on up/<drone>/A
+    sent: Counter[str] = Counter()
+    refused: Counter[str] = Counter()
+    try:
+        c.ready()
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        seq = 0
+        while going():
+            ask = KeyShareAsk(me.identity, "B", "A", fleet.nodes["A"].public_bytes, drone, time.monotonic(),
+                              wall=time.time())
+            sent["queries"] += 1
+            secret: bytes | None = None
+            for r in s_b.get(kx.linkkey("A", drone), payload=ask.payload, timeout=3.0):
+                if r.ok is None:
+                    refused[(r.err.payload.to_bytes().decode(errors="replace") if r.err else "?")[:40]] += 1
+                    continue
+                got = ask.on_reply(r.ok.payload.to_bytes(), time.monotonic())
+                if isinstance(got, bytes):
+                    secret = got
+            if secret is None:
+                sent["no_secret"] += 1
+                c.stop.wait(1.0)
+                continue
+            sent["secrets"] += 1
+            key = LinkKey.from_secret(drone, "A", secret)  # the key A would use with the drone, had it granted it
+            now = time.monotonic()
+            as_drone = SecureLink(key=key, role="drone", tx_keyexpr=kx.down(drone, "A"), rx_keyexpr=kx.up(drone, "A"),
+                                  peer_sysid=fleet.nodes["A"].sysid, now=now)
+            as_a = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(drone, "A"), rx_keyexpr=kx.down(drone, "A"),
+                              peer_sysid=fleet.nodes[drone].sysid, now=now)
+            for _ in range(3):
+                seq += 1
+                s_d.put(kx.down(drone, "A"), as_drone.seal_control(wire.SmHeartbeat(seq)))  # to A, as the drone
+                s_a.put(kx.up(drone, "A"), as_a.seal(FrameCodec(fleet.nodes["A"].sysid, ROGUE_COMPID).encode(_heartbeat())))
+                sent["injected_down"] += 1
+                sent["injected_up"] += 1
+                c.stop.wait(0.05)
+            c.stop.wait(1.5)  # A's rate limit for B: 1/s, bursts of 3
+        c.events.write("attack_done", **sent, refused=dict(refused))
+    finally:
+        s_a.close()
+        s_d.close()
+        s_b.close()
+
+
+def stale_pairing(c: Ctx) -> None:
+    fleet, drone = c.fleet, c.drone
+    if c.router.startswith("tls/"):
+        raise ConfigError("stale-pairing records and replays with the drone's and A's passwords: no certificates")
+    # message 1s of A recorded in earlier flights (the genuine pairing code, run now, before this flight:
+    # A's key is used here and never again)
+    a_key = load_secret(c.fleet_dir, "A", fleet).identity
+    held = [PairingInitiator(a_key, "A", drone, fleet.nodes[drone].public_bytes, stamp=time.time()).start()
+            for _ in range(c.recorded)]
+    del a_key
+    if held:
+        c.events.write("captured", what=f"{len(held)} pairing message 1s of A recorded earlier", bytes=len(held[0]))
+    s_cap = open_client(c.router, drone, c.password(drone))
+    qable = s_cap.declare_queryable(kx.pair(drone, "A"), zenoh.handlers.RingChannel(256))
+    s_a = open_client(c.router, "A", c.password("A"))
+    captured = {"before": 0, "after": 0}
+    results: list[_Replies] = [_Replies() for _ in held]
+    seen = set(held)
+
+    def capture(when: str) -> None:
+        """Record what A sends (never answered: the genuine drone answers A)."""
+        while (q := qable.try_recv()) is not None:
+            m1 = q.payload.to_bytes() if q.payload is not None else b""
+            q.drop()
+            if m1 and m1 not in seen:
+                seen.add(m1)
+                held.append(m1)
+                results.append(_Replies())
+                captured[when] += 1
+                if captured[when] <= 5:
+                    c.events.write("captured", what=f"a pairing message 1 of A, in flight ({when} the restart)",
+                                   bytes=len(m1))
+
+    try:
+        c.ready()
+        while not c.go.is_set() and not c.stop.is_set():  # record what A sends until told to replay
+            capture("before")
+            c.stop.wait(0.005)
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        replayed = 0
+        while going():
+            capture("after")  # and go on recording: A's tries the restarted drone never saw, or refused
+            answered = [bool(r.snapshot().get("ok", 0)) for r in results]
+            # until the restarted drone answers, a few every 10 ms (they must be first in its queue when it
+            # comes up); then every one not yet answered every 0.1 s (each refill of the GS's allowance),
+            # the newest first (the freshest stamps)
+            up = any(answered)
+            todo = [i for i in reversed(range(len(held))) if not answered[i]][: None if up else 4]
+            for i in todo:
+                s_a.get(kx.pair(drone, "A"), results[i], payload=held[i], timeout=1.0)
+                replayed += 1
+            c.stop.wait(0.1 if up else 0.01)
+        c.stop.wait(1.5)  # the last replies
+        total: Counter[str] = Counter()
+        for r in results:
+            total.update(r.snapshot())
+        c.events.write("attack_done", held=len(held), captured_before=captured["before"],
+                       captured_after=captured["after"], replayed=replayed,
+                       answered=sum(1 for r in results if r.snapshot().get("ok", 0)), replies=dict(total))
+    finally:
+        qable.undeclare()
+        s_a.close()
+        s_cap.close()
+
 ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
     "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
-    "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert,
+    "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert, "insider-heir": insider_heir,
+    "key-escrow": key_escrow, "stale-pairing": stale_pairing,
 }
 assert set(ATTACKS) == set(MODES)
 
@@ -727,6 +1015,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gcs-port", type=int, help="UDP port of the GCS gateway (gateway-flood)")
     p.add_argument("--wait-go", action="store_true", help="set up, then attack on SIGUSR2")
     p.add_argument("--replies", type=int, default=1, help="key-injection: forged replies of each kind per query (1)")
+    p.add_argument("--recorded", type=int, default=8,
+                   help="stale-pairing: message 1s of A recorded in earlier flights (8)")
     p.add_argument("--events")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -735,7 +1025,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
-              max(1, args.replies))
+              max(1, args.replies), max(0, args.recorded))
     signal.signal(signal.SIGTERM, lambda *_: ctx.stop.set())
     signal.signal(signal.SIGUSR2, lambda *_: ctx.go.set())
     try:

@@ -1,0 +1,99 @@
+"""Issue 18, item 5: the insider's attacks end to end (``zdrone demo --scenario …``). The attacker is an
+authorized ground station gone bad: B's own static key, router password and certificate, in a
+process of its own (and, where the attack needs them, the other nodes' router passwords). Each
+flight takes about 40 s of wall time at speed-up 4.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.integration.test_attacks import _unaffected
+from tests.integration.test_flight_e2e import _clean_shutdown, run_demo
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.reference import COVERAGE_RADIUS_M, GS_B
+from zdrone.net.eventlog import read_events
+
+@pytest.fixture(scope="module")
+def heir_flight(tmp_path_factory):
+    """One insider-heir flight for both of its checks (in the air; on the ground after the failsafe)."""
+    return run_demo(tmp_path_factory.mktemp("insider"), "insider-heir")
+
+
+def _moves_to_b(out: Path, airborne: bool) -> list[dict]:
+    """Authority moves to B (in the air, or on the ground), each with its distance from B's centre."""
+    moves = [e for e in read_events(out / "drone.jsonl") if e["type"] in ("authority", "handover_complete")
+             and e["to"] == "B" and (e["position"] is None or e["position"][2] > 1.0) == airborne]
+    return [e | {"from_b_m": round(distance_m(GS_B, GeoPoint(*e["position"][:2])))} for e in moves if e["position"]]
+
+
+@pytest.mark.slow
+def test_insider_heir_outside_its_coverage_never_gets_authority_in_the_air(heir_flight):
+    """Two sites over mutual TLS: B's frames reach the drone through A's site over the backhaul, so
+    radio range does not stop it. B pairs about once a second from take-off on; A hangs right after
+    take-off, with the vehicle hundreds of metres outside B's coverage: the failsafe, never B."""
+    s, out = heir_flight
+    assert s["_rc"] in (0, 1) and not s["timed_out"], s["why_not_ok"]
+    done = s["attacks"]["insider-heir"]
+    assert done["pairings"] >= 2 and done["heartbeats"] > 0 and done["commands"] > 0
+    fs = s["failsafe"]
+    assert fs is not None and fs["reason"] == "authority link to A lost" and 0 <= fs["detect_to_command_ms"] <= 100.0
+    assert distance_m(GS_B, GeoPoint(*fs["position"][:2])) > COVERAGE_RADIUS_M + 50.0  # well outside B's coverage
+    assert _moves_to_b(out, airborne=True) == []
+    assert not [w for w in s["why_not_ok"] if "in the air" in w or "neither" in w]
+    _clean_shutdown(s, out, nodes=("drone",), stopped=("gsA",))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="open: once the failsafe has landed the vehicle, any authorized GS that "
+                   "pairs takes authority (kind 'repaired'), wherever the vehicle is: B, 430 m from its coverage's "
+                   "centre over the backhaul, gets it and its ARM is accepted")
+def test_insider_heir_outside_its_coverage_never_gets_authority_on_the_ground(heir_flight):
+    """The same flight, watched 3 s on after the failsafe landed the vehicle: B, still pairing from
+    outside its coverage, must not take the landed vehicle (nor arm it)."""
+    s, out = heir_flight
+    assert _moves_to_b(out, airborne=False) == []
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    assert not any(k.startswith("arm:accepted") for k in s["attacks"]["insider-heir"]["command_acks"])
+
+
+@pytest.mark.slow
+def test_key_escrow_secret_never_replaces_the_answering_gs_live_link(tmp_path):
+    """B asks A for a key of link (drone, A) and sends frames under any secret A hands out, to A as
+    the drone (the drone's router password) and to the drone as A (A's): A's live link stays (A,
+    whose own link is alive, answers no key-sharing query at all: ``linkkey_refused:live_link``)."""
+    s, out = run_demo(tmp_path, "key-escrow")
+    _unaffected(s)
+    done = s["attacks"]["key-escrow"]
+    assert done["queries"] >= 1
+    if done.get("secrets", 0):  # A answered (B is authorized for the drone): frames went out under it
+        assert done["injected_down"] >= 3 and done["injected_up"] >= 3
+    a = read_events(out / "A.jsonl")
+    assert [e for e in a if e["type"] == "link_confirmed" and e["how"].startswith("linkkey")] == []
+    assert [e["how"] for e in a if e["type"] == "link_confirmed"] in ([], ["pair"])
+    assert s["authority_link"]["worst_state"] != "lost"
+    _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="open: the drone takes a message 1 stamped up to MAX_SKEW (1 s) before the "
+                   "companion started, or while it boots, that it never saw: A's own tries captured while the "
+                   "companion is down buy handshakes and spend A's tokens (failsafe, 2 of 2 runs)")
+def test_stale_pairing_messages_replayed_after_a_restart_spend_no_tokens(tmp_path):
+    """A's pairing message 1s (recorded earlier, and captured all flight long, A's tries while the
+    companion is down included) replayed as A around a companion restart: none spends A's pairing
+    allowance; A re-pairs within the loss threshold."""
+    s, out = run_demo(tmp_path, "stale-pairing")
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    assert [(h["from"], h["to"], h["kind"]) for h in s["handovers"]] == [("A", "B", "handover"), ("B", "A", "handover")]
+    assert s["failsafe"] is None and s["violations"] == [] and s["delivered_at_b"] and s["distance_from_home_m"] < 3.0
+    assert s["commands"]["lost"] <= 20  # only those sent while the companion was down (1.5 s, 5/s)
+    done = s["attacks"]["stale-pairing"]
+    assert done["held"] >= 3 and done["replayed"] >= done["held"]
+    assert s["drone_counters"].get("pair_refused:rate_limited", 0) == 0
+    assert s["repair_after_restart_s"] is not None and s["repair_after_restart_s"] < 3.0
+    drone = read_events(out / "drone.jsonl")
+    assert [(e["owner"], e["epoch"]) for e in drone if e["type"] == "restarted"] == [("A", 1)]
+    _clean_shutdown(s, out, stopped=("drone",))
