@@ -280,6 +280,7 @@ class DroneView:
     ha_state: HaState | None = None
     pending_to: str | None = None
     drone_links: set[str] = field(default_factory=set)  # GSs the drone already holds keys for
+    fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
     grants: dict[str, wire.KeyGrant] = field(default_factory=dict)  # gs -> grant not yet acknowledged
     granted: set[str] = field(default_factory=set)
     grant_sent: float | None = None
@@ -660,6 +661,9 @@ class StationCore:
             view.stale = False  # the drone's own word: our view is current again
             view.drone_links = set(msg.linked)
             view.takeover = msg.takeover
+            if msg.fc_signed is not None and msg.fc_signed != view.fc_signed:
+                view.fc_signed = msg.fc_signed
+                out.append(Log("fc_signing", {"drone": view.name, "signed": msg.fc_signed}))
             if changed:
                 out.append(Log("authority_status", {"drone": view.name, "owner": msg.owner, "epoch": msg.epoch,
                                                     "state": msg.state.value, "pending_to": msg.pending_to}))
@@ -1005,7 +1009,8 @@ class StationCore:
                       "link": None if v.link is None else {"opened": v.link.opened, "sent": v.link.sent,
                                                              "dropped": {r.value: c for r, c in v.link.drops.items() if c}},
                       "key_candidates": len(v.slot.candidates),
-                      "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c}}
+                      "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c},
+                      "fc_signed": v.fc_signed}
         return {"drones": out, "counters": dict(self.counters)}
 
 

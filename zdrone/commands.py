@@ -54,7 +54,8 @@ def _sim(args: argparse.Namespace) -> int:
         truth = (host, int(port))
     return run_sim(SimOptions(mavlink=args.mavlink, home=home, speedup=args.speedup, seed=args.seed,
                               sysid=args.sysid, gps_noise=args.gps_noise, duration=args.duration,
-                              personality=personality(args.autopilot), ready_after=args.ready_after, truth=truth))
+                              personality=personality(args.autopilot), ready_after=args.ready_after, truth=truth,
+                              telem2=args.telem2, storage=args.storage, signing=not args.no_signing))
 
 
 def add_sim(sub: argparse._SubParsersAction) -> None:
@@ -76,6 +77,12 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=positive, default=None, help="stop after this many wall seconds")
     p.add_argument("--truth", metavar="IPV4:PORT", default=None,
                    help="testbed only: send the true position there (UDP JSON, 20/s), for radio links from coverage")
+    p.add_argument("--telem2", metavar="CONN", default=None,
+                   help="a second MAVLink endpoint, the autopilot's TELEM2 (a telemetry radio), e.g. udpin:127.0.0.1:14590")
+    p.add_argument("--storage", metavar="DIR", default=None,
+                   help="the autopilot's persistent storage: its MAVLink signing key and timestamp survive a restart")
+    p.add_argument("--no-signing", action="store_true",
+                   help="an autopilot without MAVLink signing (PX4 before 1.17): SETUP_SIGNING ignored, nothing signed")
     p.set_defaults(func=_sim)
 
 
@@ -135,7 +142,8 @@ def _drone(args: argparse.Namespace) -> int:
     return run_drone(DroneOptions(drone=args.id, fleet=args.fleet, router=router, vehicle=args.vehicle,
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
                                   handover_timeout=args.handover_timeout, gate=_gate(args),
-                                  events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args)))
+                                  events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args),
+                                  fc_signing=args.fc_signing, rotate_fc_key=args.rotate_fc_key))
 
 
 def _gate(args: argparse.Namespace) -> "Any":
@@ -177,6 +185,12 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--lost-after", type=positive, default=3.0, metavar="S", help="TBM LOST threshold (3 s)")
     p.add_argument("--failsafe", choices=["LAND", "RTL"], default="LAND", help="action when the authority link is lost")
     p.add_argument("--handover-timeout", type=positive, default=5.0, metavar="S", help="hand-over timeout (5 s)")
+    p.add_argument("--fc-signing", choices=("require", "prefer", "off"), default="prefer",
+                   help="MAVLink 2 signing of the link to the autopilot (key kept in secrets/<id>.fc-signing.json): "
+                        "require = refuse to fly an autopilot that does not sign back; prefer = go on unsigned then, "
+                        "said and counted (default); off = never sign")
+    p.add_argument("--rotate-fc-key", action="store_true",
+                   help="install a new signing key in the autopilot (on the ground only), signed with the old one")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--sil-loss", action="append", metavar="[GS=]P",
                    help="TESTBED ONLY: lose each frame with probability P (every GS link, or GS's); repeatable")

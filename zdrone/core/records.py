@@ -125,6 +125,7 @@ class DroneState(Record, frozen=True, kw_only=True):
     out_of_coverage: dict[str, int]
     radio_lost: dict[str, int] = {}
     paths: dict[str, dict[str, Any]] = {}  # with a router per site: each path (open, connected)
+    fc_signing: dict[str, Any] = {}  # MAVLink signing of the autopilot's link (``FcSigning.status``)
 
 
 class DroneStatus(DroneState, frozen=True, tag="status"):
@@ -340,6 +341,7 @@ class GsDroneReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omi
     key_candidates: int
     dropped_unlinked: dict[str, int]
     waiting: str | None = None  # what the GS waits for before it arms (None: nothing)
+    fc_signed: bool | None = None  # the drone says its link to the autopilot is MAVLink-signed
 
 
 class GsState(Record, frozen=True, kw_only=True):
@@ -464,6 +466,13 @@ class AuthorityStatus(Record, frozen=True, tag="authority_status"):
     epoch: int
     state: AuthorityState
     pending_to: str | None
+
+
+class FcSigningHeard(Record, frozen=True, tag="fc_signing"):
+    """The drone says whether its link to its autopilot is MAVLink-signed (logged when it changes)."""
+
+    drone: str
+    signed: bool
 
 
 class KeyGranted(Record, frozen=True, tag="key_granted"):
@@ -820,7 +829,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
 GS_RECORDS: tuple[type[Record], ...] = (
     GsStart, GsStatus, GsStop, Closed, Suppressed, PathOpen, PathState, ControlRequested, GsPairRefused, PairFailed,
     PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
-    GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, KeyGranted, Rejected, FailsafeNoticed,
+    GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, FcSigningHeard, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
     VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, GcsApp, GcsAppGone, OperatorControlRequested,
     *OPERATOR_CONTROL_RECORDS,

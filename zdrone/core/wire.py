@@ -80,6 +80,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     pending_to: str | None = None
     linked: list[str] = []  # GSs the drone holds a link key for
     takeover: bool = False  # the owner allows takeover in this epoch (its operator's setting)
+    fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
 
 
 class Reject(Control, frozen=True, tag="reject"):

@@ -31,6 +31,7 @@ from ..core import authority as ha
 from ..core import records as rec
 from ..core.fleet import ConfigError
 from ..core.tbm import TbmThresholds
+from ..vehicle.fcsigning import FcKeyStore, FcSigning
 from ..vehicle.link import VehicleLink, VehicleState
 from ..fleet import keyexprs as kx
 from ..net.authstore import AuthorityStore, SavedAuthority
@@ -126,6 +127,8 @@ class DroneOptions:
     status_period: float = 0.5
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
     radio: Any = None  # TESTBED ONLY: a ``RadioPath`` (loss, bursts, delay, jitter), handed in likewise
+    fc_signing: str = "prefer"  # MAVLink signing of the flight controller's link: require | prefer | off
+    rotate_fc_key: bool = False  # install a new signing key in the flight controller (on the ground)
 
 
 class DroneNode:
@@ -148,7 +151,9 @@ class DroneNode:
         self.subs: dict[str, Any] = {}
         self._next_status = 0.0
         self._last_pass = 0.0  # the ``now`` of the loop's last pass
-        self.vehicle: Vehicle = vehicle if vehicle is not None else VehicleLink(opts.vehicle, companion_sysid=self.sysid)
+        self.vehicle: Vehicle = vehicle if vehicle is not None else VehicleLink(
+            opts.vehicle, companion_sysid=self.sysid,
+            signing=FcSigning(FcKeyStore.for_node(opts.fleet, opts.drone), opts.fc_signing, opts.rotate_fc_key))
         self._vehicle_pushes = False  # True once the vehicle's frames come through the inbox
         self.pairing = self.rt.queryable(kx.pair_all(self.name))
 
@@ -277,7 +282,14 @@ class DroneNode:
             "paths": self.rt.path_status() if self.rt.multipath else {},
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
             "radio_lost": dict(self.radio.lost) if self.radio else {},
+            "fc_signing": self._fc_signing(),
         }
+
+    def _fc_signing(self) -> dict[str, Any]:
+        """The autopilot link's MAVLink signing (``FcSigning.status``); the core tells the GSs whether it is signed."""
+        st: dict[str, Any] = getattr(self.vehicle, "signing_status", dict)()
+        self.core.fc_signed = bool(st.get("signed")) if st else None
+        return st
 
     def stop(self, *_: object) -> None:
         self.rt.stop()
@@ -288,6 +300,7 @@ class DroneNode:
         if not self.vehicle.wait_vehicle(30.0):
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
+        self._fc_signing()
         self._restore(time.monotonic())
         inbox = self.rx
         self._vehicle_pushes = self.vehicle.start_reader(lambda msg: inbox.put(VEHICLE, VEHICLE, msg))

@@ -34,6 +34,8 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable, Union
 
+import msgspec
+
 from zdrone.core import authority as ha
 from zdrone.core import records as rec
 from zdrone.core import wire
@@ -162,6 +164,7 @@ class DroneCore:
         self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
         self.position: Position | None = None
         self.on_ground = True
+        self.fc_signed: bool | None = None  # the adapter's word: the autopilot link is MAVLink-signed (None: unknown)
         self._listening: frozenset[str] = frozenset()
         self._persisted: tuple[str | None, int, str] | None = None
         self._next_beacon = 0.0
@@ -265,7 +268,7 @@ class DroneCore:
             out += self._apply(self.machine.handle_timer(now), now)
         if now >= self._next_beacon:
             self._next_beacon = now + self.opts.status_beacon
-            st = self.machine.status()
+            st = self._stamped(self.machine.status())
             out += [PutDown(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
         return out + self._effects(now)
 
@@ -307,7 +310,13 @@ class DroneCore:
 
     def _control(self, gs: str, msg: wire.Control) -> list[Out]:
         link = self.links.get(gs)
-        return [] if link is None else [PutDown(gs, link.seal_control(msg))]
+        return [] if link is None else [PutDown(gs, link.seal_control(self._stamped(msg)))]
+
+    def _stamped(self, msg: wire.Control) -> wire.Control:
+        """An authority status tells each GS whether the drone's autopilot link is signed."""
+        if isinstance(msg, wire.AuthorityStatus) and self.fc_signed is not None:
+            return msgspec.structs.replace(msg, fc_signed=self.fc_signed)
+        return msg
 
     def _handle(self, event: ha.Event, now: float, frame: bytes | None = None) -> list[Out]:
         owner, epoch = self.machine.owner, self.machine.epoch  # the forward is decided before any switch

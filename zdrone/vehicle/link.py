@@ -8,6 +8,12 @@ node needs to know (sysid, autopilot, position, mode, armed, landed state), asks
 streams the drone node and the GSs depend on (on connect and after a reboot), and the link commands
 LAND / RTL itself with the autopilot's own mode numbers.
 
+With an ``FcSigning`` (``zdrone.vehicle.fcsigning``) the link provisions MAVLink 2 signing in
+``wait_vehicle`` (a key installed with SETUP_SIGNING, or the stored one), signs every frame it sends
+and checks every frame it receives (dropped and counted when forged, replayed or, once the
+autopilot signs, unsigned); the frames it hands on have their signature removed (the envelope
+authenticates them beyond the companion).
+
 Two ways to read it: ``recv`` (the caller polls; ``wait_vehicle`` and the tests), or, once
 ``start_reader`` is called, a reader thread of its own that waits on the connection and hands every
 message to the caller's ``deliver`` at once (the drone node's inbox, which wakes its loop). The
@@ -30,7 +36,10 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (after MAVLINK20 is set)
 from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
+from ..core import fcsign  # noqa: E402
 from ..core.fleet import ConfigError  # noqa: E402
+from ..core.mavlink import FrameError  # noqa: E402
+from .fcsigning import FcSigning, FcSigningError, FcState  # noqa: E402
 from ..core.geometry import GeoPoint  # noqa: E402
 from .modes import ARDUPILOT, set_mode_params  # noqa: E402
 from .tracker import DEFAULT_STREAMS, StreamWant, Timing, VehicleTracker  # noqa: E402
@@ -63,7 +72,8 @@ class VehicleLink:
     """Raw MAVLink frames to and from the flight controller, plus its tracked state and streams."""
 
     def __init__(self, conn: str, companion_sysid: int = 1, baud: int = 57600,
-                 streams: tuple[StreamWant, ...] = DEFAULT_STREAMS, timing: Timing = Timing()) -> None:
+                 streams: tuple[StreamWant, ...] = DEFAULT_STREAMS, timing: Timing = Timing(),
+                 signing: FcSigning | None = None) -> None:
         try:
             # ardupilotmega (a superset of common): its ids are checked and decoded; ids of no dialect pass raw
             self.m = mavutil.mavlink_connection(conn, source_system=companion_sysid, source_component=COMPANION_COMPID,
@@ -78,6 +88,7 @@ class VehicleLink:
         self._closing = threading.Event()
         self._reader: threading.Thread | None = None
         self.read_errors = 0
+        self.signing = signing
 
     # ------------------------------------------------------------ tracked state
     @property
@@ -122,6 +133,10 @@ class VehicleLink:
         return VehicleState(self.sysid, self.position, self.armed, self.mode, self.landed_state, self.autopilot,
                             self.tracker.fix.unknown_because)
 
+    def signing_status(self) -> dict[str, Any]:
+        """MAVLink signing of this link (``FcSigning.status``); mode "off" without one."""
+        return self.signing.status() if self.signing is not None else {"mode": "off", "state": "off", "signed": False}
+
     # ------------------------------------------------------------------ frames
     def heartbeat(self, now: float | None = None) -> None:
         """Send the companion's own HEARTBEAT (at most 1 Hz) so UDP autopilots know where we are, and
@@ -130,8 +145,8 @@ class VehicleLink:
         if now - self._last_hb_sent >= HEARTBEAT_PERIOD_S:
             self._last_hb_sent = now
             with self._io:
-                self.m.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0,
-                                          mav.MAV_STATE_ACTIVE)
+                self._send_msg(self.m.mav.heartbeat_encode(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID,
+                                                           0, 0, mav.MAV_STATE_ACTIVE))
         self._flush(now)
 
     def next_due(self) -> float:
@@ -141,22 +156,46 @@ class VehicleLink:
 
     def _flush(self, now: float) -> None:
         self._last_flush = now
+        setup = self.signing.due_setup(now) if self.signing is not None else None
+        if setup is not None:  # SETUP_SIGNING, signed with the key it replaces (unsigned: the first key)
+            msg, key = setup
+            with self._io:
+                self._send_msg(msg, key)
         for msg in self.tracker.poll(now):
             with self._io:
-                self.m.mav.send(msg)
+                self._send_msg(msg)
+
+    def _send_msg(self, msg: Any, sign_key: bytes | None | bool = True) -> None:
+        """Pack ``msg`` under the link's sequence number and send it (with ``_io`` held), signed while
+        signing (``sign_key``: True = the link's key, else that key, None unsigned)."""
+        frame = msg.pack(self.m.mav)
+        self.m.mav.seq = (self.m.mav.seq + 1) % 256
+        if self.signing is not None:
+            frame = self.signing.outgoing(frame) if sign_key is True else self.signing.sign_with(frame, sign_key or None)
+        self.m.write(frame)
 
     def _read_one(self) -> Any:
         """The next well-formed message already received, or None (never waits)."""
         while True:
             with self._io:
                 msg = self.m.recv_msg()
-            if msg is None or msg.get_type() != "BAD_DATA":
+            if msg is None:
+                return None
+            if msg.get_type() == "BAD_DATA":
+                continue
+            if self.signing is None or self.signing.incoming(bytes(msg.get_msgbuf())) is None:
                 return msg
 
     def accept(self, msg: Any, now: float) -> bytes:
         """Take up one message from the vehicle (on the loop thread): track it; its raw frame."""
         self.tracker.on_message(msg, now)
-        return bytes(msg.get_msgbuf())
+        raw = bytes(msg.get_msgbuf())
+        if fcsign.is_signed(raw):
+            try:
+                return fcsign.strip(raw)
+            except FrameError:
+                return raw
+        return raw
 
     def recv(self, timeout: float = 0.0) -> list[bytes]:
         """Frames from the vehicle (raw bytes, as received), waiting up to ``timeout`` for the first.
@@ -207,7 +246,9 @@ class VehicleLink:
                 self._closing.wait(READ_WAIT_S)
 
     def send(self, frame: bytes) -> None:
-        """Send one raw MAVLink frame to the vehicle."""
+        """Send one raw MAVLink frame to the vehicle (signed while signing)."""
+        if self.signing is not None:
+            frame = self.signing.outgoing(frame)
         with self._io:
             self.m.write(frame)
 
@@ -216,7 +257,7 @@ class VehicleLink:
         """COMMAND_LONG to the vehicle now; resent until acknowledged (bounded, see ``Timing``)."""
         msg = self.tracker.command(cmd, params, time.monotonic())
         with self._io:
-            self.m.mav.send(msg)
+            self._send_msg(msg)
 
     def _set_mode(self, name: str, fallback: int) -> None:
         params = set_mode_params(self.autopilot, name) if self.autopilot == ARDUPILOT else None
@@ -240,7 +281,23 @@ class VehicleLink:
         while self.sysid is None and time.monotonic() < deadline:
             self.heartbeat()
             self.recv(0.1)
-        return self.sysid is not None
+        if self.sysid is None:
+            return False
+        if self.signing is not None:
+            self._provision()
+        return True
+
+    def _provision(self) -> None:
+        """MAVLink signing before anything else: the key installed or confirmed, or the link's
+        fallback decided (``FcSigning``). Raises ``FcSigningError`` if the vehicle cannot be flown."""
+        assert self.signing is not None and self.sysid is not None
+        signing = self.signing
+        signing.start(time.monotonic(), self.tracker.armed, self.sysid)
+        while not signing.settled:
+            self.heartbeat()
+            self.recv(0.1)
+        if signing.state is FcState.FAILED:
+            raise FcSigningError(f"vehicle {self.conn}: MAVLink signing: {signing.reason}")
 
     def close(self) -> None:
         """Stop the reader thread (within ``READ_WAIT_S``), then close the connection."""

@@ -6,6 +6,12 @@ time (wall time since boot × speed-up), steps it and sends what it drained to e
 personality's endpoints are the defaults: PX4's onboard link listens on UDP 14580 and sends to
 14540 from boot; ArduPilot SITL listens on TCP 5760 and does not boot (its clock does not start)
 until a client has connected there.
+
+A second endpoint (``telem2``) stands for the autopilot's TELEM2 port (a telemetry radio): link 1,
+the main endpoint being link 0. Both get every frame the autopilot sends, each signed or not as the
+autopilot's MAVLink signing says for that link (``sim.signing``); frames are handed to the
+autopilot with the link they came on. ``storage`` is the autopilot's persistent storage (its
+signing key and timestamp survive a restart of ``zdrone sim`` with the same directory).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from dataclasses import dataclass
 from ..core.geometry import GeoPoint
 from .personality import PX4, Personality
 from .sim import SimAutopilot
+from .sim.signing import RULES as SIGNING_RULES, SigningStorage, SimSigning
 from .transport import MavTransport
 
 log = logging.getLogger(__name__)
@@ -40,6 +47,9 @@ class SimOptions:
     personality: Personality = PX4
     ready_after: float | None = None  # simulated seconds; None: the personality's short default
     truth: tuple[str, int] | None = None  # TESTBED ONLY: send the true position here (UDP JSON, 20 Hz wall)
+    telem2: str | None = None  # a second MAVLink endpoint (link 1), e.g. udpin:127.0.0.1:14590
+    storage: str | None = None  # directory of the autopilot's persistent storage (signing key); None: none
+    signing: bool = True  # False: an autopilot without MAVLink signing (PX4 before 1.17)
 
 
 class SimServer:
@@ -51,10 +61,20 @@ class SimServer:
         conn = opts.mavlink or pers.endpoint
         peers = (pers.send_to,) if opts.mavlink is None and pers.send_to is not None else ()
         self.transport = MavTransport(conn, peers)
+        #: link number -> transport (0: the main endpoint, 1: TELEM2)
+        self.links: list[MavTransport] = [self.transport]
+        if opts.telem2 is not None:
+            try:
+                self.links.append(MavTransport(opts.telem2))
+            except Exception:
+                self.transport.close()
+                raise
         self.peers = peers
         self.ready_after = pers.default_ready_after if opts.ready_after is None else opts.ready_after
+        rules = SIGNING_RULES.get(pers.name) if opts.signing else None
+        storage = SigningStorage(opts.storage, rules) if opts.storage is not None and rules is not None else None
         self.sim = SimAutopilot(opts.home, sysid=opts.sysid, seed=opts.seed, personality=pers,
-                                ready_after=self.ready_after)
+                                ready_after=self.ready_after, signing=SimSigning(rules, storage, wall=time.time))
         self.sim.params["SIM_GPS_NOISE"].value = opts.gps_noise
         self._running = True
         self._truth = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if opts.truth else None
@@ -88,22 +108,26 @@ class SimServer:
             while self._running:
                 if self.opts.duration is not None and time.monotonic() - start >= self.opts.duration:
                     break
-                received = self.transport.poll(tick)
+                received = [(0, f) for f, _peer in self.transport.poll(tick)]
+                for link, extra in enumerate(self.links[1:], start=1):
+                    received += [(link, f) for f, _peer in extra.poll(0.0)]
                 if not booted:
                     if not self.transport.has_peer():
                         continue
                     booted, t0 = True, time.monotonic()  # the autopilot boots now: its clock starts at 0
                     log.info("client connected: booting")
-                for frame, _peer in received:
-                    self.sim.receive(frame, self.sim.t)
+                for link, frame in received:
+                    self.sim.receive(frame, self.sim.t, link)
                 self.sim.step((time.monotonic() - t0) * self.opts.speedup)
                 out = self.sim.drain()
                 self._send_truth(time.monotonic())
-                if self.transport.has_peer():
-                    for f in out:
-                        self.transport.send(f)
+                for link, transport in enumerate(self.links):
+                    if transport.has_peer():
+                        for f in out:
+                            transport.send(self.sim.signing.outgoing(f, link))
         finally:
-            self.transport.close()
+            for transport in self.links:
+                transport.close()
             if self._truth is not None:
                 self._truth.close()
             log.info("sim stopped; counters %s, stream bytes skipped %d", dict(self.sim.counters), self.transport.skipped_bytes)
@@ -117,6 +141,8 @@ def run_sim(opts: SimOptions) -> int:
     also = "".join(f" -> udp {h}:{p}" for h, p in server.peers)
     print(f"zdrone sim: {pers.label} quadrotor sysid {opts.sysid} on {server.transport.endpoint}{also}"
           f" (home {opts.home.lat:.6f},{opts.home.lon:.6f}, speed-up {opts.speedup:g},"
-          f" ready {server.ready_after:g} s after boot)", flush=True)
+          f" ready {server.ready_after:g} s after boot)"
+          + (f", TELEM2 on {server.links[1].endpoint}" if len(server.links) > 1 else "")
+          + ("" if opts.signing else ", no MAVLink signing"), flush=True)
     server.run()
     return 0

@@ -49,6 +49,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mav
 
 from ...core.geometry import GeoPoint, offset
+from ...core import fcsign
 from ...core.mavlink import FrameCodec, split_frames
 from ..personality import PX4, ModeRow, Param, Personality, Say, ardupilot_takeoff_next
 from ..px4modes import FlightMode
@@ -58,6 +59,7 @@ from .kinematics import SUBSTEP_S, Kinematics, Limits, advance, battery_after
 from .mission import MissionItem, MissionProtocol
 from .outbox import Outbox
 from .params import ParamProtocol
+from .signing import RULES as SIGNING_RULES, SimSigning
 from .telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -71,7 +73,8 @@ class SimAutopilot:
     seconds passed as ``now``; ``ready_after`` is how long after boot it refuses to arm."""
 
     def __init__(self, home: GeoPoint, sysid: int = 1, compid: int = 1, seed: int = 0, now: float = 0.0,
-                 home_amsl: float = 488.0, personality: Personality = PX4, ready_after: float = 0.0) -> None:
+                 home_amsl: float = 488.0, personality: Personality = PX4, ready_after: float = 0.0,
+                 signing: SimSigning | None = None) -> None:
         self.p = personality
         self.ready_after = max(0.0, ready_after) if math.isfinite(ready_after) else 0.0
         self.home = home
@@ -112,6 +115,9 @@ class SimAutopilot:
         self.telemetry = Telemetry(self, now)
         self.gcs_link = GcsLink(self)
         self.command_protocol = CommandProtocol(self)
+        #: MAVLink 2 signing (``sim.signing``): the personality's rules, no storage, the simulated clock
+        self.signing = signing if signing is not None else SimSigning(SIGNING_RULES.get(personality.name),
+                                                                      sim_time=lambda: self.t)
         self._buffer = b""
         self._handlers: dict[str, Callable[[Any, float], None]] = {
             **self.gcs_link.handlers,
@@ -134,8 +140,13 @@ class SimAutopilot:
         for f in frames:
             self.receive(f, now)
 
-    def receive(self, frame: bytes, now: float) -> None:
-        """Handle one MAVLink frame. Never raises on bad input."""
+    def receive(self, frame: bytes, now: float, link: int = 0) -> None:
+        """Handle one MAVLink frame that came on ``link`` (0: the main endpoint, 1: TELEM2). Never
+        raises on bad input. With a signing key, unsigned or wrongly signed frames go no further."""
+        refused = self.signing.admit(frame, link)
+        if refused is not None:
+            self.out.count("signing_refused", f"{refused} on link {link}")
+            return
         msg = self.codec.decode(frame)
         if msg is None:
             self.out.count("malformed", f"{len(frame)} bytes")
@@ -144,6 +155,11 @@ class SimAutopilot:
         target = getattr(msg, "target_system", None)
         if target not in (None, 0, self.sysid):
             self.out.count("not_for_us", f"{name} for system {target}")
+            return
+        if name == "SETUP_SIGNING":
+            say = self.signing.setup(msg, fcsign.is_signed(frame) and self.signing.active, self.armed)
+            if say is not None:
+                self.out.say(say)
             return
         handler = self._handlers.get(name)
         if handler is None:
@@ -162,6 +178,7 @@ class SimAutopilot:
             self._fly(dt, self.t + dt)
             self.t += dt
         self._announce_readiness(now)
+        self.signing.tick()
         self.gcs_link.check(now)
         self.mission_protocol.retry_upload(now)
         self.telemetry.stream(now)

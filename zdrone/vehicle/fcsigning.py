@@ -1,0 +1,341 @@
+"""MAVLink 2 signing of the companion's link to the flight controller: provisioned and kept here.
+
+Theory of operation. The autopilot obeys any MAVLink that reaches it, on any of its links (a
+telemetry radio on TELEM2, USB, a second companion process), unless it has a signing key: then
+PX4 (>= 1.17) and ArduPilot refuse unsigned and wrongly signed commands. The companion is the one
+trusted place to install and keep that key. ``FcSigning`` does it for one vehicle link:
+
+* **Key store** (``FcKeyStore``): ``secrets/<drone>.fc-signing.json`` beside the node's secret,
+  mode 0600, replaced atomically (temporary file, fsync, rename, fsync of the directory): the key,
+  the key it replaces while a rotation is unconfirmed, and the timestamp reserved so far.
+* **Provisioning** (``start``): with no key yet, or when a rotation is asked for, a fresh 32-byte
+  key goes to the autopilot in SETUP_SIGNING, on the ground only (refused while armed, as PX4
+  does). The first key is sent unsigned (PX4 takes it on trust); a new key is sent signed with the
+  old one (an autopilot with a key drops an unsigned SETUP_SIGNING). With a stored key the node
+  sends SETUP_SIGNING with the same key, signed, so an autopilot that lost its key gets it back and
+  one that has it changes nothing.
+* **Confirmation**: the autopilot signs its frames once signed traffic arrives; the first frame
+  signed with the new key confirms it (``state`` SIGNED, the old key forgotten). Frames still signed
+  with the old key make the node send SETUP_SIGNING again (once a second). No signed frame within
+  ``confirm_timeout`` seconds: the autopilot does not sign (PX4 before 1.17): said once, counted, and
+  the link goes on unsigned (``prefer``) or the node refuses to fly (``require``).
+* **Every frame out is signed** (``outgoing``) with link id ``link_id``, under a timestamp that
+  never goes back, across restarts too: the larger of the last one + 1, the wall clock, the
+  timestamps of the autopilot's signed frames (ArduPilot resumes 60 s past its last saved
+  timestamp after a restart and refuses a new stream more than a minute behind it), and the value
+  reserved in the store. A timestamp is used only once the store holds a larger one
+  (``RESERVE_S`` ahead, so the file is written about once every ``RESERVE_S`` seconds).
+* **Every frame in is checked** (``incoming``): signed ones must carry the key's signature and a
+  timestamp that grows per stream (``StreamClock``); once the link is SIGNED an unsigned frame from
+  the flight controller's side is dropped too (someone else on the wire). Each drop is counted by
+  reason.
+
+Thread-safe: the vehicle link's reader thread calls ``incoming``, its loop thread the rest.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mav
+
+from ..core import fcsign
+from ..core.errors import UsageError
+from ..core.fleet import ConfigError
+from ..core.mavlink import FrameError
+from ..fleet.files import fleet_path
+
+log = logging.getLogger(__name__)
+
+MODES = ("require", "prefer", "off")
+#: The link id of the companion's link to the flight controller.
+LINK_ID = 1
+#: A timestamp is used only once the store holds one at least this much larger.
+RESERVE_S = 10.0
+#: No signed frame from the autopilot this long after provisioning: it does not sign.
+CONFIRM_TIMEOUT_S = 4.0
+#: SETUP_SIGNING is sent again this often while the autopilot still signs with the old key.
+RESEND_S = 1.0
+
+
+class FcSigningError(ConfigError):
+    """Signing cannot be set up as asked (armed, the autopilot does not sign and it is required, ...)."""
+
+
+class FcState(str, Enum):
+    OFF = "off"  # --fc-signing off: nothing signed, nothing checked
+    PROVISIONING = "provisioning"  # SETUP_SIGNING sent, waiting for the autopilot's first signed frame
+    SIGNED = "signed"  # the autopilot signs with our key: every frame both ways is signed and checked
+    UNSIGNED = "unsigned"  # the autopilot does not sign (prefer): the link goes on unsigned
+    FAILED = "failed"  # require, and the autopilot does not sign; or it signs with a key we do not hold
+
+
+@dataclass(frozen=True, slots=True)
+class StoredKey:
+    key: bytes
+    timestamp: int  # reserved: every timestamp used so far is below it
+    previous: bytes | None = None  # the key a rotation replaces, until the autopilot signs with the new one
+
+
+def key_id(key: bytes | None) -> str | None:
+    """A short public name of a key (the first 8 hex digits of its SHA-256), for logs and status."""
+    return hashlib.sha256(key).hexdigest()[:8] if key else None
+
+
+class FcKeyStore:
+    """The flight controller's signing key of one drone, beside the node's secret."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    @classmethod
+    def for_node(cls, fleet: str | Path, drone: str) -> FcKeyStore:
+        return cls(fleet_path(fleet).parent / "secrets" / f"{drone}.fc-signing.json")
+
+    def load(self) -> StoredKey | None:
+        """The stored key, None if there is none. A file readable by others or unreadable is an error."""
+        try:
+            st = self.path.stat()
+        except FileNotFoundError:
+            return None
+        if st.st_mode & 0o077:
+            raise ConfigError(f"{self.path}: key file is accessible by others (mode {st.st_mode & 0o777:04o}); "
+                              f"run chmod 600 {self.path}")
+        try:
+            raw = json.loads(self.path.read_text())
+            key = bytes.fromhex(raw["key"])
+            prev = bytes.fromhex(raw["previous"]) if raw.get("previous") else None
+            stored = StoredKey(key, int(raw["timestamp"]), prev)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ConfigError(f"{self.path}: malformed signing key file: {exc}") from None
+        if len(key) != fcsign.KEY_LEN or (prev is not None and len(prev) != fcsign.KEY_LEN):
+            raise ConfigError(f"{self.path}: a signing key must be {fcsign.KEY_LEN} bytes")
+        return stored
+
+    def save(self, stored: StoredKey) -> None:
+        """Write durably: temporary file (0600), fsync, rename over the old one, fsync the directory."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        body = {"key": stored.key.hex(), "timestamp": stored.timestamp,
+                "previous": stored.previous.hex() if stored.previous else None}
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        try:
+            os.fchmod(fd, 0o600)
+            os.write(fd, json.dumps(body).encode())
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, self.path)
+        dfd = os.open(self.path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+
+
+def parse_mode(text: str) -> str:
+    if text not in MODES:
+        raise UsageError(f"--fc-signing {text!r}: expected one of {', '.join(MODES)}")
+    return text
+
+
+class FcSigning:
+    """Signing state of one link to a flight controller (see the module's docstring)."""
+
+    def __init__(self, store: FcKeyStore | None, mode: str = "prefer", rotate: bool = False,
+                 clock: Callable[[], float] = time.time, link_id: int = LINK_ID,
+                 confirm_timeout: float = CONFIRM_TIMEOUT_S, new_key: Callable[[], bytes] = lambda: os.urandom(32)) -> None:
+        parse_mode(mode)
+        if mode != "off" and store is None:
+            raise ConfigError("MAVLink signing needs a key store")
+        self.store, self.mode, self.rotate = store, mode, rotate
+        self.clock, self.link_id, self.confirm_timeout, self._new_key = clock, link_id, confirm_timeout, new_key
+        self.state = FcState.OFF
+        self.counters: Counter[str] = Counter()
+        self.stored: StoredKey | None = store.load() if store is not None and mode != "off" else None
+        self.key: bytes | None = self.stored.key if self.stored else None
+        self.previous: bytes | None = self.stored.previous if self.stored else None
+        self._reserved = self.stored.timestamp if self.stored else 0
+        self.timestamp = self._reserved  # the last timestamp used (or reserved before a restart)
+        self.peer = fcsign.StreamClock(self.timestamp)
+        self.started_at: float | None = None
+        self._setup: Any = None  # the SETUP_SIGNING message to (re)send while unconfirmed
+        self._setup_key: bytes | None = None  # the key that signs it (None: unsigned)
+        self._next_setup = 0.0
+        self.reason = ""
+        self._lock = threading.RLock()
+        if mode == "off" and store is not None and store.path.exists():
+            log.warning("--fc-signing off, but %s holds a key: an autopilot that has it refuses unsigned commands",
+                        store.path)
+
+    # -------------------------------------------------------------------- state
+    @property
+    def signing(self) -> bool:
+        """True while frames to the autopilot are signed."""
+        return self.state in (FcState.PROVISIONING, FcState.SIGNED)
+
+    @property
+    def settled(self) -> bool:
+        """Provisioning is over (SIGNED, UNSIGNED, FAILED or OFF)."""
+        return self.state is not FcState.PROVISIONING
+
+    def status(self) -> dict[str, Any]:
+        """For the drone's status: mode, state, whether the link is signed, key id, counters."""
+        with self._lock:
+            return {"mode": self.mode, "state": self.state.value, "signed": self.state is FcState.SIGNED,
+                    "key": key_id(self.key), "timestamp": self.timestamp, "reason": self.reason,
+                    "counters": dict(self.counters)}
+
+    # ------------------------------------------------------------ provisioning
+    def start(self, now: float, armed: bool, target_system: int, target_component: int = 1) -> None:
+        """Begin: decide whether a key must be installed (a first one, or a rotation) and prepare the
+        SETUP_SIGNING (``due_setup`` hands it out). Raises ``FcSigningError`` when a key must be
+        installed while the vehicle is armed."""
+        with self._lock:
+            self.started_at = now
+            if self.mode == "off":
+                self.state = FcState.OFF
+                return
+            fresh = self.key is None or self.rotate
+            if fresh and armed:
+                what = "rotate the flight controller's signing key" if self.key else "install a signing key"
+                if self.mode == "require" or self.rotate:
+                    raise FcSigningError(f"cannot {what} while the vehicle is armed (MAVLink signing: rejected while armed)")
+                self._fall_back(f"no signing key and the vehicle is armed: cannot {what}")
+                return
+            if fresh:
+                old, new = self.key, self._new_key()
+                if len(new) != fcsign.KEY_LEN:
+                    raise ValueError("a signing key is 32 bytes")
+                ts = self._next_timestamp()
+                self._save(StoredKey(new, self._reserved, old))  # the new key is stored before it is sent
+                self.key, self.previous = new, old
+                self._setup_key = old  # None for the first key: sent unsigned, taken on trust
+                log.warning("installing %s MAVLink signing key %s in the flight controller%s",
+                            "a new" if old else "a first", key_id(new), f" (replacing {key_id(old)})" if old else "")
+            else:
+                ts = self._next_timestamp()
+                self._setup_key = self.previous or self.key  # an unconfirmed rotation: signed by the old key
+            self._setup = mav.MAVLink_setup_signing_message(target_system, target_component, list(self.key or b""), ts)
+            self._next_setup = now
+            self.state = FcState.PROVISIONING
+
+    def due_setup(self, now: float) -> tuple[Any, bytes | None] | None:
+        """The SETUP_SIGNING to send now and the key to sign it with (None: unsigned), or None; also
+        settles a provisioning that timed out (``state`` UNSIGNED or FAILED)."""
+        with self._lock:
+            if self.state is not FcState.PROVISIONING or self._setup is None:
+                return None
+            if self.started_at is not None and now - self.started_at >= self.confirm_timeout:
+                self._no_signed_reply()
+                return None
+            if now < self._next_setup:
+                return None
+            self._next_setup = now + RESEND_S
+            self.counters["setup_sent"] += 1
+            return self._setup, self._setup_key
+
+    def _no_signed_reply(self) -> None:
+        if self.counters["foreign_signature"]:
+            self.state, self.reason = FcState.FAILED, "the autopilot signs with a key this node does not hold"
+            log.error("MAVLink signing: %s", self.reason)
+        elif self.mode == "require":
+            self.state, self.reason = FcState.FAILED, "the autopilot does not sign (PX4 before 1.17?)"
+            log.error("MAVLink signing: %s; --fc-signing require", self.reason)
+        else:
+            self._fall_back("the autopilot does not sign (PX4 before 1.17?): the link goes on unsigned")
+
+    def _fall_back(self, why: str) -> None:
+        self.state, self.reason = FcState.UNSIGNED, why
+        self.counters["unsigned_fallback"] += 1
+        log.warning("MAVLink signing: %s", why)
+
+    # ---------------------------------------------------------------- frames
+    def _save(self, stored: StoredKey) -> None:
+        assert self.store is not None
+        self.store.save(stored)
+        self.stored = stored
+
+    def _next_timestamp(self) -> int:
+        ts = max(self.timestamp + 1, fcsign.units(self.clock()), self.peer.timestamp)
+        if ts >= self._reserved:
+            self._reserved = ts + int(RESERVE_S * fcsign.UNITS_PER_S)
+            if self.key is not None:
+                self._save(StoredKey(self.key, self._reserved, self.previous))
+                self.counters["timestamp_saved"] += 1
+        self.timestamp = ts
+        return ts
+
+    def sign_with(self, frame: bytes, key: bytes | None) -> bytes:
+        """``frame`` signed with ``key`` (None: as it is)."""
+        if key is None:
+            return frame
+        with self._lock:
+            try:
+                out = fcsign.sign(frame, key, self.link_id, self._next_timestamp())
+            except FrameError:
+                self.counters["unsignable"] += 1  # a MAVLink 1 frame: goes as it is
+                return frame
+            self.counters["signed_out"] += 1
+            return out
+
+    def outgoing(self, frame: bytes) -> bytes:
+        """A frame to the autopilot as it must go: signed while signing."""
+        if not self.signing:
+            return frame
+        return self.sign_with(frame, self.key)
+
+    def incoming(self, frame: bytes) -> str | None:
+        """Check a frame from the autopilot's side: None to take it, else the counted reason to drop it."""
+        if self.state is FcState.OFF:
+            return None
+        with self._lock:
+            if not fcsign.is_signed(frame):
+                if self.state is FcState.SIGNED:
+                    return self._drop("unsigned")
+                self.counters["unsigned_in"] += 1
+                return None
+            key = self.key
+            if key is not None and fcsign.signed_with(frame, key):
+                refusal = self.peer.check(frame, key)
+                if refusal is not None:
+                    return self._drop(refusal.value)
+                self.counters["verified_in"] += 1
+                if self.state is not FcState.SIGNED:
+                    self._confirmed()
+                return None
+            if self.previous is not None and fcsign.signed_with(frame, self.previous):
+                self.counters["old_key_in"] += 1  # the autopilot has not taken the new key (yet)
+                if self.state is FcState.PROVISIONING:
+                    return None if self.peer.check(frame, self.previous) is None else self._drop("replay")
+                return self._drop("old_key")
+            self.counters["foreign_signature"] += 1
+            return self._drop("bad_signature")
+
+    def _drop(self, reason: str) -> str:
+        self.counters[f"dropped:{reason}"] += 1
+        if self.counters[f"dropped:{reason}"] <= 3:
+            log.warning("MAVLink signing: frame from the flight controller's link dropped: %s", reason)
+        return reason
+
+    def _confirmed(self) -> None:
+        was = self.state
+        self.state, self.reason = FcState.SIGNED, ""
+        self._setup = None
+        if self.previous is not None:
+            self.previous = None
+            if self.key is not None:
+                self._save(StoredKey(self.key, self._reserved, None))
+        log.warning("MAVLink signing: the flight controller signs with key %s%s", key_id(self.key),
+                    "" if was is FcState.PROVISIONING else f" (was {was.value})")
