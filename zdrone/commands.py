@@ -307,7 +307,7 @@ def _demo(args: argparse.Namespace) -> int:
                                 live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
                                 autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ()),
                                 sites=args.sites or args.netns or SCENARIO_SITES.get(args.scenario, False),
-                                netns=args.netns,
+                                netns=args.netns, fc_signing=args.fc_signing,
                                 tls=args.tls or SCENARIO_TLS.get(args.scenario, False), moment=moment))
 
 
@@ -341,6 +341,8 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--radio", action="append", metavar="OPTION",
                    help="TESTBED ONLY: an option of the drone's emulated radio, e.g. --radio=--sil-loss=0.6 "
                         "(see zdrone drone --help: --sil-loss, --sil-bursts, --sil-delay-ms, --sil-jitter-ms); repeatable")
+    p.add_argument("--fc-signing", choices=("require", "prefer", "off"), default="prefer",
+                   help="the drone's MAVLink signing of its autopilot link (default prefer; off: the fc-rogue-radio control)")
     v = p.add_mutually_exclusive_group()
     v.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
                    help="personality of the built-in simulator (default px4)")

@@ -20,3 +20,10 @@ def test_bench_crypto_table(capsys):
     assert main(["bench", "crypto", "--quick"]) == 0
     out = capsys.readouterr().out
     assert "HEARTBEAT" in out and "µs / frame" in out
+
+
+def test_bench_crypto_has_the_flight_controller_signing_row(capsys):
+    assert main(["bench", "crypto", "--quick", "--json"]) == 0
+    fc = json.loads(capsys.readouterr().out)["fc_signing"]
+    assert set(fc["added_bytes"].values()) == {13}  # the MAVLink 2 signature block: a wire-format fact
+    assert fc["sign_us"] > 0 and fc["verify_us"] > 0

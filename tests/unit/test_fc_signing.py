@@ -327,3 +327,11 @@ def test_ardupilot_after_a_restart_answers_a_sender_that_follows_its_timestamps(
         assert link.wait_vehicle(10) and link.signing_status()["signed"], link.signing_status()
         link.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, 2989)
         assert _until(link, lambda: link.armed, 5)
+
+
+def test_setup_signing_from_a_gcs_app_is_never_forwarded():
+    """The gateway's apps speak unsigned MAVLink on the GS's machine; the drone's uplink policy
+    denies SETUP_SIGNING to every GS (even the authority), so no app can change the autopilot's key."""
+    from zdrone.core.uplink import DEFAULT_POLICY, UplinkClass
+
+    assert DEFAULT_POLICY.classify(mav.MAVLINK_MSG_ID_SETUP_SIGNING) is UplinkClass.DENIED

@@ -1,4 +1,6 @@
-"""``zdrone bench crypto``: bytes added per frame and seal+open cost, ours vs the paper's Fernet."""
+"""``zdrone bench crypto``: bytes added per frame and seal+open cost, ours vs the paper's Fernet; and
+the MAVLink 2 signing of the flight controller's link (bytes added, the drone's cost to sign a frame
+to the autopilot and to check and unwrap one from it)."""
 
 from __future__ import annotations
 
@@ -79,6 +81,41 @@ def handshake_us(n: int) -> dict[str, float]:
     return {"forged_refused_us": round(tag, 2), "handshake_us": round(full, 1)}
 
 
+def fc_signing_us(frame: bytes, n: int) -> dict[str, float]:
+    """The drone's per-frame cost on its flight-controller link, signing on: ``sign`` a frame to the
+    autopilot (``FcSigning.outgoing``: timestamp, flag, checksum, SHA-256), ``verify`` one from it
+    (``FcSigning.incoming``: signature and stream timestamp; then the signature removed before the
+    frame goes on to the GSs). Best of three runs, microseconds."""
+    import tempfile
+
+    from ..core import fcsign
+    from ..vehicle.fcsigning import FcKeyStore, FcSigning, FcState, StoredKey
+
+    key = os.urandom(32)
+    with tempfile.TemporaryDirectory() as d:
+        store = FcKeyStore(os.path.join(d, "d1.fc-signing.json"))
+        store.save(StoredKey(key, 0))
+        signing = FcSigning(store, "prefer")
+        signing.state = FcState.SIGNED
+        best_sign = best_verify = float("inf")
+        ts = fcsign.units(time.time())
+        for _ in range(3):
+            signed = [fcsign.sign(frame, key, 0, ts + i) for i in range(n)]
+            ts += n
+            t0 = time.perf_counter()
+            for _ in range(n):
+                signing.outgoing(frame)
+            best_sign = min(best_sign, (time.perf_counter() - t0) / n * 1e6)
+            incoming, strip = signing.incoming, fcsign.strip
+            t0 = time.perf_counter()
+            for f in signed:
+                if incoming(f) is None:
+                    strip(f)
+            best_verify = min(best_verify, (time.perf_counter() - t0) / n * 1e6)
+        assert signing.counters["verified_in"] == 3 * n, "bench frames must all verify"
+    return {"sign_us": round(best_sign, 2), "verify_us": round(best_verify, 2)}
+
+
 def run(quick: bool = False) -> dict[str, Any]:
     frames = sample_frames()
     out: dict[str, Any] = {"frames": [], "seal_open_us": {}, "frames_per_s": {}}
@@ -95,6 +132,14 @@ def run(quick: bool = False) -> dict[str, Any]:
         out["seal_open_us"][cipher] = round(us, 3)
         out["frames_per_s"][cipher] = round(1e6 / us)
     out["pairing_query_us"] = handshake_us(400 if quick else 4000)
+    from ..core import fcsign
+
+    costs = [fc_signing_us(f, 300 if quick else 5000) for f in frames.values()]
+    out["fc_signing"] = {
+        "added_bytes": {name: len(fcsign.sign(f, bytes(32), 0, 1)) - len(f) for name, f in frames.items()},
+        "sign_us": round(sum(c["sign_us"] for c in costs) / len(costs), 2),
+        "verify_us": round(sum(c["verify_us"] for c in costs) / len(costs), 2),
+    }
     out["targets"] = {"added_bytes_max": 24, "seal_open_us_max": 10.0}
     return out
 
@@ -108,6 +153,13 @@ def render(result: dict[str, Any]) -> None:
     rows2 = [[c, result["seal_open_us"][c], result["frames_per_s"][c]] for c in CIPHERS]
     print_table("Seal + open per frame (one core, every check)", ["cipher", "µs / frame", "frames / s"], rows2,
                 caption="target: ≤ 10 µs for zdrone")
+    fc = result.get("fc_signing")
+    if fc:
+        print_table("MAVLink 2 signing of the flight controller's link (the drone, one core)",
+                    ["added bytes / frame", "sign µs / frame", "verify µs / frame"],
+                    [[max(fc["added_bytes"].values()), fc["sign_us"], fc["verify_us"]]],
+                    caption="every frame to the autopilot signed, every frame from it checked and unwrapped "
+                            "(the Zenoh side is unchanged: the GSs get the frames unsigned, sealed)")
     q = result.get("pairing_query_us")
     if q:
         print_table("A pairing query at the drone (one core)", ["query", "µs"],

@@ -120,6 +120,7 @@ class Scenario:
     radio: tuple[str, ...] = ()  # the drone's emulated radio (``--sil-loss 0.2`` ...)
     gs_x: bool = False  # start GS X (in the fleet, not authorized) as a real node
     gcs_a: bool = False  # give GS A a GCS gateway endpoint (udpin on a free port)
+    telem2: bool = False  # give the simulator a second MAVLink endpoint (its TELEM2, udpin on a free port)
     fixed_moment: bool = False  # its fault's moment is what the scenario is (``moments()`` gives none to move to)
     operators: str | None = None  # at this moment, start the two operators (``zdrone.sil.operator``) on A's and B's gateways
     linger: float = 0.0  # wall seconds the run goes on after the vehicle landed (what happens on the ground)
@@ -728,6 +729,26 @@ _BACKHAUL_CUT_EARLY = Fault(BEFORE_GS_A, "backhaul", LINK_DOWN, "the backhaul be
 _BACKHAUL_CUT = Fault(AIRBORNE, "backhaul", LINK_DOWN, "the backhaul between the sites is cut in flight")
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
+def _check_fc_rogue_radio(o: Outcome) -> list[str]:
+    """``fc-rogue-radio``: with the autopilot's link signed, nothing the radio on TELEM2 sends is
+    obeyed (no answer, every command refused by the autopilot) and the flight is unaffected; with
+    ``--fc-signing off`` (the control) the autopilot obeys it and the flight does not complete."""
+    done, fc = o.rogue_done("fc-radio"), o.summary.get("fc_signing", {})
+    sent = done.get("sent", {})
+    why = _need(all(sent.get(k, 0) > 0 for k in ("arm", "mode_land", "mission_clear")),
+                f"the attacker did not send arm, mode change and mission clear: {sent}")
+    why += _need(done.get("autopilot") is not None, "the attacker heard no telemetry on TELEM2")
+    if fc.get("mode") == "off":
+        why += _need(done.get("obeyed", 0) > 0, f"no command of the attacker obeyed: no takeover shown ({done.get('answers')})")
+        why += _need(bool(o.summary["flight_problems"]), "the flight completed: no takeover shown")
+        return why
+    refused = int((o.summary["vehicle"].get("counters") or {}).get("signing_refused", 0))
+    why += _need(fc.get("signed") is True, f"the autopilot link is not signed ({fc.get('state')}: {fc.get('reason')})")
+    why += _need(done.get("answered", 1) == 0, f"the autopilot answered the attacker: {done.get('answers')}")
+    why += _need(refused >= sum(sent.values()), f"the autopilot refused {refused} frames, the attacker sent {sum(sent.values())}")
+    return why + flight_unaffected(o)
+
+
 SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("nominal", "the reference flight", "A->B and B->A in the overlap, landing at home", flight_unaffected),
     Scenario("rogue-no-key",
@@ -864,6 +885,13 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "both hand-overs",
              _check_stale_pairing, faults=(_SLOW_RESTART_DRONE,),
              rogues=(RogueSpec("stale-pairing", BEFORE_GS_A, go=DRONE_RESTARTED, sim_s=24.0, min_wall=6.0),)),
+    Scenario("fc-rogue-radio",
+             "a radio on the autopilot's TELEM2 (no keys) sends arm, a mode change to LAND and MISSION_CLEAR_ALL once "
+             "a second in flight (with --fc-signing off: the control, the same attack on an unsigned autopilot)",
+             "the autopilot link is MAVLink-signed: the autopilot obeys and answers none of it; flight unaffected "
+             "(--fc-signing off: the autopilot obeys, the flight does not complete)",
+             _check_fc_rogue_radio,
+             rogues=(RogueSpec("fc-radio", MISSION_STARTED, go=AIRBORNE, sim_s=20.0, min_wall=8.0),), telem2=True),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
 #: Scenarios that need a router per site.
@@ -916,6 +944,7 @@ class DemoOptions:
     tls: bool = False  # one router, mutual TLS only (a fleet CA and certificates)
     vehicle: str | None = None  # an autopilot already running (no simulator started)
     netns: bool = False  # with sites: each site and the drone in their own network namespace (root)
+    fc_signing: str = "prefer"  # the drone's --fc-signing (require | prefer | off)
 
 
 @dataclass
@@ -939,6 +968,7 @@ class Demo:
     router: str = ""
     gcs_port: int | None = None
     gcs_port_b: int | None = None  # GS B's gateway, for the operators
+    telem2_port: int | None = None  # the simulator's TELEM2 (UDP), when the scenario wants one
     fired: set[str] = field(default_factory=set)
     fired_at: dict[str, float] = field(default_factory=dict)  # trigger -> time of day it came
     fault_log: list[dict[str, Any]] = field(default_factory=list)  # each fault injected: t, target, text, ends
@@ -1045,17 +1075,21 @@ class Demo:
             r = self.start("router", self._z() + ["router", "-c", "bundles/router/router/router.json5", "--listen", self.router]
                            + (["--tap", "tap.json"] if o.tap else []))
             self.wait_line(r, "listening", 20)
+        telem2: list[str] = []
+        if self.spec.telem2 and o.vehicle is None:
+            self.telem2_port = free_port(socket.SOCK_DGRAM)
+            telem2 = ["--telem2", f"udpin:127.0.0.1:{self.telem2_port}"]
         if o.vehicle is not None:
             vehicle = o.vehicle
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
             tport = free_port(socket.SOCK_STREAM)
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
-                                                 "--speedup", str(o.speedup)] + self._truth_args(), ns=self._ns())
+                                                 "--speedup", str(o.speedup)] + self._truth_args() + telem2, ns=self._ns())
             self.wait_line(sim, "zdrone sim:", 20)
             vehicle = f"tcp:127.0.0.1:{tport}"
         else:
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "px4", "--mavlink", f"udpin:127.0.0.1:{sport}",
-                                                 "--speedup", str(o.speedup)] + self._truth_args(), ns=self._ns())
+                                                 "--speedup", str(o.speedup)] + self._truth_args() + telem2, ns=self._ns())
             self.wait_line(sim, "zdrone sim:", 20)
             self._wait_coverage()
             vehicle = f"udpout:127.0.0.1:{sport}"
@@ -1065,7 +1099,8 @@ class Demo:
         coverage = [] if self.links else ["--sil-coverage"]  # with sites: the radio links are the coverage
         drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", vehicle,
                                                   *coverage, "--events", "drone.jsonl", "--handover-timeout",
-                                                  str(ho_timeout), *self._bench_extra(), *self.spec.radio, *o.radio],
+                                                  str(ho_timeout), "--fc-signing", o.fc_signing, *self._bench_extra(),
+                                                  *self.spec.radio, *o.radio],
                            ns=self._ns())
         self.wait_line(drone, "ready", 40)
 
@@ -1191,6 +1226,7 @@ class Demo:
         args += ["--wait-go"] if r.go else []
         args += ["--rate", str(r.rate)] if r.rate else []
         args += ["--gcs-port", str(self.gcs_port)] if self.gcs_port else []
+        args += ["--fc-port", str(self.telem2_port)] if self.telem2_port else []
         return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns("A"))  # beside A, on site 1
 
     def run(self) -> dict[str, Any]:
@@ -1482,6 +1518,7 @@ class Demo:
             "gs_counters": {g: f.counters if f else {} for g, f in gs_final.items()},
             "gateway_A": self._gateway_counters(gs_final.get("A")),
             "out_of_coverage": final.out_of_coverage if final else {}, "vehicle": self._vehicle_counters(),
+            "fc_signing": final.fc_signing if final else {},
             "attacks": {e.node.removeprefix("rogue-"): fields_of(e) for e in rogue_events if record_type(e) == "attack_done"},
             "operator": {str(f.get("step", record_type(e))): f for e in self._records("operator.jsonl")
                          if (f := fields_of(e))},

