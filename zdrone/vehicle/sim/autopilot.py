@@ -157,7 +157,7 @@ class SimAutopilot:
             self.out.count("not_for_us", f"{name} for system {target}")
             return
         if name == "SETUP_SIGNING":
-            say = self.signing.setup(msg, fcsign.is_signed(frame) and self.signing.active, self.armed)
+            say = self.signing.setup(msg, fcsign.is_signed(frame) and self.signing.active, self.armed, link)
             if say is not None:
                 self.out.say(say)
             return

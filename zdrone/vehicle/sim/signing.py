@@ -144,7 +144,7 @@ class SimSigning:
         self.counters[f"refused:{why}"] += 1
         return why
 
-    def setup(self, msg: Any, signed: bool, armed: bool) -> Say | None:
+    def setup(self, msg: Any, signed: bool, armed: bool, link: int = 0) -> Say | None:
         """SETUP_SIGNING (already admitted; ``signed``: it came correctly signed): what the autopilot
         says, or None when it says nothing (ignored, or dropped)."""
         if self.rules is None:
@@ -154,7 +154,7 @@ class SimSigning:
             self.counters["refused:setup_armed"] += 1
             return TEXTS["signing_rejected_armed"]
         key = bytes(msg.secret_key)
-        if self.key is not None and not signed:  # ArduPilot's open SERIAL0 takes it unsigned too
+        if self.key is not None and not signed and link not in self.rules.open_links:  # ArduPilot's SERIAL0 takes it
             self.counters["refused:setup_unsigned"] += 1
             return None
         if not any(key):
