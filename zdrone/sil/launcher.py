@@ -872,11 +872,12 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              faults=(Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) after take-off"),),
              sites=True, linger=3.0, fixed_moment=True),
     Scenario("key-escrow",
-             "B's own key and router password, the drone's password: a genuine key-sharing query to A for link "
-             "(drone, A), then frames under the secret A handed out, to A as the drone and to the drone as A, in flight",
-             "A answers, but its live link is never replaced (no link_confirmed of the secret at A); flight unaffected",
+             "B's own key and router password, the drone's password: genuine key-sharing queries to A for link "
+             "(drone, A), again and again from take-off to landing; under any secret A hands out, frames to A as "
+             "the drone and to the drone as A",
+             "A's live link is never replaced (no link_confirmed of a secret it handed out); flight unaffected",
              _check_key_escrow,
-             rogues=(RogueSpec("key-escrow", MISSION_STARTED, go=AIRBORNE, sim_s=24.0, min_wall=6.0),)),
+             rogues=(RogueSpec("key-escrow", MISSION_STARTED, go=AIRBORNE, sim_s=240.0, min_wall=60.0),)),
     Scenario("stale-pairing",
              "A's pairing message 1s (recorded in earlier flights, and captured all flight long with the drone's "
              "password) replayed with A's password around a companion restart (killed, back 1.5 s later: A is "

@@ -74,9 +74,10 @@ control (``HANDOVER_REQUEST`` for itself), and once in command it also sends ARM
 vehicle is outside B's coverage (it is, from take-off on, while GS A hangs): failsafe, or A keeps it.
 
 ``key-escrow``: B's private key and router password, and the drone's router password (the attacker
-is assumed to hold every password). It sends GS A a genuine key-sharing query for link (drone, A)
-(A answers: B is authorized for the drone) and then injects, under the secret A handed out, a
-sealed frame on ``down/<drone>/A`` as if from the drone (and one on ``up/<drone>/A`` as if from A).
+is assumed to hold every password). It sends GS A genuine key-sharing queries for link (drone, A),
+one every 1-2 s for ``--duration`` (B is authorized for the drone: A answers whenever it answers
+anyone), and under each secret A hands out injects sealed frames on ``down/<drone>/A`` as if from
+the drone (and on ``up/<drone>/A`` as if from A).
 A must not let that secret replace its live link (``link_confirmed`` at A): were it to, A would seal
 under a key the drone never had and the drone would go into its failsafe.
 
