@@ -335,3 +335,16 @@ def test_setup_signing_from_a_gcs_app_is_never_forwarded():
     from zdrone.core.uplink import DEFAULT_POLICY, UplinkClass
 
     assert DEFAULT_POLICY.classify(mav.MAVLINK_MSG_ID_SETUP_SIGNING) is UplinkClass.DENIED
+
+
+def test_a_restart_in_the_air_sends_no_setup_signing_and_takes_up_the_signed_link(tmp_path):
+    store = FcKeyStore(tmp_path / "d1.fc-signing.json")
+    with _sim_server(PX4) as (server, conn, _):
+        with _link(conn, store) as link:
+            assert link.wait_vehicle(10) and link.signing_status()["signed"]
+            link.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, 21196)
+            assert _until(link, lambda: link.armed, 5)
+        with _link(conn, store) as link:  # the companion restarted, the vehicle armed
+            assert link.wait_vehicle(10) and link.signing_status()["signed"]
+            assert link.signing.counters["setup_sent"] == 0 and server.sim.armed
+        assert server.sim.signing.counters.get("refused:setup_armed", 0) == 0

@@ -13,7 +13,8 @@ trusted place to install and keep that key. ``FcSigning`` does it for one vehicl
   does). The first key is sent unsigned (PX4 takes it on trust); a new key is sent signed with the
   old one (an autopilot with a key drops an unsigned SETUP_SIGNING). With a stored key the node
   sends SETUP_SIGNING with the same key, signed, so an autopilot that lost its key gets it back and
-  one that has it changes nothing.
+  one that has it changes nothing; armed (a restart in the air) it sends none and only waits for
+  the autopilot's signed frames.
 * **Confirmation**: the autopilot signs its frames once signed traffic arrives; the first frame
   signed with the new key confirms it (``state`` SIGNED, the old key forgotten). Frames still signed
   with the old key make the node send SETUP_SIGNING again (once a second). No signed frame within
@@ -224,6 +225,11 @@ class FcSigning:
                 self._setup_key = old  # None for the first key: sent unsigned, taken on trust
                 log.warning("installing %s MAVLink signing key %s in the flight controller%s",
                             "a new" if old else "a first", key_id(new), f" (replacing {key_id(old)})" if old else "")
+            elif armed:  # a restart in the air: the autopilot has the key (and refuses SETUP_SIGNING now)
+                self._setup = None
+                self._next_setup = now
+                self.state = FcState.PROVISIONING
+                return
             else:
                 ts = self._next_timestamp()
                 self._setup_key = self.previous or self.key  # an unconfirmed rotation: signed by the old key
@@ -235,12 +241,12 @@ class FcSigning:
         """The SETUP_SIGNING to send now and the key to sign it with (None: unsigned), or None; also
         settles a provisioning that timed out (``state`` UNSIGNED or FAILED)."""
         with self._lock:
-            if self.state is not FcState.PROVISIONING or self._setup is None:
+            if self.state is not FcState.PROVISIONING:
                 return None
             if self.started_at is not None and now - self.started_at >= self.confirm_timeout:
                 self._no_signed_reply()
                 return None
-            if now < self._next_setup:
+            if self._setup is None or now < self._next_setup:
                 return None
             self._next_setup = now + RESEND_S
             self.counters["setup_sent"] += 1
