@@ -301,11 +301,17 @@ def _demo(args: argparse.Namespace) -> int:
         from .vehicle.transport import parse_endpoint
 
         parse_endpoint(args.vehicle)  # a bad connection is a usage error before anything starts
+    if args.ready_after is not None:
+        if args.vehicle:
+            raise UsageError("--ready-after: the built-in simulator's start-up; an autopilot given by --vehicle has its own")
+        if not (math.isfinite(args.ready_after) and 0 <= args.ready_after <= 3600):
+            raise UsageError(f"--ready-after {args.ready_after:g}: must be 0..3600 simulated seconds")
     # an autopilot already running flies in real time: its speed-up (deadline, timers) is 1 unless given
     speedup = args.speedup if args.speedup is not None else (1.0 if args.vehicle else 2.0)
     return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=speedup,
                                 live=live, timeout=args.timeout, command_rate=args.command_rate, report=not args.no_report,
                                 autopilot=args.autopilot, vehicle=args.vehicle, radio=tuple(args.radio or ()),
+                                ready_after=args.ready_after,
                                 sites=args.sites or args.netns or SCENARIO_SITES.get(args.scenario, False),
                                 netns=args.netns, fc_signing=args.fc_signing,
                                 tls=args.tls or SCENARIO_TLS.get(args.scenario, False), moment=moment))
@@ -322,6 +328,9 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--speedup", type=positive, default=None,
                    help="simulator speed-up (default 2; with --vehicle 1: a real autopilot runs in real time)")
     p.add_argument("--timeout", type=positive, default=None, metavar="S", help="give up after S wall seconds")
+    p.add_argument("--ready-after", type=float, default=None, metavar="S",
+                   help="the built-in simulator's start-up in simulated seconds (GPS fix, position estimate, ready to "
+                        "arm, in the real order; real: PX4 ~10, ArduCopter ~40; default: a few seconds)")
     p.add_argument("--moment", choices=tuple(MOMENTS), metavar="M",
                    help=f"land the scenario's fault at another moment of the flight: {', '.join(MOMENTS)}")
     p.add_argument("--command-rate", type=float, default=5.0, metavar="HZ",

@@ -73,7 +73,7 @@ def _exactly_one_authority(out: Path) -> None:
 
 @pytest.mark.slow
 def test_nominal_reference_flight(tmp_path):
-    s, out = run_demo(tmp_path, "nominal", report=True)
+    s, out = run_demo(tmp_path, "nominal", report=True, extra=("--ready-after", "10"))  # PX4's real start-up
     assert s["_rc"] == 0 and s["ok"], s
     fleet = parse_fleet((out / "fleet" / "fleet.json5").read_text())
     assert [(h["from"], h["to"], h["epoch"]) for h in s["handovers"]] == [("A", "B", 2), ("B", "A", 3)]
@@ -246,7 +246,8 @@ def test_gs_crash_during_handover_keeps_authority_with_a(tmp_path):
 def test_the_reference_flight_and_its_faults_on_the_ardupilot_personality(tmp_path, scenario):
     """Issue 10: ArduPilot keeps item 0 as home, streams nothing until asked, disarms after a landing
     unless MIS_OPTIONS says to go on; the GS and the vehicle link adapt, and the outcome is the PX4 one."""
-    s, out = run_demo(tmp_path, scenario, autopilot="ardupilot")
+    # nominal: ArduCopter's real start-up (fix at 10 s, its EKF using GPS at 40 s, simulated)
+    s, out = run_demo(tmp_path, scenario, autopilot="ardupilot", extra=("--ready-after", "40") if scenario == "nominal" else ())
     assert s["_rc"] == 0 and s["ok"], s
     a = read_events(out / "A.jsonl")
     assert [e["autopilot"] for e in a if e["type"] == "autopilot"] == ["ardupilot"]
@@ -258,6 +259,13 @@ def test_the_reference_flight_and_its_faults_on_the_ardupilot_personality(tmp_pa
         assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
         assert s["delivered_at_b"] and s["distance_from_home_m"] < 5.0
         assert any(e["type"] == "vehicle_text" and e["text"] == "Gripper Released" for e in read_events(out / "B.jsonl"))
+        # issue 22: no position before the fix (never 0, 0), and the GS waited for the EKF to use GPS
+        waits = [e["waiting"] for e in a if e["type"] == "vehicle_waiting"]
+        assert any(w and "EKF to use GPS" in w for w in waits) and waits[-1] is None, waits
+        status = [e for e in read_events(out / "drone.jsonl") if e["type"] == "status"]
+        unknown = [e for e in status if e["vehicle_streams"].get("position", {}).get("known") is False]
+        assert unknown and all(e["position"] is None for e in unknown)
+        assert all(e["position"] is None or abs(e["position"][0]) > 1 for e in status)
     elif scenario == "link-loss":
         assert s["failsafe"]["action"] == "LAND" and s["failsafe"]["detect_to_command_ms"] <= 100.0
     _clean_shutdown(s, out, **({"stopped": ("gsA",), "nodes": ("drone", "B")} if scenario == "link-loss" else

@@ -50,3 +50,20 @@ def test_demo_with_an_autopilot_already_running_flies_in_real_time(monkeypatch):
         args = build_parser().parse_args(argv)
         assert args.func(args) == 0
         assert seen[-1].speedup == speedup, argv
+
+
+def test_demo_passes_the_simulators_start_up_and_refuses_it_with_an_external_autopilot(monkeypatch):
+    import pytest
+
+    import zdrone.sil.launcher as launcher
+    from zdrone.cli import build_parser
+    from zdrone.core.errors import UsageError
+
+    seen = []
+    monkeypatch.setattr(launcher, "run_demo", lambda opts: seen.append(opts) or 0)
+    args = build_parser().parse_args(["demo", "--autopilot", "ardupilot", "--ready-after", "40"])
+    assert args.func(args) == 0 and seen[-1].ready_after == 40.0
+    for argv in (["demo", "--vehicle", "tcp:127.0.0.1:5760", "--ready-after", "40"], ["demo", "--ready-after", "-1"]):
+        args = build_parser().parse_args(argv)
+        with pytest.raises(UsageError):
+            args.func(args)

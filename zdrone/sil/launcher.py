@@ -944,6 +944,7 @@ class DemoOptions:
     sites: bool = False  # a router per GS site (two, meshed) instead of one
     tls: bool = False  # one router, mutual TLS only (a fleet CA and certificates)
     vehicle: str | None = None  # an autopilot already running (no simulator started)
+    ready_after: float | None = None  # the built-in simulator's start-up, simulated s (None: its short default)
     netns: bool = False  # with sites: each site and the drone in their own network namespace (root)
     fc_signing: str = "prefer"  # the drone's --fc-signing (require | prefer | off)
 
@@ -1085,12 +1086,14 @@ class Demo:
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
             tport = free_port(socket.SOCK_STREAM)
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
-                                                 "--speedup", str(o.speedup)] + self._truth_args() + telem2, ns=self._ns())
+                                                 "--speedup", str(o.speedup)] + self._truth_args() + telem2
+                             + self._ready_args(), ns=self._ns())
             self.wait_line(sim, "zdrone sim:", 20)
             vehicle = f"tcp:127.0.0.1:{tport}"
         else:
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "px4", "--mavlink", f"udpin:127.0.0.1:{sport}",
-                                                 "--speedup", str(o.speedup)] + self._truth_args() + telem2, ns=self._ns())
+                                                 "--speedup", str(o.speedup)] + self._truth_args() + telem2
+                             + self._ready_args(), ns=self._ns())
             self.wait_line(sim, "zdrone sim:", 20)
             self._wait_coverage()
             vehicle = f"udpout:127.0.0.1:{sport}"
@@ -1177,6 +1180,10 @@ class Demo:
         if gs is None:
             return self.netns.drone_ns
         return next(self.netns.site_ns[site] for site, info in self.sites.items() if gs in info["ground_stations"])
+
+    def _ready_args(self) -> list[str]:
+        """The simulator's start-up (``--ready-after``), if one was given."""
+        return [] if self.opts.ready_after is None else ["--ready-after", f"{self.opts.ready_after:g}"]
 
     def _truth_args(self) -> list[str]:
         return ["--truth", f"{self.truth.host}:{self.truth.port}"] if self.truth is not None else []
