@@ -151,6 +151,23 @@ def _bench_scale(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_soak(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .bench import soak
+    from gs.planner import MAX_SHUTTLE_CROSSINGS
+
+    if not 1 <= args.crossings <= MAX_SHUTTLE_CROSSINGS:
+        raise UsageError(f"--crossings {args.crossings}: must be 1..{MAX_SHUTTLE_CROSSINGS}")
+    if not 1.0 <= args.speedup <= 8.0:
+        raise UsageError(f"--speedup {args.speedup:g}: must be 1..8 (the hand-over timers are wall-clock)")
+    result = soak.run(crossings=args.crossings, speedup=args.speedup, quick=args.quick, progress=not args.json,
+                      out=Path(args.out) if args.out else None)
+    result["missed"] = soak.verdict(result, growth=not args.quick)
+    _emit(args, result, soak.render)
+    return 0 if result["flight_ok"] and not result["missed"] else 1
+
+
 def _bench_chaos(args: argparse.Namespace) -> int:
     from .bench import chaos
 
@@ -337,6 +354,14 @@ def build_parser() -> argparse.ArgumentParser:
                     help="trials of A's link under junk on B's key (default 3; --quick: none)")
     ba.add_argument("--junk-rate", type=float, default=80_000.0, metavar="P", help="junk puts per second on up/B (80000)")
     ba.set_defaults(func=_bench_attack)
+    bk = bsub.add_parser("soak", help="one long shuttle flight under a 20 Hz command stream; memory, descriptors, "
+                                      "threads and CPU of every process over it")
+    bk.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bk.add_argument("--quick", action="store_true", help="2 crossings, a sample a second (proves it runs)")
+    bk.add_argument("--crossings", type=int, default=500, metavar="N", help="overlap crossings (500)")
+    bk.add_argument("--speedup", type=float, default=4.0, metavar="S", help="simulator speed-up (4)")
+    bk.add_argument("--out", metavar="DIR", help="keep the run here")
+    bk.set_defaults(func=_bench_soak)
     bc = bsub.add_parser("chaos", help="seeded random fault schedules over the reference flight; safety invariants")
     bc.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bc.add_argument("--quick", action="store_true", help="5 schedules at most")
