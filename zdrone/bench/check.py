@@ -108,7 +108,7 @@ class World:
         n.takeover_epoch = m.takeover_epoch
         n.links = {g: ha._Link(l.state, l.frames_since_ok, l.frames_in_cover) for g, l in m.links.items()}
         n.subscribed, n.inside = set(m.subscribed), m.inside
-        n.drops, n.rejects = Counter(), Counter()
+        n.drops, n.rejects = m.drops, m.rejects  # counters only: not part of the state, shared
         n.history = m.history[-1:]
         return World(n, self.now, self.pos, dict(self.up), dict(self.drone_key), dict(self.gs_key_ok),
                      dict(self.tokens), dict(self.spent_by_others), self.faults, self.restarted)
@@ -122,11 +122,12 @@ class World:
 
         links = tuple(sorted((g, l.state.value, min(l.frames_since_ok, ha.PROOF_FRAMES),
                               min(l.frames_in_cover, ha.PROOF_FRAMES)) for g, l in m.links.items()))
-        return (m.state.value, m.owner, m.epoch, m.pending_to, rel(m.pending_deadline), rel(m.repair_deadline),
-                links, tuple(sorted(m.subscribed)), self.pos, tuple(sorted(self.up.items())),
-                tuple(sorted(self.drone_key.items())), tuple(sorted(self.gs_key_ok.items())),
-                tuple(sorted(self.tokens.items())), tuple(sorted(self.spent_by_others.items())),
-                self.faults, self.restarted)
+        # the GS-keyed dicts below always hold A then B (made so), so their values are in a fixed order
+        return (m.state, m.owner, m.epoch, m.pending_to, rel(m.pending_deadline), rel(m.repair_deadline),
+                links, frozenset(m.subscribed), self.pos, tuple(self.up.values()),
+                tuple(sorted(self.drone_key.items())), tuple(self.gs_key_ok.values()),
+                tuple(self.tokens.values()), tuple(self.spent_by_others.values()),
+                self.faults, self.restarted, getattr(m, "takeover_epoch", None) == m.epoch)
 
     def hears(self, gs: str) -> bool:
         """Frames of ``gs`` open on the drone (and the drone's on ``gs``): radio up, the same key both ends."""
