@@ -159,6 +159,9 @@ def test_authority_link_lost_without_heir_is_failsafe_land():
     # terminal until a GS re-pairs on the ground
     m.handle(Paired(5.0, "A", on_ground=False))
     assert m.state is State.FAILSAFE
+    m.handle(Paired(8.0, "B", on_ground=True))  # a GS whose coverage does not hold the vehicle: no
+    assert m.state is State.FAILSAFE and m.rejects["failsafe"] == 2
+    m.handle(RegionChanged(8.5, frozenset({"A"})))
     m.handle(Paired(9.0, "A", on_ground=True))
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 2
 
@@ -458,6 +461,9 @@ def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
     assert _rejects(acts) == [SendControl("X", Reject("pair", "unauthorized: X is not authorized for this drone"))]
     m = _failsafe_with_b_linked()
     assert m.pair_refusal("B", on_ground=False) == PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
+    assert m.pair_refusal("B", on_ground=True) == PairRefused(
+        PairRefusal.FAILSAFE, "re-pair only from a GS whose coverage holds the vehicle")
+    m.handle(RegionChanged(3.0, frozenset({"B"})))
     assert m.pair_refusal("B", on_ground=True) is None
     acts = m.handle(Paired(3.0, "B", on_ground=False))
     assert _rejects(acts) == [SendControl("B", Reject("pair", "failsafe: re-pair only on the ground"))]

@@ -128,3 +128,18 @@ def test_a_third_partys_candidate_never_replaces_a_live_link_that_is_alive():
             assert isinstance(res, Dropped) and slot.live is p.drone and slot.live_protected == 2
         else:
             assert isinstance(res, Opened) and promoted is not None and slot.live is q.drone
+
+
+def test_a_backhaul_key_that_replaced_a_lost_link_gives_way_when_the_peer_speaks_under_the_old_one():
+    """Issue 18, key escrow while the answering GS's link is LOST (the drone away): the asker proves the
+    escrowed secret and replaces the LOST live key; the drone, back in range, still speaks under the old
+    key, and the slot takes it back at once."""
+    p, slot = drone_slot()
+    slot.open(p.gs.seal(p.heartbeat()), 0.1)
+    q = make_pair(NEW, now=1.0)
+    slot.offer(q.drone, 1.0, "linkkey:B")
+    res, promoted = slot.open(q.gs.seal(q.heartbeat()), 5.0)  # 4.9 s of silence: LOST, the forged proof
+    assert promoted is not None and slot.live is q.drone and slot.fallback is p.drone
+    res, promoted = slot.open(p.gs.seal(p.heartbeat()), 6.0)  # the real peer is back under the old key
+    assert isinstance(res, Opened) and promoted is not None and promoted.origin == "revert"
+    assert slot.live is p.drone and slot.fallback is None

@@ -182,3 +182,22 @@ def test_every_query_gets_one_result_that_matches_what_was_asked(queries):
             sent[gs] = (m1, ans.reply)
         else:
             assert ans == PairRefused(PairRefusal.RATE_LIMITED)
+
+
+def test_a_gs_own_earlier_tries_replayed_around_a_restart_never_starve_it():
+    """Issue 18, stale pairing: A's tries made while the companion was down, captured and replayed as
+    it comes back, cost at most one handshake each, only if newer than every answer so far, and never
+    keep A's own newest try from being answered; once A's newest is answered, every older one is stale."""
+    from zdrone.core.pairing import PAIR_BURST, PairAccepted, PairingResponder
+
+    ready = 1_800_000_000.0
+    r = PairingResponder(DRONE, "d1", {"A": GS.public}, frozenset({"A"}), not_before=ready)
+    tries = [PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + dt).start() for dt in (-5.0, -0.8, -0.4)]
+    genuine = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 0.2).start()
+    answers = [r.answer("A", m1, 0.0, SECRET, wall=ready + 0.3) for m1 in tries]
+    assert [a.refused if not isinstance(a, PairAccepted) else "answered" for a in answers] == ["stale", "answered", "answered"]
+    assert isinstance(r.answer("A", genuine, 0.1, SECRET, wall=ready + 0.3), PairAccepted)
+    assert r.answer("A", tries[1], 0.2, SECRET, wall=ready + 0.4).__class__.__name__ == "PairRepeated"  # seen: same answer
+    late = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 0.1).start()  # never seen, older than answered
+    assert r.answer("A", late, 0.3, SECRET, wall=ready + 0.4).refused == "stale"
+    assert PAIR_BURST >= 2 * 5  # A's re-pairing rate (5/s) for two seconds of down time

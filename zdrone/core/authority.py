@@ -3,7 +3,7 @@
 Theory of operation
 -------------------
 States: ``UNPAIRED -> LINKED(owner, epoch) -> HANDOVER_PENDING(owner -> to) -> LINKED(to, epoch+1)``
-and ``FAILSAFE``. FAILSAFE ends when a GS re-pairs while the vehicle is on the ground, or when an
+and ``FAILSAFE``. FAILSAFE ends when a GS whose coverage holds the vehicle re-pairs while it is on the ground, or when an
 authorized GS whose link is proven asks to take control (``HandoverRequest`` for itself: an
 operator's explicit request, never automatic) -> ``LINKED(gs, epoch+1)``.
 
@@ -484,6 +484,10 @@ class AuthorityMachine:
             return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")
         if self.state is State.FAILSAFE and not on_ground:
             return PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
+        if self.state is State.FAILSAFE and gs not in self.inside:
+            # pairing now would give authority over a vehicle the failsafe landed: least privilege
+            # wants the GS to cover where the vehicle is (by its own GPS), as for an heir
+            return PairRefused(PairRefusal.FAILSAFE, "re-pair only from a GS whose coverage holds the vehicle")
         return None
 
     def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:

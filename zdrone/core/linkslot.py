@@ -20,6 +20,12 @@ may replace a live key at any time. So nothing any third party sends changes a l
 malicious GS that obtained a candidate's secret (by asking for it over the backhaul) and forges a
 frame under it is counted as ``live_protected`` and changes nothing.
 
+A third party's key that replaced a LOST live key (a backhaul secret, once the drone restarted and
+lost the old key) keeps the old key as a *fallback*: whoever proved the new key also knew it (the
+asker of the key-sharing query), so if the peer speaks under the old key again, the slot takes it
+back at once (``Promoted("revert")``) — a secret escrowed while the link was LOST cannot cut a
+GS off for good.
+
 Failures are counted once, on the live link (or, when the slot has none yet, in ``unlinked``):
 trying a candidate never inflates the drop counters. Work per envelope is bounded by
 ``MAX_CANDIDATES`` + 2 AEAD attempts.
@@ -80,6 +86,7 @@ class LinkSlot:
     unlinked: Counter = field(default_factory=Counter)  # drops while no live key exists
     expired: int = 0
     live_protected: int = 0  # authentic frames under a third party's candidate refused: the live link is alive
+    fallback: SecureLink | None = None  # a LOST live key a third party's key replaced: the peer may still use it
 
     def may_replace_live(self, origin: str, now: float) -> bool:
         """Whether a candidate of ``origin`` may replace the live key now (``replaces_live``)."""
@@ -137,7 +144,13 @@ class LinkSlot:
                     self.live.count_drop(dropped)
                     return dropped, None
                 replaced = self.live is not None
+                old = self.live
                 self.install(cand.link, now)
+                if old is not None and cand.origin not in SELF_ORIGINS:
+                    # a third party's key replaced a LOST live key: whoever proved it also knew it (the
+                    # asker of a key-sharing query does), so the old key stays a fallback — the first
+                    # authentic frame of the peer under it takes it back (``revert``)
+                    self.fallback, self.previous = old, None
                 return res, Promoted(cand.origin, replaced)
             if res.reason not in _BEFORE_AUTH:
                 cand.link.count_drop(res)
@@ -147,6 +160,12 @@ class LinkSlot:
             res = self.previous.open(data, now, count=False)
             if isinstance(res, Opened):
                 return res, None
+        if self.fallback is not None:
+            res = self.fallback.open(data, now, count=False)
+            if isinstance(res, Opened):  # the peer still speaks under the key a third party's replaced
+                back, self.fallback = self.fallback, None
+                self.install(back, now)
+                return res, Promoted("revert", True)
         dropped = first or Dropped(DropReason.AUTH_FAILED, "no key for this link")
         if self.live is not None:
             self.live.count_drop(dropped)

@@ -10,10 +10,11 @@ one (drone, gs) pair cannot be replayed for another.
 Message 1 can be replayed (KK cannot tell a replay from a fresh one). It is therefore *fresh*: it
 carries the GS's clock under its tag (``kk``), and the drone refuses (``stale``, silently, before
 any other work) a message 1 made more than ``PAIR_MAX_AGE`` ago or before the drone's companion
-started (``not_before``: a restarted companion has forgotten its answers, and a captured message 1
-from before the restart must not buy a new handshake). Within that age, the drone answers a message
-1 it has seen with the message 2 it sent then (``kk.ResponseCache``, kept twice as long), so a
-replay makes no new key, spends no rate-limit token and displaces no pending candidate; and it
+became ready (``not_before``: a restarted companion has forgotten its answers, and a captured
+message 1 from before it was back must not buy a new handshake). Within that age, the drone answers
+a message 1 it has seen with the message 2 it sent then (``kk.ResponseCache``, kept twice as long),
+and drops one older than the newest it answered for that GS (a GS's tries are stamped in order), so
+a replay makes no new key, spends no rate-limit token and displaces no pending candidate; and it
 treats the key of every pairing as a *candidate*: it replaces nothing until the GS proves it with
 an authentic frame under it (see ``linkslot``). GS and drone clocks must agree to a few seconds
 (GPS or NTP time on both; see the deployment guide). ``PairingResponder`` orders the checks
@@ -181,6 +182,10 @@ PairResult = PairAccepted | PairRepeated | PairRefused
 
 #: A message 1 made longer ago than this (by its tagged stamp, against the drone's clock) is stale.
 PAIR_MAX_AGE = 30.0
+#: Handshakes per second a GS's pairing queries may cost the drone (bursts of ``PAIR_BURST``): above
+#: the owner's own re-pairing rate after a silence (5/s), so replays of its genuine tries cannot
+#: starve it, and small enough that a flood of valid queries costs the drone nothing noticeable.
+PAIR_RATE, PAIR_BURST = 5.0, 10.0
 #: How far the GS's and the drone's clocks may disagree when the drone compares a stamp with its start.
 MAX_SKEW = 1.0
 #: A message 1 seen within this time gets its first answer again (a replay creates nothing); at
@@ -203,13 +208,14 @@ class PairingResponder:
     """
 
     def __init__(self, me: Identity, drone: str, ground_stations: dict[str, bytes], authorized: frozenset[str],
-                 rate: float = 1.0, burst: float = 3.0, max_age: float = PAIR_MAX_AGE,
+                 rate: float = PAIR_RATE, burst: float = PAIR_BURST, max_age: float = PAIR_MAX_AGE,
                  not_before: float | None = None) -> None:
-        """``not_before``: the drone's clock when its companion started (message 1s stamped earlier
-        than that, less ``max_skew``, are stale)."""
+        """``not_before``: the drone's clock when its companion became ready (message 1s stamped
+        earlier than that, less ``MAX_SKEW``, are stale)."""
         self.me, self.drone = me, drone
         self.max_age = max_age
         self.not_before = not_before
+        self.newest: dict[str, float] = {}  # per GS: the stamp of the newest message 1 answered
         self.ground_stations = ground_stations
         self.authorized = authorized
         self.limiter = RateLimiter(rate, burst)
@@ -237,11 +243,16 @@ class PairingResponder:
                               None if wall is None else self.max_age)
         if fail is not None:
             return PairRefused(PairRefusal(fail.value))
-        if wall is not None and self.not_before is not None and stamp_of(message1) < self.not_before - MAX_SKEW:
+        stamp = stamp_of(message1)
+        if wall is not None and self.not_before is not None and stamp < self.not_before - MAX_SKEW:
             return PairRefused(PairRefusal.STALE, "made before the companion started")
         cached = self.cache.get(message1, now)
         if cached is not None:
             return PairRepeated(cached)
+        if wall is not None and stamp <= self.newest.get(gs, float("-inf")):
+            # older than one already answered: a replay of the GS's own earlier try (its newer one
+            # was answered), never a handshake, a token or a displaced candidate
+            return PairRefused(PairRefusal.STALE, "older than a message 1 already answered")
         if not self.limiter.allow(gs, now):
             return PairRefused(PairRefusal.RATE_LIMITED)
         out = respond(self.me, self.drone, gs, self.ground_stations[gs], message1, secret, holds_key)
@@ -249,4 +260,6 @@ class PairingResponder:
             return PairRefused(PairRefusal.AUTH_FAILED)
         msg2, key = out
         self.cache.put(message1, msg2, now)
+        if wall is not None:
+            self.newest[gs] = stamp
         return PairAccepted(msg2, key)

@@ -302,6 +302,7 @@ class DroneNode:
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
         self._fc_signing()
         self._restore(time.monotonic())
+        self.core.ready(time.time())
         inbox = self.rx
         self._vehicle_pushes = self.vehicle.start_reader(lambda msg: inbox.put(VEHICLE, VEHICLE, msg))
         try:

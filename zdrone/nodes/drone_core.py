@@ -247,6 +247,11 @@ class DroneCore:
         out += self._apply(self.machine.restore(owner, epoch, now, self.opts.thresholds.lost), now)
         return out + self._effects(now)
 
+    def ready(self, wall: float) -> None:
+        """The companion is ready (its vehicle heard, its saved authority restored) at time of day
+        ``wall``: pairing message 1s made before it (less the clock skew allowed) are stale."""
+        self.responder.not_before = wall
+
     def get_timer(self) -> float | None:
         """When ``handle_timer`` must next be called if no input comes."""
         due = [self._next_beacon]

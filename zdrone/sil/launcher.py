@@ -36,6 +36,7 @@ from pymavlink.dialects.v20 import common as mav
 from gs.planner import AUTOPILOTS, reference_mission
 
 from ..core.geometry import GeoPoint, distance_m
+from ..core.pairing import PAIR_BURST, PAIR_RATE
 from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound, Captured,
                             ControlRequested,
                             Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState, HandoverComplete,
@@ -410,7 +411,7 @@ def _check_pair_replay(o: Outcome) -> list[str]:
 
 def _check_pair_flood(o: Outcome) -> list[str]:
     """``pair-flood``: an authorized GS's key (B's) floods valid pairing queries. The drone refuses all
-    beyond B's allowance (1/s, burst 3) before any crypto and does at most 2 handshakes per loop turn;
+    beyond B's allowance (5/s, burst 10) before any crypto and does at most 2 handshakes per loop turn;
     the authority link must never go silent for more than 2 s (DEGRADED at most 1 s)."""
     done = o.rogue_done("pair-flood")
     answered = o.drone_counter("pair_answered")
@@ -418,7 +419,8 @@ def _check_pair_flood(o: Outcome) -> list[str]:
     why += _need(done.get("sent", 0) > 0, "the attacker sent nothing")
     why += _need(o.drone_counter("pair_refused:rate_limited") >= 1000,
                  f"only {o.drone_counter('pair_refused:rate_limited')} pair_refused:rate_limited")
-    why += _need(answered <= 1 + 3 + int(done.get("seconds", 0)) + 1, f"{answered} pairings answered")
+    why += _need(answered <= 1 + PAIR_BURST + PAIR_RATE * (int(done.get("seconds", 0)) + 1),
+                 f"{answered} pairings answered")
     why += _need(not o.confirmed("B", "pair"), "a flood key was proven")
     why += _need(o.summary["authority_link"]["longest_silence_s"] <= 2.0,
                  f"authority link silent {o.summary['authority_link']['longest_silence_s']} s")
