@@ -1043,8 +1043,10 @@ def fc_radio(c: Ctx) -> None:
         if not c.wait_for_go():
             return
         going = c.attack_window()
-        heartbeat()
-        listen(1.5)  # the autopilot's telemetry says which one it is (its mode numbers)
+        until = time.monotonic() + 5.0
+        while not autopilot and time.monotonic() < until:  # its telemetry says which autopilot (its mode numbers)
+            heartbeat()
+            listen(0.5)
         while going():
             heartbeat()
             if answers["mode_land:accepted"]:  # taken over: the vehicle lands where the attacker said
