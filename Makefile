@@ -17,11 +17,15 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/zdrone demo $(ARGS)
 
+# The process flights wait on the wall clock (a quarter of a core each): several at once, in workers
+# that take the next test when idle; tests sharing one flight carry the same xdist_group.
+TEST_WORKERS ?= 4
+
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=15 $(ARGS)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=25 $(ARGS)
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -m 'not slow' $(ARGS)
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup -m 'not slow' $(ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -1,12 +1,18 @@
 """Test-wide settings: hypothesis without per-example deadlines (CI machines are shared and loaded;
 speed targets live in ``zdrone bench``, not in timed tests); every event log strict (an event that
-fits no record is an error, in the tests and in every node process they start)."""
+fits no record is an error, in the tests and in every node process they start); the slow tests
+(process flights, benches) first, so that under ``pytest -n`` the quick ones fill the gaps at the end."""
 
 import os
 
+import pytest
 from hypothesis import settings
 
 os.environ.setdefault("ZDRONE_STRICT_EVENTS", "1")
 
 settings.register_profile("zdrone", deadline=None)
 settings.load_profile("zdrone")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable: file order otherwise
