@@ -1,0 +1,203 @@
+"""A whole flight in memory: the drone's core, two ground stations' cores and the simulated autopilot,
+wired the way the node adapters wire them, with simulated time and no sockets, threads or processes.
+
+The radio is the fleet's coverage: a frame between the drone and a GS gets through only while the
+vehicle is inside that GS's coverage circle (a GS that is ``down`` neither sends nor hears). Pairing
+and key-sharing queries are answered at once; a query that gets no answer (the drone out of range,
+the asked GS down) is answered by nothing, and the asker's own timeout runs.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mav
+
+from gs.core import Ask, AskKind, CoreOptions, FrameUp, Log, Put, Say, StationCore
+from gs.planner import reference_plan
+from zdrone.core import records as rec
+from zdrone.core.geometry import GeoPoint
+from zdrone.core.mavlink import FrameCodec
+from zdrone.core.reference import HOME
+from zdrone.fleet import keyexprs as kx
+from zdrone.fleet.files import init_fleet, load_fleet, load_secret
+from zdrone.nodes.drone_core import (CommandVehicle, DroneCore, DroneCoreOptions, Emit, Listen, Persist, PutDown,
+                                     ToVehicle)
+from zdrone.vehicle.modes import ARDUPILOT, set_mode_params
+from zdrone.vehicle.personality import PX4, Personality
+from zdrone.vehicle.sim import SimAutopilot
+from zdrone.vehicle.tracker import VehicleTracker
+
+#: Time of day at simulated time 0 (pairing and key-sharing stamps are times of day).
+WALL0 = 1_800_000_000.0
+DRONE = "d1"
+
+
+@dataclass
+class Station:
+    core: StationCore
+    down: bool = False  # crashed or hung: neither ticks nor hears nor answers
+    logs: list[tuple[float, str, dict[str, Any]]] = field(default_factory=list)
+
+
+class CoreFlight:
+    """The reference flight of ``d1`` between GS A (which pairs and flies the mission) and GS B."""
+
+    def __init__(self, fleet_dir: Path, personality: Personality = PX4, handover_timeout: float = 2.0,
+                 command_rate: float = 2.0, dt: float = 0.05) -> None:
+        if not (fleet_dir / "fleet.json5").exists():
+            init_fleet(fleet_dir)
+        fleet = load_fleet(fleet_dir)
+        self.fleet, self.dt, self.now = fleet, dt, 0.0
+        self.sim = SimAutopilot(HOME, sysid=fleet.nodes[DRONE].sysid, personality=personality)
+        self.drone = DroneCore(fleet, DRONE, load_secret(fleet_dir, DRONE, fleet).identity,
+                               DroneCoreOptions(handover_timeout=handover_timeout), started_wall=WALL0)
+        self.gs: dict[str, Station] = {}
+        for name, opts in (("A", CoreOptions(pair=True, mission=reference_plan(), command_rate=command_rate)),
+                           ("B", CoreOptions(command_rate=command_rate))):
+            self.gs[name] = Station(StationCore(name, fleet, load_secret(fleet_dir, name, fleet).identity, (DRONE,), opts))
+        self.coverage = {g: fleet.nodes[g].coverage.circle() for g in self.gs}
+        # the drone's vehicle link: the companion's own frames (heartbeat, stream requests, the failsafe)
+        self.companion = FrameCodec(*self.companion_ids)
+        self.tracker = VehicleTracker(*self.companion_ids)
+        self._companion_hb = float("-inf")
+        self.listening: frozenset[str] = frozenset()
+        self.records: list[tuple[float, rec.Record]] = []
+        self.commands: list[CommandVehicle] = []
+        self.persisted: list[Persist] = []
+        self.was_armed = False
+        self.lost_frames: Counter[str] = Counter()  # per GS: frames the radio did not carry
+        self.statuses: list[tuple[float, str | None, int, str]] = []  # (now, owner, epoch, state) at each step
+        self.vehicle_codec = FrameCodec(*self.companion_ids)
+        self.handle(self.drone.on_vehicle(self._pos(), self._on_ground(), 0.0))
+
+    # ------------------------------------------------------------------ the radio
+    def in_range(self, gs: str) -> bool:
+        p = self.sim.position
+        return not self.gs[gs].down and self.coverage[gs].contains(GeoPoint(p.lat, p.lon))
+
+    companion_ids = (1, 191)
+
+    def _pos(self) -> tuple[float, float, float] | None:
+        """Where the vehicle says it is (None before its position fix), as the drone node reads it."""
+        p = self.tracker.position
+        return (round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)) if p else None
+
+    def _on_ground(self) -> bool:
+        return not self.tracker.armed or self.tracker.landed_state(self.now) == mav.MAV_LANDED_STATE_ON_GROUND
+
+    def _to_vehicle(self, msg: Any) -> None:
+        self.sim.receive(self.companion.encode(msg), self.sim.t)
+
+    # ------------------------------------------------------------------ carrying out
+    def handle(self, outs: list[Any]) -> None:
+        """Carry out the drone core's outputs."""
+        for o in outs:
+            if isinstance(o, PutDown):
+                if self.in_range(o.gs):
+                    self.station(o.gs, self.gs[o.gs].core.on_envelope(DRONE, o.payload, self.now))
+                else:
+                    self.lost_frames[o.gs] += 1
+            elif isinstance(o, ToVehicle):
+                self.sim.receive(o.frame, self.sim.t)
+            elif isinstance(o, CommandVehicle):
+                self.commands.append(o)  # as VehicleLink.command_land / command_rtl
+                params = set_mode_params(self.tracker.autopilot, o.command) if self.tracker.autopilot == ARDUPILOT else None
+                if params is not None:
+                    self._to_vehicle(self.tracker.command(mav.MAV_CMD_DO_SET_MODE, tuple(params), self.now))
+                else:
+                    cmd = mav.MAV_CMD_NAV_LAND if o.command == "LAND" else mav.MAV_CMD_NAV_RETURN_TO_LAUNCH
+                    self._to_vehicle(self.tracker.command(cmd, (0.0,) * 7, self.now))
+            elif isinstance(o, Emit):
+                self.records.append((self.now, o.record))
+            elif isinstance(o, Listen):
+                self.listening = o.gss
+            elif isinstance(o, Persist):
+                self.persisted.append(o)
+            else:
+                raise AssertionError(f"unknown drone output {o!r}")
+
+    def station(self, name: str, actions: list[Any]) -> None:
+        """Carry out GS ``name``'s actions."""
+        st = self.gs[name]
+        for a in actions:
+            if isinstance(a, Put):
+                assert a.keyexpr == kx.up(DRONE, name), a.keyexpr
+                if name in self.listening and self.in_range(name):
+                    self.handle(self.drone.on_envelope(name, a.payload, self.now))
+                else:
+                    self.lost_frames[name] += 1
+            elif isinstance(a, Ask) and a.kind is AskKind.PAIR:
+                if self.in_range(name):
+                    ans, outs = self.drone.on_pair_query(name, a.payload, self.now, bytes(32), WALL0 + self.now)
+                    self.handle(outs)
+                    if hasattr(ans, "reply"):
+                        self.station(name, st.core.on_pair_reply(DRONE, ans.reply, None, self.now))
+                    elif not ans.silent:
+                        self.station(name, st.core.on_pair_reply(DRONE, None, ans.text.encode(), self.now))
+            elif isinstance(a, Ask) and a.kind is AskKind.LINKKEY:
+                other = self.gs[a.gs]
+                if not other.down:  # the backhaul: no radio involved
+                    answer, logs = other.core.on_linkkey_query(DRONE, a.payload, self.now, bytes([len(self.records) % 256]) * 32,
+                                                               WALL0 + self.now)
+                    self.station(a.gs, logs)
+                    if answer.reply is not None or answer.error is not None:
+                        self.station(name, st.core.on_linkkey_reply(DRONE, a.gs, answer.reply, answer.error, self.now))
+            elif isinstance(a, Log):
+                st.logs.append((self.now, a.kind, a.fields))
+            elif isinstance(a, (FrameUp, Say)):
+                pass  # the GCS gateway and the operator's console
+            else:
+                raise AssertionError(f"unknown GS action {a!r}")
+
+    # ------------------------------------------------------------------ time
+    def step(self) -> None:
+        self.now = round(self.now + self.dt, 6)
+        self.sim.step(self.now)
+        for frame in self.sim.drain():
+            msg = self.vehicle_codec.decode(frame)
+            if msg is not None:
+                self.tracker.on_message(msg, self.now)
+            self.handle(self.drone.on_telemetry(frame, self.now))
+        if self.now - self._companion_hb >= 1.0:
+            self._companion_hb = self.now
+            self._to_vehicle(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID,
+                                                          0, 0, mav.MAV_STATE_ACTIVE, 3))
+        for msg in self.tracker.poll(self.now):
+            self._to_vehicle(msg)
+        self.handle(self.drone.on_vehicle(self._pos(), self._on_ground(), self.now))
+        timer = self.drone.get_timer()
+        if timer is not None and self.now >= timer:
+            self.handle(self.drone.handle_timer(self.now))
+        for name, st in self.gs.items():
+            if not st.down:
+                self.station(name, st.core.tick(self.now, WALL0 + self.now))
+        self.was_armed |= self.sim.armed
+        m = self.drone.machine
+        self.statuses.append((self.now, m.owner, m.epoch, m.state.value))
+
+    def run_until(self, pred, timeout: float) -> bool:
+        end = self.now + timeout
+        while self.now < end:
+            if pred():
+                return True
+            self.step()
+        return pred()
+
+    # ------------------------------------------------------------------ outcomes
+    def of(self, kind: type) -> list[tuple[float, Any]]:
+        return [(t, r) for t, r in self.records if isinstance(r, kind)]
+
+    def gs_logs(self, name: str, kind: str) -> list[tuple[float, dict[str, Any]]]:
+        return [(t, f) for t, k, f in self.gs[name].logs if k == kind]
+
+    def flown(self) -> bool:
+        """The mission is over: the vehicle flew it all and is on the ground, disarmed."""
+        return self.sim.mission_finished and not self.sim.armed
+
+    def landed(self) -> bool:
+        """The vehicle flew and is on the ground again, disarmed (where the mission ended or not)."""
+        return self.was_armed and not self.sim.armed and self.sim.landed

@@ -1,0 +1,149 @@
+"""The reference flight and its faults in memory, on both autopilot personalities: the drone's core,
+GS A's and GS B's cores, the simulated autopilot and the drone's vehicle tracker
+(``tests/coreflight.py``) fly pairing -> key sharing -> hand-over -> delivery -> hand-back -> home
+in simulated time, a whole flight in a fraction of a second. ``tests/fleetnet.py`` checks the
+protocol's corner cases on a scripted position; the process flights of ``tests/integration`` fly
+the same through Zenoh and real processes. These pin the flight's outcomes without a wall clock, so
+they hold at any machine load."""
+
+from __future__ import annotations
+
+import pytest
+
+from gs.planner import encode_mission, reference_plan
+from tests.coreflight import DRONE, CoreFlight
+from zdrone.core import records as rec
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.reference import DELIVERY, HOME
+from zdrone.sil.launcher import delivered_at
+from zdrone.vehicle.personality import personality
+
+AUTOPILOTS = ["px4", "ardupilot"]
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("fleet")
+
+
+def _moves(f: CoreFlight) -> list[tuple[str | None, str, int, str]]:
+    return [(r.from_, r.to, r.epoch, r.kind) for _, r in f.of(rec.AuthorityMoved)]
+
+
+def _inside(f: CoreFlight, gs: str, pos) -> bool:
+    return f.coverage[gs].contains(GeoPoint(pos[0], pos[1]))
+
+
+def _home_distance(f: CoreFlight) -> float:
+    return distance_m(HOME, f.sim.position)
+
+
+def _one_authority_from_pairing_on(f: CoreFlight) -> None:
+    """From the first pairing on, at every step exactly one GS holds authority, and epochs only grow."""
+    first = next(i for i, (_, owner, _, _) in enumerate(f.statuses) if owner)
+    held = f.statuses[first:]
+    assert all(owner in ("A", "B") for _, owner, _, _ in held), "an instant without an authority"
+    epochs = [e for _, _, e, _ in held]
+    assert epochs == sorted(epochs)
+
+
+def _no_command_lost_or_doubled(f: CoreFlight) -> None:
+    """Every commanding frame an authority sent in its epoch was forwarded to the vehicle, once; no GS
+    commanded in an epoch not its own."""
+    owners = {r.epoch: r.to for _, r in f.of(rec.AuthorityMoved)}
+    sent = {f"{epoch}:{g}": n for g, st in f.gs.items() for epoch, n in st.core.views[DRONE].commands_sent.items() if n}
+    assert sent and all(owners[int(k.split(":")[0])] == k.split(":")[1] for k in sent), (sent, owners)
+    assert dict(f.drone.forwarded_epochs) == sent
+
+
+def _flight(fleet_dir, autopilot: str) -> CoreFlight:
+    return CoreFlight(fleet_dir, personality(autopilot))
+
+
+def _found_and_encoded_for(f: CoreFlight, autopilot: str) -> None:
+    """GS A found the autopilot and encoded the mission for it (ArduPilot: item 0 is home, and
+    MIS_OPTIONS says go on after a landing)."""
+    assert [x["autopilot"] for _, x in f.gs_logs("A", "autopilot")] == [autopilot]
+    uploads = f.gs_logs("A", "mission_upload")
+    assert uploads and uploads[0][1]["items"] == len(encode_mission(reference_plan(), autopilot))
+    assert autopilot == "px4" or uploads[0][1]["items"] == 9  # home placeholder + the plan
+    assert bool(f.gs_logs("A", "vehicle_param")) == (autopilot == "ardupilot")
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+def test_the_reference_flight_hands_over_to_b_and_back_inside_the_overlap(fleet_dir, autopilot):
+    f = _flight(fleet_dir, autopilot)
+    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].stage}"
+    assert _moves(f) == [(None, "A", 1, "paired"), ("A", "B", 2, "handover"), ("B", "A", 3, "handover")]
+    for _, r in f.of(rec.HandoverComplete):
+        assert _inside(f, "A", r.position) and _inside(f, "B", r.position), r
+    _one_authority_from_pairing_on(f)
+    _no_command_lost_or_doubled(f)
+    assert f.drone.forwarded["A"] > 0 and f.drone.forwarded["B"] > 0  # both commanded in their turn
+    # the key sharing: A asked B, B's key reached the drone as a grant, B proved it before the overlap
+    assert [t for t, _ in f.gs_logs("A", "linkkey_received")] and f.gs_logs("A", "key_granted")
+    [(proven_at, how)] = [(t, x["how"]) for t, x in f.gs_logs("B", "link_confirmed")]
+    assert how == "linkkey:A" and proven_at < f.of(rec.HandoverComplete)[0][0]
+    # B held authority at the delivery and heard the vehicle go past its DO_GRIPPER item on the ground there
+    assert delivered_at([rec.MissionProgress(**x) for _, x in f.gs_logs("B", "mission_progress")], autopilot)
+    assert not delivered_at([rec.MissionProgress(**x) for _, x in f.gs_logs("A", "mission_progress")], autopilot)
+    if autopilot == "ardupilot":  # ArduCopter says so; PX4 says nothing
+        assert "Gripper Released" in [x["text"] for _, x in f.gs_logs("B", "vehicle_text")]
+    assert f.sim.mission_finished and _home_distance(f) < 3.0
+    assert f.commands == [] and f.of(rec.Failsafe) == [] and f.of(rec.Drop) == []
+    assert f.persisted[-1].owner == "A" and f.persisted[-1].epoch == 3
+    _found_and_encoded_for(f, autopilot)
+
+
+def _fly_until(f: CoreFlight, pred, what: str, timeout: float = 200) -> None:
+    assert f.run_until(pred, timeout), f"never {what} (t={f.now}, owner {f.drone.machine.owner})"
+
+
+def _east_of_home(f: CoreFlight) -> float:
+    return distance_m(HOME, GeoPoint(f.sim.position.lat, f.sim.position.lon))
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+def test_the_authority_falling_silent_before_the_overlap_lands_the_drone_where_it_is(fleet_dir, autopilot):
+    f = _flight(fleet_dir, autopilot)
+    _fly_until(f, lambda: _east_of_home(f) > 60 and not f.in_range("B"), "60 m out")
+    f.gs["A"].down = True
+    _fly_until(f, lambda: bool(f.commands), "a failsafe", timeout=10)
+    [(t, fs)] = f.of(rec.Failsafe)
+    assert fs.action == "LAND" and fs.reason == "authority link to A lost"
+    assert 0 <= fs.detect_to_command_ms <= f.dt * 1000  # at the first step past the loss threshold
+    _fly_until(f, f.landed, "landed", timeout=120)
+    assert _moves(f) == [(None, "A", 1, "paired")] and _home_distance(f) > 20.0  # landed where it was
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+def test_the_heir_crashing_before_the_hand_over_leaves_authority_with_a_who_brings_it_home(fleet_dir, autopilot):
+    f = _flight(fleet_dir, autopilot)
+    _fly_until(f, lambda: f.in_range("B") and f.in_range("A"), "in the overlap")
+    f.gs["B"].down = True
+    _fly_until(f, f.landed, "landed", timeout=300)
+    assert _moves(f) == [(None, "A", 1, "paired")]
+    assert f.of(rec.HandoverTimeout) or f.of(rec.HandoverAborted)
+    assert f.gs_logs("A", "handover_failed") and f.drone.machine.owner == "A"
+    assert f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0
+    assert distance_m(DELIVERY, GeoPoint(f.sim.position.lat, f.sim.position.lon)) > 100  # it came home, undelivered
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+def test_a_hung_authority_loses_authority_to_the_proven_heir_and_learns_it_on_waking(fleet_dir, autopilot):
+    f = _flight(fleet_dir, autopilot)
+    _fly_until(f, lambda: f.in_range("B") and f.in_range("A") and f.gs["B"].core.views[DRONE].link is not None,
+               "in the overlap with B proven")
+    hung = f.now
+    f.gs["A"].down = True
+    _fly_until(f, lambda: f.now >= hung + 5.0, "5 s later", timeout=6)
+    f.gs["A"].down = False
+    _fly_until(f, f.flown, "home", timeout=300)
+    assert _moves(f)[:2] == [(None, "A", 1, "paired"), ("A", "B", 2, "emergency")]
+    back = _moves(f)[2:]  # then ordinary hand-overs only (by position), ending with A
+    assert back and all(kind == "handover" for *_, kind in back) and back[-1][1] == "A", back
+    woke = [x for t, x in f.gs_logs("A", "authority_status") if t > hung and x["owner"] == "B"]
+    assert woke and woke[0]["epoch"] == 2
+    assert {r.value: n for r, n in f.drone.machine.drops.items()}.get("not_authority", 0) == 0  # A never tried
+    _one_authority_from_pairing_on(f)
+    assert f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0
