@@ -8,7 +8,9 @@ Each flight takes about 40 s of wall time at speed-up 4. Run one at a time on a 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -127,9 +129,25 @@ def test_oversized_payloads_are_refused_by_length_and_cost_nothing(tmp_path):
     _clean_shutdown(s, out)
 
 
+@pytest.fixture(scope="module")
+def bench_attack_quick(tmp_path_factory) -> tuple[dict, Path]:
+    """One ``zdrone bench attack --quick`` (its pair-flood flight, then a failsafe trial under the flood):
+    its JSON, and the folder of its pair-flood flight (the bench's runs go under TMPDIR)."""
+    tmp = tmp_path_factory.mktemp("bench-attack").resolve()
+    out = subprocess.run([ZDRONE, "bench", "attack", "--quick", "--json"], capture_output=True, text=True, timeout=240,
+                         env={**os.environ, "TMPDIR": str(tmp)})
+    assert out.returncode == 0, out.stderr[-2000:]
+    [base] = tmp.glob("zdrone-bench-attack-*")
+    return json.loads(out.stdout), base / "pair-flood"
+
+
 @pytest.mark.slow
-def test_pairing_flood_is_refused_before_crypto_and_telemetry_goes_on(tmp_path):
-    s, out = run_demo(tmp_path, "pair-flood")
+@pytest.mark.xdist_group("bench-attack-quick")
+def test_pairing_flood_is_refused_before_crypto_and_telemetry_goes_on(bench_attack_quick):
+    """Checked on the bench's pair-flood flight: the same ``zdrone demo --scenario pair-flood``
+    (speed-up 4) as a flight of its own would be."""
+    r, out = bench_attack_quick
+    s = json.loads((out / "summary.json").read_text()) | {"_rc": 0}  # the bench ended 0 (its fixture checks)
     _unaffected(s)
     done = _attack(s, "pair-flood")
     assert done["rate"] >= 1500, done  # 2500/s asked; well below means the attacker could not keep up
@@ -181,10 +199,9 @@ def test_gateway_flood_is_counted_and_the_station_keeps_flying(tmp_path):
 
 
 @pytest.mark.slow
-def test_bench_attack_quick():
-    out = subprocess.run([ZDRONE, "bench", "attack", "--quick", "--json"], capture_output=True, text=True, timeout=180)
-    assert out.returncode == 0, out.stderr[-2000:]
-    r = json.loads(out.stdout)
+@pytest.mark.xdist_group("bench-attack-quick")
+def test_bench_attack_quick(bench_attack_quick):
+    r, _ = bench_attack_quick
     [row] = r["scenarios"]
     assert row["scenario"] == "pair-flood" and row["ok"] and row["flight_completed"]
     assert row["refusals"].get("drone pair_refused:rate_limited", 0) >= 1000
