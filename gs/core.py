@@ -304,6 +304,7 @@ class DroneView:
     waiting: str | None = None  # what the GS last said it waits for before arming
     refusal: Refusal | None = None
     restarts: int = 0  # armed and started again after a disarm on the ground
+    unexplained: int = 0  # refusals neither the vehicle's words nor its state explain
     takeoff_late_said: bool = False
     last_pair_try: float | None = None
     last_share_try: float | None = None
@@ -850,12 +851,12 @@ class StationCore:
         while it is not ready, the GS says what it waits for."""
         if ev.now < view.next_try:
             return []
-        if view.armed:  # armed already (e.g. a start refused while armed): go on with the start
-            self._set_stage(view, Stage.STARTING, ev.now)
-            return self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
         out = self._show_waiting(view, self.not_ready(view, ev.now), ev.now)
         if view.waiting is not None:
             return out
+        if view.armed:  # armed already (e.g. a start refused while armed): go on with the start
+            self._set_stage(view, Stage.STARTING, ev.now)
+            return out + self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
         if view.autopilot == "ardupilot" and view.custom_mode in ARDUPILOT_NOT_ARMABLE:
             view.next_try = ev.now + MODE_SETTLE_S  # left in AUTO (or RTL, LAND) by a disarm: arm in GUIDED
             return out + self._command(view, mav.MAV_CMD_DO_SET_MODE, *set_mode_params("ardupilot", "GUIDED"))
@@ -913,7 +914,9 @@ class StationCore:
         final = any(p in said for p in REFUSED_FOR_GOOD)
         not_ready = (r.result == mav.MAV_RESULT_TEMPORARILY_REJECTED or any(p in said for p in NOT_READY)
                      or self.not_ready(view, ev.now) is not None)
-        if final or not (not_ready or view.tries < MAX_UNEXPLAINED):
+        if not (final or not_ready):
+            view.unexplained += 1
+        if final or view.unexplained >= MAX_UNEXPLAINED:
             out.append(Log("mission_start_failed", {"drone": view.name, "result": r.result, "texts": texts}))
             return out + self._give_up(view, ev.now, f"{r.what} refused (result {r.result}): {reason}")
         view.next_try = ev.now + RETRY_AFTER_S
@@ -935,6 +938,7 @@ class StationCore:
             not view.armed and ev.now - view.stage_time > ARMED_REPORT_S)
         if disarmed:
             view.restarts += 1
+            view.takeoff_late_said = False
             view.next_try = ev.now + RETRY_AFTER_S
             self._set_stage(view, Stage.WAITING_READY, ev.now)
             reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"

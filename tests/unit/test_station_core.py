@@ -327,6 +327,14 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
         assert view.stage is Stage.WAITING_READY, i
     refused = [x for x in out if isinstance(x, Log) and x.kind == "vehicle_refused"]
     assert refused and refused[0].fields["texts"] == ["Arm: Accels inconsistent"]
+    # a refusal nothing explains (no reason, the vehicle says it is ready) is tried a few times only
+    from gs.core import MAX_UNEXPLAINED
+
+    for i in range(MAX_UNEXPLAINED):
+        view.stage, view.texts = Stage.ARMING, []
+        a._flight(view, FlightAck(400.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+        out = a._flight(view, FlightTick(400.6 + i))
+    assert view.stage is Stage.FAILED and any(isinstance(x, Log) and x.kind == "mission_failed" for x in out)
 
 
 def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir):
@@ -346,6 +354,11 @@ def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir)
     out = b._flight(vb, FlightTick(30.6))
     assert vb.stage is Stage.WAITING_READY and vb.next_try > 30.6
     assert "not ready yet" in _says(out)[0] and "requires position" in _says(out)[0]
+    _ekf(vb, absolute=False)  # armed, but no absolute position: no MISSION_START until there is one
+    out = b._flight(vb, FlightTick(33.0))
+    assert not [x for x in out if isinstance(x, Put)] and "EKF to use GPS" in _says(out)[0]
+    _ekf(vb, absolute=True)
+    assert [x for x in b._flight(vb, FlightTick(34.0)) if isinstance(x, Put)] and vb.stage is Stage.STARTING
     # PX4's infeasible mission: refused for good, whatever order its words and its ACK come in
     a = _flying_core(fleet_dir, "px4")
     view = a.views["d1"]
