@@ -136,7 +136,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     loops = 0
     try:
         while not stop[0] and time.monotonic() < deadline:
-            if released is None and (all(gss[n.name] <= set(n.links) for n in nodes)
+            if released is None and (all(gss[n.name] <= set(n.core.links) for n in nodes)
                                      or time.monotonic() - t_ready >= args.hold):
                 released = "keys" if time.monotonic() - t_ready < args.hold else "hold timeout"
                 for n in nodes:
@@ -150,7 +150,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 m = n.machine
                 if n.vehicle.armed:
                     armed_seen[i] = True
-                    link = n.links.get(m.owner or "")
+                    link = n.core.links.get(m.owner or "")
                     if link is not None:
                         now = time.monotonic()
                         worst_owner_silence[i] = max(worst_owner_silence[i], link.tbm.since_last(now))
@@ -168,9 +168,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "handovers": max(0, m.epoch - 1),  # epoch 1 at pairing, +1 per hand-over
                 "owners": [o for _, o, _ in m.history], "state": m.state.value, "flew": armed_seen[i],
                 "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
-                "forwarded": dict(n.forwarded), "not_authority": m.drops[HaDrop.NOT_AUTHORITY],
+                "forwarded": dict(n.core.forwarded), "not_authority": m.drops[HaDrop.NOT_AUTHORITY],
                 "worst_owner_silence_s": round(worst_owner_silence[i], 3), "owner_lost_samples": owner_lost[i],
-                "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.links.items()}}
+                "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()}}
         Path(args.out, "drones.json").write_text(json.dumps({
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
             "cpu_s": cpu_s, "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
