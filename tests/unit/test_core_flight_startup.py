@@ -1,0 +1,62 @@
+"""Issue 22 in memory (``tests/coreflight.py``): the reference flight with each autopilot's real
+start-up, and a vehicle that disarms itself on the ground after the mission start."""
+
+from __future__ import annotations
+
+import pytest
+
+from gs.core import Stage
+from tests.coreflight import DRONE, CoreFlight
+from zdrone.core import records as rec
+from zdrone.sil.launcher import delivered_at
+from zdrone.vehicle.personality import personality
+
+#: the real start-up of each (simulated seconds): PX4 ready ~10 s, ArduCopter's EKF using GPS at ~40 s
+REAL_START = {"px4": 10.0, "ardupilot": 40.0}
+WAITS_FOR = {"px4": "pre-arm checks failing", "ardupilot": "EKF to use GPS"}  # what it waits for last
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("fleet")
+
+
+def _delivered(f: CoreFlight, autopilot: str) -> bool:
+    return delivered_at([rec.MissionProgress(**x) for _, x in f.gs_logs("B", "mission_progress")], autopilot)
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_the_reference_flight_with_the_autopilots_real_start_up(fleet_dir, autopilot):
+    f = CoreFlight(fleet_dir, personality(autopilot))
+    f.sim.ready_after = REAL_START[autopilot]
+    r = f.sim.p.readiness
+    fix_at, position_at = r.gps_fix_at * f.sim.ready_after, r.position_at * f.sim.ready_after
+    first_armed = None
+    while not f.flown() and f.now < 500:
+        f.step()
+        if f.now < fix_at - 0.5:
+            assert f.drone.position is None and f.gs["A"].core.views[DRONE].position is None, f.now  # never (0, 0)
+        if first_armed is None and f.sim.armed:
+            first_armed = f.now
+    assert f.flown(), f"not flown: stage {f.gs['A'].core.views[DRONE].stage}"
+    assert first_armed is not None and first_armed >= position_at  # armed only once it could fly the mission
+    waits = [x["waiting"] for _, x in f.gs_logs("A", "vehicle_waiting")]
+    assert any(w and WAITS_FOR[autopilot] in w for w in waits) and waits[-1] is None, waits
+    assert not f.gs_logs("A", "mission_failed") and not f.gs_logs("A", "takeoff_restart")
+    assert _delivered(f, autopilot) and f.of(rec.Failsafe) == []
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_a_vehicle_that_disarms_on_the_ground_after_the_start_is_armed_and_started_again(fleet_dir, autopilot):
+    """ArduCopter's case: the start accepted, then "Disarming motors" on the ground, left in AUTO; the
+    GS used to believe it flew."""
+    f = CoreFlight(fleet_dir, personality(autopilot))
+    view = f.gs["A"].core.views[DRONE]
+    assert f.run_until(lambda: view.stage is Stage.TAKING_OFF, 100)
+    f.sim.disarm("disarmed_preflight")  # the auto-disarm, before it could climb
+    assert view.stage is not Stage.FLYING
+    assert f.run_until(f.flown, 400), f"not flown: stage {view.stage}"
+    [(_, restart)] = f.gs_logs("A", "takeoff_restart")
+    assert restart["restarts"] == 1
+    assert [x["restarts"] for _, x in f.gs_logs("A", "takeoff_confirmed")] == [1]
+    assert _delivered(f, autopilot) and f.of(rec.Failsafe) == []
