@@ -143,3 +143,15 @@ def test_a_backhaul_key_that_replaced_a_lost_link_gives_way_when_the_peer_speaks
     res, promoted = slot.open(p.gs.seal(p.heartbeat()), 6.0)  # the real peer is back under the old key
     assert isinstance(res, Opened) and promoted is not None and promoted.origin == "revert"
     assert slot.live is p.drone and slot.fallback is None
+
+
+def test_the_fallback_is_the_peers_own_key_however_often_a_third_party_replaces_it():
+    p, slot = drone_slot()
+    slot.open(p.gs.seal(p.heartbeat()), 0.1)
+    for i, secret in enumerate((NEW, OTHER)):  # escrowed twice while the link stays LOST
+        q = make_pair(secret, now=1.0)
+        slot.offer(q.drone, 5.0 + i, "linkkey:B")
+        res, promoted = slot.open(q.gs.seal(q.heartbeat()), 5.0 + 4.0 * i)
+        assert promoted is not None and slot.fallback is p.drone
+    res, promoted = slot.open(p.gs.seal(p.heartbeat()), 20.0)
+    assert promoted is not None and promoted.origin == "revert" and slot.live is p.drone and slot.fallback is None

@@ -100,6 +100,7 @@ class LinkSlot:
             self.previous, self.previous_until = self.live, now + PREVIOUS_GRACE
         self.live = link
         self.candidates.clear()
+        self.fallback = None  # a key this end installed or the peer proved: nothing to go back to
 
     def offer(self, link: SecureLink, now: float, origin: str, ttl: float = CANDIDATE_TTL) -> None:
         """Add a candidate key. It replaces an earlier candidate of the same origin (each origin
@@ -144,13 +145,13 @@ class LinkSlot:
                     self.live.count_drop(dropped)
                     return dropped, None
                 replaced = self.live is not None
-                old = self.live
+                keep = self.fallback or self.live  # the key before any third party's: the peer's own
                 self.install(cand.link, now)
-                if old is not None and cand.origin not in SELF_ORIGINS:
+                if keep is not None and cand.origin not in SELF_ORIGINS:
                     # a third party's key replaced a LOST live key: whoever proved it also knew it (the
-                    # asker of a key-sharing query does), so the old key stays a fallback — the first
-                    # authentic frame of the peer under it takes it back (``revert``)
-                    self.fallback, self.previous = old, None
+                    # asker of a key-sharing query does), so the key before it stays a fallback — the
+                    # first authentic frame of the peer under it takes it back (``revert``)
+                    self.fallback, self.previous = keep, None
                 return res, Promoted(cand.origin, replaced)
             if res.reason not in _BEFORE_AUTH:
                 cand.link.count_drop(res)

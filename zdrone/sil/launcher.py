@@ -678,16 +678,31 @@ def _check_insider_heir(o: Outcome) -> list[str]:
     return why
 
 
+def escrow_left_standing(confirmed: list[GsLinkConfirmed]) -> list[GsLinkConfirmed]:
+    """A's key replacements by a secret it handed out over the backhaul that no ``revert`` (the drone
+    speaking under A's own key again) undid."""
+    standing: list[GsLinkConfirmed] = []
+    for e in confirmed:
+        if e.how.startswith("linkkey"):
+            standing.append(e)
+        elif e.how == "revert":
+            standing.clear()
+    return standing
+
+
 def _check_key_escrow(o: Outcome) -> list[str]:
-    """``key-escrow``: B's genuine key-sharing query gets an answer from A (B is authorized; were A to
-    refuse it, nothing could be injected), but the secret A handed out must never replace A's live
-    link, whatever is sent under it: A's link and the flight must not notice."""
+    """``key-escrow``: B asks A for keys of link (drone, A) all flight long. While A's link is alive A
+    answers none; while it is LOST (the drone away at B) A answers, and a frame under the secret, forged
+    with the drone's router password, replaces A's LOST key — but A keeps its own key as the fallback
+    and takes it back with the drone's first frame under it (``revert``): A's link and the flight must
+    not notice."""
     done = o.rogue_done("key-escrow")
-    replaced = [e for e in only(o.gs["A"], GsLinkConfirmed) if e.how.startswith("linkkey")]
+    confirmed = only(o.gs["A"], GsLinkConfirmed)
     why = flight_unaffected(o)
     why += _need(done.get("queries", 0) > 0 and (done.get("secrets", 0) == 0 or done.get("injected_down", 0) > 0),
                  f"the attacker asked nothing, or injected nothing under the secrets it got: {done}")
-    why += _need(not replaced, f"A's live link replaced by the secret it handed out ({len(replaced)}x)")
+    standing = escrow_left_standing(confirmed)
+    why += _need(not standing, f"A's live link replaced for good by a secret it handed out ({len(standing)}x)")
     return why
 
 
