@@ -1259,8 +1259,8 @@ class Demo:
         into one) stops every process it started before the exception goes on."""
         try:
             return self._run()
-        except BaseException:
-            self.shutdown()
+        except BaseException as exc:  # a signal asks for a quick end: 2 s per group before SIGKILL
+            self.shutdown(timeout=2.0 if isinstance(exc, (KeyboardInterrupt, procs.Terminated)) else 10.0)
             raise
 
     def _run(self) -> dict[str, Any]:
