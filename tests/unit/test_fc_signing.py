@@ -348,3 +348,22 @@ def test_a_restart_in_the_air_sends_no_setup_signing_and_takes_up_the_signed_lin
             assert link.wait_vehicle(10) and link.signing_status()["signed"]
             assert link.signing.counters["setup_sent"] == 0 and server.sim.armed
         assert server.sim.signing.counters.get("refused:setup_armed", 0) == 0
+
+
+def test_the_key_store_lives_beside_the_secret_or_in_the_service_state_directory(tmp_path, monkeypatch):
+    from zdrone.fleet.bundle import check_bundle, export_bundle
+    from zdrone.fleet.files import init_fleet
+    from zdrone.vehicle.fcsigning import StoredKey
+
+    init_fleet(tmp_path / "fleet")
+    monkeypatch.delenv("ZDRONE_STATE_DIR", raising=False)
+    export_bundle(tmp_path / "fleet", "d1", tmp_path / "d1")
+    store = FcKeyStore.for_node(tmp_path / "d1", "d1")
+    assert store.path == tmp_path / "d1" / "secrets" / "d1.fc-signing.json"
+    store.save(StoredKey(KEY, 5))
+    assert check_bundle(tmp_path / "d1")  # the drone's own key file belongs in its bundle
+    monkeypatch.setenv("ZDRONE_STATE_DIR", str(tmp_path / "state"))
+    assert FcKeyStore.for_node(tmp_path / "d1", "d1").path == tmp_path / "state" / "d1.fc-signing.json"
+    os.chmod(store.path, 0o644)  # readable by others: refused, as the node's secret is
+    with pytest.raises(Exception, match="accessible by others"):
+        store.load()

@@ -144,8 +144,9 @@ def check_bundle(folder: str | Path) -> Bundle:
             continue
         if rel == "tls/ca.key":
             raise ConfigError(f"{p}: the fleet CA's private key: it never leaves the machine that issues certificates")
-        if rel in (f"secrets/{node}.authority.json", f"secrets/{node}.authority.tmp") and role == "drone":
-            continue  # the drone's own authority state, when it runs from the bundle outside systemd
+        if rel in (f"secrets/{node}.authority.json", f"secrets/{node}.authority.tmp", f"secrets/{node}.fc-signing.json",
+                   f"secrets/{node}.fc-signing.tmp") and role == "drone":
+            continue  # the drone's own authority state and autopilot signing key, run from the bundle outside systemd
         if rel not in own:
             data = p.read_bytes()
             if b"PRIVATE KEY" in data:

@@ -5,7 +5,8 @@ telemetry radio on TELEM2, USB, a second companion process), unless it has a sig
 PX4 (>= 1.17) and ArduPilot refuse unsigned and wrongly signed commands. The companion is the one
 trusted place to install and keep that key. ``FcSigning`` does it for one vehicle link:
 
-* **Key store** (``FcKeyStore``): ``secrets/<drone>.fc-signing.json`` beside the node's secret,
+* **Key store** (``FcKeyStore``): ``secrets/<drone>.fc-signing.json`` beside the node's secret
+  (under systemd in the service's state directory, ``$ZDRONE_STATE_DIR``, as the authority state),
   mode 0600, replaced atomically (temporary file, fsync, rename, fsync of the directory): the key,
   the key it replaces while a rotation is unconfirmed, and the timestamp reserved so far.
 * **Provisioning** (``start``): with no key yet, or when a rotation is asked for, a fresh 32-byte
@@ -56,6 +57,7 @@ from ..core.errors import UsageError
 from ..core.fleet import ConfigError
 from ..core.mavlink import FrameError
 from ..fleet.files import fleet_path
+from ..net.authstore import STATE_DIR_ENV
 
 log = logging.getLogger(__name__)
 
@@ -102,7 +104,12 @@ class FcKeyStore:
 
     @classmethod
     def for_node(cls, fleet: str | Path, drone: str) -> FcKeyStore:
-        return cls(fleet_path(fleet).parent / "secrets" / f"{drone}.fc-signing.json")
+        """Beside the node's secret (``secrets/<drone>.fc-signing.json``); under systemd, whose unit
+        keeps the bundle read-only, in the service's state directory (``$ZDRONE_STATE_DIR``) beside
+        the authority state."""
+        state_dir = os.environ.get(STATE_DIR_ENV)
+        base = Path(state_dir) if state_dir else fleet_path(fleet).parent / "secrets"
+        return cls(base / f"{drone}.fc-signing.json")
 
     def load(self) -> StoredKey | None:
         """The stored key, None if there is none. A file readable by others or unreadable is an error."""
