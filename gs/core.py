@@ -129,6 +129,13 @@ STALE_VIEW_S = 1.0
 #: A hand-over that failed (timed out: the target was not heard; refused) is tried again this often
 #: while the vehicle is still where it should happen: a target that comes back takes authority.
 HANDOVER_RETRY_S = 2.0
+#: A key-sharing query refused because the answering GS's link still looks alive (a drone that just
+#: restarted holds no key for it, but that GS hears the silence only at the loss threshold) is asked
+#: again this soon, the first ask still open for the genuine reply.
+LIVE_LINK_RETRY_S = 0.5
+#: Toward a GS whose key is still being shared, the hand-over waits while the vehicle is inside this
+#: fraction of our coverage radius; past it, the hand-over has failed (the vehicle comes home).
+KEY_WAIT_RADIUS = 0.9
 #: A failed hand-over commands RTL only if the vehicle is leaving our coverage: farther from our
 #: centre than when we released, by at least this much (else it is flying into our coverage and
 #: needs nothing but the retry).
@@ -269,6 +276,7 @@ class DroneView:
     pairing: PairingInitiator | None = None
     pairing_deadline: float = 0.0
     asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
+    ask_again: dict[str, float] = field(default_factory=dict)  # other GS -> when to ask again (refused: live link)
     fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     armed: bool = False
     disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
@@ -547,13 +555,17 @@ class StationCore:
             if g == self.name:
                 continue
             ask = view.asks.get(g)
-            if ask is not None and not ask.expired(now):
+            again = view.ask_again.get(g)
+            if ask is not None and not ask.expired(now) and (again is None or now < again):
                 continue
             if ask is not None:
                 del view.asks[g]
-                self.counters["linkkey_no_answer"] += 1
-            if g in view.drone_links or g in view.granted or g in view.grants or not _due(view.last_share_try, now, RETRY_S):
+                self.counters["linkkey_no_answer" if again is None else "linkkey_asked_again"] += 1
+            if g in view.drone_links or g in view.granted or g in view.grants:
                 continue
+            if again is None and not _due(view.last_share_try, now, RETRY_S):
+                continue
+            view.ask_again.pop(g, None)
             view.last_share_try = now
             ask = KeyShareAsk(self.identity, self.name, g, self.fleet.nodes[g].public_bytes, view.name, now, wall=wall)
             view.asks[g] = ask
@@ -572,6 +584,8 @@ class StationCore:
             return []
         if ok is None:
             self.counters["linkkey_reply_error"] += 1
+            if err == ShareRefusal.LIVE_LINK.value.encode() and gs in view.asks:
+                view.ask_again[gs] = now + LIVE_LINK_RETRY_S  # soon: its link is about to be LOST
             if self.counters["linkkey_reply_error"] > 5:  # the first few in the log; all in the counters
                 return []
             return [Log("linkkey_error", {"drone": drone, "gs": gs, "reason": (err or b"").decode(errors="replace")[:120]})]
@@ -588,6 +602,7 @@ class StationCore:
             log.warning("key-sharing reply for %s from %s refused: %s", drone, gs, secret.reason.value)
             return [Log("linkkey_bad_reply", {"drone": drone, "gs": gs, "reason": secret.reason.value})]
         del view.asks[gs]
+        view.ask_again.pop(gs, None)
         self._grant_id += 1
         view.grants[gs] = wire.KeyGrant(gs, self.fleet.nodes[gs].sysid, secret, self._grant_id)
         view.grant_sent = None
@@ -969,6 +984,10 @@ class StationCore:
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
                 if g not in view.drone_links and g not in view.granted:  # the drone holds no key for g
+                    sharing = g in view.asks or g in view.grants
+                    if sharing and mine < KEY_WAIT_RADIUS * self.coverage.radius_m:
+                        self.counters["handover_waiting_key"] += 1  # g's key is on its way: not yet
+                        return []
                     return self._handover_failed(view, f"the drone has no link to {g}", now)
                 out: list[Action] = []
                 if view.released_epoch != view.epoch:

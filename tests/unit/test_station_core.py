@@ -137,14 +137,38 @@ def _in_overlap_nearer_b(a: StationCore, links: set[str]) -> None:
 
 def test_no_release_toward_a_gs_the_drone_has_no_key_for_the_vehicle_comes_home(fleet_dir):
     """Review F2: with key sharing blocked, A used to release anyway (refused by the drone), keep
-    flying out of its coverage, and the drone failsafe-landed far from home."""
+    flying out of its coverage, and the drone failsafe-landed far from home. While B's key is still
+    being asked for, A waits (inside 90 % of its radius); then the hand-over has failed: RTL."""
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+
     a = paired_a(fleet_dir)
     _in_overlap_nearer_b(a, {"A"})
     out = a.tick(10.0)
+    assert [x.gs for x in out if isinstance(x, Ask) and x.kind is AskKind.LINKKEY] == ["B"]  # B's key: asked for
+    assert not [x for x in out if isinstance(x, Log) and x.kind in ("handover_failed", "handover_release")]
+    a.views["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m: no more waiting
+    out = a.tick(10.5)
     failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
     assert len(failed) == 1 and "no link to B" in failed[0].fields["reason"] and failed[0].fields["action"] == "RTL"
     assert a.views["d1"].released_epoch is None and a.holds_authority(a.views["d1"])
     assert not [x for x in a.tick(11.0) if isinstance(x, Log) and x.kind in ("handover_failed", "handover_release")]
+
+
+def test_a_key_sharing_query_refused_for_a_live_link_is_asked_again_soon(fleet_dir):
+    """A restarted drone holds no key for B, but B hears the silence only at the loss threshold and
+    refuses to share its key meanwhile (``live_link``). A asks again ``LIVE_LINK_RETRY_S`` later, not
+    after the query's 5 s: the key must be there before the overlap."""
+    from gs.core import LIVE_LINK_RETRY_S
+
+    a = paired_a(fleet_dir)
+    ask = share(a, core(fleet_dir, "B"), 1.0)
+    a.on_linkkey_reply("d1", "B", None, b"live_link", 1.05)
+    assert not [x for x in a.tick(1.2) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    again = [x for x in a.tick(1.05 + LIVE_LINK_RETRY_S + 0.01) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    assert len(again) == 1 and again[0].payload != ask.payload and a.counters["linkkey_asked_again"] == 1
+    a.on_linkkey_reply("d1", "B", None, b"rate_limited", 1.7)  # any other refusal: the query's own timeout
+    assert not [x for x in a.tick(2.5) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
 
 
 def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
