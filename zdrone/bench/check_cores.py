@@ -279,7 +279,9 @@ class CoreExplorer:
             old = before.gss[g].views["d1"].link
             link = core.views["d1"].link
             if old is not None and link is not None and not link.key.same_as(old.key) and g not in after.hung:
-                heard = old.tbm.state(before.now) is not LinkState.LOST
+                # heard when the new key was made (a move may span the loss threshold: B's link LOST,
+                # then a key shared, within one 3 s move, is no replacement of a live link)
+                heard = old.tbm.state(max(before.now, link.tbm.created)) is not LinkState.LOST
                 paired = core.counters["pair_sent"] > before.gss[g].counters["pair_sent"]
                 if heard and not paired:
                     raise Broken("nobody replaces another's live link", f"{g}'s live key replaced while it heard the drone")
