@@ -14,7 +14,9 @@ from tests.integration.test_attacks import _unaffected
 from tests.integration.test_flight_e2e import _clean_shutdown, run_demo
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.reference import COVERAGE_RADIUS_M, GS_B
-from zdrone.net.eventlog import read_events
+from zdrone.core.records import GsLinkConfirmed, only
+from zdrone.net.eventlog import read_events, read_records
+from zdrone.sil.launcher import escrow_left_standing
 
 @pytest.fixture(scope="module")
 def heir_flight(tmp_path_factory):
@@ -88,15 +90,10 @@ def test_key_escrow_a_gs_with_a_live_link_hands_out_no_key(escrow_flight):
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_key_escrow_secret_never_replaces_the_answering_gs_live_link(escrow_flight):
     """The whole flight: whatever A hands out, its live key is never replaced for good, and the flight
     is unaffected (both hand-overs, no failsafe, landing at home)."""
     s, out = escrow_flight
-    from zdrone.core.records import GsLinkConfirmed, only
-    from zdrone.net.eventlog import read_records
-    from zdrone.sil.launcher import escrow_left_standing
-
     # while the drone is away A's link is LOST and a forged frame under an escrowed secret may replace A's
     # key, but never for good: the drone's first frame under A's own key takes it back (``revert``)
     confirmed = only(read_records(out / "A.jsonl").records, GsLinkConfirmed)
