@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import fcntl
+import json
 import os
 import queue
 import signal
@@ -12,7 +14,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Callable, Iterator
 
 ZDRONE = str(Path(sys.executable).parent / "zdrone")
 
@@ -74,3 +76,29 @@ def spawn(*args: str, env: dict[str, str] | None = None) -> Iterator[Proc]:
         yield proc
     finally:
         proc.stop()
+
+
+def once_per_run(tmp_path_factory: Any, name: str, produce: Callable[[Path], dict]) -> tuple[dict, Path]:
+    """``produce(folder)`` once per test run, for every test that shares its outcome (one flight checked
+    by several tests), even when they land in different pytest-xdist workers: the first to ask runs it
+    under a file lock in the run's common temporary folder, the others wait and read its JSON result.
+    A failure is kept too: the others fail with it rather than run it again."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the folder all workers of this run share
+    folder = root / f"shared-{name}"
+    with open(root / f"shared-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        result, failed = folder / "result.json", folder / "failed.txt"
+        if result.exists():
+            return json.loads(result.read_text()), folder
+        if failed.exists():
+            raise AssertionError(f"shared run {name} failed (in another test): {failed.read_text()}")
+        folder.mkdir(exist_ok=True)
+        try:
+            value = produce(folder)
+        except BaseException as exc:
+            failed.write_text(f"{type(exc).__name__}: {exc}"[-4000:])
+            raise
+        result.write_text(json.dumps(value))
+        return value, folder

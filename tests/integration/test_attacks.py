@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.integration.test_flight_e2e import _clean_shutdown, _exactly_one_authority, run_demo
-from tests.procs import ZDRONE
+from tests.procs import ZDRONE, once_per_run
 from zdrone.net.eventlog import read_events
 from zdrone.sil.launcher import ATTACK_SCENARIOS, SCENARIO_TABLE, TRIGGERS
 from zdrone.sil.rogue import MODES, dangerous_messages
@@ -131,14 +131,18 @@ def test_oversized_payloads_are_refused_by_length_and_cost_nothing(tmp_path):
 
 @pytest.fixture(scope="module")
 def bench_attack_quick(tmp_path_factory) -> tuple[dict, Path]:
-    """One ``zdrone bench attack --quick`` (its pair-flood flight, then a failsafe trial under the flood):
-    its JSON, and the folder of its pair-flood flight (the bench's runs go under TMPDIR)."""
-    tmp = tmp_path_factory.mktemp("bench-attack").resolve()
-    out = subprocess.run([ZDRONE, "bench", "attack", "--quick", "--json"], capture_output=True, text=True, timeout=240,
-                         env={**os.environ, "TMPDIR": str(tmp)})
-    assert out.returncode == 0, out.stderr[-2000:]
-    [base] = tmp.glob("zdrone-bench-attack-*")
-    return json.loads(out.stdout), base / "pair-flood"
+    """One ``zdrone bench attack --quick`` per test run (its pair-flood flight, then a failsafe trial
+    under the flood): its JSON, and the folder of its pair-flood flight (the bench's runs go under TMPDIR)."""
+
+    def bench(folder: Path) -> dict:
+        out = subprocess.run([ZDRONE, "bench", "attack", "--quick", "--json"], capture_output=True, text=True,
+                             timeout=240, env={**os.environ, "TMPDIR": str(folder)})
+        [base] = folder.glob("zdrone-bench-attack-*")
+        return {"rc": out.returncode, "stderr": out.stderr[-2000:], "bench": json.loads(out.stdout),
+                "flight": str(base.resolve() / "pair-flood")}
+
+    shared, _ = once_per_run(tmp_path_factory, "bench-attack-quick", bench)
+    return shared, Path(shared["flight"])
 
 
 @pytest.mark.slow
@@ -146,8 +150,8 @@ def bench_attack_quick(tmp_path_factory) -> tuple[dict, Path]:
 def test_pairing_flood_is_refused_before_crypto_and_telemetry_goes_on(bench_attack_quick):
     """Checked on the bench's pair-flood flight: the same ``zdrone demo --scenario pair-flood``
     (speed-up 4) as a flight of its own would be."""
-    r, out = bench_attack_quick
-    s = json.loads((out / "summary.json").read_text()) | {"_rc": 0}  # the bench ended 0 (its fixture checks)
+    _, out = bench_attack_quick
+    s = json.loads((out / "summary.json").read_text()) | {"_rc": 0}  # run in-process by the bench: no exit code
     _unaffected(s)
     done = _attack(s, "pair-flood")
     assert done["rate"] >= 1500, done  # 2500/s asked; well below means the attacker could not keep up
@@ -201,7 +205,9 @@ def test_gateway_flood_is_counted_and_the_station_keeps_flying(tmp_path):
 @pytest.mark.slow
 @pytest.mark.xdist_group("bench-attack-quick")
 def test_bench_attack_quick(bench_attack_quick):
-    r, _ = bench_attack_quick
+    shared, _ = bench_attack_quick
+    assert shared["rc"] == 0, shared["stderr"] + json.dumps(shared["bench"])[-2000:]
+    r = shared["bench"]
     [row] = r["scenarios"]
     assert row["scenario"] == "pair-flood" and row["ok"] and row["flight_completed"]
     assert row["refusals"].get("drone pair_refused:rate_limited", 0) >= 1000
