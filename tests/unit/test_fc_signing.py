@@ -209,9 +209,10 @@ class Radio:
         p = list(params) + [0.0] * (7 - len(params))
         self.t.send(self.codec.encode(mav.MAVLink_command_long_message(1, 1, cmd, 0, *p)))
 
-    def listen(self, seconds: float) -> None:
+    def listen(self, seconds: float, until=lambda: False) -> None:
+        """Collect the acks sent to us for ``seconds``, or until ``until()`` (checked between polls)."""
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end and not until():
             for frame, _ in self.t.poll(0.05):
                 msg = self.codec.decode(fcsign.strip(frame))
                 if msg is not None and msg.get_type() == "COMMAND_ACK" and msg.target_system == 250:
@@ -228,14 +229,15 @@ def test_the_link_provisions_signing_and_a_radio_on_telem2_is_not_obeyed(tmp_pat
         assert link.wait_vehicle(10)
         assert link.signing_status()["state"] == "signed" and link.signing_status()["signed"]
         assert stat.S_IMODE(store.path.stat().st_mode) == 0o600 and store.load().key == server.sim.signing.key
-        frames = link.recv(0.5)
+        frames = link.recv(5.0)  # returns with the first frames
         assert frames and not any(fcsign.is_signed(f) for f in frames)  # handed on without the signature
         assert link.signing.counters["verified_in"] > 0
         radio = Radio(telem2)
         try:
             radio.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, 21196)
             radio.command(mav.MAV_CMD_DO_SET_MODE, 1, 4)
-            radio.listen(0.5)
+            radio.listen(10.0, until=lambda: server.sim.signing.counters["refused:unsigned"] >= 2)  # both seen
+            radio.listen(0.3)  # an ack, had there been one, would follow its command at once
             assert radio.acks == [] and not server.sim.armed
             assert server.sim.signing.counters["refused:unsigned"] >= 2
             # the companion's own commands are obeyed (signed)
@@ -251,7 +253,7 @@ def test_without_signing_the_radio_on_telem2_takes_over(tmp_path):
         radio = Radio(telem2)
         try:
             radio.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1, 21196)
-            radio.listen(0.5)
+            radio.listen(10.0, until=lambda: bool(radio.acks))
             assert (mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_RESULT_ACCEPTED) in radio.acks and server.sim.armed
         finally:
             radio.close()
