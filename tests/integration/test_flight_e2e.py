@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.procs import ZDRONE
+from tests.procs import ZDRONE, once_per_run
 from zdrone.core.fleet import parse_fleet
 from zdrone.core.geometry import GeoPoint
 from zdrone.net.eventlog import read_events
@@ -32,6 +32,18 @@ def run_demo(tmp_path: Path, scenario: str, report: bool = False, autopilot: str
         for log in sorted(out.glob("*.log")):  # show what each process said, to diagnose
             print(f"== {log.name}\n{log.read_text()[-1500:]}")
     return summary, out
+
+
+def shared_demo(tmp_path_factory, scenario: str, **kw) -> tuple[dict, Path]:
+    """``run_demo`` once per test run for all the tests that check one flight (a module fixture's
+    body), even when they land in different xdist workers (``once_per_run``)."""
+
+    def fly(folder: Path) -> dict:
+        s, out = run_demo(folder, scenario, **kw)
+        return {"summary": s, "out": str(out)}
+
+    shared, _ = once_per_run(tmp_path_factory, f"demo-{scenario}-{kw.get('autopilot', 'px4')}", fly)
+    return shared["summary"], Path(shared["out"])
 
 
 def _no_orphans(out: Path) -> None:

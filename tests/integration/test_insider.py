@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tests.integration.test_attacks import _unaffected
-from tests.integration.test_flight_e2e import _clean_shutdown, run_demo
+from tests.integration.test_flight_e2e import _clean_shutdown, run_demo, shared_demo
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.reference import COVERAGE_RADIUS_M, GS_B
 from zdrone.core.records import GsLinkConfirmed, only
@@ -21,7 +21,7 @@ from zdrone.sil.launcher import escrow_left_standing
 @pytest.fixture(scope="module")
 def heir_flight(tmp_path_factory):
     """One insider-heir flight for both of its checks (in the air; on the ground after the failsafe)."""
-    return run_demo(tmp_path_factory.mktemp("insider"), "insider-heir")
+    return shared_demo(tmp_path_factory, "insider-heir")
 
 
 def _moves_to_b(out: Path, airborne: bool) -> list[dict]:
@@ -61,7 +61,7 @@ def test_insider_heir_outside_its_coverage_never_gets_authority_on_the_ground(he
 @pytest.fixture(scope="module")
 def escrow_flight(tmp_path_factory):
     """One key-escrow flight for both of its checks (while A's link is alive; the whole flight)."""
-    return run_demo(tmp_path_factory.mktemp("escrow"), "key-escrow")
+    return shared_demo(tmp_path_factory, "key-escrow")
 
 
 def _escrowed(out: Path) -> list[dict]:
