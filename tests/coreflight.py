@@ -26,6 +26,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.nodes.drone_core import (CommandVehicle, DroneCore, DroneCoreOptions, Emit, Listen, Persist, PutDown,
                                      ToVehicle)
+from zdrone.vehicle.link import COMPANION_COMPID
 from zdrone.vehicle.modes import ARDUPILOT, set_mode_params
 from zdrone.vehicle.personality import PX4, Personality
 from zdrone.vehicle.sim import SimAutopilot
@@ -61,6 +62,7 @@ class CoreFlight:
             self.gs[name] = Station(StationCore(name, fleet, load_secret(fleet_dir, name, fleet).identity, (DRONE,), opts))
         self.coverage = {g: fleet.nodes[g].coverage.circle() for g in self.gs}
         # the drone's vehicle link: the companion's own frames (heartbeat, stream requests, the failsafe)
+        self.companion_ids = (fleet.nodes[DRONE].sysid, COMPANION_COMPID)  # as the drone node's VehicleLink
         self.companion = FrameCodec(*self.companion_ids)
         self.tracker = VehicleTracker(*self.companion_ids)
         self._companion_hb = float("-inf")
@@ -78,8 +80,6 @@ class CoreFlight:
     def in_range(self, gs: str) -> bool:
         p = self.sim.position
         return not self.gs[gs].down and self.coverage[gs].contains(GeoPoint(p.lat, p.lon))
-
-    companion_ids = (1, 191)
 
     def _pos(self) -> tuple[float, float, float] | None:
         """Where the vehicle says it is (None before its position fix), as the drone node reads it."""
