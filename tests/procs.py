@@ -8,7 +8,6 @@ import json
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -16,13 +15,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from zdrone.sil.ports import free_port  # noqa: F401  (the testbed's: outside the ephemeral range)
+
 ZDRONE = str(Path(sys.executable).parent / "zdrone")
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Proc:

@@ -50,6 +50,7 @@ from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, LogTail, read_records
 from . import procs
 from .netns import NetnsTopology
+from .ports import free_port
 from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
 
 PY = sys.executable
@@ -930,12 +931,6 @@ def scenario_help() -> str:
         text = textwrap.wrap(f"{s.description}. Success: {s.expected}.", 96 - width)
         lines += [f"  {s.name:<{width}}  {text[0]}", *(f"  {'':<{width}}  {t}" for t in text[1:])]
     return "\n".join(lines)
-
-
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass
