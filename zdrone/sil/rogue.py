@@ -136,6 +136,7 @@ from ..core.pairing import PairingInitiator
 from ..core import wire
 from ..fleet.files import load_fleet, load_secret, load_sites
 from ..fleet import keyexprs as kx
+from ..fleet.routerconfig import UPLINK_MAX_HZ
 from ..fleet.tls import issue, make_ca, node_files
 from ..net.eventlog import EventLog
 from ..net.session import open_client
@@ -498,6 +499,11 @@ def pair_flood(c: Ctx) -> None:
         s.close()
 
 
+#: The uplink attackers space their frames above the router's per-key minimum gap (UPLINK_MAX_HZ), so
+#: that every frame reaches the drone and is refused there, by the checks under test.
+UPLINK_GAP_S = 1.5 / UPLINK_MAX_HZ
+
+
 def uplink_sealed(c: Ctx) -> None:
     fleet, drone = c.fleet, c.drone
     me = load_secret(c.fleet_dir, "B", fleet)
@@ -528,12 +534,14 @@ def uplink_sealed(c: Ctx) -> None:
         c.events.write("paired_as", gs="B")
         for _ in range(3):  # the proof of the new key: authentic, read-only frames
             s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
+            time.sleep(UPLINK_GAP_S)
         sent: Counter[str] = Counter()
         going = c.attack_window()
         while going():
             for name, msg in dangerous_messages(target):
                 s.put(kx.up(drone, "B"), link.seal(codec.encode(msg)))
                 sent[name] += 1
+                time.sleep(UPLINK_GAP_S)  # under the router's per-key rate: every frame reaches the drone
             s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
             c.stop.wait(0.1)
         opened = 0
@@ -567,8 +575,10 @@ def uplink_unsealed(c: Ctx) -> None:
                 frame = codec.encode(msg)
                 s.put(kx.up(drone, "A"), frame)
                 sent["unsealed"] += 1
+                time.sleep(UPLINK_GAP_S)  # under the router's per-key rate: every frame reaches the drone
                 s.put(kx.up(drone, "A"), forged.seal(frame))
                 sent["random_key"] += 1
+                time.sleep(UPLINK_GAP_S)
             c.stop.wait(0.5)
         c.events.write("attack_done", ids=len(dangerous_messages(target)), **sent)
     finally:
