@@ -37,7 +37,8 @@ from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core import wire
 from zdrone.core.authority import State as HaState
-from zdrone.core.mavcontrol import DEFAULT_REQUEST_TIMEOUT_S, OperatorControlRequest
+from zdrone.core.mavcontrol import (DEFAULT_REQUEST_TIMEOUT_S, REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S,
+                                    OperatorControlRequest)
 
 #: After the owner's operator consents with "allow takeover", takeover stays allowed this long.
 GRANT_WINDOW_S = 10.0
@@ -180,9 +181,13 @@ class OperatorControl:
             return NOTHING  # the requester sending its standing request again
         if self.closed == (msg.requester, msg.epoch, msg.ask_id):
             return NOTHING  # re-sends of a request declined or expired: decided already
+        if msg.to != msg.requester:  # control goes to whoever asks, never to a GS it names
+            return self._log("operator_request_stale", view, {"requester": msg.requester, "epoch": msg.epoch})
         self.seq += 1
-        timeout = msg.timeout if msg.timeout > 0 else DEFAULT_REQUEST_TIMEOUT_S
-        self.request = PendingRequest(msg.requester, msg.to, msg.epoch, timeout, now, self.seq, msg.ask_id)
+        # the spec's range (3-60 s): a request never stands longer, whatever its sender says
+        timeout = min(max(msg.timeout, REQUEST_TIMEOUT_MIN_S), REQUEST_TIMEOUT_MAX_S) if msg.timeout > 0 \
+            else DEFAULT_REQUEST_TIMEOUT_S
+        self.request = PendingRequest(msg.requester, msg.requester, msg.epoch, timeout, now, self.seq, msg.ask_id)
         allowed = self.takeover_allowed(now)
         step = self._log("operator_request", view, {"requester": msg.requester, "to": msg.to, "epoch": msg.epoch,
                                                      "timeout": timeout, "takeover_allowed": allowed})
@@ -192,6 +197,7 @@ class OperatorControl:
                                 f"({timeout:.0f} s to consent)",))
 
     def _grant(self, view: Any, req: PendingRequest, now: float, why: str) -> Step:
+        assert req.to == req.requester  # control goes to the GS that asked (``on_request``)
         self.release_to, self.release_epoch, self.last_release = req.to, view.epoch, now
         self.release_until = now + GRANT_WINDOW_S
         self.request = None

@@ -20,8 +20,11 @@ AUTH = frozenset({"A", "B"})
 RO, AO, DENIED = UplinkClass.READ_ONLY, UplinkClass.AUTHORITY_ONLY, UplinkClass.DENIED
 
 
-def machine() -> AuthorityMachine:
-    return AuthorityMachine(Config(authorized=AUTH, handover_timeout=5.0))
+def machine(inside: frozenset[str] = frozenset({"A"})) -> AuthorityMachine:
+    """A machine whose vehicle is inside ``inside`` (home: A's coverage; the first pairing needs it)."""
+    m = AuthorityMachine(Config(authorized=AUTH, handover_timeout=5.0))
+    m.handle(RegionChanged(0.0, inside))
+    return m
 
 
 def linked_with_b(m: AuthorityMachine, now: float = 1.0) -> None:
@@ -160,14 +163,14 @@ def test_authority_link_lost_without_heir_is_failsafe_land():
     m.handle(Paired(5.0, "A", on_ground=False))
     assert m.state is State.FAILSAFE
     m.handle(Paired(8.0, "B", on_ground=True))  # a GS whose coverage does not hold the vehicle: no
-    assert m.state is State.FAILSAFE and m.rejects["failsafe"] == 2
-    m.handle(RegionChanged(8.5, frozenset({"A"})))
+    assert m.state is State.FAILSAFE and m.rejects["failsafe"] == 1 and m.rejects["outside_coverage"] == 1
     m.handle(Paired(9.0, "A", on_ground=True))
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 2
 
 
 def test_rtl_failsafe_configurable():
     m = AuthorityMachine(Config(authorized=AUTH, failsafe_action="RTL"))
+    m.handle(RegionChanged(0.0, frozenset({"A"})))
     m.handle(Paired(0.0, "A"))
     acts = m.handle(LinkChanged(3.5, "A", LinkState.LOST))
     assert any(isinstance(a, CommandVehicle) and a.command == "RTL" for a in acts)
@@ -462,7 +465,7 @@ def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
     m = _failsafe_with_b_linked()
     assert m.pair_refusal("B", on_ground=False) == PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
     assert m.pair_refusal("B", on_ground=True) == PairRefused(
-        PairRefusal.FAILSAFE, "re-pair only from a GS whose coverage holds the vehicle")
+        PairRefusal.OUTSIDE_COVERAGE, "its coverage does not hold the vehicle")
     m.handle(RegionChanged(3.0, frozenset({"B"})))
     assert m.pair_refusal("B", on_ground=True) is None
     acts = m.handle(Paired(3.0, "B", on_ground=False))

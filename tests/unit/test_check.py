@@ -21,6 +21,7 @@ def test_the_shipped_rules_hold_over_every_interleaving_at_the_ci_bound():
     ("heir-without-position", "no authority outside coverage without consent", "A's link goes LOST"),
     ("promotion-over-live", "nobody replaces another's live link", "B (owner) grants a key for A and proves it as A"),
     ("unstamped-pairing", "owner re-pairs after a restart", "outsider replays"),
+    ("pairing-without-position", "no authority outside coverage without consent", "B re-pairs"),
 ])
 def test_each_planted_flaw_is_found_with_a_short_trace(flaw, invariant, last_step):
     r = check.run(depth=7, faults=2, flaw=flaw)
@@ -53,14 +54,15 @@ def test_the_shipped_cores_hold_at_depth_3():
     assert r["states"] > 100 and r["world"] == "cores"
 
 
-@pytest.mark.parametrize("flaw, invariant", [
-    ("heir-without-position", "no authority outside coverage without consent"),
-    ("promotion-over-live", "nobody replaces another's live link"),
-    ("unstamped-pairing", "a replay changes nothing"),
+@pytest.mark.parametrize("flaw, invariant, depth", [
+    ("heir-without-position", "no authority outside coverage without consent", 3),
+    ("promotion-over-live", "nobody replaces another's live link", 3),
+    ("unstamped-pairing", "a replay changes nothing", 3),
+    ("pairing-without-position", "no authority outside coverage without consent", 4),
 ])
-def test_each_flaw_planted_in_the_shipped_cores_is_found(flaw, invariant):
-    r = check.run(depth=3, faults=2, flaw=flaw, cores=True)
-    assert not r["ok"] and r["violation"]["invariant"] == invariant and r["violation"]["length"] <= 3
+def test_each_flaw_planted_in_the_shipped_cores_is_found(flaw, invariant, depth):
+    r = check.run(depth=depth, faults=2, flaw=flaw, cores=True)
+    assert not r["ok"] and r["violation"]["invariant"] == invariant and r["violation"]["length"] <= depth
     # and the rule is back afterwards
     from zdrone.core import authority, linkslot
 

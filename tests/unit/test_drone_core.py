@@ -130,7 +130,8 @@ def test_a_pairing_message_older_than_30_s_is_stale_even_for_a_fresh_companion(f
     net = FleetNet(fleet_dir)
     gs = net.add_gs("A")
     old = PairingInitiator(gs.identity, "A", "d1", net.fleet.nodes["d1"].public_bytes, stamp=1_800_000_000.0 - 40).start()
-    ans, _ = net.drone.on_pair_query("A", old, 0.0, bytes(32), 1_800_000_000.0)
+    net.step(0.1)  # the vehicle's position: at home, in A's coverage
+    ans, _ = net.drone.on_pair_query("A", old, 0.1, bytes(32), 1_800_000_000.0)
     assert ans.refused == "stale" and ans.silent  # type: ignore[union-attr]
 
 

@@ -124,7 +124,8 @@ def test_pair_results_are_frozen_and_each_refusal_has_one_tier():
     with pytest.raises(dataclasses.FrozenInstanceError):
         PairRepeated(b"m2").reply = b""  # type: ignore[misc]
     # bad input: no answer, no crypto; authentic-looking but illegal: answered with the reason
-    answered = {PairRefusal.UNKNOWN, PairRefusal.UNAUTHORIZED, PairRefusal.FAILSAFE, PairRefusal.AUTH_FAILED}
+    answered = {PairRefusal.UNKNOWN, PairRefusal.UNAUTHORIZED, PairRefusal.FAILSAFE, PairRefusal.OUTSIDE_COVERAGE,
+                PairRefusal.AUTH_FAILED}
     assert SILENT_REFUSALS | answered == set(PairRefusal) and not SILENT_REFUSALS & answered
     for reason in PairRefusal:
         r = PairRefused(reason)
@@ -195,9 +196,11 @@ def test_a_gs_own_earlier_tries_replayed_around_a_restart_never_starve_it():
     tries = [PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + dt).start() for dt in (-5.0, -0.8, -0.4)]
     genuine = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 0.2).start()
     answers = [r.answer("A", m1, 0.0, SECRET, wall=ready + 0.3) for m1 in tries]
-    assert [a.refused if not isinstance(a, PairAccepted) else "answered" for a in answers] == ["stale", "answered", "answered"]
+    assert [a.refused if not isinstance(a, PairAccepted) else "answered" for a in answers] == ["stale"] * 3
+    late_try = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 0.05).start()  # made after it was back
+    assert isinstance(r.answer("A", late_try, 0.05, SECRET, wall=ready + 0.3), PairAccepted)
     assert isinstance(r.answer("A", genuine, 0.1, SECRET, wall=ready + 0.3), PairAccepted)
-    assert r.answer("A", tries[1], 0.2, SECRET, wall=ready + 0.4).__class__.__name__ == "PairRepeated"  # seen: same answer
+    assert r.answer("A", late_try, 0.2, SECRET, wall=ready + 0.4).__class__.__name__ == "PairRepeated"  # seen: same answer
     late = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 0.1).start()  # never seen, older than answered
     assert r.answer("A", late, 0.3, SECRET, wall=ready + 0.4).refused == "stale"
     assert PAIR_BURST >= 2 * 5  # A's re-pairing rate (5/s) for two seconds of down time

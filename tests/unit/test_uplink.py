@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega, common
 
 from tests.corepair import make_pair
 from zdrone.cli import main
-from zdrone.core.authority import (AuthorityMachine, Config, DropFrame, Forward, Frame, HaDrop, KeyGranted, LinkChanged,
+from zdrone.core.authority import (RegionChanged, AuthorityMachine, Config, DropFrame, Forward, Frame, HaDrop, KeyGranted, LinkChanged,
                                    Paired)
 from zdrone.core.envelope import Opened
 from zdrone.core.fleet import FleetError, encode_fleet, parse_fleet
@@ -61,6 +61,7 @@ def every_frame(sysid: int) -> list[tuple[int, bytes]]:
 def linked_a_and_b() -> AuthorityMachine:
     """LINKED with owner A; B linked too (its key granted by A)."""
     m = AuthorityMachine(Config(authorized=frozenset({"A", "B"})))
+    m.handle(RegionChanged(0.0, frozenset({"A"})))  # home, in A's coverage: the first pairing needs it
     m.handle(Paired(0.0, "A"))
     m.handle(LinkChanged(0.1, "A", LinkState.OK))
     m.handle(KeyGranted(0.2, "A", "B"))

@@ -75,7 +75,7 @@ ADJACENT: dict[str, tuple[str, ...]] = {
 TOKENS = 3  # the drone's pairing rate limit per GS: a burst of 3, one more per second
 GRACE = 3.0
 HANDOVER_TIMEOUT = 5.0
-FLAWS = ("heir-without-position", "promotion-over-live", "unstamped-pairing")
+FLAWS = ("heir-without-position", "promotion-over-live", "unstamped-pairing", "pairing-without-position")
 
 
 class _NoPositionMachine(AuthorityMachine):
@@ -83,6 +83,20 @@ class _NoPositionMachine(AuthorityMachine):
 
     def proven_in_cover(self, gs: str) -> bool:
         return self.is_authorized(gs) and self.is_proven(gs)
+
+
+class _PairAnywhereMachine(AuthorityMachine):
+    """PLANTED FLAW: a pairing that gives authority needs no coverage (found by review: a landed
+    vehicle, or one whose companion restarted on the ground, went to whoever paired first)."""
+
+    def pair_refusal(self, gs: str, on_ground: bool) -> Any:
+        from ..core.pairing import PairRefusal, PairRefused
+
+        if not self.is_authorized(gs):
+            return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")
+        if self.state is State.FAILSAFE and not on_ground:
+            return PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
+        return None
 
 
 @dataclass
@@ -99,19 +113,20 @@ class World:
     spent_by_others: dict[str, int] = field(default_factory=lambda: {"A": 0, "B": 0})
     faults: int = 0
     restarted: bool = False  # the companion restarted and its owner has not re-paired yet
+    ground: bool = False  # the vehicle is on the ground (the failsafe landed it)
 
     def clone(self) -> "World":
         m = self.m
         n = m.__class__.__new__(m.__class__)
         n.config, n.state, n.owner, n.epoch = m.config, m.state, m.owner, m.epoch
         n.pending_to, n.pending_deadline, n.repair_deadline = m.pending_to, m.pending_deadline, m.repair_deadline
-        n.takeover_epoch = m.takeover_epoch
+        n.takeover_epoch, n.relayed = m.takeover_epoch, dict(m.relayed)
         n.links = {g: ha._Link(l.state, l.frames_since_ok, l.frames_in_cover) for g, l in m.links.items()}
         n.subscribed, n.inside = set(m.subscribed), m.inside
         n.drops, n.rejects = m.drops, m.rejects  # counters only: not part of the state, shared
         n.history = m.history[-1:]
         return World(n, self.now, self.pos, dict(self.up), dict(self.drone_key), dict(self.gs_key_ok),
-                     dict(self.tokens), dict(self.spent_by_others), self.faults, self.restarted)
+                     dict(self.tokens), dict(self.spent_by_others), self.faults, self.restarted, self.ground)
 
     def key(self) -> tuple:
         """What distinguishes this state (time only relative to the deadlines)."""
@@ -127,7 +142,7 @@ class World:
                 links, frozenset(m.subscribed), self.pos, tuple(self.up.values()),
                 tuple(sorted(self.drone_key.items())), tuple(self.gs_key_ok.values()),
                 tuple(self.tokens.values()), tuple(self.spent_by_others.values()),
-                self.faults, self.restarted, getattr(m, "takeover_epoch", None) == m.epoch)
+                self.faults, self.restarted, m.takeover_epoch == m.epoch, self.ground)
 
     def hears(self, gs: str) -> bool:
         """Frames of ``gs`` open on the drone (and the drone's on ``gs``): radio up, the same key both ends."""
@@ -157,7 +172,8 @@ class Explorer:
         return True if self.flaw == "promotion-over-live" else replaces_live(origin, live)
 
     def initial(self) -> World:
-        cls = _NoPositionMachine if self.flaw == "heir-without-position" else AuthorityMachine
+        cls = {"heir-without-position": _NoPositionMachine,
+               "pairing-without-position": _PairAnywhereMachine}.get(self.flaw or "", AuthorityMachine)
         w = World(cls(Config(frozenset(AUTHORIZED), HANDOVER_TIMEOUT)))
         w.m.handle(ha.RegionChanged(0.0, INSIDE["A"]))
         w.m.handle(ha.Paired(0.0, "A", on_ground=True))
@@ -188,14 +204,21 @@ class Explorer:
             other = "B" if m.owner == "A" else "A"
             yield f"{m.owner} (owner) releases to {other}", lambda x, o=m.owner, t=other: self._release(x, o, t)
         yield "time passes 1 s", lambda x: self._tick(x, replays=0)
-        if w.faults < self.max_faults and m.state is not State.UNPAIRED:
+        if m.state is State.FAILSAFE and not w.ground:
+            yield "the failsafe lands the vehicle", self._land
+        if w.faults < self.max_faults and m.state is not State.UNPAIRED and not w.ground:
             yield "FAULT: the companion restarts in the air", lambda x: self._restart(x, replays=0)
             yield "FAULT: the companion restarts; outsider replays 3 captured message 1s of its owner", \
                 lambda x: self._restart(x, replays=TOKENS)
+        if w.faults < self.max_faults and w.ground and m.state is not State.UNPAIRED:
+            yield "FAULT: the companion restarts on the ground (it forgets its authority)", self._restart_on_ground
+        if "A" not in m.links or m.state in (State.UNPAIRED, State.FAILSAFE):
+            yield "A pairs", lambda x: self._pair(x, "A")
         if w.restarted:
             yield "time passes 1 s; outsider replays 3 captured message 1s", lambda x: self._tick(x, replays=TOKENS)
         # the malicious authorized GS B
-        yield "B asks for authority", lambda x: self._apply(x, ha.HandoverRequest(x.now, "B", "B"), "B")
+        yield "B asks for authority", lambda x: self._apply(x, ha.HandoverRequest(x.now, "B", "B", 10.0, False, 1), "B")
+        yield "B asks for authority for X", lambda x: self._apply(x, ha.HandoverRequest(x.now, "B", "A", 10.0, False, 2), "B")
         if m.owner != "B":
             yield "B forges a release of A's epoch to itself", lambda x: self._apply(x, ha.Release(x.now, "B", "B", x.m.epoch), "B")
         yield "B re-pairs (from wherever it is)", lambda x: self._pair(x, "B")
@@ -214,7 +237,9 @@ class Explorer:
             if isinstance(a, ha.Forward) and isinstance(ev, ha.Frame) and ev.uplink is UplinkClass.AUTHORITY_ONLY:
                 if a.gs != owner or state is State.FAILSAFE:
                     raise _Broken("commands only from the owner", f"{a.gs}'s command forwarded (owner {owner}, {state.value})")
-            if isinstance(a, ha.AuthorityChanged) and a.kind in ("emergency", "regained") and a.new not in inside:
+            if isinstance(a, ha.AuthorityChanged) and a.kind != "handover" and a.new not in inside:
+                # only the owner's release (kind "handover") may give authority to a GS outside coverage:
+                # a first pairing, a re-pairing after the failsafe, an heir, a GS taking control back
                 raise _Broken("no authority outside coverage without consent",
                               f"{a.kind} authority to {a.new} while the drone is inside {sorted(inside) or 'no coverage'}")
             if isinstance(a, ha.AuthorityChanged) and a.new in AUTHORIZED and w.drone_key.get(a.new) is None:
@@ -258,13 +283,13 @@ class Explorer:
                               f"{g}'s re-pairing refused: its tokens were spent by {w.spent_by_others[g]} replays")
             return False
         w.tokens[g] -= 1
-        if w.m.pair_refusal(g, on_ground=False) is not None:
+        if w.m.pair_refusal(g, on_ground=w.ground) is not None:
             return False
         if not self._replaces_live("pair", w.m.links[g].state if g in w.m.links else None):  # a GS's own key: always
             return False
         w.drone_key[g] = "own"
         w.gs_key_ok[g] = True
-        self._apply(w, ha.Paired(w.now, g, on_ground=False), g)
+        self._apply(w, ha.Paired(w.now, g, on_ground=w.ground), g)
         if g == w.m.owner:
             w.restarted = False
         return True
@@ -293,15 +318,28 @@ class Explorer:
             raise _Broken("failsafe on time", f"the restored owner {owner} did not re-pair in time and "
                           f"the machine is {w.m.state.value} with {w.m.owner}")
 
+    def _land(self, w: World) -> None:
+        w.ground = True
+
+    def _restart_on_ground(self, w: World) -> None:
+        """On the ground the companion forgets its authority (``DroneCore.restore``): UNPAIRED again."""
+        w.m = w.m.__class__(w.m.config)
+        w.faults += 1
+        w.drone_key.clear()
+        w.restarted = False
+        self._apply(w, ha.RegionChanged(w.now, INSIDE[w.pos]))
+
     def _restart(self, w: World, replays: int) -> None:
-        owner, epoch = w.m.owner, w.m.epoch
+        """In the air the companion comes back with the authority it saved (``DroneCore.restore``):
+        LINKED(owner, epoch) waiting for the owner to re-pair, or FAILSAFE going on."""
+        owner, epoch, failsafe = w.m.owner, w.m.epoch, w.m.state is State.FAILSAFE
         assert owner is not None
         cls = w.m.__class__
         w.m = cls(w.m.config)
         w.faults += 1
         w.drone_key.clear()
-        w.m.restore(owner, epoch, w.now, GRACE)
         w.m.handle(ha.RegionChanged(w.now, INSIDE[w.pos]))
+        w.m.restore(owner, epoch, w.now, GRACE, failsafe=failsafe)
         w.restarted = True
         w.spent_by_others = {g: 0 for g in AUTHORIZED}
         self._replays(w, owner, replays)

@@ -51,6 +51,7 @@ from ..core.geometry import GeoPoint, offset
 from ..core.keys import LinkKey
 from ..core.keyshare import KeyShareAsk, Refused
 from ..core.mavlink import FrameCodec
+from ..core.kk import stamp_of
 from ..core.pairing import PairingInitiator
 from ..core.tbm import LinkState
 from ..fleet.files import load_secret
@@ -82,6 +83,13 @@ def planted(flaw: str | None) -> Iterator[None]:
             lambda self, gs: self.is_authorized(gs) and self.is_proven(gs)
     elif flaw == "promotion-over-live":
         target, name, bad = linkslot, "replaces_live", lambda origin, live: True
+    elif flaw == "pairing-without-position":
+        target, name = authority.AuthorityMachine, "pair_refusal"
+        original_rule = authority.AuthorityMachine.pair_refusal
+
+        def bad(self, gs, on_ground):  # type: ignore[no-untyped-def]
+            why = original_rule(self, gs, on_ground)
+            return None if why is not None and why.reason is pairing.PairRefusal.OUTSIDE_COVERAGE else why
     elif flaw == "unstamped-pairing":
         original = pairing.PairingResponder.answer
         target, name = pairing.PairingResponder, "answer"
@@ -143,7 +151,7 @@ class CoreExplorer:
             links.append((g, live.tbm.state(now).value if live else None, same,
                           min(m.links[g].frames_in_cover, 2) if g in m.links else None))
         views = tuple((g, v.owner, v.epoch, v.stale) for g, c in sorted(net.gss.items()) for v in [c.views["d1"]])
-        return (m.state.value, m.owner, m.epoch, m.pending_to, tuple(links), views, self.place(net),
+        return (m.state.value, m.owner, m.epoch, m.pending_to, tuple(links), views, self.place(net), net.on_ground,
                 tuple(sorted(net.cut)), tuple(sorted(net.hung)), net.faults,  # type: ignore[attr-defined]
                 m.repair_deadline is not None)
 
@@ -168,9 +176,13 @@ class CoreExplorer:
             elif faults_left:
                 yield f"FAULT: {g} hangs", lambda n, g=g: self._fault(n, lambda: n.hung.add(g))
         if faults_left and d.machine.state is not State.UNPAIRED:
-            yield "FAULT: the companion restarts in the air", lambda n: self._fault(n, n.restart_drone)
+            where = "on the ground" if net.on_ground else "in the air"
+            yield f"FAULT: the companion restarts {where}", lambda n: self._fault(n, n.restart_drone)
+        if d.machine.state is State.FAILSAFE and not net.on_ground:
+            yield "the failsafe lands the vehicle", self._land
         yield "outsider replays A's last envelope", self._replay_envelope
-        yield "outsider replays A's captured pairing message 1s", self._replay_pairings
+        yield "outsider replays A's captured pairing message 1s (those answered, older, or from before a restart)", \
+            self._replay_pairings
         yield "B re-pairs", self._b_repairs
         yield "B re-pairs every 0.5 s for 3 s (its link stays proven, wherever the drone is)", self._b_repairs_for_3s
         yield "B asks for authority", lambda n: self._b_control(n, wire.HandoverRequest("B", n.gss["B"].views["d1"].epoch))
@@ -179,6 +191,10 @@ class CoreExplorer:
             yield "B (owner) grants a key for A and proves it as A", self._b_grant_over_a
         yield "B asks A for A's own key and forges a frame under it to A", self._b_escrow
         yield "X pairs", self._x_pairs
+
+    def _land(self, net: FleetNet) -> None:
+        net.on_ground = True
+        net.step(0.1)
 
     def _fault(self, net: FleetNet, do: Callable[[], None]) -> None:
         net.faults += 1  # type: ignore[attr-defined]
@@ -198,8 +214,15 @@ class CoreExplorer:
         assert d is not None
         answered, slot = d.counters["pair_answered"], d.slots.get("A")
         pending = [c.link for c in slot.candidates] if slot is not None else []
+        r = d.responder
+        newest = r.newest.get("A", float("-inf"))
         for gs, m1 in net.captured_pairings[-3:]:
-            if gs == "A":
+            # a replay proper: a message 1 the drone answered already, older than the newest it answered,
+            # or made before the companion was back (a fresh try of A's that never reached the drone is a
+            # late delivery, which any network may make: the drone may answer it)
+            stamp = stamp_of(m1)
+            if gs == "A" and (r.cache.get(m1, net.now) is not None or stamp <= newest
+                              or (r.not_before is not None and stamp < r.not_before)):
                 ans, outs = d.on_pair_query("A", m1, net.now, os.urandom(32), WALL0 + net.now)
                 net.drone_outs(outs)
         slot = d.slots.get("A")
@@ -267,7 +290,7 @@ class CoreExplorer:
             if owners.get(int(epoch)) != gs:
                 raise Broken("commands only from the owner", f"{gs}'s command forwarded in epoch {epoch} of {owners.get(int(epoch))}")
         for r in after.records:  # this move's records (``_copy`` starts each move with none)
-            if isinstance(r, rec.AuthorityMoved) and r.kind in ("emergency", "regained"):
+            if isinstance(r, rec.AuthorityMoved) and r.kind != "handover":  # only a release may go outside
                 cov = after.fleet.nodes[r.to].coverage
                 inside = r.position is not None and cov is not None and cov.circle().contains(GeoPoint(r.position[0], r.position[1]))
                 if not inside:

@@ -66,6 +66,7 @@ from typing import Callable, Mapping
 
 from .errors import ProtocolError
 from .keys import KEY_LEN
+from .mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
 from .pairing import PairRefusal, PairRefused
 from .tbm import LinkState
 from .uplink import UplinkClass
@@ -74,6 +75,9 @@ from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyG
 log = logging.getLogger(__name__)
 
 PROOF_FRAMES = 2
+#: A GS's requests for control are passed to the owner at most this often (an operator's request is
+#: re-sent once a second while it stands).
+REQUEST_RELAY_S = 0.9
 DEFAULT_HANDOVER_TIMEOUT = 5.0
 
 
@@ -300,6 +304,7 @@ class AuthorityMachine:
         self.rejects: Counter[str] = Counter()
         self.history: list[tuple[float, str | None, int]] = []  # (time, owner, epoch) after each change
         self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
+        self.relayed: dict[str, float] = {}  # per requester: when its last request was passed to the owner
         self.takeover_epoch: int | None = None  # the epoch whose owner allows takeover (its operator's setting)
 
     # ------------------------------------------------------------------ queries
@@ -370,17 +375,24 @@ class AuthorityMachine:
         result = self.grant_rejection(ev.sender, ev.gs) or GrantAccepted(ev.gs)
         return result, self.handle(ev)
 
-    def restore(self, owner: str, epoch: int, now: float, grace: float) -> list[Action]:
+    def restore(self, owner: str, epoch: int, now: float, grace: float, failsafe: bool = False) -> list[Action]:
         """Come back after a companion restart with the authority it had: LINKED(owner, epoch), with
         no key for anyone. ``owner`` must re-pair within ``grace`` seconds (the loss threshold), else
         its link counts as LOST (emergency hand-over if another GS has re-paired and proven its link,
-        else the failsafe). Only at start, from UNPAIRED."""
+        else the failsafe). With ``failsafe`` (restarted in the air during the failsafe) it comes back
+        in FAILSAFE and commands the failsafe action again: only the failsafe's own rules end it. Only
+        at start, from UNPAIRED."""
         if self.state is not State.UNPAIRED:
             raise IllegalTransition("restore() after the machine started")
         if not self.is_authorized(owner):
             return [Note("restore_refused", f"{owner} is not authorized")]
         self.owner, self.epoch = owner, epoch
         self.links[owner] = _Link()  # LOST until it re-pairs
+        if failsafe:
+            self._set_state(State.FAILSAFE, now)
+            action = self.config.failsafe_action
+            return [Note("restored", f"authority {owner} epoch {epoch} in failsafe: {action} again"),
+                    CommandVehicle(action, "restarted during the failsafe")]
         self.repair_deadline = now + grace
         self._set_state(State.LINKED, now)
         return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair"),
@@ -444,7 +456,7 @@ class AuthorityMachine:
         if new is not self.state:
             log.info("authority: %s -> %s (owner %s, epoch %d)", self.state.value, new.value, self.owner, self.epoch)
             self.state = new
-        if not self.history or self.history[-1][1:] != (self.owner, self.epoch):
+        if self.owner is not None and (not self.history or self.history[-1][1:] != (self.owner, self.epoch)):
             self.history.append((now, self.owner, self.epoch))
 
     def _reject(self, gs: str, what: str, reason: str) -> list[Action]:
@@ -484,10 +496,11 @@ class AuthorityMachine:
             return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")
         if self.state is State.FAILSAFE and not on_ground:
             return PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
-        if self.state is State.FAILSAFE and gs not in self.inside:
-            # pairing now would give authority over a vehicle the failsafe landed: least privilege
-            # wants the GS to cover where the vehicle is (by its own GPS), as for an heir
-            return PairRefused(PairRefusal.FAILSAFE, "re-pair only from a GS whose coverage holds the vehicle")
+        if self.state in (State.UNPAIRED, State.FAILSAFE) and gs not in self.inside:
+            # this pairing would give authority (the first one, or over a vehicle the failsafe landed):
+            # least privilege wants the GS to cover where the vehicle is, by its own GPS, as for an heir
+            where = "the vehicle's position is unknown" if not self.inside else "its coverage does not hold the vehicle"
+            return PairRefused(PairRefusal.OUTSIDE_COVERAGE, where)
         return None
 
     def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:
@@ -592,13 +605,21 @@ class AuthorityMachine:
                                                          f" in epoch {self.epoch}")] + self._status_to_all()
         if ev.sender == self.owner:  # the owner asking is a release
             return self._on_release(Release(ev.now, ev.sender, ev.to, self.epoch))
+        if ev.to != ev.sender:  # a GS asks control for itself, never for another it names
+            return self.state, self._reject(ev.sender, "handover_request", "a GS may only ask control for itself")
+        last = self.relayed.get(ev.sender)
+        if last is not None and 0.0 <= ev.now - last < REQUEST_RELAY_S:
+            self.rejects["request_rate"] += 1  # counted, not answered: the owner hears one a second at most
+            return self.state, []
+        self.relayed[ev.sender] = ev.now
         st = self.status()
         note = Note("handover_requested", f"{ev.sender} asks for {ev.to}")
         if not self.owner:
             return self.state, [note]
         # the owner's operator decides (it releases, or lets the request time out): the requester is
-        # the sealed request's sender, whatever it claims
-        ask = OperatorRequest(ev.sender, ev.to, self.epoch, ev.timeout, ev.ask_id)
+        # the sealed request's sender, whatever it claims; its timeout is the spec's 3-60 s
+        timeout = min(max(ev.timeout, REQUEST_TIMEOUT_MIN_S), REQUEST_TIMEOUT_MAX_S) if ev.timeout > 0 else 0.0
+        ask = OperatorRequest(ev.sender, ev.sender, self.epoch, timeout, ev.ask_id)
         return self.state, [note, SendControl(self.owner, ask), SendControl(self.owner, st)]
 
     def _on_request_failsafe(self, ev: HandoverRequest) -> tuple[State, list[Action]]:

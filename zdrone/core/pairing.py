@@ -120,6 +120,7 @@ class PairRefusal(enum.Enum):
     UNKNOWN = "unknown"  # no ground station of the fleet
     UNAUTHORIZED = "unauthorized"  # not authorized for this drone
     FAILSAFE = "failsafe"  # the authority's rule: in failsafe, re-pair only on the ground
+    OUTSIDE_COVERAGE = "outside_coverage"  # the authority's rule: a pairing that gives authority needs the vehicle in the GS's coverage
     MALFORMED = "malformed"  # message 1 too short or too long
     BAD_MAC = "bad_mac"  # message 1's tag failed: forged or garbage, no crypto spent
     STALE = "stale"  # message 1's tagged time stamp is too old
@@ -186,8 +187,11 @@ PAIR_MAX_AGE = 30.0
 #: the owner's own re-pairing rate after a silence (5/s), so replays of its genuine tries cannot
 #: starve it, and small enough that a flood of valid queries costs the drone nothing noticeable.
 PAIR_RATE, PAIR_BURST = 5.0, 10.0
-#: How far the GS's and the drone's clocks may disagree when the drone compares a stamp with its start.
-MAX_SKEW = 1.0
+#: How far behind the drone's clock a GS's stamp may be when the drone compares it with the moment
+#: it became ready: none. A message 1 made before the companion was back is stale however recent (a
+#: replay of the owner's own probes while it was down must buy nothing); a GS whose clock is behind
+#: the drone's by d simply re-pairs d later (it tries again every 0.2 s).
+MAX_SKEW = 0.0
 #: A message 1 seen within this time gets its first answer again (a replay creates nothing); at
 #: least twice the maximum age, so a replay is either answered from the cache or stale.
 PAIR_RESPONSE_TTL = 2 * PAIR_MAX_AGE

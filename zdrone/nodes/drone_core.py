@@ -236,15 +236,17 @@ class DroneCore:
 
     def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
         """At start, the authority saved before: back to it in the air (its owner must re-pair within
-        the loss threshold); forgotten on the ground, after a failsafe, or with nothing to come back to."""
-        if owner is None or state == ha.State.FAILSAFE.value or self.on_ground:
+        the loss threshold; a failsafe goes on as a failsafe); forgotten on the ground or with nothing
+        to come back to (the first pairing then needs a GS whose coverage holds the vehicle)."""
+        if owner is None or self.on_ground:
             self._persisted = None
             return [Emit(rec.AuthorityForgotten(owner=owner, epoch=epoch, state=wire.AuthorityState(state))),
                     Persist(None, 0, ha.State.UNPAIRED.value)]
         out: list[Out] = [Emit(rec.Restarted(owner=owner, epoch=epoch, state=wire.AuthorityState(state),
                                              position=self.position))]
         log.warning("restarted in the air: authority %s (epoch %d); waiting for it to re-pair", owner, epoch)
-        out += self._apply(self.machine.restore(owner, epoch, now, self.opts.thresholds.lost), now)
+        failsafe = state == ha.State.FAILSAFE.value  # restarted during the failsafe: it goes on
+        out += self._apply(self.machine.restore(owner, epoch, now, self.opts.thresholds.lost, failsafe), now)
         return out + self._effects(now)
 
     def ready(self, wall: float) -> None:
