@@ -190,7 +190,7 @@ def _throughput(path: _Path, n: int) -> float:
 def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="zdrone-bench-link-"))
     init_fleet(tmp / "fleet")
-    # the path's own cost, without the fleet's per-key ingress limit (500 puts/s per uplink key, which
+    # the path's own cost, without the fleet's per-key ingress limit (UPLINK_MAX_HZ puts/s per uplink key, which
     # is a policy against floods, not a property of the path: the throughput run would only measure it)
     cfg_path = tmp / "fleet/router/router.json5"
     cfg = json5.loads(cfg_path.read_text())

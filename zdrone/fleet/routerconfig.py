@@ -39,10 +39,10 @@ TLS_FILE_FIELDS = ("root_ca_certificate", "listen_certificate", "listen_private_
 MAX_MESSAGE_SIZE = 65536
 #: Puts per second a router lets through on each uplink key ``zdrone/<drone>/up/<gs>`` (Zenoh's
 #: downsampling: a put closer than 1/UPLINK_MAX_HZ s to the previous one on that key is dropped).
-UPLINK_MAX_HZ = 500.0
-#: A GS's frames on one uplink key go out this far apart at least: five of the router's intervals,
+UPLINK_MAX_HZ = 2000.0
+#: A GS's frames on one uplink key go out this far apart at least: twenty of the router's intervals,
 #: so that delays on the way (a busy sender, batching) do not bring two closer than the limit.
-UPLINK_PACE_S = 5.0 / UPLINK_MAX_HZ
+UPLINK_PACE_S = 20.0 / UPLINK_MAX_HZ
 
 
 def _rule(rid: str, messages: list[str], flows: list[str], keys: list[str]) -> dict[str, Any]:

@@ -412,14 +412,15 @@ def _check_pair_replay(o: Outcome) -> list[str]:
 
 def _check_pair_flood(o: Outcome) -> list[str]:
     """``pair-flood``: an authorized GS's key (B's) floods valid pairing queries. The drone refuses all
-    beyond B's allowance (5/s, burst 10) before any crypto and does at most 2 handshakes per loop turn;
+    beyond B's allowance (5/s, burst 10), and every one older than a message 1 of B's it answered
+    (``stale``), before any crypto and does at most 2 handshakes per loop turn;
     the authority link must never go silent for more than 2 s (DEGRADED at most 1 s)."""
     done = o.rogue_done("pair-flood")
     answered = o.drone_counter("pair_answered")
     why = flight_unaffected(o)
     why += _need(done.get("sent", 0) > 0, "the attacker sent nothing")
-    why += _need(o.drone_counter("pair_refused:rate_limited") >= 1000,
-                 f"only {o.drone_counter('pair_refused:rate_limited')} pair_refused:rate_limited")
+    refused = o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_refused:stale")
+    why += _need(refused >= 1000, f"only {refused} pair_refused:rate_limited or stale")
     why += _need(answered <= 1 + PAIR_BURST + PAIR_RATE * (int(done.get("seconds", 0)) + 1),
                  f"{answered} pairings answered")
     why += _need(not o.confirmed("B", "pair"), "a flood key was proven")

@@ -153,6 +153,11 @@ FC_RADIO_SYSID = 250
 GO_TIMEOUT = 600.0
 
 
+#: The uplink attackers space their frames above the router's per-key minimum gap (UPLINK_MAX_HZ), so
+#: that every frame reaches the drone and is refused there, by the checks under test.
+UPLINK_GAP_S = 1.5 / UPLINK_MAX_HZ
+
+
 @dataclass
 class Ctx:
     """What every attacker gets: the fleet directory, the router, its events file and its signals."""
@@ -282,12 +287,14 @@ def no_key(c: Ctx) -> None:
         sysid_a = fleet.nodes["A"].sysid
         sent = {"plain": 0, "forged": 0, "replayed": 0}
         going = c.attack_window()
-        while going():
+        while going():  # each frame spaced above the router's per-key minimum gap: every one reaches the drone
             s_pub.put(kx.up(drone, "A"), _land(sysid_a))
             sent["plain"] += 1
+            time.sleep(UPLINK_GAP_S)
             s_pub.put(kx.up(drone, "A"), forged.seal(_land(sysid_a)))
             sent["forged"] += 1
             for _ in range(4):
+                time.sleep(UPLINK_GAP_S)
                 try:
                     frame = captured.get_nowait()
                 except queue.Empty:
@@ -499,9 +506,6 @@ def pair_flood(c: Ctx) -> None:
         s.close()
 
 
-#: The uplink attackers space their frames above the router's per-key minimum gap (UPLINK_MAX_HZ), so
-#: that every frame reaches the drone and is refused there, by the checks under test.
-UPLINK_GAP_S = 1.5 / UPLINK_MAX_HZ
 
 
 def uplink_sealed(c: Ctx) -> None:
