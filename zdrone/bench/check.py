@@ -50,6 +50,7 @@ message 1 is a fresh handshake and spends the GS's tokens). Each must be found.
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from collections import Counter, deque
@@ -120,7 +121,7 @@ class World:
         n = m.__class__.__new__(m.__class__)
         n.config, n.state, n.owner, n.epoch = m.config, m.state, m.owner, m.epoch
         n.pending_to, n.pending_deadline, n.repair_deadline = m.pending_to, m.pending_deadline, m.repair_deadline
-        n.takeover_epoch, n.relayed = m.takeover_epoch, dict(m.relayed)
+        n.takeover_epoch, n.relay_limit = m.takeover_epoch, copy.deepcopy(m.relay_limit)
         n.links = {g: ha._Link(l.state, l.frames_since_ok, l.frames_in_cover) for g, l in m.links.items()}
         n.subscribed, n.inside = set(m.subscribed), m.inside
         n.drops, n.rejects = m.drops, m.rejects  # counters only: not part of the state, shared

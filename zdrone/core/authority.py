@@ -68,6 +68,7 @@ from .errors import ProtocolError
 from .keys import KEY_LEN
 from .mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
 from .pairing import PairRefusal, PairRefused
+from .ratelimit import RateLimiter
 from .tbm import LinkState
 from .uplink import UplinkClass
 from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyGrant, OperatorRequest, Reject
@@ -75,9 +76,9 @@ from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyG
 log = logging.getLogger(__name__)
 
 PROOF_FRAMES = 2
-#: A GS's requests for control are passed to the owner at most this often (an operator's request is
-#: re-sent once a second while it stands).
-REQUEST_RELAY_S = 0.9
+#: A GS's requests for control are passed to the owner at this rate per requester at most (bursts of
+#: ``REQUEST_RELAY_BURST``): an operator's request is re-sent once a second while it stands.
+REQUEST_RELAY_RATE, REQUEST_RELAY_BURST = 1.0, 3.0
 DEFAULT_HANDOVER_TIMEOUT = 5.0
 
 
@@ -304,7 +305,7 @@ class AuthorityMachine:
         self.rejects: Counter[str] = Counter()
         self.history: list[tuple[float, str | None, int]] = []  # (time, owner, epoch) after each change
         self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
-        self.relayed: dict[str, float] = {}  # per requester: when its last request was passed to the owner
+        self.relay_limit = RateLimiter(REQUEST_RELAY_RATE, REQUEST_RELAY_BURST)  # requests passed to the owner
         self.takeover_epoch: int | None = None  # the epoch whose owner allows takeover (its operator's setting)
 
     # ------------------------------------------------------------------ queries
@@ -607,11 +608,9 @@ class AuthorityMachine:
             return self._on_release(Release(ev.now, ev.sender, ev.to, self.epoch))
         if ev.to != ev.sender:  # a GS asks control for itself, never for another it names
             return self.state, self._reject(ev.sender, "handover_request", "a GS may only ask control for itself")
-        last = self.relayed.get(ev.sender)
-        if last is not None and 0.0 <= ev.now - last < REQUEST_RELAY_S:
+        if not self.relay_limit.allow(ev.sender, ev.now):
             self.rejects["request_rate"] += 1  # counted, not answered: the owner hears one a second at most
             return self.state, []
-        self.relayed[ev.sender] = ev.now
         st = self.status()
         note = Note("handover_requested", f"{ev.sender} asks for {ev.to}")
         if not self.owner:
