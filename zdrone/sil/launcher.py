@@ -988,6 +988,7 @@ class Demo:
     fired_at: dict[str, float] = field(default_factory=dict)  # trigger -> time of day it came
     fault_log: list[dict[str, Any]] = field(default_factory=list)  # each fault injected: t, target, text, ends
     pending_go: set[str] = field(default_factory=set)
+    restarting: dict[str, tuple[str, int]] = field(default_factory=dict)  # restarted child -> (ready line, count before)
     scheduled: list[tuple[float, Fault]] = field(default_factory=list)  # (monotonic due time, fault)
     sites: dict[str, dict[str, Any]] = field(default_factory=dict)  # with --sites: site -> endpoint, GSs
     links: dict[str, SwitchedLink] = field(default_factory=dict)  # with --sites: radio per site, backhaul per pair
@@ -1024,7 +1025,22 @@ class Demo:
             os.kill(child.proc.pid, signal.SIGKILL)
         child.proc.wait(5.0)
         time.sleep(down)
+        needle = _ready_line(name)
+        if needle:
+            self.restarting[name] = (needle, child.log.read_text(errors="replace").count(needle))
         self.start(name, child.args, append=True, ns=child.ns)
+
+    def _wait_restarted(self, timeout: float) -> None:
+        """Before the end: every restarted child has finished starting (its ready line is there again),
+        so that SIGTERM finds its handler in place (a router stopped mid-start dies of the signal)."""
+        deadline = time.monotonic() + timeout
+        for name, (needle, before) in self.restarting.items():
+            child = self.children[name]
+            while time.monotonic() < deadline and child.proc.poll() is None:
+                if child.log.read_text(errors="replace").count(needle) > before:
+                    break
+                time.sleep(0.05)
+        self.restarting.clear()
 
     def wait_line(self, child: Child, needle: str, timeout: float) -> None:
         deadline = time.monotonic() + timeout
@@ -1045,6 +1061,7 @@ class Demo:
         """SIGTERM the nodes first (so they close their sessions while the router is still up), then
         the simulator and the router; SIGKILL only what does not exit in time; return exit codes."""
         codes: dict[str, int | None] = {}
+        self._wait_restarted(timeout)
         nodes = [c for n, c in self.children.items() if n != "sim" and not n.startswith("router")]
         infra = [c for n, c in self.children.items() if n == "sim" or n.startswith("router")]
         for group in (nodes, infra):
@@ -1664,6 +1681,17 @@ def watch_state() -> dict[str, Any]:
     the hand-overs and regained controls (their fields as logged), the failsafe and the last status
     (records), the moments seen."""
     return {"handovers": [], "failsafe": None, "armed_seen": False, "status": None, "region_entered": 0, "done": False}
+
+
+def _ready_line(name: str) -> str | None:
+    """What a child's log says once it has started (None: nothing known to wait for)."""
+    if name.startswith("router"):
+        return "listening"
+    if name == "drone":
+        return "ready"
+    if name.startswith("gs"):
+        return f"zdrone gs {name[2:]}"
+    return None
 
 
 def _picked(rec: AnyRecord, names: tuple[str, ...]) -> dict[str, Any]:
