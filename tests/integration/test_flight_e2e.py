@@ -270,9 +270,13 @@ def test_the_reference_flight_on_the_ardupilot_personality(tmp_path):
     assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
     assert s["delivered_at_b"] and s["distance_from_home_m"] < 5.0
     assert any(e["type"] == "vehicle_text" and e["text"] == "Gripper Released" for e in read_events(out / "B.jsonl"))
-    # issue 22: no position before the fix (never 0, 0), and the GS waited for the EKF to use GPS
+    # issue 22: no position before the fix (never 0, 0); issue 18: the first pairing gives authority, so
+    # it waits for the vehicle's own position inside A's coverage (A is told why and tries again); the
+    # GS said what it waited for after that, if anything, and ended ready
     waits = [e["waiting"] for e in a if e["type"] == "vehicle_waiting"]
-    assert any(w and "EKF to use GPS" in w for w in waits) and waits[-1] is None, waits
+    assert any("position is unknown" in e["reason"] for e in a if e["type"] == "pair_refused"), \
+        [e for e in a if e["type"] == "pair_refused"]
+    assert not waits or waits[-1] is None, waits
     status = [e for e in read_events(out / "drone.jsonl") if e["type"] == "status"]
     unknown = [e for e in status if e["vehicle_streams"].get("position", {}).get("known") is False]
     assert unknown and all(e["position"] is None for e in unknown)
