@@ -204,3 +204,16 @@ def test_a_gs_own_earlier_tries_replayed_around_a_restart_never_starve_it():
     late = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 0.1).start()  # never seen, older than answered
     assert r.answer("A", late, 0.3, SECRET, wall=ready + 0.4).refused == "stale"
     assert PAIR_BURST >= 2 * 5  # A's re-pairing rate (5/s) for two seconds of down time
+
+
+def test_a_message_1_stamped_ahead_of_the_drone_clock_is_stale():
+    """Review R2: a GS whose clock runs ahead would make its tries from while the companion was down
+    look fresh; a stamp more than a second ahead of the drone's clock is stale."""
+    from zdrone.core.pairing import MAX_AHEAD, PairAccepted, PairingResponder
+
+    ready = 1_800_000_000.0
+    r = PairingResponder(DRONE, "d1", {"A": GS.public}, frozenset({"A"}), not_before=ready)
+    ahead = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + MAX_AHEAD + 4.0).start()
+    assert r.answer("A", ahead, 0.0, SECRET, wall=ready + 0.5).refused == "stale"
+    near = PairingInitiator(GS, "A", "d1", DRONE.public, stamp=ready + 1.2).start()
+    assert isinstance(r.answer("A", near, 0.0, SECRET, wall=ready + 0.5), PairAccepted)

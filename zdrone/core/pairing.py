@@ -192,6 +192,9 @@ PAIR_RATE, PAIR_BURST = 5.0, 10.0
 #: replay of the owner's own probes while it was down must buy nothing); a GS whose clock is behind
 #: the drone's by d simply re-pairs d later (it tries again every 0.2 s).
 MAX_SKEW = 0.0
+#: How far ahead of the drone's clock a message 1's stamp may be (clocks synchronised by GPS or NTP
+#: agree far better): beyond it the message is stale, whatever its age would be.
+MAX_AHEAD = 1.0
 #: A message 1 seen within this time gets its first answer again (a replay creates nothing); at
 #: least twice the maximum age, so a replay is either answered from the cache or stale.
 PAIR_RESPONSE_TTL = 2 * PAIR_MAX_AGE
@@ -248,6 +251,10 @@ class PairingResponder:
         if fail is not None:
             return PairRefused(PairRefusal(fail.value))
         stamp = stamp_of(message1)
+        if wall is not None and stamp > wall + MAX_AHEAD:
+            # stamped in the drone's future: a GS clock ahead of the drone's would let its tries made
+            # while the companion was down pass for fresh ones once it is back
+            return PairRefused(PairRefusal.STALE, "stamped ahead of the drone's clock")
         if wall is not None and self.not_before is not None and stamp < self.not_before - MAX_SKEW:
             return PairRefused(PairRefusal.STALE, "made before the companion started")
         cached = self.cache.get(message1, now)
