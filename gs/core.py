@@ -861,9 +861,23 @@ class StationCore:
         text = f"{view.name} ready: arming" if waiting is None else f"{view.name} not ready: {waiting}"
         return [Log("vehicle_waiting", {"drone": view.name, "waiting": waiting}), Say(f"zdrone gs {self.name}: {text}")]
 
+    def _airborne(self, view: DroneView) -> bool:
+        """The vehicle is armed and off the ground: its mission is being flown."""
+        return view.armed and (view.landed_state in (mav.MAV_LANDED_STATE_IN_AIR, mav.MAV_LANDED_STATE_TAKEOFF) or (
+            view.fix.position is not None and view.fix.position.alt > LEFT_GROUND_M))
+
+    def _flying_already(self, view: DroneView, now: float) -> list[Action]:
+        """The start's answer was lost (a lossy radio) but the vehicle flies: the mission started. Never
+        start it again (that would fly it from its first item)."""
+        self._set_stage(view, Stage.FLYING, now)
+        return [Log("takeoff_confirmed", {"drone": view.name, "restarts": view.restarts}),
+                Say(f"zdrone gs {self.name}: {view.name} is flying (its start's answer was lost)")]
+
     def _ready_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
         """Arm once the vehicle says it can fly the mission (``not_ready``); no retry counter runs out
         while it is not ready, the GS says what it waits for."""
+        if self._airborne(view):
+            return self._flying_already(view, ev.now)
         if ev.now < view.next_try:
             return []
         out = self._show_waiting(view, self.not_ready(view, ev.now), ev.now)
@@ -880,6 +894,8 @@ class StationCore:
 
     def _stage_timeout(self, view: DroneView, ev: FlightTick) -> list[Action]:
         """No answer to ARM / MISSION_START within ``STAGE_TIMEOUT``: tried again once ready."""
+        if view.stage is Stage.STARTING and self._airborne(view):
+            return self._flying_already(view, ev.now)
         if ev.now - view.stage_time <= STAGE_TIMEOUT:
             return []
         what = "arm" if view.stage is Stage.ARMING else "mission start"

@@ -457,3 +457,23 @@ def test_pairing_again_after_silence_keeps_the_key_the_drone_still_holds(fleet_d
     assert a.views["d1"].link is live and [x.kind for x in out if isinstance(x, Log)] == ["pair_not_needed"]
     b, live_b, out_b = _repair(fleet_dir, holds_key=False)  # a restarted companion holds nothing
     assert b.views["d1"].link is not live_b and any(isinstance(x, Log) and x.kind == "paired" for x in out_b)
+
+
+def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
+    """Seen under a lossy radio: MISSION_START's ACK was lost, the GS timed out and, on getting authority
+    back later, started the mission again from its first item. A GS whose vehicle flies takes the
+    mission as started and never sends MISSION_START to it."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.core import FlightTick
+
+    a = _flying_core(fleet_dir, "px4")
+    view = a.views["d1"]
+    view.stage, view.stage_time, view.prearm_ok, view.armed = Stage.STARTING, 40.0, True, True
+    view.landed_state = mav.MAV_LANDED_STATE_IN_AIR  # it took off: the start was obeyed, its ACK lost
+    out = a._flight(view, FlightTick(44.0))
+    assert view.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
+    # and from the retry stage (the answer timed out before the vehicle left the ground)
+    view.stage, view.next_try = Stage.WAITING_READY, 0.0
+    out = a._flight(view, FlightTick(50.0))
+    assert view.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
