@@ -18,7 +18,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..fleet.files import fleet_path
+from ..fleet.files import fleet_path, write_durably
 
 log = logging.getLogger(__name__)
 
@@ -59,19 +59,7 @@ class AuthorityStore:
         """Write ``saved`` durably if it changed (atomic replace + fsync of file and directory)."""
         if saved == self._last:
             return
-        tmp = self.path.with_suffix(".tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        try:
-            os.write(fd, json.dumps({"owner": saved.owner, "epoch": saved.epoch, "state": saved.state}).encode())
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, self.path)
-        dfd = os.open(self.path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
+        write_durably(self.path, json.dumps({"owner": saved.owner, "epoch": saved.epoch, "state": saved.state}).encode())
         self._last = saved
 
     def clear(self) -> None:

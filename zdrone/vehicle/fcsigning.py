@@ -56,7 +56,7 @@ from ..core import fcsign
 from ..core.errors import UsageError
 from ..core.fleet import ConfigError
 from ..core.mavlink import FrameError
-from ..fleet.files import fleet_path
+from ..fleet.files import fleet_path, write_durably
 from ..net.authstore import STATE_DIR_ENV
 
 log = logging.getLogger(__name__)
@@ -134,22 +134,9 @@ class FcKeyStore:
     def save(self, stored: StoredKey) -> None:
         """Write durably: temporary file (0600), fsync, rename over the old one, fsync the directory."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_suffix(".tmp")
         body = {"key": stored.key.hex(), "timestamp": stored.timestamp,
                 "previous": stored.previous.hex() if stored.previous else None}
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        try:
-            os.fchmod(fd, 0o600)
-            os.write(fd, json.dumps(body).encode())
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, self.path)
-        dfd = os.open(self.path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
+        write_durably(self.path, json.dumps(body).encode())
 
 
 def parse_mode(text: str) -> str:
