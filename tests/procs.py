@@ -64,6 +64,18 @@ class Proc:
         return self.p.returncode
 
 
+def wait_until(done: Callable[[], Any], timeout: float, step: float = 0.05) -> Any:
+    """Poll ``done()`` until it is truthy or ``timeout`` s pass; its last value (falsy on timeout).
+    The one place tests wait for a condition they cannot be woken for."""
+    deadline = time.monotonic() + timeout
+    stop = threading.Event()
+    while True:
+        value = done()
+        if value or time.monotonic() >= deadline:
+            return value
+        stop.wait(min(step, max(0.0, deadline - time.monotonic())))
+
+
 @contextlib.contextmanager
 def spawn(*args: str, env: dict[str, str] | None = None) -> Iterator[Proc]:
     proc = Proc(list(args), env)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.procs import ZDRONE, spawn
+from tests.procs import ZDRONE, spawn, wait_until
 from zdrone.sil import procs
 from zdrone.sil.launcher import Demo, DemoOptions, Scenario, flight_unaffected
 
@@ -39,11 +39,8 @@ def processes_of(run: Path) -> list[str]:
 
 def left_after(run: Path, since: float) -> list[str]:
     """The run's processes still there ``GONE_WITHIN_S`` after ``since`` ([] as soon as none is)."""
-    while True:
-        left = processes_of(run)
-        if not left or time.monotonic() > since + GONE_WITHIN_S:
-            return left
-        time.sleep(0.1)
+    wait_until(lambda: not processes_of(run), max(0.0, since + GONE_WITHIN_S - time.monotonic()), 0.1)
+    return processes_of(run)
 
 
 @pytest.fixture
@@ -160,16 +157,14 @@ def still_running(procs_: dict[int, str]) -> list[int]:
 def test_sigterm_to_a_bench_in_flight_leaves_no_process():
     """``zdrone bench handover``: its flight's five processes are up when SIGTERM comes."""
     with spawn(ZDRONE, "bench", "handover", "--quick", "--json") as bench:
-        deadline = time.monotonic() + 120
-        while len(children := descendants(bench.p.pid)) < 5:
-            assert time.monotonic() < deadline and bench.p.poll() is None, "".join(bench.lines[-20:])
-            time.sleep(0.2)
+        up = wait_until(lambda: bench.p.poll() is not None or len(descendants(bench.p.pid)) >= 5, 120, 0.2)
+        children = descendants(bench.p.pid)
+        assert up and bench.p.poll() is None and len(children) >= 5, "".join(bench.lines[-20:])
         sent = time.monotonic()
         bench.p.send_signal(signal.SIGTERM)
         rc = bench.p.wait(30)
     assert rc == 128 + signal.SIGTERM, "".join(bench.lines[-20:])
-    while still_running(children) and time.monotonic() < sent + GONE_WITHIN_S:
-        time.sleep(0.1)
+    wait_until(lambda: not still_running(children), max(0.0, sent + GONE_WITHIN_S - time.monotonic()), 0.1)
     assert still_running(children) == []
 
 

@@ -10,7 +10,7 @@ import time
 
 import zenoh
 
-from tests.procs import ZDRONE, free_port, spawn
+from tests.procs import ZDRONE, free_port, spawn, wait_until
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.routerconfig import UPLINK_MAX_HZ, UPLINK_PACE_S
@@ -38,7 +38,7 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
                 threading.Event().wait(0.1)
             assert got, "no route from A to the drone"
             a.put(kx.up("d1", "A"), b"x" * 70_000)
-            time.sleep(UPLINK_PACE_S)  # puts on one uplink key further apart than the router's rate limit
+            threading.Event().wait(UPLINK_PACE_S)  # puts on one uplink key further apart than the router's rate limit
             a.put(kx.up("d1", "A"), b"y" * 500)
             assert small.wait(10.0), "the small message after the big one never arrived"
             assert 70_000 not in got
@@ -77,22 +77,23 @@ def test_a_flood_on_one_uplink_key_is_cut_to_its_rate_and_another_key_is_not_hel
         got: dict[str, list[float]] = {"A": [], "B": []}
         sub = d.declare_subscriber(kx.up("d1", "*"), lambda s: got[kx.gs_of(s.key_expr)].append(time.monotonic()))
         try:
-            for _ in range(50):  # until the route exists
+            def routed() -> bool:  # until the route exists
                 a.put(kx.up("d1", "A"), b"a")
-                time.sleep(0.1)
-                if got["A"]:
-                    break
-            assert got["A"], "no route from A to the drone"
+                return bool(wait_until(lambda: got["A"], 0.1, 0.02))
+
+            assert wait_until(routed, 5.0, 0.0), "no route from A to the drone"
             with spawn(sys.executable, "-c", FLOODER, ep, load_secret(fleet, "B").router_password, "2.0") as flooder:
                 flooder.wait_line("flooding", 20)
                 t0, sent_a = time.monotonic(), 0
                 got["A"].clear()
+                tick = threading.Event()  # A's pace: a frame every 20 ms while the flood lasts
                 while flooder.p.poll() is None and time.monotonic() - t0 < 20.0:
-                    time.sleep(0.02)
+                    tick.wait(0.02)
                     a.put(kx.up("d1", "A"), b"a" * 40, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
                     sent_a += 1
                 _, n, seconds = flooder.wait_line("sent", 10).split()
-            time.sleep(0.3)
+            counts = [len(got["B"])]  # the last samples in flight: until B's count stops growing
+            wait_until(lambda: counts.append(len(got["B"])) or counts[-1] == counts[-2], 1.0, 0.15)
             flood_rate = int(n) / float(seconds)
             nb = sum(1 for t in got["B"] if t >= t0)
             assert flood_rate > 20 * UPLINK_MAX_HZ, f"the flood was not one: {flood_rate:.0f}/s"

@@ -9,6 +9,8 @@ import threading
 import time
 
 import pytest
+
+from tests.procs import wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
@@ -397,8 +399,7 @@ def test_ardupilot_endpoint_and_boot_on_first_client():
     th = threading.Thread(target=server.run)
     th.start()
     try:
-        time.sleep(0.5)
-        assert server.sim.t == 0.0  # no client yet: not booted
+        assert not wait_until(lambda: server.sim.t > 0.0, 0.5)  # no client yet: not booted
         connecting = time.monotonic()
         with socket.create_connection(("127.0.0.1", port), timeout=10.0) as c:
             c.settimeout(10.0)
