@@ -24,7 +24,10 @@ Per drone:
   live link is never touched — until the drone speaks under it.
 * **Hand-over**: while it holds authority and the vehicle is inside its and another authorized GS's
   coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``); if the
-  drone reports the release timed out, the GS commands RTL.
+  drone reports the release timed out, the GS commands RTL. A release toward a GS whose key the drone
+  does not hold yet waits for it: while the key is known to be coming (a restarted companion), the
+  vehicle is held where it is and its mission resumed just before the release, so that how fast the
+  vehicle flies does not decide whether the hand-over happens inside the overlap.
 * **Mission stages** are a table, ``FLIGHT``: (stage, event) -> handler; pairs not in it are no-ops
   by definition.
 """
@@ -54,7 +57,7 @@ from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
-from zdrone.vehicle.modes import mode_name, set_mode_params
+from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
 from .opcontrol import Answer, OperatorControl, Step
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
@@ -134,8 +137,15 @@ HANDOVER_RETRY_S = 2.0
 #: again this soon, the first ask still open for the genuine reply.
 LIVE_LINK_RETRY_S = 0.5
 #: Toward a GS whose key is still being shared, the hand-over waits while the vehicle is inside this
-#: fraction of our coverage radius; past it, the hand-over has failed (the vehicle comes home).
+#: fraction of our coverage radius; past it, the hand-over has failed (the vehicle comes home) ...
 KEY_WAIT_RADIUS = 0.9
+#: A key known to be coming (the other GS answered that its link still looks alive, or its key is on
+#: its way to the drone) holds the vehicle flying its mission where it is in the overlap (the
+#: autopilot's hold mode) for at most this long; the mission resumes just before the release. A
+#: restart of the companion costs a pause of the flight, at any speed, instead of the delivery.
+HOLD_FOR_KEY_S = 15.0
+#: A "live link" refusal from the other GS is evidence that its key is coming for this long.
+KEY_COMING_S = 2.0
 #: A failed hand-over commands RTL only if the vehicle is leaving our coverage: farther from our
 #: centre than when we released, by at least this much (else it is flying into our coverage and
 #: needs nothing but the retry).
@@ -277,6 +287,9 @@ class DroneView:
     pairing_deadline: float = 0.0
     asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
     ask_again: dict[str, float] = field(default_factory=dict)  # other GS -> when to ask again (refused: live link)
+    live_refused: dict[str, float] = field(default_factory=dict)  # other GS -> its last "live link" refusal
+    held: tuple[int, float] | None = None  # (epoch, since): we hold the vehicle for a key (HOLD_FOR_KEY_S)
+    held_resume: bool = False  # the hold interrupted the mission: resume it before the release
     fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     armed: bool = False
     disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
@@ -586,6 +599,7 @@ class StationCore:
             self.counters["linkkey_reply_error"] += 1
             if err == ShareRefusal.LIVE_LINK.value.encode() and gs in view.asks:
                 view.ask_again[gs] = now + LIVE_LINK_RETRY_S  # soon: its link is about to be LOST
+                view.live_refused[gs] = now
             if self.counters["linkkey_reply_error"] > 5:  # the first few in the log; all in the counters
                 return []
             return [Log("linkkey_error", {"drone": drone, "gs": gs, "reason": (err or b"").decode(errors="replace")[:120]})]
@@ -1000,12 +1014,15 @@ class StationCore:
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
                 if g not in view.drone_links and g not in view.granted:  # the drone holds no key for g
+                    held = self._hold_for_key(view, g, now)
+                    if held is not None:
+                        return held
                     sharing = g in view.asks or g in view.grants
-                    if sharing and mine < KEY_WAIT_RADIUS * self.coverage.radius_m:
+                    if sharing and not self._hold_expired(view) and mine < KEY_WAIT_RADIUS * self.coverage.radius_m:
                         self.counters["handover_waiting_key"] += 1  # g's key is on its way: not yet
                         return []
                     return self._handover_failed(view, f"the drone has no link to {g}", now)
-                out: list[Action] = []
+                out: list[Action] = self._resume(view, g, now)
                 if view.released_epoch != view.epoch:
                     view.release_confirmed = False
                     if view.release_from is None or view.release_from[0] != view.epoch:  # the epoch's first
@@ -1015,6 +1032,63 @@ class StationCore:
                 view.released_epoch, view.release_sent = view.epoch, now
                 return out + self.send_control(view, wire.HandoverRelease(g, view.epoch))
         return []
+
+    def _key_coming(self, view: DroneView, g: str, now: float) -> bool:
+        """``g``'s key for the drone is known to be coming: received and on its way to the drone, or
+        ``g`` said a moment ago that it will share it once its old link is lost."""
+        refused = view.live_refused.get(g)
+        return g in view.grants or (g in view.asks and refused is not None and now - refused < KEY_COMING_S)
+
+    def _mission_modes(self, view: DroneView) -> tuple[str, str] | None:
+        """(mission mode, hold mode) of the vehicle's autopilot if it flies its mission now, else None."""
+        roles = MODE_ROLES.get(view.autopilot or "")
+        if roles is None or not view.armed or mode_name(view.autopilot, view.custom_mode) != roles["mission"]:
+            return None
+        return roles["mission"], roles["hold"]
+
+    def _hold_expired(self, view: DroneView) -> bool:
+        """We held the vehicle for a key in this epoch, and the hold is over (``HOLD_FOR_KEY_S``)."""
+        return view.held is not None and view.held[0] == view.epoch and not view.held_resume
+
+    def _hold_for_key(self, view: DroneView, g: str, now: float) -> list[Action] | None:
+        """Due to release toward ``g`` but its key is still missing on the drone: if the key is known
+        to be coming and the vehicle flies its mission, hold it where it is, inside the overlap (once
+        per epoch, ``HOLD_FOR_KEY_S`` at most) and return what to do; None if not holding (the caller
+        waits up to ``KEY_WAIT_RADIUS`` for a key still asked for, else the hand-over has failed)."""
+        if view.held is not None and view.held[0] == view.epoch:  # one hold per epoch
+            if not view.held_resume:
+                return None  # resumed, or the hold ran out
+            if now - view.held[1] < HOLD_FOR_KEY_S:
+                self.counters["handover_holding_for_key"] += 1
+                return []
+            view.held_resume = False  # waited long enough: the hand-over has failed (RTL)
+            self.counters["handover_hold_expired"] += 1
+            return None
+        modes = self._mission_modes(view) if self._key_coming(view, g, now) else None
+        params = set_mode_params(view.autopilot, modes[1]) if modes is not None else None
+        if params is None:
+            return None
+        view.held, view.held_resume = (view.epoch, now), True
+        self.counters["handover_hold"] += 1
+        log.warning("hand-over of %s to %s waits for its key: holding the vehicle (%s) for at most %g s",
+                    view.name, g, modes[1], HOLD_FOR_KEY_S)
+        return [Log("handover_hold", {"drone": view.name, "to": g, "epoch": view.epoch, "mode": modes[1]}),
+                Say(f"zdrone gs {self.name}: holding {view.name} at the edge of coverage until {g}'s key is there"),
+                *self._command(view, mav.MAV_CMD_DO_SET_MODE, *params)]
+
+    def _resume(self, view: DroneView, g: str, now: float) -> list[Action]:
+        """Before releasing toward ``g``: a mission we held for ``g``'s key goes on."""
+        if not view.held_resume or view.held is None or view.held[0] != view.epoch:
+            return []
+        view.held_resume = False
+        roles = MODE_ROLES.get(view.autopilot or "")
+        params = set_mode_params(view.autopilot, roles["mission"]) if roles else None
+        if params is None:
+            return []
+        self.counters["handover_resume"] += 1
+        return [Log("handover_resume", {"drone": view.name, "to": g, "epoch": view.epoch,
+                                        "held_s": round(now - view.held[1], 2)}),
+                *self._command(view, mav.MAV_CMD_DO_SET_MODE, *params)]
 
     def _command_stream(self, view: DroneView, now: float) -> list[Action]:
         if self.opts.command_rate <= 0 or not self.holds_authority(view) or not view.armed:

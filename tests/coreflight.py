@@ -5,6 +5,11 @@ The radio is the fleet's coverage: a frame between the drone and a GS gets throu
 vehicle is inside that GS's coverage circle (a GS that is ``down`` neither sends nor hears). Pairing
 and key-sharing queries are answered at once; a query that gets no answer (the drone out of range,
 the asked GS down) is answered by nothing, and the asker's own timeout runs.
+
+``speedup`` runs the autopilot that many times faster than the nodes' clocks, as ``zdrone sim
+--speedup`` does: the vehicle covers more ground in each second of the protocol's timers.
+``restart_drone`` takes the companion down for a while (it neither hears nor sends, its queries go
+unanswered) and starts a new drone core from the authority it persisted, as a restarted node does.
 """
 
 from __future__ import annotations
@@ -48,14 +53,17 @@ class CoreFlight:
     """The reference flight of ``d1`` between GS A (which pairs and flies the mission) and GS B."""
 
     def __init__(self, fleet_dir: Path, personality: Personality = PX4, handover_timeout: float = 2.0,
-                 command_rate: float = 2.0, dt: float = 0.05) -> None:
+                 command_rate: float = 2.0, dt: float = 0.05, speedup: float = 1.0) -> None:
         if not (fleet_dir / "fleet.json5").exists():
             init_fleet(fleet_dir)
         fleet = load_fleet(fleet_dir)
-        self.fleet, self.dt, self.now = fleet, dt, 0.0
+        self.fleet, self.dt, self.now, self.speedup = fleet, dt, 0.0, speedup
         self.sim = SimAutopilot(HOME, sysid=fleet.nodes[DRONE].sysid, personality=personality)
-        self.drone = DroneCore(fleet, DRONE, load_secret(fleet_dir, DRONE, fleet).identity,
-                               DroneCoreOptions(handover_timeout=handover_timeout), started_wall=WALL0)
+        self._drone_identity = load_secret(fleet_dir, DRONE, fleet).identity
+        self._drone_opts = DroneCoreOptions(handover_timeout=handover_timeout)
+        self.drone = DroneCore(fleet, DRONE, self._drone_identity, self._drone_opts, started_wall=WALL0)
+        self.drone_down_until: float | None = None  # the companion is restarting until then
+        self.restarts: list[float] = []
         self.gs: dict[str, Station] = {}
         for name, opts in (("A", CoreOptions(pair=True, mission=reference_plan(), command_rate=command_rate)),
                            ("B", CoreOptions(command_rate=command_rate))):
@@ -78,6 +86,8 @@ class CoreFlight:
 
     # ------------------------------------------------------------------ the radio
     def in_range(self, gs: str) -> bool:
+        if self.drone_down_until is not None:
+            return False  # the companion is down: nothing goes either way
         p = self.sim.position
         return not self.gs[gs].down and self.coverage[gs].contains(GeoPoint(p.lat, p.lon))
 
@@ -154,9 +164,31 @@ class CoreFlight:
                 raise AssertionError(f"unknown GS action {a!r}")
 
     # ------------------------------------------------------------------ time
+    def restart_drone(self, down_for: float) -> None:
+        """The companion's node is killed now and is back ``down_for`` seconds later."""
+        self.drone_down_until = self.now + down_for
+        self.restarts.append(self.now)
+
+    def _drone_back(self) -> None:
+        """A new drone core, as the node starts: its vehicle heard, the saved authority restored, ready."""
+        self.drone_down_until = None
+        saved = self.persisted[-1] if self.persisted else None
+        self.drone = DroneCore(self.fleet, DRONE, self._drone_identity, self._drone_opts, started_wall=WALL0 + self.now)
+        self.handle(self.drone.on_vehicle(self._pos(), self._on_ground(), self.now))
+        if saved is not None:
+            self.handle(self.drone.restore(saved.owner, saved.epoch, saved.state, self.now))
+        self.drone.ready(WALL0 + self.now)
+
     def step(self) -> None:
         self.now = round(self.now + self.dt, 6)
-        self.sim.step(self.now)
+        self.sim.step(round(self.now * self.speedup, 6))
+        if self.drone_down_until is not None:
+            for frame in self.sim.drain():  # nobody reads the vehicle meanwhile
+                pass
+            if self.now >= self.drone_down_until:
+                self._drone_back()
+            self._stations()
+            return
         for frame in self.sim.drain():
             msg = self.vehicle_codec.decode(frame)
             if msg is not None:
@@ -172,12 +204,16 @@ class CoreFlight:
         timer = self.drone.get_timer()
         if timer is not None and self.now >= timer:
             self.handle(self.drone.handle_timer(self.now))
+        self._stations()
+
+    def _stations(self) -> None:
         for name, st in self.gs.items():
             if not st.down:
                 self.station(name, st.core.tick(self.now, WALL0 + self.now))
         self.was_armed |= self.sim.armed
-        m = self.drone.machine
-        self.statuses.append((self.now, m.owner, m.epoch, m.state.value))
+        if self.drone_down_until is None:
+            m = self.drone.machine
+            self.statuses.append((self.now, m.owner, m.epoch, m.state.value))
 
     def run_until(self, pred, timeout: float) -> bool:
         end = self.now + timeout

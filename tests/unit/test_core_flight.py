@@ -147,3 +147,28 @@ def test_a_hung_authority_loses_authority_to_the_proven_heir_and_learns_it_on_wa
     assert {r.value: n for r, n in f.drone.machine.drops.items()}.get("not_authority", 0) == 0  # A never tried
     _one_authority_from_pairing_on(f)
     assert f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+@pytest.mark.parametrize("speedup", [1, 2, 4])
+def test_a_companion_restart_in_the_overlap_still_hands_over_at_any_speed_up(fleet_dir, autopilot, speedup):
+    """Issue 19: the companion's node restarts 0.5 s into the overlap and is back 2 s later with no key
+    but A's (re-paired); B refuses to share its key while its own link still looks alive, up to the
+    loss threshold. However fast the vehicle flies meanwhile, the outcome is the same: A holds the
+    vehicle at the edge of its coverage until B's key is there, then the hand-overs and the delivery
+    happen as on a flight without the restart. (Faster still, the vehicle leaves A's coverage while
+    the companion is down: nobody can hold it then, and the failsafe lands it.)"""
+    f = CoreFlight(fleet_dir, personality(autopilot), speedup=speedup)
+    _fly_until(f, lambda: f.in_range("B") and f.in_range("A"), "in the overlap", timeout=400 / speedup)
+    f.run_until(lambda: False, 0.5)
+    f.restart_drone(2.0)
+    assert f.run_until(f.flown, 400 / speedup + 60), \
+        f"not flown (x{speedup}): owner {f.drone.machine.owner}, A: {[k for _, k, _ in f.gs['A'].logs][-8:]}"
+    assert f.of(rec.Restarted)
+    assert [(a, b, kind) for a, b, _, kind in _moves(f)] == [(None, "A", "paired"), ("A", "B", "handover"),
+                                                           ("B", "A", "handover")]
+    assert delivered_at([rec.MissionProgress(**x) for _, x in f.gs_logs("B", "mission_progress")], autopilot)
+    assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0
+    assert not [x for _, x in f.gs_logs("A", "handover_failed") if x["action"] == "RTL"]
+    holds = f.gs_logs("A", "handover_hold")
+    assert len(holds) == len(f.gs_logs("A", "handover_resume")) <= 1  # a hold, if any, was resumed

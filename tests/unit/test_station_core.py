@@ -477,3 +477,85 @@ def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
     view.stage, view.next_try = Stage.WAITING_READY, 0.0
     out = a._flight(view, FlightTick(50.0))
     assert view.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
+
+
+def _flying_mission(a: StationCore) -> None:
+    from zdrone.vehicle.modes import custom_mode
+
+    view = a.views["d1"]
+    view.autopilot, view.armed, view.custom_mode = "px4", True, custom_mode("px4", "MISSION")
+
+
+def _mode_commands(a: StationCore, out) -> list[str]:
+    """The DO_SET_MODE commands among ``out``, by mode name (decoded as the drone would)."""
+    from pymavlink.dialects.v20 import common as mav
+    from zdrone.core.envelope import SecureLink
+    from zdrone.vehicle.modes import mode_name
+
+    names = []
+    view = a.views["d1"]
+    for x in out:
+        if not isinstance(x, Put):
+            continue
+        peer = SecureLink(key=view.link.key, role="drone", tx_keyexpr="", rx_keyexpr=x.keyexpr, peer_sysid=a.sysid, now=0.0)
+        res = peer.open(x.payload, 0.0)
+        msg = FrameCodec(1, 1).decode(res.plaintext) if getattr(res, "plaintext", None) else None
+        if msg is not None and msg.get_type() == "COMMAND_LONG" and msg.command == mav.MAV_CMD_DO_SET_MODE:
+            names.append(mode_name("px4", int(msg.param2) << 16 | int(msg.param3) << 24))
+        elif msg is not None and msg.get_type() == "COMMAND_LONG" and msg.command == mav.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            names.append("RTL")
+    return names
+
+
+def test_a_key_known_to_be_coming_holds_the_vehicle_at_the_edge_then_the_mission_resumes(fleet_dir):
+    """Issue 19: past 90 % of A's radius with B's key still missing on the drone, but B said its link
+    still looks alive (a restarted companion): A holds the vehicle (the autopilot's hold mode) instead
+    of bringing it home, and resumes the mission just before the release once the key is there."""
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+    from gs.core import HOLD_FOR_KEY_S
+
+    a = paired_a(fleet_dir)
+    view = a.views["d1"]
+    _in_overlap_nearer_b(a, {"A"})
+    _flying_mission(a)
+    share(a, core(fleet_dir, "B"), 10.0)
+    a.on_linkkey_reply("d1", "B", None, b"live_link", 10.1)
+    view.position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m
+    out = a.tick(10.2)
+    assert [x.kind for x in out if isinstance(x, Log) and x.kind.startswith("handover")] == ["handover_hold"]
+    assert _mode_commands(a, out) == ["HOLD"] and a.holds_authority(view)
+    assert not [x for x in a.tick(10.2 + HOLD_FOR_KEY_S - 1) if isinstance(x, Log) and x.kind.startswith("handover")]
+    view.drone_links = {"A", "B"}  # B's key reached the drone and B proved it
+    out = a.tick(10.2 + HOLD_FOR_KEY_S - 0.5)
+    assert [x.kind for x in out if isinstance(x, Log) and x.kind.startswith("handover")] == ["handover_resume",
+                                                                                             "handover_release"]
+    assert _mode_commands(a, out) == ["MISSION"]
+
+
+def test_a_hold_for_a_key_that_never_comes_ends_in_rtl_and_no_evidence_means_no_hold(fleet_dir):
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+    from gs.core import HOLD_FOR_KEY_S
+
+    a = paired_a(fleet_dir)
+    view = a.views["d1"]
+    _in_overlap_nearer_b(a, {"A"})
+    _flying_mission(a)
+    share(a, core(fleet_dir, "B"), 10.0)
+    a.on_linkkey_reply("d1", "B", None, b"live_link", 10.1)
+    view.position = offset(HOME, 0.0, 320.0)
+    assert _mode_commands(a, a.tick(10.2)) == ["HOLD"]
+    out = a.tick(10.2 + HOLD_FOR_KEY_S + 0.1)
+    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    assert [x.fields["action"] for x in failed] == ["RTL"] and _mode_commands(a, out) == ["RTL"]
+    assert a.counters["handover_hold_expired"] == 1
+    # an unanswered query (B unreachable: the backhaul cut) is no evidence: RTL at once, as before
+    b = paired_a(fleet_dir)
+    _in_overlap_nearer_b(b, {"A"})
+    _flying_mission(b)
+    share(b, core(fleet_dir, "B"), 10.0)
+    b.views["d1"].position = offset(HOME, 0.0, 320.0)
+    out = b.tick(10.2)
+    assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+    assert not [x for x in out if isinstance(x, Log) and x.kind == "handover_hold"]

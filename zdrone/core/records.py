@@ -597,6 +597,25 @@ class HandoverRelease(Record, frozen=True, tag="handover_release"):
     position: tuple[float, float]
 
 
+class HandoverHold(Record, frozen=True, tag="handover_hold"):
+    """The hand-over toward ``to`` waits for its key (known to be coming): the GS holds the vehicle
+    where it is, in the autopilot's ``mode``, for a bounded time."""
+
+    drone: str
+    to: str
+    epoch: int
+    mode: str
+
+
+class HandoverResume(Record, frozen=True, tag="handover_resume"):
+    """The key is there: the GS resumes the mission it held ``held_s`` seconds, just before releasing."""
+
+    drone: str
+    to: str
+    epoch: int
+    held_s: float
+
+
 class GcsApp(Record, frozen=True, tag="gcs_app"):
     """A GCS application appeared on the gateway, as GS component ``gs_compid``."""
 
@@ -831,7 +850,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
     PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, FcSigningHeard, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
-    VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, GcsApp, GcsAppGone, OperatorControlRequested,
+    VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, HandoverHold, HandoverResume, GcsApp, GcsAppGone, OperatorControlRequested,
     *OPERATOR_CONTROL_RECORDS,
 )
 #: the testbed attacker's records (its ``attack_done`` has fields of its own per attack: untyped)
