@@ -42,6 +42,7 @@ from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as mav
 
+from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.authority import State as HaState
 from zdrone.core.envelope import Dropped, SecureLink
@@ -195,10 +196,20 @@ class Ask:
 
 @dataclass(frozen=True, slots=True)
 class Log:
-    """One event-log record."""
+    """One event-log record, typed (``zdrone.core.records``, the GS's vocabulary): the station writes
+    it as it is (``EventLog.write_record``)."""
 
-    kind: str
-    fields: dict[str, Any]
+    record: rec.Record
+
+    @property
+    def kind(self) -> str:
+        """The record's event type (its tag)."""
+        return rec.record_type(self.record)
+
+    @property
+    def fields(self) -> dict[str, Any]:
+        """The record's own fields as logged (JSON values)."""
+        return rec.fields_of(self.record)
 
 
 @dataclass(frozen=True, slots=True)
@@ -400,7 +411,7 @@ class StationCore:
         if not _due(view.last_take_control, now, 1.0):
             return []
         view.last_take_control = now
-        return [Log("control_requested", {"drone": view.name, "state": view.ha_state.value if view.ha_state else None}),
+        return [Log(rec.ControlRequested(drone=view.name, state=view.ha_state)),
                 *self.send_control(view, wire.HandoverRequest(self.name, view.epoch))]
 
     def _silent_authority(self, view: DroneView, now: float) -> bool:
@@ -488,11 +499,11 @@ class StationCore:
             if self.counters["pair_refused"] > 5:  # the first few in the log; all in the counters
                 return []
             log.warning("pairing with %s refused: %s", drone, reason)
-            return [Log("pair_refused", {"drone": drone, "reason": reason})]
+            return [Log(rec.GsPairRefused(drone=drone, reason=reason))]
         key = view.pairing.finish(ok)
         if isinstance(key, PairingFailed):
             self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
-            return [Log("pair_failed", {"drone": drone, "reason": key.reason})] if self.counters["pair_bad_reply"] <= 5 else []
+            return [Log(rec.PairFailed(drone=drone, reason=key.reason))] if self.counters["pair_bad_reply"] <= 5 else []
         kept = view.pairing.peer_kept_key
         view.pairing = None
         again = view.link is not None
@@ -500,7 +511,7 @@ class StationCore:
             # the drone still holds our key: its silence was the radio (out of coverage), not a
             # restart; switching to a key it cannot confirm now would cut us off later
             self.counters["pair_not_needed"] += 1
-            return [Log("pair_not_needed", {"drone": drone})]
+            return [Log(rec.PairNotNeeded(drone=drone))]
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
         view.slot.install(self._new_link(view, key, now), now)
@@ -509,7 +520,7 @@ class StationCore:
             view.granted.clear()
             view.grants.clear()
             view.drone_links = {self.name}
-        return [Log("paired", {"drone": drone, "again": again}), Say(f"zdrone gs {self.name}: paired with {drone}"),
+        return [Log(rec.GsPaired(drone=drone, again=again)), Say(f"zdrone gs {self.name}: paired with {drone}"),
                 *self._heartbeat(view)]
 
     # --------------------------------------------------------------- key sharing
@@ -517,7 +528,7 @@ class StationCore:
         key = f"linkkey_refused:{reason.value}"
         self.counters[key] += 1
         if self.counters[key] <= 5:  # the first few in the log; all of them in the counters
-            logs.append(Log("linkkey_refused", {"drone": drone, "asker": asker, "reason": reason.value, "detail": detail}))
+            logs.append(Log(rec.LinkkeyRefused(drone=drone, asker=asker, reason=reason.value, detail=detail)))
         crypto = reason is ShareRefusal.AUTH_FAILED
         if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC, ShareRefusal.STALE):
             return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
@@ -557,7 +568,7 @@ class StationCore:
         candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
         view.slot.offer(candidate, now, f"linkkey:{req.asker}", LINKKEY_CANDIDATE_TTL)
         self.counters["linkkey_shared"] += 1
-        logs.append(Log("linkkey_shared", {"drone": drone, "asker": req.asker}))
+        logs.append(Log(rec.LinkkeyShared(drone=drone, asker=req.asker)))
         log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.name, req.asker)
         return QueryAnswer(reply=reply, crypto=True), logs
 
@@ -602,7 +613,7 @@ class StationCore:
                 view.live_refused[gs] = now
             if self.counters["linkkey_reply_error"] > 5:  # the first few in the log; all in the counters
                 return []
-            return [Log("linkkey_error", {"drone": drone, "gs": gs, "reason": (err or b"").decode(errors="replace")[:120]})]
+            return [Log(rec.LinkkeyError(drone=drone, gs=gs, reason=(err or b"").decode(errors="replace")[:120]))]
         ask = view.asks.get(gs)
         if ask is None:
             self.counters["linkkey_reply:not_waiting"] += 1
@@ -614,13 +625,13 @@ class StationCore:
             if self.counters[key] > 5:  # the first few in the log; all in the counters
                 return []
             log.warning("key-sharing reply for %s from %s refused: %s", drone, gs, secret.reason.value)
-            return [Log("linkkey_bad_reply", {"drone": drone, "gs": gs, "reason": secret.reason.value})]
+            return [Log(rec.LinkkeyBadReply(drone=drone, gs=gs, reason=secret.reason.value))]
         del view.asks[gs]
         view.ask_again.pop(gs, None)
         self._grant_id += 1
         view.grants[gs] = wire.KeyGrant(gs, self.fleet.nodes[gs].sysid, secret, self._grant_id)
         view.grant_sent = None
-        return [Log("linkkey_received", {"drone": drone, "gs": gs})]
+        return [Log(rec.LinkkeyReceived(drone=drone, gs=gs))]
 
     # ----------------------------------------------------------------- receiving
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
@@ -639,7 +650,7 @@ class StationCore:
         out: list[Action] = []
         if promoted is not None:
             view.link = view.slot.live
-            out.append(Log("link_confirmed", {"drone": drone, "how": promoted.origin, "replaced": promoted.replaced}))
+            out.append(Log(rec.GsLinkConfirmed(drone=drone, how=promoted.origin, replaced=promoted.replaced)))
             log.info("link to %s: key confirmed by the drone (%s)", drone, promoted.origin)
         if res.control is not None:
             return out + self._on_control(view, res.control, now)
@@ -659,7 +670,7 @@ class StationCore:
             view.custom_mode = msg.custom_mode
             if view.autopilot is None:
                 view.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, "other")
-                out.append(Log("autopilot", {"drone": drone, "autopilot": view.autopilot, "mav_type": msg.type}))
+                out.append(Log(rec.AutopilotFound(drone=drone, autopilot=view.autopilot, mav_type=msg.type)))
         elif t == "SYS_STATUS":
             if msg.onboard_control_sensors_present & mav.MAV_SYS_STATUS_PREARM_CHECK:
                 view.prearm_ok = bool(msg.onboard_control_sensors_health & mav.MAV_SYS_STATUS_PREARM_CHECK)
@@ -673,7 +684,7 @@ class StationCore:
         elif t == "STATUSTEXT":
             text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
             view.texts = (view.texts + [(now, text)])[-TEXTS_KEPT:]
-            out.append(Log("vehicle_text", {"drone": drone, "text": text, "severity": msg.severity}))
+            out.append(Log(rec.VehicleText(drone=drone, text=text, severity=msg.severity)))
         if view.uploader is not None:
             for m in view.uploader.on_message(msg, now, self.sysid):
                 out += self.send_msg(view, m)
@@ -693,10 +704,10 @@ class StationCore:
             view.takeover = msg.takeover
             if msg.fc_signed is not None and msg.fc_signed != view.fc_signed:
                 view.fc_signed = msg.fc_signed
-                out.append(Log("fc_signing", {"drone": view.name, "signed": msg.fc_signed}))
+                out.append(Log(rec.FcSigningHeard(drone=view.name, signed=msg.fc_signed)))
             if changed:
-                out.append(Log("authority_status", {"drone": view.name, "owner": msg.owner, "epoch": msg.epoch,
-                                                    "state": msg.state.value, "pending_to": msg.pending_to}))
+                out.append(Log(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
+                                                   pending_to=msg.pending_to)))
             if was_mine and msg.owner == self.name and view.released_epoch == msg.epoch:
                 if state is HaState.HANDOVER_PENDING:
                     view.release_confirmed = True
@@ -706,10 +717,10 @@ class StationCore:
             if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
                 del view.grants[msg.gs]
                 view.granted.add(msg.gs)
-                out.append(Log("key_granted", {"drone": view.name, "gs": msg.gs}))
+                out.append(Log(rec.KeyGranted(drone=view.name, gs=msg.gs)))
         elif isinstance(msg, wire.Reject):
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
-            out.append(Log("rejected", {"drone": view.name, "what": msg.what, "reason": msg.reason}))
+            out.append(Log(rec.Rejected(drone=view.name, what=msg.what, reason=msg.reason)))
             if msg.what == "release" and view.owner == self.name and view.released_epoch == view.epoch:
                 out += self._handover_failed(view, f"release refused: {msg.reason}", now)
         elif isinstance(msg, wire.OperatorRequest):
@@ -717,7 +728,7 @@ class StationCore:
         elif isinstance(msg, wire.FailsafeNotice):
             view.ha_state = HaState.FAILSAFE  # nobody holds authority until a GS takes control back
             log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
-            out.append(Log("failsafe_notice", {"drone": view.name, "action": msg.action, "reason": msg.reason}))
+            out.append(Log(rec.FailsafeNoticed(drone=view.name, action=msg.action, reason=msg.reason)))
         else:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
         return out
@@ -729,7 +740,7 @@ class StationCore:
         return answer, self._operator(view, step)
 
     def _operator(self, view: DroneView, step: Step) -> list[Action]:
-        out: list[Action] = [Log(kind, fields) for kind, fields in step.logs]
+        out: list[Action] = [Log(record) for record in step.logs]
         out += [Say(text) for text in step.say]
         for msg in step.send:
             out += self.send_control(view, msg)
@@ -750,8 +761,7 @@ class StationCore:
         action = "RTL" if rtl else "retry"
         log.warning("hand-over of %s failed (%s): authority stays here; %s", view.name, reason,
                     "commanding RTL" if rtl else f"trying again every {HANDOVER_RETRY_S:g} s")
-        out: list[Action] = [Log("handover_failed", {"drone": view.name, "epoch": view.epoch, "action": action,
-                                                     "reason": reason}),
+        out: list[Action] = [Log(rec.HandoverFailed(drone=view.name, epoch=view.epoch, action=action, reason=reason)),
                              Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); "
                                  + ("commanding RTL" if rtl else "trying again"))]
         if rtl:
@@ -786,7 +796,7 @@ class StationCore:
     def _give_up(self, view: DroneView, now: float, reason: str) -> list[Action]:
         """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
         self._set_stage(view, Stage.FAILED, now)
-        out: list[Action] = [Log("mission_failed", {"drone": view.name, "reason": reason}),
+        out: list[Action] = [Log(rec.MissionFailed(drone=view.name, reason=reason)),
                              Say(f"zdrone gs {self.name}: mission for {view.name} failed: {reason}")]
         if view.armed and view.landed_state != mav.MAV_LANDED_STATE_IN_AIR:
             out += self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0)
@@ -818,7 +828,7 @@ class StationCore:
     def _preparing_param(self, view: DroneView, ev: FlightParam) -> list[Action]:
         if ev.name != "MIS_OPTIONS" or not int(ev.value) & ARDUPILOT_CONTINUE_AFTER_LAND:
             return []
-        return [Log("vehicle_param", {"drone": view.name, "name": ev.name, "value": ev.value}),
+        return [Log(rec.VehicleParam(drone=view.name, name=ev.name, value=ev.value)),
                 *self._start_upload(view, FlightTick(ev.now))]
 
     def _start_upload(self, view: DroneView, ev: FlightTick) -> list[Action]:
@@ -829,7 +839,7 @@ class StationCore:
         for m in view.uploader.start(ev.now):
             out += self.send_msg(view, m)
         self._set_stage(view, Stage.UPLOADING, ev.now)
-        return out + [Log("mission_upload", {"drone": view.name, "items": len(items), "autopilot": view.autopilot})]
+        return out + [Log(rec.MissionUpload(drone=view.name, items=len(items), autopilot=view.autopilot))]
 
     def _upload_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
         assert view.uploader is not None
@@ -873,7 +883,7 @@ class StationCore:
             return []
         view.waiting = waiting
         text = f"{view.name} ready: arming" if waiting is None else f"{view.name} not ready: {waiting}"
-        return [Log("vehicle_waiting", {"drone": view.name, "waiting": waiting}), Say(f"zdrone gs {self.name}: {text}")]
+        return [Log(rec.VehicleWaiting(drone=view.name, waiting=waiting)), Say(f"zdrone gs {self.name}: {text}")]
 
     def _airborne(self, view: DroneView) -> bool:
         """The vehicle is armed and off the ground: its mission is being flown."""
@@ -884,7 +894,7 @@ class StationCore:
         """The start's answer was lost (a lossy radio) but the vehicle flies: the mission started. Never
         start it again (that would fly it from its first item)."""
         self._set_stage(view, Stage.FLYING, now)
-        return [Log("takeoff_confirmed", {"drone": view.name, "restarts": view.restarts}),
+        return [Log(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
                 Say(f"zdrone gs {self.name}: {view.name} is flying (its start's answer was lost)")]
 
     def _ready_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
@@ -915,8 +925,7 @@ class StationCore:
         what = "arm" if view.stage is Stage.ARMING else "mission start"
         view.next_try = ev.now + RETRY_AFTER_S
         self._set_stage(view, Stage.WAITING_READY, ev.now)
-        return [Log("vehicle_refused", {"drone": view.name, "what": f"{what} (no answer)", "result": None,
-                                        "try": view.tries, "texts": []})]
+        return [Log(rec.VehicleRefused(drone=view.name, what=f"{what} (no answer)", result=None, try_=view.tries, texts=[]))]
 
     def _step_refused(self, view: DroneView, ev: FlightAck, what: str) -> list[Action]:
         """A refusal: classified only after ``REASON_WAIT_S`` (ArduPilot says why after its ACK)."""
@@ -939,7 +948,7 @@ class StationCore:
         if not ev.accepted:
             return self._step_refused(view, ev, "mission start")
         self._set_stage(view, Stage.TAKING_OFF, ev.now)
-        return [Log("mission_started", {"drone": view.name, "result": ev.result})]
+        return [Log(rec.MissionStarted(drone=view.name, result=ev.result))]
 
     def _classify_refusal(self, view: DroneView, ev: FlightTick) -> list[Action]:
         """``REASON_WAIT_S`` after a refusal, with the texts that came before and after its ACK: not
@@ -953,8 +962,7 @@ class StationCore:
         texts = self._reasons(view, r.at - REASON_BEFORE_S)
         said = " ".join(texts).lower()
         view.tries += 1
-        out: list[Action] = [Log("vehicle_refused", {"drone": view.name, "what": r.what, "result": r.result,
-                                                     "try": view.tries, "texts": texts})]
+        out: list[Action] = [Log(rec.VehicleRefused(drone=view.name, what=r.what, result=r.result, try_=view.tries, texts=texts))]
         reason = "; ".join(texts) or f"result {r.result}"
         final = any(p in said for p in REFUSED_FOR_GOOD)
         not_ready = (r.result == mav.MAV_RESULT_TEMPORARILY_REJECTED or any(p in said for p in NOT_READY)
@@ -962,7 +970,7 @@ class StationCore:
         if not (final or not_ready):
             view.unexplained += 1
         if final or view.unexplained >= MAX_UNEXPLAINED:
-            out.append(Log("mission_start_failed", {"drone": view.name, "result": r.result, "texts": texts}))
+            out.append(Log(rec.MissionStartFailed(drone=view.name, result=r.result, texts=texts)))
             return out + self._give_up(view, ev.now, f"{r.what} refused (result {r.result}): {reason}")
         view.next_try = ev.now + RETRY_AFTER_S
         self._set_stage(view, Stage.WAITING_READY, ev.now)
@@ -977,7 +985,7 @@ class StationCore:
             view.fix.position is not None and view.fix.position.alt > LEFT_GROUND_M)
         if left and view.armed:
             self._set_stage(view, Stage.FLYING, ev.now)
-            return [Log("takeoff_confirmed", {"drone": view.name, "restarts": view.restarts}),
+            return [Log(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
                     Say(f"zdrone gs {self.name}: {view.name} took off")]
         disarmed = (view.disarmed_at is not None and view.disarmed_at > view.stage_time) or (
             not view.armed and ev.now - view.stage_time > ARMED_REPORT_S)
@@ -987,7 +995,7 @@ class StationCore:
             view.next_try = ev.now + RETRY_AFTER_S
             self._set_stage(view, Stage.WAITING_READY, ev.now)
             reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"
-            return [Log("takeoff_restart", {"drone": view.name, "reason": reason, "restarts": view.restarts}),
+            return [Log(rec.TakeoffRestart(drone=view.name, reason=reason, restarts=view.restarts)),
                     Say(f"zdrone gs {self.name}: {view.name} {reason}: arming and starting again")]
         if ev.now - view.stage_time > TAKEOFF_CONFIRM_S and not view.takeoff_late_said:
             view.takeoff_late_said = True
@@ -1027,8 +1035,7 @@ class StationCore:
                     view.release_confirmed = False
                     if view.release_from is None or view.release_from[0] != view.epoch:  # the epoch's first
                         view.release_from = (view.epoch, mine)
-                    out.append(Log("handover_release", {"drone": view.name, "to": g, "epoch": view.epoch,
-                                                        "position": [here.lat, here.lon]}))
+                    out.append(Log(rec.HandoverRelease(drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])))
                 view.released_epoch, view.release_sent = view.epoch, now
                 return out + self.send_control(view, wire.HandoverRelease(g, view.epoch))
         return []
@@ -1072,7 +1079,7 @@ class StationCore:
         self.counters["handover_hold"] += 1
         log.warning("hand-over of %s to %s waits for its key: holding the vehicle (%s) for at most %g s",
                     view.name, g, modes[1], HOLD_FOR_KEY_S)
-        return [Log("handover_hold", {"drone": view.name, "to": g, "epoch": view.epoch, "mode": modes[1]}),
+        return [Log(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=modes[1])),
                 Say(f"zdrone gs {self.name}: holding {view.name} at the edge of coverage until {g}'s key is there"),
                 *self._command(view, mav.MAV_CMD_DO_SET_MODE, *params)]
 
@@ -1086,8 +1093,7 @@ class StationCore:
         if params is None:
             return []
         self.counters["handover_resume"] += 1
-        return [Log("handover_resume", {"drone": view.name, "to": g, "epoch": view.epoch,
-                                        "held_s": round(now - view.held[1], 2)}),
+        return [Log(rec.HandoverResume(drone=view.name, to=g, epoch=view.epoch, held_s=round(now - view.held[1], 2))),
                 *self._command(view, mav.MAV_CMD_DO_SET_MODE, *params)]
 
     def _command_stream(self, view: DroneView, now: float) -> list[Action]:
@@ -1106,9 +1112,9 @@ class StationCore:
         if not reached:
             view.mission_seq = seq
         p = view.fix.position
-        return [Log("mission_progress", {"drone": view.name, "seq": seq, "reached": reached,
-                                         "landed_state": view.landed_state,
-                                         "position": None if p is None else [round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)]})]
+        position = None if p is None else (round(p.lat, 7), round(p.lon, 7), round(p.alt, 2))
+        return [Log(rec.MissionProgress(drone=view.name, seq=seq, reached=reached, landed_state=view.landed_state,
+                                        position=position))]
 
     # ------------------------------------------------------------------ status
     def status(self) -> dict[str, Any]:

@@ -47,6 +47,7 @@ from typing import Any, Iterator
 from pymavlink.dialects.v20 import common as mav
 from zenoh import ZError
 
+from zdrone.core import records as rec
 from zdrone.core.authority import State as HaState
 from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
                                     MAV_RESULT_NOT_IN_CONTROL, MSG_ID_CONTROL_STATUS, ControlStatus,
@@ -259,7 +260,7 @@ class GcsGateway:
                 return None
             log.info("gateway: application sysid %d compid %d on %s is GS component %d", sysid, compid,
                      self.transports[ti].endpoint, app.gs_compid)
-            self.station.events.write("gcs_app", sysid=sysid, compid=compid, gs_compid=app.gs_compid)
+            self.station.events.write_record(rec.GcsApp(sysid=sysid, compid=compid, gs_compid=app.gs_compid))
         return app
 
     def _forget_apps(self, now: float) -> None:
@@ -274,8 +275,7 @@ class GcsGateway:
         for app, why in gone:
             log.info("gateway: application sysid %d compid %d (GS component %d) %s", app.sysid, app.compid,
                      app.gs_compid, why)
-            self.station.events.write("gcs_app_gone", sysid=app.sysid, compid=app.compid, gs_compid=app.gs_compid,
-                                      reason=why)
+            self.station.events.write_record(rec.GcsAppGone(sysid=app.sysid, compid=app.compid, gs_compid=app.gs_compid, reason=why))
 
     def _to_app(self, app: App, frame: bytes) -> None:
         app.frames_out += 1
@@ -413,7 +413,7 @@ class GcsGateway:
                 self.counters["send_failed"] += 1
                 result = mav.MAV_RESULT_FAILED
             if req.request:
-                self.station.events.write("operator_control_requested", drone=self.drone, by_sysid=app.sysid)
+                self.station.events.write_record(rec.OperatorControlRequested(drone=self.drone, by_sysid=app.sysid))
             if result == mav.MAV_RESULT_IN_PROGRESS:
                 self._awaiting[app.key] = now + req.timeout
         self._ack(app, msg.command, result)
@@ -444,8 +444,7 @@ class GcsGateway:
                 p4 = _not_the_apps(requester, app.sysid)
                 self._reply(app, codec, mav.MAVLink_command_long_message(
                     app.sysid, app.compid, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, req.timeout, p4, 0, 0, 0))
-            self.station.events.write("operator_request_shown", drone=self.drone, requester=req.requester,
-                                      apps=len(self.apps))
+            self.station.events.write_record(rec.OperatorRequestShown(drone=self.drone, requester=req.requester, apps=len(self.apps)))
         takeover = op.shown_takeover(view, now)
         control = (view.link is not None, view.owner, view.epoch, view.ha_state, owner, takeover)
         if now >= self._next_status or control != self._last_control:

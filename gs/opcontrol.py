@@ -35,6 +35,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
+from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.authority import State as HaState
 from zdrone.core.mavcontrol import (DEFAULT_REQUEST_TIMEOUT_S, REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S,
@@ -60,11 +61,11 @@ class Answer(enum.IntEnum):
 
 @dataclass(frozen=True, slots=True)
 class Step:
-    """What a call asks of the station: control messages for the drone, event records (kind, fields)
-    and lines for the operator."""
+    """What a call asks of the station: control messages for the drone, typed event records and
+    lines for the operator."""
 
     send: tuple[wire.Control, ...] = ()
-    logs: tuple[tuple[str, dict[str, Any]], ...] = ()
+    logs: tuple[rec.Record, ...] = ()
     say: tuple[str, ...] = ()
 
     def __add__(self, other: "Step") -> "Step":
@@ -142,12 +143,12 @@ class OperatorControl:
         if not req.request:  # withdraw our own request
             was = self.asked_until is not None
             self.asked_until = None
-            return Answer.ACCEPTED, self._log("operator_request_withdrawn", view, {}) if was else NOTHING
+            return Answer.ACCEPTED, self._log(rec.OperatorRequestWithdrawn(drone=view.name)) if was else NOTHING
         self.allow_takeover = req.takeover  # our setting once in control
         self.asked_until, self.asked_timeout, self.last_ask = now + req.timeout, req.timeout, now
         self.ask_id += 1
-        step = self._log("operator_control_asked", view, {"owner": view.owner, "timeout": req.timeout,
-                                                          "owner_allows": bool(view.takeover)})
+        step = self._log(rec.OperatorControlAsked(drone=view.name, owner=view.owner, timeout=req.timeout,
+                                                  owner_allows=bool(view.takeover)))
         step += Step(send=(self._ask(view),))
         if view.ha_state is HaState.FAILSAFE or view.takeover:
             return Answer.IN_PROGRESS, step
@@ -160,37 +161,37 @@ class OperatorControl:
             if pending is not None:  # consent: release to the requester
                 return self._grant(view, pending, now, "released by the operator")
             held, self.held_epoch = self.held_epoch, None  # let go: automatic hand-overs again
-            return self._log("operator_control_let_go", view, {}) if held == view.epoch else NOTHING
+            return self._log(rec.OperatorControlLetGo(drone=view.name)) if held == view.epoch else NOTHING
         if pending is None:
             changed = req.takeover != self.allow_takeover
             self.allow_takeover = req.takeover
-            return self._log("operator_takeover_setting", view, {"allowed": req.takeover}) if changed else NOTHING
+            return self._log(rec.OperatorTakeoverSetting(drone=view.name, allowed=req.takeover)) if changed else NOTHING
         if req.takeover:  # consent by allowing takeover for the window: granted now, and if asked again
             self.window_until = now + GRANT_WINDOW_S
             return self._grant(view, pending, now, "takeover allowed by the operator")
         self._close(pending)  # declined
-        return self._log("operator_request_declined", view, {"requester": pending.requester})
+        return self._log(rec.OperatorRequestDeclined(drone=view.name, requester=pending.requester))
 
     # ------------------------------------------------------------------ drone
     def on_request(self, view: Any, msg: wire.OperatorRequest, now: float) -> Step:
         """The drone passes on another GS's request for authority."""
         if not self.is_owner(view) or msg.epoch != view.epoch:
-            return self._log("operator_request_stale", view, {"requester": msg.requester, "epoch": msg.epoch})
+            return self._log(rec.OperatorRequestStale(drone=view.name, requester=msg.requester, epoch=msg.epoch))
         live = self.live_request(view, now)
         if live is not None and (live.requester, live.ask_id) == (msg.requester, msg.ask_id):
             return NOTHING  # the requester sending its standing request again
         if self.closed == (msg.requester, msg.epoch, msg.ask_id):
             return NOTHING  # re-sends of a request declined or expired: decided already
         if msg.to != msg.requester:  # control goes to whoever asks, never to a GS it names
-            return self._log("operator_request_stale", view, {"requester": msg.requester, "epoch": msg.epoch})
+            return self._log(rec.OperatorRequestStale(drone=view.name, requester=msg.requester, epoch=msg.epoch))
         self.seq += 1
         # the spec's range (3-60 s): a request never stands longer, whatever its sender says
         timeout = min(max(msg.timeout, REQUEST_TIMEOUT_MIN_S), REQUEST_TIMEOUT_MAX_S) if msg.timeout > 0 \
             else DEFAULT_REQUEST_TIMEOUT_S
         self.request = PendingRequest(msg.requester, msg.requester, msg.epoch, timeout, now, self.seq, msg.ask_id)
         allowed = self.takeover_allowed(now)
-        step = self._log("operator_request", view, {"requester": msg.requester, "to": msg.to, "epoch": msg.epoch,
-                                                     "timeout": timeout, "takeover_allowed": allowed})
+        step = self._log(rec.OperatorRequestReceived(drone=view.name, requester=msg.requester, to=msg.to, epoch=msg.epoch,
+                                                     timeout=timeout, takeover_allowed=allowed))
         if allowed:
             return step + self._grant(view, self.request, now, "takeover allowed")
         return step + Step(say=(f"zdrone gs {self.gs}: {msg.requester} requests control of {view.name} "
@@ -201,7 +202,7 @@ class OperatorControl:
         self.release_to, self.release_epoch, self.last_release = req.to, view.epoch, now
         self.release_until = now + GRANT_WINDOW_S
         self.request = None
-        return (self._log("operator_request_granted", view, {"requester": req.requester, "to": req.to, "why": why})
+        return (self._log(rec.OperatorRequestGranted(drone=view.name, requester=req.requester, to=req.to, why=why))
                 + Step(send=(wire.HandoverRelease(req.to, view.epoch),),
                        say=(f"zdrone gs {self.gs}: control of {view.name} goes to {req.to} ({why})",)))
 
@@ -211,18 +212,18 @@ class OperatorControl:
         step = NOTHING
         if self.window_until is not None and now >= self.window_until:
             self.window_until = None
-            step += self._log("takeover_window_closed", view, {})
+            step += self._log(rec.TakeoverWindowClosed(drone=view.name))
         if self.request is not None and self.live_request(view, now) is None:
             req = self.request
             self._close(req)
             if not req.alive(now):
-                step += self._log("operator_request_expired", view, {"requester": req.requester})
+                step += self._log(rec.OperatorRequestExpired(drone=view.name, requester=req.requester))
         if view.link is None:
             return step
         if self.is_owner(view):
             if self.asked_until is not None:  # ours now: the request succeeded
                 self.asked_until, self.held_epoch = None, view.epoch
-                step += self._log("operator_control_taken", view, {"epoch": view.epoch})
+                step += self._log(rec.OperatorControlTaken(drone=view.name, epoch=view.epoch))
             want = self.takeover_allowed(now)
             if bool(view.takeover) != want and _due(self.last_tell, now, TELL_RESEND_S):
                 self.last_tell = now
@@ -234,7 +235,7 @@ class OperatorControl:
         elif self.asked_until is not None:
             if now >= self.asked_until:
                 self.asked_until = None
-                step += self._log("operator_request_timed_out", view, {"owner": view.owner})
+                step += self._log(rec.OperatorRequestTimedOut(drone=view.name, owner=view.owner))
             elif _due(self.last_ask, now, ASK_RESEND_S):
                 self.last_ask = now
                 step += Step(send=(self._ask(view),))
@@ -250,8 +251,9 @@ class OperatorControl:
     def _ask(self, view: Any) -> wire.HandoverRequest:
         return wire.HandoverRequest(self.gs, view.epoch, timeout=self.asked_timeout, ask_id=self.ask_id)
 
-    def _log(self, kind: str, view: Any, fields: dict[str, Any]) -> Step:
-        return Step(logs=((kind, {"drone": view.name, **fields}),))
+    @staticmethod
+    def _log(record: rec.OperatorControlEvent) -> Step:
+        return Step(logs=(record,))
 
 
 def _due(last: float | None, now: float, period: float) -> bool:

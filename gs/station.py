@@ -29,6 +29,7 @@ from typing import Any, Callable
 
 import zenoh
 
+from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.errors import ConfigError
 from zdrone.core.mavcontrol import OperatorControlRequest
@@ -111,7 +112,7 @@ class GroundStation:
                 for listener in self.frame_listeners:
                     listener(a.drone, a.frame)
             elif isinstance(a, Log):
-                self.events.write(a.kind, **a.fields)
+                self.events.write_record(a.record)
             elif isinstance(a, Ask):
                 self._ask(a)
             elif isinstance(a, Say):
@@ -230,7 +231,7 @@ class GroundStation:
 
     def run(self) -> None:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)
-        self.events.write("start", drones=list(self.views))
+        self.events.write_record(rec.GsStart(drones=list(self.views)))
         next_status = next_view = 0.0
         try:
             while self.rt.running:
@@ -242,7 +243,7 @@ class GroundStation:
                 self.rt.flush(now)
                 if now >= next_status:
                     next_status = now + self.opts.status_period
-                    self.events.write("status", **self.status())
+                    self.events.write_as(rec.GsStatus, self.status())
                     if now >= next_view:
                         next_view = now + 5.0
                         self.print_view(now)
@@ -250,7 +251,7 @@ class GroundStation:
             self.close()
 
     def close(self) -> None:
-        self.rt.close(self.status())
+        self.rt.close(self.status(), rec.GsStop)
 
 
 def view_line(gs: str, drone: str, v: DroneView, now: float) -> str:

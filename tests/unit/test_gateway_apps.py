@@ -7,6 +7,8 @@ component ids stay in their range however many applications come and go.
 
 from __future__ import annotations
 
+from zdrone.core import records as rec
+
 import logging
 import struct
 from collections import Counter
@@ -51,8 +53,8 @@ class StubEvents:
     def __init__(self) -> None:
         self.written: list[tuple[str, dict[str, Any]]] = []
 
-    def write(self, kind: str, **fields: Any) -> None:
-        self.written.append((kind, fields))
+    def write_record(self, record: rec.Record) -> None:
+        self.written.append((rec.record_type(record), rec.fields_of(record)))
 
     def of(self, kind: str) -> list[dict[str, Any]]:
         return [f for k, f in self.written if k == kind]

@@ -2,8 +2,9 @@
 
 Theory of operation: every line of an event log (``zdrone.net.eventlog``) is one JSON object with
 the wall time ``t``, the writing ``node``, the event ``type`` and the event's own fields. Each kind
-of writer has its vocabulary: the drone node (``DRONE_RECORDS``), the ground station
-(``GS_RECORDS``) and the testbed's attacker (``TESTBED_RECORDS``). One tag may name different shapes
+of writer has its vocabulary: the drone node (``DRONE_RECORDS``) and the ground station
+(``GS_RECORDS``) here; the testbed registers its own (``zdrone.sil.records``: the attacker, the
+emulated radio) with ``register_vocabulary``. One tag may name different shapes
 for different writers (a drone's ``status`` is not a GS's), so each vocabulary is its own tagged
 union, and a line is the record of the first vocabulary with a record that fits it exactly: no
 field missing, none unknown, every value of its type. A line no record fits, or of a type no
@@ -735,106 +736,6 @@ OPERATOR_CONTROL_RECORDS: tuple[type[Record], ...] = (
 )
 
 
-# ----------------------------------------------------------------------------- the testbed's attacker
-class RogueReady(Record, frozen=True, tag="ready"):
-    """The attacker is set up (``wait_go``: it waits for its signal to start)."""
-
-    wait_go: bool
-
-
-class RogueGo(Record, frozen=True, tag="go"):
-    """The attacker got its signal to start."""
-
-
-class RogueNoGo(Record, frozen=True, tag="no_go"):
-    """The attacker never got its signal (``stopped``: it was told to stop first)."""
-
-    stopped: bool
-
-
-class RouterAcceptedWrongPassword(Record, frozen=True, tag="router_accepted_wrong_password"):
-    """The router let the attacker in with a wrong password (a finding)."""
-
-
-class RouterRefused(Record, frozen=True, tag="router_refused"):
-    """The router refused the attacker's wrong password for ``user``."""
-
-    user: str
-
-
-class PairAttempt(Record, frozen=True, tag="pair_attempt"):
-    """The attacker's pairing try: ``answered`` replies that were not errors."""
-
-    answered: int
-
-
-class UnauthorizedAttempt(Record, frozen=True, tag="unauthorized_attempt"):
-    """An unauthorized GS's try: what it got back."""
-
-    pair_answered: int
-    pair_refused: int
-    linkkey_replies: int
-
-
-class ForgedReply(Record, frozen=True, tag="forged_reply"):
-    """The attacker answered ``asker``'s key query for ``drone`` with forged replies."""
-
-    drone: str
-    asker: str
-    replies: int
-
-
-class NothingCaptured(Record, frozen=True, tag="nothing_captured"):
-    """The attacker captured nothing to replay."""
-
-
-class Captured(Record, frozen=True, tag="captured"):
-    """The attacker captured ``what`` (``bytes_`` long) to replay."""
-
-    what: str
-    bytes_: int = msgspec.field(name="bytes")
-
-
-class FloodStart(Record, frozen=True, tag="flood_start"):
-    """The attacker starts flooding at ``target_rate`` per second."""
-
-    target_rate: float
-
-
-class RoguePairFailed(Record, frozen=True, tag="pair_failed"):
-    """The attacker's pairing failed; ``refusals``: the drone's answers."""
-
-    refusals: tuple[str, ...]
-
-
-class PairedAs(Record, frozen=True, tag="paired_as"):
-    """The attacker paired, claiming to be GS ``gs``."""
-
-    gs: str
-
-
-class TlsAttempt(Record, frozen=True, tag="tls_attempt"):
-    """The no-cert attacker tried the TLS router with ``attempt`` (no_certificate, other_ca): ``result``."""
-
-    attempt: str
-    result: str
-
-
-class RadioLinkChanged(Record, frozen=True, tag="radio_link"):
-    """The testbed brought site ``site``'s radio link up or down, from the vehicle's true ``position``."""
-
-    site: str
-    up: bool
-    position: Position | None
-
-
-class LinkFault(Record, frozen=True, tag="link_fault"):
-    """A scenario cut (or mended) a testbed link (``backhaul-site-1-site-2``, or a site's radio)."""
-
-    link: str
-    up: bool
-
-
 # ----------------------------------------------------------------------------- vocabularies
 #: the drone node's records
 DRONE_RECORDS: tuple[type[Record], ...] = (
@@ -853,15 +754,9 @@ GS_RECORDS: tuple[type[Record], ...] = (
     VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, HandoverHold, HandoverResume, GcsApp, GcsAppGone, OperatorControlRequested,
     *OPERATOR_CONTROL_RECORDS,
 )
-#: the testbed attacker's records (its ``attack_done`` has fields of its own per attack: untyped)
-TESTBED_RECORDS: tuple[type[Record], ...] = (
-    Closed, Suppressed, RogueReady, RogueGo, RogueNoGo, RouterAcceptedWrongPassword, RouterRefused, PairAttempt,
-    UnauthorizedAttempt, ForgedReply, NothingCaptured, Captured, FloodStart, RoguePairFailed, PairedAs,
-    TlsAttempt, RadioLinkChanged, LinkFault,
-)
-VOCABULARIES: tuple[tuple[type[Record], ...], ...] = (DRONE_RECORDS, GS_RECORDS, TESTBED_RECORDS)
-#: every typed record class, each once
-ALL_RECORDS: tuple[type[Record], ...] = tuple(dict.fromkeys(c for v in VOCABULARIES for c in v))
+VOCABULARIES: dict[str, tuple[type[Record], ...]] = {"drone": DRONE_RECORDS, "gs": GS_RECORDS}
+#: every typed record class, each once (``register_vocabulary`` adds to it)
+ALL_RECORDS: tuple[type[Record], ...] = ()
 
 AnyRecord = Union[Record, UntypedRecord]
 R = TypeVar("R", bound=Record)
@@ -890,12 +785,28 @@ def records_for(type_: str) -> tuple[type[Record], ...]:
 
 
 _BY_TYPE: dict[str, tuple[type[Record], ...]] = {}
-for _cls in ALL_RECORDS:
-    _tag = _cls.__struct_config__.tag
-    assert isinstance(_tag, str), _cls
-    _BY_TYPE[_tag] = (*_BY_TYPE.get(_tag, ()), _cls)
-_UNIONS = [msgspec.json.Decoder(Union[v]) for v in VOCABULARIES]  # type: ignore[valid-type]
-_BY_CLASS = {c: msgspec.json.Decoder(c) for c in ALL_RECORDS}
+_UNIONS: list[msgspec.json.Decoder[Any]] = []
+_BY_CLASS: dict[type[Record], msgspec.json.Decoder[Any]] = {}
+
+
+def register_vocabulary(name: str, records: tuple[type[Record], ...]) -> None:
+    """Add (or replace) writer ``name``'s vocabulary: its records become decodable. The nodes'
+    vocabularies are here; the testbed registers its own (``zdrone.sil.records``)."""
+    global ALL_RECORDS
+    VOCABULARIES[name] = records
+    ALL_RECORDS = tuple(dict.fromkeys(c for v in VOCABULARIES.values() for c in v))
+    _BY_TYPE.clear()
+    for cls in ALL_RECORDS:
+        tag = cls.__struct_config__.tag
+        assert isinstance(tag, str), cls
+        _BY_TYPE[tag] = (*_BY_TYPE.get(tag, ()), cls)
+    _UNIONS[:] = [msgspec.json.Decoder(Union[v]) for v in VOCABULARIES.values()]  # type: ignore[valid-type]
+    for cls in ALL_RECORDS:
+        _BY_CLASS.setdefault(cls, msgspec.json.Decoder(cls))
+
+
+register_vocabulary("drone", DRONE_RECORDS)
+register_vocabulary("gs", GS_RECORDS)
 _HEAD = msgspec.json.Decoder(_Head)
 _ANY = msgspec.json.Decoder(dict[str, Any])
 _ENCODER = msgspec.json.Encoder()

@@ -168,6 +168,18 @@ class EventLog:
             self._append(line)
         return rec
 
+    def write_as(self, cls: type[RecordT], fields: dict[str, Any]) -> RecordT | dict[str, Any]:
+        """Write a record of class ``cls`` made from ``fields`` (a status a node assembles): converted
+        and checked before it is written. Fields that do not make a ``cls`` are a programming error:
+        raised in a strict log (the tests'), else written as they are and counted (nothing is lost)."""
+        try:
+            record = msgspec.convert(fields, cls)
+        except msgspec.ValidationError as exc:
+            tag = cls.__struct_config__.tag
+            self._misfit(str(tag), f"{cls.__name__}: {exc}")
+            return self.write(str(tag), **fields)
+        return self.write_record(record)
+
     # ---------------------------------------------------------------- rate
     def _admit(self, type_: str, reason: str | None, now: float) -> bool:
         """Whether an event of (type, reason) is written now; counts it if not. Also writes the

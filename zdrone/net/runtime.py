@@ -32,6 +32,7 @@ from typing import Any, Callable
 
 import zenoh
 
+from ..core import records as rec
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet, Node
 from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
@@ -98,14 +99,14 @@ class NodeRuntime:
         for p in self.paths:
             if p.poll():
                 self._declare_on(p)
-                self.events.write("path_open", router=p.endpoint)
+                self.events.write_record(rec.PathOpen(router=p.endpoint))
                 log.info("path %s open", p.endpoint)
         if self.multipath:
             for p in self.paths:
                 up = p.connected()
                 if up != self._connected.get(p.endpoint):
                     self._connected[p.endpoint] = up
-                    self.events.write("path_state", router=p.endpoint, connected=up)
+                    self.events.write_record(rec.PathState(router=p.endpoint, connected=up))
                     log.info("path %s %s", p.endpoint, "connected" if up else "without its router")
 
     def path_status(self) -> dict[str, dict[str, Any]]:
@@ -222,9 +223,11 @@ class NodeRuntime:
         """Ask the loop to end (from the signal thread or a test)."""
         self.running = False
 
-    def close(self, final: dict[str, Any], extra_steps: tuple[Callable[[], None], ...] = ()) -> None:
-        """Write ``stop`` with the final status, undeclare everything, close the session."""
-        self.events.write("stop", **final)
+    def close(self, final: dict[str, Any], stop: type[rec.Record],
+              extra_steps: tuple[Callable[[], None], ...] = ()) -> None:
+        """Write ``stop`` (a record of class ``stop``) with the final status, undeclare everything,
+        close the session."""
+        self.events.write_as(stop, final)
         steps: list[Callable[[], None]] = [e.undeclare for e in reversed(self._declared)]
         steps += [p.close for p in self.paths] + list(extra_steps)
         self._declared.clear()
@@ -233,7 +236,7 @@ class NodeRuntime:
                 step()
             except Exception as exc:
                 log.warning("close: %s", exc)
-        self.events.write("closed")
+        self.events.write_record(rec.Closed())
         self.events.close()
 
     def close_sessions(self) -> None:

@@ -296,7 +296,7 @@ class DroneNode:
 
     def run(self) -> None:
         print(f"zdrone drone {self.name}: vehicle {self.opts.vehicle}, router {self.rt.router}", flush=True)
-        self.events.write("start", vehicle=self.opts.vehicle)
+        self.events.write_record(rec.Start(vehicle=self.opts.vehicle))
         if not self.vehicle.wait_vehicle(30.0):
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
@@ -349,13 +349,13 @@ class DroneNode:
             self._do(self.core.handle_timer(now), now)
         if now >= self._next_status:
             self._next_status = now + self.opts.status_period
-            self.events.write("status", **self.status(now))
+            self.events.write_as(rec.DroneStatus, self.status(now))
 
     def close(self) -> None:
         now = time.monotonic()
         if self._on_ground():
             self.store.clear()  # stopped on the ground: the next start is a fresh one
-        self.rt.close(self.status(now), extra_steps=(self.vehicle.close,))
+        self.rt.close(self.status(now), rec.DroneStop, extra_steps=(self.vehicle.close,))
 
 
 def run_drone(opts: DroneOptions) -> int:

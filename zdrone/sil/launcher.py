@@ -37,13 +37,13 @@ from gs.planner import AUTOPILOTS, reference_mission
 
 from ..core.geometry import GeoPoint, distance_m
 from ..core.pairing import PAIR_BURST, PAIR_RATE
-from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound, Captured,
-                            ControlRequested,
-                            Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState, HandoverComplete,
-                            HandoverFailed, HandoverStart, GsLinkConfirmed, LinkConfirmed, LinkFault, LinkInstalled, LinkkeyReceived, LinkStateChanged,
-                            MissionFailed, MissionProgress, MissionStarted, Paired, PathState, R, RadioLinkChanged,
-                            RegionEntered, Restarted, Start, Subscribe, UnauthorizedAttempt, Unsubscribe, fields_of,
-                            logged, only, record_type)
+from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound,
+                            ControlRequested, Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState,
+                            HandoverComplete, HandoverFailed, HandoverStart, GsLinkConfirmed, LinkConfirmed,
+                            LinkInstalled, LinkkeyReceived, LinkStateChanged, MissionFailed, MissionProgress,
+                            MissionStarted, Paired, PathState, R, RegionEntered, Restarted, Start, Subscribe,
+                            Unsubscribe, fields_of, logged, only, record_type)
+from .records import Captured, LinkFault, RadioLinkChanged, UnauthorizedAttempt
 from ..core.reference import COVERAGE_RADIUS_M, DELIVERY, GS_B, HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
@@ -1197,8 +1197,8 @@ class Demo:
         if self.opts.vehicle is None:  # the built-in simulator tells where the vehicle truly is
             log_ = self.radio_log
             self.coverage = SiteCoverage(site_circles(fleet, self.sites), radios,
-                                         lambda site, up, p: log_.write("radio_link", site=site, up=up,
-                                                                        position=[round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)]))
+                                         lambda site, up, p: log_.write_record(RadioLinkChanged(
+                                             site=site, up=up, position=(round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)))))
             self.truth = TruthReceiver(self.coverage.update, truth_host)
         else:
             self.notes.append("--vehicle with --sites: no true position, every site's radio stays up")
@@ -1236,7 +1236,7 @@ class Demo:
                 else:
                     link.set_up(up)
                 if self.radio_log is not None:
-                    self.radio_log.write("link_fault", link=name, up=up)
+                    self.radio_log.write_record(LinkFault(link=name, up=up))
 
     def close_links(self) -> None:
         if self.truth is not None:

@@ -139,6 +139,7 @@ from ..fleet import keyexprs as kx
 from ..fleet.routerconfig import UPLINK_MAX_HZ
 from ..fleet.tls import issue, make_ca, node_files
 from ..net.eventlog import EventLog
+from . import records as trec
 from ..net.session import open_client
 
 log = logging.getLogger(__name__)
@@ -189,7 +190,7 @@ class Ctx:
 
     def ready(self) -> None:
         print("rogue: ready", flush=True)
-        self.events.write("ready", wait_go=self.wait_go)
+        self.events.write_record(trec.RogueReady(wait_go=self.wait_go))
 
     def wait_for_go(self) -> bool:
         """Block until SIGUSR2 (if ``--wait-go``); False if told to stop first."""
@@ -198,9 +199,9 @@ class Ctx:
         deadline = time.monotonic() + GO_TIMEOUT
         while not self.stop.is_set() and time.monotonic() < deadline:
             if self.go.wait(0.05):
-                self.events.write("go")
+                self.events.write_record(trec.RogueGo())
                 return True
-        self.events.write("no_go", stopped=self.stop.is_set())
+        self.events.write_record(trec.RogueNoGo(stopped=self.stop.is_set()))
         return False
 
     def attack_window(self) -> Callable[[], bool]:
@@ -269,9 +270,9 @@ def no_key(c: Ctx) -> None:
     fleet, drone = c.fleet, c.drone
     try:
         open_client(c.router, "A", "not-the-password").close()
-        c.events.write("router_accepted_wrong_password")
+        c.events.write_record(trec.RouterAcceptedWrongPassword())
     except ConfigError:
-        c.events.write("router_refused", user="A")
+        c.events.write_record(trec.RouterRefused(user="A"))
     s_pub = open_client(c.router, "A", c.password("A"))
     s_cap = open_client(c.router, drone, c.password(drone))
     captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
@@ -281,7 +282,7 @@ def no_key(c: Ctx) -> None:
         fake = Identity.generate()
         ini = PairingInitiator(fake, "A", drone, fleet.nodes[drone].public_bytes)
         replies = list(s_pub.get(kx.pair(drone, "A"), payload=ini.start(), timeout=3.0))
-        c.events.write("pair_attempt", answered=sum(1 for r in replies if r.ok is not None))
+        c.events.write_record(trec.PairAttempt(answered=sum(1 for r in replies if r.ok is not None)))
         forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=kx.up(drone, "A"),
                             rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
         sysid_a = fleet.nodes["A"].sysid
@@ -328,7 +329,7 @@ def unauthorized(c: Ctx) -> None:
             s.put(kx.up(drone, "A"), _land(fleet.nodes["X"].sysid))  # denied by the router's ACL
             s.put(kx.up(drone, "X"), _land(fleet.nodes["X"].sysid))  # nobody listens: X has no link
             tries += 1
-            c.events.write("unauthorized_attempt", pair_answered=answered, pair_refused=refused, linkkey_replies=len(keys))
+            c.events.write_record(trec.UnauthorizedAttempt(pair_answered=answered, pair_refused=refused, linkkey_replies=len(keys)))
             c.stop.wait(1.0)
         c.events.write("attack_done", tries=tries)
     finally:
@@ -373,7 +374,7 @@ def key_injection(c: Ctx) -> None:
                     sent["random"] += 1
                     q.reply(q.key_expr, m2)  # well-formed, made with its own static key
                     sent["noise_own_key"] += 1
-                c.events.write("forged_reply", drone=drone, asker=asker, replies=2 * c.replies)
+                c.events.write_record(trec.ForgedReply(drone=drone, asker=asker, replies=2 * c.replies))
             except zenoh.ZError as exc:
                 sent["reply_error"] += 1
                 log.info("reply failed: %s", exc)
@@ -451,9 +452,9 @@ def pair_replay(c: Ctx) -> None:
             q.drop()  # no reply: the genuine drone answers A
         qable.undeclare()
         if not captured:
-            c.events.write("nothing_captured")
+            c.events.write_record(trec.NothingCaptured())
             return
-        c.events.write("captured", what="pairing message 1 of A", bytes=len(captured[0]))
+        c.events.write_record(trec.Captured(what="pairing message 1 of A", bytes_=len(captured[0])))
         if not c.wait_for_go():
             return
         going = c.attack_window()
@@ -483,7 +484,7 @@ def pair_flood(c: Ctx) -> None:
         pool = [PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes, stamp=time.time()).start()
                 for _ in range(64)]
         print(f"rogue: flooding at {c.rate:.0f} queries/s for {c.duration:.0f} s", flush=True)
-        c.events.write("flood_start", target_rate=c.rate)
+        c.events.write_record(trec.FloodStart(target_rate=c.rate))
         t0 = time.monotonic()
         going = c.attack_window()
         sent = 0
@@ -530,12 +531,12 @@ def uplink_sealed(c: Ctx) -> None:
             elif r.err is not None:
                 refusals.append(r.err.payload.to_bytes().decode(errors="replace")[:80])
         if key is None:
-            c.events.write("pair_failed", refusals=refusals)
+            c.events.write_record(trec.RoguePairFailed(refusals=refusals))
             return
         now = time.monotonic()
         link = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(drone, "B"), rx_keyexpr=kx.down(drone, "B"),
                           peer_sysid=target, now=now)
-        c.events.write("paired_as", gs="B")
+        c.events.write_record(trec.PairedAs(gs="B"))
         for _ in range(3):  # the proof of the new key: authentic, read-only frames
             s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
             time.sleep(UPLINK_GAP_S)
@@ -674,7 +675,7 @@ def junk_flood(c: Ctx) -> None:
         if not c.wait_for_go():
             return
         print(f"rogue: flooding at {c.rate:.0f} puts/s for {c.duration:.0f} s", flush=True)
-        c.events.write("flood_start", target_rate=c.rate)
+        c.events.write_record(trec.FloodStart(target_rate=c.rate))
         t0 = time.monotonic()
         going = c.attack_window()
         sent = 0
@@ -728,7 +729,7 @@ def no_cert(c: Ctx) -> None:
                 outcome[attempt] = "accepted"
             except zenoh.ZError:
                 outcome[attempt] = "refused"
-            c.events.write("tls_attempt", attempt=attempt, result=outcome[attempt])
+            c.events.write_record(trec.TlsAttempt(attempt=attempt, result=outcome[attempt]))
     x = node_files(c.fleet_dir, "X")
     try:
         s = _tls_session(c.router, "A", c.password("A"), ca, x.cert, x.key)
@@ -845,7 +846,7 @@ def insider_heir(c: Ctx) -> None:
                         for _ in range(PROOF_BURST):  # the proof, and frames towards "proven"
                             s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
                         sent["heartbeats"] += PROOF_BURST
-                        c.events.write("paired_as", gs="B")
+                        c.events.write_record(trec.PairedAs(gs="B"))
             if now >= next_pair:
                 next_pair = now + PAIR_EVERY_S
                 pairing = _Pairing(PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes,
@@ -963,7 +964,7 @@ def stale_pairing(c: Ctx) -> None:
             for _ in range(c.recorded)]
     del a_key
     if held:
-        c.events.write("captured", what=f"{len(held)} pairing message 1s of A recorded earlier", bytes=len(held[0]))
+        c.events.write_record(trec.Captured(what=f"{len(held)} pairing message 1s of A recorded earlier", bytes_=len(held[0])))
     s_cap = open_client(c.router, drone, c.password(drone))
     qable = s_cap.declare_queryable(kx.pair(drone, "A"), zenoh.handlers.RingChannel(256))
     s_a = open_client(c.router, "A", c.password("A"))
@@ -982,8 +983,7 @@ def stale_pairing(c: Ctx) -> None:
                 results.append(_Replies())
                 captured[when] += 1
                 if captured[when] <= 5:
-                    c.events.write("captured", what=f"a pairing message 1 of A, in flight ({when} the restart)",
-                                   bytes=len(m1))
+                    c.events.write_record(trec.Captured(what=f"a pairing message 1 of A, in flight ({when} the restart)", bytes_=len(m1)))
 
     try:
         c.ready()
@@ -1128,7 +1128,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rogue: error: {exc}", file=sys.stderr)
         return 2
     finally:
-        events.write("closed")
+        events.write_record(trec.Closed())
         events.close()
     return 0
 
