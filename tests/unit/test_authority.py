@@ -404,6 +404,67 @@ def test_restore_only_at_start_and_only_for_an_authorized_owner():
         m.restore("A", 1, 1.0, grace=3.0)
 
 
+# ------------------------------------------------- a restart on the ground (review R1)
+def test_a_ground_restart_gives_the_last_owner_the_first_claim_and_the_epoch_goes_on():
+    """Restarted on the ground in the overlap: UNPAIRED with epoch 4 kept; B (covering, authorized)
+    asks first and is refused first_claim; A pairs back and gets epoch 5, never 1."""
+    m = machine(frozenset({"A", "B"}))
+    acts = m.restore_on_ground("A", 4, 100.0, window=5.0)
+    assert [a.kind for a in acts] == ["first_claim"]
+    assert m.state is State.UNPAIRED and m.owner is None and m.epoch == 4 and m.get_timer() == 105.0
+    assert m.pair_refusal("B", True, 100.1) == PairRefused(
+        PairRefusal.FIRST_CLAIM, "A held authority before the restart and pairs first (4.9 s left)")
+    acts = m.handle(Paired(100.1, "B"))
+    assert _rejects(acts) == [SendControl("B", Reject("pair", "first_claim: A held authority before the restart and "
+                                                              "pairs first (4.9 s left)"))]
+    assert m.state is State.UNPAIRED and m.rejects["first_claim"] == 1
+    acts = m.handle(Paired(100.3, "A"))
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 5
+    assert AuthorityChanged(None, "A", 5, "paired") in acts
+    assert m.first_claim is None and m.get_timer() is None  # the claim is spent: nothing pending
+    m.handle(Paired(100.5, "B"))  # B may pair now: a link, never the authority
+    assert m.owner == "A" and m.epoch == 5 and "B" in m.links
+
+
+def test_after_the_first_claim_a_covering_gs_may_pair_and_the_epoch_still_goes_on():
+    m = machine(frozenset({"A", "B"}))
+    m.restore_on_ground("A", 4, 100.0, window=5.0)
+    assert m.handle_timer(104.9) == [] and m.first_claim == "A"
+    acts = m.handle_timer(105.0)
+    assert [a.kind for a in acts if isinstance(a, ha.Note)] == ["first_claim_over"] and m.first_claim is None
+    assert m.pair_refusal("B", True, 105.0) is None
+    acts = m.handle(Paired(105.2, "B"))
+    assert m.owner == "B" and m.epoch == 5 and AuthorityChanged(None, "B", 5, "paired") in acts
+    # the window is exact even before the timer is handled
+    m2 = machine(frozenset({"A", "B"}))
+    m2.restore_on_ground("A", 4, 100.0, window=5.0)
+    m2.handle(Paired(105.0, "B"))
+    assert m2.owner == "B" and m2.epoch == 5
+
+
+def test_the_last_owner_still_needs_its_coverage_to_hold_the_vehicle():
+    """Landed in B's coverage only, last owner A: A is refused outside_coverage, B first_claim inside
+    the window; after it B pairs (epoch last + 1)."""
+    m = machine(frozenset({"B"}))
+    m.restore_on_ground("A", 7, 0.0, window=5.0)
+    assert m.pair_refusal("A", True, 1.0).reason is PairRefusal.OUTSIDE_COVERAGE  # type: ignore[union-attr]
+    assert m.pair_refusal("B", True, 1.0).reason is PairRefusal.FIRST_CLAIM  # type: ignore[union-attr]
+    m.handle(Paired(1.0, "A"))
+    assert m.state is State.UNPAIRED
+    m.handle(Paired(6.0, "B"))
+    assert m.owner == "B" and m.epoch == 8
+
+
+def test_a_ground_restart_for_an_owner_no_longer_authorized_keeps_the_epoch_without_a_claim():
+    m = machine(frozenset({"A", "B"}))
+    assert [a.kind for a in m.restore_on_ground("X", 3, 0.0)] == ["restore_refused"]
+    assert m.first_claim is None and m.get_timer() is None and m.pair_refusal("B", True, 0.1) is None
+    m.handle(Paired(0.1, "B"))
+    assert m.owner == "B" and m.epoch == 4
+    with pytest.raises(IllegalTransition):
+        m.restore_on_ground("A", 4, 1.0)
+
+
 def test_the_timer_says_when_to_wake_the_machine():
     """Issue 12: get_timer()/handle_timer(now), as aioquic's connection: no Tick on every loop pass."""
     m = machine()
@@ -459,15 +520,15 @@ def test_a_grant_that_does_not_fit_the_fleet_is_bad():
 
 def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
     m = machine()
-    assert m.pair_refusal("X", True) == PairRefused(PairRefusal.UNAUTHORIZED, "X is not authorized for this drone")
+    assert m.pair_refusal("X", True, 0.0) == PairRefused(PairRefusal.UNAUTHORIZED, "X is not authorized for this drone")
     acts = m.handle(Paired(0.0, "X"))
     assert _rejects(acts) == [SendControl("X", Reject("pair", "unauthorized: X is not authorized for this drone"))]
     m = _failsafe_with_b_linked()
-    assert m.pair_refusal("B", on_ground=False) == PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
-    assert m.pair_refusal("B", on_ground=True) == PairRefused(
+    assert m.pair_refusal("B", on_ground=False, now=3.0) == PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
+    assert m.pair_refusal("B", on_ground=True, now=3.0) == PairRefused(
         PairRefusal.OUTSIDE_COVERAGE, "its coverage does not hold the vehicle")
     m.handle(RegionChanged(3.0, frozenset({"B"})))
-    assert m.pair_refusal("B", on_ground=True) is None
+    assert m.pair_refusal("B", on_ground=True, now=3.0) is None
     acts = m.handle(Paired(3.0, "B", on_ground=False))
     assert _rejects(acts) == [SendControl("B", Reject("pair", "failsafe: re-pair only on the ground"))]
     assert m.rejects["failsafe"] == 1

@@ -1,4 +1,4 @@
-"""The drone's persisted authority state: atomic, private, forgotten on the ground."""
+"""The drone's persisted authority state: atomic, private, kept across restarts."""
 
 from __future__ import annotations
 

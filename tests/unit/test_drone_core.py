@@ -158,3 +158,81 @@ def test_a_third_partys_grant_never_replaces_a_live_link_on_the_drone(fleet_dir)
     hb = FrameCodec(net.fleet.nodes["B"].sysid, 190).encode(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
     net.drone_outs(net.drone.on_envelope("B", forged.seal(hb), net.now))
     assert net.drone.links["B"] is live_b and net.drone.slots["B"].live_protected == 1
+
+
+# ------------------------------------------------- a companion restart on the ground (review R1)
+def _in_the_overlap_after_two_hand_overs(fleet_dir, on_ground: bool) -> FleetNet:
+    """A -> B -> A (epoch 3, A the owner), then the vehicle in the overlap of A and B (still A's),
+    on the ground or in the air."""
+    net = linked(fleet_dir)
+    a, b = net.centre("A"), net.centre("B")
+    net.on_ground = False
+    net.fly(a, b, 30.0)
+    net.fly(b, a, 30.0)
+    net.fly(a, net.between(a, b, 0.5), 10.0)
+    net.on_ground = on_ground
+    net.run(1.0)
+    m = net.drone.machine
+    assert m.owner == "A" and m.epoch == 3 and m.inside >= {"A", "B"} and (net.persisted.owner, net.persisted.epoch) == ("A", 3)
+    return net
+
+
+def _b_asks_to_pair(net: FleetNet) -> None:
+    """B (authorized, covering the vehicle) pairs as if it had no link: its first try goes out at once."""
+    b = net.gss["B"]
+    b.views["d1"].link = None
+    b.opts = dataclasses.replace(b.opts, pair=True)
+
+
+def test_a_ground_restart_in_the_overlap_gives_a_the_first_claim_even_if_b_asks_first(fleet_dir):
+    net = _in_the_overlap_after_two_hand_overs(fleet_dir, on_ground=True)
+    net.records.clear()
+    net.restart_drone()
+    assert (net.persisted.owner, net.persisted.epoch) == ("A", 3), "the saved authority is not cleared on the ground"
+    m = net.drone.machine
+    assert m.state is State.UNPAIRED and m.epoch == 3 and m.first_claim == "A"
+    _b_asks_to_pair(net)
+    net.step(0.1)  # B's query reaches the drone first: refused, with the reason
+    assert net.drone.counters["pair_refused:first_claim"] == 1 and m.owner is None
+    [refused] = [r for r in net.records if isinstance(r, rec.PairRefused)]
+    assert refused.gs == "B" and refused.reason.startswith("first_claim: A held authority before the restart")
+    net.run(2.0)  # A hears the silence after 1 s and re-pairs
+    assert m.owner == "A" and m.epoch == 4 and m.state is State.LINKED
+    moved = [(r.from_, r.to, r.epoch, r.kind) for r in net.records if isinstance(r, rec.AuthorityMoved)]
+    assert moved == [(None, "A", 4, "paired")]
+    assert [type(r) for r in net.records if isinstance(r, (rec.FirstClaim, rec.FirstClaimOver))] == [rec.FirstClaim]
+    assert (net.persisted.owner, net.persisted.epoch) == ("A", 4)
+    net.run(4.0)  # B tries again: a link now, never the authority
+    assert m.owner == "A" and m.epoch == 4 and "B" in net.drone.links and not net.commands
+    assert net.gss["A"].views["d1"].epoch == 4 and net.gss["B"].views["d1"].epoch == 4
+
+
+def test_after_the_first_claim_without_a_a_covering_b_pairs_in_the_next_epoch(fleet_dir):
+    net = _in_the_overlap_after_two_hand_overs(fleet_dir, on_ground=True)
+    net.records.clear()
+    net.hung.add("A")  # A's station is gone
+    net.restart_drone()
+    _b_asks_to_pair(net)
+    net.run(4.0)  # B asks at once and 3 s later: both inside the window
+    m = net.drone.machine
+    assert m.owner is None and net.drone.counters["pair_refused:first_claim"] == 2
+    net.run(3.0)  # the window is over: B's next try gives it authority, epoch 4
+    assert m.owner == "B" and m.epoch == 4 and m.state is State.LINKED
+    tags = net.record_types()
+    assert tags.index("first_claim") < tags.index("first_claim_over") < tags.index("authority")
+    moved = [(r.from_, r.to, r.epoch, r.kind) for r in net.records if isinstance(r, rec.AuthorityMoved)]
+    assert moved == [(None, "B", 4, "paired")] and (net.persisted.owner, net.persisted.epoch) == ("B", 4)
+
+
+def test_a_restart_in_the_air_in_the_overlap_still_waits_for_its_owner_in_the_same_epoch(fleet_dir):
+    """As before: LINKED(A, 3) restored, B's pairing is a link only, A re-pairs and keeps epoch 3."""
+    net = _in_the_overlap_after_two_hand_overs(fleet_dir, on_ground=False)
+    net.records.clear()
+    net.restart_drone()
+    m = net.drone.machine
+    assert m.state is State.LINKED and m.owner == "A" and m.epoch == 3 and m.first_claim is None
+    _b_asks_to_pair(net)
+    net.run(2.5)
+    assert m.owner == "A" and m.epoch == 3 and {"A", "B"} <= set(net.drone.links) and not net.commands
+    assert "pair_refused:first_claim" not in net.drone.counters
+    assert not [r for r in net.records if isinstance(r, (rec.AuthorityMoved, rec.FirstClaim))]

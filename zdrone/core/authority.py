@@ -3,7 +3,9 @@
 Theory of operation
 -------------------
 States: ``UNPAIRED -> LINKED(owner, epoch) -> HANDOVER_PENDING(owner -> to) -> LINKED(to, epoch+1)``
-and ``FAILSAFE``. FAILSAFE ends when a GS whose coverage holds the vehicle re-pairs while it is on the ground, or when an
+and ``FAILSAFE``. The epoch only counts up, across companion restarts too: a restart in the air comes
+back in the owner's epoch (``restore``); a restart on the ground comes back UNPAIRED with the epoch
+kept, and the next authority, whoever it is, gets epoch+1 (``restore_on_ground``). FAILSAFE ends when a GS whose coverage holds the vehicle re-pairs while it is on the ground, or when an
 authorized GS whose link is proven asks to take control (``HandoverRequest`` for itself: an
 operator's explicit request, never automatic) -> ``LINKED(gs, epoch+1)``.
 
@@ -54,6 +56,12 @@ adapter installs the key: live if the link has none, else a candidate the GS mus
 refuses a grant whose content does not fit the fleet before it reaches the machine.
 ``pair_refusal`` gives the machine's rule for pairing as a ``PairRefused`` (the pairing responder's
 result type), or None.
+
+First claim after a restart on the ground. A companion restarted on the ground holds no key and no
+owner, yet the GS that held authority never released it: for ``FIRST_CLAIM_S`` after the restart only
+that last owner may pair into authority (another authorized GS is refused ``first_claim``), and its
+coverage must still hold the vehicle, as for every pairing that gives authority. After the window the
+usual rules apply: any authorized GS whose coverage holds the vehicle may pair first.
 """
 
 from __future__ import annotations
@@ -80,6 +88,12 @@ PROOF_FRAMES = 2
 #: ``REQUEST_RELAY_BURST``): an operator's request is re-sent once a second while it stands.
 REQUEST_RELAY_RATE, REQUEST_RELAY_BURST = 1.0, 3.0
 DEFAULT_HANDOVER_TIMEOUT = 5.0
+#: After a companion restart on the ground, only the owner it had may pair into authority for this
+#: long. That GS never released authority, and it re-pairs by itself within 0.5 s of the node being
+#: ready (it tries every 0.2 s once the drone has been silent 1 s): 5 s leaves room for a lossy radio
+#: and a GS clock a little behind the drone's, while a vehicle whose owner is gone waits only seconds
+#: before another GS covering it may pair.
+FIRST_CLAIM_S = 5.0
 
 
 State = AuthorityState  # one enum: the machine's states are what the drone reports on the wire
@@ -307,6 +321,8 @@ class AuthorityMachine:
         self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
         self.relay_limit = RateLimiter(REQUEST_RELAY_RATE, REQUEST_RELAY_BURST)  # requests passed to the owner
         self.takeover_epoch: int | None = None  # the epoch whose owner allows takeover (its operator's setting)
+        self.first_claim: str | None = None  # after a restart on the ground: the last owner, pairing back first
+        self.first_claim_until: float | None = None  # ... until then
 
     # ------------------------------------------------------------------ queries
     def is_authorized(self, gs: str) -> bool:
@@ -350,9 +366,9 @@ class AuthorityMachine:
 
     def get_timer(self) -> float | None:
         """When the machine must next be woken with ``handle_timer`` (a hand-over's deadline, the
-        owner's re-pairing deadline after a restart), or None: no deadline pending."""
+        owner's re-pairing deadline after a restart, the end of a first claim), or None: no deadline pending."""
         times = [t for t in (self.pending_deadline if self.state is State.HANDOVER_PENDING else None,
-                             self.repair_deadline) if t is not None]
+                             self.repair_deadline, self.first_claim_until) if t is not None]
         return min(times) if times else None
 
     def handle_timer(self, now: float) -> list[Action]:
@@ -399,6 +415,22 @@ class AuthorityMachine:
         return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair"),
                 *self._update_subscriptions()]
 
+    def restore_on_ground(self, owner: str, epoch: int, now: float, window: float = FIRST_CLAIM_S) -> list[Action]:
+        """Come back after a companion restart on the ground: UNPAIRED, no key for anyone, the epoch
+        kept (the next authority, whoever it is, gets ``epoch + 1``) and ``owner`` holding the first
+        claim for ``window`` seconds: meanwhile only it may pair into authority (its coverage must
+        still hold the vehicle); after that, any authorized GS covering the vehicle. An owner no longer
+        authorized gets no first claim; the epoch is kept all the same. Only at start, from UNPAIRED."""
+        if self.state is not State.UNPAIRED or self.epoch:
+            raise IllegalTransition("restore_on_ground() after the machine started")
+        self.epoch = epoch
+        if not self.is_authorized(owner):
+            return [Note("restore_refused", f"{owner} is not authorized: no first claim; the next authority "
+                                            f"gets epoch {epoch + 1}")]
+        self.first_claim, self.first_claim_until = owner, now + window
+        return [Note("first_claim", f"restarted on the ground: {owner} (epoch {epoch}) may pair back first for "
+                                    f"{window:.1f} s; the next authority gets epoch {epoch + 1}")]
+
     # ------------------------------------------------------------------- engine
     def handle(self, event: Event) -> list[Action]:
         """Apply one event; return the actions to carry out. Never raises for GS-sent events."""
@@ -432,7 +464,8 @@ class AuthorityMachine:
 
         * a pending recipient whose link is proven takes authority (make-before-break);
         * a hand-over past its deadline ends, authority staying where it was;
-        * an owner that has not re-paired by its deadline after a restart has lost its link.
+        * an owner that has not re-paired by its deadline after a restart has lost its link;
+        * a first claim after a restart on the ground ends at its deadline.
 
         (The authority link going LOST is an event, ``LinkChanged``: its rule is in ``_on_link``.)"""
         if self.state is State.HANDOVER_PENDING and self.pending_to is not None and self.is_proven(self.pending_to):
@@ -451,6 +484,11 @@ class AuthorityMachine:
             nxt, acts = self._on_link(LinkChanged(now, self.owner, LinkState.LOST))
             self._set_state(nxt, now)
             return acts
+        if self.first_claim_until is not None and now >= self.first_claim_until:
+            last = self.first_claim
+            self.first_claim = self.first_claim_until = None
+            return [Note("first_claim_over", f"{last} did not pair back in time: any authorized GS whose coverage "
+                                             f"holds the vehicle may pair (epoch {self.epoch + 1})")]
         return []
 
     def _set_state(self, new: State, now: float) -> None:
@@ -473,6 +511,7 @@ class AuthorityMachine:
         old = self.owner
         self.owner, self.epoch = to, self.epoch + 1
         self.pending_to = self.pending_deadline = None
+        self.first_claim = self.first_claim_until = None  # authority is held again: no claim stands
         acts: list[Action] = [AuthorityChanged(old, to, self.epoch, kind)]
         if to not in self.subscribed:
             self.subscribed.add(to)
@@ -490,8 +529,8 @@ class AuthorityMachine:
         return acts
 
     # ----------------------------------------------------------------- handlers
-    def pair_refusal(self, gs: str, on_ground: bool) -> PairRefused | None:
-        """Why a pairing with ``gs`` would be refused now (a query: the adapter asks before any
+    def pair_refusal(self, gs: str, on_ground: bool, now: float) -> PairRefused | None:
+        """Why a pairing with ``gs`` would be refused at ``now`` (a query: the adapter asks before any
         crypto, the ``Paired`` handlers apply the same rule), or None."""
         if not self.is_authorized(gs):
             return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")
@@ -502,17 +541,22 @@ class AuthorityMachine:
             # least privilege wants the GS to cover where the vehicle is, by its own GPS, as for an heir
             where = "the vehicle's position is unknown" if not self.inside else "its coverage does not hold the vehicle"
             return PairRefused(PairRefusal.OUTSIDE_COVERAGE, where)
+        if (self.state is State.UNPAIRED and self.first_claim not in (None, gs) and self.first_claim_until is not None
+                and now < self.first_claim_until):
+            # restarted on the ground: the owner that never released authority pairs back first
+            return PairRefused(PairRefusal.FIRST_CLAIM, f"{self.first_claim} held authority before the restart and "
+                                                        f"pairs first ({self.first_claim_until - now:.1f} s left)")
         return None
 
     def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:
-        if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
+        if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return State.UNPAIRED, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
         acts = self._switch(ev.gs, ev.now, "paired")
         return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
 
     def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
-        if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
+        if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return self.state, self._reject(ev.gs, "pair", why.text)
         if ev.gs == self.owner:
             self.repair_deadline = None  # the owner is back (after a restart, or re-keying)
@@ -520,7 +564,7 @@ class AuthorityMachine:
         return self.state, self._update_subscriptions() + self._status_to_all()
 
     def _on_pair_failsafe(self, ev: Paired) -> tuple[State, list[Action]]:
-        if (why := self.pair_refusal(ev.gs, ev.on_ground)) is not None:
+        if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return State.FAILSAFE, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
         acts = self._switch(ev.gs, ev.now, "repaired")

@@ -121,6 +121,7 @@ class PairRefusal(enum.Enum):
     UNAUTHORIZED = "unauthorized"  # not authorized for this drone
     FAILSAFE = "failsafe"  # the authority's rule: in failsafe, re-pair only on the ground
     OUTSIDE_COVERAGE = "outside_coverage"  # the authority's rule: a pairing that gives authority needs the vehicle in the GS's coverage
+    FIRST_CLAIM = "first_claim"  # the authority's rule: after a restart on the ground its last owner pairs back first
     MALFORMED = "malformed"  # message 1 too short or too long
     BAD_MAC = "bad_mac"  # message 1's tag failed: forged or garbage, no crypto spent
     STALE = "stale"  # message 1's tagged time stamp is too old

@@ -265,6 +265,14 @@ class Restored(AuthorityNote, frozen=True, tag="restored"):
     """The saved authority is back, waiting for its owner to re-pair."""
 
 
+class FirstClaim(AuthorityNote, frozen=True, tag="first_claim"):
+    """Restarted on the ground: the epoch is kept and the last owner may pair back first for a while."""
+
+
+class FirstClaimOver(AuthorityNote, frozen=True, tag="first_claim_over"):
+    """The last owner did not pair back within its first claim: any covering authorized GS may pair."""
+
+
 class HandoverStart(AuthorityNote, frozen=True, tag="handover_start"):
     """The owner released authority toward another GS."""
 
@@ -741,7 +749,8 @@ OPERATOR_CONTROL_RECORDS: tuple[type[Record], ...] = (
 DRONE_RECORDS: tuple[type[Record], ...] = (
     Start, DroneStatus, DroneStop, Closed, Suppressed, PathOpen, PathState, Subscribe, Unsubscribe, LinkInstalled,
     LinkCandidate, LinkConfirmed, AuthorityChange, HandoverComplete, Failsafe, AuthorityForgotten, Restarted,
-    Drop, Paired, PairAnswered, PairRefused, LinkStateChanged, RestoreRefused, Restored, HandoverStart,
+    Drop, Paired, PairAnswered, PairRefused, LinkStateChanged, RestoreRefused, Restored, FirstClaim, FirstClaimOver,
+    HandoverStart,
     HandoverRequested, TakeoverSetting, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
     AuthorityLinkLost, RegionEntered, RegionLeft,
 )

@@ -2,7 +2,9 @@
 
 A companion computer may reboot in flight. Its link keys die with it (they are never written down),
 but the authority must not: the restarted node comes back with the owner and epoch it had, and that
-owner must re-pair (fresh keys, so no nonce is ever reused under a key). The file sits beside the
+owner must re-pair (fresh keys, so no nonce is ever reused under a key). On the ground too: the epoch
+goes on and the saved owner pairs back first (``DroneCore.restore``), so the file is kept when the
+node stops; ``clear`` is for a fleet that starts anew. The file sits beside the
 node's secret (``secrets/<drone>.authority.json``, mode 0600; under systemd in the service's state
 directory, ``$ZDRONE_STATE_DIR/<drone>.authority.json``, as ``zdrone service`` sets it, the bundle
 staying read-only) and is replaced atomically: written to
@@ -63,7 +65,7 @@ class AuthorityStore:
         self._last = saved
 
     def clear(self) -> None:
-        """Forget the saved state (a clean stop on the ground)."""
+        """Forget the saved state (nothing to come back to)."""
         try:
             self.path.unlink()
         except FileNotFoundError:

@@ -240,7 +240,8 @@ class DroneNode:
         self._do(self.core.on_envelope(peer, data, now), now)
 
     def _restore(self, now: float) -> None:
-        """At start: back to the authority saved before a restart in the air, or a fresh start."""
+        """At start: back to the authority saved before a restart (in the air: its owner re-pairs; on
+        the ground: the epoch goes on and the saved owner pairs back first), or a fresh start."""
         saved = self.store.load()
         self._do(self.core.on_vehicle(self._pos(), self._on_ground(), now), now)
         if saved is not None:
@@ -352,9 +353,7 @@ class DroneNode:
             self.events.write_as(rec.DroneStatus, self.status(now))
 
     def close(self) -> None:
-        now = time.monotonic()
-        if self._on_ground():
-            self.store.clear()  # stopped on the ground: the next start is a fresh one
+        now = time.monotonic()  # the saved authority stays, on the ground too: the epoch goes on after a restart
         self.rt.close(self.status(now), rec.DroneStop, extra_steps=(self.vehicle.close,))
 
 

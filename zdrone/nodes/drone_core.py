@@ -14,7 +14,8 @@ methods; what the adapter must do comes out as values:
 * ``CommandVehicle(command, reason, ...)``: the failsafe (LAND or RTL);
 * ``Listen(gss)``: the uplinks to subscribe from now on (only when the set changes);
 * ``Emit(record)``: a typed event-log record (``zdrone.core.records``);
-* ``Persist(owner, epoch, state)``: the authority to keep across a restart (only when it changes).
+* ``Persist(owner, epoch, state)``: the authority to keep across a restart, in the air or on the
+  ground (only when it changes; a restart on the ground keeps what was saved until the next owner).
 
 The inputs: ``on_envelope`` (an uplink envelope of GS ``gs``), ``on_pair_query`` (a pairing message
 1; the adapter replies with the typed result), ``on_vehicle`` (the vehicle's own position, None
@@ -126,6 +127,7 @@ class DroneCoreOptions:
     cipher: str = "zdrone"  # "plain" / "fernet" only for bench traffic
     status_beacon: float = STATUS_BEACON_S
     pairing_ttl: float = PAIRING_TTL
+    first_claim: float = ha.FIRST_CLAIM_S  # after a restart on the ground: the last owner pairs back first this long
 
 
 def next_link_change(tbm: TimeBetweenMessages, now: float) -> float | None:
@@ -203,7 +205,7 @@ class DroneCore:
         if payload is None:
             ans: PairResult = PairRefused(PairRefusal.OVERSIZE)
         else:
-            policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self.on_ground)
+            policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self.on_ground, now)
             ans = self.responder.answer(gs, payload, now, secret, policy, holds_key=gs in self.links, wall=wall)
         if isinstance(ans, PairAccepted):
             # a candidate until the GS proves it (the newest pairing replaces an older one)
@@ -236,12 +238,20 @@ class DroneCore:
 
     def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
         """At start, the authority saved before: back to it in the air (its owner must re-pair within
-        the loss threshold; a failsafe goes on as a failsafe); forgotten on the ground or with nothing
-        to come back to (the first pairing then needs a GS whose coverage holds the vehicle)."""
-        if owner is None or self.on_ground:
+        the loss threshold; a failsafe goes on as a failsafe). On the ground the node comes back
+        UNPAIRED with the epoch kept (the next authority gets epoch + 1, whoever it is) and the saved
+        owner pairing back first for ``first_claim`` seconds; what was saved stays saved until the
+        next authority replaces it. With nothing to come back to, a fresh start (the first pairing
+        then needs a GS whose coverage holds the vehicle)."""
+        if owner is None:
             self._persisted = None
             return [Emit(rec.AuthorityForgotten(owner=owner, epoch=epoch, state=wire.AuthorityState(state))),
                     Persist(None, 0, ha.State.UNPAIRED.value)]
+        if self.on_ground:
+            log.warning("restarted on the ground: %s (epoch %d) may pair back first for %.1f s",
+                        owner, epoch, self.opts.first_claim)
+            out = self._apply(self.machine.restore_on_ground(owner, epoch, now, self.opts.first_claim), now)
+            return out + self._effects(now)
         out: list[Out] = [Emit(rec.Restarted(owner=owner, epoch=epoch, state=wire.AuthorityState(state),
                                              position=self.position))]
         log.warning("restarted in the air: authority %s (epoch %d); waiting for it to re-pair", owner, epoch)
@@ -420,7 +430,7 @@ class DroneCore:
         out: list[Out] = [Emit(rec.LinkConfirmed(gs=gs, how=promoted.origin, replaced=promoted.replaced))]
         log.info("link to %s: new key proven (%s)", gs, promoted.origin)
         if promoted.origin == "pair":
-            refusal = self.machine.pair_refusal(gs, self.on_ground)
+            refusal = self.machine.pair_refusal(gs, self.on_ground, now)
             if refusal is not None:  # the authority's state changed since message 1 (e.g. failsafe in the air)
                 self.counters["pair_refused"] += 1
                 out.append(Emit(rec.PairRefused(gs=gs, reason=refusal.text)))
