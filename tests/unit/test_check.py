@@ -22,6 +22,7 @@ def test_the_shipped_rules_hold_over_every_interleaving_at_the_ci_bound():
     ("promotion-over-live", "nobody replaces another's live link", "B (owner) grants a key for A and proves it as A"),
     ("unstamped-pairing", "owner re-pairs after a restart", "outsider replays"),
     ("pairing-without-position", "no authority outside coverage without consent", "B re-pairs"),
+    ("forgetful-ground-restart", "the epoch counts up", "the companion restarts on the ground"),
 ])
 def test_each_planted_flaw_is_found_with_a_short_trace(flaw, invariant, last_step):
     r = check.run(depth=7, faults=2, flaw=flaw)
@@ -59,6 +60,7 @@ def test_the_shipped_cores_hold_at_depth_3():
     ("promotion-over-live", "nobody replaces another's live link", 3),
     ("unstamped-pairing", "a replay changes nothing", 3),
     ("pairing-without-position", "no authority outside coverage without consent", 4),
+    ("forgetful-ground-restart", "the epoch counts up", 4),
 ])
 def test_each_flaw_planted_in_the_shipped_cores_is_found(flaw, invariant, depth):
     r = check.run(depth=depth, faults=2, flaw=flaw, cores=True)

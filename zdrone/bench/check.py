@@ -20,7 +20,8 @@ unknown position (no GPS fix). Every moment, any of these moves may happen:
   releases authority to the other GS (consent); a link whose GS cannot be heard goes LOST; time
   passes one second (deadlines, rate-limit tokens; a restarted companion's owner tries to re-pair);
 * network faults (at most ``--faults`` of them in a trace): a GS's radio is cut, or comes back; the
-  companion restarts in the air (all keys lost, authority restored, the owner re-pairs at once);
+  companion restarts in the air (all keys lost, authority restored, the owner re-pairs at once) or on
+  the ground (all keys lost, UNPAIRED with the epoch kept, the last owner holding the first claim);
 * the authorized but malicious GS B (its own keys, every router password; its frames reach the drone
   over the backhaul mesh wherever the drone is): asks for authority, forges a release, re-pairs from
   anywhere, grants a key for A when it holds authority and proves it as A, asks A for A's own link
@@ -41,11 +42,15 @@ Invariants, checked after every move (a violation prints the shortest trace that
    inside its coverage) holds authority;
 6. the owner, healthy and re-pairing after a restart, is never refused for tokens someone else spent;
 7. liveness: a hand-over whose recipient is proven completes at once (make-before-break), and a
-   healthy crossing (A -> overlap -> B with A's release) ends with B as owner.
+   healthy crossing (A -> overlap -> B with A's release) ends with B as owner;
+8. the epoch counts up: no move, a companion restart included, makes it go back;
+9. first claim: within its window after a restart on the ground, authority goes to the last owner only.
 
 Planted flaws (``--flaw``) show that the checker can fail: ``heir-without-position`` (an heir needs no
 coverage), ``promotion-over-live`` (any candidate replaces a live key), ``unstamped-pairing`` (a replayed
-message 1 is a fresh handshake and spends the GS's tokens). Each must be found.
+message 1 is a fresh handshake and spends the GS's tokens), ``pairing-without-position`` (a pairing that
+gives authority needs no coverage), ``forgetful-ground-restart`` (a restart on the ground forgets the
+epoch and the last owner, as before). Each must be found.
 """
 
 from __future__ import annotations
@@ -76,7 +81,9 @@ ADJACENT: dict[str, tuple[str, ...]] = {
 TOKENS = 3  # the drone's pairing rate limit per GS: a burst of 3, one more per second
 GRACE = 3.0
 HANDOVER_TIMEOUT = 5.0
-FLAWS = ("heir-without-position", "promotion-over-live", "unstamped-pairing", "pairing-without-position")
+FLAWS = ("heir-without-position", "promotion-over-live", "unstamped-pairing", "pairing-without-position",
+         "forgetful-ground-restart")
+FIRST_CLAIM = ha.FIRST_CLAIM_S
 
 
 class _NoPositionMachine(AuthorityMachine):
@@ -90,7 +97,7 @@ class _PairAnywhereMachine(AuthorityMachine):
     """PLANTED FLAW: a pairing that gives authority needs no coverage (found by review: a landed
     vehicle, or one whose companion restarted on the ground, went to whoever paired first)."""
 
-    def pair_refusal(self, gs: str, on_ground: bool) -> Any:
+    def pair_refusal(self, gs: str, on_ground: bool, now: float) -> Any:
         from ..core.pairing import PairRefusal, PairRefused
 
         if not self.is_authorized(gs):
@@ -122,6 +129,7 @@ class World:
         n.config, n.state, n.owner, n.epoch = m.config, m.state, m.owner, m.epoch
         n.pending_to, n.pending_deadline, n.repair_deadline = m.pending_to, m.pending_deadline, m.repair_deadline
         n.takeover_epoch, n.relay_limit = m.takeover_epoch, copy.deepcopy(m.relay_limit)
+        n.first_claim, n.first_claim_until = m.first_claim, m.first_claim_until
         n.links = {g: ha._Link(l.state, l.frames_since_ok, l.frames_in_cover) for g, l in m.links.items()}
         n.subscribed, n.inside = set(m.subscribed), m.inside
         n.drops, n.rejects = m.drops, m.rejects  # counters only: not part of the state, shared
@@ -143,7 +151,8 @@ class World:
                 links, frozenset(m.subscribed), self.pos, tuple(self.up.values()),
                 tuple(sorted(self.drone_key.items())), tuple(self.gs_key_ok.values()),
                 tuple(self.tokens.values()), tuple(self.spent_by_others.values()),
-                self.faults, self.restarted, m.takeover_epoch == m.epoch, self.ground)
+                self.faults, self.restarted, m.takeover_epoch == m.epoch, self.ground,
+                m.first_claim, rel(m.first_claim_until))
 
     def hears(self, gs: str) -> bool:
         """Frames of ``gs`` open on the drone (and the drone's on ``gs``): radio up, the same key both ends."""
@@ -212,7 +221,8 @@ class Explorer:
             yield "FAULT: the companion restarts; outsider replays 3 captured message 1s of its owner", \
                 lambda x: self._restart(x, replays=TOKENS)
         if w.faults < self.max_faults and w.ground and m.state is not State.UNPAIRED:
-            yield "FAULT: the companion restarts on the ground (it forgets its authority)", self._restart_on_ground
+            yield "FAULT: the companion restarts on the ground (epoch kept, its last owner pairs first)", \
+                self._restart_on_ground
         if "A" not in m.links or m.state in (State.UNPAIRED, State.FAILSAFE):
             yield "A pairs", lambda x: self._pair(x, "A")
         if w.restarted:
@@ -233,6 +243,7 @@ class Explorer:
     def _apply(self, w: World, ev: ha.Event, actor: str | None = None) -> list[ha.Action]:
         m = w.m
         owner, state, inside = m.owner, m.state, m.inside
+        claim = m.first_claim if m.first_claim_until is not None and ev.now < m.first_claim_until else None
         acts = m.handle(ev)
         for a in acts:
             if isinstance(a, ha.Forward) and isinstance(ev, ha.Frame) and ev.uplink is UplinkClass.AUTHORITY_ONLY:
@@ -243,6 +254,9 @@ class Explorer:
                 # a first pairing, a re-pairing after the failsafe, an heir, a GS taking control back
                 raise _Broken("no authority outside coverage without consent",
                               f"{a.kind} authority to {a.new} while the drone is inside {sorted(inside) or 'no coverage'}")
+            if isinstance(a, ha.AuthorityChanged) and claim is not None and a.new != claim:
+                raise _Broken("the last owner pairs first after a ground restart",
+                              f"{a.kind} authority to {a.new} while {claim}'s first claim stands")
             if isinstance(a, ha.AuthorityChanged) and a.new in AUTHORIZED and w.drone_key.get(a.new) is None:
                 w.drone_key[a.new] = "own"
         return acts
@@ -284,7 +298,7 @@ class Explorer:
                               f"{g}'s re-pairing refused: its tokens were spent by {w.spent_by_others[g]} replays")
             return False
         w.tokens[g] -= 1
-        if w.m.pair_refusal(g, on_ground=w.ground) is not None:
+        if w.m.pair_refusal(g, on_ground=w.ground, now=w.now) is not None:
             return False
         if not self._replaces_live("pair", w.m.links[g].state if g in w.m.links else None):  # a GS's own key: always
             return False
@@ -323,12 +337,17 @@ class Explorer:
         w.ground = True
 
     def _restart_on_ground(self, w: World) -> None:
-        """On the ground the companion forgets its authority (``DroneCore.restore``): UNPAIRED again."""
+        """On the ground the companion comes back UNPAIRED with the epoch kept and its last owner
+        holding the first claim (``DroneCore.restore``)."""
+        owner, epoch = w.m.owner, w.m.epoch
+        assert owner is not None
         w.m = w.m.__class__(w.m.config)
         w.faults += 1
         w.drone_key.clear()
         w.restarted = False
         self._apply(w, ha.RegionChanged(w.now, INSIDE[w.pos]))
+        if self.flaw != "forgetful-ground-restart":  # PLANTED FLAW: forgotten on the ground, epoch from 1 again
+            w.m.restore_on_ground(owner, epoch, w.now, FIRST_CLAIM)
 
     def _restart(self, w: World, replays: int) -> None:
         """In the air the companion comes back with the authority it saved (``DroneCore.restore``):
@@ -387,7 +406,7 @@ class Explorer:
                 self.transitions += 1
                 try:
                     move(nxt)
-                    self._invariants(nxt)
+                    self._invariants(nxt, w)
                 except _Broken as b:
                     violation = Violation(b.invariant, b.detail, trace + (label,))
                     break
@@ -406,8 +425,10 @@ class Explorer:
                            "depth_reached": self.max_depth_reached, "faults": self.max_faults, "flaw": self.flaw,
                            "seconds": round(elapsed, 2), "states_per_s": round(self.states / elapsed) if elapsed else None}
 
-    def _invariants(self, w: World) -> None:
+    def _invariants(self, w: World, before: World) -> None:
         m = w.m
+        if m.epoch < before.m.epoch:
+            raise _Broken("the epoch counts up", f"epoch {before.m.epoch} -> {m.epoch} ({m.state.value}, owner {m.owner})")
         if m.state is not State.UNPAIRED and m.owner not in AUTHORIZED:
             raise _Broken("one owner", f"owner {m.owner!r} in {m.state.value}")
         if m.pending_to is not None and (m.pending_to == m.owner or m.state is not State.HANDOVER_PENDING):
@@ -477,7 +498,7 @@ def render(r: dict[str, Any]) -> None:
     if r["ok"]:
         print("every invariant holds: one owner; commands only from the owner; no authority outside coverage "
               "without consent; nobody replaces another's live link; failsafe on time; the owner re-pairs after a "
-              "restart; hand-overs complete")
+              "restart; hand-overs complete; the epoch counts up; the last owner pairs first after a ground restart")
         return
     v = r["violation"]
     print(f"VIOLATION of '{v['invariant']}': {v['detail']}")

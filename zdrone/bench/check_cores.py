@@ -20,7 +20,8 @@ proves it as A (when it holds authority), and asks A for A's own key over the ba
 frame under it to A; the unauthorized GS X pairs. The network's losses, duplicates and reordering
 are the cuts and the replays.
 
-Invariants after every move: commands forwarded only from each epoch's owner; an emergency or
+Invariants after every move: the epoch never goes back (a restart included); within its window after
+a restart on the ground, authority only to the last owner; commands forwarded only from each epoch's owner; an emergency or
 regained authority only to a GS whose coverage holds the drone; no grant replaces a live key on the
 drone, and no key another GS learned replaces a GS's live key while it hears the drone; the failsafe
 (or an heir) once the owner's link is LOST; and a healthy crossing hands over both ways.
@@ -87,8 +88,8 @@ def planted(flaw: str | None) -> Iterator[None]:
         target, name = authority.AuthorityMachine, "pair_refusal"
         original_rule = authority.AuthorityMachine.pair_refusal
 
-        def bad(self, gs, on_ground):  # type: ignore[no-untyped-def]
-            why = original_rule(self, gs, on_ground)
+        def bad(self, gs, on_ground, now):  # type: ignore[no-untyped-def]
+            why = original_rule(self, gs, on_ground, now)
             return None if why is not None and why.reason is pairing.PairRefusal.OUTSIDE_COVERAGE else why
     elif flaw == "unstamped-pairing":
         original = pairing.PairingResponder.answer
@@ -97,6 +98,16 @@ def planted(flaw: str | None) -> Iterator[None]:
         def bad(self, gs, message1, now, secret, policy=None, holds_key=False, wall=None):  # type: ignore[no-untyped-def]
             self.cache = pairing.ResponseCache(0.0)  # and forgets its answers, like a restarted companion
             return original(self, gs, message1, now, secret, policy, holds_key, None)
+    elif flaw == "forgetful-ground-restart":
+        from ..nodes import drone_core
+
+        target, name = drone_core.DroneCore, "restore"
+        original_restore = drone_core.DroneCore.restore
+
+        def bad(self, owner, epoch, state, now):  # type: ignore[no-untyped-def]
+            if self.on_ground:  # forgotten on the ground: the epoch starts at 1 again, whoever pairs first
+                return [drone_core.Persist(None, 0, State.UNPAIRED.value)]
+            return original_restore(self, owner, epoch, state, now)
     else:
         raise ValueError(f"unknown flaw {flaw!r}")
     saved = getattr(target, name)
@@ -153,7 +164,7 @@ class CoreExplorer:
         views = tuple((g, v.owner, v.epoch, v.stale) for g, c in sorted(net.gss.items()) for v in [c.views["d1"]])
         return (m.state.value, m.owner, m.epoch, m.pending_to, tuple(links), views, self.place(net), net.on_ground,
                 tuple(sorted(net.cut)), tuple(sorted(net.hung)), net.faults,  # type: ignore[attr-defined]
-                m.repair_deadline is not None)
+                m.repair_deadline is not None, m.first_claim)
 
     # -------------------------------------------------------------------- moves
     def moves(self, net: FleetNet) -> Iterator[Move]:
@@ -284,6 +295,10 @@ class CoreExplorer:
         d = after.drone
         assert d is not None
         m = d.machine
+        bm = before.drone.machine if before.drone is not None else None
+        if bm is not None and m.epoch < bm.epoch:
+            raise Broken("the epoch counts up", f"epoch {bm.epoch} -> {m.epoch} ({m.state.value}, owner {m.owner})")
+        claim = bm.first_claim if bm is not None else None
         owners = {e: o for _, o, e in m.history}
         for k in d.forwarded_epochs:
             epoch, gs = k.split(":")
@@ -296,6 +311,10 @@ class CoreExplorer:
                 if not inside:
                     raise Broken("no authority outside coverage without consent",
                                  f"{r.kind} authority to {r.to} at {r.position}")
+                if claim is not None and r.to != claim and bm is not None and bm.first_claim_until is not None \
+                        and after.now < bm.first_claim_until:  # the whole move inside the window
+                    raise Broken("the last owner pairs first after a ground restart",
+                                 f"{r.kind} authority to {r.to} while {claim}'s first claim stands")
             if isinstance(r, rec.LinkConfirmed) and r.how == "grant" and r.replaced:
                 raise Broken("nobody replaces another's live link", f"a grant replaced {r.gs}'s live key on the drone")
         for g, core in after.gss.items():
