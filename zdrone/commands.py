@@ -277,14 +277,17 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
 def _demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .sil.launcher import SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
+    from .sil.launcher import SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
 
     live = True if args.live else (False if args.no_live else None)
     moment = None
+    spec = SCENARIO_BY_NAME[args.scenario]
+    if spec.plain_router and (args.tls or args.sites or args.netns):
+        option = "--tls" if args.tls else ("--sites" if args.sites else "--netns")
+        raise UsageError(f"{option}: scenario {args.scenario}'s attacker holds router passwords only; with mutual TLS "
+                         "(a router per site has it) it has no certificate to connect with: run it without "
+                         f"{option}, or scenario rogue-no-cert for that attacker against TLS")
     if args.moment:
-        from .sil.launcher import SCENARIO_BY_NAME
-
-        spec = SCENARIO_BY_NAME[args.scenario]
         if args.moment not in spec.moments():
             raise UsageError(f"--moment {args.moment}: scenario {args.scenario} can move its fault to "
                              f"{', '.join(spec.moments()) or 'no other moment'}")

@@ -15,6 +15,8 @@ from tests.procs import ZDRONE
     (["gs", "--id", "A", "--mission", "shuttle:many"], "expected shuttle:N with N crossings"),
     (["gs", "--id", "A", "--events-max-mb", "0"], "--events-max-mb 0: must be 0.01..100000"),
     (["drone", "--events-max-mb", "-1"], "--events-max-mb -1: must be 0.01..100000"),
+    (["demo", "--scenario", "key-escrow", "--tls"], "--tls: scenario key-escrow's attacker holds router passwords only"),
+    (["demo", "--scenario", "stale-pairing", "--sites"], "--sites: scenario stale-pairing's attacker holds router"),
 ])
 def test_a_refused_value_says_why(argv, says):
     """In a process of its own: the node commands block SIGTERM and SIGINT in the thread that runs them."""

@@ -126,6 +126,7 @@ class Scenario:
     fixed_moment: bool = False  # its fault's moment is what the scenario is (``moments()`` gives none to move to)
     operators: str | None = None  # at this moment, start the two operators (``zdrone.sil.operator``) on A's and B's gateways
     linger: float = 0.0  # wall seconds the run goes on after the vehicle landed (what happens on the ground)
+    plain_router: bool = False  # its attacker holds router passwords only: no --tls, no --sites (no certificate)
 
     def own_moment(self) -> str | None:
         """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
@@ -896,7 +897,8 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the drone and to the drone as A",
              "A's live link is never replaced (no link_confirmed of a secret it handed out); flight unaffected",
              _check_key_escrow,
-             rogues=(RogueSpec("key-escrow", MISSION_STARTED, go=AIRBORNE, sim_s=240.0, min_wall=60.0),)),
+             rogues=(RogueSpec("key-escrow", MISSION_STARTED, go=AIRBORNE, sim_s=240.0, min_wall=60.0),),
+             plain_router=True),
     Scenario("stale-pairing",
              "A's pairing message 1s (recorded in earlier flights, and captured all flight long with the drone's "
              "password) replayed with A's password around a companion restart (killed, back 1.5 s later: A is "
@@ -904,7 +906,8 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "no replay spends A's pairing tokens (no pair_refused:rate_limited): A re-pairs in time, no failsafe; "
              "both hand-overs",
              _check_stale_pairing, faults=(_SLOW_RESTART_DRONE,),
-             rogues=(RogueSpec("stale-pairing", BEFORE_GS_A, go=DRONE_RESTARTED, sim_s=24.0, min_wall=6.0),)),
+             rogues=(RogueSpec("stale-pairing", BEFORE_GS_A, go=DRONE_RESTARTED, sim_s=24.0, min_wall=6.0),),
+             plain_router=True),
     Scenario("fc-rogue-radio",
              "a radio on the autopilot's TELEM2 (no keys) sends arm, a mode change to LAND and MISSION_CLEAR_ALL once "
              "a second in flight (with --fc-signing off: the control, the same attack on an unsigned autopilot)",
