@@ -200,7 +200,8 @@ class Failsafe(Record, frozen=True, tag="failsafe"):
 
 
 class AuthorityForgotten(Record, frozen=True, tag="authority_forgotten"):
-    """At start, the saved authority was dropped (on the ground, or nothing to come back to)."""
+    """At start, no saved owner to come back to: a fresh start (a ground restart with a saved owner
+    keeps its epoch and gives that owner the first claim instead: ``FirstClaim``)."""
 
     owner: str | None
     epoch: int
