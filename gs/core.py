@@ -140,13 +140,20 @@ LIVE_LINK_RETRY_S = 0.5
 #: Toward a GS whose key is still being shared, the hand-over waits while the vehicle is inside this
 #: fraction of our coverage radius; past it, the hand-over has failed (the vehicle comes home) ...
 KEY_WAIT_RADIUS = 0.9
-#: A key known to be coming (the other GS answered that its link still looks alive, or its key is on
-#: its way to the drone) holds the vehicle flying its mission where it is in the overlap (the
+#: A key known to be coming holds the vehicle flying its mission where it is in the overlap (the
 #: autopilot's hold mode) for at most this long; the mission resumes just before the release. A
 #: restart of the companion costs a pause of the flight, at any speed, instead of the delivery.
+#: Known to be coming: the key is on its way to the drone (the other GS's authenticated reply), or
+#: the other GS said its old link still looks alive (``live_link``, an unauthenticated error) within
+#: ``KEY_COMING_S`` while our own pairing showed, authenticated, that the companion restarted (it
+#: had lost our key) within ``RESTART_EVIDENCE_S``.
 HOLD_FOR_KEY_S = 15.0
-#: A "live link" refusal from the other GS is evidence that its key is coming for this long.
 KEY_COMING_S = 2.0
+RESTART_EVIDENCE_S = 30.0
+#: A mode change of the hold (to hold, back to the mission) is sent again this often until the
+#: vehicle confirms it (COMMAND_ACK accepted, or its HEARTBEAT in that mode); a hold not confirmed
+#: this long after it was asked, with the vehicle past ``KEY_WAIT_RADIUS``, has failed: RTL.
+HOLD_RESEND_S = 0.5
 #: A failed hand-over commands RTL only if the vehicle is leaving our coverage: farther from our
 #: centre than when we released, by at least this much (else it is flying into our coverage and
 #: needs nothing but the retry).
@@ -286,6 +293,28 @@ class CoreOptions:
     allow_takeover: bool = False  # the operator's standing "allow takeover" (MAVLink operator control)
 
 
+class HoldPhase(enum.Enum):
+    HOLDING = "holding"  # hold mode asked for (confirmed or not), waiting for the key
+    RESUMING = "resuming"  # the key is there: the mission mode asked for; the release waits for it
+    OVER = "over"  # resumed, expired (RTL), or someone else changed the mode: nothing more of ours
+
+
+@dataclass
+class KeyHold:
+    """A hold of the vehicle while a hand-over waits for the drone's key to ``to``."""
+
+    epoch: int
+    to: str
+    since: float
+    hold_mode: str
+    mission_mode: str
+    params: dict[str, tuple[float, float, float]]  # DO_SET_MODE params 1-3 of each mode
+    phase: HoldPhase = HoldPhase.HOLDING
+    sent: float = 0.0  # the current phase's mode command, last sent
+    confirmed: bool = False  # the current phase's mode confirmed by the vehicle
+    seen: bool = False  # the vehicle's HEARTBEAT showed the hold mode
+
+
 @dataclass
 class DroneView:
     """What this GS knows of one drone."""
@@ -299,8 +328,8 @@ class DroneView:
     asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
     ask_again: dict[str, float] = field(default_factory=dict)  # other GS -> when to ask again (refused: live link)
     live_refused: dict[str, float] = field(default_factory=dict)  # other GS -> its last "live link" refusal
-    held: tuple[int, float] | None = None  # (epoch, since): we hold the vehicle for a key (HOLD_FOR_KEY_S)
-    held_resume: bool = False  # the hold interrupted the mission: resume it before the release
+    lost_key_at: float | None = None  # our pairing found the companion had lost our key (it restarted)
+    hold: "KeyHold | None" = None  # the vehicle held for a key (one per epoch)
     fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     armed: bool = False
     disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
@@ -517,6 +546,7 @@ class StationCore:
         view.slot.install(self._new_link(view, key, now), now)
         view.link = view.slot.live
         if again:  # the drone may have restarted with no key but ours: share the others' keys again
+            view.lost_key_at = now  # authenticated: the drone's message 2 said it no longer held our key
             view.granted.clear()
             view.grants.clear()
             view.drone_links = {self.name}
@@ -688,6 +718,8 @@ class StationCore:
         if view.uploader is not None:
             for m in view.uploader.on_message(msg, now, self.sysid):
                 out += self.send_msg(view, m)
+        if t == "COMMAND_ACK" and msg.target_system == self.sysid and msg.command == mav.MAV_CMD_DO_SET_MODE:
+            self.on_mode_ack(view, msg.result == mav.MAV_RESULT_ACCEPTED, now)
         if t == "COMMAND_ACK" and msg.target_system == self.sysid:
             out += self._flight(view, FlightAck(now, msg.command, msg.result == mav.MAV_RESULT_ACCEPTED, msg.result))
         return out
@@ -705,6 +737,13 @@ class StationCore:
             if msg.fc_signed is not None and msg.fc_signed != view.fc_signed:
                 view.fc_signed = msg.fc_signed
                 out.append(Log(rec.FcSigningHeard(drone=view.name, signed=msg.fc_signed)))
+            roles = MODE_ROLES.get(view.autopilot or "")
+            if (changed and msg.owner == self.name and not was_mine and roles is not None and view.armed
+                    and self._mode(view) == roles["hold"] and view.landed_state == mav.MAV_LANDED_STATE_IN_AIR):
+                # e.g. its owner held it for a hand-over to us and fell silent before it resumed: nobody
+                # else will move it now
+                out.append(Say(f"zdrone gs {self.name}: {view.name} is ours and holds in the air "
+                               f"({roles['hold']}): resume its mission or bring it home"))
             if changed:
                 out.append(Log(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
                                                    pending_to=msg.pending_to)))
@@ -746,7 +785,7 @@ class StationCore:
             out += self.send_control(view, msg)
         return out
 
-    def _handover_failed(self, view: DroneView, reason: str, now: float) -> list[Action]:
+    def _handover_failed(self, view: DroneView, reason: str, now: float, rtl: bool | None = None) -> list[Action]:
         """The hand-over cannot happen now: authority stays here and the hand-over is tried again
         every ``HANDOVER_RETRY_S`` while the vehicle is in the overlap (a target that comes back takes
         it). If the vehicle is leaving our coverage, it comes home (RTL, once per epoch) rather than
@@ -755,7 +794,7 @@ class StationCore:
         view.handover_failed_epoch, view.handover_failed_at = view.epoch, now
         view.released_epoch = None
         self.counters["handover_failed"] += 1
-        rtl = view.rtl_epoch != view.epoch and self._leaving(view)
+        rtl = view.rtl_epoch != view.epoch and (self._leaving(view) if rtl is None else rtl)
         if not rtl and not first:
             return []  # a retry that failed again: counted, not logged
         action = "RTL" if rtl else "retry"
@@ -1022,15 +1061,19 @@ class StationCore:
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
                 if g not in view.drone_links and g not in view.granted:  # the drone holds no key for g
-                    held = self._hold_for_key(view, g, now)
+                    held = self._hold_for_key(view, g, mine, now)
                     if held is not None:
                         return held
                     sharing = g in view.asks or g in view.grants
-                    if sharing and not self._hold_expired(view) and mine < KEY_WAIT_RADIUS * self.coverage.radius_m:
+                    no_hold = view.hold is None or view.hold.epoch != view.epoch
+                    if sharing and no_hold and mine < KEY_WAIT_RADIUS * self.coverage.radius_m:
                         self.counters["handover_waiting_key"] += 1  # g's key is on its way: not yet
                         return []
                     return self._handover_failed(view, f"the drone has no link to {g}", now)
-                out: list[Action] = self._resume(view, g, now)
+                resuming = self._resume(view, g, now)
+                if resuming is not None:
+                    return resuming  # the release waits for the mission mode
+                out: list[Action] = []
                 if view.released_epoch != view.epoch:
                     view.release_confirmed = False
                     if view.release_from is None or view.release_from[0] != view.epoch:  # the epoch's first
@@ -1041,60 +1084,122 @@ class StationCore:
         return []
 
     def _key_coming(self, view: DroneView, g: str, now: float) -> bool:
-        """``g``'s key for the drone is known to be coming: received and on its way to the drone, or
-        ``g`` said a moment ago that it will share it once its old link is lost."""
-        refused = view.live_refused.get(g)
-        return g in view.grants or (g in view.asks and refused is not None and now - refused < KEY_COMING_S)
+        """``g``'s key for the drone is known to be coming (see ``HOLD_FOR_KEY_S``)."""
+        if g in view.grants:
+            return True
+        refused, restarted = view.live_refused.get(g), view.lost_key_at
+        return (g in view.asks and refused is not None and now - refused < KEY_COMING_S
+                and restarted is not None and now - restarted < RESTART_EVIDENCE_S)
 
-    def _mission_modes(self, view: DroneView) -> tuple[str, str] | None:
-        """(mission mode, hold mode) of the vehicle's autopilot if it flies its mission now, else None."""
+    def _mode(self, view: DroneView) -> str:
+        return mode_name(view.autopilot, view.custom_mode)
+
+    def _hold_modes(self, view: DroneView) -> tuple[str, str, dict[str, tuple[float, float, float]]] | None:
+        """(mission mode, hold mode, their DO_SET_MODE params) if the vehicle flies its mission now."""
         roles = MODE_ROLES.get(view.autopilot or "")
-        if roles is None or not view.armed or mode_name(view.autopilot, view.custom_mode) != roles["mission"]:
+        if roles is None or not view.armed or self._mode(view) != roles["mission"]:
             return None
-        return roles["mission"], roles["hold"]
+        params = {m: set_mode_params(view.autopilot, m) for m in (roles["mission"], roles["hold"])}
+        if any(v is None for v in params.values()):
+            return None
+        return roles["mission"], roles["hold"], params  # type: ignore[return-value]
 
-    def _hold_expired(self, view: DroneView) -> bool:
-        """We held the vehicle for a key in this epoch, and the hold is over (``HOLD_FOR_KEY_S``)."""
-        return view.held is not None and view.held[0] == view.epoch and not view.held_resume
+    def _hold_command(self, view: DroneView, hold: KeyHold, mode: str, now: float) -> list[Action]:
+        hold.sent = now
+        return self._command(view, mav.MAV_CMD_DO_SET_MODE, *hold.params[mode])
 
-    def _hold_for_key(self, view: DroneView, g: str, now: float) -> list[Action] | None:
-        """Due to release toward ``g`` but its key is still missing on the drone: if the key is known
-        to be coming and the vehicle flies its mission, hold it where it is, inside the overlap (once
-        per epoch, ``HOLD_FOR_KEY_S`` at most) and return what to do; None if not holding (the caller
-        waits up to ``KEY_WAIT_RADIUS`` for a key still asked for, else the hand-over has failed)."""
-        if view.held is not None and view.held[0] == view.epoch:  # one hold per epoch
-            if not view.held_resume:
-                return None  # resumed, or the hold ran out
-            if now - view.held[1] < HOLD_FOR_KEY_S:
-                self.counters["handover_holding_for_key"] += 1
-                return []
-            view.held_resume = False  # waited long enough: the hand-over has failed (RTL)
-            self.counters["handover_hold_expired"] += 1
+    def on_mode_ack(self, view: DroneView, accepted: bool, now: float) -> None:
+        """A COMMAND_ACK of DO_SET_MODE from the vehicle: confirms the hold's current mode change."""
+        hold = view.hold
+        if hold is not None and hold.phase is not HoldPhase.OVER and accepted and now >= hold.sent:
+            hold.confirmed = True
+
+    def _overridden(self, view: DroneView, hold: KeyHold) -> bool:
+        """The vehicle is in a mode neither we nor its mission chose, or left the hold it was seen in.
+        A mode other than the mission's then stands for the rest of the epoch: no RTL of ours over it."""
+        mode = self._mode(view)
+        if mode not in (hold.hold_mode, hold.mission_mode) or (hold.seen and mode != hold.hold_mode):
+            if mode != hold.mission_mode:
+                view.rtl_epoch = view.epoch
+            return True
+        return False
+
+    def _hold_over(self, view: DroneView, hold: KeyHold, why: str, rtl: bool, now: float) -> list[Action]:
+        """The hold ends without the hand-over: RTL (if the vehicle still holds in our mode), or nothing
+        of ours (someone else changed the mode: theirs stands)."""
+        hold.phase = HoldPhase.OVER
+        self.counters[f"handover_hold_over:{why}"] += 1
+        out = self._handover_failed(view, f"the drone has no link to {hold.to} ({why})", now, rtl=False)
+        if rtl and self._mode(view) == hold.hold_mode and view.rtl_epoch != view.epoch:
+            view.rtl_epoch = view.epoch
+            log.warning("hold of %s for %s's key over (%s): commanding RTL", view.name, hold.to, why)
+            out += [Say(f"zdrone gs {self.name}: hold of {view.name} over ({why}); commanding RTL"),
+                    *self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)]
+        return out
+
+    def _hold_for_key(self, view: DroneView, g: str, mine: float, now: float) -> list[Action] | None:
+        """Due to release toward ``g`` but its key is still missing on the drone: hold the vehicle (if
+        the key is known to be coming and the vehicle flies its mission; once per epoch), keep holding
+        (the mode re-sent until confirmed), or end the hold. None: no hold of ours (the caller waits up
+        to ``KEY_WAIT_RADIUS`` for a key still asked for, else the hand-over has failed)."""
+        hold = view.hold
+        if hold is not None and hold.epoch == view.epoch:
+            if hold.phase is not HoldPhase.HOLDING:
+                return None
+            if self._mode(view) == hold.hold_mode:
+                hold.confirmed = hold.seen = True
+            elif self._overridden(view, hold):  # someone else (its operator, the autopilot) changed the mode
+                return self._hold_over(view, hold, "mode changed", rtl=False, now=now)
+            if now - hold.since >= HOLD_FOR_KEY_S:
+                return self._hold_over(view, hold, "expired", rtl=True, now=now)
+            if not hold.confirmed:
+                if (mine >= KEY_WAIT_RADIUS * self.coverage.radius_m  # type: ignore[union-attr]
+                        and now - hold.since >= HOLD_RESEND_S):
+                    hold.phase = HoldPhase.OVER  # the vehicle does not hold and is leaving: come home
+                    self.counters["handover_hold_over:not confirmed"] += 1
+                    return self._handover_failed(view, f"the drone has no link to {g} (hold not confirmed)", now,
+                                                 rtl=True)
+                if now - hold.sent >= HOLD_RESEND_S:
+                    self.counters["handover_hold_resent"] += 1
+                    return self._hold_command(view, hold, hold.hold_mode, now)
+            self.counters["handover_holding_for_key"] += 1
+            return []
+        modes = self._hold_modes(view) if self._key_coming(view, g, now) else None
+        if modes is None:
             return None
-        modes = self._mission_modes(view) if self._key_coming(view, g, now) else None
-        params = set_mode_params(view.autopilot, modes[1]) if modes is not None else None
-        if params is None:
-            return None
-        view.held, view.held_resume = (view.epoch, now), True
+        mission, hold_mode, params = modes
+        view.hold = hold = KeyHold(view.epoch, g, now, hold_mode, mission, params)
         self.counters["handover_hold"] += 1
         log.warning("hand-over of %s to %s waits for its key: holding the vehicle (%s) for at most %g s",
-                    view.name, g, modes[1], HOLD_FOR_KEY_S)
-        return [Log(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=modes[1])),
-                Say(f"zdrone gs {self.name}: holding {view.name} at the edge of coverage until {g}'s key is there"),
-                *self._command(view, mav.MAV_CMD_DO_SET_MODE, *params)]
+                    view.name, g, hold_mode, HOLD_FOR_KEY_S)
+        return [Log(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=hold_mode)),
+                Say(f"zdrone gs {self.name}: holding {view.name} in the overlap until {g}'s key is there"),
+                *self._hold_command(view, hold, hold_mode, now)]
 
-    def _resume(self, view: DroneView, g: str, now: float) -> list[Action]:
-        """Before releasing toward ``g``: a mission we held for ``g``'s key goes on."""
-        if not view.held_resume or view.held is None or view.held[0] != view.epoch:
-            return []
-        view.held_resume = False
-        roles = MODE_ROLES.get(view.autopilot or "")
-        params = set_mode_params(view.autopilot, roles["mission"]) if roles else None
-        if params is None:
-            return []
-        self.counters["handover_resume"] += 1
-        return [Log(rec.HandoverResume(drone=view.name, to=g, epoch=view.epoch, held_s=round(now - view.held[1], 2))),
-                *self._command(view, mav.MAV_CMD_DO_SET_MODE, *params)]
+    def _resume(self, view: DroneView, g: str, now: float) -> list[Action] | None:
+        """Before releasing toward ``g``: a mission we hold for ``g``'s key goes on first (the release
+        waits until the vehicle confirms its mission mode). None: release now."""
+        hold = view.hold
+        if hold is None or hold.epoch != view.epoch or hold.phase is HoldPhase.OVER:
+            return None
+        if hold.phase is HoldPhase.HOLDING:
+            if self._overridden(view, hold):
+                hold.phase = HoldPhase.OVER  # someone else changed the mode meanwhile: theirs stands
+                self.counters["handover_hold_over:mode changed"] += 1
+                return None
+            hold.phase, hold.confirmed = HoldPhase.RESUMING, False
+            self.counters["handover_resume"] += 1
+            return [Log(rec.HandoverResume(drone=view.name, to=g, epoch=view.epoch, held_s=round(now - hold.since, 2))),
+                    *self._hold_command(view, hold, hold.mission_mode, now)]
+        if hold.confirmed or self._mode(view) == hold.mission_mode and now - hold.sent >= HOLD_RESEND_S:
+            hold.phase = HoldPhase.OVER
+            return None
+        if now - hold.since >= HOLD_FOR_KEY_S + 5.0:  # the vehicle never took its mission back
+            return self._hold_over(view, hold, "resume not confirmed", rtl=True, now=now)
+        if now - hold.sent >= HOLD_RESEND_S:
+            self.counters["handover_resume_resent"] += 1
+            return self._hold_command(view, hold, hold.mission_mode, now)
+        return []
 
     def _command_stream(self, view: DroneView, now: float) -> list[Action]:
         if self.opts.command_rate <= 0 or not self.holds_authority(view) or not view.armed:

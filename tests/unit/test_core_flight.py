@@ -172,3 +172,58 @@ def test_a_companion_restart_in_the_overlap_still_hands_over_at_any_speed_up(fle
     assert not [x for _, x in f.gs_logs("A", "handover_failed") if x["action"] == "RTL"]
     holds = f.gs_logs("A", "handover_hold")
     assert len(holds) == len(f.gs_logs("A", "handover_resume")) <= 1  # a hold, if any, was resumed
+
+
+def _restart_with_b_refusing(f: CoreFlight, refuse_for: float, lose: str | None) -> None:
+    """Fly to 0.5 s into the overlap and restart the companion (back 2 s later); B answers A's
+    key-sharing queries ``live_link`` for ``refuse_for`` s after the restart; the first DO_SET_MODE
+    of ``lose`` ("HOLD" or "MISSION") A sends is lost on the radio."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.core import QueryAnswer
+    from zdrone.vehicle.modes import set_mode_params
+
+    a, b = f.gs["A"].core, f.gs["B"].core
+    send, lost = a._command, []
+
+    def lossy(view, command, *params):
+        if (command == mav.MAV_CMD_DO_SET_MODE and lose and not lost
+                and tuple(params) == tuple(set_mode_params(view.autopilot, lose))):
+            lost.append(f.now)
+            return []
+        return send(view, command, *params)
+
+    a._command = lossy
+    _fly_until(f, lambda: f.in_range("B") and f.in_range("A"), "in the overlap", timeout=200)
+    f.run_until(lambda: False, 0.5)
+    f.restart_drone(2.0)
+    t0, answer = f.now, b.on_linkkey_query
+    b.on_linkkey_query = lambda d, p, now, s, w=None: ((QueryAnswer(error=b"live_link"), []) if now < t0 + refuse_for
+                                                      else answer(d, p, now, s, w))
+    f.lost_modes = lost  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("lose", ["HOLD", "MISSION"])
+def test_a_lost_hold_or_resume_is_sent_again_and_the_flight_completes(fleet_dir, lose):
+    """Review 3 H1: one frame lost on the radio — the hold's or the resume's mode change — is sent
+    again until the vehicle confirms it; the release waits for the mission mode."""
+    f = CoreFlight(fleet_dir, personality("px4"), speedup=4)
+    _restart_with_b_refusing(f, 10.0, lose)
+    assert f.run_until(f.flown, 200), f"not flown: {[k for _, k, _ in f.gs['A'].logs][-8:]}"
+    assert f.lost_modes and f.gs_logs("A", "handover_hold") and f.gs_logs("A", "handover_resume")
+    assert f.gs["A"].core.counters["handover_hold_resent" if lose == "HOLD" else "handover_resume_resent"] >= 1
+    assert [(a, b, kind) for a, b, _, kind in _moves(f)][1:] == [("A", "B", "handover"), ("B", "A", "handover")]
+    assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+def test_a_key_that_never_comes_ends_the_hold_in_rtl_home(fleet_dir, autopilot):
+    """B keeps saying its link looks alive: the hold ends after ``HOLD_FOR_KEY_S`` and A brings the
+    vehicle home (RTL), undelivered, no failsafe."""
+    f = CoreFlight(fleet_dir, personality(autopilot), speedup=4)
+    _restart_with_b_refusing(f, 10_000.0, None)
+    _fly_until(f, f.landed, "landed", timeout=200)
+    assert f.gs_logs("A", "handover_hold") and not f.gs_logs("A", "handover_resume")
+    assert f.gs["A"].core.counters["handover_hold_over:expired"] == 1
+    assert [(a, b) for a, b, _, _ in _moves(f)] == [(None, "A")] and f.drone.machine.owner == "A"
+    assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0

@@ -507,55 +507,115 @@ def _mode_commands(a: StationCore, out) -> list[str]:
     return names
 
 
-def test_a_key_known_to_be_coming_holds_the_vehicle_at_the_edge_then_the_mission_resumes(fleet_dir):
-    """Issue 19: past 90 % of A's radius with B's key still missing on the drone, but B said its link
-    still looks alive (a restarted companion): A holds the vehicle (the autopilot's hold mode) instead
-    of bringing it home, and resumes the mission just before the release once the key is there."""
-    from zdrone.core.geometry import offset
-    from zdrone.core.reference import HOME
-    from gs.core import HOLD_FOR_KEY_S
-
+def _held_for_b(fleet_dir, restarted: bool = True) -> StationCore:
+    """A in the overlap nearer B, flying its mission; B's key is asked for and B said ``live_link``;
+    ``restarted``: A's own re-pairing showed the companion had lost A's key (authenticated)."""
     a = paired_a(fleet_dir)
-    view = a.views["d1"]
     _in_overlap_nearer_b(a, {"A"})
     _flying_mission(a)
+    if restarted:
+        a.views["d1"].lost_key_at = 9.0
     share(a, core(fleet_dir, "B"), 10.0)
     a.on_linkkey_reply("d1", "B", None, b"live_link", 10.1)
-    view.position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m
+    return a
+
+
+def _set_mode(a: StationCore, name: str) -> None:
+    from zdrone.vehicle.modes import custom_mode
+
+    a.views["d1"].custom_mode = custom_mode("px4", name)  # as the vehicle's HEARTBEAT says
+
+
+def _handover_logs(out) -> list[str]:
+    return [x.kind for x in out if isinstance(x, Log) and x.kind.startswith("handover")]
+
+
+def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_before_the_release(fleet_dir):
+    """Issue 19: B's key still missing on the drone, but known to be coming (B said ``live_link`` and
+    A's own pairing showed the companion restarted): A holds the vehicle in the overlap instead of
+    bringing it home; the hold is sent again until the vehicle confirms it; once the key is there the
+    mission resumes first, and the release goes out only when the vehicle confirms its mission mode."""
+    from gs.core import HOLD_RESEND_S
+
+    a = _held_for_b(fleet_dir)
+    view = a.views["d1"]
     out = a.tick(10.2)
-    assert [x.kind for x in out if isinstance(x, Log) and x.kind.startswith("handover")] == ["handover_hold"]
-    assert _mode_commands(a, out) == ["HOLD"] and a.holds_authority(view)
-    assert not [x for x in a.tick(10.2 + HOLD_FOR_KEY_S - 1) if isinstance(x, Log) and x.kind.startswith("handover")]
+    assert _handover_logs(out) == ["handover_hold"] and _mode_commands(a, out) == ["HOLD"] and a.holds_authority(view)
+    assert _mode_commands(a, a.tick(10.2 + HOLD_RESEND_S + 0.01)) == ["HOLD"]  # not confirmed: sent again
+    _set_mode(a, "HOLD")  # the vehicle's HEARTBEAT: holding
+    assert _mode_commands(a, a.tick(11.5)) == [] and not _handover_logs(a.tick(12.0))
     view.drone_links = {"A", "B"}  # B's key reached the drone and B proved it
-    out = a.tick(10.2 + HOLD_FOR_KEY_S - 0.5)
-    assert [x.kind for x in out if isinstance(x, Log) and x.kind.startswith("handover")] == ["handover_resume",
-                                                                                             "handover_release"]
-    assert _mode_commands(a, out) == ["MISSION"]
+    out = a.tick(13.0)
+    assert _handover_logs(out) == ["handover_resume"] and _mode_commands(a, out) == ["MISSION"]
+    assert _mode_commands(a, a.tick(13.0 + HOLD_RESEND_S + 0.01)) == ["MISSION"]  # not confirmed: sent again
+    a.on_mode_ack(view, True, 13.6)  # COMMAND_ACK accepted
+    out = a.tick(13.7)
+    assert _handover_logs(out) == ["handover_release"]
 
 
-def test_a_hold_for_a_key_that_never_comes_ends_in_rtl_and_no_evidence_means_no_hold(fleet_dir):
+def test_a_hold_the_vehicle_never_confirms_ends_in_rtl_past_the_key_wait_radius(fleet_dir):
+    """Review 3 H1: the hold's mode command lost (or refused): the vehicle flies on; at 90 % of A's
+    radius the hold has failed and A brings it home, as without a hold."""
     from zdrone.core.geometry import offset
     from zdrone.core.reference import HOME
+
+    a = _held_for_b(fleet_dir)
+    assert _mode_commands(a, a.tick(10.2)) == ["HOLD"]
+    a.views["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m, still in MISSION
+    out = a.tick(10.8)
+    assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+    assert _mode_commands(a, out) == ["RTL"]
+
+
+def test_a_hold_that_runs_out_commands_rtl_wherever_the_vehicle_holds(fleet_dir):
+    """Review 3 M3: at the end of the hold, RTL whether or not the vehicle is "leaving" (it holds)."""
     from gs.core import HOLD_FOR_KEY_S
 
-    a = paired_a(fleet_dir)
-    view = a.views["d1"]
-    _in_overlap_nearer_b(a, {"A"})
-    _flying_mission(a)
-    share(a, core(fleet_dir, "B"), 10.0)
-    a.on_linkkey_reply("d1", "B", None, b"live_link", 10.1)
-    view.position = offset(HOME, 0.0, 320.0)
-    assert _mode_commands(a, a.tick(10.2)) == ["HOLD"]
+    a = _held_for_b(fleet_dir)
+    a.tick(10.2)
+    _set_mode(a, "HOLD")
+    a.tick(11.0)
     out = a.tick(10.2 + HOLD_FOR_KEY_S + 0.1)
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
-    assert [x.fields["action"] for x in failed] == ["RTL"] and _mode_commands(a, out) == ["RTL"]
-    assert a.counters["handover_hold_expired"] == 1
-    # an unanswered query (B unreachable: the backhaul cut) is no evidence: RTL at once, as before
+    assert "RTL" in _mode_commands(a, out) and a.counters["handover_hold_over:expired"] == 1
+    assert not _mode_commands(a, a.tick(10.2 + HOLD_FOR_KEY_S + 3.0))  # once
+
+
+def test_a_mode_someone_else_chose_during_the_hold_stands(fleet_dir):
+    """Review 3 M4: the operator (or the autopilot's own failsafe) changed the mode while A held the
+    vehicle: A neither resumes the mission over it nor commands RTL at the end of the hold."""
+    from gs.core import HOLD_FOR_KEY_S
+
+    a = _held_for_b(fleet_dir)
+    view = a.views["d1"]
+    a.tick(10.2)
+    _set_mode(a, "HOLD")
+    a.tick(11.0)
+    _set_mode(a, "LAND")
+    out = a.tick(11.5)
+    assert a.counters["handover_hold_over:mode changed"] == 1 and not _mode_commands(a, out)
+    assert not _mode_commands(a, a.tick(10.2 + HOLD_FOR_KEY_S + 0.1))
+    view.drone_links = {"A", "B"}
+    out = a.tick(10.2 + HOLD_FOR_KEY_S + 3.0)
+    assert "MISSION" not in _mode_commands(a, out)
+
+
+def test_an_unauthenticated_live_link_error_alone_holds_nothing(fleet_dir):
+    """Review 3 L5: anyone with B's router password can answer A's query with ``live_link``. Without
+    A's own authenticated evidence that the companion restarted, A does not hold: RTL at 90 % of its
+    radius, as before; an unanswered query (B unreachable) holds nothing either."""
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
+
+    a = _held_for_b(fleet_dir, restarted=False)
+    a.views["d1"].position = offset(HOME, 0.0, 320.0)
+    out = a.tick(10.2)
+    assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+    assert "handover_hold" not in _handover_logs(out)
     b = paired_a(fleet_dir)
     _in_overlap_nearer_b(b, {"A"})
     _flying_mission(b)
-    share(b, core(fleet_dir, "B"), 10.0)
+    b.views["d1"].lost_key_at = 9.0
+    share(b, core(fleet_dir, "B"), 10.0)  # no answer at all
     b.views["d1"].position = offset(HOME, 0.0, 320.0)
     out = b.tick(10.2)
     assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
-    assert not [x for x in out if isinstance(x, Log) and x.kind == "handover_hold"]
