@@ -313,3 +313,16 @@ def test_drone_drops_frames_of_a_gs_using_another_cipher():
         assert isinstance(got, Dropped) and got.reason in (DropReason.AUTH_FAILED, DropReason.UNKNOWN_EPOCH,
                                                            DropReason.MALFORMED)
     assert ours.drone.opened == 0
+
+
+def test_frames_lost_on_the_way_are_counted_as_missing_and_a_late_one_is_taken_back():
+    """Issue 24: a frame that never reaches the drone is counted (the counters it skipped), so that a
+    loss between the GS and the drone (the router, the network) is never silent."""
+    p = make_pair()
+    sealed = [p.gs.seal(p.command()) for _ in range(6)]
+    for i in (0, 1, 3, 5):
+        assert isinstance(p.drone.open(sealed[i], 1.0), Opened)
+    assert p.drone.missing == 2  # 2 and 4
+    assert isinstance(p.drone.open(sealed[2], 1.1), Opened)  # late, not lost
+    assert p.drone.missing == 1
+    assert isinstance(p.drone.open(sealed[1], 1.2), Dropped) and p.drone.missing == 1  # a replay changes nothing

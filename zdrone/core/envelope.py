@@ -256,6 +256,7 @@ class SecureLink:
         self.tbm = TimeBetweenMessages(now, thresholds)
         self.sent = 0
         self.opened = 0
+        self.missing = 0  # authentic frames the peer sent that never came (counters skipped, not filled later)
         self.drops: Counter[DropReason] = Counter()
 
     # ------------------------------------------------------------------ sending
@@ -333,7 +334,12 @@ class SecureLink:
         if counter is not None:
             if not rx.window.is_fresh(counter):
                 return self._drop(DropReason.REPLAY, f"counter {counter}")
+            highest = rx.window.highest
             rx.window.mark(counter)
+            if counter > highest + 1:  # the frames between never came (yet): lost on the way
+                self.missing += counter - highest - 1
+            elif counter < highest and self.missing:  # one of them, late
+                self.missing -= 1
         if is_next:  # first authentic frame of the peer's new epoch: follow it
             self._rx_chain.advance()
             self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None

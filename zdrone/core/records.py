@@ -81,7 +81,7 @@ class Start(Record, frozen=True, tag="start"):
     vehicle: str
 
 
-class LinkReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+class LinkReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
     """One live link in a drone's status."""
 
     state: LinkState
@@ -89,6 +89,7 @@ class LinkReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     opened: int
     sent: int
     dropped: dict[str, int]  # frames dropped by the security module, per reason
+    missing: int = 0  # the peer's frames that never arrived: out of range, not listened to, or lost on the way
 
 
 class KeySlotReport(msgspec.Struct, frozen=True, forbid_unknown_fields=True):

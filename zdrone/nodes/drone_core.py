@@ -300,7 +300,7 @@ class DroneCore:
             "position": list(self.position) if self.position else None,
             "in_region": m.in_region, "subscribed": sorted(m.subscribed),
             "links": {gs: {"state": link.tbm.state(now).value, "since_last": round(link.tbm.since_last(now), 3),
-                           "opened": link.opened, "sent": link.sent,
+                           "opened": link.opened, "sent": link.sent, "missing": link.missing,
                            "dropped": {r.value: c for r, c in link.drops.items() if c}}
                       for gs, link in self.links.items()},
             "keys": {gs: {"live": slot.live is not None, "candidates": len(slot.candidates), "expired": slot.expired,
