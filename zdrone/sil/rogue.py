@@ -1097,6 +1097,12 @@ assert set(ATTACKS) == set(MODES)
 
 
 def main(argv: list[str] | None = None) -> int:
+    import faulthandler
+
+    try:  # stuck at the end of a run: the launcher's SIGUSR1 prints every thread's stack to our log
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+    except (AttributeError, ValueError, OSError):
+        pass
     p = argparse.ArgumentParser(prog="python -m zdrone.sil.rogue", description="TESTBED ONLY attackers")
     p.add_argument("--mode", choices=MODES, required=True)
     p.add_argument("--fleet", required=True)
