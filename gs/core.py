@@ -1115,27 +1115,22 @@ class StationCore:
             hold.confirmed = True
 
     def _overridden(self, view: DroneView, hold: KeyHold) -> bool:
-        """The vehicle is in a mode neither we nor its mission chose, or left the hold it was seen in.
-        A mode other than the mission's then stands for the rest of the epoch: no RTL of ours over it."""
+        """The vehicle is in a mode neither we nor its mission chose, or left the hold it was seen in."""
         mode = self._mode(view)
-        if mode not in (hold.hold_mode, hold.mission_mode) or (hold.seen and mode != hold.hold_mode):
-            if mode != hold.mission_mode:
-                view.rtl_epoch = view.epoch
-            return True
-        return False
+        return mode not in (hold.hold_mode, hold.mission_mode) or (hold.seen and mode != hold.hold_mode)
 
-    def _hold_over(self, view: DroneView, hold: KeyHold, why: str, rtl: bool, now: float) -> list[Action]:
-        """The hold ends without the hand-over: RTL (if the vehicle still holds in our mode), or nothing
-        of ours (someone else changed the mode: theirs stands)."""
+    def _end_hold(self, view: DroneView, hold: KeyHold, why: str) -> None:
+        """Nothing more of the hold: counted by why. A mode someone else chose (other than the mission's)
+        stands for the rest of the epoch: no RTL of ours over it."""
         hold.phase = HoldPhase.OVER
         self.counters[f"handover_hold_over:{why}"] += 1
-        out = self._handover_failed(view, f"the drone has no link to {hold.to} ({why})", now, rtl=False)
-        if rtl and self._mode(view) == hold.hold_mode and view.rtl_epoch != view.epoch:
+        if why == "mode changed" and self._mode(view) != hold.mission_mode:
             view.rtl_epoch = view.epoch
-            log.warning("hold of %s for %s's key over (%s): commanding RTL", view.name, hold.to, why)
-            out += [Say(f"zdrone gs {self.name}: hold of {view.name} over ({why}); commanding RTL"),
-                    *self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)]
-        return out
+
+    def _hold_over(self, view: DroneView, hold: KeyHold, why: str, rtl: bool, now: float) -> list[Action]:
+        """The hold ends without the hand-over: a failed hand-over, with RTL if ``rtl``."""
+        self._end_hold(view, hold, why)
+        return self._handover_failed(view, f"the drone has no link to {hold.to} ({why})", now, rtl=rtl)
 
     def _hold_for_key(self, view: DroneView, g: str, mine: float, now: float) -> list[Action] | None:
         """Due to release toward ``g`` but its key is still missing on the drone: hold the vehicle (if
@@ -1150,15 +1145,13 @@ class StationCore:
                 hold.confirmed = hold.seen = True
             elif self._overridden(view, hold):  # someone else (its operator, the autopilot) changed the mode
                 return self._hold_over(view, hold, "mode changed", rtl=False, now=now)
-            if now - hold.since >= HOLD_FOR_KEY_S:
-                return self._hold_over(view, hold, "expired", rtl=True, now=now)
+            if now - hold.since >= HOLD_FOR_KEY_S:  # RTL wherever it holds
+                return self._hold_over(view, hold, "expired", rtl=self._mode(view) == hold.hold_mode, now=now)
             if not hold.confirmed:
                 if (mine >= KEY_WAIT_RADIUS * self.coverage.radius_m  # type: ignore[union-attr]
                         and now - hold.since >= HOLD_RESEND_S):
-                    hold.phase = HoldPhase.OVER  # the vehicle does not hold and is leaving: come home
-                    self.counters["handover_hold_over:not confirmed"] += 1
-                    return self._handover_failed(view, f"the drone has no link to {g} (hold not confirmed)", now,
-                                                 rtl=True)
+                    # the vehicle does not hold and is leaving: come home
+                    return self._hold_over(view, hold, "not confirmed", rtl=True, now=now)
                 if now - hold.sent >= HOLD_RESEND_S:
                     self.counters["handover_hold_resent"] += 1
                     return self._hold_command(view, hold, hold.hold_mode, now)
@@ -1183,9 +1176,8 @@ class StationCore:
         if hold is None or hold.epoch != view.epoch or hold.phase is HoldPhase.OVER:
             return None
         if hold.phase is HoldPhase.HOLDING:
-            if self._overridden(view, hold):
-                hold.phase = HoldPhase.OVER  # someone else changed the mode meanwhile: theirs stands
-                self.counters["handover_hold_over:mode changed"] += 1
+            if self._overridden(view, hold):  # someone else changed the mode meanwhile: theirs stands
+                self._end_hold(view, hold, "mode changed")
                 return None
             hold.phase, hold.confirmed = HoldPhase.RESUMING, False
             self.counters["handover_resume"] += 1
@@ -1195,7 +1187,8 @@ class StationCore:
             hold.phase = HoldPhase.OVER
             return None
         if now - hold.since >= HOLD_FOR_KEY_S + 5.0:  # the vehicle never took its mission back
-            return self._hold_over(view, hold, "resume not confirmed", rtl=True, now=now)
+            return self._hold_over(view, hold, "resume not confirmed", rtl=self._mode(view) == hold.hold_mode,
+                                   now=now)
         if now - hold.sent >= HOLD_RESEND_S:
             self.counters["handover_resume_resent"] += 1
             return self._hold_command(view, hold, hold.mission_mode, now)
