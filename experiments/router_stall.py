@@ -1,12 +1,14 @@
 """Does the router's per-key downsampling drop a paced publisher's frames when the router stalls?
 
 A real router (``zdrone router -c``) with the config the project generates for the default fleet
-(auth, ACL, the downsampling of every uplink key on ingress; ``--freq`` changes its rate, 0 removes it), one client publishing a sequence number every 10 ms
-on that key as GS B (express, INTERACTIVE_HIGH, DROP: as ``Runtime.put(link=True)``), the drone d1
+(auth, ACL, the downsampling of every uplink lane on ingress; ``--freq`` changes the uplink's rate,
+spread over its lanes, 0 removes it), one client publishing a sequence number every 10 ms on the
+uplink's first ``--lanes`` lanes in turn (1: a single key, as before uplinks had lanes) as GS B (express, INTERACTIVE_HIGH, DROP: as ``Runtime.put(link=True)``), the drone d1
 subscribed, counting what never arrives. Meanwhile the router is stalled: SIGSTOP/SIGCONT of its
 PID (``--stall sigstop``), or starved on one core beside a busy loop (``--stall starve``).
 
-    nice -n 10 .venv/bin/python experiments/router_stall.py --freq 2000 --stall sigstop
+    nice -n 10 .venv/bin/python experiments/router_stall.py --freq 2000 --stall sigstop   # lanes, as a GS
+    nice -n 10 .venv/bin/python experiments/router_stall.py --freq 2000 --lanes 1 --stall sigstop
     nice -n 10 .venv/bin/python experiments/router_stall.py --freq 0 --stall sigstop   # no rule
 
 Prints one JSON line: sent, received, lost, and how close together the lost ones' neighbours arrived.
@@ -31,10 +33,9 @@ import zenoh
 
 from zdrone.core.fleet import Coverage, Fleet, Node
 from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES
+from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.routerconfig import router_config
 from zdrone.sil.ports import free_port
-
-KEY = "zdrone/d1/up/B"
 
 
 PASSWORDS = {"d1": "pw-d1-experiment", "B": "pw-B-experiment"}
@@ -47,15 +48,16 @@ def default_fleet() -> Fleet:
     return Fleet(version=1, nodes=nodes)
 
 
-def make_config(port: int, freq: float) -> dict:
-    """The fleet's router config as the project generates it; the uplink rules at ``freq`` (0: none)."""
+def make_config(port: int, freq: float, lanes: int) -> dict:
+    """The fleet's router config as the project generates it; each uplink at ``freq`` over its first
+    ``lanes`` lanes (0: no rule)."""
     cfg = router_config(default_fleet(), "credentials.txt", f"tcp/127.0.0.1:{port}")
     if freq <= 0:
         cfg["downsampling"] = []
     else:
         for item in cfg["downsampling"]:
             for rule in item["rules"]:
-                rule["freq"] = freq
+                rule["freq"] = freq / lanes
     return cfg
 
 
@@ -70,7 +72,8 @@ def client(port: int, user: str) -> zenoh.Session:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--freq", type=float, default=2000.0, help="downsampling freq (0: no rule)")
+    ap.add_argument("--freq", type=float, default=2000.0, help="an uplink's rate over its lanes (0: no rule)")
+    ap.add_argument("--lanes", type=int, default=kx.UP_LANES, help="lanes the publisher uses in turn")
     ap.add_argument("--stall", choices=("none", "sigstop", "starve"), default="sigstop")
     ap.add_argument("--stalls", type=int, default=50)
     ap.add_argument("--stall-ms", type=float, default=30.0)
@@ -82,7 +85,8 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="router-stall-"))
     port = free_port(__import__("socket").SOCK_STREAM)
     cfg_path = tmp / "router.json5"
-    cfg_path.write_text(json.dumps(make_config(port, args.freq)))
+    cfg_path.write_text(json.dumps(make_config(port, args.freq, args.lanes)))
+    lanes = kx.up_lanes("d1", "B")[:args.lanes]
     (tmp / "credentials.txt").write_text("".join(f"{u}:{p}\n" for u, p in PASSWORDS.items()))
     cmd = [str(Path(sys.executable).parent / "zdrone"), "router", "-c", str(cfg_path)]
     if args.stall == "starve":
@@ -103,7 +107,7 @@ def main() -> int:
             with lock:
                 got.append((seq, time.monotonic()))
 
-        sub = sub_s.declare_subscriber(KEY, on_sample)
+        sub = sub_s.declare_subscriber(kx.up_any_lane("d1", "B"), on_sample)
         time.sleep(0.5)  # subscription reaches the router
         stop = threading.Event()
         sent = [0]
@@ -120,7 +124,7 @@ def main() -> int:
                 now = time.monotonic()
                 min_gap[0] = min(min_gap[0], now - last)
                 last = now
-                pub_s.put(KEY, struct.pack("!Q", sent[0]) + pad, congestion_control=zenoh.CongestionControl.DROP,
+                pub_s.put(lanes[sent[0] % len(lanes)], struct.pack("!Q", sent[0]) + pad, congestion_control=zenoh.CongestionControl.DROP,
                           priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
                 sent[0] += 1
 
@@ -158,7 +162,7 @@ def main() -> int:
                   if i - 1 in arrival and i + 1 in arrival]
         inter = sorted(b[1] - a[1] for a, b in zip(seqs, seqs[1:]))
         bunched = sum(1 for g in inter if g < 0.0005)
-        print(json.dumps({"freq": args.freq, "stall": args.stall, "stalls": stalls, "stall_ms": args.stall_ms,
+        print(json.dumps({"freq": args.freq, "lanes": args.lanes, "stall": args.stall, "stalls": stalls, "stall_ms": args.stall_ms,
                           "sent": sent[0], "received": len(seen), "lost": len(lost),
                           "min_send_gap_ms": round(min_gap[0] * 1000, 3),
                           "arrivals_under_0.5ms_apart": bunched,

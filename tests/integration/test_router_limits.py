@@ -1,5 +1,6 @@
 """The router's limits: the size limit holds for a client on the same host (no shared-memory way
-around it); each uplink key's rate is limited, so a flood on one GS's key leaves another's alone."""
+around it); each uplink's rate is limited, so a flood on one GS's uplink leaves another's alone;
+frames the router processes back to back pass when they are on an uplink's lanes in turn."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import zenoh
 from tests.procs import ZDRONE, free_port, spawn, wait_until
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet import keyexprs as kx
-from zdrone.fleet.routerconfig import UPLINK_MAX_HZ, UPLINK_PACE_S
+from zdrone.fleet.routerconfig import UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S
 from zdrone.net.session import open_client
 
 
@@ -28,18 +29,18 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
         d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
         got: list[int] = []
         small = threading.Event()
-        sub = d.declare_subscriber(kx.up("d1", "A"), lambda s: (got.append(len(s.payload)),
-                                                                small.set() if len(s.payload) == 500 else None))
+        sub = d.declare_subscriber(kx.up_any_lane("d1", "A"), lambda s: (got.append(len(s.payload)),
+                                                                          small.set() if len(s.payload) == 500 else None))
         try:
             for _ in range(50):  # until the route exists
-                a.put(kx.up("d1", "A"), b"p" * 10)
+                a.put(kx.up_lane("d1", "A", 0), b"p" * 10)
                 if got:
                     break
                 threading.Event().wait(0.1)
             assert got, "no route from A to the drone"
-            a.put(kx.up("d1", "A"), b"x" * 70_000)
-            threading.Event().wait(UPLINK_PACE_S)  # puts on one uplink key further apart than the router's rate limit
-            a.put(kx.up("d1", "A"), b"y" * 500)
+            a.put(kx.up_lane("d1", "A", 1), b"x" * 70_000)
+            threading.Event().wait(UPLINK_PACE_S)
+            a.put(kx.up_lane("d1", "A", 2), b"y" * 500)
             assert small.wait(10.0), "the small message after the big one never arrived"
             assert 70_000 not in got
         finally:
@@ -50,23 +51,26 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
 
 FLOODER = """
 import sys, time, zenoh
+from zdrone.fleet import keyexprs as kx
 from zdrone.net.session import open_client
 s = open_client(sys.argv[1], "B", sys.argv[2])
+lanes = kx.up_lanes("d1", "B")
 print("flooding", flush=True)
 n, t0 = 0, time.monotonic()
 while time.monotonic() - t0 < float(sys.argv[3]):
-    for _ in range(500):
-        s.put("zdrone/d1/up/B", b"j" * 40, congestion_control=zenoh.CongestionControl.DROP)
-    n += 500
+    for i in range(496):
+        s.put(lanes[i % len(lanes)], b"j" * 40, congestion_control=zenoh.CongestionControl.DROP)
+    n += 496
 print("sent", n, round(time.monotonic() - t0, 3), flush=True)
 s.close()
 """
 
 
-def test_a_flood_on_one_uplink_key_is_cut_to_its_rate_and_another_key_is_not_held_back(tmp_path):
-    """Bounded ingress, in the router of zenoh-python: a process with B's password floods up/B as fast
-    as it can while A sends a frame every 20 ms on up/A; the drone gets up/B at the key's rate limit
-    at most, and A's frames keep coming (a few may be lost while the flood saturates the machine)."""
+def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(tmp_path):
+    """Bounded ingress, in the router of zenoh-python: a process with B's password floods every lane
+    of up/B as fast as it can while A sends a frame every 20 ms on up/A's lanes in turn; the drone
+    gets up/B at the uplink's rate limit at most, and A's frames keep coming (a few may be lost while
+    the flood saturates the machine)."""
     init_fleet(tmp_path / "fleet")
     fleet = tmp_path / "fleet"
     ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
@@ -75,10 +79,12 @@ def test_a_flood_on_one_uplink_key_is_cut_to_its_rate_and_another_key_is_not_hel
         d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
         a = open_client(ep, "A", load_secret(fleet, "A").router_password)
         got: dict[str, list[float]] = {"A": [], "B": []}
-        sub = d.declare_subscriber(kx.up("d1", "*"), lambda s: got[kx.gs_of(s.key_expr)].append(time.monotonic()))
+        sub = d.declare_subscriber(kx.up_any_lane("d1", "*"),
+                                   lambda s: got[kx.gs_of_uplink(s.key_expr)].append(time.monotonic()))
+        lanes = kx.up_lanes("d1", "A")
         try:
             def routed() -> bool:  # until the route exists
-                a.put(kx.up("d1", "A"), b"a")
+                a.put(lanes[0], b"a")
                 return bool(wait_until(lambda: got["A"], 0.1, 0.02))
 
             assert wait_until(routed, 5.0, 0.0), "no route from A to the drone"
@@ -89,7 +95,7 @@ def test_a_flood_on_one_uplink_key_is_cut_to_its_rate_and_another_key_is_not_hel
                 tick = threading.Event()  # A's pace: a frame every 20 ms while the flood lasts
                 while flooder.p.poll() is None and time.monotonic() - t0 < 20.0:
                     tick.wait(0.02)
-                    a.put(kx.up("d1", "A"), b"a" * 40, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
+                    a.put(lanes[sent_a % len(lanes)], b"a" * 40, priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
                     sent_a += 1
                 _, n, seconds = flooder.wait_line("sent", 10).split()
             counts = [len(got["B"])]  # the last samples in flight: until B's count stops growing
@@ -101,6 +107,44 @@ def test_a_flood_on_one_uplink_key_is_cut_to_its_rate_and_another_key_is_not_hel
             gaps = [y - x for x, y in zip(got["A"], got["A"][1:])]
             assert len(got["A"]) >= 0.9 * sent_a and max(gaps) < 0.5, \
                 f"A's frames held back: {len(got['A'])} of {sent_a}, longest gap {max(gaps):.3f} s"
+        finally:
+            sub.undeclare()
+            a.close()
+            d.close()
+
+
+def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_path):
+    """What a stalled router does to a GS's paced frames: it processes the ones that waited back to
+    back. Puts sent back to back on an uplink's lanes in turn all reach the drone (a burst of
+    UP_LANES); the same burst on one lane loses all but about the first (Zenoh's limit is a
+    minimum interval, with no burst allowance: why an uplink has lanes)."""
+    init_fleet(tmp_path / "fleet")
+    fleet = tmp_path / "fleet"
+    ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    with spawn(ZDRONE, "router", "-c", str(fleet / "router" / "router.json5"), "--listen", ep) as router:
+        router.wait_line("listening", 20)
+        d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
+        a = open_client(ep, "A", load_secret(fleet, "A").router_password)
+        got: list[bytes] = []
+        sub = d.declare_subscriber(kx.up_any_lane("d1", "A"), lambda s: got.append(s.payload.to_bytes()))
+        lanes = kx.up_lanes("d1", "A")
+        try:
+            def routed() -> bool:  # until the route exists
+                a.put(lanes[0], b"r")
+                return bool(wait_until(lambda: got, 0.1, 0.02))
+
+            assert wait_until(routed, 5.0, 0.0), "no route from A to the drone"
+            wait_until(lambda: False, 1.0 / UPLINK_LANE_HZ * 4, 0.01)  # the lane's interval has passed
+            got.clear()
+            for i, key in enumerate(lanes):
+                a.put(key, b"lane%d" % i, express=True)
+            assert wait_until(lambda: len(got) == len(lanes), 5.0, 0.01), f"a burst on the lanes lost frames: {got}"
+            wait_until(lambda: False, 0.2, 0.01)  # every lane's interval has passed
+            got.clear()
+            for i in range(len(lanes)):
+                a.put(lanes[0], b"one%d" % i, express=True)
+            wait_until(lambda: False, 0.5, 0.05)  # what gets through has arrived
+            assert got and got[0] == b"one0" and len(got) < len(lanes), f"one lane let a burst through: {got}"
         finally:
             sub.undeclare()
             a.close()

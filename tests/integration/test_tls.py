@@ -49,7 +49,7 @@ def test_a_fleet_node_gets_in_and_reaches_its_peer(tls_router):
     a = open_client(ep, "A", _password(fleet, "A"), node_files(fleet, "A"))
     d = open_client(ep, "d1", _password(fleet, "d1"), node_files(fleet, "d1"))
     try:
-        assert _delivered(a, d, kx.up("d1", "A"))
+        assert _delivered(a, d, kx.up_lane("d1", "A", 0))
     finally:
         a.close()
         d.close()
@@ -78,7 +78,7 @@ def test_a_stolen_password_with_another_nodes_certificate_speaks_on_no_key(tls_r
         except ConfigError:
             return  # refused at connect: as good
         try:
-            assert not _delivered(mallory, d, kx.up("d1", "A"))
+            assert not _delivered(mallory, d, kx.up_lane("d1", "A", 0))
         finally:
             mallory.close()
     finally:

@@ -50,7 +50,7 @@ def _sender(router: str, fleet: str, secret: bytes, secure: bool, n: int, rate_h
     key = LinkKey.from_secret("d1", "A", secret)
     tx = SecureLink(key=key, role="gs", tx_keyexpr=kx.up("d1", "A"), rx_keyexpr=kx.down("d1", "A"), peer_sysid=1, now=0.0)
     frames = _frames(n)
-    put, ke = gs.put, kx.up("d1", "A")
+    put, ke = gs.put, kx.up_lane("d1", "A", 0)  # one lane: no per-lane limit in this router
     sent: list[float] = []
     if rate_hz <= 0 and secure:  # throughput: seal ahead, the GS's own CPU is not the path under test
         frames, secure = [tx.seal(f) for f in frames], False
@@ -82,7 +82,7 @@ class _Path:
                              peer_sysid=4, now=time.monotonic())
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         # the bound put itself is the callback: no Python frame runs on Zenoh's thread (as in DroneNode)
-        self.sub = self.dr.declare_subscriber(kx.up("d1", "A"), self.q.put)
+        self.sub = self.dr.declare_subscriber(kx.up_any_lane("d1", "A"), self.q.put)
         self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.vehicle.bind(("127.0.0.1", 0))
         self.vehicle.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
@@ -190,7 +190,7 @@ def _throughput(path: _Path, n: int) -> float:
 def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="zdrone-bench-link-"))
     init_fleet(tmp / "fleet")
-    # the path's own cost, without the fleet's per-key ingress limit (UPLINK_MAX_HZ puts/s per uplink key, which
+    # the path's own cost, without the fleet's per-lane ingress limit (UPLINK_MAX_HZ puts/s per uplink, which
     # is a policy against floods, not a property of the path: the throughput run would only measure it)
     cfg_path = tmp / "fleet/router/router.json5"
     cfg = json5.loads(cfg_path.read_text())

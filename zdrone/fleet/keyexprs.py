@@ -3,9 +3,38 @@
 from __future__ import annotations
 
 
+#: A GS's uplink to a drone travels on this many keys ("lanes") in turn, each with its own rate
+#: budget at the router (``fleet/routerconfig.py``): frames that a stalled router processes back to
+#: back are on different lanes, so the per-key minimum interval drops none of them.
+UP_LANES = 8
+
+
 def up(drone: str, gs: str) -> str:
-    """GS -> drone: sealed MAVLink and control messages of link (drone, gs)."""
+    """GS -> drone: the name of link (drone, gs)'s uplink (what its frames are sealed to); they
+    travel on its lanes (``up_lane``)."""
     return f"zdrone/{drone}/up/{gs}"
+
+
+def up_lane(drone: str, gs: str, lane: int) -> str:
+    """One lane of link (drone, gs)'s uplink: the key a GS publishes its sealed frames on."""
+    return lane_of(up(drone, gs), lane)
+
+
+def up_lanes(drone: str, gs: str) -> list[str]:
+    """Every lane of link (drone, gs)'s uplink (``drone`` or ``gs`` may be ``*``)."""
+    return [lane_of(up(drone, gs), lane) for lane in range(UP_LANES)]
+
+
+def up_any_lane(drone: str, gs: str) -> str:
+    """What a drone subscribes to for link (drone, gs): any of its lanes."""
+    return f"{up(drone, gs)}/*"
+
+
+def lane_of(uplink: str, lane: int) -> str:
+    """The key of lane ``lane`` of the uplink named ``uplink`` (``up(drone, gs)``)."""
+    if not 0 <= lane < UP_LANES:
+        raise ValueError(f"lane {lane} not in 0..{UP_LANES - 1}")
+    return f"{uplink}/{lane}"
 
 
 def down(drone: str, gs: str) -> str:
@@ -29,6 +58,11 @@ def linkkey(gs: str, drone: str) -> str:
 
 def linkkey_all(gs: str) -> str:
     return f"backhaul/{gs}/linkkey/*"
+
+
+def gs_of_uplink(keyexpr: str) -> str:
+    """The fourth chunk: the GS of an uplink lane ``zdrone/<drone>/up/<gs>/<lane>``."""
+    return str(keyexpr).split("/")[3]
 
 
 def gs_of(keyexpr: str) -> str:

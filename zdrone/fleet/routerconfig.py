@@ -3,20 +3,28 @@
 The same file works for ``zdrone router -c`` (a Zenoh router in Python) and ``zenohd -c``.
 Rules (the router checks ``ingress`` from the sender's session and ``egress`` to the receiver's):
 
-* drone ``d``: publish on ``zdrone/d/down/*``, subscribe ``zdrone/d/up/*``, answer pairing on
+* drone ``d``: publish on ``zdrone/d/down/*``, subscribe ``zdrone/d/up/*/*``, answer pairing on
   ``zdrone/d/pair/*``;
-* GS ``g``: publish on ``zdrone/*/up/g``, subscribe ``zdrone/*/down/g``, declare and answer only its
+* GS ``g``: publish on the lanes of its uplinks ``zdrone/*/up/g/<lane>`` (lanes 0..UP_LANES-1 only), subscribe ``zdrone/*/down/g``, declare and answer only its
   own ``backhaul/g/linkkey/*``; pair (``zdrone/d/pair/g``) and query ``backhaul/*/linkkey/d`` only for
   the drones ``d`` it is authorized for.
 
 The ACL is the second wall: every exchange it allows is also authenticated end to end by the
 fleet's static keys, so a leaked router password alone gets nothing.
 
-Bounded ingress: each uplink key ``zdrone/d/up/g`` is rate-limited by Zenoh's downsampling on
-ingress, per sending session (``UPLINK_MAX_HZ``): a flood on one GS's key, by anyone holding its
-router password, reaches the drone at that rate per session it opens, and leaves every other GS's key
-alone (each key has its own rule, each session its own budget). The limit is a minimum interval
-between puts on a key, so a GS paces its own frames ``UPLINK_PACE_S`` apart (``net/pacing.py``).
+Bounded ingress: each uplink (drone d, GS g) is rate-limited by Zenoh's downsampling on ingress,
+per sending session (``UPLINK_MAX_HZ`` in all): a flood on one GS's uplink, by anyone holding its
+router password, reaches the drone at that rate per session it opens, and leaves every other GS's
+uplink alone (each key has its own rule, each session its own budget). Zenoh's limit is a minimum
+interval between puts on a key, measured when the router processes them, with no burst allowance:
+a router that stalls (scheduling, load) processes the frames that waited back to back and dropped
+all but the first, at any rate (measured: ``experiments/router_stall.py``, docs/results.md). So an
+uplink has ``UP_LANES`` keys ``zdrone/d/up/g/<lane>``, each with its own rule at
+``UPLINK_MAX_HZ / UP_LANES``: the GS sends its frames on the lanes in turn, and frames bunched by a
+stall are on different lanes (a burst allowance of ``UP_LANES`` frames), while a flood over every
+lane still gets ``UPLINK_MAX_HZ`` through. The ACL allows a GS exactly those lanes (no other key
+escapes the limit). A GS paces its own frames on an uplink ``UPLINK_PACE_S`` apart
+(``net/pacing.py``), so that one lane's frames are ``UP_LANES`` paces apart, far above its interval.
 Not on egress: there the router's own scheduling under load bunches a GS's paced frames together,
 and the limit dropped them (measured: 23 of 141 frames 20 ms apart lost under a flood; none on ingress).
 """
@@ -37,11 +45,15 @@ TLS_FILE_FIELDS = ("root_ca_certificate", "listen_certificate", "listen_private_
 #: The largest Zenoh message a router or node accepts (Zenoh's default is 1 GiB). zdrone's largest
 #: is under 1 KiB; a bigger one is dropped by the receiving transport, and its sender's session stays.
 MAX_MESSAGE_SIZE = 65536
-#: Puts per second a router lets through on each uplink key ``zdrone/<drone>/up/<gs>`` (Zenoh's
-#: downsampling: a put closer than 1/UPLINK_MAX_HZ s to the previous one on that key is dropped).
+#: Puts per second a router lets through on each uplink ``zdrone/<drone>/up/<gs>``, over all its
+#: lanes (``keyexprs.UP_LANES``).
 UPLINK_MAX_HZ = 2000.0
-#: A GS's frames on one uplink key go out this far apart at least: twenty of the router's intervals,
-#: so that delays on the way (a busy sender, batching) do not bring two closer than the limit.
+#: Puts per second on each lane (Zenoh's downsampling: a put closer than 1/UPLINK_LANE_HZ s to the
+#: previous one on that lane is dropped).
+UPLINK_LANE_HZ = UPLINK_MAX_HZ / kx.UP_LANES
+#: A GS's frames on one uplink go out this far apart at least (on the lanes in turn): one lane's
+#: frames are then UP_LANES * UPLINK_PACE_S apart, twenty of its router intervals, so that delays on
+#: the way (a busy sender, batching) do not bring two closer than the limit.
 UPLINK_PACE_S = 20.0 / UPLINK_MAX_HZ
 
 
@@ -70,13 +82,13 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
 
         if node.role == "drone":
             add("pub-down", ["put"], ["ingress"], [f"zdrone/{name}/down/*"])
-            add("sub-up", ["declare_subscriber"], ["ingress"], [f"zdrone/{name}/up/*"])
-            add("recv-up", ["put"], ["egress"], [f"zdrone/{name}/up/*"])
+            add("sub-up", ["declare_subscriber"], ["ingress"], [kx.up_any_lane(name, "*")])
+            add("recv-up", ["put"], ["egress"], [kx.up_any_lane(name, "*")])
             add("pair", ["declare_queryable", "reply"], ["ingress"], [kx.pair_all(name)])
             add("pair-q", ["query"], ["egress"], [kx.pair_all(name)])
         else:
             drones = [d for d in fleet.drones() if fleet.is_authorized(d, name)]
-            add("pub-up", ["put"], ["ingress"], [kx.up("*", name)])
+            add("pub-up", ["put"], ["ingress"], kx.up_lanes("*", name))
             add("sub-down", ["declare_subscriber"], ["ingress"], [kx.down("*", name)])
             add("recv-down", ["put"], ["egress"], [kx.down("*", name)])
             add("linkkey-own", ["declare_queryable", "reply"], ["ingress"], [kx.linkkey_all(name)])
@@ -93,9 +105,10 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
 
 
 def uplink_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
-    """Zenoh downsampling of every uplink key, one rule per (drone, GS) so that each key has its own
-    budget, on ingress (per sending session)."""
-    rules = [{"key_expr": kx.up(d, g), "freq": UPLINK_MAX_HZ} for d in fleet.drones() for g in fleet.ground_stations()]
+    """Zenoh downsampling of every uplink lane, one rule per (drone, GS, lane) so that each lane has
+    its own budget, on ingress (per sending session)."""
+    rules = [{"key_expr": key, "freq": UPLINK_LANE_HZ}
+             for d in fleet.drones() for g in fleet.ground_stations() for key in kx.up_lanes(d, g)]
     if not rules:
         return []
     return [{"id": "uplink-rate", "flows": ["ingress"], "messages": ["put"], "rules": rules}]

@@ -35,6 +35,7 @@ import zenoh
 from ..core import records as rec
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet, Node
+from ..fleet import keyexprs as kx
 from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
 from ..fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
 from ..fleet.tls import node_files
@@ -70,6 +71,7 @@ class NodeRuntime:
         self.events = EventLog(events, name)
         self.inbox = Inbox()
         self.pacer = Pacer(UPLINK_PACE_S, self.inbox.drop)
+        self._lanes: dict[str, int] = {}  # uplink -> the lane its next frame goes on
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
         self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
@@ -186,16 +188,23 @@ class NodeRuntime:
             s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP, **qos)
 
     def put_link(self, keyexpr: str, payload: bytes, now: float) -> None:
-        """Publish a GS's link frame on an uplink key, paced: at once if the key's last put is
-        ``UPLINK_PACE_S`` old, else in its turn (``flush``), so that the router's per-key rate limit
-        never drops it. The node's loop calls ``flush`` every pass and wakes by ``next_flush``."""
+        """Publish a GS's link frame on uplink ``keyexpr`` (``kx.up``), paced: at once if the
+        uplink's last put is ``UPLINK_PACE_S`` old, else in its turn (``flush``), and on the uplink's
+        lanes in turn, so that the router's per-lane rate limit never drops it, even when a stall
+        makes the router process several back to back. The node's loop calls ``flush`` every pass
+        and wakes by ``next_flush``."""
         if self.pacer.offer(keyexpr, payload, now):
-            self.put(keyexpr, payload, link=True)
+            self._put_on_lane(keyexpr, payload)
 
     def flush(self, now: float) -> None:
         """Publish the paced frames whose turn has come."""
         for keyexpr, payload in self.pacer.due(now):
-            self.put(keyexpr, payload, link=True)
+            self._put_on_lane(keyexpr, payload)
+
+    def _put_on_lane(self, uplink: str, payload: bytes) -> None:
+        lane = self._lanes.get(uplink, 0)
+        self._lanes[uplink] = (lane + 1) % kx.UP_LANES
+        self.put(kx.lane_of(uplink, lane), payload, link=True)
 
     def next_flush(self) -> float | None:
         """When the next paced frame is due, or None if none waits."""

@@ -189,7 +189,7 @@ class DroneNode:
 
     def _listen(self, gss: frozenset[str]) -> None:
         for gs in sorted(gss - set(self.subs)):
-            self.subs[gs] = self.rt.subscribe(kx.up(self.name, gs), "up", kx.gs_of)
+            self.subs[gs] = self.rt.subscribe(kx.up_any_lane(self.name, gs), "up", kx.gs_of_uplink)
         for gs in sorted(set(self.subs) - gss):
             self.rt.undeclare(self.subs.pop(gs))
 

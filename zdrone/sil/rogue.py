@@ -154,9 +154,19 @@ FC_RADIO_SYSID = 250
 GO_TIMEOUT = 600.0
 
 
-#: The uplink attackers space their frames above the router's per-key minimum gap (UPLINK_MAX_HZ), so
-#: that every frame reaches the drone and is refused there, by the checks under test.
+#: The uplink attackers space their frames above the router's limit (UPLINK_MAX_HZ over an uplink's
+#: lanes, which they take in turn, as a GS does), so that every frame reaches the drone and is
+#: refused there, by the checks under test.
 UPLINK_GAP_S = 1.5 / UPLINK_MAX_HZ
+#: The lane each uplink's next frame goes on.
+_next_lane: dict[tuple[str, str], int] = {}
+
+
+def _up(drone: str, gs: str) -> str:
+    """The key of the next lane of uplink (drone, gs): an attacker uses them in turn, as a GS does."""
+    lane = _next_lane.get((drone, gs), 0)
+    _next_lane[(drone, gs)] = (lane + 1) % kx.UP_LANES
+    return kx.up_lane(drone, gs, lane)
 
 
 @dataclass
@@ -276,7 +286,7 @@ def no_key(c: Ctx) -> None:
     s_pub = open_client(c.router, "A", c.password("A"))
     s_cap = open_client(c.router, drone, c.password(drone))
     captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    cap = s_cap.declare_subscriber(kx.up(drone, "A"), lambda smp: captured.put(smp.payload.to_bytes()))
+    cap = s_cap.declare_subscriber(kx.up_any_lane(drone, "A"), lambda smp: captured.put(smp.payload.to_bytes()))
     try:
         c.ready()
         fake = Identity.generate()
@@ -289,10 +299,10 @@ def no_key(c: Ctx) -> None:
         sent = {"plain": 0, "forged": 0, "replayed": 0}
         going = c.attack_window()
         while going():  # each frame spaced above the router's per-key minimum gap: every one reaches the drone
-            s_pub.put(kx.up(drone, "A"), _land(sysid_a))
+            s_pub.put(_up(drone, "A"), _land(sysid_a))
             sent["plain"] += 1
             time.sleep(UPLINK_GAP_S)
-            s_pub.put(kx.up(drone, "A"), forged.seal(_land(sysid_a)))
+            s_pub.put(_up(drone, "A"), forged.seal(_land(sysid_a)))
             sent["forged"] += 1
             for _ in range(4):
                 time.sleep(UPLINK_GAP_S)
@@ -300,7 +310,7 @@ def no_key(c: Ctx) -> None:
                     frame = captured.get_nowait()
                 except queue.Empty:
                     break
-                s_pub.put(kx.up(drone, "A"), frame)
+                s_pub.put(_up(drone, "A"), frame)
                 sent["replayed"] += 1
             c.stop.wait(0.2)
         c.events.write("attack_done", **sent)
@@ -326,8 +336,8 @@ def unauthorized(c: Ctx) -> None:
                 refused += r.err is not None
             ask = KeyShareAsk(me.identity, "X", "B", fleet.nodes["B"].public_bytes, drone, 0.0)
             keys = [r for r in s.get(kx.linkkey("B", drone), payload=ask.payload, timeout=2.0) if r.ok is not None]
-            s.put(kx.up(drone, "A"), _land(fleet.nodes["X"].sysid))  # denied by the router's ACL
-            s.put(kx.up(drone, "X"), _land(fleet.nodes["X"].sysid))  # nobody listens: X has no link
+            s.put(_up(drone, "A"), _land(fleet.nodes["X"].sysid))  # denied by the router's ACL
+            s.put(_up(drone, "X"), _land(fleet.nodes["X"].sysid))  # nobody listens: X has no link
             tries += 1
             c.events.write_record(trec.UnauthorizedAttempt(pair_answered=answered, pair_refused=refused, linkkey_replies=len(keys)))
             c.stop.wait(1.0)
@@ -538,16 +548,16 @@ def uplink_sealed(c: Ctx) -> None:
                           peer_sysid=target, now=now)
         c.events.write_record(trec.PairedAs(gs="B"))
         for _ in range(3):  # the proof of the new key: authentic, read-only frames
-            s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
+            s.put(_up(drone, "B"), link.seal(codec.encode(_heartbeat())))
             time.sleep(UPLINK_GAP_S)
         sent: Counter[str] = Counter()
         going = c.attack_window()
         while going():
             for name, msg in dangerous_messages(target):
-                s.put(kx.up(drone, "B"), link.seal(codec.encode(msg)))
+                s.put(_up(drone, "B"), link.seal(codec.encode(msg)))
                 sent[name] += 1
                 time.sleep(UPLINK_GAP_S)  # under the router's per-key rate: every frame reaches the drone
-            s.put(kx.up(drone, "B"), link.seal(codec.encode(_heartbeat())))
+            s.put(_up(drone, "B"), link.seal(codec.encode(_heartbeat())))
             c.stop.wait(0.1)
         opened = 0
         while True:
@@ -578,10 +588,10 @@ def uplink_unsealed(c: Ctx) -> None:
                                 tx_keyexpr=kx.up(drone, "A"), rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
             for _name, msg in dangerous_messages(target):
                 frame = codec.encode(msg)
-                s.put(kx.up(drone, "A"), frame)
+                s.put(_up(drone, "A"), frame)
                 sent["unsealed"] += 1
                 time.sleep(UPLINK_GAP_S)  # under the router's per-key rate: every frame reaches the drone
-                s.put(kx.up(drone, "A"), forged.seal(frame))
+                s.put(_up(drone, "A"), forged.seal(frame))
                 sent["random_key"] += 1
                 time.sleep(UPLINK_GAP_S)
             c.stop.wait(0.5)
@@ -645,13 +655,13 @@ def big_flood(c: Ctx) -> None:
         going = c.attack_window()
         period, next_huge = 1.0 / c.rate, 0.0
         while going():
-            s.put(kx.up(drone, "B"), big, congestion_control=zenoh.CongestionControl.DROP)
+            s.put(_up(drone, "B"), big, congestion_control=zenoh.CongestionControl.DROP)
             s.get(kx.pair(drone, "B"), replies, payload=big, timeout=1.0)
             s.get(kx.linkkey("A", drone), replies, payload=big, timeout=1.0)
             sent["big"] += 3
             if time.monotonic() >= next_huge:
                 next_huge = time.monotonic() + 1.0
-                s.put(kx.up(drone, "B"), huge, congestion_control=zenoh.CongestionControl.DROP)
+                s.put(_up(drone, "B"), huge, congestion_control=zenoh.CongestionControl.DROP)
                 s.get(kx.pair(drone, "B"), replies, payload=huge, timeout=1.0)
                 s.get(kx.linkkey("A", drone), replies, payload=huge, timeout=1.0)
                 sent["huge"] += 3
@@ -668,7 +678,7 @@ def junk_flood(c: Ctx) -> None:
     rng = random.Random(19)
     pool = [bytes([e]) + rng.randbytes(39) for e in (0, 1, 7) for _ in range(64)]  # epochs 0, 1, unknown
     rng.shuffle(pool)
-    key = kx.up(drone, "B")
+    keys = kx.up_lanes(drone, "B")  # every lane: the most the router lets through
     drop = zenoh.CongestionControl.DROP
     try:
         c.ready()
@@ -685,7 +695,7 @@ def junk_flood(c: Ctx) -> None:
                 time.sleep(0.0005)
                 continue
             for i in range(sent, min(due, sent + max(1, int(c.rate / 200)))):  # at most a 5 ms slice at once
-                s.put(key, pool[i % len(pool)], congestion_control=drop)
+                s.put(keys[i % len(keys)], pool[i % len(pool)], congestion_control=drop)
             sent = min(due, sent + max(1, int(c.rate / 200)))
         elapsed = time.monotonic() - t0
         rate = sent / elapsed if elapsed > 0 else 0.0
@@ -749,8 +759,8 @@ def no_cert(c: Ctx) -> None:
         sysid_a = fleet.nodes["A"].sysid
         going = c.attack_window()
         while going():
-            s.put(kx.up(drone, "A"), _land(sysid_a))
-            s.put(kx.up(drone, "A"), forged.seal(_land(sysid_a)))
+            s.put(_up(drone, "A"), _land(sysid_a))
+            s.put(_up(drone, "A"), forged.seal(_land(sysid_a)))
             sent += 2
             c.stop.wait(0.2)
     finally:
@@ -844,7 +854,7 @@ def insider_heir(c: Ctx) -> None:
                                                      rx_keyexpr=kx.down(drone, "B"), peer_sysid=target, now=now)])[-3:]
                         sent["pairings"] += 1
                         for _ in range(PROOF_BURST):  # the proof, and frames towards "proven"
-                            s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
+                            s.put(_up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
                         sent["heartbeats"] += PROOF_BURST
                         c.events.write_record(trec.PairedAs(gs="B"))
             if now >= next_pair:
@@ -855,18 +865,18 @@ def insider_heir(c: Ctx) -> None:
                 sent["pair_queries"] += 1
             if links and now >= next_beat:
                 next_beat = now + 0.2
-                s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
+                s.put(_up(drone, "B"), links[-1].seal(codec.encode(_heartbeat())))
                 sent["heartbeats"] += 1
             if links and now >= next_cmd:
                 next_cmd = now + 0.5
-                s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(rtl)))
+                s.put(_up(drone, "B"), links[-1].seal(codec.encode(rtl)))
                 sent["commands"] += 1
                 if owner_at is not None or failsafe_at is not None:  # and ask for control, for itself
-                    s.put(kx.up(drone, "B"), links[-1].seal_control(wire.HandoverRequest("B", epoch)))
+                    s.put(_up(drone, "B"), links[-1].seal_control(wire.HandoverRequest("B", epoch)))
                     sent["control_requests"] += 1
                 if owner_at is not None:  # in command: a landed vehicle is armed and taken off again
                     for msg in (arm, takeoff):
-                        s.put(kx.up(drone, "B"), links[-1].seal(codec.encode(msg)))
+                        s.put(_up(drone, "B"), links[-1].seal(codec.encode(msg)))
                         sent["commands"] += 1
             while True:  # what the drone says to B: who holds authority, the vehicle's answers
                 try:
@@ -941,7 +951,7 @@ def key_escrow(c: Ctx) -> None:
             for _ in range(3):
                 seq += 1
                 s_d.put(kx.down(drone, "A"), as_drone.seal_control(wire.SmHeartbeat(seq)))  # to A, as the drone
-                s_a.put(kx.up(drone, "A"), as_a.seal(FrameCodec(fleet.nodes["A"].sysid, ROGUE_COMPID).encode(_heartbeat())))
+                s_a.put(_up(drone, "A"), as_a.seal(FrameCodec(fleet.nodes["A"].sysid, ROGUE_COMPID).encode(_heartbeat())))
                 sent["injected_down"] += 1
                 sent["injected_up"] += 1
                 c.stop.wait(0.05)
