@@ -383,4 +383,4 @@ def add_report(sub: argparse._SubParsersAction) -> None:
 NODE_COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     add_sim, add_router, add_drone, add_gs, add_demo, add_report)
 #: Commands whose SIGTERM/SIGINT are served by a signal thread (``zdrone.net.shutdown``).
-SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs)
+SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs, _router)

@@ -205,10 +205,12 @@ def _host_stations(args: argparse.Namespace) -> int:
     threads = [threading.Thread(target=st.run, daemon=True) for st in stations]
     for t in threads:
         t.start()
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    while not stop.wait(0.2):
-        pass
+    # a plain flag: a handler setting an event the main thread is waiting on can deadlock it
+    # (zdrone.net.shutdown); ``pause`` is never set
+    stop, pause = [False], threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    while not stop[0]:
+        pause.wait(0.2)
     sent = {st.name: {d: sum(v.commands_sent.values()) for d, v in st.views.items()} for st in stations}
     counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
     delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}

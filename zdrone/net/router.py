@@ -13,6 +13,7 @@ import zenoh
 
 from ..core.fleet import ConfigError
 from .session import load_router_config
+from .shutdown import route_signals
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +52,9 @@ def run_router(config_path: str | Path, listen: list[str] | None = None, tap: st
     """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints."""
     cfg = load_router_config(config_path, listen, connect)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    # taken on a thread of their own (the command line blocked them before any thread started): a
+    # handler setting ``stop`` inside ``stop.wait`` can deadlock the main thread (zdrone.net.shutdown)
+    route_signals({signal.SIGTERM: stop.set, signal.SIGINT: stop.set})
     try:
         session = zenoh.open(cfg)
     except zenoh.ZError as exc:

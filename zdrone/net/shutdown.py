@@ -1,5 +1,11 @@
 """Bounded, clean shutdown of node processes, even if the main thread is stuck inside a Zenoh call.
 
+No Python signal handler here sets an ``Event``: a handler runs in the main thread between two
+bytecodes, and if that thread is inside the same event's ``wait`` at that moment (holding the
+condition's lock), ``set`` waits for a lock its own thread holds: the process hangs and no later
+SIGTERM ends it. Signals are taken on a thread of their own with ``sigwait`` instead
+(``serve_signals``, ``route_signals``).
+
 SIGTERM/SIGINT are blocked in every thread before the Zenoh session starts its own threads
 (``block_signals``); a dedicated thread receives them with ``sigwait`` (``serve_signals``), asks the
 node's loop to stop, and if the loop has not finished closing within the grace period, prints every
@@ -41,5 +47,21 @@ def serve_signals(stop: Callable[[], None], force_close: Callable[[], None], don
             log.exception("shutdown: forced close failed")
 
     t = threading.Thread(target=wait, name="signals", daemon=True)
+    t.start()
+    return t
+
+
+def route_signals(actions: dict[int, Callable[[], None]]) -> threading.Thread:
+    """From now on, run ``actions[signum]()`` on a thread of its own each time one of these signals
+    comes: they are blocked in this thread (and in the threads it starts later: call this before
+    any library starts one) and taken with ``sigwait``. An action may set events, take locks."""
+    signals = set(actions)
+    signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+
+    def serve() -> None:
+        while True:
+            actions[signal.sigwait(signals)]()
+
+    t = threading.Thread(target=serve, name="signals", daemon=True)
     t.start()
     return t

@@ -1109,6 +1109,8 @@ assert set(ATTACKS) == set(MODES)
 def main(argv: list[str] | None = None) -> int:
     import faulthandler
 
+    from ..net.shutdown import route_signals
+
     try:  # stuck at the end of a run: the launcher's SIGUSR1 prints every thread's stack to our log
         faulthandler.register(signal.SIGUSR1, all_threads=True)
     except (AttributeError, ValueError, OSError):
@@ -1135,8 +1137,9 @@ def main(argv: list[str] | None = None) -> int:
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
               max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port)
-    signal.signal(signal.SIGTERM, lambda *_: ctx.stop.set())
-    signal.signal(signal.SIGUSR2, lambda *_: ctx.go.set())
+    # on a thread of their own: a handler in the main thread setting an event the main thread waits on
+    # can deadlock it (zdrone.net.shutdown); no thread runs yet (the sessions open in the attack)
+    route_signals({signal.SIGTERM: ctx.stop.set, signal.SIGUSR2: ctx.go.set})
     try:
         print(f"rogue {args.mode}: attacking {args.drone}", flush=True)
         ATTACKS[args.mode](ctx)
