@@ -232,6 +232,9 @@ def test_the_link_provisions_signing_and_a_radio_on_telem2_is_not_obeyed(tmp_pat
         assert link.wait_vehicle(10)
         assert link.signing_status()["state"] == "signed" and link.signing_status()["signed"]
         assert stat.S_IMODE(store.path.stat().st_mode) == 0o600 and store.load().key == server.sim.signing.key
+        # settled by the first SETUP_SIGNING and the signed frame right behind it: nothing sent again,
+        # nothing of ours refused by the autopilot
+        assert link.signing.counters["setup_sent"] == 1 and server.sim.counters["signing_refused"] == 0
         frames = link.recv(5.0)  # returns with the first frames
         assert frames and not any(fcsign.is_signed(f) for f in frames)  # handed on without the signature
         assert link.signing.counters["verified_in"] > 0

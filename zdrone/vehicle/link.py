@@ -143,11 +143,14 @@ class VehicleLink:
         whatever the tracker has to ask of the vehicle."""
         now = time.monotonic() if now is None else now
         if now - self._last_hb_sent >= HEARTBEAT_PERIOD_S:
-            self._last_hb_sent = now
-            with self._io:
-                self._send_msg(self.m.mav.heartbeat_encode(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID,
-                                                           0, 0, mav.MAV_STATE_ACTIVE))
+            self._send_heartbeat(now)
         self._flush(now)
+
+    def _send_heartbeat(self, now: float) -> None:
+        self._last_hb_sent = now
+        with self._io:
+            self._send_msg(self.m.mav.heartbeat_encode(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID,
+                                                       0, 0, mav.MAV_STATE_ACTIVE))
 
     def next_due(self) -> float:
         """When ``heartbeat`` has something to do next (the companion's HEARTBEAT, the tracker's
@@ -161,6 +164,11 @@ class VehicleLink:
             msg, key = setup
             with self._io:
                 self._send_msg(msg, key)
+            # and a frame signed with the new key at once: an autopilot signs its replies on a link
+            # once signed traffic arrives on it (PX4, ArduPilot), and its first signed frame settles
+            # provisioning; waiting for the next HEARTBEAT (1 s) raced the SETUP_SIGNING's resend,
+            # which the autopilot then refused (unsigned, or under the key it no longer uses)
+            self._send_heartbeat(now)
         for msg in self.tracker.poll(now):
             with self._io:
                 self._send_msg(msg)
