@@ -1,11 +1,13 @@
 """Per-key pacing of a node's publications: at most one put per key every ``gap`` seconds.
 
-The router limits each uplink key's rate (Zenoh's downsampling, ``fleet/routerconfig.py``): a put
-that follows the previous one on the same key closer than the router's interval is dropped there,
-whoever sent it. A ground station's loop can emit several frames on one key at once (a heartbeat,
-a command and a control message in the same tick; a GCS application's burst), so it paces them
-itself, a few router intervals apart: the first goes at once, the others wait their turn in a
-bounded queue per key (the newest refused when full, counted). No clock: ``now`` is passed in.
+The router limits the rate of each lane of an uplink (Zenoh's downsampling, ``fleet/routerconfig.py``):
+a put that follows the previous one on the same lane closer than the router's interval is dropped
+there, whoever sent it. A ground station's loop can emit several frames on one uplink at once (a
+heartbeat, a command and a control message in the same tick; a GCS application's burst), so it paces
+them itself per uplink, and sends them on the uplink's lanes in turn (``NodeRuntime.put_link``): one
+lane's frames are then many router intervals apart. The first goes at once, the others wait their
+turn in a bounded queue per uplink (the newest refused when full, counted). No clock: ``now`` is
+passed in.
 """
 
 from __future__ import annotations
