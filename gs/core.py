@@ -126,6 +126,11 @@ SILENT_REPAIR_S = 1.0
 #: comes back is re-paired within this time of its pairing queryable being up (a query to a drone
 #: that is down gets no answer; the drone answers a live one in milliseconds).
 SILENT_RETRY_S = 0.2
+#: ... for this long of the drone's silence; then every ``SILENT_SLOW_RETRY_S`` (a drone out of reach
+#: for good, or one whose authority moved on while we missed its word, is not asked five times a second
+#: forever; a companion that takes longer than this to come back is re-paired within a second).
+SILENT_FAST_S = 10.0
+SILENT_SLOW_RETRY_S = 1.0
 #: After this long without a word from the drone (our site cut off, our process hung) our view of the
 #: authority may be stale: authority may have moved meanwhile. Until the drone's authority status
 #: (a beacon, at least once a second) says who holds it, the GS acts on no authority it thinks it has.
@@ -478,7 +483,10 @@ class StationCore:
             if view.link is None and self.opts.pair:
                 out += self._try_pair(view, now, stamp)
             elif self._silent_authority(view, now):  # a restarted companion waits for its owner to re-pair
-                out += self._try_pair(view, now, stamp, retry=SILENT_RETRY_S, timeout=SILENT_RETRY_S)
+                assert view.link is not None
+                fast = view.link.tbm.since_last(now) <= SILENT_FAST_S
+                retry = SILENT_RETRY_S if fast else SILENT_SLOW_RETRY_S
+                out += self._try_pair(view, now, stamp, retry=retry, timeout=retry)
             if view.link is None:
                 continue
             self._mark_stale(view, now)

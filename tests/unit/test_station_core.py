@@ -619,3 +619,22 @@ def test_an_unauthenticated_live_link_error_alone_holds_nothing(fleet_dir):
     b.views["d1"].position = offset(HOME, 0.0, 320.0)
     out = b.tick(10.2)
     assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+
+
+def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_a_second(fleet_dir):
+    """The authority re-pairs a silent drone fast (a restarted companion must have its owner back
+    within the loss threshold), and slower once the silence has lasted SILENT_FAST_S (a drone out of
+    reach for good is not asked five times a second forever)."""
+    from gs.core import SILENT_FAST_S, SILENT_REPAIR_S, SILENT_RETRY_S, SILENT_SLOW_RETRY_S
+
+    a = paired_a(fleet_dir)
+    heard = a.views["d1"].link.tbm.last_seen or 0.1
+    times = []
+    for i in range(1, 800):  # 40 s of ticks, not a word from the drone, no answer to any query
+        now = 0.1 + i * 0.05
+        times += [now for x in a.tick(now) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
+    fast = [t for t in times if t - heard <= SILENT_FAST_S]
+    slow = [t for t in times if t - heard > SILENT_FAST_S + SILENT_SLOW_RETRY_S]
+    assert fast and fast[0] - heard > SILENT_REPAIR_S
+    assert all(0.9 * SILENT_RETRY_S < y - x <= SILENT_RETRY_S + 0.1 for x, y in zip(fast, fast[1:]))
+    assert slow and all(0.9 * SILENT_SLOW_RETRY_S < y - x <= SILENT_SLOW_RETRY_S + 0.1 for x, y in zip(slow, slow[1:]))
