@@ -107,7 +107,7 @@ def main() -> int:
             with lock:
                 got.append((seq, time.monotonic()))
 
-        sub = sub_s.declare_subscriber(kx.up_any_lane("d1", "B"), on_sample)
+        subs = [sub_s.declare_subscriber(lane, on_sample) for lane in kx.up_lanes("d1", "B")]
         time.sleep(0.5)  # subscription reaches the router
         stop = threading.Event()
         sent = [0]
@@ -151,7 +151,8 @@ def main() -> int:
         stop.set()
         t.join(2)
         time.sleep(1.0)  # drain
-        sub.undeclare()
+        for sub in subs:
+            sub.undeclare()
         with lock:
             seqs = sorted(got)
         seen = {s for s, _ in seqs}

@@ -29,8 +29,9 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
         d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
         got: list[int] = []
         small = threading.Event()
-        sub = d.declare_subscriber(kx.up_any_lane("d1", "A"), lambda s: (got.append(len(s.payload)),
-                                                                          small.set() if len(s.payload) == 500 else None))
+        subs = [d.declare_subscriber(lane, lambda s: (got.append(len(s.payload)),
+                                                      small.set() if len(s.payload) == 500 else None))
+                for lane in kx.up_lanes("d1", "A")]
         try:
             for _ in range(50):  # until the route exists
                 a.put(kx.up_lane("d1", "A", 0), b"p" * 10)
@@ -44,7 +45,8 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
             assert small.wait(10.0), "the small message after the big one never arrived"
             assert 70_000 not in got
         finally:
-            sub.undeclare()
+            for sub in subs:
+                sub.undeclare()
             a.close()
             d.close()
 
@@ -79,8 +81,8 @@ def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(t
         d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
         a = open_client(ep, "A", load_secret(fleet, "A").router_password)
         got: dict[str, list[float]] = {"A": [], "B": []}
-        sub = d.declare_subscriber(kx.up_any_lane("d1", "*"),
-                                   lambda s: got[kx.gs_of_uplink(s.key_expr)].append(time.monotonic()))
+        subs = [d.declare_subscriber(lane, lambda s: got[kx.gs_of_uplink(s.key_expr)].append(time.monotonic()))
+                for lane in kx.up_lanes("d1", "*")]
         lanes = kx.up_lanes("d1", "A")
         try:
             def routed() -> bool:  # until the route exists
@@ -108,7 +110,8 @@ def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(t
             assert len(got["A"]) >= 0.9 * sent_a and max(gaps) < 0.5, \
                 f"A's frames held back: {len(got['A'])} of {sent_a}, longest gap {max(gaps):.3f} s"
         finally:
-            sub.undeclare()
+            for sub in subs:
+                sub.undeclare()
             a.close()
             d.close()
 
@@ -126,7 +129,7 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
         d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
         a = open_client(ep, "A", load_secret(fleet, "A").router_password)
         got: list[bytes] = []
-        sub = d.declare_subscriber(kx.up_any_lane("d1", "A"), lambda s: got.append(s.payload.to_bytes()))
+        subs = [d.declare_subscriber(lane, lambda s: got.append(s.payload.to_bytes())) for lane in kx.up_lanes("d1", "A")]
         lanes = kx.up_lanes("d1", "A")
         try:
             def routed() -> bool:  # until the route exists
@@ -146,6 +149,7 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
             wait_until(lambda: False, 0.5, 0.05)  # what gets through has arrived
             assert got and got[0] == b"one0" and len(got) < len(lanes), f"one lane let a burst through: {got}"
         finally:
-            sub.undeclare()
+            for sub in subs:
+                sub.undeclare()
             a.close()
             d.close()

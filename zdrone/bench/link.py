@@ -82,7 +82,7 @@ class _Path:
                              peer_sysid=4, now=time.monotonic())
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         # the bound put itself is the callback: no Python frame runs on Zenoh's thread (as in DroneNode)
-        self.sub = self.dr.declare_subscriber(kx.up_any_lane("d1", "A"), self.q.put)
+        self.sub = self.dr.declare_subscriber(kx.up_lane("d1", "A", 0), self.q.put)
         self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.vehicle.bind(("127.0.0.1", 0))
         self.vehicle.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)

@@ -25,11 +25,6 @@ def up_lanes(drone: str, gs: str) -> list[str]:
     return [lane_of(up(drone, gs), lane) for lane in range(UP_LANES)]
 
 
-def up_any_lane(drone: str, gs: str) -> str:
-    """What a drone subscribes to for link (drone, gs): any of its lanes."""
-    return f"{up(drone, gs)}/*"
-
-
 def lane_of(uplink: str, lane: int) -> str:
     """The key of lane ``lane`` of the uplink named ``uplink`` (``up(drone, gs)``)."""
     if not 0 <= lane < UP_LANES:

@@ -3,7 +3,7 @@
 The same file works for ``zdrone router -c`` (a Zenoh router in Python) and ``zenohd -c``.
 Rules (the router checks ``ingress`` from the sender's session and ``egress`` to the receiver's):
 
-* drone ``d``: publish on ``zdrone/d/down/*``, subscribe ``zdrone/d/up/*/*``, answer pairing on
+* drone ``d``: publish on ``zdrone/d/down/*``, subscribe the lanes ``zdrone/d/up/*/<lane>``, answer pairing on
   ``zdrone/d/pair/*``;
 * GS ``g``: publish on the lanes of its uplinks ``zdrone/*/up/g/<lane>`` (lanes 0..UP_LANES-1 only), subscribe ``zdrone/*/down/g``, declare and answer only its
   own ``backhaul/g/linkkey/*``; pair (``zdrone/d/pair/g``) and query ``backhaul/*/linkkey/d`` only for
@@ -82,8 +82,9 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
 
         if node.role == "drone":
             add("pub-down", ["put"], ["ingress"], [f"zdrone/{name}/down/*"])
-            add("sub-up", ["declare_subscriber"], ["ingress"], [kx.up_any_lane(name, "*")])
-            add("recv-up", ["put"], ["egress"], [kx.up_any_lane(name, "*")])
+            # exactly the lanes: a key under an uplink that is not one (unlimited: no rule) never reaches it
+            add("sub-up", ["declare_subscriber"], ["ingress"], kx.up_lanes(name, "*"))
+            add("recv-up", ["put"], ["egress"], kx.up_lanes(name, "*"))
             add("pair", ["declare_queryable", "reply"], ["ingress"], [kx.pair_all(name)])
             add("pair-q", ["query"], ["egress"], [kx.pair_all(name)])
         else:

@@ -148,7 +148,7 @@ class DroneNode:
         self.radio = opts.radio
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
         self._late_seq = 0
-        self.subs: dict[str, Any] = {}
+        self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink
         self._next_status = 0.0
         self._last_pass = 0.0  # the ``now`` of the loop's last pass
         self.vehicle: Vehicle = vehicle if vehicle is not None else VehicleLink(
@@ -189,9 +189,10 @@ class DroneNode:
 
     def _listen(self, gss: frozenset[str]) -> None:
         for gs in sorted(gss - set(self.subs)):
-            self.subs[gs] = self.rt.subscribe(kx.up_any_lane(self.name, gs), "up", kx.gs_of_uplink)
+            self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink) for lane in kx.up_lanes(self.name, gs)]
         for gs in sorted(set(self.subs) - gss):
-            self.rt.undeclare(self.subs.pop(gs))
+            for handle in self.subs.pop(gs):
+                self.rt.undeclare(handle)
 
     def _publish(self, gs: str, payload: bytes) -> None:
         if self.gate is not None and not self.gate.allow(gs, "down"):

@@ -286,7 +286,8 @@ def no_key(c: Ctx) -> None:
     s_pub = open_client(c.router, "A", c.password("A"))
     s_cap = open_client(c.router, drone, c.password(drone))
     captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    cap = s_cap.declare_subscriber(kx.up_any_lane(drone, "A"), lambda smp: captured.put(smp.payload.to_bytes()))
+    caps = [s_cap.declare_subscriber(lane, lambda smp: captured.put(smp.payload.to_bytes()))
+            for lane in kx.up_lanes(drone, "A")]
     try:
         c.ready()
         fake = Identity.generate()
@@ -315,7 +316,8 @@ def no_key(c: Ctx) -> None:
             c.stop.wait(0.2)
         c.events.write("attack_done", **sent)
     finally:
-        cap.undeclare()
+        for cap in caps:
+            cap.undeclare()
         s_cap.close()
         s_pub.close()
 
