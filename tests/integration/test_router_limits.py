@@ -4,6 +4,7 @@ frames the router processes back to back pass when they are on an uplink's lanes
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import sys
 import threading
@@ -47,6 +48,21 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
         finally:
             for sub in subs:
                 sub.undeclare()
+
+
+@contextlib.contextmanager
+def _router_with_d1_and_a(tmp_path):
+    """A fleet's router on a free port, with sessions of the drone d1 and of GS A (closed after)."""
+    init_fleet(tmp_path / "fleet")
+    fleet = tmp_path / "fleet"
+    ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    with spawn(ZDRONE, "router", "-c", str(fleet / "router" / "router.json5"), "--listen", ep) as router:
+        router.wait_line("listening", 20)
+        d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
+        a = open_client(ep, "A", load_secret(fleet, "A").router_password)
+        try:
+            yield fleet, ep, d, a
+        finally:
             a.close()
             d.close()
 
@@ -73,13 +89,7 @@ def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(t
     of up/B as fast as it can while A sends a frame every 20 ms on up/A's lanes in turn; the drone
     gets up/B at the uplink's rate limit at most, and A's frames keep coming (a few may be lost while
     the flood saturates the machine)."""
-    init_fleet(tmp_path / "fleet")
-    fleet = tmp_path / "fleet"
-    ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    with spawn(ZDRONE, "router", "-c", str(fleet / "router" / "router.json5"), "--listen", ep) as router:
-        router.wait_line("listening", 20)
-        d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
-        a = open_client(ep, "A", load_secret(fleet, "A").router_password)
+    with _router_with_d1_and_a(tmp_path) as (fleet, ep, d, a):
         got: dict[str, list[float]] = {"A": [], "B": []}
         subs = [d.declare_subscriber(lane, lambda s: got[kx.gs_of_uplink(s.key_expr)].append(time.monotonic()))
                 for lane in kx.up_lanes("d1", "*")]
@@ -112,8 +122,6 @@ def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(t
         finally:
             for sub in subs:
                 sub.undeclare()
-            a.close()
-            d.close()
 
 
 def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_path):
@@ -121,13 +129,7 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
     back. Puts sent back to back on an uplink's lanes in turn all reach the drone (a burst of
     UP_LANES); the same burst on one lane loses all but about the first (Zenoh's limit is a
     minimum interval, with no burst allowance: why an uplink has lanes)."""
-    init_fleet(tmp_path / "fleet")
-    fleet = tmp_path / "fleet"
-    ep = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    with spawn(ZDRONE, "router", "-c", str(fleet / "router" / "router.json5"), "--listen", ep) as router:
-        router.wait_line("listening", 20)
-        d = open_client(ep, "d1", load_secret(fleet, "d1").router_password)
-        a = open_client(ep, "A", load_secret(fleet, "A").router_password)
+    with _router_with_d1_and_a(tmp_path) as (fleet, ep, d, a):
         got: list[bytes] = []
         subs = [d.declare_subscriber(lane, lambda s: got.append(s.payload.to_bytes())) for lane in kx.up_lanes("d1", "A")]
         lanes = kx.up_lanes("d1", "A")
@@ -151,5 +153,3 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
         finally:
             for sub in subs:
                 sub.undeclare()
-            a.close()
-            d.close()
