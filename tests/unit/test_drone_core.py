@@ -236,3 +236,25 @@ def test_a_restart_in_the_air_in_the_overlap_still_waits_for_its_owner_in_the_sa
     assert m.owner == "A" and m.epoch == 3 and {"A", "B"} <= set(net.drone.links) and not net.commands
     assert "pair_refused:first_claim" not in net.drone.counters
     assert not [r for r in net.records if isinstance(r, (rec.AuthorityMoved, rec.FirstClaim))]
+
+
+def test_a_pairing_refusal_is_answered_only_to_a_query_that_passed_its_tag_check(fleet_dir):
+    """Issue 29: ``first_claim`` (with the seconds left) was answered to any query claiming to be B; a
+    message 1 that fails its tag is now dropped silently and counted as such, whatever the policy says."""
+    import os
+
+    from zdrone.bench.fleetnet import WALL0
+    from zdrone.core.keys import Identity
+    from zdrone.core.pairing import PairRefused, PairRefusal
+
+    net = _in_the_overlap_after_two_hand_overs(fleet_dir, on_ground=True)
+    net.restart_drone()
+    assert net.drone.machine.first_claim == "A"
+    drone_public = net.fleet.nodes["d1"].public_bytes
+    forged = PairingInitiator(Identity(os.urandom(32)), "B", "d1", drone_public).start()  # not B's key
+    ans, outs = net.drone.on_pair_query("B", forged, net.now, os.urandom(32), WALL0 + net.now)
+    assert isinstance(ans, PairRefused) and ans.reason is PairRefusal.BAD_MAC and ans.silent
+    assert net.drone.counters["pair_refused:bad_mac"] == 1 and "pair_refused:first_claim" not in net.drone.counters
+    _b_asks_to_pair(net)  # the real B's query passes its tag: refused with the reason, as before
+    net.step(0.1)
+    assert net.drone.counters["pair_refused:first_claim"] == 1

@@ -155,3 +155,23 @@ def test_the_fallback_is_the_peers_own_key_however_often_a_third_party_replaces_
         assert promoted is not None and slot.fallback is p.drone
     res, promoted = slot.open(p.gs.seal(p.heartbeat()), 20.0)
     assert promoted is not None and promoted.origin == "revert" and slot.live is p.drone and slot.fallback is None
+
+
+def test_a_drop_after_authentication_is_counted_once():
+    """Issue 29: replays (authentic, then refused by the replay window) were counted twice, by the link's
+    ``open`` and again by the slot; each is one drop, on the live link and on a candidate alike."""
+    p, slot = drone_slot()
+    frames = [p.gs.seal(p.heartbeat()) for _ in range(3)]
+    for f in frames:
+        assert isinstance(slot.open(f, 0.1)[0], Opened)
+    for f in frames * 5:  # 15 replays
+        res, _ = slot.open(f, 0.2)
+        assert isinstance(res, Dropped) and res.reason is DropReason.REPLAY
+    assert p.drone.drops[DropReason.REPLAY] == 15 and sum(p.drone.drops.values()) == 15
+    q = make_pair(NEW, now=1.0)  # a candidate's drops after authentication: once, on the candidate
+    slot.offer(q.drone, 1.0, "pair")
+    first = q.gs.seal(q.heartbeat())
+    assert slot.open(first, 1.1)[1] is not None  # proven: live now
+    for _ in range(4):
+        slot.open(first, 1.2)
+    assert q.drone.drops[DropReason.REPLAY] == 4 and p.drone.drops[DropReason.REPLAY] == 15

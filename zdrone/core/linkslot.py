@@ -129,8 +129,7 @@ class LinkSlot:
             res = self.live.open(data, now, count=False)
             if isinstance(res, Opened):
                 return res, None
-            if res.reason not in _BEFORE_AUTH:
-                self.live.count_drop(res)  # authentic key, failed a later check: the live link's drop
+            if res.reason not in _BEFORE_AUTH:  # authentic key, failed a later check: ``open`` counted it
                 return res, None
             first = res
         if self.candidates or self.previous is not None:
@@ -153,8 +152,7 @@ class LinkSlot:
                     # first authentic frame of the peer under it takes it back (``revert``)
                     self.fallback, self.previous = keep, None
                 return res, Promoted(cand.origin, replaced)
-            if res.reason not in _BEFORE_AUTH:
-                cand.link.count_drop(res)
+            if res.reason not in _BEFORE_AUTH:  # counted by ``open`` on the candidate's link
                 return res, None
             first = first or res
         if self.previous is not None:

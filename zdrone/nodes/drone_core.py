@@ -45,7 +45,9 @@ from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.linkslot import LinkSlot, Promoted
-from zdrone.core.pairing import PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult
+from zdrone.core.kk import check_message1
+from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
+                                 _prologue as pairing_prologue)
 from zdrone.core.tbm import LinkState, TbmThresholds, TimeBetweenMessages
 from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
@@ -206,7 +208,11 @@ class DroneCore:
             ans: PairResult = PairRefused(PairRefusal.OVERSIZE)
         else:
             policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self.on_ground, now)
-            ans = self.responder.answer(gs, payload, now, secret, policy, holds_key=gs in self.links, wall=wall)
+            # the authority's refusal (first_claim with the seconds left, outside_coverage, ...) tells
+            # something: only to a query that passed its tag check; anything else is dropped, counted
+            forged = None if policy is None else self._message1_refusal(gs, payload, wall)
+            ans = forged or self.responder.answer(gs, payload, now, secret, policy, holds_key=gs in self.links,
+                                                  wall=wall)
         if isinstance(ans, PairAccepted):
             # a candidate until the GS proves it (the newest pairing replaces an older one)
             self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, ans.key, now), now, "pair",
@@ -219,6 +225,13 @@ class DroneCore:
         else:
             out += self._pair_refused(gs, ans)
         return ans, out + self._effects(now)
+
+    def _message1_refusal(self, gs: str, payload: bytes, wall: float | None) -> PairRefused | None:
+        """The silent refusal of a message 1 that fails its tag (or its freshness), None if it passes."""
+        r = self.responder
+        fail = check_message1(r.me, r.ground_stations[gs], pairing_prologue(self.name, gs), payload, wall,
+                              None if wall is None else r.max_age)
+        return None if fail is None else PairRefused(PairRefusal(fail.value))
 
     def on_vehicle(self, position: Position | None, on_ground: bool, now: float) -> list[Out]:
         """The vehicle's own position (None while it has no fix: inside no coverage) and whether it
@@ -380,7 +393,7 @@ class DroneCore:
         if isinstance(msg, wire.HandoverRelease):
             return self._handle(ha.Release(now, gs, msg.to, msg.epoch), now)
         if isinstance(msg, wire.HandoverRequest):
-            return self._handle(ha.HandoverRequest(now, gs, msg.to, msg.timeout, msg.takeover, msg.ask_id), now)
+            return self._handle(ha.HandoverRequest(now, gs, msg.to, msg.timeout, msg.takeover, msg.ask_id, msg.takeover_to), now)
         if isinstance(msg, wire.SmHeartbeat):
             self.counters["sm_heartbeat"] += 1
         else:
