@@ -51,7 +51,7 @@ from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
 from zdrone.core.linkslot import LinkSlot
-from zdrone.core.mavcontrol import OperatorControlRequest
+from zdrone.core.mavcontrol import OperatorControlRequest, sysid_as_seen_by
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.core.tbm import LinkState
@@ -377,6 +377,7 @@ class DroneView:
     last_command: float | None = None
     last_take_control: float | None = None
     takeover: bool = False  # the owner allows takeover (the drone's AuthorityStatus)
+    takeover_to: str | None = None  # ... for this GS only (a consent's window); None: any
     operator: OperatorControl = field(default_factory=lambda: OperatorControl(""))  # set by StationCore
 
     @property
@@ -741,7 +742,7 @@ class StationCore:
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
             view.stale = False  # the drone's own word: our view is current again
             view.drone_links = set(msg.linked)
-            view.takeover = msg.takeover
+            view.takeover, view.takeover_to = msg.takeover, msg.takeover_to
             if msg.fc_signed is not None and msg.fc_signed != view.fc_signed:
                 view.fc_signed = msg.fc_signed
                 out.append(Log(rec.FcSigningHeard(drone=view.name, signed=msg.fc_signed)))
@@ -781,10 +782,22 @@ class StationCore:
         return out
 
     # ---------------------------------------------------------- operator control
-    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float) -> tuple[Answer, list[Action]]:
-        """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL (``gs.opcontrol``): the answer it gets at once."""
-        answer, step = view.operator.command(view, req, now)
+    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float, app: str = "",
+                         app_sysid: int | None = None) -> tuple[Answer, list[Action]]:
+        """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL (``gs.opcontrol``): the answer it gets at once.
+        ``app`` names the application (its key, or ``unsigned:<peer>``); ``app_sysid`` is its own sysid,
+        which the gateway never shows it as another GCS's (``sysid_as_seen_by``): p4 is read the same way."""
+        named = self._gs_named(req.sysid, app_sysid)
+        answer, step = view.operator.command(view, req, now, app=app, named=named)
         return answer, self._operator(view, step)
+
+    def _gs_named(self, p4: int, app_sysid: int | None) -> str | None:
+        """The fleet GS whose sysid, as application ``app_sysid`` is shown it, is ``p4`` (None: none)."""
+        for name in self.fleet.ground_stations():
+            sysid = self.fleet.nodes[name].sysid
+            if (sysid if app_sysid is None else sysid_as_seen_by(sysid, app_sysid)) == p4:
+                return name
+        return None
 
     def _operator(self, view: DroneView, step: Step) -> list[Action]:
         out: list[Action] = [Log(record) for record in step.logs]

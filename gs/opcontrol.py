@@ -8,23 +8,35 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
 * **Requester** (this GS does not hold authority): its operator's request (an application's
   command, p1 = 1) becomes a sealed ``HandoverRequest`` for this GS, sent again every second while
   the request stands (p3 seconds). The drone passes it to the owner as an ``OperatorRequest`` naming
-  the sealed sender. The request's p2 is this GS's own "allow takeover" setting once it is in control.
-* **Owner**: an ``OperatorRequest`` is kept for its timeout and shown to the operator (the GCS
-  gateway presents it to its applications). It is granted — the owner releases authority to the
-  requester with the ordinary ``HandoverRelease`` (make-before-break) — when the owner allows
-  takeover, or when its operator consents: p1 = 0 (release to the requester), or p1 = 1 with p2 = 1
-  (allow takeover for ``GRANT_WINDOW_S``, the window in which the requester asks again). p1 = 1 with
-  p2 = 0 declines it. Without consent nothing moves.
-* **Allow takeover** is the owner's setting (``zdrone gs --allow-takeover``, p2 of its applications'
-  requests); the owner tells the drone with a ``HandoverRequest`` for itself, and the drone's
-  ``AuthorityStatus`` carries it to every GS for CONTROL_STATUS. It holds for the owner's epoch only.
+  the sealed sender. The request's p2 is this GS's own "allow takeover" for the epoch it takes.
+* **Owner**: one request at a time is *pending* (kept for its timeout and shown to the operator: the
+  GCS gateway presents it to its applications with p4 = the requester's fleet sysid). Another GS's
+  request while one is pending is not shown (``operator_request_busy``): its GS asks again every
+  second and is shown once the pending one is decided. A consent is bound to what the operator saw:
+  it must name the pending requester in p4 (else ``operator_consent_refused``, answered DENIED), it
+  holds in the owner's epoch only and ends at any authority change.
+
+  - p1 = 0 naming the requester: release to it now (the ordinary ``HandoverRelease``, make-before-break);
+  - p1 = 1, p2 = 1 naming the requester: takeover allowed *for that requester* for ``GRANT_WINDOW_S``
+    in this epoch (today's flow: TAKEOVER_ALLOWED in every application's CONTROL_STATUS, the requester
+    asks again and is granted); the requester's standing request, sent again each second, is its ask;
+  - p1 = 1, p2 = 0 naming the requester: declined; that requester is not shown again for
+    ``DECLINE_HOLD_S`` (its re-sends are ignored, recorded once); a request that expires unanswered holds
+    it off ``EXPIRED_HOLD_S``. So a requester causes at most one prompt per ``timeout + EXPIRED_HOLD_S``.
+
+  Without consent nothing moves.
+* **Allow takeover** with nothing pending (p1 = 1, p2 = 1) is the owner's setting for its current epoch
+  only (any authorized requester is granted); ``zdrone gs --allow-takeover`` is the standing policy of
+  the station, every epoch. The owner tells the drone with a ``HandoverRequest`` for itself (naming the
+  one requester a window is for, if any); the drone's ``AuthorityStatus`` carries it to every GS.
 * **Held control**: an epoch this GS took by its operator's request is the operator's: the station's
   automatic hand-over toward the GS whose coverage the drone flies into stays off in it until the
   operator lets go (p1 = 0 with nobody asking).
 
-``OperatorControl`` holds the state; its methods take the station's view of the drone and ``now``
-and return a ``Step``: control messages for the drone, event records and operator lines (the
-station core turns them into its actions).
+Every decision record names the application that made it (``app``: its signing key's name, or
+``unsigned:<peer>``). ``OperatorControl`` holds the state; its methods take the station's view of the
+drone and ``now`` and return a ``Step``: control messages for the drone, event records and operator
+lines (the station core turns them into its actions).
 """
 
 from __future__ import annotations
@@ -41,13 +53,18 @@ from zdrone.core.authority import State as HaState
 from zdrone.core.mavcontrol import (DEFAULT_REQUEST_TIMEOUT_S, REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S,
                                     OperatorControlRequest)
 
-#: After the owner's operator consents with "allow takeover", takeover stays allowed this long.
+#: After the owner's operator consents with "allow takeover", takeover stays allowed this long (the
+#: spec's 10 s in which the requester asks again).
 GRANT_WINDOW_S = 10.0
 #: A standing request is sent to the drone again this often (a lossy radio must not lose it).
 ASK_RESEND_S = 1.0
 #: The owner's setting is told to the drone again this often until its status agrees; an operator's
 #: release is sent again as often until the drone moves authority.
 TELL_RESEND_S = 0.5
+#: A requester the operator declined is not shown again for this long (said to the operator).
+DECLINE_HOLD_S = 60.0
+#: A requester whose request expired unanswered is not shown again for this long.
+EXPIRED_HOLD_S = 10.0
 
 
 class Answer(enum.IntEnum):
@@ -55,6 +72,7 @@ class Answer(enum.IntEnum):
 
     ACCEPTED = mav.MAV_RESULT_ACCEPTED  # in control already; or the owner's operator decided
     TEMPORARILY_REJECTED = mav.MAV_RESULT_TEMPORARILY_REJECTED  # no link to the drone
+    DENIED = mav.MAV_RESULT_DENIED  # a consent that does not name the pending requester
     FAILED = mav.MAV_RESULT_FAILED  # the owner's operator is asked (the spec's answer)
     IN_PROGRESS = mav.MAV_RESULT_IN_PROGRESS  # takeover allowed (or after a failsafe): control follows
 
@@ -91,18 +109,36 @@ class PendingRequest:
         return now < self.since + self.timeout
 
 
+@dataclass(frozen=True, slots=True)
+class TakeoverWindow:
+    """The owner's operator consented with "allow takeover": ``to`` may take control of ``epoch``
+    until ``until`` (``app``: the application that consented)."""
+
+    to: str
+    epoch: int
+    until: float
+    app: str
+
+    def allows(self, view: Any, now: float) -> bool:
+        return self.epoch == view.epoch and now < self.until
+
+
 @dataclass
 class OperatorControl:
     """The operator-control state of one GS for one drone (see the module docstring)."""
 
     gs: str
-    allow_takeover: bool = False  # the standing setting
-    window_until: float | None = None  # consent: takeover allowed until then
+    allow_takeover: bool = False  # the station's standing policy (``--allow-takeover``), every epoch
+    setting_epoch: int | None = None  # our operator allowed takeover (nothing pending) in this epoch
+    window: TakeoverWindow | None = None  # a consent: one requester may take control for a while
     request: PendingRequest | None = None  # as owner: the request shown to the operator
-    closed: tuple[str, int, int] | None = None  # (requester, epoch, ask id) declined or expired: its re-sends ignored
+    closed: tuple[str, int, int] | None = None  # (requester, epoch, ask id) decided: its re-sends ignored
+    held_off: dict[str, float] | None = None  # requester -> not shown again until then (declined, expired)
+    noted: set[tuple[str, str, int]] | None = None  # (why, requester, ask id) ignored requests, recorded once
     seq: int = 0
     asked_until: float | None = None  # as requester: our operator's request stands until then
     asked_timeout: float = DEFAULT_REQUEST_TIMEOUT_S
+    asked_takeover: bool = False  # as requester: p2 of our operator's request (our setting once in control)
     ask_id: int = 0  # our operator's requests, numbered
     last_ask: float | None = None
     last_tell: float | None = None
@@ -117,13 +153,18 @@ class OperatorControl:
         return bool(view.link is not None and view.owner == self.gs and view.ha_state is not HaState.FAILSAFE
                     and not getattr(view, "stale", False))
 
-    def takeover_allowed(self, now: float) -> bool:
-        """Our own setting now: standing, or within a consent's window."""
-        return self.allow_takeover or (self.window_until is not None and now < self.window_until)
+    def takeover_for(self, view: Any, now: float) -> tuple[bool, str | None]:
+        """Our takeover setting now: (allowed, the one requester it is for, or None for any)."""
+        if self.window is not None and self.window.allows(view, now):
+            return True, self.window.to
+        return self.allow_takeover or self.setting_epoch == view.epoch, None
+
+    def takeover_allowed(self, view: Any, now: float) -> bool:
+        return self.takeover_for(view, now)[0]
 
     def shown_takeover(self, view: Any, now: float) -> bool:
         """What CONTROL_STATUS says about takeover: ours when we own the drone, else the owner's."""
-        return self.takeover_allowed(now) if self.is_owner(view) else bool(view.takeover)
+        return self.takeover_allowed(view, now) if self.is_owner(view) else bool(view.takeover)
 
     def holds(self, view: Any) -> bool:
         """Our operator holds control: no automatic hand-over in this epoch."""
@@ -134,75 +175,125 @@ class OperatorControl:
         return r if r is not None and r.alive(now) and r.epoch == view.epoch and self.is_owner(view) else None
 
     # ------------------------------------------------------------------ operator
-    def command(self, view: Any, req: OperatorControlRequest, now: float) -> tuple[Answer, Step]:
-        """One MAV_CMD_REQUEST_OPERATOR_CONTROL from an application of this GS."""
+    def command(self, view: Any, req: OperatorControlRequest, now: float, app: str = "",
+                named: str | None = None) -> tuple[Answer, Step]:
+        """One MAV_CMD_REQUEST_OPERATOR_CONTROL from application ``app`` of this GS; ``named``: the
+        fleet GS its p4 names as that application was shown it (None: no GS)."""
         if view.link is None:
             return Answer.TEMPORARILY_REJECTED, NOTHING
         if self.is_owner(view):
-            return Answer.ACCEPTED, self._owner_command(view, req, now)
+            return self._owner_command(view, req, now, app, named)
         if not req.request:  # withdraw our own request
             was = self.asked_until is not None
             self.asked_until = None
-            return Answer.ACCEPTED, self._log(rec.OperatorRequestWithdrawn(drone=view.name)) if was else NOTHING
-        self.allow_takeover = req.takeover  # our setting once in control
+            return Answer.ACCEPTED, self._log(rec.OperatorRequestWithdrawn(drone=view.name, app=app)) if was else NOTHING
+        self.asked_takeover = req.takeover  # our setting once in control, for that epoch
         self.asked_until, self.asked_timeout, self.last_ask = now + req.timeout, req.timeout, now
         self.ask_id += 1
+        for_us = bool(view.takeover) and getattr(view, "takeover_to", None) in (None, self.gs)
         step = self._log(rec.OperatorControlAsked(drone=view.name, owner=view.owner, timeout=req.timeout,
-                                                  owner_allows=bool(view.takeover)))
+                                                  owner_allows=for_us, app=app))
         step += Step(send=(self._ask(view),))
-        if view.ha_state is HaState.FAILSAFE or view.takeover:
+        if view.ha_state is HaState.FAILSAFE or for_us:
             return Answer.IN_PROGRESS, step
         return Answer.FAILED, step + Step(say=(f"zdrone gs {self.gs}: control of {view.name} requested; "
                                                f"{view.owner}'s operator is asked ({req.timeout:.0f} s)",))
 
-    def _owner_command(self, view: Any, req: OperatorControlRequest, now: float) -> Step:
+    def _owner_command(self, view: Any, req: OperatorControlRequest, now: float, app: str,
+                       named: str | None) -> tuple[Answer, Step]:
         pending = self.live_request(view, now)
-        if not req.request:
-            if pending is not None:  # consent: release to the requester
-                return self._grant(view, pending, now, "released by the operator")
-            held, self.held_epoch = self.held_epoch, None  # let go: automatic hand-overs again
-            return self._log(rec.OperatorControlLetGo(drone=view.name)) if held == view.epoch else NOTHING
         if pending is None:
-            changed = req.takeover != self.allow_takeover
-            self.allow_takeover = req.takeover
-            return self._log(rec.OperatorTakeoverSetting(drone=view.name, allowed=req.takeover)) if changed else NOTHING
-        if req.takeover:  # consent by allowing takeover for the window: granted now, and if asked again
-            self.window_until = now + GRANT_WINDOW_S
-            return self._grant(view, pending, now, "takeover allowed by the operator")
-        self._close(pending)  # declined
-        return self._log(rec.OperatorRequestDeclined(drone=view.name, requester=pending.requester))
+            if not req.request:
+                held, self.held_epoch = self.held_epoch, None  # let go: automatic hand-overs again
+                return Answer.ACCEPTED, (self._log(rec.OperatorControlLetGo(drone=view.name, app=app))
+                                         if held == view.epoch else NOTHING)
+            was = self.takeover_allowed(view, now)
+            self.setting_epoch = view.epoch if req.takeover else None
+            if not req.takeover:
+                self.window = None  # "takeover refused" ends a consent's window too
+            self.last_tell = None  # tell the drone at the next tick
+            changed = self.takeover_allowed(view, now) != was
+            return Answer.ACCEPTED, (self._log(rec.OperatorTakeoverSetting(drone=view.name, allowed=req.takeover,
+                                                                           epoch=view.epoch, app=app))
+                                     if changed else NOTHING)
+        if named != pending.requester:  # a consent binds to the request the operator was shown
+            why = (f"p4 names {named}, not the pending requester {pending.requester}" if named
+                   else f"p4 ({req.sysid}) names no ground station; the pending requester is {pending.requester}")
+            return Answer.DENIED, (self._log(rec.OperatorConsentRefused(drone=view.name, requester=pending.requester,
+                                                                       named=named, reason=why, app=app))
+                                   + Step(say=(f"zdrone gs {self.gs}: consent for {view.name} refused: {why}",)))
+        if not req.request:  # consent: release to the requester now
+            return Answer.ACCEPTED, self._grant(view, pending, now, "released by the operator", app)
+        if req.takeover:  # consent by allowing takeover: the requester may take control for the window
+            self.window = TakeoverWindow(pending.requester, view.epoch, now + GRANT_WINDOW_S, app)
+            self.last_tell = None
+            return Answer.ACCEPTED, (self._log(rec.TakeoverWindowOpened(drone=view.name, to=pending.requester,
+                                                                        epoch=view.epoch, seconds=GRANT_WINDOW_S, app=app))
+                                     + self._tell(view, now))
+        self._close(pending, now, DECLINE_HOLD_S)  # declined
+        return Answer.ACCEPTED, (self._log(rec.OperatorRequestDeclined(drone=view.name, requester=pending.requester,
+                                                                       hold_s=DECLINE_HOLD_S, app=app))
+                                 + Step(say=(f"zdrone gs {self.gs}: {pending.requester}'s request for {view.name} "
+                                             f"declined; its requests are not shown for {DECLINE_HOLD_S:.0f} s",)))
 
     # ------------------------------------------------------------------ drone
     def on_request(self, view: Any, msg: wire.OperatorRequest, now: float) -> Step:
         """The drone passes on another GS's request for authority."""
-        if not self.is_owner(view) or msg.epoch != view.epoch:
+        if not self.is_owner(view) or msg.epoch != view.epoch or msg.to != msg.requester:
+            # control goes to whoever asks, never to a GS it names; and only ours, in our epoch
             return self._log(rec.OperatorRequestStale(drone=view.name, requester=msg.requester, epoch=msg.epoch))
+        allowed, only = self.takeover_for(view, now)
         live = self.live_request(view, now)
-        if live is not None and (live.requester, live.ask_id) == (msg.requester, msg.ask_id):
-            return NOTHING  # the requester sending its standing request again
+        if allowed and only in (None, msg.requester) and (live is None or live.requester == msg.requester):
+            req = live or self._pend(view, msg, now)
+            step = NOTHING if live is not None else self._received(view, req, True)
+            return step + self._grant(view, req, now, "takeover allowed", self.window.app if only else "")
+        if live is not None:
+            if (live.requester, live.ask_id) == (msg.requester, msg.ask_id):
+                return NOTHING  # the requester sending its standing request again
+            return self._once("busy", msg, rec.OperatorRequestBusy(drone=view.name, requester=msg.requester,
+                                                                   pending=live.requester))
         if self.closed == (msg.requester, msg.epoch, msg.ask_id):
             return NOTHING  # re-sends of a request declined or expired: decided already
-        if msg.to != msg.requester:  # control goes to whoever asks, never to a GS it names
-            return self._log(rec.OperatorRequestStale(drone=view.name, requester=msg.requester, epoch=msg.epoch))
+        until = (self.held_off or {}).get(msg.requester)
+        if until is not None and now < until:
+            return self._once("held_off", msg, rec.OperatorRequestHeldOff(drone=view.name, requester=msg.requester,
+                                                                          seconds_left=round(until - now, 1)))
+        req = self._pend(view, msg, now)
+        return self._received(view, req, False) + Step(say=(
+            f"zdrone gs {self.gs}: {msg.requester} requests control of {view.name} ({req.timeout:.0f} s to consent)",))
+
+    def _pend(self, view: Any, msg: wire.OperatorRequest, now: float) -> PendingRequest:
         self.seq += 1
         # the spec's range (3-60 s): a request never stands longer, whatever its sender says
         timeout = min(max(msg.timeout, REQUEST_TIMEOUT_MIN_S), REQUEST_TIMEOUT_MAX_S) if msg.timeout > 0 \
             else DEFAULT_REQUEST_TIMEOUT_S
         self.request = PendingRequest(msg.requester, msg.requester, msg.epoch, timeout, now, self.seq, msg.ask_id)
-        allowed = self.takeover_allowed(now)
-        step = self._log(rec.OperatorRequestReceived(drone=view.name, requester=msg.requester, to=msg.to, epoch=msg.epoch,
-                                                     timeout=timeout, takeover_allowed=allowed))
-        if allowed:
-            return step + self._grant(view, self.request, now, "takeover allowed")
-        return step + Step(say=(f"zdrone gs {self.gs}: {msg.requester} requests control of {view.name} "
-                                f"({timeout:.0f} s to consent)",))
+        return self.request
 
-    def _grant(self, view: Any, req: PendingRequest, now: float, why: str) -> Step:
+    def _received(self, view: Any, req: PendingRequest, allowed: bool) -> Step:
+        return self._log(rec.OperatorRequestReceived(drone=view.name, requester=req.requester, to=req.to,
+                                                     epoch=req.epoch, timeout=req.timeout, takeover_allowed=allowed))
+
+    def _once(self, why: str, msg: wire.OperatorRequest, record: rec.OperatorControlEvent) -> Step:
+        """An ignored request, recorded once per request (its re-sends come every second)."""
+        noted = self.noted if self.noted is not None else set()
+        self.noted = noted
+        key = (why, msg.requester, msg.ask_id)
+        if key in noted:
+            return NOTHING
+        if len(noted) > 256:
+            noted.clear()
+        noted.add(key)
+        return self._log(record)
+
+    def _grant(self, view: Any, req: PendingRequest, now: float, why: str, app: str) -> Step:
         assert req.to == req.requester  # control goes to the GS that asked (``on_request``)
         self.release_to, self.release_epoch, self.last_release = req.to, view.epoch, now
         self.release_until = now + GRANT_WINDOW_S
         self.request = None
-        return (self._log(rec.OperatorRequestGranted(drone=view.name, requester=req.requester, to=req.to, why=why))
+        return (self._log(rec.OperatorRequestGranted(drone=view.name, requester=req.requester, to=req.to, why=why,
+                                                     epoch=view.epoch, app=app))
                 + Step(send=(wire.HandoverRelease(req.to, view.epoch),),
                        say=(f"zdrone gs {self.gs}: control of {view.name} goes to {req.to} ({why})",)))
 
@@ -210,12 +301,13 @@ class OperatorControl:
     def tick(self, view: Any, now: float) -> Step:
         """Deadlines, re-sends, and what follows from the drone's status."""
         step = NOTHING
-        if self.window_until is not None and now >= self.window_until:
-            self.window_until = None
+        w = self.window
+        if w is not None and not w.allows(view, now):
+            self.window = None  # its time is over, or authority moved on: a consent never outlives its epoch
             step += self._log(rec.TakeoverWindowClosed(drone=view.name))
         if self.request is not None and self.live_request(view, now) is None:
             req = self.request
-            self._close(req)
+            self._close(req, now, EXPIRED_HOLD_S if not req.alive(now) else 0.0)
             if not req.alive(now):
                 step += self._log(rec.OperatorRequestExpired(drone=view.name, requester=req.requester))
         if view.link is None:
@@ -223,11 +315,10 @@ class OperatorControl:
         if self.is_owner(view):
             if self.asked_until is not None:  # ours now: the request succeeded
                 self.asked_until, self.held_epoch = None, view.epoch
+                if self.asked_takeover:
+                    self.setting_epoch = view.epoch
                 step += self._log(rec.OperatorControlTaken(drone=view.name, epoch=view.epoch))
-            want = self.takeover_allowed(now)
-            if bool(view.takeover) != want and _due(self.last_tell, now, TELL_RESEND_S):
-                self.last_tell = now
-                step += Step(send=(wire.HandoverRequest(self.gs, view.epoch, takeover=want),))
+            step += self._tell(view, now)
             if (self.release_to is not None and self.release_epoch == view.epoch and self.release_until is not None
                     and now < self.release_until and _due(self.last_release, now, TELL_RESEND_S)):
                 self.last_release = now
@@ -243,10 +334,25 @@ class OperatorControl:
             self.release_to = self.release_epoch = self.release_until = None  # authority moved on
         return step
 
-    def _close(self, req: PendingRequest) -> None:
-        """``req`` is decided (declined, expired): the requester's re-sends of it change nothing."""
+    def _tell(self, view: Any, now: float) -> Step:
+        """Tell the drone our takeover setting until its status agrees (as owner)."""
+        want, to = self.takeover_for(view, now)
+        if (bool(view.takeover), getattr(view, "takeover_to", None)) == (want, to if want else None):
+            return NOTHING
+        if not _due(self.last_tell, now, TELL_RESEND_S):
+            return NOTHING
+        self.last_tell = now
+        return Step(send=(wire.HandoverRequest(self.gs, view.epoch, takeover=want, takeover_to=to if want else None),))
+
+    def _close(self, req: PendingRequest, now: float, hold: float) -> None:
+        """``req`` is decided (declined, expired): the requester's re-sends of it change nothing, and
+        it is not shown again for ``hold`` seconds."""
         self.request = None
         self.closed = (req.requester, req.epoch, req.ask_id)
+        if hold > 0:
+            held = self.held_off if self.held_off is not None else {}
+            self.held_off = {r: t for r, t in held.items() if t > now}
+            self.held_off[req.requester] = now + hold
 
     def _ask(self, view: Any) -> wire.HandoverRequest:
         return wire.HandoverRequest(self.gs, view.epoch, timeout=self.asked_timeout, ask_id=self.ask_id)

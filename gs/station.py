@@ -73,6 +73,8 @@ class StationOptions:
     paper_heartbeat: bool = False  # also send the paper's separate 2 Hz security heartbeat
     take_control: bool = False  # take control back after a failsafe (the operator's standing request)
     allow_takeover: bool = False  # MAVLink operator control: another GS's request takes authority at once
+    gcs_signing: str | None = None  # the gateway's MAVLink signing: off | prefer | require (None: require with keys)
+    gcs_keys: str | None = None  # the gateway's application key file (``gs.appkeys``)
 
 
 class GroundStation:
@@ -138,9 +140,11 @@ class GroundStation:
     def holds_authority(self, view: DroneView) -> bool:
         return self.core.holds_authority(view)
 
-    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float) -> int:
-        """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL: carried out; the MAV_RESULT it gets at once."""
-        answer, actions = self.core.operator_command(view, req, now)
+    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float, app: str = "",
+                         app_sysid: int | None = None) -> int:
+        """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL: carried out; the MAV_RESULT it gets at once
+        (``app``: the application's name, ``app_sysid``: its own sysid; see ``StationCore.operator_command``)."""
+        answer, actions = self.core.operator_command(view, req, now, app=app, app_sysid=app_sysid)
         self._do(actions)
         return int(answer)
 
@@ -284,13 +288,21 @@ def run_station(opts: StationOptions) -> int:
     if opts.gcs:
         from .gateway import GcsGateway
 
+        from .appkeys import load_keys
+
         try:
-            gateway = GcsGateway(station, list(opts.gcs))
+            keys = load_keys(opts.gcs_keys) if opts.gcs_keys else ()
+            mode = opts.gcs_signing or ("require" if opts.gcs_keys else "prefer")
+            gateway = GcsGateway(station, list(opts.gcs), signing=mode, keys=keys)
         except ConfigError:
             station.close()
             raise
         station.status_sources["gateway"] = gateway.stats
         print(f"zdrone gs {station.name}: GCS gateway on {', '.join(gateway.endpoints())} for {gateway.drone}", flush=True)
+        print(f"zdrone gs {station.name}: GCS signing {mode}, {len(keys)} application key(s)"
+              + {"require": ": only signed applications may command or speak for the operator",
+                 "prefer": ": unsigned applications may command and speak for the operator (any local process)",
+                 "off": ": any local process may command and speak for the operator"}[mode], flush=True)
     try:
         return station.rt.serve(station.run)
     finally:

@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from gs.core import Log, Put, Say, StationCore
 from gs.gateway import GcsGateway
-from gs.opcontrol import GRANT_WINDOW_S, Answer
+from gs.opcontrol import DECLINE_HOLD_S, EXPIRED_HOLD_S, GRANT_WINDOW_S, Answer
 from zdrone.core import authority as ha
 from zdrone.core import wire
 from zdrone.core.envelope import Opened, SecureLink
@@ -31,8 +31,16 @@ from tests.unit.test_gateway_apps import MemTransport, StubEvents
 from tests.unit.test_station_core import core, fleet_dir, ident  # noqa: F401  (fixture)
 
 
-def ask(takeover: bool = False, timeout: float = 5.0, request: bool = True) -> OperatorControlRequest:
-    return OperatorControlRequest(request, takeover, timeout, 255)
+SYSID = {"A": 4, "B": 3, "X": 7}
+
+
+def ask(takeover: bool = False, timeout: float = 5.0, request: bool = True, p4: int = 255) -> OperatorControlRequest:
+    return OperatorControlRequest(request, takeover, timeout, p4)
+
+
+def consent(to: str = "B", takeover: bool = False, request: bool = False) -> OperatorControlRequest:
+    """The owner's operator answering the request it was shown (p4: the requester's sysid)."""
+    return OperatorControlRequest(request, takeover, 5.0, SYSID[to])
 
 
 @dataclass
@@ -43,7 +51,7 @@ class Net:
     machine: ha.AuthorityMachine
     drone_links: dict[str, SecureLink]
     now: float = 0.0
-    logs: dict[str, list[Log]] = field(default_factory=lambda: {"A": [], "B": []})
+    logs: dict[str, list[Log]] = field(default_factory=lambda: {"A": [], "B": [], "X": []})
     said: list[str] = field(default_factory=list)
     queue: deque = field(default_factory=deque)
     gateways: dict[str, GcsGateway] = field(default_factory=dict)
@@ -79,7 +87,7 @@ class Net:
                 self.drone_acts(self.machine.handle(ha.Frame(self.now, gs, UplinkClass.READ_ONLY)))
             elif isinstance(res.control, wire.HandoverRequest):
                 m = res.control
-                self.drone_acts(self.machine.handle(ha.HandoverRequest(self.now, gs, m.to, m.timeout, m.takeover, m.ask_id)))
+                self.drone_acts(self.machine.handle(ha.HandoverRequest(self.now, gs, m.to, m.timeout, m.takeover, m.ask_id, m.takeover_to)))
             elif isinstance(res.control, wire.HandoverRelease):
                 self.drone_acts(self.machine.handle(ha.Release(self.now, gs, res.control.to, res.control.epoch)))
 
@@ -115,13 +123,26 @@ class Net:
         return self.machine.owner
 
 
-def make_net(fleet_dir, **a_opts) -> Net:
-    machine = ha.AuthorityMachine(ha.Config(authorized=frozenset({"A", "B"}), handover_timeout=2.0))
-    cores = {"A": core(fleet_dir, "A", pair=True, **a_opts), "B": core(fleet_dir, "B", pair=True)}
+@pytest.fixture(scope="module")
+def fleet3_dir(tmp_path_factory):
+    """A fleet whose d1 has three authorized GSs: A, B and X (X's coverage at home, as A's)."""
+    from zdrone.core.reference import DEFAULT_NODES
+    from zdrone.fleet.files import init_fleet
+
+    d = tmp_path_factory.mktemp("fleet3")
+    nodes = [(n, r, sid, c, ["A", "B", "X"] if n == "d1" else a) for n, r, sid, c, a in DEFAULT_NODES]
+    init_fleet(d, nodes_spec=nodes)
+    return d
+
+
+def make_net(fleet_dir, gss: tuple[str, ...] = ("A", "B"), **a_opts) -> Net:
+    machine = ha.AuthorityMachine(ha.Config(authorized=frozenset(gss), handover_timeout=2.0))
+    cores = {g: core(fleet_dir, g, pair=True, **(a_opts if g == "A" else {})) for g in gss}
     links: dict[str, SecureLink] = {}
     net = Net(cores, machine, links)
-    machine.handle(ha.RegionChanged(0.0, frozenset({"A", "B"})))  # in both coverages: the drone listens to both
-    for g, sysid in (("A", 4), ("B", 3)):
+    machine.handle(ha.RegionChanged(0.0, frozenset(gss)))  # in every coverage: the drone listens to all
+    for g in gss:
+        sysid = cores[g].fleet.nodes[g].sysid
         c = cores[g]
         m1 = next(x for x in c.tick(0.0) if type(x).__name__ == "Ask")
         m2, key = respond(ident(fleet_dir, "d1"), "d1", g, c.fleet.nodes[g].public_bytes, m1.payload, bytes([sysid]) * 32)
@@ -152,7 +173,9 @@ def test_consent_by_release_hands_control_to_the_requester_which_holds_it(fleet_
     net = make_net(fleet_dir)
     net.command("B", ask(timeout=10.0))
     net.run(1.5)
-    assert net.command("A", ask(request=False)) is Answer.ACCEPTED  # A's operator: release to the requester
+    assert net.command("A", ask(request=False)) is Answer.DENIED  # p4 must name the requester (B: 3)
+    assert net.owner == "A" and "operator_consent_refused" in net.kinds("A")
+    assert net.command("A", consent("B")) is Answer.ACCEPTED  # A's operator: release to the requester
     net.run(2.0)
     assert (net.owner, net.machine.epoch) == ("B", 2)
     b = net.cores["B"].views["d1"]
@@ -167,24 +190,28 @@ def test_consent_by_release_hands_control_to_the_requester_which_holds_it(fleet_
     assert (net.owner, net.machine.epoch) == ("A", 3)  # the automatic hand-over toward A's centre
 
 
-def test_consent_by_allowing_takeover_grants_now_and_for_the_window(fleet_dir):
+def test_consent_by_allowing_takeover_opens_a_window_for_the_requester_which_asks_again(fleet_dir):
     net = make_net(fleet_dir)
     net.command("B", ask(timeout=10.0))
     net.run(1.5)
-    assert net.command("A", ask(takeover=True)) is Answer.ACCEPTED
-    net.run(2.0)
-    assert net.owner == "B"
+    assert net.command("A", consent("B", takeover=True, request=True), ) is Answer.ACCEPTED
     a = net.cores["A"].views["d1"].operator
-    assert a.window_until is not None and not a.allow_takeover  # the window, not the standing setting
+    assert a.window is not None and a.window.to == "B" and not a.allow_takeover  # the window, not a setting
+    assert net.owner == "A"  # nothing moves until the requester asks again (today's flow)
+    net.run(1.6, step=0.05)
+    b = net.cores["B"].views["d1"]
+    assert b.takeover and b.takeover_to == "B"  # TAKEOVER_ALLOWED, for B, in what every GS hears
+    net.run(3.0)
+    assert net.owner == "B"  # B's standing request, sent again each second, was its ask
     granted = [x for x in net.logs["A"] if x.kind == "operator_request_granted"]
-    assert granted and granted[0].fields["requester"] == "B"
+    assert granted and granted[0].fields["requester"] == "B" and granted[0].fields["epoch"] == 1
 
 
 def test_declined_requests_and_late_answers_move_nothing(fleet_dir):
     net = make_net(fleet_dir)
     net.command("B", ask(timeout=10.0))
     net.run(1.5)
-    net.command("A", ask(takeover=False))  # A's operator re-requests with p2 = 0: declined
+    net.command("A", consent("B", request=True))  # A's operator re-requests with p2 = 0: declined
     assert "operator_request_declined" in net.kinds("A")
     net.run(3.0)
     assert net.command("A", ask(request=False)) is Answer.ACCEPTED  # nobody asking any more: nothing to give
@@ -244,12 +271,13 @@ def test_no_link_no_request(fleet_dir):
 
 def test_the_grant_window_closes(fleet_dir):
     net = make_net(fleet_dir)
-    net.command("B", ask(timeout=10.0))
+    net.command("B", ask(timeout=3.0))
     net.run(1.5)
-    net.command("A", ask(takeover=True))
+    net.command("A", consent("B", takeover=True, request=True))
+    net.command("B", ask(request=False))  # B's operator withdraws: it does not ask again
     net.run(1.5 + GRANT_WINDOW_S + 0.5)
     a = net.cores["A"].views["d1"].operator
-    assert a.window_until is None and "takeover_window_closed" in net.kinds("A")
+    assert a.window is None and "takeover_window_closed" in net.kinds("A") and net.owner == "A"
 
 
 # ------------------------------------------------------------------ through the GCS gateways
@@ -272,8 +300,8 @@ class CoreStation:
     def send_control(self, view, msg) -> None:
         self.net.deliver(self.name, self.core.send_control(view, msg))
 
-    def operator_command(self, view, req, now: float) -> int:
-        answer, actions = self.core.operator_command(view, req, now)
+    def operator_command(self, view, req, now: float, app: str = "", app_sysid: int | None = None) -> int:
+        answer, actions = self.core.operator_command(view, req, now, app=app, app_sysid=app_sysid)
         self.net.deliver(self.name, actions)
         return int(answer)
 
@@ -351,8 +379,15 @@ def test_through_the_gateways_a_request_is_presented_refused_then_consented(flee
     assert net.owner == "A" and b.statuses()[-1].gcs_main == 4  # no consent: nothing moved
     b.request(1, 0, 10)
     net.run(net.now + 0.5)
+    assert len(a.presented()) == 1  # expired unanswered: B is held off for EXPIRED_HOLD_S
+    assert "operator_request_held_off" in net.kinds("A")
+    net.run(net.now + EXPIRED_HOLD_S)
+    b.request(1, 0, 10)
+    net.run(net.now + 0.5)
     assert len(a.presented()) == 2
-    a.request(0)  # A's operator releases to the requester
+    a.request(0)  # p4 = 255 names no GS: refused, nothing moves
+    assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)
+    a.request(0, 0, 5, 3)  # A's operator releases to the requester it was shown (p4 = B's sysid)
     assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)
     net.run(net.now + 1.0)
     assert net.owner == "B"
@@ -413,10 +448,106 @@ def test_with_the_drone_core_a_request_needs_consent_and_takeover_allowed_grants
     assert a.views["d1"].operator.request is not None and a.views["d1"].operator.request.requester == "B"
     net.run(4.0)
     assert (m.owner, m.epoch) == ("A", 1)  # no consent: nothing moved
+    net.run(EXPIRED_HOLD_S)  # B's request expired unanswered: it is not shown again for a while
     command(b, ask(timeout=10.0))
     net.run(1.0)
-    command(a, ask(takeover=True))  # A's operator consents (allow takeover for the window)
-    net.run(1.0)
+    assert command(a, ask(takeover=True, request=True)) is Answer.DENIED  # p4 = 255: not the requester
+    assert command(a, consent("B", takeover=True, request=True)) is Answer.ACCEPTED  # the window, for B
+    assert (m.owner, m.epoch) == ("A", 1)
+    net.run(1.5)  # B's request, sent again each second, is granted
     assert (m.owner, m.epoch) == ("B", 2) and b.holds_authority(b.views["d1"])
     moves = [(r.from_, r.to, r.kind) for r in net.records if isinstance(r, HandoverComplete)]
     assert moves == [("A", "B", "handover")]
+
+
+# ------------------------------------------------------------------ consent bound to what the operator saw
+def test_consent_goes_to_the_requester_it_names_never_to_whoever_asked_last(fleet3_dir):
+    """B asks; X asks 1.1 s later; A's operator consents naming B (p4 = 3): B takes control, not X."""
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    assert net.command("B", ask(timeout=10.0)) is Answer.FAILED
+    net.run(net.now + 1.1)
+    assert net.command("X", ask(timeout=10.0)) is Answer.FAILED
+    net.run(net.now + 1.5)
+    op = net.cores["A"].views["d1"].operator
+    assert op.request is not None and op.request.requester == "B"  # one pending at a time: B's
+    assert "operator_request_busy" in net.kinds("A") and net.kinds("A").count("operator_request_busy") == 1
+    assert net.command("A", consent("X")) is Answer.DENIED  # X is not the one shown
+    refused = [x for x in net.logs["A"] if x.kind == "operator_consent_refused"]
+    assert refused[-1].fields["requester"] == "B" and refused[-1].fields["named"] == "X"
+    assert net.command("A", consent("B")) is Answer.ACCEPTED
+    net.run(net.now + 2.0)
+    assert (net.owner, net.machine.epoch) == ("B", 2)
+
+
+def test_a_window_for_one_requester_does_not_let_another_in(fleet3_dir):
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    net.command("B", ask(timeout=3.0))
+    net.run(net.now + 1.0)
+    assert net.command("A", consent("B", takeover=True, request=True)) is Answer.ACCEPTED
+    net.command("B", ask(request=False))  # B's operator withdraws before it is granted
+    net.run(net.now + 0.6)
+    x = net.cores["X"].views["d1"]
+    assert x.takeover and x.takeover_to == "B"
+    assert net.command("X", ask(timeout=10.0)) is Answer.FAILED  # the window is not for X
+    net.run(net.now + 3.0)
+    assert net.owner == "A"
+
+
+def test_allow_takeover_holds_for_the_owners_epoch_only(fleet_dir):
+    """A's operator allows takeover (p1 = 1, p2 = 1, nothing pending) in epoch 1; B takes it, hands it
+    back (epoch 3); B asks again: A's operator is asked, nothing moves by itself."""
+    net = make_net(fleet_dir)
+    assert net.command("A", ask(takeover=True)) is Answer.ACCEPTED
+    net.run(net.now + 1.0)
+    assert net.machine.status().takeover
+    assert net.command("B", ask(timeout=10.0)) is Answer.IN_PROGRESS
+    net.run(net.now + 1.0)
+    assert (net.owner, net.machine.epoch) == ("B", 2)
+    assert net.command("B", ask(request=False)) is Answer.ACCEPTED  # B's operator lets go
+    assert net.command("A", ask(timeout=10.0)) is Answer.FAILED
+    net.run(net.now + 1.0)
+    assert net.command("B", consent("A")) is Answer.ACCEPTED  # B's operator gives it back
+    net.run(net.now + 1.5)
+    assert (net.owner, net.machine.epoch) == ("A", 3)
+    assert not net.machine.status().takeover and not net.cores["A"].views["d1"].operator.takeover_allowed(
+        net.cores["A"].views["d1"], net.now)
+    assert net.command("B", ask(timeout=10.0)) is Answer.FAILED  # A's operator is asked again
+    net.run(net.now + 3.0)
+    assert net.owner == "A" and net.machine.epoch == 3
+
+
+def test_a_decline_holds_that_requester_off_and_the_operator_is_told_for_how_long(fleet_dir):
+    net = make_net(fleet_dir)
+    net.command("B", ask(timeout=10.0))
+    net.run(net.now + 1.0)
+    assert net.command("A", consent("B", request=True)) is Answer.ACCEPTED  # p1 = 1, p2 = 0: declined
+    declined = [x for x in net.logs["A"] if x.kind == "operator_request_declined"]
+    assert declined[-1].fields["hold_s"] == DECLINE_HOLD_S
+    assert any(f"not shown for {DECLINE_HOLD_S:.0f} s" in t for t in net.said)
+    shown_at = [net.now]
+    for _ in range(int(DECLINE_HOLD_S) // 5):  # B's operator asks again and again
+        net.command("B", ask(timeout=3.0))
+        net.run(net.now + 5.0)
+    assert net.kinds("A").count("operator_request") == 1  # not one more prompt during the hold
+    net.command("B", ask(timeout=3.0))
+    net.run(net.now + 1.0)
+    assert net.kinds("A").count("operator_request") == 2 and net.now - shown_at[0] >= DECLINE_HOLD_S
+
+
+def prompts_per_minute(fleet_dir, answer: str) -> int:
+    """The prompts one requester causes at the owner in 60 s when it asks without pause (3 s, the
+    shortest timeout) and the owner's operator ``answer``s each: "ignore" or "decline"."""
+    net = make_net(fleet_dir)
+    t0 = net.now
+    while net.now < t0 + 60.0:
+        if net.cores["B"].views["d1"].operator.asked_until is None:
+            net.command("B", ask(timeout=3.0))
+        net.run(net.now + 0.5)
+        if answer == "decline" and net.cores["A"].views["d1"].operator.live_request(net.cores["A"].views["d1"], net.now):
+            net.command("A", consent("B", request=True))
+    return net.kinds("A").count("operator_request")
+
+
+def test_a_requester_causes_few_prompts_a_minute(fleet_dir):
+    ignored, declined = prompts_per_minute(fleet_dir, "ignore"), prompts_per_minute(fleet_dir, "decline")
+    assert ignored <= 60 / (3.0 + EXPIRED_HOLD_S) + 1 and declined <= 60 / DECLINE_HOLD_S + 1

@@ -163,6 +163,7 @@ class HandoverRequest(Event):
     timeout: float = 0.0
     takeover: bool = False
     ask_id: int = 0
+    takeover_to: str | None = None  # with ``takeover`` from the owner: the one GS it is for (None: any)
 
 
 @dataclass(frozen=True, slots=True)
@@ -321,6 +322,7 @@ class AuthorityMachine:
         self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
         self.relay_limit = RateLimiter(REQUEST_RELAY_RATE, REQUEST_RELAY_BURST)  # requests passed to the owner
         self.takeover_epoch: int | None = None  # the epoch whose owner allows takeover (its operator's setting)
+        self.takeover_to: str | None = None  # ... for this GS only (a consent's window), None: any
         self.first_claim: str | None = None  # after a restart on the ground: the last owner, pairing back first
         self.first_claim_until: float | None = None  # ... until then
 
@@ -362,7 +364,8 @@ class AuthorityMachine:
 
     def status(self) -> AuthorityStatus:
         return AuthorityStatus(self.owner, self.epoch, self.state, self.pending_to, sorted(self.links),
-                               takeover=self.takeover_epoch == self.epoch)
+                               takeover=self.takeover_epoch == self.epoch,
+                               takeover_to=self.takeover_to if self.takeover_epoch == self.epoch else None)
 
     def get_timer(self) -> float | None:
         """When the machine must next be woken with ``handle_timer`` (a hand-over's deadline, the
@@ -646,6 +649,7 @@ class AuthorityMachine:
             if ev.sender != self.owner:  # sent while it still was the owner: stale, and never a request
                 return self.state, [Note("takeover_setting", f"{ev.sender} is not the owner: setting ignored")]
             self.takeover_epoch = self.epoch if ev.takeover else None
+            self.takeover_to = ev.takeover_to if ev.takeover else None  # what the GSs are shown, no more
             return self.state, [Note("takeover_setting", f"{ev.sender}: takeover {'allowed' if ev.takeover else 'refused'}"
                                                          f" in epoch {self.epoch}")] + self._status_to_all()
         if ev.sender == self.owner:  # the owner asking is a release

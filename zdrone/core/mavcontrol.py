@@ -88,6 +88,14 @@ class OperatorControlRequest(msgspec.Struct, frozen=True):
         return (float(self.request), float(self.takeover), float(self.timeout), float(self.sysid), 0.0, 0.0, 0.0)
 
 
+def sysid_as_seen_by(sysid: int, app_sysid: int) -> int:
+    """``sysid`` (another GCS) as an application with ``app_sysid`` is shown it: never its own sysid
+    (several applications share 255, and "in control" must mean "me" only when it is); 0 stays 0."""
+    if sysid == 0 or sysid != app_sysid:
+        return sysid
+    return 255 if app_sysid != 255 else 254
+
+
 def parse_operator_request(p1: float, p2: float, p3: float, p4: float) -> OperatorControlRequest | None:
     """The request in params 1-4, or None if param 1 or 2 is not 0 or 1 or param 4 is no sysid
     (0..255). A param 3 outside 3..60 s is clamped into it; one that is not a number is 10 s."""

@@ -645,10 +645,12 @@ class GcsAppGone(Record, frozen=True, tag="gcs_app_gone"):
 
 
 class OperatorControlRequested(Record, frozen=True, tag="operator_control_requested"):
-    """A GCS application asked to take control of ``drone`` back."""
+    """A GCS application asked to take control of ``drone`` back (``app``: which one, by its signing
+    key's name ``key:<name>`` or ``unsigned:<peer>``)."""
 
     drone: str
     by_sysid: int
+    app: str = ""
 
 
 class OperatorControlEvent(Record, frozen=True):
@@ -663,10 +665,13 @@ class OperatorControlAsked(OperatorControlEvent, frozen=True, tag="operator_cont
     owner: str | None
     timeout: float
     owner_allows: bool
+    app: str = ""  # the application that asked (its signing key's name, or unsigned:<peer>)
 
 
 class OperatorRequestWithdrawn(OperatorControlEvent, frozen=True, tag="operator_request_withdrawn"):
     """Our operator withdrew its request."""
+
+    app: str = ""
 
 
 class OperatorRequestTimedOut(OperatorControlEvent, frozen=True, tag="operator_request_timed_out"):
@@ -684,11 +689,15 @@ class OperatorControlTaken(OperatorControlEvent, frozen=True, tag="operator_cont
 class OperatorControlLetGo(OperatorControlEvent, frozen=True, tag="operator_control_let_go"):
     """Our operator let go of held control: automatic hand-overs again."""
 
+    app: str = ""
+
 
 class OperatorTakeoverSetting(OperatorControlEvent, frozen=True, tag="operator_takeover_setting"):
-    """Our operator's standing "allow takeover" setting changed."""
+    """Our operator's "allow takeover" setting for ``epoch`` changed (nothing pending)."""
 
     allowed: bool
+    epoch: int | None = None
+    app: str = ""
 
 
 class OperatorRequestReceived(OperatorControlEvent, frozen=True, tag="operator_request"):
@@ -709,17 +718,55 @@ class OperatorRequestStale(OperatorControlEvent, frozen=True, tag="operator_requ
 
 
 class OperatorRequestGranted(OperatorControlEvent, frozen=True, tag="operator_request_granted"):
-    """As owner: authority released to ``to`` (``why``: takeover allowed, or the operator's consent)."""
+    """As owner: authority of ``epoch`` released to ``to`` (``why``: takeover allowed, or the operator's
+    consent; ``app``: the application that consented or opened the window, "" for the station's policy)."""
 
     requester: str
     to: str
     why: str
+    epoch: int = 0
+    app: str = ""
 
 
 class OperatorRequestDeclined(OperatorControlEvent, frozen=True, tag="operator_request_declined"):
-    """As owner: our operator declined ``requester``'s request."""
+    """As owner: our operator declined ``requester``'s request; it is not shown again for ``hold_s``."""
 
     requester: str
+    hold_s: float = 0.0
+    app: str = ""
+
+
+class OperatorConsentRefused(OperatorControlEvent, frozen=True, tag="operator_consent_refused"):
+    """As owner: an application's consent did not name the pending requester (``named``: the GS its p4
+    names, None for none): nothing moved."""
+
+    requester: str
+    named: str | None
+    reason: str
+    app: str = ""
+
+
+class TakeoverWindowOpened(OperatorControlEvent, frozen=True, tag="takeover_window_opened"):
+    """As owner: our operator allowed ``to`` to take control of ``epoch`` for ``seconds``."""
+
+    to: str
+    epoch: int
+    seconds: float
+    app: str = ""
+
+
+class OperatorRequestBusy(OperatorControlEvent, frozen=True, tag="operator_request_busy"):
+    """As owner: ``requester`` asked while ``pending``'s request stands (one at a time): not shown yet."""
+
+    requester: str
+    pending: str
+
+
+class OperatorRequestHeldOff(OperatorControlEvent, frozen=True, tag="operator_request_held_off"):
+    """As owner: ``requester`` asked again within the hold after a decline or an expiry: not shown."""
+
+    requester: str
+    seconds_left: float
 
 
 class OperatorRequestExpired(OperatorControlEvent, frozen=True, tag="operator_request_expired"):
@@ -743,6 +790,7 @@ OPERATOR_CONTROL_RECORDS: tuple[type[Record], ...] = (
     OperatorControlAsked, OperatorRequestWithdrawn, OperatorRequestTimedOut, OperatorControlTaken,
     OperatorControlLetGo, OperatorTakeoverSetting, OperatorRequestReceived, OperatorRequestStale,
     OperatorRequestGranted, OperatorRequestDeclined, OperatorRequestExpired, TakeoverWindowClosed, OperatorRequestShown,
+    OperatorConsentRefused, TakeoverWindowOpened, OperatorRequestBusy, OperatorRequestHeldOff,
 )
 
 

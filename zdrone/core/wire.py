@@ -51,6 +51,7 @@ class HandoverRequest(Control, frozen=True, tag="handover_request"):
     timeout: float = 0.0  # seconds the requester waits for the owner's consent (0: the owner's default)
     takeover: bool = False  # from the owner for itself: grant requests without asking its operator
     ask_id: int = 0  # the requester's number for its operator's request (re-sends keep it)
+    takeover_to: str | None = None  # with ``takeover``: the one GS a consent's window is for (None: any)
 
 
 class OperatorRequest(Control, frozen=True, tag="operator_request"):
@@ -80,6 +81,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     pending_to: str | None = None
     linked: list[str] = []  # GSs the drone holds a link key for
     takeover: bool = False  # the owner allows takeover in this epoch (its operator's setting)
+    takeover_to: str | None = None  # ... for this GS only (a consent's window); None: for any
     fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
 
 
