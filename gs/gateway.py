@@ -28,6 +28,24 @@ identities:
   application as the vehicle's COMMAND_LONG 32100 (p4: the requester's sysid); their COMMAND_ACKs of it
   are taken here, never sent to the vehicle. The vehicle's own CONTROL_STATUS is not passed on.
 
+Applications are told apart by MAVLink 2 signing (``gs.appkeys``): each has a key of its own, listed
+by name in the GS's key file (``--gcs-keys``). A frame signed with a listed key names its application
+(``key:<name>``); a wrongly signed one (another key, a replayed or stale timestamp) is dropped and
+counted (``signing_dropped:<reason>``), whatever it is; replies to a signed application are signed
+with its key. An unsigned frame is named by its address (``unsigned:<ip:port>``). ``--gcs-signing``:
+
+* ``require``: only signed applications speak for the operator: MAV_CMD_REQUEST_OPERATOR_CONTROL in
+  any form (request, release, consent, allow takeover) from an unsigned one is answered DENIED, its
+  commanding frames are refused as from a GCS not in control (COMMAND_ACK NOT_IN_CONTROL, MISSION_ACK
+  DENIED, a STATUSTEXT for the rest), each counted under ``unsigned_refused:<kind>``; it keeps
+  read-only access (telemetry, parameter reads) and its CONTROL_STATUS never names it.
+* ``prefer``: signed applications are named by their key; unsigned ones still work, named by address.
+* ``off``: no signing: signatures are neither checked nor made.
+
+With ``require`` or ``prefer``, an application that has signed is not heard unsigned again
+(``signing_dropped:unsigned_after_signed``), and no application's SETUP_SIGNING goes to the vehicle
+(MAVProxy's ``signing setup`` sends one; keys are provisioned in the key file, never over the link).
+
 Whatever arrives on an endpoint, the station keeps flying. At most ``max_apps`` applications (16 by
 default) hold a component id at once; one silent for ``app_expiry`` seconds (30) or whose TCP
 connection closed is forgotten and its id freed for reuse. While the table is full, a new
@@ -37,16 +55,20 @@ counted by reason in ``counters`` (``stats()`` reports them with the application
 
 from __future__ import annotations
 
+import inspect
 import logging
 import math
 import struct
+import time
 from collections import Counter, deque
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 from pymavlink.dialects.v20 import common as mav
 from zenoh import ZError
 
+from zdrone.core import fcsign
 from zdrone.core import records as rec
 from zdrone.core.authority import State as HaState
 from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
@@ -54,6 +76,8 @@ from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, 
                                     encode_control_status, parse_operator_request)
 from zdrone.core.mavlink import MESSAGE_CLASSES, FrameCodec, FrameError, read_header, rewrite_source
 from zdrone.vehicle.transport import MavTransport
+
+from .appkeys import AppSigning, SigningKey, parse_mode
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +102,9 @@ MISSION_WRITES = {mav.MAVLINK_MSG_ID_MISSION_COUNT, mav.MAVLINK_MSG_ID_MISSION_I
 SEND_ERRORS = (OSError, ZError, ValueError)
 #: what encoding a reply may raise on field values out of range
 ENCODE_ERRORS = (struct.error, ValueError, OverflowError)
+#: what an unsigned application may never get through when signing is required, by counted kind
+UNSIGNED_KINDS = {mav.MAVLINK_MSG_ID_COMMAND_LONG: "command", mav.MAVLINK_MSG_ID_COMMAND_INT: "command",
+                  **{m: "mission" for m in MISSION_WRITES}}
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +131,7 @@ class App:
     frames_out: int = 0
     refused: int = 0
     last_text: float = -1e9  # when the last refusal STATUSTEXT went to it (at most one a second)
+    signer: str | None = None  # the name of the key its frames are signed with (None: unsigned)
     decoder: FrameCodec = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -216,9 +244,15 @@ class GcsGateway:
     """
 
     def __init__(self, station: Any, endpoints: list[str], drone: str | None = None, max_apps: int = MAX_APPS,
-                 app_expiry: float = APP_EXPIRY_S) -> None:
+                 app_expiry: float = APP_EXPIRY_S, signing: str = "prefer", keys: Iterable[SigningKey] = (),
+                 clock: Callable[[], float] = time.time) -> None:
         if not 1 <= max_apps <= MAX_APPS_LIMIT:
             raise ValueError(f"max_apps must be 1..{MAX_APPS_LIMIT}, not {max_apps}")
+        self.signing_mode = parse_mode(signing)
+        self.signing = AppSigning(keys)
+        self._clock = clock  # the wall clock: signing timestamps are 10 us units since 2015
+        self._signed_peers: dict[int, dict[Any, str]] | None = None  # endpoint -> peer -> key name (None: stale)
+        self._drop_logs: dict[str, RateLimit] = {}
         self.station = station
         self.drone = drone or next(iter(station.views))
         if self.drone not in station.views:
@@ -234,6 +268,7 @@ class GcsGateway:
         self._shown_seq = 0  # the last request of another GS presented to the applications
         self._seq = 0
         self._error_log = RateLimit()
+        self._op_takes_app = _takes_app(station.operator_command)
         station.frame_listeners.append(self.on_drone_frame)
         station.loop_hooks.append(self.poll)
 
@@ -247,8 +282,58 @@ class GcsGateway:
     def stats(self) -> dict[str, Any]:
         """Applications, drop counters by reason, and per-endpoint byte counts, for the station's status."""
         return {"apps": len(self.apps), "max_apps": self.apps.max_apps, "counters": dict(self.counters),
+                "signing": {"mode": self.signing_mode, "keys": len(self.signing),
+                            "apps": {str(a.gs_compid): self.identity(a) for a in self.apps}},
                 "endpoints": {str(t.endpoint): {"rx_frames": t.rx_frames, "tx_frames": t.tx_frames,
                                                 "skipped_bytes": t.skipped_bytes} for t in self.transports}}
+
+    # ----------------------------------------------------------------- signing
+    def identity(self, app: App) -> str:
+        """How records and logs name an application: its key's name, else its address."""
+        if app.signer is not None:
+            return f"key:{app.signer}"
+        peer = app.peer
+        if isinstance(peer, tuple) and len(peer) >= 2:
+            return f"unsigned:{peer[0]}:{peer[1]}"
+        try:
+            host, port = peer.getpeername()[:2]  # a TCP client
+            return f"unsigned:tcp:{host}:{port}"
+        except (AttributeError, OSError, ValueError, TypeError):
+            return f"unsigned:{peer!r}"
+
+    def trusted(self, app: App) -> bool:
+        """May ``app`` speak for the operator and command? Always, but unsigned under ``require``."""
+        return app.signer is not None or self.signing_mode != "require"
+
+    def _units(self) -> int:
+        return fcsign.units(self._clock())
+
+    def _signing_drop(self, why: str, peer: Any, hdr: Any, now: float) -> None:
+        name = f"signing_dropped:{why}"
+        self.counters[name] += 1
+        limit = self._drop_logs.setdefault(name, RateLimit())
+        if limit.ready(now):
+            log.warning("gateway: frame of sysid %d compid %d (msg %d) from %s dropped: %s (%d so far)", hdr.sysid,
+                        hdr.compid, hdr.msgid, peer, why, self.counters[name])
+
+    def _peer_signers(self) -> dict[int, dict[Any, str]]:
+        """Endpoint -> peer -> the key its application signs with (rebuilt when applications change)."""
+        if self._signed_peers is None:
+            table: dict[int, dict[Any, str]] = {}
+            for app in self.apps:
+                if app.signer is not None:
+                    table.setdefault(app.transport, {})[app.peer] = app.signer
+            self._signed_peers = table
+        return self._signed_peers
+
+    def _signed(self, frame: bytes, signer: str, ti: int) -> bytes:
+        """``frame`` signed with application key ``signer`` (link id: the endpoint's index); a frame that
+        cannot be signed (MAVLink 1) goes as it is, counted."""
+        try:
+            return self.signing.sign(frame, signer, self._units(), ti & 0xFF)
+        except (FrameError, KeyError):
+            self.counters["unsignable"] += 1
+            return frame
 
     # ------------------------------------------------------------- applications
     def _app(self, ti: int, peer: Any, sysid: int, compid: int, now: float) -> App | None:
@@ -272,6 +357,8 @@ class GcsGateway:
                 self.apps.remove(app.key)
                 self.counters["app_disconnected"] += 1
                 gone.append((app, "disconnected"))
+        if gone:
+            self._signed_peers = None
         for app, why in gone:
             log.info("gateway: application sysid %d compid %d (GS component %d) %s", app.sysid, app.compid,
                      app.gs_compid, why)
@@ -279,6 +366,8 @@ class GcsGateway:
 
     def _to_app(self, app: App, frame: bytes) -> None:
         app.frames_out += 1
+        if app.signer is not None and self.signing_mode != "off":
+            frame = self._signed(frame, app.signer, app.transport)
         try:
             self.transports[app.transport].send(frame, app.peer)
         except OSError:
@@ -294,12 +383,28 @@ class GcsGateway:
         self._to_app(app, frame)
 
     def _broadcast(self, frame: bytes) -> None:
-        for t in self.transports:
-            if t.has_peer():
-                try:
+        """``frame`` to every peer of every endpoint: signed with its key to a signed application."""
+        signers = self._peer_signers() if self.signing_mode != "off" else {}
+        for ti, t in enumerate(self.transports):
+            if not t.has_peer():
+                continue
+            mine = signers.get(ti)
+            try:
+                if not mine:
                     t.send(frame)
-                except OSError:
-                    self.counters["send_failed"] += 1
+                    continue
+                peers = list(t.udp_peers) if t.sock is not None else list(t.tcp_clients)
+                signed: dict[str, bytes] = {}
+                for peer in peers:
+                    signer = mine.get(peer)
+                    if signer is None:
+                        t.send(frame, peer)
+                        continue
+                    if signer not in signed:
+                        signed[signer] = self._signed(frame, signer, ti)
+                    t.send(signed[signer], peer)
+            except OSError:
+                self.counters["send_failed"] += 1
 
     def _to_drone(self, view: Any, frame: bytes) -> None:
         try:
@@ -350,14 +455,40 @@ class GcsGateway:
         except FrameError:
             self.counters["malformed"] += 1
             return
+        signer: SigningKey | None = None
+        if self.signing_mode != "off" and fcsign.is_signed(frame):
+            signer, why = self.signing.verify(frame, self._units(), self._peer_signers().get(ti, {}).get(peer))
+            if signer is None:  # another key, altered, replayed or stale: nothing of it goes anywhere
+                self._signing_drop(why or "bad_signature", peer, hdr, now)
+                return
+            try:
+                frame = fcsign.strip(frame)
+            except FrameError:
+                self.counters["malformed"] += 1
+                return
         app = self._app(ti, peer, hdr.sysid, hdr.compid, now)
         if app is None:
             return  # counted by the table (app_table_full)
+        if signer is not None and app.signer != signer.name:
+            log.info("gateway: application sysid %d compid %d from %s (GS component %d) signs with key %s", app.sysid,
+                     app.compid, peer, app.gs_compid, signer.name)
+            app.signer = signer.name
+            self._signed_peers = None
+        elif signer is None and app.signer is not None and self.signing_mode != "off":
+            self._signing_drop("unsigned_after_signed", peer, hdr, now)  # not the application that signed
+            return
         app.frames_in += 1
         view = self.view
+        if hdr.msgid == mav.MAVLINK_MSG_ID_SETUP_SIGNING and self.signing_mode != "off":
+            self.counters["setup_signing_dropped"] += 1  # keys are the key file's, never the link's
+            return
+        trusted = self.trusted(app)
         if hdr.msgid in COMMAND_MSGIDS:
             msg = app.decoder.decode(frame)
             if msg is not None and msg.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
+                if not trusted:
+                    self._refuse_unsigned(app, hdr, frame, "operator_control", mav.MAV_RESULT_DENIED, msg)
+                    return
                 self._operator_control(app, msg, now)
                 return
         elif hdr.msgid == mav.MAVLINK_MSG_ID_COMMAND_ACK:
@@ -365,6 +496,9 @@ class GcsGateway:
             if msg is not None and msg.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
                 self.counters["operator_request_acked"] += 1  # the answer to a request we presented: ours
                 return
+        if not trusted and hdr.commanding:
+            self._refuse_unsigned(app, hdr, frame, UNSIGNED_KINDS.get(hdr.msgid, "other"), MAV_RESULT_NOT_IN_CONTROL)
+            return
         if view.link is None:
             self.counters["no_link"] += 1
             self._refuse(app, hdr, frame, mav.MAV_RESULT_TEMPORARILY_REJECTED, "no link to the drone")
@@ -398,24 +532,49 @@ class GcsGateway:
             app.last_text = self._now
             self._reply(app, codec, mav.MAVLink_statustext_message(mav.MAV_SEVERITY_WARNING, why.encode()[:50]))
 
+    def _refuse_unsigned(self, app: App, hdr: Any, frame: bytes, kind: str, result: int, msg: Any = None) -> None:
+        """``--gcs-signing require``: what an unsigned application may not do, refused the MAVLink way
+        and counted under ``unsigned_refused:<kind>``; the first of each kind and every request for
+        operator control is logged, naming the application."""
+        name = f"unsigned_refused:{kind}"
+        self.counters[name] += 1
+        who = self.identity(app)
+        if kind == "operator_control" and msg is not None:
+            log.warning("gateway: %s (sysid %d) may not speak for the operator (--gcs-signing require): "
+                        "MAV_CMD_REQUEST_OPERATOR_CONTROL p1=%g p2=%g p4=%g DENIED", who, app.sysid, msg.param1,
+                        msg.param2, msg.param4)
+        elif self._drop_logs.setdefault(name, RateLimit()).ready(self._now):
+            log.warning("gateway: %s (sysid %d): message %d refused, unsigned applications are read-only "
+                        "(--gcs-signing require; %d so far)", who, app.sysid, hdr.msgid, self.counters[name])
+        self._refuse(app, hdr, frame, result, "unsigned app: read-only")
+
+    def _operator_command(self, app: App, req: Any, now: float) -> int:
+        """The station's operator entry, told which application spoke (when it takes it)."""
+        if self._op_takes_app:
+            return int(self.station.operator_command(self.view, req, now, app=self.identity(app), app_sysid=app.sysid))
+        return int(self.station.operator_command(self.view, req, now))
+
     def _operator_control(self, app: App, msg: Any, now: float) -> None:
         """MAV_CMD_REQUEST_OPERATOR_CONTROL from an application: this GS's operator requests, releases
         or consents (``gs.opcontrol``); answered at once, and again when an IN_PROGRESS one ends."""
-        view = self.view
         req = parse_operator_request(msg.param1, msg.param2, msg.param3, msg.param4)
+        who = self.identity(app)
         if req is None:
             self.counters["operator_request_bad"] += 1
             result = mav.MAV_RESULT_DENIED
         else:
             try:
-                result = self.station.operator_command(view, req, now)
+                result = self._operator_command(app, req, now)
             except SEND_ERRORS:
                 self.counters["send_failed"] += 1
                 result = mav.MAV_RESULT_FAILED
             if req.request:
-                self.station.events.write_record(rec.OperatorControlRequested(drone=self.drone, by_sysid=app.sysid))
+                self.station.events.write_record(rec.OperatorControlRequested(drone=self.drone, by_sysid=app.sysid,
+                                                                              app=who))
             if result == mav.MAV_RESULT_IN_PROGRESS:
                 self._awaiting[app.key] = now + req.timeout
+        log.info("gateway: %s (sysid %d): MAV_CMD_REQUEST_OPERATOR_CONTROL p1=%g p2=%g p3=%g p4=%g -> result %d", who,
+                 app.sysid, msg.param1, msg.param2, msg.param3, msg.param4, result)
         self._ack(app, msg.command, result)
 
     def _ack(self, app: App, command: int, result: int) -> None:
@@ -465,8 +624,8 @@ class GcsGateway:
         in_control = None if view.ha_state is HaState.FAILSAFE else view.owner
         owner_sysid = self._sysid_of(in_control)
         flags = FLAG_SYSTEM_MANAGER | (FLAG_TAKEOVER_ALLOWED if takeover and in_control else 0)
-        for app in self.apps:
-            main = app.sysid if mine else _not_the_apps(owner_sysid, app.sysid)
+        for app in self.apps:  # an unsigned application under ``require`` is never the one in control
+            main = app.sysid if mine and self.trusted(app) else _not_the_apps(owner_sysid, app.sysid)
             self._seq = (self._seq + 1) % 256
             try:
                 frame = encode_control_status(ControlStatus(flags, main), view.sysid, 1, self._seq)
@@ -525,6 +684,15 @@ class GcsGateway:
     def close(self) -> None:
         for t in self.transports:
             t.close()
+
+
+def _takes_app(operator_command: Any) -> bool:
+    """Does the station's operator entry take the application's name (``app=``, ``app_sysid=``)?"""
+    try:
+        params = inspect.signature(operator_command).parameters
+    except (TypeError, ValueError):
+        return False
+    return "app" in params and "app_sysid" in params
 
 
 def _not_the_apps(sysid: int, app_sysid: int) -> int:

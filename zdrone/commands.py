@@ -214,6 +214,14 @@ def _gs(args: argparse.Namespace) -> int:
 
     for conn in args.gcs or ():
         parse_endpoint(conn)  # a bad endpoint is a usage error before anything connects
+    if args.gcs_signing == "off" and args.gcs_keys:
+        raise UsageError("--gcs-keys with --gcs-signing off: the keys would not be used (prefer or require)")
+    if args.gcs_keys and not args.gcs:
+        raise UsageError("--gcs-keys: no --gcs endpoint to use them on")
+    if args.gcs_keys:
+        from gs.appkeys import load_keys
+
+        load_keys(args.gcs_keys)  # a bad or exposed key file is an error before anything connects
     _event_limits(args)
     mission = None
     if args.mission == "reference":
@@ -237,7 +245,8 @@ def _gs(args: argparse.Namespace) -> int:
                                       events=args.events, cipher=getattr(args, "cipher", "zdrone"),
                                       paper_heartbeat=getattr(args, "paper_heartbeat", False),
                                       gcs=tuple(args.gcs or ()), take_control=args.take_control,
-                                      allow_takeover=args.allow_takeover))
+                                      allow_takeover=args.allow_takeover, gcs_signing=args.gcs_signing,
+                                      gcs_keys=args.gcs_keys))
 
 
 def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
@@ -269,6 +278,14 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.add_argument("--gcs", action="append", metavar="CONN",
                    help="GCS gateway endpoint for QGroundControl/MAVProxy/MAVSDK: udpin:HOST:PORT (apps connect here), "
                         "udpout:127.0.0.1:14550 (QGroundControl's default), tcpin:HOST:PORT; repeatable")
+    p.add_argument("--gcs-signing", choices=["off", "prefer", "require"],
+                   help="MAVLink 2 signing of the GCS applications: require (only applications signing with a key of "
+                        "--gcs-keys may command or consent, release, allow takeover; unsigned ones are read-only), "
+                        "prefer (signed applications are named by their key, unsigned ones still command), off; "
+                        "default: require with --gcs-keys, else prefer")
+    p.add_argument("--gcs-keys", metavar="FILE",
+                   help="the GCS applications' signing keys, one per line: NAME hex:<64 hex> | qgc:<passphrase> | "
+                        "<passphrase> (MAVProxy's 'signing key <passphrase>'); mode 0600")
     p.set_defaults(func=_gs)
 
 

@@ -1,0 +1,313 @@
+"""MAVLink 2 signing of the GCS gateway's applications (``gs.appkeys``, ``gs.gateway``), without sockets.
+
+The key file (formats, the mode check), the keys MAVProxy and QGroundControl make of a passphrase,
+and the gateway's policy per ``--gcs-signing`` mode against frames signed by pymavlink itself: who may
+speak for the operator, what an unsigned application still gets, what a wrongly signed, replayed or
+stale frame gets (nothing, counted), and that replies to a signed application verify with its key.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import pytest
+from pymavlink.dialects.v20 import common as mav
+
+from gs.appkeys import (MAX_KEYS, AppSigning, SigningKey, load_keys, parse_keys, passphrase_key,
+                        qgc_passphrase_key)
+from gs.gateway import GcsGateway
+from tests.unit.test_gateway_apps import GS_SYSID, VEHICLE_SYSID, MemTransport, StubStation
+from zdrone.core import fcsign
+from zdrone.core.fleet import ConfigError
+from zdrone.core.mavcontrol import (MAV_CMD_REQUEST_OPERATOR_CONTROL, MAV_RESULT_NOT_IN_CONTROL,
+                                    decode_control_status)
+from zdrone.core.mavlink import FrameCodec, read_header
+
+OPS_A = SigningKey("opsA", passphrase_key("opsA-pass-1"))
+OPS_B = SigningKey("opsB", bytes(range(1, 33)))
+UNSIGNED_PEER = ("127.0.0.1", 40042)
+SIGNED_PEER = ("127.0.0.1", 40255)
+
+
+# ------------------------------------------------------------------ the key file
+def test_the_key_file_takes_hex_keys_passphrases_and_qgroundcontrol_passphrases(tmp_path):
+    keys = parse_keys(["# operators of GS A", "", f"qgc1 hex:{'ab' * 32}", "mavproxy passphrase:one-word",
+                       "bare another-word", "qgc2 qgc:a long passphrase with spaces"])
+    assert [k.name for k in keys] == ["qgc1", "mavproxy", "bare", "qgc2"]
+    assert keys[0].key == bytes([0xAB] * 32)
+    assert keys[1].key == passphrase_key("one-word") and keys[2].key == passphrase_key("another-word")
+    assert keys[3].key == qgc_passphrase_key("a long passphrase with spaces") != passphrase_key("a long passphrase with spaces")
+    assert keys[1].identity == "key:mavproxy" and "one-word" not in repr(keys[1]) and keys[1].key.hex() not in repr(keys[1])
+
+
+def test_the_passphrase_key_is_mavproxys():
+    signing = pytest.importorskip("MAVProxy.modules.mavproxy_signing")
+    assert passphrase_key("s3cret-Passphrase") == signing.SigningModule.passphrase_to_key(None, "s3cret-Passphrase")
+
+
+@pytest.mark.parametrize("lines, error", [
+    (["a hex:abcd"], "64 hex digits"),
+    (["a hex:zz" + "0" * 62], "64 hex digits"),
+    ([f"a hex:{'00' * 32}"], "all-zero"),
+    (["a"], "no key"),
+    (["bad/name x"], "application name"),
+    (["a one", "a two"], "listed twice"),
+    (["a same", "b same"], "same key as a"),
+    ([f"k{i} pass-{i}" for i in range(MAX_KEYS + 1)], f"at most {MAX_KEYS}"),
+])
+def test_a_malformed_key_file_is_one_line_naming_the_line(lines, error):
+    with pytest.raises(ConfigError, match=error) as exc:
+        parse_keys(lines, "keys.txt")
+    assert "\n" not in str(exc.value) and "keys.txt" in str(exc.value)
+
+
+def test_a_key_file_readable_by_others_is_refused(tmp_path):
+    path = tmp_path / "gcs-keys"
+    path.write_text("opsA opsA-pass-1\n")
+    os.chmod(path, 0o644)
+    with pytest.raises(ConfigError, match=r"accessible by others \(mode 0644\); run chmod 600"):
+        load_keys(path)
+    os.chmod(path, 0o600)
+    assert load_keys(path) == (OPS_A,)
+    with pytest.raises(ConfigError, match="no such key file"):
+        load_keys(tmp_path / "missing")
+
+
+# ------------------------------------------------------------------ signatures and timestamps
+def signer(key: bytes, sysid: int = 255, compid: int = 190, link: int = 0, ts: int | None = None) -> mav.MAVLink:
+    """A pymavlink encoder that signs as an application does (``setup_signing``)."""
+    m = mav.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    m.signing.secret_key, m.signing.sign_outgoing, m.signing.link_id = key, True, link
+    m.signing.timestamp = fcsign.units(time.time()) if ts is None else ts
+    return m
+
+
+def signed(m: mav.MAVLink, msg: Any) -> bytes:
+    return bytes(msg.pack(m))
+
+
+def heartbeat() -> Any:
+    return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+
+
+def test_verify_takes_each_key_once_per_stream_timestamp_and_refuses_the_rest():
+    s = AppSigning([OPS_B, OPS_A])
+    now = fcsign.units(time.time())
+    app = signer(OPS_A.key, ts=now)
+    first, second = signed(app, heartbeat()), signed(app, heartbeat())
+    assert s.verify(first, now) == (OPS_A, None)
+    assert s.verify(first, now) == (None, "replay")
+    assert s.verify(second, now) == (OPS_A, None)
+    other_link = signer(OPS_A.key, link=7, ts=now - 100)  # another stream of the same key: its own timestamps
+    assert s.verify(signed(other_link, heartbeat()), now) == (OPS_A, None)
+    assert s.verify(signed(signer(os.urandom(32), ts=now), heartbeat()), now) == (None, "bad_signature")
+    stale = signer(OPS_B.key, ts=now - 2 * fcsign.NEW_STREAM_WINDOW)
+    assert s.verify(signed(stale, heartbeat()), now) == (None, "stale_stream")
+    tampered = bytearray(signed(app, heartbeat()))
+    tampered[12] ^= 1
+    assert s.verify(bytes(tampered), now) == (None, "bad_signature")
+
+
+def test_a_key_holders_future_timestamps_move_its_own_window_only():
+    s = AppSigning([OPS_A, OPS_B])
+    now = fcsign.units(time.time())
+    assert s.verify(signed(signer(OPS_A.key, ts=now + 10**9), heartbeat()), now)[0] == OPS_A
+    assert s.verify(signed(signer(OPS_B.key, ts=now), heartbeat()), now)[0] == OPS_B
+
+
+def test_replies_signed_for_an_application_verify_in_pymavlink_with_its_key_only():
+    s = AppSigning([OPS_A])
+    now = fcsign.units(time.time())
+    frame = FrameCodec(VEHICLE_SYSID, 1).encode(mav.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3))
+    out = [s.sign(frame, "opsA", now) for _ in range(3)]
+    app = mav.MAVLink(None)
+    app.signing.secret_key, app.signing.timestamp = OPS_A.key, now
+    assert [app.parse_char(f).get_type() for f in out] == ["HEARTBEAT"] * 3  # growing timestamps on one stream
+    wrong = mav.MAVLink(None)
+    wrong.signing.secret_key, wrong.signing.timestamp = OPS_B.key, now
+    with pytest.raises(mav.MAVError, match="Invalid signature"):
+        wrong.parse_char(out[0])
+
+
+# ------------------------------------------------------------------ the gateway's policy
+class NamingStation(StubStation):
+    """A station whose operator entry takes the application's name (``station.operator_command``'s)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.operator_calls: list[tuple[Any, str, int | None]] = []
+
+    def operator_command(self, view: Any, req: Any, now: float, app: str = "", app_sysid: int | None = None) -> int:
+        self.operator_calls.append((req, app, app_sysid))
+        return mav.MAV_RESULT_ACCEPTED
+
+
+class PeerTransport(MemTransport):
+    """A UDP-like in-memory endpoint that knows its peers, as ``MavTransport`` does."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.udp_peers: dict[Any, float] = {}
+
+    def deliver(self, frame: bytes, peer: Any) -> None:
+        self.udp_peers[peer] = 0.0
+        self.inbox.append((frame, peer))
+
+    def to(self, peer: Any) -> list[bytes]:
+        return [f for f, p in self.out if p == peer]
+
+
+def make(mode: str, station: StubStation | None = None) -> tuple[GcsGateway, StubStation, PeerTransport]:
+    station = station or NamingStation()
+    gw = GcsGateway(station, [], signing=mode, keys=[OPS_A, OPS_B])
+    t = PeerTransport()
+    gw.transports = [t]
+    return gw, station, t
+
+
+def unsigned(msg: Any, sysid: int = 42) -> bytes:
+    return FrameCodec(sysid, 190).encode(msg)
+
+
+def consent() -> Any:
+    return mav.MAVLink_command_long_message(VEHICLE_SYSID, 1, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 0, 0, 10, 3, 0, 0, 0)
+
+
+def arm() -> Any:
+    return mav.MAVLink_command_long_message(VEHICLE_SYSID, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+
+
+def pump(gw: GcsGateway, t: PeerTransport, frame: bytes, peer: Any) -> None:
+    t.out.clear()
+    t.deliver(frame, peer)
+    gw.poll(time.monotonic())
+
+
+def replies(t: PeerTransport, peer: Any, key: bytes | None = None) -> list[Any]:
+    """What ``peer`` was sent, decoded as the application would (checking signatures with ``key``)."""
+    app = mav.MAVLink(None)
+    if key is not None:
+        app.signing.secret_key, app.signing.timestamp = key, fcsign.units(time.time())
+    out = []
+    for f in t.to(peer):
+        st = decode_control_status(f)
+        out.append(st if st is not None else app.parse_char(f))
+    return out
+
+
+def acks(msgs: list[Any]) -> list[tuple[int, int]]:
+    return [(m.command, m.result) for m in msgs if getattr(m, "get_type", lambda: "")() == "COMMAND_ACK"]
+
+
+def test_require_an_unsigned_application_may_not_consent_command_or_write_but_reads():
+    gw, station, t = make("require")
+    pump(gw, t, unsigned(consent()), UNSIGNED_PEER)
+    assert acks(replies(t, UNSIGNED_PEER)) == [(MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)]
+    assert station.operator_calls == [] and station.sent == []
+    for p1, p2 in ((1, 1), (1, 0)):  # allow takeover, decline: every form of 32100
+        pump(gw, t, unsigned(mav.MAVLink_command_long_message(1, 1, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, p1, p2, 10, 42,
+                                                              0, 0, 0)), UNSIGNED_PEER)
+    pump(gw, t, unsigned(arm()), UNSIGNED_PEER)
+    assert acks(replies(t, UNSIGNED_PEER)) == [(mav.MAV_CMD_COMPONENT_ARM_DISARM, MAV_RESULT_NOT_IN_CONTROL)]
+    pump(gw, t, unsigned(mav.MAVLink_mission_clear_all_message(1, 1, 0)), UNSIGNED_PEER)
+    assert [m.type for m in replies(t, UNSIGNED_PEER) if m.get_type() == "MISSION_ACK"] == [mav.MAV_MISSION_DENIED]
+    pump(gw, t, unsigned(mav.MAVLink_set_mode_message(1, 1, 6 << 16)), UNSIGNED_PEER)
+    assert [m.get_type() for m in replies(t, UNSIGNED_PEER)] == ["STATUSTEXT"]
+    assert station.operator_calls == [] and station.sent == []
+    pump(gw, t, unsigned(mav.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1)), UNSIGNED_PEER)
+    assert [read_header(f).msgid for f in station.sent] == [mav.MAVLINK_MSG_ID_PARAM_REQUEST_READ]
+    c = gw.counters
+    assert (c["unsigned_refused:operator_control"], c["unsigned_refused:command"], c["unsigned_refused:mission"],
+            c["unsigned_refused:other"]) == (3, 1, 1, 1)
+    assert gw.stats()["signing"] == {"mode": "require", "keys": 2, "apps": {"100": "unsigned:127.0.0.1:40042"}}
+
+
+def test_require_a_signed_application_consents_named_by_its_key_and_is_answered_signed():
+    gw, station, t = make("require")
+    app = signer(OPS_A.key)
+    pump(gw, t, signed(app, consent()), SIGNED_PEER)
+    (req, name, sysid), = station.operator_calls
+    assert (req.request, name, sysid) == (False, "key:opsA", 255)
+    got = replies(t, SIGNED_PEER, OPS_A.key)  # pymavlink with the key refuses anything unsigned or signed otherwise
+    assert acks(got) == [(MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)]
+    assert all(fcsign.is_signed(f) for f in t.to(SIGNED_PEER))
+    pump(gw, t, signed(app, arm()), SIGNED_PEER)
+    sent = station.sent[-1]
+    assert not fcsign.is_signed(sent) and (read_header(sent).sysid, read_header(sent).compid) == (GS_SYSID, 100)
+    pump(gw, t, signed(app, mav.MAVLink_command_long_message(1, 1, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, 10, 255,
+                                                              0, 0, 0)), SIGNED_PEER)
+    assert station.events.of("operator_control_requested") == [{"drone": "D1", "by_sysid": 255, "app": "key:opsA"}]
+
+
+def test_wrongly_signed_replayed_and_stale_frames_are_dropped_counted_and_unanswered():
+    gw, station, t = make("require")
+    now = fcsign.units(time.time())
+    good = signed(signer(OPS_A.key, ts=now), consent())
+    for frame in (signed(signer(os.urandom(32)), consent()),  # a guessed key
+                  signed(signer(OPS_B.key, ts=now - 3 * fcsign.NEW_STREAM_WINDOW), consent())):  # an old capture
+        pump(gw, t, frame, UNSIGNED_PEER)
+    pump(gw, t, good, SIGNED_PEER)
+    pump(gw, t, good, SIGNED_PEER)  # the same frame again
+    assert len(station.operator_calls) == 1 and t.to(SIGNED_PEER) == []
+    assert {k: v for k, v in gw.counters.items() if k.startswith("signing_dropped")} == {
+        "signing_dropped:bad_signature": 1, "signing_dropped:stale_stream": 1, "signing_dropped:replay": 1}
+    assert len(gw.apps) == 1  # a frame no key signed makes no application
+    pump(gw, t, unsigned(consent(), sysid=255), SIGNED_PEER)  # unsigned from where a signed application is
+    assert gw.counters["signing_dropped:unsigned_after_signed"] == 1 and len(station.operator_calls) == 1
+
+
+def test_telemetry_goes_signed_to_each_signed_application_and_as_it_is_to_the_others():
+    gw, station, t = make("prefer")
+    pump(gw, t, signed(signer(OPS_A.key), heartbeat()), SIGNED_PEER)
+    pump(gw, t, signed(signer(OPS_B.key, sysid=250), heartbeat()), ("127.0.0.1", 40250))
+    pump(gw, t, unsigned(heartbeat()), UNSIGNED_PEER)
+    t.out.clear()
+    position = FrameCodec(VEHICLE_SYSID, 1).encode(mav.MAVLink_global_position_int_message(1, 473977420, 85455940, 0,
+                                                                                          0, 0, 0, 0, 0))
+    gw.on_drone_frame("D1", position)
+    assert t.to(UNSIGNED_PEER) == [position]
+    assert [m.get_type() for m in replies(t, SIGNED_PEER, OPS_A.key)] == ["GLOBAL_POSITION_INT"]
+    assert [m.get_type() for m in replies(t, ("127.0.0.1", 40250), OPS_B.key)] == ["GLOBAL_POSITION_INT"]
+
+
+def test_control_status_never_names_an_unsigned_application_under_require():
+    gw, station, t = make("require")
+    pump(gw, t, signed(signer(OPS_A.key), heartbeat()), SIGNED_PEER)
+    pump(gw, t, unsigned(heartbeat(), sysid=255), UNSIGNED_PEER)
+    t.out.clear()
+    gw._next_status = 0.0
+    gw.poll(time.monotonic())
+    mine = [m for m in replies(t, SIGNED_PEER, OPS_A.key) if not hasattr(m, "get_type")]
+    theirs = [m for m in replies(t, UNSIGNED_PEER) if not hasattr(m, "get_type")]
+    assert mine and mine[-1].gcs_main == 255  # the signed application is the one in control
+    assert theirs and theirs[-1].gcs_main == GS_SYSID  # the unsigned one (same sysid 255) sees the GS, not itself
+
+
+def test_prefer_an_unsigned_application_still_consents_named_by_its_address():
+    gw, station, t = make("prefer")
+    pump(gw, t, unsigned(consent()), UNSIGNED_PEER)
+    assert [(name, sysid) for _, name, sysid in station.operator_calls] == [("unsigned:127.0.0.1:40042", 42)]
+    pump(gw, t, signed(signer(os.urandom(32)), consent()), ("127.0.0.1", 40001))
+    assert gw.counters["signing_dropped:bad_signature"] == 1 and len(station.operator_calls) == 1
+
+
+def test_no_setup_signing_of_an_application_reaches_the_vehicle():
+    gw, station, t = make("prefer")
+    app = signer(OPS_A.key)
+    pump(gw, t, signed(app, mav.MAVLink_setup_signing_message(1, 1, list(OPS_A.key), 1)), SIGNED_PEER)
+    pump(gw, t, unsigned(mav.MAVLink_setup_signing_message(1, 1, list(os.urandom(32)), 1)), UNSIGNED_PEER)
+    assert station.sent == [] and gw.counters["setup_signing_dropped"] == 2
+
+
+def test_off_checks_no_signature_as_before():
+    gw, station, t = make("off")
+    pump(gw, t, signed(signer(os.urandom(32)), consent()), UNSIGNED_PEER)
+    assert len(station.operator_calls) == 1 and not any(k.startswith("signing") for k in gw.counters)
+
+
+def test_a_station_without_the_application_parameter_is_still_called():
+    gw, station, t = make("require", StubStation())
+    pump(gw, t, signed(signer(OPS_A.key), consent()), SIGNED_PEER)
+    assert acks(replies(t, SIGNED_PEER, OPS_A.key)) == [(MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)]
