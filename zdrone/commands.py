@@ -143,7 +143,8 @@ def _drone(args: argparse.Namespace) -> int:
                                   thresholds=_thresholds(args), failsafe=args.failsafe,
                                   handover_timeout=args.handover_timeout, gate=_gate(args),
                                   events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args),
-                                  fc_signing=args.fc_signing, rotate_fc_key=args.rotate_fc_key))
+                                  fc_signing=args.fc_signing, rotate_fc_key=args.rotate_fc_key,
+                                  trust_unsigned_position=args.trust_unsigned_position))
 
 
 def _gate(args: argparse.Namespace) -> "Any":
@@ -191,6 +192,11 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
                         "said and counted (default); off = never sign")
     p.add_argument("--rotate-fc-key", action="store_true",
                    help="install a new signing key in the autopilot (on the ground only), signed with the old one")
+    p.add_argument("--trust-unsigned-position", action="store_true",
+                   help="let a position that did not come over a signed autopilot link grant authority (an heir, a "
+                        "pairing that needs coverage): needed to fly with --fc-signing off or an autopilot that does "
+                        "not sign; then any process that can write into the vehicle link can move the drone's "
+                        "authority (README, threat model)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--sil-loss", action="append", metavar="[GS=]P",
                    help="TESTBED ONLY: lose each frame with probability P (every GS link, or GS's); repeatable")

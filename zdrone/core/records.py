@@ -200,6 +200,54 @@ class Failsafe(Record, frozen=True, tag="failsafe"):
     position: Position | None
 
 
+class FailsafeConfirmed(Record, frozen=True, tag="failsafe_confirmed"):
+    """The autopilot shows the failsafe the drone commanded (its mode, or on the ground and disarmed)."""
+
+    action: str
+    attempts: int  # sends of the command
+    after_s: float  # since the first send
+    seen: str
+
+
+class FailsafeRetried(Record, frozen=True, tag="failsafe_retried"):
+    """The autopilot did not show the failsafe in time: the command was sent again."""
+
+    action: str
+    attempts: int
+    after_s: float
+    seen: str  # the autopilot's mode meanwhile
+
+
+class FailsafeUnconfirmed(Record, frozen=True, tag="failsafe_unconfirmed"):
+    """The autopilot never showed the failsafe, out of attempts."""
+
+    action: str
+    attempts: int
+    after_s: float
+    seen: str
+
+
+class VehicleFound(Record, frozen=True, tag="vehicle_found"):
+    """The vehicle link found its autopilot: the drone's fleet sysid with the autopilot's component; over
+    UDP its endpoint and how it proved itself (``fixed``, ``heartbeat``, ``signed``)."""
+
+    sysid: int
+    autopilot: str | None
+    endpoint: str | None = None
+    how: str | None = None
+
+
+class FcUnsigned(Record, frozen=True, tag="fc_unsigned"):
+    """The autopilot's link is not MAVLink-signed (``--fc-signing off``, or ``prefer`` with an autopilot
+    that does not sign): shown to every GS (``fc_signed`` false); its positions grant no authority
+    unless the operator opted in for this drone (``trust_unsigned_position``)."""
+
+    mode: str
+    state: str
+    reason: str
+    trust_unsigned_position: bool
+
+
 class AuthorityForgotten(Record, frozen=True, tag="authority_forgotten"):
     """At start, no saved owner to come back to: a fresh start (a ground restart with a saved owner
     keeps its epoch and gives that owner the first claim instead: ``FirstClaim``)."""
@@ -803,6 +851,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
     HandoverStart,
     HandoverRequested, TakeoverSetting, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
     AuthorityLinkLost, RegionEntered, RegionLeft,
+    FailsafeConfirmed, FailsafeRetried, FailsafeUnconfirmed, VehicleFound, FcUnsigned,
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)
 GS_RECORDS: tuple[type[Record], ...] = (

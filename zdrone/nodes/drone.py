@@ -53,6 +53,9 @@ PAIRING_QUERIES_PER_TURN = 256
 MAX_SLEEP_S = 0.05
 #: The inbox kind (and sender) of the vehicle link's messages.
 VEHICLE = "vehicle"
+#: The record of each outcome of a commanded failsafe (``VehicleTracker.failsafe_outcomes``).
+_FAILSAFE_RECORDS: dict[str, type[rec.Record]] = {"confirmed": rec.FailsafeConfirmed, "retried": rec.FailsafeRetried,
+                                                   "unconfirmed": rec.FailsafeUnconfirmed}
 
 
 class LinkGate(Protocol):
@@ -102,6 +105,11 @@ class Vehicle(Protocol):
 
     def state(self) -> VehicleState: ...
 
+    @property
+    def position_signed(self) -> bool: ...
+
+    def failsafe_outcomes(self) -> list[Any]: ...
+
     def stream_stats(self) -> dict[str, Any]: ...
 
     def command_land(self) -> None: ...
@@ -129,6 +137,9 @@ class DroneOptions:
     radio: Any = None  # TESTBED ONLY: a ``RadioPath`` (loss, bursts, delay, jitter), handed in likewise
     fc_signing: str = "prefer"  # MAVLink signing of the flight controller's link: require | prefer | off
     rotate_fc_key: bool = False  # install a new signing key in the flight controller (on the ground)
+    # the operator's opt-in for this drone: a position that did not come over a signed autopilot link
+    # may grant authority (an heir, a pairing that needs coverage); off, only signed positions do
+    trust_unsigned_position: bool = False
 
 
 class DroneNode:
@@ -226,6 +237,11 @@ class DroneNode:
     def _on_ground(self) -> bool:
         return not self.vehicle.armed or self.vehicle.landed_state == mav.MAV_LANDED_STATE_ON_GROUND
 
+    def _position_trusted(self) -> bool:
+        """The vehicle's position may grant authority: it came signed by the autopilot, or the operator
+        opted in for an unsigned link (``--trust-unsigned-position``)."""
+        return self.opts.trust_unsigned_position or bool(self.vehicle.position_signed)
+
     def _pos(self) -> tuple[float, float, float] | None:
         p = self.vehicle.position
         return (round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)) if p else None
@@ -244,7 +260,7 @@ class DroneNode:
         """At start: back to the authority saved before a restart (in the air: its owner re-pairs; on
         the ground: the epoch goes on and the saved owner pairs back first), or a fresh start."""
         saved = self.store.load()
-        self._do(self.core.on_vehicle(self._pos(), self._on_ground(), now), now)
+        self._do(self.core.on_vehicle(self._pos(), self._on_ground(), now, self._position_trusted()), now)
         if saved is not None:
             self._do(self.core.restore(saved.owner, saved.epoch, saved.state, now), now)
 
@@ -291,7 +307,27 @@ class DroneNode:
         """The autopilot link's MAVLink signing (``FcSigning.status``); the core tells the GSs whether it is signed."""
         st: dict[str, Any] = getattr(self.vehicle, "signing_status", dict)()
         self.core.fc_signed = bool(st.get("signed")) if st else None
+        if st:
+            st = {**st, "position_trusted": self.core.position_trusted,
+                  "trust_unsigned_position": self.opts.trust_unsigned_position}
         return st
+
+    def _found(self) -> None:
+        """Say which vehicle the link found and, if its link is not signed, that every GS is told so and
+        what its positions are worth."""
+        endpoint = (self.vehicle.stream_stats().get("endpoint") or {})
+        self._emit(rec.VehicleFound(sysid=self.vehicle.sysid or 0, autopilot=self.vehicle.state().autopilot,
+                                    endpoint=endpoint.get("address"), how=endpoint.get("how")))
+        st = self._fc_signing()
+        if st and not st.get("signed"):
+            trust = self.opts.trust_unsigned_position
+            self._emit(rec.FcUnsigned(mode=str(st.get("mode")), state=str(st.get("state")), reason=str(st.get("reason") or ""),
+                                      trust_unsigned_position=trust))
+            log.warning("the autopilot's link is NOT signed (--fc-signing %s, %s): every GS is told so; %s", st.get("mode"),
+                        st.get("state"), "its positions are trusted for authority (--trust-unsigned-position)" if trust
+                        else "its positions grant no authority (no heir, no pairing that needs coverage)")
+            print(f"zdrone drone {self.name}: autopilot link unsigned ({st.get('mode')}): positions "
+                  f"{'trusted (--trust-unsigned-position)' if trust else 'grant no authority'}", flush=True)
 
     def stop(self, *_: object) -> None:
         self.rt.stop()
@@ -302,7 +338,7 @@ class DroneNode:
         if not self.vehicle.wait_vehicle(30.0):
             raise ConfigError(f"vehicle {self.opts.vehicle}: no heartbeat within 30 s")
         print(f"zdrone drone {self.name}: vehicle sysid {self.vehicle.sysid} ready", flush=True)
-        self._fc_signing()
+        self._found()
         self._restore(time.monotonic())
         self.core.ready(time.time())
         inbox = self.rx
@@ -342,10 +378,13 @@ class DroneNode:
         if not self._vehicle_pushes:
             for frame in self.vehicle.recv(0.0):
                 self._do(self.core.on_telemetry(frame, now), now)
-        pos = self._pos()
-        if self.gate is not None:
-            self.gate.update(self.vehicle.position)
-        self._do(self.core.on_vehicle(pos, self._on_ground(), now), now)
+        pos, trusted = self._pos(), self._position_trusted()
+        if self.gate is not None:  # the testbed's radio follows the vehicle, never a position it cannot vouch for
+            self.gate.update(self.vehicle.position if trusted else None)
+        self._do(self.core.on_vehicle(pos, self._on_ground(), now, trusted), now)
+        for outcome in self.vehicle.failsafe_outcomes():
+            self._emit(_FAILSAFE_RECORDS[outcome.outcome](action=outcome.action, attempts=outcome.attempts,
+                                                          after_s=outcome.after_s, seen=outcome.seen))
         timer = self.core.get_timer()
         if timer is not None and now >= timer:
             self._do(self.core.handle_timer(now), now)

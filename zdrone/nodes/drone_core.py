@@ -167,6 +167,7 @@ class DroneCore:
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
         self.position: Position | None = None
+        self.position_trusted = False  # the position may grant authority (``on_vehicle``)
         self.on_ground = True
         self.fc_signed: bool | None = None  # the adapter's word: the autopilot link is MAVLink-signed (None: unknown)
         self._listening: frozenset[str] = frozenset()
@@ -233,15 +234,19 @@ class DroneCore:
                               None if wall is None else r.max_age)
         return None if fail is None else PairRefused(PairRefusal(fail.value))
 
-    def on_vehicle(self, position: Position | None, on_ground: bool, now: float) -> list[Out]:
+    def on_vehicle(self, position: Position | None, on_ground: bool, now: float, trusted: bool = True) -> list[Out]:
         """The vehicle's own position (None while it has no fix: inside no coverage) and whether it
-        is on the ground. Updates the coverage circles the drone is inside."""
-        self.position, self.on_ground = position, on_ground
-        inside = frozenset() if position is None else frozenset(
+        is on the ground. Updates the coverage circles the drone is inside -- from a ``trusted``
+        position only (one that came signed by the autopilot, or the operator opted in for an unsigned
+        link): an untrusted one is inside no coverage (no heir, no pairing that needs coverage)."""
+        self.position, self.on_ground, self.position_trusted = position, on_ground, trusted
+        inside = frozenset() if position is None or not trusted else frozenset(
             g for g, circle in self.coverage.items() if circle.contains(GeoPoint(position[0], position[1])))
         out: list[Out] = []
         if inside != self.machine.inside:
             out += self._handle(ha.RegionChanged(now, inside), now)
+        if on_ground != self.machine.on_ground:  # no link-loss failsafe on the ground (``AuthorityMachine``)
+            out += self._handle(ha.GroundChanged(now, on_ground), now)
         return out + self._effects(now)
 
     def on_telemetry(self, frame: bytes, now: float) -> list[Out]:

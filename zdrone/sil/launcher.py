@@ -1134,9 +1134,15 @@ class Demo:
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
         coverage = [] if self.links else ["--sil-coverage"]  # with sites: the radio links are the coverage
+        trust: list[str] = []
+        if o.fc_signing == "off":  # an unsigned link's positions grant no authority unless opted in (issue 29)
+            trust = ["--trust-unsigned-position"]
+            self.notes.append("--fc-signing off: the drone trusts unsigned positions (--trust-unsigned-position): "
+                              "any process that can write into its vehicle link can move its authority")
         drone = self.start("drone", self._zn() + ["drone", "--id", "d1", *self._common(), "--vehicle", vehicle,
                                                   *coverage, "--events", "drone.jsonl", "--handover-timeout",
-                                                  str(ho_timeout), "--fc-signing", o.fc_signing, *self._bench_extra(),
+                                                  str(ho_timeout), "--fc-signing", o.fc_signing, *trust,
+                                                  *self._bench_extra(),
                                                   *self.spec.radio, *o.radio],
                            ns=self._ns())
         self.wait_line(drone, "ready", 40)

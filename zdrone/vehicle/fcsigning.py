@@ -8,19 +8,26 @@ trusted place to install and keep that key. ``FcSigning`` does it for one vehicl
 * **Key store** (``FcKeyStore``): ``secrets/<drone>.fc-signing.json`` beside the node's secret
   (under systemd in the service's state directory, ``$ZDRONE_STATE_DIR``, as the authority state),
   mode 0600, replaced atomically (temporary file, fsync, rename, fsync of the directory): the key,
-  the key it replaces while a rotation is unconfirmed, and the timestamp reserved so far.
+  the key it replaces while a rotation is unconfirmed, the timestamp reserved so far, and whether the
+  autopilot has ever signed with a key of this node (``confirmed``: from then on the link never goes
+  back to unsigned).
 * **Provisioning** (``start``): with no key yet, or when a rotation is asked for, a fresh 32-byte
   key goes to the autopilot in SETUP_SIGNING, on the ground only (refused while armed, as PX4
   does). The first key is sent unsigned (PX4 takes it on trust); a new key is sent signed with the
   old one (an autopilot with a key drops an unsigned SETUP_SIGNING). With a stored key the node
   sends SETUP_SIGNING with the same key, signed, so an autopilot that lost its key gets it back and
-  one that has it changes nothing; armed (a restart in the air) it sends none and only waits for
-  the autopilot's signed frames.
+  one that has it changes nothing; armed (a restart in the air), or over a UDP endpoint the link
+  learned (``resend_stored`` False: whoever answers first there may not be the autopilot, and
+  SETUP_SIGNING carries the key in clear), it sends none and only waits for the autopilot's signed
+  frames.
 * **Confirmation**: the autopilot signs its frames once signed traffic arrives; the first frame
   signed with the new key confirms it (``state`` SIGNED, the old key forgotten). Frames still signed
   with the old key make the node send SETUP_SIGNING again (once a second). No signed frame within
   ``confirm_timeout`` seconds: the autopilot does not sign (PX4 before 1.17): said once, counted, and
-  the link goes on unsigned (``prefer``) or the node refuses to fly (``require``).
+  the link goes on unsigned (``prefer``) or the node refuses to fly (``require``) -- and refuses with
+  ``prefer`` too when this autopilot has signed before (``StoredKey.confirmed``): a vehicle that once
+  held a key never goes back to unsigned (who answers unsigned now is someone else, or the autopilot
+  lost its key: ``--rotate-fc-key`` on the ground installs one again).
 * **Every frame out is signed** (``outgoing``) with link id ``link_id``, under a timestamp that
   never goes back, across restarts too: the larger of the last one + 1, the wall clock, the
   timestamps of the autopilot's signed frames (ArduPilot resumes 60 s past its last saved
@@ -89,6 +96,7 @@ class StoredKey:
     key: bytes
     timestamp: int  # reserved: every timestamp used so far is below it
     previous: bytes | None = None  # the key a rotation replaces, until the autopilot signs with the new one
+    confirmed: bool = False  # the autopilot has signed with a key of this node: never unsigned again
 
 
 def key_id(key: bytes | None) -> str | None:
@@ -124,7 +132,7 @@ class FcKeyStore:
             raw = json.loads(self.path.read_text())
             key = bytes.fromhex(raw["key"])
             prev = bytes.fromhex(raw["previous"]) if raw.get("previous") else None
-            stored = StoredKey(key, int(raw["timestamp"]), prev)
+            stored = StoredKey(key, int(raw["timestamp"]), prev, bool(raw.get("confirmed", False)))
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"{self.path}: malformed signing key file: {exc}") from None
         if len(key) != fcsign.KEY_LEN or (prev is not None and len(prev) != fcsign.KEY_LEN):
@@ -135,7 +143,7 @@ class FcKeyStore:
         """Write durably: temporary file (0600), fsync, rename over the old one, fsync the directory."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
         body = {"key": stored.key.hex(), "timestamp": stored.timestamp,
-                "previous": stored.previous.hex() if stored.previous else None}
+                "previous": stored.previous.hex() if stored.previous else None, "confirmed": stored.confirmed}
         write_durably(self.path, json.dumps(body).encode())
 
 
@@ -161,6 +169,8 @@ class FcSigning:
         self.stored: StoredKey | None = store.load() if store is not None and mode != "off" else None
         self.key: bytes | None = self.stored.key if self.stored else None
         self.previous: bytes | None = self.stored.previous if self.stored else None
+        #: the autopilot has signed with a key of this node (persisted): the link never goes back to unsigned
+        self.confirmed_before = bool(self.stored and self.stored.confirmed)
         self._reserved = self.stored.timestamp if self.stored else 0
         self.timestamp = self._reserved  # the last timestamp used (or reserved before a restart)
         self.peer = fcsign.StreamClock(self.timestamp)
@@ -190,13 +200,15 @@ class FcSigning:
         with self._lock:
             return {"mode": self.mode, "state": self.state.value, "signed": self.state is FcState.SIGNED,
                     "key": key_id(self.key), "timestamp": self.timestamp, "reason": self.reason,
-                    "counters": dict(self.counters)}
+                    "signed_before": self.confirmed_before, "counters": dict(self.counters)}
 
     # ------------------------------------------------------------ provisioning
-    def start(self, now: float, armed: bool, target_system: int, target_component: int = 1) -> None:
+    def start(self, now: float, armed: bool, target_system: int, target_component: int = 1,
+              resend_stored: bool = True) -> None:
         """Begin: decide whether a key must be installed (a first one, or a rotation) and prepare the
-        SETUP_SIGNING (``due_setup`` hands it out). Raises ``FcSigningError`` when a key must be
-        installed while the vehicle is armed."""
+        SETUP_SIGNING (``due_setup`` hands it out). ``resend_stored`` False: a stored key is not sent
+        again (an endpoint the link learned: only a signed answer proves it is the autopilot). Raises
+        ``FcSigningError`` when a key must be installed while the vehicle is armed."""
         with self._lock:
             self.started_at = now
             if self.mode == "off":
@@ -214,12 +226,13 @@ class FcSigning:
                 if len(new) != fcsign.KEY_LEN:
                     raise ValueError("a signing key is 32 bytes")
                 ts = self._next_timestamp()
-                self._save(StoredKey(new, self._reserved, old))  # the new key is stored before it is sent
+                self._save(StoredKey(new, self._reserved, old, self.confirmed_before))  # stored before it is sent
                 self.key, self.previous = new, old
                 self._setup_key = old  # None for the first key: sent unsigned, taken on trust
                 log.warning("installing %s MAVLink signing key %s in the flight controller%s",
                             "a new" if old else "a first", key_id(new), f" (replacing {key_id(old)})" if old else "")
-            elif armed:  # a restart in the air: the autopilot has the key (and refuses SETUP_SIGNING now)
+            elif armed or not resend_stored:  # a restart in the air (the autopilot refuses SETUP_SIGNING now),
+                # or an endpoint not yet proven: the autopilot has the key and signs back
                 self._setup = None
                 self._next_setup = now
                 self.state = FcState.PROVISIONING
@@ -247,7 +260,14 @@ class FcSigning:
             return self._setup, self._setup_key
 
     def _no_signed_reply(self) -> None:
-        if self.counters["foreign_signature"]:
+        if self.confirmed_before:
+            self.state, self.reason = FcState.FAILED, (
+                f"the autopilot signed with key {key_id(self.key)} before and does not now: the link does not go "
+                "back to unsigned (someone else answers as the autopilot, or it lost its key: --rotate-fc-key on "
+                "the ground installs one again)")
+            self.counters["downgrade_refused"] += 1
+            log.error("MAVLink signing: %s", self.reason)
+        elif self.counters["foreign_signature"]:
             self.state, self.reason = FcState.FAILED, "the autopilot signs with a key this node does not hold"
             log.error("MAVLink signing: %s", self.reason)
         elif self.mode == "require":
@@ -272,7 +292,7 @@ class FcSigning:
         if ts >= self._reserved:
             self._reserved = ts + int(RESERVE_S * fcsign.UNITS_PER_S)
             if self.key is not None:
-                self._save(StoredKey(self.key, self._reserved, self.previous))
+                self._save(StoredKey(self.key, self._reserved, self.previous, self.confirmed_before))
                 self.counters["timestamp_saved"] += 1
         self.timestamp = ts
         return ts
@@ -323,6 +343,13 @@ class FcSigning:
             self.counters["foreign_signature"] += 1
             return self._drop("bad_signature")
 
+    def vouches(self, frame: bytes) -> bool:
+        """The frame is signed with the link's key (or the one a rotation replaces): it comes from the
+        autopilot. Only meaningful for a frame ``incoming`` took (its timestamp checked there)."""
+        if self.mode == "off" or not fcsign.is_signed(frame):
+            return False
+        return any(k is not None and fcsign.signed_with(frame, k) for k in (self.key, self.previous))
+
     def _drop(self, reason: str) -> str:
         self.counters[f"dropped:{reason}"] += 1
         if self.counters[f"dropped:{reason}"] <= 3:
@@ -333,9 +360,8 @@ class FcSigning:
         was = self.state
         self.state, self.reason = FcState.SIGNED, ""
         self._setup = None
-        if self.previous is not None:
-            self.previous = None
-            if self.key is not None:
-                self._save(StoredKey(self.key, self._reserved, None))
+        if (self.previous is not None or not self.confirmed_before) and self.key is not None and self.store is not None:
+            self.previous, self.confirmed_before = None, True
+            self._save(StoredKey(self.key, self._reserved, None, True))  # from now on never unsigned
         log.warning("MAVLink signing: the flight controller signs with key %s%s", key_id(self.key),
                     "" if was is FcState.PROVISIONING else f" (was {was.value})")

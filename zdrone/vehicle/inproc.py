@@ -74,6 +74,15 @@ class InProcessVehicle:
         """The simulator in this process streams what it streams: nothing is asked of it."""
         return {"autopilot": self.autopilot, "connections": 1, "streams": {}, "counters": {}}
 
+    @property
+    def position_signed(self) -> bool:
+        """The simulator in this process is the autopilot: its position is its own, no wire between."""
+        return True
+
+    def failsafe_outcomes(self) -> list[Any]:
+        """A mode asked of the simulator in this process is taken at once: nothing to follow."""
+        return []
+
     def command_land(self) -> None:
         self.sim.request_mode(FlightMode.LAND)
 

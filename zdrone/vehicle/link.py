@@ -14,6 +14,13 @@ and checks every frame it receives (dropped and counted when forged, replayed or
 autopilot signs, unsigned); the frames it hands on have their signature removed (the envelope
 authenticates them beyond the companion).
 
+Over UDP the link takes frames from the autopilot's endpoint only (``zdrone.vehicle.endpoint``: the
+address it sends to with ``udpout:``; with ``udpin:`` the first address that proves to be the
+autopilot) and sends to it only; its tracker adopts only the drone's own fleet sysid with the
+autopilot's component. A position counts for authority only if it came signed
+(``position_signed``). A LAND / RTL the link commands is followed until the autopilot shows it, and
+sent again meanwhile (``VehicleTracker.watch_failsafe``).
+
 Two ways to read it: ``recv`` (the caller polls; ``wait_vehicle`` and the tests), or, once
 ``start_reader`` is called, a reader thread of its own that waits on the connection and hands every
 message to the caller's ``deliver`` at once (the drone node's inbox, which wakes its loop). The
@@ -26,6 +33,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -38,11 +46,12 @@ from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
 from ..core import fcsign  # noqa: E402
 from ..core.fleet import ConfigError  # noqa: E402
-from ..core.mavlink import FrameError  # noqa: E402
+from ..core.mavlink import FrameError, split_frames  # noqa: E402
+from .endpoint import AutopilotEndpoint  # noqa: E402
 from .fcsigning import FcSigning, FcSigningError, FcState  # noqa: E402
 from ..core.geometry import GeoPoint  # noqa: E402
 from .modes import ARDUPILOT, set_mode_params  # noqa: E402
-from .tracker import DEFAULT_STREAMS, StreamWant, Timing, VehicleTracker  # noqa: E402
+from .tracker import DEFAULT_STREAMS, FailsafeOutcome, StreamWant, Timing, VehicleTracker  # noqa: E402
 
 log = logging.getLogger(__name__)
 COMPANION_COMPID = mav.MAV_COMP_ID_ONBOARD_COMPUTER
@@ -53,6 +62,8 @@ HEARTBEAT_PERIOD_S = 1.0
 TRACKER_POLL_S = 0.25
 #: The reader thread waits for the connection this long at most between looks at ``close``.
 READ_WAIT_S = 0.1
+#: Datagrams from other addresses dropped per read at most (then the reader looks at ``close`` again).
+DROPS_PER_READ = 256
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +100,50 @@ class VehicleLink:
         self._reader: threading.Thread | None = None
         self.read_errors = 0
         self.signing = signing
+        self.endpoint: AutopilotEndpoint | None = None
+        if isinstance(self.m, mavutil.mavudp) and not self.m.broadcast:
+            self._guard_udp(companion_sysid)
+
+    def _guard_udp(self, sysid: int) -> None:
+        """Take datagrams from the autopilot's endpoint only, and send to it only (``AutopilotEndpoint``)."""
+        m = self.m
+        fixed = None
+        if not m.udp_server:  # udpout: the autopilot is where we send
+            host, port = m.destination_addr
+            try:
+                fixed = (socket.gethostbyname(host), int(port))
+            except OSError as exc:
+                raise ConfigError(f"vehicle connection {self.conn!r}: {exc}") from None
+        self.endpoint = AutopilotEndpoint(sysid, fixed, self._signed_by_us)
+        m.recv = self._udp_recv  # pymavlink's recv_msg reads through these
+        if m.udp_server:
+            m.write = self._udp_write
+
+    def _signed_by_us(self, frame: bytes) -> bool:
+        return self.signing is not None and self.signing.vouches(frame)
+
+    def _udp_recv(self, n: int | None = None) -> bytes:
+        """The next datagram from the autopilot's endpoint (b"" if none is waiting); others dropped, counted."""
+        assert self.endpoint is not None
+        for _ in range(DROPS_PER_READ):
+            try:
+                data, addr = self.m.port.recvfrom(65535)
+            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                return b""
+            frames, _rest, _skipped = split_frames(data)
+            if self.endpoint.admit(addr, frames) is None:
+                return data
+        return b""
+
+    def _udp_write(self, buf: bytes, secret: bool = False) -> None:
+        """Send to the autopilot's endpoint (``secret``: to it alone, never to other claimants)."""
+        assert self.endpoint is not None
+        targets = self.endpoint.destinations()
+        for addr in targets[:1] if secret else targets:
+            try:
+                self.m.port.sendto(buf, addr)
+            except OSError:
+                pass
 
     # ------------------------------------------------------------ tracked state
     @property
@@ -125,9 +180,22 @@ class VehicleLink:
     def last_heartbeat(self) -> float | None:
         return self.tracker.last_heartbeat
 
+    @property
+    def position_signed(self) -> bool:
+        """The position came signed with the link's key: it is the autopilot's (``VehicleTracker``)."""
+        return self.tracker.position_signed
+
     def stream_stats(self) -> dict[str, Any]:
-        """What was asked of the vehicle and what came (``VehicleTracker.stats``)."""
-        return self.tracker.stats()
+        """What was asked of the vehicle and what came (``VehicleTracker.stats``), and over UDP the
+        autopilot's endpoint (``AutopilotEndpoint.status``)."""
+        stats = self.tracker.stats()
+        if self.endpoint is not None:
+            stats["endpoint"] = self.endpoint.status()
+        return stats
+
+    def failsafe_outcomes(self) -> list[FailsafeOutcome]:
+        """What became of the failsafe the link commanded since the last call (``VehicleTracker``)."""
+        return self.tracker.failsafe_outcomes()
 
     def state(self) -> VehicleState:
         return VehicleState(self.sysid, self.position, self.armed, self.mode, self.landed_state, self.autopilot,
@@ -163,7 +231,7 @@ class VehicleLink:
         if setup is not None:  # SETUP_SIGNING, signed with the key it replaces (unsigned: the first key)
             msg, key = setup
             with self._io:
-                self._send_msg(msg, key)
+                self._send_msg(msg, key, secret=True)
             # and a frame signed with the new key at once: an autopilot signs its replies on a link
             # once signed traffic arrives on it (PX4, ArduPilot), and its first signed frame settles
             # provisioning; waiting for the next HEARTBEAT (1 s) raced the SETUP_SIGNING's resend,
@@ -173,14 +241,18 @@ class VehicleLink:
             with self._io:
                 self._send_msg(msg)
 
-    def _send_msg(self, msg: Any, sign_key: bytes | None | bool = True) -> None:
+    def _send_msg(self, msg: Any, sign_key: bytes | None | bool = True, secret: bool = False) -> None:
         """Pack ``msg`` under the link's sequence number and send it (with ``_io`` held), signed while
-        signing (``sign_key``: True = the link's key, else that key, None unsigned)."""
+        signing (``sign_key``: True = the link's key, else that key, None unsigned); ``secret``
+        (SETUP_SIGNING: the key in clear): to the autopilot's endpoint alone."""
         frame = msg.pack(self.m.mav)
         self.m.mav.seq = (self.m.mav.seq + 1) % 256
         if self.signing is not None:
             frame = self.signing.outgoing(frame) if sign_key is True else self.signing.sign_with(frame, sign_key or None)
-        self.m.write(frame)
+        if secret and self.endpoint is not None and self.endpoint.learned:
+            self._udp_write(frame, secret=True)
+        else:
+            self.m.write(frame)
 
     def _read_one(self) -> Any:
         """The next well-formed message already received, or None (never waits)."""
@@ -196,8 +268,8 @@ class VehicleLink:
 
     def accept(self, msg: Any, now: float) -> bytes:
         """Take up one message from the vehicle (on the loop thread): track it; its raw frame."""
-        self.tracker.on_message(msg, now)
         raw = bytes(msg.get_msgbuf())
+        self.tracker.on_message(msg, now, signed=self.signing is not None and self.signing.vouches(raw))
         if fcsign.is_signed(raw):
             try:
                 return fcsign.strip(raw)
@@ -268,12 +340,15 @@ class VehicleLink:
             self._send_msg(msg)
 
     def _set_mode(self, name: str, fallback: int) -> None:
+        """Command the failsafe ``name`` and follow it until the autopilot shows it (sent again meanwhile)."""
         params = set_mode_params(self.autopilot, name) if self.autopilot == ARDUPILOT else None
         if params is not None:
-            self.command(mav.MAV_CMD_DO_SET_MODE, *params)
+            cmd, args = mav.MAV_CMD_DO_SET_MODE, tuple(params)
         else:
             nan = float("nan")
-            self.command(fallback, *((0.0, 0.0, 0.0, nan, nan, nan, nan) if fallback == mav.MAV_CMD_NAV_LAND else ()))
+            cmd, args = fallback, ((0.0, 0.0, 0.0, nan, nan, nan, nan) if fallback == mav.MAV_CMD_NAV_LAND else ())
+        self.command(cmd, *args)
+        self.tracker.watch_failsafe(name, cmd, args, time.monotonic())
 
     def command_land(self) -> None:
         """Command LAND now (ArduPilot: LAND mode, DO_SET_MODE 9; PX4 and others: MAV_CMD_NAV_LAND)."""
@@ -300,7 +375,10 @@ class VehicleLink:
         fallback decided (``FcSigning``). Raises ``FcSigningError`` if the vehicle cannot be flown."""
         assert self.signing is not None and self.sysid is not None
         signing = self.signing
-        signing.start(time.monotonic(), self.tracker.armed, self.sysid)
+        # over an endpoint the link learned (udpin) the stored key is never sent again: whoever answered
+        # first may not be the autopilot; the autopilot that holds it signs back and so proves itself
+        learned = self.endpoint is not None and self.endpoint.learned
+        signing.start(time.monotonic(), self.tracker.armed, self.sysid, resend_stored=not learned)
         while not signing.settled:
             self.heartbeat()
             self.recv(0.1)

@@ -6,8 +6,11 @@ asked for what to send it (``poll(now)``); it never blocks, sends or reads a clo
 
 Theory of operation
 -------------------
-**Connect.** The first HEARTBEAT of an autopilot (``autopilot`` other than MAV_AUTOPILOT_INVALID)
-fixes the vehicle's sysid/compid and which autopilot it is. **Reboot.** Its heartbeats resume after
+**Connect.** The first HEARTBEAT of the drone's own autopilot fixes which autopilot it is: it must
+come from the drone's fleet sysid (the companion's own) and the autopilot's component
+(MAV_COMP_ID_AUTOPILOT1) and name an autopilot (not MAV_AUTOPILOT_INVALID). A HEARTBEAT from any
+other ids never becomes "the vehicle" (counted ``foreign_heartbeat``): a local process that sends one
+before the real autopilot (issue 29) is not adopted, not provisioned, not commanded. **Reboot.** Its heartbeats resume after
 a gap of ``Timing.reboot_gap`` seconds, or a ``time_boot_ms`` of its messages goes back by more than
 ``Timing.boot_back_ms``. Both (re)start a round of stream requests.
 
@@ -33,6 +36,16 @@ A stream that arrived and then stays silent for ``Timing.lapse_after`` while hea
 asked for again, ``Timing.max_lapses`` times per connection. Streams that arrive unasked are never
 touched: the autopilot's own rates stay as they are.
 
+**Position and signing.** ``on_message`` is told whether the frame came signed with the link's key
+(``signed``); ``position_signed`` says whether the position now held came so. Only such a position
+may grant authority (the drone node's rule, unless its operator opted in for an unsigned link).
+
+**Failsafe.** ``watch_failsafe`` follows a LAND or RTL the companion commanded until the autopilot
+shows it (its HEARTBEAT's mode is that mode, or it is on the ground and disarmed, after the command
+went out): the command is sent again every ``FailsafeTiming.confirm_within`` seconds until then,
+``FailsafeTiming.attempts`` sends in all; each outcome (confirmed, retried, unconfirmed) is handed
+out once by ``failsafe_outcomes`` for the event log.
+
 **Commands.** ``command`` returns a COMMAND_LONG to send at once and keeps it until the vehicle
 acknowledges it: resent after ``Timing.ack_timeout`` without an ACK or after TEMPORARILY_REJECTED,
 ``Timing.attempts`` sends in all; another refusal is logged and counted.
@@ -56,6 +69,8 @@ from .modes import autopilot_name, landed_from_heartbeat, mode_name
 
 log = logging.getLogger(__name__)
 
+#: The autopilot's component id (MAV_COMP_ID_AUTOPILOT1): the vehicle is this component of the drone's sysid.
+AUTOPILOT_COMPID = mav.MAV_COMP_ID_AUTOPILOT1
 #: A STATUSTEXT this soon after a refused SET_MESSAGE_INTERVAL is its reason (ArduPilot says why after
 #: the ACK).
 REASON_AFTER_ACK_S = 0.5
@@ -125,6 +140,36 @@ class Timing:
         return max(self.lapse_after_min, 10.0 * want.interval)
 
 
+@dataclass(frozen=True, slots=True)
+class FailsafeTiming:
+    """How a commanded LAND / RTL is confirmed: seen within this long of each send, else sent again."""
+
+    confirm_within: float = 2.0
+    attempts: int = 5
+
+
+@dataclass(frozen=True, slots=True)
+class FailsafeOutcome:
+    """What became of a commanded failsafe: ``confirmed`` (``seen``: what the autopilot showed), ``retried``
+    (sent again: ``seen`` is its mode meanwhile) or ``unconfirmed`` (out of attempts)."""
+
+    action: str  # LAND | RTL
+    outcome: str  # confirmed | retried | unconfirmed
+    attempts: int  # sends so far
+    after_s: float  # since the first send
+    seen: str
+
+
+@dataclass(slots=True)
+class _FailsafeWatch:
+    action: str
+    command: int
+    params: tuple[float, ...]
+    started: float
+    sent_at: float
+    sends: int = 1
+
+
 class StreamState(enum.Enum):
     WAITING = "waiting"  # not seen; asked for (again) when its turn comes
     ASKED = "asked"  # SET_MESSAGE_INTERVAL accepted, the message is awaited
@@ -168,8 +213,14 @@ class VehicleTracker:
     """The vehicle's identity, state and streams, from its messages; the requests it needs, by ``poll``."""
 
     def __init__(self, companion_sysid: int, companion_compid: int, streams: tuple[StreamWant, ...] = DEFAULT_STREAMS,
-                 timing: Timing = Timing()) -> None:
+                 timing: Timing = Timing(), failsafe_timing: FailsafeTiming = FailsafeTiming()) -> None:
         self.companion = (companion_sysid, companion_compid)
+        self.failsafe_timing = failsafe_timing
+        self._failsafe: _FailsafeWatch | None = None
+        self._failsafe_out: list[FailsafeOutcome] = []
+        self._position_signed = False  # the last GLOBAL_POSITION_INT came signed with the link's key
+        #: the only ids that are the vehicle: the drone's fleet sysid (the companion's own) and the autopilot's component
+        self.autopilot_ids = (companion_sysid, AUTOPILOT_COMPID)
         self.timing = timing
         self.wants = streams
         self.sysid: int | None = None
@@ -201,6 +252,11 @@ class VehicleTracker:
         return self.fix.position
 
     @property
+    def position_signed(self) -> bool:
+        """The position held came in a frame signed with the link's key (False while there is none)."""
+        return self._position_signed and self.position is not None
+
+    @property
     def mode(self) -> str:
         return mode_name(self.autopilot, self.custom_mode)
 
@@ -222,8 +278,9 @@ class VehicleTracker:
                 "position": self.fix.describe(), "counters": dict(self.counters)}
 
     # ------------------------------------------------------------------ input
-    def on_message(self, msg: Any, now: float) -> None:
-        """One message from the vehicle side (a pymavlink message, any dialect)."""
+    def on_message(self, msg: Any, now: float, signed: bool = False) -> None:
+        """One message from the vehicle side (a pymavlink message, any dialect); ``signed``: it came
+        signed with the link's key (checked by the link)."""
         t = msg.get_type()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if t == "HEARTBEAT":
@@ -241,6 +298,8 @@ class VehicleTracker:
             self._seen(stream, now)
         if src[1] == self.compid:
             self.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT
+            if t == "GLOBAL_POSITION_INT":
+                self._position_signed = signed
         if t == "EXTENDED_SYS_STATE":
             self._ext_landed, self._ext_at = msg.landed_state, now
         elif t == "COMMAND_ACK":
@@ -262,13 +321,16 @@ class VehicleTracker:
     def _on_heartbeat(self, msg: Any, src: tuple[int, int], now: float) -> None:
         if msg.autopilot == mav.MAV_AUTOPILOT_INVALID:
             return  # a GCS, a companion, a gimbal: not the autopilot
-        if self.sysid is None or (src != (self.sysid, self.compid) and self._silent(now)):
+        if src != self.autopilot_ids:
+            self.counters["foreign_heartbeat"] += 1  # another system claiming to be an autopilot
+            if self.counters["foreign_heartbeat"] <= 3:
+                log.warning("vehicle link: HEARTBEAT of an autopilot %d/%d ignored: the vehicle is %d/%d",
+                            src[0], src[1], *self.autopilot_ids)
+            return
+        if self.sysid is None:
             self.sysid, self.compid = src
             self.autopilot = autopilot_name(msg.autopilot)
             self._reconnect(now, "first heartbeat")
-        elif src != (self.sysid, self.compid):
-            self.counters["other_autopilot_heartbeat"] += 1
-            return
         elif self.last_heartbeat is not None and now - self.last_heartbeat > self.timing.reboot_gap:
             self._reconnect(now, f"heartbeats back after {now - self.last_heartbeat:.1f} s")
         self.mav_autopilot = msg.autopilot
@@ -292,6 +354,7 @@ class VehicleTracker:
         self._pending = self._refused = None
         self._groups.clear()
         self.fix = PositionFix()  # a rebooted autopilot has no fix yet; a link back: the next report says
+        self._position_signed = False
         self._streams = self._fresh_streams()
         if self.connections > 1:
             self.counters["reconnects"] += 1
@@ -365,11 +428,64 @@ class VehicleTracker:
         return mav.MAVLink_command_long_message(self.sysid or 1, self.compid or 1, cmd.command,
                                                 min(cmd.sends - 1, 255), *cmd.params)
 
+    def watch_failsafe(self, action: str, command: int, params: tuple[float, ...], now: float) -> None:
+        """Follow the failsafe ``action`` (LAND, RTL) just sent as ``command`` until the autopilot shows it."""
+        self._failsafe = _FailsafeWatch(action, command, tuple(params), now, now)
+
+    def failsafe_outcomes(self) -> list[FailsafeOutcome]:
+        """The failsafe's outcomes since the last call (each handed out once)."""
+        out, self._failsafe_out = self._failsafe_out, []
+        return out
+
+    @property
+    def failsafe_pending(self) -> bool:
+        return self._failsafe is not None
+
+    def _failsafe_seen(self, w: _FailsafeWatch) -> str | None:
+        """What shows the failsafe done (after its last send), or None."""
+        if self.last_heartbeat is None or self.last_heartbeat < w.sent_at:
+            return None
+        if self.mode == w.action:
+            return f"mode {w.action}"
+        if not self.armed and self.landed_state(self.last_heartbeat) == mav.MAV_LANDED_STATE_ON_GROUND:
+            return "on the ground, disarmed"
+        return None
+
+    def _poll_failsafe(self, now: float) -> list[Any]:
+        w = self._failsafe
+        if w is None:
+            return []
+        seen = self._failsafe_seen(w)
+        if seen is not None:
+            self._failsafe = None
+            self.counters["failsafe_confirmed"] += 1
+            self._failsafe_out.append(FailsafeOutcome(w.action, "confirmed", w.sends, round(now - w.started, 3), seen))
+            log.warning("failsafe %s confirmed by the autopilot (%s) after %d send(s)", w.action, seen, w.sends)
+            return []
+        if now - w.sent_at < self.failsafe_timing.confirm_within:
+            return []
+        if w.sends >= self.failsafe_timing.attempts:
+            self._failsafe = None
+            self.counters["failsafe_unconfirmed"] += 1
+            self._failsafe_out.append(FailsafeOutcome(w.action, "unconfirmed", w.sends, round(now - w.started, 3),
+                                                      f"mode {self.mode}"))
+            log.error("failsafe %s not confirmed by the autopilot after %d sends (mode %s)", w.action, w.sends, self.mode)
+            return []
+        w.sends += 1
+        w.sent_at = now
+        self.counters["failsafe_retried"] += 1
+        self._failsafe_out.append(FailsafeOutcome(w.action, "retried", w.sends, round(now - w.started, 3),
+                                                  f"mode {self.mode}"))
+        log.warning("failsafe %s not shown by the autopilot (mode %s): sending it again (%d)", w.action, self.mode,
+                    w.sends)
+        return [self.command(w.command, w.params, now)]
+
     def poll(self, now: float) -> list[Any]:
-        """The messages to send the vehicle now (stream requests, command retries)."""
+        """The messages to send the vehicle now (stream requests, command retries, the failsafe's)."""
         if self.sysid is None or self.connected_at is None:
             return []
         out = [self._send_command(c, now) for c in self._due_commands(now)]
+        out += self._poll_failsafe(now)
         for s in self._streams.values():
             if s.state in (StreamState.ASKED, StreamState.FALLBACK) and now >= s.deadline:
                 asked_by = "interval" if s.state is StreamState.ASKED else "data_stream"
