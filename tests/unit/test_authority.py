@@ -262,6 +262,7 @@ EVENTS = st.one_of(
     st.builds(HandoverRequest, times, GS, GS),
     st.builds(Release, times, GS, GS, st.integers(0, 4)),
     st.builds(Tick, times),
+    st.builds(ha.GroundChanged, times, st.booleans()),
 )
 
 
@@ -329,7 +330,7 @@ def test_every_state_event_pair_ends_valid(prefix, last):
 
 def test_table_covers_every_non_gs_event_in_every_state():
     for state in State:
-        for ev in (LinkChanged, RegionChanged, Tick):
+        for ev in (LinkChanged, RegionChanged, Tick, ha.GroundChanged):
             assert (state, ev) in ha.TRANSITIONS
         for ev in (Paired, Frame):
             assert (state, ev) in ha.TRANSITIONS
@@ -596,3 +597,66 @@ def test_least_privilege_over_any_event_sequence(events):
         for a in acts:
             if isinstance(a, AuthorityChanged) and a.kind in ("emergency", "regained"):
                 assert a.new in m.inside, (a, m.inside)
+
+
+# ------------------------------------------------------------------ the vehicle on the ground
+def _on_ground_with_a(inside: frozenset[str] = frozenset({"A"})) -> AuthorityMachine:
+    m = machine(inside)
+    linked_with_b(m)
+    m.handle(ha.GroundChanged(1.0, True))
+    return m
+
+
+def test_the_owners_link_lost_on_the_ground_is_no_failsafe_and_the_owner_has_it_back():
+    """As the autopilots: no link-loss failsafe while on the ground (a radio glitch before take-off
+    used to ground the drone for good)."""
+    m = _on_ground_with_a()
+    acts = m.handle(LinkChanged(5.0, "A", LinkState.LOST))
+    assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 1)
+    assert not any(isinstance(a, CommandVehicle) for a in acts)
+    assert any(isinstance(a, ha.Note) and a.kind == "owner_link_lost_on_ground" for a in acts)
+    m.handle(LinkChanged(8.0, "A", LinkState.OK))
+    assert m.handle(Frame(8.1, "A", AO)) == [Forward("A")]  # its commands pass again, same epoch
+    assert m.handle(Frame(8.2, "B", AO)) == [DropFrame("B", HaDrop.NOT_AUTHORITY)]
+    assert m.handle(KeyGranted(9.0, "A", "B")) is not None and m.state is State.LINKED  # key grants still taken
+
+
+def test_lifting_off_with_the_owners_link_lost_is_the_failsafe_at_once():
+    m = _on_ground_with_a()
+    m.handle(LinkChanged(5.0, "A", LinkState.LOST))
+    acts = m.handle(ha.GroundChanged(6.0, False))
+    assert m.state is State.FAILSAFE and any(isinstance(a, CommandVehicle) for a in acts)
+
+
+def test_lifting_off_with_the_owners_link_lost_goes_to_a_proven_heir():
+    m = _on_ground_with_a(frozenset({"A", "B"}))
+    prove(m, "B", 2.0)
+    m.handle(LinkChanged(5.0, "A", LinkState.LOST))
+    assert m.owner == "A"
+    acts = m.handle(ha.GroundChanged(6.0, False))
+    assert (m.state, m.owner, m.epoch) == (State.LINKED, "B", 2)
+    assert AuthorityChanged("A", "B", 2, "emergency") in acts
+
+
+def test_after_a_failsafe_landing_the_owners_link_back_gives_it_the_vehicle():
+    m = machine()
+    linked_with_b(m)
+    m.handle(ha.GroundChanged(1.5, False))  # in the air
+    m.handle(LinkChanged(5.0, "A", LinkState.LOST))
+    assert m.state is State.FAILSAFE
+    m.handle(ha.GroundChanged(20.0, True))  # landed by the failsafe
+    assert m.state is State.FAILSAFE
+    acts = prove(m, "A", 30.0)
+    assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 2)
+    assert AuthorityChanged("A", "A", 2, "regained") in acts
+
+
+def test_after_a_failsafe_landing_outside_the_owners_coverage_nothing_moves_by_itself():
+    m = machine()
+    linked_with_b(m)
+    m.handle(ha.GroundChanged(1.5, False))
+    m.handle(LinkChanged(5.0, "A", LinkState.LOST))
+    m.handle(RegionChanged(10.0, frozenset()))  # came down outside every coverage
+    m.handle(ha.GroundChanged(20.0, True))
+    prove(m, "A", 30.0)
+    assert m.state is State.FAILSAFE

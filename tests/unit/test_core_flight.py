@@ -227,3 +227,20 @@ def test_a_key_that_never_comes_ends_the_hold_in_rtl_home(fleet_dir, autopilot):
     assert f.gs["A"].core.counters["handover_hold_over:expired"] == 1
     assert [(a, b) for a, b, _, _ in _moves(f)] == [(None, "A")] and f.drone.machine.owner == "A"
     assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0
+
+
+@pytest.mark.parametrize("autopilot", AUTOPILOTS)
+def test_a_radio_outage_on_the_ground_after_pairing_is_no_failsafe_and_the_flight_goes_on(fleet_dir, autopilot):
+    """``bench chaos`` schedule 5, in memory: A's link is lost for 3.65 s right after pairing, the vehicle
+    disarmed at home. No failsafe on the ground (as the autopilots); A has the drone back when its link
+    returns, and the reference flight completes."""
+    f = _flight(fleet_dir, autopilot)
+    _fly_until(f, lambda: f.drone.machine.owner == "A", "paired", timeout=60)
+    f.gs["A"].down = True
+    t0 = f.now
+    _fly_until(f, lambda: f.now >= t0 + 3.65, "the outage's end", timeout=10)
+    f.gs["A"].down = False
+    assert f.of(rec.OwnerLinkLostOnGround) and f.commands == [] and f.of(rec.Failsafe) == []
+    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].stage}"
+    assert _moves(f) == [(None, "A", 1, "paired"), ("A", "B", 2, "handover"), ("B", "A", 3, "handover")]
+    assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0

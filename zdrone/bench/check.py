@@ -129,6 +129,7 @@ class World:
         n.config, n.state, n.owner, n.epoch = m.config, m.state, m.owner, m.epoch
         n.pending_to, n.pending_deadline, n.repair_deadline = m.pending_to, m.pending_deadline, m.repair_deadline
         n.takeover_epoch, n.relay_limit = m.takeover_epoch, copy.deepcopy(m.relay_limit)
+        n.takeover_to, n.on_ground = m.takeover_to, m.on_ground
         n.first_claim, n.first_claim_until = m.first_claim, m.first_claim_until
         n.links = {g: ha._Link(l.state, l.frames_since_ok, l.frames_in_cover) for g, l in m.links.items()}
         n.subscribed, n.inside = set(m.subscribed), m.inside
@@ -278,7 +279,7 @@ class Explorer:
         owner, inside = w.m.owner, w.m.inside
         heirs = w.m.heirs() if g == owner else []
         self._apply(w, ha.LinkChanged(w.now, g, LinkState.LOST))
-        if g == owner and w.m.state is not State.FAILSAFE and w.m.owner not in heirs:
+        if g == owner and w.m.state is not State.FAILSAFE and w.m.owner not in heirs and not w.ground:
             raise _Broken("failsafe on time", f"{g}'s authority link is LOST, no heir proven inside its coverage "
                           f"(drone inside {sorted(inside) or 'none'}), and the machine is {w.m.state.value} with {w.m.owner}")
 
@@ -335,6 +336,7 @@ class Explorer:
 
     def _land(self, w: World) -> None:
         w.ground = True
+        self._apply(w, ha.GroundChanged(w.now, True))
 
     def _restart_on_ground(self, w: World) -> None:
         """On the ground the companion comes back UNPAIRED with the epoch kept and its last owner
@@ -346,6 +348,7 @@ class Explorer:
         w.drone_key.clear()
         w.restarted = False
         self._apply(w, ha.RegionChanged(w.now, INSIDE[w.pos]))
+        self._apply(w, ha.GroundChanged(w.now, True))
         if self.flaw != "forgetful-ground-restart":  # PLANTED FLAW: forgotten on the ground, epoch from 1 again
             w.m.restore_on_ground(owner, epoch, w.now, FIRST_CLAIM)
 

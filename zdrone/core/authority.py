@@ -176,6 +176,14 @@ class Release(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class GroundChanged(Event):
+    """The vehicle is on the ground (disarmed, or landed) or not, by its own HEARTBEAT and
+    EXTENDED_SYS_STATE. The machine starts "in the air": the failsafe rule holds until told otherwise."""
+
+    on_ground: bool
+
+
+@dataclass(frozen=True, slots=True)
 class Tick(Event):
     """Time passes (the adapter ticks the machine at its loop rate)."""
 
@@ -322,6 +330,7 @@ class AuthorityMachine:
         self.repair_deadline: float | None = None  # after a restart: the owner must re-pair by then
         self.relay_limit = RateLimiter(REQUEST_RELAY_RATE, REQUEST_RELAY_BURST)  # requests passed to the owner
         self.takeover_epoch: int | None = None  # the epoch whose owner allows takeover (its operator's setting)
+        self.on_ground = False  # the vehicle's own word (``GroundChanged``); unknown counts as in the air
         self.takeover_to: str | None = None  # ... for this GS only (a consent's window), None: any
         self.first_claim: str | None = None  # after a restart on the ground: the last owner, pairing back first
         self.first_claim_until: float | None = None  # ... until then
@@ -487,6 +496,15 @@ class AuthorityMachine:
             nxt, acts = self._on_link(LinkChanged(now, self.owner, LinkState.LOST))
             self._set_state(nxt, now)
             return acts
+        if (self.state is State.FAILSAFE and self.on_ground and self.owner is not None
+                and self.links.get(self.owner) is not None and self.links[self.owner].state is LinkState.OK
+                and self.proven_in_cover(self.owner)):
+            # the vehicle is down and its owner's link is back (proven, covering it): the owner has it back
+            owner = self.owner
+            acts = [Note("failsafe_recovered", f"{owner}'s link is back with the vehicle on the ground")]
+            acts += self._switch(owner, now, "regained")
+            self._set_state(State.LINKED, now)
+            return acts + self._update_subscriptions() + self._status_to_all()
         if self.first_claim_until is not None and now >= self.first_claim_until:
             last = self.first_claim
             self.first_claim = self.first_claim_until = None
@@ -701,7 +719,18 @@ class AuthorityMachine:
             return State.LINKED, [Note("handover_aborted", f"link to {ev.gs} lost")] + self._update_subscriptions() + self._status_to_all()
         if ev.gs != self.owner:
             return self.state, []
-        # the authority link is lost: an heir (in coverage, proven there) takes over, else failsafe
+        if self.on_ground:
+            # as the autopilots: no link-loss failsafe on the ground; the owner keeps authority and has
+            # the vehicle back when its link returns. If the vehicle lifts off first, the rule below
+            # applies at that moment (``_on_ground_changed``).
+            return self.state, [Note("owner_link_lost_on_ground", f"{ev.gs}: link lost with the vehicle on the "
+                                     f"ground: no failsafe; authority stays with {ev.gs} until it is back")]
+        return self._owner_lost(ev.now)
+
+    def _owner_lost(self, now: float) -> tuple[State, list[Action]]:
+        """The owner's link is LOST with the vehicle in the air: an heir (in coverage, proven there)
+        takes over, else failsafe."""
+        ev = LinkChanged(now, self.owner or "", LinkState.LOST)
         heirs = self.heirs()
         if heirs:
             self.pending_to = heirs[0]
@@ -731,6 +760,14 @@ class AuthorityMachine:
             acts += self._update_subscriptions()
         return self.state, acts
 
+    def _on_ground_changed(self, ev: GroundChanged) -> tuple[State, list[Action]]:
+        was, self.on_ground = self.on_ground, ev.on_ground
+        owner = self.links.get(self.owner or "")
+        if (was and not ev.on_ground and self.state in (State.LINKED, State.HANDOVER_PENDING) and owner is not None
+                and owner.state is LinkState.LOST):
+            return self._owner_lost(ev.now)  # lifted off with the owner's link lost: the failsafe rule, now
+        return self.state, []
+
     def _on_tick(self, ev: Tick) -> tuple[State, list[Action]]:
         return self.state, []  # time alone: the deadlines are rules of ``_settle``
 
@@ -746,6 +783,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, Tick): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
+    (S.UNPAIRED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.UNPAIRED})),
     (S.LINKED, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.LINKED})),
     (S.LINKED, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.LINKED})),
     (S.LINKED, Frame): (AuthorityMachine._on_frame, frozenset({S.LINKED})),
@@ -754,6 +792,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.LINKED, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
     (S.LINKED, Release): (AuthorityMachine._on_release, frozenset({S.LINKED, S.HANDOVER_PENDING})),
     (S.LINKED, Tick): (AuthorityMachine._on_tick, frozenset({S.LINKED, S.FAILSAFE})),
+    (S.LINKED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.LINKED, S.FAILSAFE})),
     (S.HANDOVER_PENDING, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, Frame): (AuthorityMachine._on_frame, frozenset({S.HANDOVER_PENDING, S.LINKED})),
@@ -762,12 +801,15 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.HANDOVER_PENDING, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, Tick): (AuthorityMachine._on_tick, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
+    (S.HANDOVER_PENDING, GroundChanged): (AuthorityMachine._on_ground_changed,
+                                          frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.FAILSAFE, Paired): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, HandoverRequest): (AuthorityMachine._on_request_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, LinkChanged): (AuthorityMachine._on_link, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({S.FAILSAFE})),
+    (S.FAILSAFE, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.FAILSAFE})),
 }
 # Missing on purpose (illegal steps, answered with a Reject): KeyGranted, HandoverRequest and
 # Release in UNPAIRED; KeyGranted and Release in FAILSAFE.
