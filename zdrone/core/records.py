@@ -363,6 +363,10 @@ class AuthorityLinkLost(AuthorityNote, frozen=True, tag="authority_link_lost"):
     """The authority's link was lost; authority went to an heir."""
 
 
+class OwnerLinkLostOnGround(AuthorityNote, frozen=True, tag="owner_link_lost_on_ground"):
+    """The owner's link was lost with the vehicle on the ground: no failsafe; the owner keeps authority."""
+
+
 class RegionEntered(AuthorityNote, frozen=True, tag="region_entered"):
     """The drone entered a region covered by more GSs (``detail``: the GSs covering it)."""
 
@@ -850,7 +854,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
     Drop, Paired, PairAnswered, PairRefused, LinkStateChanged, RestoreRefused, Restored, FirstClaim, FirstClaimOver,
     HandoverStart,
     HandoverRequested, TakeoverSetting, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
-    AuthorityLinkLost, RegionEntered, RegionLeft,
+    AuthorityLinkLost, RegionEntered, RegionLeft, OwnerLinkLostOnGround,
     FailsafeConfirmed, FailsafeRetried, FailsafeUnconfirmed, VehicleFound, FcUnsigned,
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)
