@@ -76,6 +76,8 @@ MOMENTS: dict[str, tuple[str, float]] = {
     "handover": (HANDOVER_STARTED, 0.0),  # as the drone takes A's release
     "way_back": (RETURNING, 0.5),  # back in the overlap after the delivery, B holding authority
 }
+#: GS A's GCS application key file in the run folder (``Scenario.app_signing``), mode 0600.
+GCS_KEYS = "gcs-keys"
 #: Within this distance of the delivery point the vehicle has reached it (``RETURNING`` can come next).
 NEAR_DELIVERY_M = 60.0
 
@@ -127,6 +129,7 @@ class Scenario:
     operators: str | None = None  # at this moment, start the two operators (``zdrone.sil.operator``) on A's and B's gateways
     linger: float = 0.0  # wall seconds the run goes on after the vehicle landed (what happens on the ground)
     plain_router: bool = False  # its attacker holds router passwords only: no --tls, no --sites (no certificate)
+    app_signing: bool = False  # GS A's gateway requires signed applications (a key file the launcher writes); B has one
 
     def own_moment(self) -> str | None:
         """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
@@ -769,6 +772,39 @@ def _check_fc_rogue_radio(o: Outcome) -> list[str]:
     return why + flight_unaffected(o)
 
 
+def _check_local_app(o: Outcome) -> list[str]:
+    """``local-app``: an unsigned local application on GS A's host (the attack of issue 29) consents,
+    allows takeover and commands while B's request is pending, A's gateway requiring signed
+    applications. Nothing it sends moves authority (no grant at A, B never told it is in control, the
+    flight's own two hand-overs only) or reaches the vehicle (every command refused the MAVLink way,
+    counted by A's gateway; the flight completes); its reads are answered; A's operator's signed
+    application holds the vehicle, commands it and resumes the mission."""
+    from ..core.records import OperatorRequestGranted
+
+    done, gw = o.rogue_done("local-app"), o.summary["gateway_A"]
+    sent = done.get("sent", {})
+    why = _need(done.get("shown_p4") is not None, f"B's request was never pending at A's applications: {done}")
+    why += _need(all(sent.get(k, 0) > 0 for k in ("consent", "allow_takeover", "mode_land", "disarm", "mission_clear")),
+                 f"the attacker did not consent, allow takeover and command: {sent}")
+    why += _need(done.get("accepted", 1) == 0, f"the attacker's commands were accepted: {done.get('answers')}")
+    commands = sum(sent.get(k, 0) for k in ("consent", "allow_takeover", "mode_land", "nav_land", "disarm"))
+    why += _need(done.get("refused_commands", 0) == commands and done.get("mission_denied", 0) == sent.get("mission_clear"),
+                 f"not every command refused: {done.get('refused_commands')} of {commands}, "
+                 f"{done.get('mission_denied')} MISSION_ACK DENIED of {sent.get('mission_clear')}")
+    refused = sum(n for k, n in gw.items() if k.startswith("unsigned_refused:"))
+    why += _need(refused >= commands + sent.get("mission_clear", 0) + sent.get("set_mode", 0),
+                 f"A's gateway counted {refused} refusals of unsigned frames: {gw}")
+    why += _need(gw.get("signing_dropped:bad_signature", 0) >= sent.get("guessed_key_consent", 1),
+                 f"A's gateway did not drop the consent signed with a guessed key: {gw}")
+    why += _need(not done.get("b_in_control") and not only(o.gs["A"], OperatorRequestGranted),
+                 "authority moved on the attacker's consent")
+    why += _need(done.get("param_values", 0) > 0, "the attacker's parameter read was not answered (read-only access)")
+    why += _need(done.get("held") is True and done.get("signed_command") == mav.MAV_RESULT_ACCEPTED
+                 and done.get("signed_in_control") is True and done.get("resumed") is True,
+                 f"A's operator's signed application did not work: {done}")
+    return why + flight_unaffected(o)
+
+
 SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("nominal", "the reference flight", "A->B and B->A in the overlap, landing at home", flight_unaffected),
     Scenario("rogue-no-key",
@@ -908,6 +944,17 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              _check_stale_pairing, faults=(_SLOW_RESTART_DRONE,),
              rogues=(RogueSpec("stale-pairing", BEFORE_GS_A, go=DRONE_RESTARTED, sim_s=24.0, min_wall=6.0),),
              plain_router=True),
+    Scenario("local-app",
+             "A's gateway requires signed applications (--gcs-signing require, a key the launcher provisions); in the "
+             "overlap, with A in control, B's operator asks for control and an unsigned local application on A's "
+             "host (a fresh UDP socket, sysid 42) consents, allows takeover, sends LAND, disarm, a mode change, "
+             "MISSION_CLEAR_ALL and a consent signed with a guessed key; A's operator's signed application holds the "
+             "vehicle meanwhile and resumes the mission",
+             "nothing the local application sends moves authority or reaches the vehicle (DENIED / NOT_IN_CONTROL / "
+             "MISSION_ACK DENIED, counted; the guessed key dropped); its parameter read answered; the signed "
+             "application obeyed; flight unaffected",
+             _check_local_app, rogues=(RogueSpec("local-app", MISSION_STARTED, go=HANDOVERS_DONE, sim_s=0.0, min_wall=60.0),),
+             app_signing=True),
     Scenario("fc-rogue-radio",
              "a radio on the autopilot's TELEM2 (no keys) sends arm, a mode change to LAND and MISSION_CLEAR_ALL once "
              "a second in flight (with --fc-signing off: the control, the same attack on an unsigned autopilot)",
@@ -1274,6 +1321,8 @@ class Demo:
         args += ["--rate", str(r.rate)] if r.rate else []
         args += ["--gcs-port", str(self.gcs_port)] if self.gcs_port else []
         args += ["--fc-port", str(self.telem2_port)] if self.telem2_port else []
+        args += ["--gcs-port-b", str(self.gcs_port_b)] if self.gcs_port_b else []
+        args += ["--gcs-keys", GCS_KEYS] if self.spec.app_signing else []
         return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns("A"))  # beside A, on site 1
 
     def run(self) -> dict[str, Any]:
@@ -1290,7 +1339,7 @@ class Demo:
         self.start_core()
         gs_extra = ["--command-rate", str(o.command_rate), *self._bench_extra()] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
         b_extra = list(gs_extra)
-        if spec.operators:
+        if spec.operators or spec.app_signing:
             self.gcs_port_b = free_port(socket.SOCK_DGRAM)
             b_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port_b}"]
         self.start_gs("B", *b_extra)
@@ -1299,7 +1348,12 @@ class Demo:
             if r.launch == BEFORE_GS_A:
                 self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
         a_extra = ["--pair", "--mission", o.mission, *gs_extra, *spec.gs_a_extra]
-        if spec.gcs_a or spec.operators:
+        if spec.app_signing:  # A's operator application's key, as an operator provisions one (gs.appkeys)
+            keys = self.out / GCS_KEYS
+            keys.write_text(f"opsA hex:{os.urandom(32).hex()}\n")
+            keys.chmod(0o600)
+            a_extra += ["--gcs-signing", "require", "--gcs-keys", GCS_KEYS]
+        if spec.gcs_a or spec.operators or spec.app_signing:
             self.gcs_port = free_port(socket.SOCK_DGRAM)
             a_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port}"]
         self.start_gs("A", *a_extra)
