@@ -25,7 +25,8 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
     it off ``EXPIRED_HOLD_S``. So a requester causes at most one prompt per ``timeout + EXPIRED_HOLD_S``.
 
   Without consent nothing moves.
-* **Allow takeover** with nothing pending (p1 = 1, p2 = 1) is the owner's setting for its current epoch
+* **Allow takeover** with nothing pending (p1 = 1, p2 = 1, p4 the application's own sysid; one naming
+  another GS is refused: a consent to a request nobody made) is the owner's setting for its current epoch
   only (any authorized requester is granted); ``zdrone gs --allow-takeover`` is the standing policy of
   the station, every epoch. The owner tells the drone with a ``HandoverRequest`` for itself (naming the
   one requester a window is for, if any); the drone's ``AuthorityStatus`` carries it to every GS.
@@ -207,6 +208,11 @@ class OperatorControl:
                 held, self.held_epoch = self.held_epoch, None  # let go: automatic hand-overs again
                 return Answer.ACCEPTED, (self._log(rec.OperatorControlLetGo(drone=view.name, app=app))
                                          if held == view.epoch else NOTHING)
+            if req.takeover and named not in (None, self.gs):  # a consent to a request nobody made
+                why = f"p4 names {named}, which has no pending request"
+                return Answer.DENIED, (self._log(rec.OperatorConsentRefused(drone=view.name, requester="", named=named,
+                                                                           reason=why, app=app))
+                                       + Step(say=(f"zdrone gs {self.gs}: consent for {view.name} refused: {why}",)))
             was = self.takeover_allowed(view, now)
             self.setting_epoch = view.epoch if req.takeover else None
             if not req.takeover:

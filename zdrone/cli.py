@@ -244,7 +244,7 @@ def _check(args: argparse.Namespace) -> int:
 
     if args.depth < 1 or args.faults < 0:
         raise UsageError("check: --depth must be >= 1 and --faults >= 0")
-    result = check.run(args.depth, args.faults, args.flaw, args.max_states, cores=args.cores)
+    result = check.run(args.depth, args.faults, args.flaw, args.max_states, cores=args.cores, consent=args.consent)
     _emit(args, result, check.render)
     return 0 if result["ok"] else 1
 
@@ -393,11 +393,15 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--faults", type=int, default=2, metavar="N", help="faults per trace at most (default 2)")
     ck.add_argument("--max-states", type=int, default=None, metavar="N", help="stop after N distinct states")
     ck.add_argument("--flaw", choices=("heir-without-position", "promotion-over-live", "unstamped-pairing",
-                                       "pairing-without-position", "forgetful-ground-restart"),
-                    help="plant a known flaw (the checker must find it)")
+                                       "pairing-without-position", "forgetful-ground-restart",
+                                       "consent-to-last-asker", "window-across-epochs"),
+                    help="plant a known flaw (the checker must find it; the last two are in the consent world)")
     ck.add_argument("--cores", action="store_true",
                     help="explore the shipped cores themselves (DroneCore, StationCores A and B, real crypto, in memory) "
                          "instead of the abstract world; much slower: use --depth 3 to 5")
+    ck.add_argument("--consent", action="store_true",
+                    help="explore operator consent instead: the shipped OperatorControl at three authorized GSs and the "
+                         "drone's authority machine (who may be granted control, in which epoch)")
     ck.add_argument("--json", action="store_true", help="print JSON instead of text")
     ck.set_defaults(func=_check)
 

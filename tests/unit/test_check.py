@@ -70,3 +70,23 @@ def test_each_flaw_planted_in_the_shipped_cores_is_found(flaw, invariant, depth)
 
     assert linkslot.replaces_live("grant", linkslot.LinkState.OK) is False
     assert "proven_in_cover" in authority.AuthorityMachine.__dict__
+
+
+# ------------------------------------------------------------------ operator consent
+def test_consent_goes_only_to_the_named_requester_in_its_epoch_over_every_interleaving():
+    r = check.run(depth=6, consent=True)
+    assert r["ok"], r.get("violation")
+    assert r["world"] == "consent" and r["depth_reached"] == 6 and r["states"] > 2000
+
+
+@pytest.mark.parametrize("flaw, steps", [
+    ("consent-to-last-asker", ["asks for control", "releases to"]),
+    ("window-across-epochs", ["asks for control", "allows B takeover", "asks for control", "asks for control",
+                              "releases to A", "asks for control"]),
+])
+def test_each_planted_consent_flaw_is_found(flaw, steps):
+    r = check.run(depth=6, flaw=flaw)
+    assert not r["ok"]
+    v = r["violation"]
+    assert v["invariant"] == "consent goes to the GS it names, in its epoch"
+    assert len(v["trace"]) == len(steps) and all(s in t for s, t in zip(steps, v["trace"]))

@@ -551,3 +551,15 @@ def prompts_per_minute(fleet_dir, answer: str) -> int:
 def test_a_requester_causes_few_prompts_a_minute(fleet_dir):
     ignored, declined = prompts_per_minute(fleet_dir, "ignore"), prompts_per_minute(fleet_dir, "decline")
     assert ignored <= 60 / (3.0 + EXPIRED_HOLD_S) + 1 and declined <= 60 / DECLINE_HOLD_S + 1
+
+
+def test_allow_takeover_naming_a_gs_that_asked_nothing_is_refused_not_a_setting_for_anyone(fleet3_dir):
+    """Found by ``zdrone check --consent``: p1 = 1, p2 = 1, p4 = B with nothing pending used to become the
+    owner's setting for anyone, and C then took control."""
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    assert net.command("A", consent("B", takeover=True, request=True)) is Answer.DENIED
+    net.run(net.now + 1.0)
+    assert not net.machine.status().takeover
+    assert net.command("X", ask(timeout=5.0)) is Answer.FAILED
+    net.run(net.now + 3.0)
+    assert net.owner == "A"

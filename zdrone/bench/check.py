@@ -473,10 +473,19 @@ class _Broken(Exception):
 
 
 def run(depth: int = 8, faults: int = 2, flaw: str | None = None, max_states: int | None = None,
-        cores: bool = False) -> dict[str, Any]:
+        cores: bool = False, consent: bool = False) -> dict[str, Any]:
     """Explore; the result says whether every invariant held, with the figures and any violation's trace.
-    ``cores``: explore the shipped cores themselves (``check_cores``) instead of the abstract world."""
-    if cores:
+    ``cores``: explore the shipped cores themselves (``check_cores``) instead of the abstract world;
+    ``consent`` (or a consent flaw): the operator-consent world (``check_consent``)."""
+    from .check_consent import FLAWS as CONSENT_FLAWS
+
+    if consent or flaw in CONSENT_FLAWS:
+        from .check_consent import ConsentExplorer
+
+        found, figures = ConsentExplorer(depth, flaw, max_states).run()
+        violation = None if found is None else Violation(*found)
+        figures = {**figures, "flaw": flaw, "world": "consent"}
+    elif cores:
         from .check_cores import CoreExplorer
 
         broken, trace, figures = CoreExplorer(depth, faults, max_states, flaw=flaw).run()
@@ -494,10 +503,15 @@ def run(depth: int = 8, faults: int = 2, flaw: str | None = None, max_states: in
 
 def render(r: dict[str, Any]) -> None:
     """Print the result for people."""
-    what = f"planted flaw {r['flaw']}" if r["flaw"] else (
-        "the shipped cores: DroneCore, StationCores A and B" if r.get("world") == "cores" else "the shipped rules")
+    what = f"planted flaw {r['flaw']}" if r["flaw"] else {
+        "cores": "the shipped cores: DroneCore, StationCores A and B",
+        "consent": "operator consent: OperatorControl at A, B and C, the drone's authority machine",
+    }.get(r.get("world", ""), "the shipped rules")
     print(f"zdrone check ({what}): {r['states']} distinct states, {r['transitions']} transitions, depth "
           f"{r['depth_reached']}/{r['depth']}, faults <= {r['faults']}, {r['seconds']} s ({r['states_per_s']} states/s)")
+    if r["ok"] and r.get("world") == "consent":
+        print("every invariant holds: consent goes to the GS it names, in its epoch")
+        return
     if r["ok"]:
         print("every invariant holds: one owner; commands only from the owner; no authority outside coverage "
               "without consent; nobody replaces another's live link; failsafe on time; the owner re-pairs after a "
