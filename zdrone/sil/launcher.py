@@ -66,7 +66,8 @@ FAILSAFE_FIRED = "failsafe_fired"  # the drone entered its failsafe
 HANDOVER_STARTED = "handover_started"  # the drone took the first release (the hand-over A->B begins)
 RETURNING = "returning"  # on the way back: the first entry into the hand-over region after the delivery point
 DRONE_RESTARTED = "drone_restarted"  # a fault restarted the drone's companion (just started again)
-TRIGGERS = (BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED, HANDOVER_STARTED,
+BEFORE_DRONE = "before_drone"  # the simulator is up, the drone's companion not yet started
+TRIGGERS = (BEFORE_DRONE, BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED, HANDOVER_STARTED,
             RETURNING, DRONE_RESTARTED)
 #: The moments of the flight a scenario's fault can be moved to (``zdrone demo --moment``, ``zdrone bench
 #: sweep``): name -> (trigger, wall seconds after it).
@@ -130,6 +131,7 @@ class Scenario:
     linger: float = 0.0  # wall seconds the run goes on after the vehicle landed (what happens on the ground)
     plain_router: bool = False  # its attacker holds router passwords only: no --tls, no --sites (no certificate)
     app_signing: bool = False  # GS A's gateway requires signed applications (a key file the launcher writes); B has one
+    vehicle_udpin: bool = False  # the companion listens for its autopilot on UDP (PX4's onboard link): the simulator sends to it
 
     def own_moment(self) -> str | None:
         """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
@@ -772,6 +774,37 @@ def _check_fc_rogue_radio(o: Outcome) -> list[str]:
     return why + flight_unaffected(o)
 
 
+def _check_fake_autopilot(o: Outcome) -> list[str]:
+    """``fake-autopilot``: a local process writes into the companion's UDP vehicle link: a fake autopilot
+    (sysid 7) from before the drone starts, then in flight the autopilot's own ids with positions at B's
+    centre and LAND mode, while A goes silent. The drone adopts system 1 only and sends the fake nothing;
+    its position never follows the forged one (no authority to B); the failsafe LAND goes to the real
+    autopilot, which shows it (the drone's ``failsafe_confirmed``) and says so itself (its own log)."""
+    from ..core.records import FailsafeConfirmed, VehicleFound
+
+    done, s = o.rogue_done("fake-autopilot"), o.summary
+    sent = done.get("sent", {})
+    why = _need(sent.get("raced", 0) > 0 and sent.get("forged_own_ids", 0) > 0,
+                f"the attacker did not race the start and forge in flight: {sent}")
+    found = only(o.drone, VehicleFound)
+    why += _need(bool(found) and all(e.sysid == 1 for e in found), f"vehicle adopted: {[e.sysid for e in found]}")
+    why += _need(done.get("heard_total", 1) == 0, f"the companion sent the fake autopilot {done.get('heard')}")
+    final = next((e for e in reversed(o.drone) if isinstance(e, DroneState)), None)
+    ep = ((final.vehicle_streams or {}).get("endpoint") or {}) if final else {}
+    drops = ep.get("counters", {})
+    why += _need(drops.get("dropped:before_autopilot", 0) > 0 and drops.get("dropped:foreign_endpoint", 0) > 0,
+                 f"the fake's datagrams were not dropped by reason: {drops}")
+    near_b = [e.position for e in only(o.drone, DroneStatus)
+              if e.position and distance_m(GS_B, GeoPoint(e.position[0], e.position[1])) < COVERAGE_RADIUS_M]
+    why += _need(not near_b, f"the drone believed it was in B's coverage {len(near_b)} times")
+    to_b = [h for h in s["handovers"] if h["to"] == "B"]
+    why += _need(not to_b, f"authority followed the forged position: {to_b}")
+    why += _need(s["failsafe"] is not None and s["failsafe"]["action"] == "LAND", f"no failsafe LAND: {s['failsafe']}")
+    why += _need(bool(only(o.drone, FailsafeConfirmed)), "the autopilot never showed the failsafe")
+    why += _need("LAND" in (s["vehicle"].get("modes") or []), f"the real autopilot never went to LAND: {s['vehicle']}")
+    return why
+
+
 def _check_local_app(o: Outcome) -> list[str]:
     """``local-app``: an unsigned local application on GS A's host (the attack of issue 29) consents,
     allows takeover and commands while B's request is pending, A's gateway requiring signed
@@ -962,6 +995,18 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "(--fc-signing off: the autopilot obeys, the flight does not complete)",
              _check_fc_rogue_radio,
              rogues=(RogueSpec("fc-radio", MISSION_STARTED, go=AIRBORNE, sim_s=20.0, min_wall=8.0),), telem2=True),
+    Scenario("fake-autopilot",
+             "a local process on the companion host writes into its UDP vehicle link (the companion listening, as on "
+             "PX4's onboard link): a fake autopilot (sysid 7) with positions at B's centre from before the drone "
+             "starts; in flight the autopilot's own ids, positions at B's centre and LAND mode, while GS A goes "
+             "silent (SIGSTOP)",
+             "the drone adopts system 1 only and sends the fake nothing (dropped: before_autopilot, "
+             "foreign_endpoint); its position and authority never follow the forged one (no hand-over to B); the "
+             "failsafe LAND reaches the real autopilot, which shows it",
+             _check_fake_autopilot,
+             rogues=(RogueSpec("fake-autopilot", BEFORE_DRONE, go=AIRBORNE, sim_s=60.0, min_wall=15.0),),
+             faults=(Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)", after=1.0),),
+             vehicle_udpin=True, fixed_moment=True),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
 #: Scenarios that need a router per site.
@@ -1034,6 +1079,7 @@ class Demo:
     gcs_port: int | None = None
     gcs_port_b: int | None = None  # GS B's gateway, for the operators
     telem2_port: int | None = None  # the simulator's TELEM2 (UDP), when the scenario wants one
+    vehicle_port: int | None = None  # the UDP port the companion listens on for its autopilot (``vehicle_udpin``)
     fired: set[str] = field(default_factory=set)
     fired_at: dict[str, float] = field(default_factory=dict)  # trigger -> time of day it came
     fault_log: list[dict[str, Any]] = field(default_factory=list)  # each fault injected: t, target, text, ends
@@ -1163,6 +1209,13 @@ class Demo:
             telem2 = ["--telem2", f"udpin:127.0.0.1:{self.telem2_port}"]
         if o.vehicle is not None:
             vehicle = o.vehicle
+        elif self.spec.vehicle_udpin:  # the companion listens, the simulator (either personality) sends to it
+            self.vehicle_port = free_port(socket.SOCK_DGRAM)
+            sim = self.start("sim", self._z() + ["sim", "--autopilot", o.autopilot, "--mavlink",
+                                                 f"udpout:127.0.0.1:{self.vehicle_port}", "--speedup", str(o.speedup)]
+                             + self._truth_args() + telem2 + self._ready_args(), ns=self._ns())
+            self.wait_line(sim, "zdrone sim:", 20)
+            vehicle = f"udpin:127.0.0.1:{self.vehicle_port}"
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
             tport = free_port(socket.SOCK_STREAM)
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
@@ -1181,6 +1234,10 @@ class Demo:
         # a failed hand-over is still noticed while the vehicle is inside the overlap (5 s at 1x).
         ho_timeout = max(1.5, 5.0 / o.speedup)
         coverage = [] if self.links else ["--sil-coverage"]  # with sites: the radio links are the coverage
+        self._fire(BEFORE_DRONE, None)
+        for r in self.spec.rogues:  # attackers racing the companion's start
+            if r.launch == BEFORE_DRONE:
+                self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
         trust: list[str] = []
         if o.fc_signing == "off":  # an unsigned link's positions grant no authority unless opted in (issue 29)
             trust = ["--trust-unsigned-position"]
@@ -1323,6 +1380,7 @@ class Demo:
         args += ["--fc-port", str(self.telem2_port)] if self.telem2_port else []
         args += ["--gcs-port-b", str(self.gcs_port_b)] if self.gcs_port_b else []
         args += ["--gcs-keys", GCS_KEYS] if self.spec.app_signing else []
+        args += ["--vehicle-port", str(self.vehicle_port)] if self.vehicle_port else []
         return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns("A"))  # beside A, on site 1
 
     def run(self) -> dict[str, Any]:
@@ -1693,7 +1751,8 @@ class Demo:
             counters = ast.literal_eval(found.group(1)) if found else None
         except (ValueError, SyntaxError):
             counters = None
-        return {"counters": counters, "ignored": sorted(set(re.findall(r"sim: ignored (\w+)", text)))}
+        return {"counters": counters, "ignored": sorted(set(re.findall(r"sim: ignored (\w+)", text))),
+                "modes": re.findall(r"sim: mode \S+ -> (\S+)", text)}
 
     def _gateway_counters(self, a_final: GsState | None) -> dict[str, int]:
         """GS A's GCS gateway drop counters: from its status when the station reports them, else the

@@ -96,6 +96,16 @@ autopilot from its telemetry, and when told to attack sends COMMAND_LONG arm, a 
 and MISSION_CLEAR_ALL once a second, and counts the answers. With the flight controller's link
 signed none may be obeyed (no answer at all); without signing the autopilot obeys it: the takeover.
 
+``fake-autopilot``: no credentials at all, only a process on the companion host that can write into
+the drone's UDP vehicle link (``--vehicle-port``: where the companion listens for its autopilot, as on
+PX4's onboard link). From before the drone starts it sends the HEARTBEAT of a fake autopilot (sysid
+``FAKE_AUTOPILOT_SYSID``) and positions at B's centre, 50 a second, racing the real autopilot; when
+told to attack (in flight) it sends, with the autopilot's own ids (the drone's sysid, component 1),
+HEARTBEATs in LAND mode, GLOBAL_POSITION_INT at B's centre at 30 m, a 3D GPS fix and "in air", 20 a
+second (without ``--wait-go``: races for half of ``--duration``, forges for the other half). It counts everything the companion sends it (a naive link adopts it and sends it the signing
+key, the stream requests, the failsafe). The drone must never adopt it, never send it anything, and
+its coverage and authority must never follow the forged positions.
+
 ``local-app``: a local process on GS A's machine (no key), an unsigned MAVLink application on A's GCS
 gateway (``--gcs-port``; A runs ``--gcs-signing require``). When told to attack (A holds authority,
 the drone in the overlap), A's own operator application, signed with its key (``--gcs-keys``: the
@@ -137,6 +147,7 @@ import zenoh
 from cryptography.hazmat.primitives import serialization
 from pymavlink.dialects.v20 import common as mav
 
+from ..core import fcsign
 from ..core.envelope import Opened, SecureLink
 from ..core.fleet import ConfigError, Fleet
 from ..core.keys import Identity, LinkKey
@@ -157,11 +168,13 @@ log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
          "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert", "insider-heir",
-         "key-escrow", "stale-pairing", "fc-radio")
+         "key-escrow", "stale-pairing", "fc-radio", "fake-autopilot")
 MODES += ("local-app",)  # noqa: the unsigned local application on a GS host (issue 29)
 ROGUE_COMPID = 190
 #: The fc-radio attacker's MAVLink system id (a GCS nobody configured).
 FC_RADIO_SYSID = 250
+#: The fake-autopilot attacker's own system id (issue 29: a fake autopilot "system 7").
+FAKE_AUTOPILOT_SYSID = 7
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
 GO_TIMEOUT = 600.0
 
@@ -196,6 +209,7 @@ class Ctx:
     replies: int = 1  # key-injection: forged replies of each kind per query
     recorded: int = 8  # stale-pairing: message 1s of A recorded in earlier flights
     fc_port: int | None = None  # fc-radio: the autopilot's TELEM2 UDP port
+    vehicle_port: int | None = None  # fake-autopilot: the UDP port the companion listens on for its autopilot
     gcs_port_b: int | None = None  # local-app: GS B's gateway (B's operator asks for control there)
     gcs_keys: str | None = None  # local-app: A's application key file (its own operator's signed application)
     stop: threading.Event = field(default_factory=threading.Event)
@@ -1112,6 +1126,88 @@ def fc_radio(c: Ctx) -> None:
         radio.close()
 
 
+def fake_autopilot_frames(sysid: int, lat: float, lon: float, alt_m: float, armed: bool, mode: int) -> list[bytes]:
+    """What a fake autopilot ``sysid`` says: its HEARTBEAT (PX4, custom ``mode``), a position with a 3D fix
+    and its landed state (in air when armed)."""
+    codec = FrameCodec(sysid, mav.MAV_COMP_ID_AUTOPILOT1)
+    base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
+    landed = mav.MAV_LANDED_STATE_IN_AIR if armed else mav.MAV_LANDED_STATE_ON_GROUND
+    return [codec.encode(m) for m in (
+        mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, mode, mav.MAV_STATE_ACTIVE, 3),
+        mav.MAVLink_gps_raw_int_message(0, 3, int(lat * 1e7), int(lon * 1e7), int(alt_m * 1000), 100, 100, 0, 0, 12),
+        mav.MAVLink_global_position_int_message(0, int(lat * 1e7), int(lon * 1e7), int(alt_m * 1000),
+                                                int(alt_m * 1000), 0, 0, 0, 0),
+        mav.MAVLink_extended_sys_state_message(0, landed))]
+
+
+def fake_autopilot(c: Ctx) -> None:
+    """The fake autopilot on the companion host (see the module's docstring)."""
+    from ..core.reference import GS_B
+    from ..vehicle.modes import custom_mode
+
+    if c.vehicle_port is None:
+        raise ConfigError("--vehicle-port is required for fake-autopilot")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.setblocking(False)
+    target = ("127.0.0.1", c.vehicle_port)
+    drone_sysid = c.fleet.nodes[c.drone].sysid
+    sent: Counter[str] = Counter()
+    heard: Counter[str] = Counter()  # what the companion sent the fake, by message
+    codec = FrameCodec(FAKE_AUTOPILOT_SYSID, mav.MAV_COMP_ID_AUTOPILOT1)
+    land = custom_mode("px4", "LAND") or 0
+    mission = custom_mode("px4", "MISSION") or 0
+
+    def send(frames: list[bytes], label: str) -> None:
+        for f in frames:
+            try:
+                sock.sendto(f, target)
+            except OSError:  # nobody listening yet (the companion not started): ICMP, try again next turn
+                sent["refused"] += 1
+                return
+        sent[label] += 1
+
+    def listen() -> None:
+        while True:
+            try:
+                data = sock.recv(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                continue
+            msg = codec.decode(fcsign.strip(data) if fcsign.is_signed(data) else data)
+            heard[msg.get_type() if msg is not None else "unparsed"] += 1
+
+    try:
+        race = fake_autopilot_frames(FAKE_AUTOPILOT_SYSID, GS_B.lat, GS_B.lon, 0.0, False, mission)
+        send(race, "raced")
+        c.ready()
+        race_until = time.monotonic() + c.duration / 2  # without --wait-go: the first half of the duration
+        racing = True
+        while racing and not c.stop.is_set():  # racing the real autopilot to the companion, until told
+            send(race, "raced")
+            listen()
+            racing = not c.go.wait(0.02) if c.wait_go else not c.stop.wait(0.02) and time.monotonic() < race_until
+        if c.wait_go and not c.go.is_set():
+            c.events.write_record(trec.RogueNoGo(stopped=c.stop.is_set()))
+            return
+        if c.wait_go:
+            c.events.write_record(trec.RogueGo())
+        going = c.attack_window()
+        print("rogue: forging with the autopilot's own ids", flush=True)
+        while going():
+            send(fake_autopilot_frames(drone_sysid, GS_B.lat, GS_B.lon, 30.0, True, land), "forged_own_ids")
+            send(race, "raced")
+            listen()
+            time.sleep(0.05)
+        listen()
+        c.events.write("attack_done", sent=dict(sent), heard=dict(heard), heard_total=sum(heard.values()),
+                       fake_sysid=FAKE_AUTOPILOT_SYSID, own_ids=[drone_sysid, mav.MAV_COMP_ID_AUTOPILOT1],
+                       forged_position=[GS_B.lat, GS_B.lon, 30.0])
+    finally:
+        sock.close()
+
+
 class _GcsApp:
     """A MAVLink application on a gateway's udpin port (pymavlink messages, signed with ``key`` as
     ``setup_signing`` does, or not); CONTROL_STATUS decoded with today's layout."""
@@ -1305,7 +1401,7 @@ ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
     "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert, "insider-heir": insider_heir,
-    "key-escrow": key_escrow, "stale-pairing": stale_pairing, "fc-radio": fc_radio,
+    "key-escrow": key_escrow, "stale-pairing": stale_pairing, "fc-radio": fc_radio, "fake-autopilot": fake_autopilot,
 }
 ATTACKS["local-app"] = local_app
 assert set(ATTACKS) == set(MODES)
@@ -1335,6 +1431,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--recorded", type=int, default=8,
                    help="stale-pairing: message 1s of A recorded in earlier flights (8)")
     p.add_argument("--fc-port", type=int, help="UDP port of the autopilot's TELEM2 (fc-radio)")
+    p.add_argument("--vehicle-port", type=int,
+                   help="UDP port the companion listens on for its autopilot (fake-autopilot)")
     p.add_argument("--events")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -1343,7 +1441,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
-              max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port)
+              max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port, vehicle_port=args.vehicle_port)
     ctx.gcs_port_b, ctx.gcs_keys = args.gcs_port_b, args.gcs_keys
     # on a thread of their own: a handler in the main thread setting an event the main thread waits on
     # can deadlock it (zdrone.net.shutdown); no thread runs yet (the sessions open in the attack)

@@ -108,7 +108,8 @@ class AutopilotEndpoint:
 
     def destinations(self) -> list[Address]:
         """Where the companion's frames go: the endpoint, and while it is known by HEARTBEAT alone the
-        other claimants too (only the autopilot can answer them signed)."""
+        other claimants too (only the autopilot can answer them signed: the link sends them there only
+        while it holds a key)."""
         if self.address is None:
             return []
         return [self.address] + (self.claimants if self.how == "heartbeat" else [])

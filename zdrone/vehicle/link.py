@@ -62,6 +62,9 @@ HEARTBEAT_PERIOD_S = 1.0
 TRACKER_POLL_S = 0.25
 #: The reader thread waits for the connection this long at most between looks at ``close``.
 READ_WAIT_S = 0.1
+#: Over a UDP endpoint the link learns, it listens this long after the first autopilot HEARTBEAT for
+#: another address claiming the same ids (which would leave the autopilot unknown).
+CLAIM_WINDOW_S = 1.5
 #: Datagrams from other addresses dropped per read at most (then the reader looks at ``close`` again).
 DROPS_PER_READ = 256
 
@@ -139,7 +142,9 @@ class VehicleLink:
         """Send to the autopilot's endpoint (``secret``: to it alone, never to other claimants)."""
         assert self.endpoint is not None
         targets = self.endpoint.destinations()
-        for addr in targets[:1] if secret else targets:
+        if secret or not self._key_held():  # the other claimants only ever get what a signature can answer
+            targets = targets[:1]
+        for addr in targets:
             try:
                 self.m.port.sendto(buf, addr)
             except OSError:
@@ -359,16 +364,32 @@ class VehicleLink:
         self._set_mode("RTL", mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)
 
     def wait_vehicle(self, timeout: float) -> bool:
-        """Heartbeat until the vehicle's own HEARTBEAT has been seen; False on timeout."""
+        """Heartbeat until the vehicle's own HEARTBEAT has been seen; False on timeout. Over an endpoint
+        the link learns (udpin), listen ``CLAIM_WINDOW_S`` longer: if another address also sends the
+        autopilot's HEARTBEAT, which one is the autopilot cannot be told (neither signs with a key of
+        ours yet): ``ConfigError``, nothing handed to either."""
         deadline = time.monotonic() + timeout
         while self.sysid is None and time.monotonic() < deadline:
             self.heartbeat()
             self.recv(0.1)
         if self.sysid is None:
             return False
+        if self.endpoint is not None and self.endpoint.learned and self.endpoint.how == "heartbeat":
+            settle = time.monotonic() + CLAIM_WINDOW_S
+            while time.monotonic() < settle and self.endpoint.how == "heartbeat":
+                self.recv(0.1)
+            if self.endpoint.how == "heartbeat" and self.endpoint.claimants and not self._key_held():
+                raise ConfigError(f"vehicle {self.conn}: {len(self.endpoint.claimants) + 1} addresses send the "
+                                  f"autopilot's HEARTBEAT ({self.endpoint.status()['address']}, "
+                                  f"{', '.join(self.endpoint.status()['claimants'])}): which is the autopilot cannot "
+                                  "be told; nothing is sent to either (a local process playing the autopilot?)")
         if self.signing is not None:
             self._provision()
         return True
+
+    def _key_held(self) -> bool:
+        """A signing key is stored: the autopilot that holds it proves itself by signing (``AutopilotEndpoint``)."""
+        return self.signing is not None and self.signing.mode != "off" and self.signing.key is not None
 
     def _provision(self) -> None:
         """MAVLink signing before anything else: the key installed or confirmed, or the link's
