@@ -281,3 +281,22 @@ def test_only_signed_applications_consent_mavproxy_with_a_key_does_an_unsigned_l
     assert "key:mavproxy" in gw["signing"]["apps"].values() and gw["signing"]["mode"] == "require"
     moved = [e for e in read_events(tmp_path / "drone.jsonl") if e["type"] in ("handover_complete", "authority_moved")]
     assert moved and all(e.get("to", "B") == "B" for e in moved)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_local_app_scenario_nothing_the_unsigned_application_sends_moves_authority_or_reaches_the_vehicle(tmp_path,
+                                                                                                         autopilot):
+    from tests.integration.test_flight_e2e import run_demo
+
+    s, out = run_demo(tmp_path, "local-app", autopilot=autopilot)
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    done = next(e for e in read_events(out / "rogue.jsonl") if e["type"] == "attack_done")
+    assert done["shown_p4"] == B_SYSID and done["accepted"] == 0 and not done["b_in_control"]
+    assert done["answers"][f"{MAV_CMD_REQUEST_OPERATOR_CONTROL}:{mav.MAV_RESULT_DENIED}"] == 2 * done["sent"]["consent"]
+    assert done["signed_command"] == mav.MAV_RESULT_ACCEPTED and done["resumed"] is True
+    assert [(h["from"], h["to"]) for h in s["handovers"]] == [("A", "B"), ("B", "A")]
+    assert (out / "gcs-keys").stat().st_mode & 0o077 == 0
+    a_log = (out / "gsA.log").read_text()
+    assert "GCS signing require, 1 application key(s)" in a_log and "signs with key opsA" in a_log
+    assert "unsigned:127.0.0.1:" in a_log  # the refusals name the application

@@ -1365,7 +1365,7 @@ def local_app(c: Ctx) -> None:
                                                             0, 0)),
                 ("mission_clear", mav.MAVLink_mission_clear_all_message(1, 1, 0)),
                 ("set_mode", mav.MAVLink_set_mode_message(1, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4 << 16 | 6 << 24)),
-                ("param_read", mav.MAVLink_param_request_read_message(1, 1, b"NAV_DLL_ACT", -1)),
+                ("param_read", mav.MAVLink_param_request_read_message(1, 1, b"", 0)),  # by index: any autopilot
             ):
                 attacker.send(msg)
                 sent[label] += 1
