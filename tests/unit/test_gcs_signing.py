@@ -311,3 +311,24 @@ def test_a_station_without_the_application_parameter_is_still_called():
     gw, station, t = make("require", StubStation())
     pump(gw, t, signed(signer(OPS_A.key), consent()), SIGNED_PEER)
     assert acks(replies(t, SIGNED_PEER, OPS_A.key)) == [(MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)]
+
+
+# ------------------------------------------------------------------ the command line
+@pytest.mark.parametrize("mode, args, error", [
+    (0o644, ["--gcs-keys", "{keys}"], "accessible by others (mode 0644); run chmod 600"),
+    (0o600, ["--gcs-keys", "{keys}", "--gcs-signing", "off"], "--gcs-keys with --gcs-signing off"),
+    (0o600, ["--gcs-signing", "sometimes"], "invalid choice"),
+])
+def test_zdrone_gs_refuses_a_bad_signing_setup_in_one_line_before_connecting(tmp_path, mode, args, error):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    keys = tmp_path / "gcs-keys"
+    keys.write_text("opsA opsA-pass-1\n")
+    os.chmod(keys, mode)
+    zdrone = str(Path(sys.executable).parent / "zdrone")
+    out = subprocess.run([zdrone, "gs", "--id", "A", "--fleet", str(tmp_path / "none"), "--gcs", "udpin:127.0.0.1:1",
+                          *[a.format(keys=keys) for a in args]], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and error in out.stderr, out.stderr
+    assert out.stderr.strip().count("\n") == 0 or "usage:" in out.stderr  # argparse prints its usage line first

@@ -168,8 +168,7 @@ log = logging.getLogger(__name__)
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
          "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert", "insider-heir",
-         "key-escrow", "stale-pairing", "fc-radio", "fake-autopilot")
-MODES += ("local-app",)  # noqa: the unsigned local application on a GS host (issue 29)
+         "key-escrow", "stale-pairing", "fc-radio", "fake-autopilot", "local-app")
 ROGUE_COMPID = 190
 #: The fc-radio attacker's MAVLink system id (a GCS nobody configured).
 FC_RADIO_SYSID = 250
@@ -1402,8 +1401,8 @@ ATTACKS: dict[str, Callable[[Ctx], None]] = {
     "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
     "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert, "insider-heir": insider_heir,
     "key-escrow": key_escrow, "stale-pairing": stale_pairing, "fc-radio": fc_radio, "fake-autopilot": fake_autopilot,
+    "local-app": local_app,
 }
-ATTACKS["local-app"] = local_app
 assert set(ATTACKS) == set(MODES)
 
 
@@ -1441,8 +1440,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
-              max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port, vehicle_port=args.vehicle_port)
-    ctx.gcs_port_b, ctx.gcs_keys = args.gcs_port_b, args.gcs_keys
+              max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port, vehicle_port=args.vehicle_port,
+              gcs_port_b=args.gcs_port_b, gcs_keys=args.gcs_keys)
     # on a thread of their own: a handler in the main thread setting an event the main thread waits on
     # can deadlock it (zdrone.net.shutdown); no thread runs yet (the sessions open in the attack)
     route_signals({signal.SIGTERM: ctx.stop.set, signal.SIGUSR2: ctx.go.set})
