@@ -21,8 +21,8 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
     in this epoch (today's flow: TAKEOVER_ALLOWED in every application's CONTROL_STATUS, the requester
     asks again and is granted); the requester's standing request, sent again each second, is its ask;
   - p1 = 1, p2 = 0 naming the requester: declined; that requester is not shown again for
-    ``DECLINE_HOLD_S`` (its re-sends are ignored, recorded once); a request that expires unanswered holds
-    it off ``EXPIRED_HOLD_S``. So a requester causes at most one prompt per ``timeout + EXPIRED_HOLD_S``.
+    ``DECLINE_HOLD_S`` (its re-sends are ignored, recorded once). A request stands 3 s at least, so a
+    requester causes at most 20 prompts a minute while the operator ignores it, one once declined.
 
   Without consent nothing moves.
 * **Allow takeover** with nothing pending (p1 = 1, p2 = 1, p4 the application's own sysid; one naming
@@ -64,8 +64,10 @@ ASK_RESEND_S = 1.0
 TELL_RESEND_S = 0.5
 #: A requester the operator declined is not shown again for this long (said to the operator).
 DECLINE_HOLD_S = 60.0
-#: A requester whose request expired unanswered is not shown again for this long.
-EXPIRED_HOLD_S = 10.0
+#: A requester whose request expired unanswered may ask again at once (the operator may have missed
+#: it); each request stands at least REQUEST_TIMEOUT_MIN_S, so one requester prompts at most 20 times a
+#: minute until the operator declines it.
+EXPIRED_HOLD_S = 0.0
 
 
 class Answer(enum.IntEnum):
@@ -140,6 +142,7 @@ class OperatorControl:
     asked_until: float | None = None  # as requester: our operator's request stands until then
     asked_timeout: float = DEFAULT_REQUEST_TIMEOUT_S
     asked_takeover: bool = False  # as requester: p2 of our operator's request (our setting once in control)
+    asked_on_takeover: bool = False  # as requester: asked again as soon as the owner allowed us takeover
     ask_id: int = 0  # our operator's requests, numbered
     last_ask: float | None = None
     last_tell: float | None = None
@@ -330,12 +333,16 @@ class OperatorControl:
                 self.last_release = now
                 step += Step(send=(wire.HandoverRelease(self.release_to, view.epoch),))
         elif self.asked_until is not None:
+            for_us = bool(view.takeover) and getattr(view, "takeover_to", None) in (None, self.gs)
             if now >= self.asked_until:
                 self.asked_until = None
                 step += self._log(rec.OperatorRequestTimedOut(drone=view.name, owner=view.owner))
-            elif _due(self.last_ask, now, ASK_RESEND_S):
-                self.last_ask = now
+            elif _due(self.last_ask, now, ASK_RESEND_S) or (for_us and not self.asked_on_takeover):
+                # the owner allowing us takeover is the spec's cue to ask again: at once, not at the next re-send
+                self.last_ask, self.asked_on_takeover = now, for_us
                 step += Step(send=(self._ask(view),))
+            elif not for_us:
+                self.asked_on_takeover = False
         if self.release_epoch is not None and self.release_epoch != view.epoch:
             self.release_to = self.release_epoch = self.release_until = None  # authority moved on
         return step

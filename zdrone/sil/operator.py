@@ -9,13 +9,14 @@ The script, once the drone is inside both coverages (seen in its GLOBAL_POSITION
 2. **No consent**: B asks (MAV_CMD_REQUEST_OPERATOR_CONTROL p1 = 1, p2 = 1, p3 = 3 s): answered
    FAILED; A's application is shown the request (the vehicle's COMMAND_LONG 32100, p4 = B's sysid) and
    acknowledges it, nothing more. Past the timeout, B still sees A in control.
-3. **Consent**: B asks again (p3 = 10 s): FAILED; A's operator consents with p1 = 1, p2 = 1 (allow
-   takeover for the window). B's application must see itself in control (``gcs_main`` = its own
-   sysid) within the 10 s window.
+3. **Consent**: B asks again (p3 = 10 s): FAILED; A's operator consents with p1 = 1, p2 = 1 and p4 = the
+   requester it was shown (allow B takeover for the window; a consent naming nobody is DENIED first).
+   A's application sees TAKEOVER_ALLOWED; B's standing request, sent again each second, is its ask
+   again: B's application must see itself in control (``gcs_main`` = its own sysid) within the window.
 4. **Takeover allowed**: A asks (p2 = 1); B allows takeover (its requests said p2 = 1): A takes it at
    once (IN_PROGRESS, then ACCEPTED). Then B asks (p2 = 0) and, A allowing takeover, takes it at once.
-5. **Back to the mission**: A asks (B now refuses takeover: FAILED); B's operator releases (p1 = 0) to
-   A; A's operator lets go of held control (p1 = 0, nobody asking) and resumes the mission (DO_SET_MODE
+5. **Back to the mission**: A asks (B now refuses takeover: FAILED); B's operator releases (p1 = 0, p4 =
+   the requester it was shown) to A; A's operator lets go of held control (p1 = 0, nobody asking) and resumes the mission (DO_SET_MODE
    mission): the flight goes on with its automatic hand-overs.
 
 Every step and its timing goes to the events file (``operator_step``; ``operator_done`` with
@@ -149,9 +150,11 @@ class Script:
         self.events.write("operator_step", step=name, **fields)
         print(f"operator: {name} {fields}", flush=True)
 
-    def ask(self, app: OperatorApp, p1: float, p2: float = 0.0, p3: float = 5.0) -> float:
+    def ask(self, app: OperatorApp, p1: float, p2: float = 0.0, p3: float = 5.0, p4: float = APP_SYSID) -> float:
+        """MAV_CMD_REQUEST_OPERATOR_CONTROL; p4 is the application's own sysid, or, answering a request
+        it was shown, the requester's (a consent names the requester)."""
         since = time.monotonic()
-        app.command(MAV_CMD_REQUEST_OPERATOR_CONTROL, p1, p2, p3, APP_SYSID)
+        app.command(MAV_CMD_REQUEST_OPERATOR_CONTROL, p1, p2, p3, p4)
         return since
 
     def first_ack(self, app: OperatorApp, since: float, timeout: float = 3.0) -> int:
@@ -203,13 +206,18 @@ class Script:
         since = self.ask(b, 1, 1, 10)
         answer = self.first_ack(b, since)
         self.wait("A's application shown B's second request", lambda: bool(a.requests_shown(since)), 3.0)
-        consent = self.ask(a, 1, 1, 10)
+        shown = a.requests_shown(since)[0]
+        unnamed = self.first_ack(a, self.ask(a, 1, 1, 10))  # p4: its own sysid, not the requester
+        if unnamed != mav.MAV_RESULT_DENIED:
+            raise StepFailed(f"a consent naming nobody answered {unnamed}, not DENIED")
+        consent = self.ask(a, 1, 1, 10, shown.param4)
         consent_answer = self.first_ack(a, consent)
         self.wait("B in control after A's consent", lambda: b.in_control() == APP_SYSID, 10.0)
         took = time.monotonic() - consent
         self.wait("A's application sees B in control", lambda: a.in_control() == B_SYSID, 3.0)
-        self.step("consent", answer=answer, consent_answer=consent_answer, to_control_s=round(took, 3),
-                  within_window=took < 10.0)
+        took_a = time.monotonic() - consent
+        self.step("consent", answer=answer, unnamed_answer=unnamed, consent_answer=consent_answer,
+                  to_control_s=round(took, 3), a_sees_s=round(took_a, 3), within_window=took < 10.0)
 
         # 4. takeover allowed: taken at once, both ways
         self.wait("A sees B allow takeover", lambda: a.status is not None and a.status.takeover_allowed, 3.0)
@@ -233,7 +241,7 @@ class Script:
         since = self.ask(a, 1, 0, 10)
         answer = self.first_ack(a, since)
         self.wait("B's application shown A's request", lambda: bool(b.requests_shown(since)), 3.0)
-        release = self.ask(b, 0)
+        release = self.ask(b, 0, 0, 5, b.requests_shown(since)[0].param4)
         self.first_ack(b, release)
         self.wait("A in control after B's release", lambda: a.in_control() == APP_SYSID, 5.0)
         took = time.monotonic() - release
