@@ -197,7 +197,7 @@ def test_fake_autopilot_scenario(tmp_path, autopilot, extra):
         assert s["fc_signing"]["state"] == "off" and s["fc_signing"]["trust_unsigned_position"] is True
         assert any(e["type"] == "fc_unsigned" for e in read_events(out / "drone.jsonl"))
         assert any("--trust-unsigned-position" in n for n in s["notes"])
-        heard = [e for e in read_events(out / "B.jsonl") if e["type"] == "fc_signing"]
+        heard = [e for e in read_events(out / "A.jsonl") if e["type"] == "fc_signing"]  # B: out of range all flight
         assert heard and heard[-1]["signed"] is False
     _clean_shutdown(s, out, nodes=("drone", "B"), stopped=("gsA",))
     json.dumps(s)  # the summary stays plain JSON
