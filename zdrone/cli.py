@@ -417,6 +417,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     import faulthandler
     import signal
 
+    from .crashes import stacks_on_crash
+
+    stacks_on_crash()  # a crash leaves every thread's stack on stderr, here and in every process started from here
     try:  # `kill -USR1 PID` prints every thread's stack, even if one is stuck in C
         faulthandler.register(signal.SIGUSR1, all_threads=True)
     except (AttributeError, ValueError, OSError):  # no SIGUSR1, or stderr is not a real file (tests)

@@ -16,7 +16,9 @@ from .core.envelope import enable_bench_ciphers
 
 def main(argv: list[str] | None = None) -> int:
     from . import cli, commands
+    from .crashes import stacks_on_crash
 
+    stacks_on_crash()  # a crash leaves every thread's stack in the node's log
     enable_bench_ciphers()
     p = argparse.ArgumentParser(prog="python -m zdrone.harness", description="bench harness: nodes with measurement ciphers")
     p.add_argument("-v", "--verbose", action="count", default=0)

@@ -8,11 +8,12 @@ import subprocess
 import pytest
 
 from tests.procs import ZDRONE
+from zdrone.crashes import exit_text
 
 
 def bench(*args: str, timeout: float = 240) -> dict:
     out = subprocess.run([ZDRONE, "bench", *args, "--quick", "--json"], capture_output=True, text=True, timeout=timeout)
-    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.returncode == 0, f"exit {exit_text(out.returncode)}; stderr ends:\n{out.stderr[-4000:]}"
     return json.loads(out.stdout)
 
 
@@ -101,7 +102,7 @@ def test_bench_sweep_quick_every_cell_passes():
     r = bench("sweep")
     assert r["cells"] == 3 and r["jobs"] == 2
     for row in r["rows"]:
-        assert row["ok"], (row["replay"], row["why"], row["run"])
+        assert row["ok"] and not row["crashes"], (row["replay"], row["why"], row["crashes"], row["run"])
         assert row["faults"], row  # the fault landed at its moment
     assert {(row["scenario"], row["moment"]) for row in r["rows"]} == {
         ("site-router-down", "in_overlap"), ("site-router-down", "handover"), ("gs-crash", "way_back")}

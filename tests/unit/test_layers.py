@@ -1,6 +1,6 @@
 """Layers only point down, and no two packages import each other.
 
-core < fleet (fleet files, router config, key expressions) < net / vehicle < nodes (the drone node,
+core (and ``zdrone.crashes``) < fleet (fleet files, router config, key expressions) < net / vehicle < nodes (the drone node,
 the ``gs`` package) < sil / bench / report < cli (``zdrone.cli``, ``zdrone.commands``). A module may
 import its own layer or a lower one; within a layer, packages must not form a cycle. Imports are
 read with ``ast`` (top-level and inside functions alike), so a lazy import counts too.
@@ -13,7 +13,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 LAYERS: dict[str, int] = {
-    "zdrone.core": 0,
+    "zdrone.core": 0, "zdrone.crashes": 0,  # stacks on a crash: every entry point and launcher uses it
     "zdrone.fleet": 1,
     "zdrone.net": 2, "zdrone.vehicle": 2,
     "zdrone.nodes": 3, "gs": 3,

@@ -93,6 +93,7 @@ def fly(cell: Cell, base: Path) -> dict[str, Any]:
             "handovers": [f"{h['from']}->{h['to']} ({h['kind']})" for h in summary["handovers"]],
             "failsafe": summary["failsafe"] is not None, "delivered": bool(summary.get("delivered")),
             "faults": [f["text"] for f in summary.get("faults", [])],
+            "crashes": [n for n in summary["notes"] if " crashed: " in n],  # a child's signal and its stacks
             "wall_s": round(time.monotonic() - t0, 1), "run": str(out), "replay": cell.replay()}
 
 
@@ -141,3 +142,5 @@ def render(result: dict[str, Any]) -> None:
     for r in result["rows"]:
         if not r["ok"]:
             print(f"FAILED {r['replay']}: {'; '.join(r['why'])} ({r['run']})")
+        for crash in r.get("crashes", ()):
+            print(crash)

@@ -1183,8 +1183,19 @@ class Demo:
                     self.notes.append(f"{child.name} had to be killed (stacks in {child.log.name})")
                 procs.forget(child.proc)
                 codes[child.name] = child.proc.returncode
+        self._report_crashes(codes)
         self.close_links()
         return {n: codes.get(n) for n in self.children}
+
+    def _report_crashes(self, codes: dict[str, int | None]) -> None:
+        """A child that died of a crash signal (SIGSEGV, SIGABRT, ...): a note with the signal and the
+        end of its log, where faulthandler left its stacks (``zdrone.crashes``)."""
+        from ..crashes import crash_report
+
+        for name, code in codes.items():
+            report = crash_report(name, code, self.children[name].log.read_text(errors="replace"))
+            if report is not None:
+                self.notes.append(report)
 
     # ----------------------------------------------------------------- running
     def start_core(self) -> None:
@@ -1548,7 +1559,7 @@ class Demo:
                 for name, child in self.children.items():
                     if child.proc.poll() is not None and name not in ("gsB", "gsA", "operators") and not name.startswith("rogue") \
                             and not child.stopped:
-                        self.notes.append(f"{name} exited early ({child.proc.returncode})")
+                        self.notes.append(f"{name} exited early ({_exit_text(child.proc.returncode)})")
                         state["done"] = True
                 time.sleep(0.1)
         drone_tail.close()
@@ -1694,7 +1705,7 @@ class Demo:
             why.append("security violations")
         bad_exit = {n: c for n, c in codes.items() if c != 0 and not self.children[n].stopped}
         if bad_exit:
-            why.append(f"non-zero exit codes {bad_exit}")
+            why.append(f"non-zero exit codes {({n: _exit_text(c) for n, c in bad_exit.items()})}")
         outcome = Outcome(summary, drone_events, gs_events, rogue_events)
         summary["flight_problems"] = flight_unaffected(outcome)  # [] = the flight completed unaffected
         why += self.spec.check(outcome)
@@ -1907,6 +1918,13 @@ def _ne(pos: Sequence[float]) -> tuple[float, float]:
     from ..core.geometry import ne_of
 
     return ne_of(HOME, GeoPoint(pos[0], pos[1]))
+
+
+def _exit_text(code: int | None) -> str:
+    """An exit code in words: ``1``, ``SIGSEGV (-11)``."""
+    from ..crashes import exit_text
+
+    return exit_text(code)
 
 
 def run_demo(opts: DemoOptions) -> int:

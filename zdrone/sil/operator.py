@@ -252,6 +252,9 @@ class Script:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from ..crashes import stacks_on_crash
+
+    stacks_on_crash()  # a crash leaves every thread's stack in our log
     p = argparse.ArgumentParser(prog="python -m zdrone.sil.operator", description="TESTBED ONLY operators")
     p.add_argument("--a-port", type=int, required=True, help="GS A's gateway udpin port")
     p.add_argument("--b-port", type=int, required=True, help="GS B's gateway udpin port")

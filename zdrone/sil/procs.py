@@ -34,6 +34,8 @@ import time
 from types import FrameType
 from typing import Any, Callable, Iterator, Sequence
 
+from ..crashes import child_env
+
 log = logging.getLogger(__name__)
 
 _PR_SET_PDEATHSIG = 1
@@ -69,8 +71,10 @@ def _die_with_parent(parent: int) -> Callable[[], None]:
 
 def spawn(args: Sequence[str], **popen: Any) -> subprocess.Popen:
     """``subprocess.Popen`` of a child that dies with this process (see the module's text), in a
-    session of its own, registered for ``stop_all``."""
+    session of its own, registered for ``stop_all``; with faulthandler on (``PYTHONFAULTHANDLER``):
+    if it crashes, its stacks are in its output (``zdrone.crashes``)."""
     popen.setdefault("start_new_session", True)
+    popen["env"] = child_env(popen.get("env"))
     proc = subprocess.Popen(list(args), preexec_fn=_die_with_parent(os.getpid()), **popen)
     with _lock:
         _live[proc.pid] = proc

@@ -1409,8 +1409,10 @@ assert set(ATTACKS) == set(MODES)
 def main(argv: list[str] | None = None) -> int:
     import faulthandler
 
+    from ..crashes import stacks_on_crash
     from ..net.shutdown import route_signals
 
+    stacks_on_crash()  # a crash leaves every thread's stack in our log
     try:  # stuck at the end of a run: the launcher's SIGUSR1 prints every thread's stack to our log
         faulthandler.register(signal.SIGUSR1, all_threads=True)
     except (AttributeError, ValueError, OSError):
