@@ -258,3 +258,38 @@ def test_a_pairing_refusal_is_answered_only_to_a_query_that_passed_its_tag_check
     _b_asks_to_pair(net)  # the real B's query passes its tag: refused with the reason, as before
     net.step(0.1)
     assert net.drone.counters["pair_refused:first_claim"] == 1
+
+
+def _untrusted_positions(net: FleetNet) -> None:
+    """From now on the vehicle's positions come over a link that is not signed (no opt-in)."""
+    core = net.drone
+    on_vehicle = core.on_vehicle
+    core.on_vehicle = lambda pos, on_ground, now, trusted=True: on_vehicle(pos, on_ground, now, False)  # type: ignore[method-assign]
+
+
+def test_an_untrusted_position_is_inside_no_coverage_so_it_makes_no_heir(fleet_dir):
+    """Issue 29, behaviour 4: a position that did not come signed grants no authority. The same flight as
+    the heir test above: in the overlap, the owner lost -- with unsigned positions, the failsafe, not B."""
+    net = linked(fleet_dir)
+    net.on_ground = False
+    a, b = net.centre("A"), net.centre("B")
+    net.fly(a, net.between(a, b, 0.5), 10.0)
+    assert net.drone.machine.is_heir("B")
+    _untrusted_positions(net)
+    net.step()
+    m = net.drone.machine
+    assert m.inside == frozenset() and not m.is_heir("B") and net.drone.position is not None
+    assert net.drone.report(net.now)["position"] is not None  # still shown, never counted
+    net.hung.add("A")
+    net.run(4.0)
+    assert m.state is State.FAILSAFE and m.owner == "A" and [c.command for c in net.commands] == ["LAND"]
+    assert not any(isinstance(r, rec.AuthorityMoved) and r.to == "B" for r in net.records)
+
+
+def test_an_untrusted_position_grants_no_first_pairing(fleet_dir):
+    """A fresh drone pairs only with a GS whose coverage holds its position: an unsigned one holds none."""
+    net = FleetNet(fleet_dir)
+    _untrusted_positions(net)
+    net.add_gs("A", pair=True)
+    net.run(3.0)
+    assert net.drone.machine.owner is None and net.drone.counters["pair_refused:outside_coverage"] >= 1
