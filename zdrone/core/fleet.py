@@ -84,6 +84,12 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         return None
 
 
+#: msgspec builds a Struct type's validation info on the type's first use, and two threads doing it at
+#: once can crash the process (SIGSEGV: a bench's flights, each in a thread of its own, parsed their
+#: fleets at the same moment). Built here, once, at import: parsing a fleet never builds it.
+_BUILT_AT_IMPORT = (msgspec.json.Decoder(Fleet), msgspec.json.Decoder(Node))
+
+
 def parse_fleet(text: str, source: str = "fleet.json5") -> Fleet:
     """Parse and validate fleet text. Raises ``FleetError`` with a one-line message."""
     try:

@@ -45,6 +45,11 @@ class _SecretFile(msgspec.Struct, forbid_unknown_fields=True):
     router_password: str
 
 
+#: built at import, in one thread: a Struct type's first use from two threads at once can crash
+#: (``zdrone.core.fleet``)
+_SECRET_FILE = msgspec.json.Decoder(_SecretFile)
+
+
 def fleet_path(where: str | Path) -> Path:
     p = Path(where)
     return p if p.suffix in (".json5", ".json") else p / FLEET_FILE
@@ -189,7 +194,7 @@ def load_secret(where: str | Path, name: str, fleet: Fleet | None = None) -> Nod
     if mode & 0o077:
         raise ConfigError(f"{path}: key file is accessible by others (mode {mode:04o}); run chmod 600 {path}")
     try:
-        raw = msgspec.json.decode(path.read_bytes(), type=_SecretFile)
+        raw = _SECRET_FILE.decode(path.read_bytes())
         ident = Identity(unb64(raw.private_key, 32))
     except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
         raise ConfigError(f"{path}: malformed secret file: {str(exc).splitlines()[0]}") from None
