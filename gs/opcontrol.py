@@ -21,7 +21,7 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
     in this epoch (today's flow: TAKEOVER_ALLOWED in every application's CONTROL_STATUS, the requester
     asks again and is granted); the requester's standing request, sent again each second, is its ask;
   - p1 = 1, p2 = 0 naming the requester: declined; that requester is not shown again for
-    ``DECLINE_HOLD_S`` (its re-sends are ignored, recorded once). A request stands 3 s at least, so a
+    ``DECLINE_HOLD_S`` (its re-sends are ignored, recorded once; an "allow takeover" does not grant it either). A request stands 3 s at least, so a
     requester causes at most 20 prompts a minute while the operator ignores it, one once declined.
 
   Without consent nothing moves.
@@ -251,6 +251,10 @@ class OperatorControl:
         if not self.is_owner(view) or msg.epoch != view.epoch or msg.to != msg.requester:
             # control goes to whoever asks, never to a GS it names; and only ours, in our epoch
             return self._log(rec.OperatorRequestStale(drone=view.name, requester=msg.requester, epoch=msg.epoch))
+        until = (self.held_off or {}).get(msg.requester)
+        if until is not None and now < until:  # declined: not shown, and not granted by an allow-takeover either
+            return self._once("held_off", msg, rec.OperatorRequestHeldOff(drone=view.name, requester=msg.requester,
+                                                                          seconds_left=round(until - now, 1)))
         allowed, only = self.takeover_for(view, now)
         live = self.live_request(view, now)
         if allowed and only in (None, msg.requester) and (live is None or live.requester == msg.requester):
@@ -264,10 +268,6 @@ class OperatorControl:
                                                                    pending=live.requester))
         if self.closed == (msg.requester, msg.epoch, msg.ask_id):
             return NOTHING  # re-sends of a request declined or expired: decided already
-        until = (self.held_off or {}).get(msg.requester)
-        if until is not None and now < until:
-            return self._once("held_off", msg, rec.OperatorRequestHeldOff(drone=view.name, requester=msg.requester,
-                                                                          seconds_left=round(until - now, 1)))
         req = self._pend(view, msg, now)
         return self._received(view, req, False) + Step(say=(
             f"zdrone gs {self.gs}: {msg.requester} requests control of {view.name} ({req.timeout:.0f} s to consent)",))

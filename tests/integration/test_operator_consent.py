@@ -30,3 +30,24 @@ def test_operator_consent_no_consent_moves_nothing_consent_and_takeover_move_con
     a = read_events(out / "A.jsonl")
     assert [e["requester"] for e in a if e["type"] == "operator_request_shown"][:2] == ["B", "B"]
     assert any(e["type"] == "operator_request_expired" for e in a)  # the first, never consented to
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_consent_bound_goes_to_the_named_requester_in_its_epoch_and_a_decline_holds(tmp_path, autopilot):
+    """``consent-bound``: three authorized GSs, an application on each gateway (``zdrone.sil.consent_ops``)."""
+    s, out = run_demo(tmp_path, "consent-bound", autopilot=autopilot)
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    op = s["operator"]
+    step = op["consent_to_b_while_x_asks"]
+    assert step["wrong_named_answer"] == mav.MAV_RESULT_DENIED and step["consent_answer"] == mav.MAV_RESULT_ACCEPTED
+    assert op["window_across_epochs"]["later_epoch_answer"] == mav.MAV_RESULT_FAILED
+    assert all("X" not in (h["from"], h["to"]) for h in s["handovers"])
+    a = read_events(out / "A.jsonl")
+    assert [e["requester"] for e in a if e["type"] == "operator_request_shown"][0] == "B"
+    assert any(e["type"] == "operator_request_busy" and e["requester"] == "X" and e["pending"] == "B" for e in a)
+    refused = [e for e in a if e["type"] == "operator_consent_refused"]
+    assert refused and refused[0]["named"] == "X" and refused[0]["requester"] == "B"
+    b = read_events(out / "B.jsonl")
+    assert any(e["type"] == "operator_request_declined" and e["requester"] == "X" for e in b)
+    assert any(e["type"] == "operator_request_held_off" and e["requester"] == "X" for e in b)

@@ -556,3 +556,16 @@ def test_allow_takeover_naming_a_gs_that_asked_nothing_is_refused_not_a_setting_
     assert net.command("X", ask(timeout=5.0)) is Answer.FAILED
     net.run(net.now + 3.0)
     assert net.owner == "A"
+
+
+def test_a_declined_requester_is_not_granted_by_a_later_allow_takeover_during_the_hold(fleet3_dir):
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    net.command("X", ask(timeout=10.0))
+    net.run(net.now + 1.0)
+    net.command("A", consent("X", request=True))  # declined
+    assert net.command("A", ask(takeover=True)) is Answer.ACCEPTED  # then: takeover allowed for anyone
+    net.run(net.now + 3.0)  # X's standing request is sent again meanwhile
+    assert net.owner == "A"
+    assert net.command("B", ask(timeout=5.0)) is Answer.IN_PROGRESS  # anyone else: granted at once
+    net.run(net.now + 1.0)
+    assert net.owner == "B"

@@ -670,6 +670,8 @@ class AuthorityMachine:
             self.takeover_to = ev.takeover_to if ev.takeover else None  # what the GSs are shown, no more
             return self.state, [Note("takeover_setting", f"{ev.sender}: takeover {'allowed' if ev.takeover else 'refused'}"
                                                          f" in epoch {self.epoch}")] + self._status_to_all()
+        if ev.sender == self.owner and ev.to == ev.sender:  # a request that crossed its own success: nothing to do
+            return self.state, []
         if ev.sender == self.owner:  # the owner asking is a release
             return self._on_release(Release(ev.now, ev.sender, ev.to, self.epoch))
         if ev.to != ev.sender:  # a GS asks control for itself, never for another it names

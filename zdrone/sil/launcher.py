@@ -37,14 +37,14 @@ from gs.planner import AUTOPILOTS, reference_mission
 
 from ..core.geometry import GeoPoint, distance_m
 from ..core.pairing import PAIR_BURST, PAIR_RATE
-from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound,
+from ..core.records import (AnyRecord, OperatorConsentRefused, OperatorRequestDeclined, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound,
                             ControlRequested, Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState,
                             HandoverComplete, HandoverFailed, HandoverStart, GsLinkConfirmed, LinkConfirmed,
                             LinkInstalled, LinkkeyReceived, LinkStateChanged, MissionFailed, MissionProgress,
                             MissionStarted, Paired, PathState, R, RegionEntered, Restarted, Start, Subscribe,
                             Unsubscribe, fields_of, logged, only, record_type)
 from .records import Captured, LinkFault, RadioLinkChanged, UnauthorizedAttempt
-from ..core.reference import COVERAGE_RADIUS_M, DELIVERY, GS_B, HOME
+from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, DELIVERY, GS_B, HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, LogTail, read_records
@@ -128,6 +128,8 @@ class Scenario:
     telem2: bool = False  # give the simulator a second MAVLink endpoint (its TELEM2, udpin on a free port)
     fixed_moment: bool = False  # its fault's moment is what the scenario is (``moments()`` gives none to move to)
     operators: str | None = None  # at this moment, start the two operators (``zdrone.sil.operator``) on A's and B's gateways
+    consent_ops: str | None = None  # at this moment, start the three operators (``zdrone.sil.consent_ops``)
+    x_authorized: bool = False  # X is a third GS authorized for d1 (started, with a GCS gateway, without pairing)
     linger: float = 0.0  # wall seconds the run goes on after the vehicle landed (what happens on the ground)
     plain_router: bool = False  # its attacker holds router passwords only: no --tls, no --sites (no certificate)
     app_signing: bool = False  # GS A's gateway requires signed applications (a key file the launcher writes); B has one
@@ -420,15 +422,16 @@ def _check_pair_flood(o: Outcome) -> list[str]:
     """``pair-flood``: an authorized GS's key (B's) floods valid pairing queries. The drone refuses all
     beyond B's allowance (5/s, burst 10), and every one older than a message 1 of B's it answered
     (``stale``), before any crypto and does at most 2 handshakes per loop turn;
-    the authority link must never go silent for more than 2 s (DEGRADED at most 1 s)."""
+    the authority link must never go silent for more than 2 s (DEGRADED at most 1 s). Counts, not
+    speed: the flood is more queries than the allowance answers, however fast the machine sent them."""
     done = o.rogue_done("pair-flood")
     answered = o.drone_counter("pair_answered")
+    allowance = 1 + PAIR_BURST + PAIR_RATE * (int(done.get("seconds", 0)) + 1)  # A's first + B's bucket
     why = flight_unaffected(o)
-    why += _need(done.get("sent", 0) > 0, "the attacker sent nothing")
+    why += _need(done.get("sent", 0) > allowance, f"no flood: {done.get('sent', 0)} queries sent, {allowance:.0f} allowed")
     refused = o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_refused:stale")
-    why += _need(refused >= 1000, f"only {refused} pair_refused:rate_limited or stale")
-    why += _need(answered <= 1 + PAIR_BURST + PAIR_RATE * (int(done.get("seconds", 0)) + 1),
-                 f"{answered} pairings answered")
+    why += _need(refused > 0, "no pairing query refused as rate_limited or stale")
+    why += _need(answered <= allowance, f"{answered} pairings answered, {allowance:.0f} allowed")
     why += _need(not o.confirmed("B", "pair"), "a flood key was proven")
     why += _need(o.summary["authority_link"]["longest_silence_s"] <= 2.0,
                  f"authority link silent {o.summary['authority_link']['longest_silence_s']} s")
@@ -642,6 +645,30 @@ def _check_operator_consent(o: Outcome) -> list[str]:
     why += _need(all(h["kind"] == "handover" for h in s["handovers"]), "an emergency hand-over")
     why += _need(s["failsafe"] is None, "failsafe triggered")
     why += _need(s["authority_link"]["worst_state"] != "lost", "the authority link was LOST")
+    why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
+                 f"not landed at home ({s['distance_from_home_m']} m)")
+    return why
+
+
+def _check_consent_bound(o: Outcome) -> list[str]:
+    """``consent-bound``: three authorized GSs (``zdrone.sil.consent_ops``). A consent goes to the requester
+    the operator was shown and named (B, though X asked last), a decline holds X off, an allow-takeover
+    given in an earlier epoch moves nothing; X never holds authority; then the flight goes on and lands
+    at home, no emergency hand-over, no failsafe."""
+    s, op = o.summary, o.summary.get("operator", {})
+    done = op.get("operator_done", {})
+    why = _need(done.get("ok") is True, f"the operators' script failed: {done.get('failed') or 'it did not finish'}")
+    pairs = o.pairs
+    why += _need(all("X" not in p for p in pairs), f"X held authority: {pairs}")
+    why += _need(pairs[:4] == [("A", "B"), ("B", "A"), ("A", "B"), ("B", "A")],
+                 f"hand-overs {pairs}: expected A->B (consent), B->A (takeover), A->B (consent), B->A (release)")
+    why += _need(pairs[-1:] == [("B", "A")], f"the flight did not end under A: {pairs}")
+    why += _need(all(h["kind"] == "handover" for h in s["handovers"]), "an emergency hand-over")
+    refused = [e for e in only(o.gs.get("A", []), OperatorConsentRefused) if e.named == "X"]
+    why += _need(bool(refused), "A's consent naming X was not refused")
+    declined = [e for e in only(o.gs.get("B", []), OperatorRequestDeclined) if e.requester == "X"]
+    why += _need(bool(declined), "B's operator's decline of X is not on record")
+    why += _need(s["failsafe"] is None, "failsafe triggered")
     why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
                  f"not landed at home ({s['distance_from_home_m']} m)")
     return why
@@ -944,6 +971,13 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "nothing moves without consent; B in control within the 10 s window after consent and at once with "
              "takeover allowed; no emergency hand-over, no failsafe, landing at home",
              _check_operator_consent, operators=MISSION_STARTED),
+    Scenario("consent-bound",
+             "three authorized GSs, an operator application on each gateway, in the overlap: B asks, X asks 1.1 s "
+             "later, A's operator consents naming X (refused) then B; B's operator declines X, X asks again; B "
+             "allows takeover in its epoch, A takes it, gives it back by consent, then asks again",
+             "control goes to B, the requester named; X is not shown while B's request stands nor after its "
+             "decline, and never holds authority; an earlier epoch's allow-takeover moves nothing; landing at home",
+             _check_consent_bound, consent_ops=MISSION_STARTED, x_authorized=True),
     Scenario("big-flood",
              "B's router password only: 60 KiB envelopes, pairing and key-sharing queries (20/s each) and 4 MiB "
              "ones (1/s each), from the overlap on (through the hand-over)",
@@ -1078,6 +1112,7 @@ class Demo:
     router: str = ""
     gcs_port: int | None = None
     gcs_port_b: int | None = None  # GS B's gateway, for the operators
+    gcs_port_x: int | None = None  # GS X's gateway (``consent-bound``)
     telem2_port: int | None = None  # the simulator's TELEM2 (UDP), when the scenario wants one
     vehicle_port: int | None = None  # the UDP port the companion listens on for its autopilot (``vehicle_udpin``)
     fired: set[str] = field(default_factory=set)
@@ -1209,7 +1244,7 @@ class Demo:
             tls = o.tls or self.spec.tls
             if tls:
                 self.router = f"tls/127.0.0.1:{rport}"
-            init_fleet(self.out / "fleet", tls=tls)
+            init_fleet(self.out / "fleet", tls=tls, nodes_spec=self._nodes_spec())
             self._export_bundles(["router"])
             r = self.start("router", self._z() + ["router", "-c", "bundles/router/router/router.json5", "--listen", self.router]
                            + (["--tap", "tap.json"] if o.tap else []))
@@ -1273,7 +1308,7 @@ class Demo:
             return
         site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
         self.router = site_eps[0]
-        fleet = init_fleet(self.out / "fleet", sites=site_eps)
+        fleet = init_fleet(self.out / "fleet", sites=site_eps, nodes_spec=self._nodes_spec())
         self.sites = load_sites(self.out / "fleet")
         self._export_bundles(list(self.sites))
         names = list(self.sites)
@@ -1299,7 +1334,8 @@ class Demo:
         topo = self.netns = NetnsTopology(names)
         topo.create()
         port = 7447  # each router alone in its namespace
-        fleet = init_fleet(self.out / "fleet", sites=[f"tls/{topo.radio_ip[site]}:{port}" for site in names])
+        fleet = init_fleet(self.out / "fleet", sites=[f"tls/{topo.radio_ip[site]}:{port}" for site in names],
+                           nodes_spec=self._nodes_spec())
         self.sites = load_sites(self.out / "fleet")
         self._export_bundles(list(self.sites))
         self.router = f"tls/127.0.0.1:{port}"  # inside site 1's namespace (the attackers run there)
@@ -1375,6 +1411,12 @@ class Demo:
         if self.radio_log is not None:
             self.radio_log.close()
 
+    def _nodes_spec(self) -> list[tuple[str, str, int, Any, list[str]]] | None:
+        """The fleet's nodes: the reference fleet, with X authorized for d1 if the scenario says so."""
+        if not self.spec.x_authorized:
+            return None
+        return [(n, r, sid, c, [*a, "X"] if n == "d1" else a) for n, r, sid, c, a in DEFAULT_NODES]
+
     def start_gs(self, gs: str, *extra: str) -> Child:
         child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(gs), "--events", f"{gs}.jsonl", *extra],
                            ns=self._ns(gs))
@@ -1408,7 +1450,7 @@ class Demo:
         self.start_core()
         gs_extra = ["--command-rate", str(o.command_rate), *self._bench_extra()] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
         b_extra = list(gs_extra)
-        if spec.operators or spec.app_signing:
+        if spec.operators or spec.app_signing or spec.consent_ops:
             self.gcs_port_b = free_port(socket.SOCK_DGRAM)
             b_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port_b}"]
         self.start_gs("B", *b_extra)
@@ -1422,11 +1464,14 @@ class Demo:
             keys.write_text(f"opsA hex:{os.urandom(32).hex()}\n")
             keys.chmod(0o600)
             a_extra += ["--gcs-signing", "require", "--gcs-keys", GCS_KEYS]
-        if spec.gcs_a or spec.operators or spec.app_signing:
+        if spec.gcs_a or spec.operators or spec.app_signing or spec.consent_ops:
             self.gcs_port = free_port(socket.SOCK_DGRAM)
             a_extra += ["--gcs", f"udpin:127.0.0.1:{self.gcs_port}"]
         self.start_gs("A", *a_extra)
-        if spec.gs_x:
+        if spec.x_authorized:  # a third authorized GS: its key comes from A's key sharing, its operator on a gateway
+            self.gcs_port_x = free_port(socket.SOCK_DGRAM)
+            self.start_gs("X", *gs_extra, "--gcs", f"udpin:127.0.0.1:{self.gcs_port_x}")
+        elif spec.gs_x:
             self.start("gsX", self._z() + ["gs", "--id", "X", *self._common("X"), "--drone", "d1", "--pair", "--mission",
                                            "reference", "--events", "X.jsonl"], ns=self._ns("X"))
         return self._watch()
@@ -1491,6 +1536,12 @@ class Demo:
                                      str(self.gcs_port_b), "--events", "operator.jsonl"], ns=self._ns("A"))
             if live is not None:
                 live.event(t or time.time(), "scenario: the operators of A and B start")
+        if spec.consent_ops == trigger and self.gcs_port and self.gcs_port_b and self.gcs_port_x:
+            self.start("operators", ["-m", "zdrone.sil.consent_ops", "--a-port", str(self.gcs_port), "--b-port",
+                                     str(self.gcs_port_b), "--x-port", str(self.gcs_port_x), "--events", "operator.jsonl"],
+                       ns=self._ns("A"))
+            if live is not None:
+                live.event(t or time.time(), "scenario: the operators of A, B and X start")
         self._inject_due(live)
         self._send_go(live)
 
