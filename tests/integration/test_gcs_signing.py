@@ -259,13 +259,10 @@ def test_only_signed_applications_consent_mavproxy_with_a_key_does_an_unsigned_l
             mp = MavProxy(ports["a"], cwd, MAVPROXY_PASSPHRASE)
             assert mp.wait_for("Setup signing key", 20), mp.text()
             assert mp.wait_for("Detected vehicle 1:1", 30), mp.text()
-            consent = time.monotonic()
             mp.type(f"long 32100 0 0 0 {B_SYSID}")
             b_app.wait("B in control after MAVProxy's consent", lambda: b_app.in_control() == 255, 15)
             assert mp.wait_for("COMMAND_ACK {command : 32100, result : 0", 5), mp.text()  # ACCEPTED
-            took = time.monotonic() - consent
             signed_app.wait("A's signed application sees B in control", lambda: signed_app.in_control() == B_SYSID, 5)
-            assert took < 15
         finally:
             if mp is not None:
                 mp.stop()
