@@ -98,9 +98,11 @@ def stack(tmp: Path, autopilot: str) -> Iterator[dict[str, int]]:
             vehicle = f"tcp:127.0.0.1:{tport}"
         sim.wait_line("zdrone sim:", 20)
         # The relay injects frames as the vehicle: unsigned, so a signed link would rightly drop them
-        # (tests/unit/test_fc_signing.py); here the link is unsigned, and every frame must pass.
+        # (tests/unit/test_fc_signing.py); here the link is unsigned, and every frame must pass. An
+        # unsigned link's positions grant nothing unless opted in: A's first pairing needs coverage.
         drone = es.enter_context(spawn(ZDRONE, "drone", "--id", "d1", *common, "--vehicle", vehicle,
-                                       "--fc-signing", "off", "--events", str(tmp / "drone.jsonl")))
+                                       "--fc-signing", "off", "--trust-unsigned-position",
+                                       "--events", str(tmp / "drone.jsonl")))
         drone.wait_line("ready", 40)
         a = es.enter_context(spawn(ZDRONE, "gs", "--id", "A", *common, "--pair", "--gcs", f"tcpin:127.0.0.1:{ta}",
                                    "--events", str(tmp / "A.jsonl")))
