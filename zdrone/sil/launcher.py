@@ -37,7 +37,8 @@ from gs.planner import AUTOPILOTS, reference_mission
 
 from ..core.geometry import GeoPoint, distance_m
 from ..core.pairing import PAIR_BURST, PAIR_RATE
-from ..core.records import (AnyRecord, OperatorConsentRefused, OperatorRequestDeclined, AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound,
+from ..core.records import (AnyRecord, OperatorConsentRefused, OperatorRequestDeclined, OwnerLinkLostOnGround,
+                            AuthorityChange, AuthorityMoved, AuthorityStatus, AutopilotFound,
                             ControlRequested, Drop, DroneState, DroneStatus, DroneStop, Failsafe, GsState,
                             HandoverComplete, HandoverFailed, HandoverStart, GsLinkConfirmed, LinkConfirmed,
                             LinkInstalled, LinkkeyReceived, LinkStateChanged, MissionFailed, MissionProgress,
@@ -310,7 +311,7 @@ def safety_invariants(o: Outcome) -> list[str]:
        the one that held authority in that epoch;
     2. the failsafe on time: commanded within threshold + ``FAILSAFE_LATE_MS``;
     3. no silent authority: whenever the authority's link was LOST, the drone handed over or entered
-       its failsafe within ``SILENT_AUTHORITY_S``.
+       its failsafe within ``SILENT_AUTHORITY_S`` (on the ground: recorded that the owner keeps it).
     (Clean exits and the timeout are checked by the launcher for every run.)"""
     why: list[str] = []
     owners = _owners_by_epoch(o.drone)
@@ -344,7 +345,8 @@ def safety_invariants(o: Outcome) -> list[str]:
         elif isinstance(e, Failsafe):
             failsafe = True
         elif isinstance(e, LinkStateChanged) and e.state is LinkState.LOST and e.gs == owner and not failsafe:
-            acted = any(isinstance(x, (Failsafe, HandoverComplete)) and x.t - e.t <= SILENT_AUTHORITY_S
+            # on the ground no failsafe is due: the drone records that the owner keeps authority
+            acted = any(isinstance(x, (Failsafe, HandoverComplete, OwnerLinkLostOnGround)) and x.t - e.t <= SILENT_AUTHORITY_S
                         for x in o.drone[i:i + 40])
             if not acted:
                 why.append(f"authority link to {owner} LOST without hand-over or failsafe")
