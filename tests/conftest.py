@@ -1,6 +1,7 @@
 """Test-wide settings: hypothesis without per-example deadlines (CI machines are shared and loaded;
 speed targets live in ``zdrone bench``, not in timed tests); every event log strict (an event that
-fits no record is an error, in the tests and in every node process they start); the slow tests
+fits no record is an error, in the tests and in every node process they start); faulthandler on in
+every process the tests start (a crash leaves its stacks in that process's output); the slow tests
 (process flights, benches) first, so that under ``pytest -n`` the quick ones fill the gaps at the end."""
 
 import os
@@ -9,6 +10,7 @@ import pytest
 from hypothesis import settings
 
 os.environ.setdefault("ZDRONE_STRICT_EVENTS", "1")
+os.environ.setdefault("PYTHONFAULTHANDLER", "1")
 
 settings.register_profile("zdrone", deadline=None)
 settings.load_profile("zdrone")
