@@ -6,6 +6,11 @@ GSs' uplinks, the pairing queryable), the vehicle link, the clock, the event log
 authority, and carries out the core's outputs. The testbed's emulated radio (coverage gate, loss,
 delay) sits here too, between the session and the core, handed in by whoever starts the node.
 
+The vehicle's position reaches the core with whether it may grant authority: only if it came signed
+by the autopilot (``VehicleLink.position_signed``), or the operator opted in for an unsigned link
+(``--trust-unsigned-position``); an untrusted position is inside no coverage. What became of a
+commanded failsafe (confirmed by the autopilot, sent again, given up) goes to the event log.
+
 One thread owns everything: Zenoh callbacks and the vehicle link's reader thread only put what they
 received on the inbox. The loop sleeps until the next input or the core's timer (``get_timer``), the
 status event or the vehicle link's heartbeat, whichever comes first, ``MAX_SLEEP_S`` at most (the
