@@ -16,7 +16,7 @@ A node (the drone companion, a ground station) is a pure machine plus this runti
   ``close`` undeclares them all;
 * **publishing** (``put``: ``session.put`` with congestion control DROP; ``put_link``: a link frame
   from a GS, paced per key to the router's uplink rate limit and sent at a priority above the data
-  class, express) and **asking** (``ask``: an asynchronous query to every queryable, every reply back
+  class, batched: ``LINK_EXPRESS``) and **asking** (``ask``: an asynchronous query to every queryable, every reply back
   through the inbox);
 * **the event log**, **stop** (from the signal thread), and **close** (each step on its own, so a
   session the signal thread closed does not stop the rest).
@@ -52,6 +52,14 @@ ROLE_NAMES = {"drone": "a drone", "gs": "a ground station"}
 #: data class every other publication uses, so in a router's queue to the drone they pass before
 #: bulk traffic (each priority has its own queue).
 LINK_PRIORITY = zenoh.Priority.INTERACTIVE_HIGH
+#: Link frames are not express. An express message takes a transmission batch of its own, and a
+#: session's queue holds 2 batches per priority: a GS that sends one frame to each of its K drones in
+#: the same tick (heartbeats, the command stream) outran its own transmission thread, and a DROP
+#: message that finds no free batch within 1 ms is dropped by the sender's session, silently (issue
+#: 30: 1-3 commands lost per drone at 25-100 drones, A's links LOST on the ground over sites;
+#: ``experiments/express_burst.py``). Not express, a burst shares batches (one 64 KiB batch holds
+#: hundreds of frames) and waits at most Zenoh's 1 ms batching limit, only under back-pressure.
+LINK_EXPRESS = False
 
 
 class NodeRuntime:
@@ -179,11 +187,11 @@ class NodeRuntime:
         first are not delivered in zenoh 1.10; ``session.put``'s are). Never blocks: DROP. With
         several paths: through every one that has its router, so that losing one costs nothing and
         a site cut off from the others still hears us (none: counted ``put:no_path``). A ``link``
-        frame goes at ``LINK_PRIORITY``, express (not held back to fill a batch)."""
+        frame goes at ``LINK_PRIORITY``, batched like any other (``LINK_EXPRESS``)."""
         sessions = self._out()
         if not sessions:
             self.inbox.drop("put:no_path")
-        qos: dict[str, Any] = {"priority": LINK_PRIORITY, "express": True} if link else {}
+        qos: dict[str, Any] = {"priority": LINK_PRIORITY, "express": LINK_EXPRESS} if link else {}
         for s in sessions:
             s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP, **qos)
 
