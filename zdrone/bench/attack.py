@@ -35,6 +35,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from pymavlink.dialects.v20.common import MAV_LANDED_STATE_IN_AIR
+
 from ..core.geometry import offset
 from ..core.records import (AnyRecord, DroneStatus, Failsafe, LinkConfirmed, LinkStateChanged, Paired, R, fields_of,
                             only, record_type)
@@ -110,17 +112,31 @@ def _wait_event(path: Path, cls: type[R], timeout: float) -> R | None:
     return None
 
 
+def _wait_airborne(path: Path, timeout: float) -> bool:
+    """The drone's status says the vehicle is armed and in the air (within ``timeout`` s)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if path.exists() and any(e.armed and e.landed_state == MAV_LANDED_STATE_IN_AIR
+                                 for e in only(read_records(path).records, DroneStatus)):
+            return True
+        time.sleep(0.1)
+    return False
+
+
 def _failsafe_trial(base: Path, i: int, rate: float | None) -> dict[str, Any]:
-    """One trial: A pairs on the ground; optionally the flood; A stops; the drone's failsafe."""
+    """One trial: A pairs and the vehicle takes off (no link-loss failsafe on the ground); optionally
+    the flood; A stops; the drone's failsafe."""
     d = base / (f"flood-{i}" if rate else f"baseline-{i}")
     d.mkdir(parents=True, exist_ok=True)
     demo = Demo(DemoOptions(out=d, speedup=SPEEDUP, quiet=True, live=False, report=False, command_rate=0.0), d.resolve())
     row: dict[str, Any] = {"flood": bool(rate)}
     try:
         demo.start_core()
-        demo.start_gs("A", "--pair")
+        demo.start_gs("A", "--pair", "--mission", "reference")
         if _wait_event(d / "drone.jsonl", Paired, 30.0) is None:
             raise RuntimeError("A did not pair")
+        if not _wait_airborne(d / "drone.jsonl", 60.0):
+            raise RuntimeError("the vehicle did not take off")
         pid = demo.children["drone"].proc.pid
         time.sleep(1.0)
         c0, t0 = _cpu_seconds(pid), time.time()
