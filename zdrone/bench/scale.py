@@ -173,7 +173,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()}}
         Path(args.out, "drones.json").write_text(json.dumps({
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
-            "cpu_s": cpu_s, "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
+            "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
         for n in nodes:
             n.close()
@@ -231,6 +231,17 @@ def _cpu_seconds(pid: int) -> float | None:
     except (OSError, IndexError):
         return None
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+
+
+def _memory_mb(pid: int | str) -> dict[str, float] | None:
+    """Resident memory of a live process now and at its peak (VmRSS, VmHWM), MB."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return None
+    kb = {k: int(v.split()[0]) for k, v in (line.split(":", 1) for line in text.splitlines() if ":" in line)
+          if k in ("VmRSS", "VmHWM")}
+    return {"rss": round(kb.get("VmRSS", 0) / 1024, 1), "peak": round(kb.get("VmHWM", 0) / 1024, 1)}
 
 
 _SS_FIELDS = re.compile(r"\b(bytes_sent|bytes_received|data_segs_out|data_segs_in):(\d+)")
@@ -372,6 +383,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             except subprocess.TimeoutExpired:
                 error = "drones host did not finish"
             window["t_end"], window["cpu_end"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
+            window["memory"] = {n: _memory_mb(p) for n, p in others.items()}
             window["socks_end"] = _tcp_sockets(router_pids)
     except RuntimeError as exc:
         error = str(exc)
@@ -447,8 +459,9 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
         for sender, n in by_sender.items():
             delivered += n
             across += n if site_of.get(sender) != site_of.get(receiver) else 0
+    memory = {**window.get("memory", {}), "drones host": drones.get("memory_mb")}
     out: dict[str, Any] = {
-        "window_s": round(span, 1), "cpu_percent": cpu,
+        "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory,
         "drones_per_site": dict(Counter(site_of[n] for n in drones["router_zid"])),
         "samples_per_s": round(delivered / span, 1)}
     before, after = window.get("socks"), window.get("socks_end")
@@ -550,13 +563,17 @@ def render(r: dict[str, Any]) -> None:
     def mesh(x: dict[str, Any], field: str) -> str:
         return rate(x.get("mesh", {}).get(field)) if x.get("sites", 1) > 1 else "-"
 
-    load = [[layout(x), f"{x['k']} x {x['g']}", cpu(x, "router"), cpu(x, "drones host"), cpu(x, "stations host"),
+    def mem(x: dict[str, Any], which: str) -> str:
+        vals = [v for n, v in x.get("memory_mb", {}).items() if n.startswith(which)]
+        return "/".join("-" if v is None else f"{v['rss']:.0f} ({v['peak']:.0f})" for v in vals) or "-"
+
+    load = [[layout(x), f"{x['k']} x {x['g']}", cpu(x, "router"), mem(x, "router"), cpu(x, "drones host"), cpu(x, "stations host"),
              rate(x.get("samples_per_s")), mesh(x, "samples_per_s"), mesh(x, "tcp_segments_per_s"), mesh(x, "kbytes_per_s")]
             for x in r["rows"] if "cpu_percent" in x]
     if load:
-        print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers", "CPU % drones",
+        print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers", "RSS MB routers (peak)", "CPU % drones",
                     "CPU % GSs", "samples /s", "mesh samples /s", "mesh TCP segs /s", "mesh kB /s"], load,
-                    caption="CPU: each router, the drones host, the GSs host; samples: pub/sub samples delivered to the "
+                    caption="CPU: each router, the drones host, the GSs host; RSS: each router's resident memory at the end of the flight (its peak); samples: pub/sub samples delivered to the "
                             "nodes; mesh samples: those from a node on another site's router (each crossed one "
                             "router-to-router link); mesh TCP segments and kB: the router-to-router links, both ways, "
                             "TLS included (--json: every router socket too)")
