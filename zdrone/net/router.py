@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import threading
 import time
@@ -49,8 +50,12 @@ class TrafficTap:
 
 def run_router(config_path: str | Path, listen: list[str] | None = None, tap: str | None = None,
                connect: list[str] | None = None) -> int:
-    """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints."""
+    """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints. With ``RUST_LOG``
+    set, Zenoh logs to stderr at that level."""
     cfg = load_router_config(config_path, listen, connect)
+    if os.environ.get("RUST_LOG"):  # Zenoh's own log on stderr, e.g. every put the downsampling drops:
+        # RUST_LOG=zenoh::net::routing::interceptor::downsampling=trace
+        zenoh.init_log_from_env_or("error")
     stop = threading.Event()
     # taken on a thread of their own (the command line blocked them before any thread started): a
     # handler setting ``stop`` inside ``stop.wait`` can deadlock the main thread (zdrone.net.shutdown)
