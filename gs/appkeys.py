@@ -179,6 +179,7 @@ class AppSigning:
         self._streams: dict[str, dict[tuple[int, int, int], int]] = {n: {} for n in self.keys}
         self._rx: dict[str, int] = {}  # per key: the receiver's timestamp (the largest accepted, or the clock)
         self._out: dict[str, int] = {}  # per key: the last timestamp signed with
+        self._own: dict[str, set[tuple[int, int, int]]] = {n: set() for n in self.keys}  # streams we sign as
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -201,6 +202,8 @@ class AppSigning:
         key = next((k for k in self._order(hint) if fcsign.signature(k.key, signed_part) == mac), None)
         if key is None:
             return None, "bad_signature"
+        if sig.stream in self._own[key.name]:
+            return None, "reflected"  # a frame this gateway signed, sent back: never the application's word
         mine = max(self._rx.get(key.name, 0), now_units)
         streams = self._streams[key.name]
         last = streams.get(sig.stream)
@@ -223,6 +226,9 @@ class AppSigning:
         ts = max(self._out.get(name, 0) + 1, now_units, self._rx.get(name, 0))
         out = fcsign.sign(frame, key.key, link_id, ts)
         self._out[name] = ts
+        sig = fcsign.read_signature(out)
+        if sig is not None:  # (link id, sysid, compid): the endpoints' ids times the ids the vehicle speaks as
+            self._own[name].add(sig.stream)
         return out
 
 

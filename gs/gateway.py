@@ -455,6 +455,9 @@ class GcsGateway:
         except FrameError:
             self.counters["malformed"] += 1
             return
+        if hdr.sysid == self.view.sysid:  # an application never speaks as the vehicle (a frame of ours sent back)
+            self.counters["vehicle_sysid"] += 1
+            return
         signer: SigningKey | None = None
         if self.signing_mode != "off" and fcsign.is_signed(frame):
             signer, why = self.signing.verify(frame, self._units(), self._peer_signers().get(ti, {}).get(peer))
@@ -486,6 +489,9 @@ class GcsGateway:
         if hdr.msgid in COMMAND_MSGIDS:
             msg = app.decoder.decode(frame)
             if msg is not None and msg.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
+                if msg.target_system != view.sysid:  # ours to the applications (the request shown), sent back
+                    self.counters["operator_request_not_for_vehicle"] += 1
+                    return
                 if not trusted:
                     self._refuse_unsigned(app, hdr, frame, "operator_control", mav.MAV_RESULT_DENIED, msg)
                     return

@@ -207,15 +207,22 @@ class OperatorControl:
                        named: str | None) -> tuple[Answer, Step]:
         pending = self.live_request(view, now)
         if pending is None:
+            if named not in (None, self.gs):  # an answer to a request that is not pending (any more)
+                if req.request and not req.takeover and self.closed is not None and self.closed[:2] == (named, view.epoch):
+                    # the decline of the request just shown, arriving after it ended: it holds all the same
+                    self._close(PendingRequest(named, named, view.epoch, 0.0, now, 0, self.closed[2]), now, DECLINE_HOLD_S)
+                    return Answer.ACCEPTED, (self._log(rec.OperatorRequestDeclined(
+                        drone=view.name, requester=named, hold_s=DECLINE_HOLD_S, app=app)) + Step(say=(
+                            f"zdrone gs {self.gs}: {named}'s request for {view.name} declined; its requests are not "
+                            f"shown for {DECLINE_HOLD_S:.0f} s",)))
+                why = f"p4 names {named}, which has no pending request"  # a consent to a request nobody made
+                return Answer.DENIED, (self._log(rec.OperatorConsentRefused(drone=view.name, requester="", named=named,
+                                                                           reason=why, app=app))
+                                       + Step(say=(f"zdrone gs {self.gs}: consent for {view.name} refused: {why}",)))
             if not req.request:
                 held, self.held_epoch = self.held_epoch, None  # let go: automatic hand-overs again
                 return Answer.ACCEPTED, (self._log(rec.OperatorControlLetGo(drone=view.name, app=app))
                                          if held == view.epoch else NOTHING)
-            if req.takeover and named not in (None, self.gs):  # a consent to a request nobody made
-                why = f"p4 names {named}, which has no pending request"
-                return Answer.DENIED, (self._log(rec.OperatorConsentRefused(drone=view.name, requester="", named=named,
-                                                                           reason=why, app=app))
-                                       + Step(say=(f"zdrone gs {self.gs}: consent for {view.name} refused: {why}",)))
             was = self.takeover_allowed(view, now)
             self.setting_epoch = view.epoch if req.takeover else None
             if not req.takeover:

@@ -235,7 +235,8 @@ def test_a_thousand_applications_never_raise_and_leave_under_valid_ids():
         gw.on_app_frame(0, ("127.0.0.1", 40000 + i), heartbeat(1 + i % 250), 0.0)
     hdrs = [read_header(f) for f in station.sent]
     assert [(h.sysid, h.compid) for h in hdrs] == [(GS_SYSID, c) for c in APP_IDS]
-    assert gw.counters["app_table_full"] == 1000 - MAX_APPS and gw.counters["internal_error"] == 0
+    assert gw.counters["vehicle_sysid"] == 4  # sysid 1 is the vehicle's: never an application
+    assert gw.counters["app_table_full"] == 1000 - 4 - MAX_APPS and gw.counters["internal_error"] == 0
     assert len(station.events.of("gcs_app")) == MAX_APPS
 
 

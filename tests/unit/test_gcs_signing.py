@@ -332,3 +332,33 @@ def test_zdrone_gs_refuses_a_bad_signing_setup_in_one_line_before_connecting(tmp
                           *[a.format(keys=keys) for a in args]], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and error in out.stderr, out.stderr
     assert out.stderr.strip().count("\n") == 0 or "usage:" in out.stderr  # argparse prints its usage line first
+
+
+def test_a_frame_the_gateway_signed_sent_back_is_never_the_applications_word():
+    """Found from outside: the gateway signs the request it shows an application (COMMAND_LONG 32100 p1 = 1,
+    p2 = 0, p4 = B, from the vehicle's ids) with that application's key; any local process that gets it
+    (a socket bound to a silent application's udpout port) sent it back and it was taken as the operator's
+    decline, named key:opsA."""
+    gw, station, t = make("require")
+    app = signer(OPS_A.key)
+    pump(gw, t, signed(app, mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, 8, 0, 0, 0, 3)), SIGNED_PEER)
+    shown = mav.MAVLink_command_long_message(255, 190, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, 10, 3, 0, 0, 0)
+    codec = FrameCodec(VEHICLE_SYSID, 1)
+    t.out.clear()
+    gw._to_app(next(iter(gw.apps)), codec.encode(shown))  # as _operator_poll presents a request
+    [reflected] = t.to(SIGNED_PEER)
+    assert fcsign.is_signed(reflected)
+    for peer in (SIGNED_PEER, ("127.0.0.1", 40999)):
+        pump(gw, t, reflected, peer)
+    assert station.operator_calls == [] and gw.counters["vehicle_sysid"] == 2
+    # the same frame re-made under the application's own ids but still signed by the gateway's stream
+    assert gw.signing.verify(gw.signing.sign(unsigned(shown, sysid=255), "opsA", fcsign.units(time.time()), 0),
+                             fcsign.units(time.time()))[1] == "reflected"
+
+
+def test_a_request_for_control_not_addressed_to_the_vehicle_is_dropped():
+    gw, station, t = make("require")
+    app = signer(OPS_A.key)
+    pump(gw, t, signed(app, mav.MAVLink_command_long_message(255, 190, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, 10,
+                                                              3, 0, 0, 0)), SIGNED_PEER)
+    assert station.operator_calls == [] and gw.counters["operator_request_not_for_vehicle"] == 1

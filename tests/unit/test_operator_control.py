@@ -569,3 +569,19 @@ def test_a_declined_requester_is_not_granted_by_a_later_allow_takeover_during_th
     assert net.command("B", ask(timeout=5.0)) is Answer.IN_PROGRESS  # anyone else: granted at once
     net.run(net.now + 1.0)
     assert net.owner == "B"
+
+
+def test_an_answer_naming_a_gs_with_nothing_pending_is_denied_and_a_late_decline_still_holds(fleet_dir):
+    """Found from outside: p1 = 0 naming B with nothing pending was answered ACCEPTED (as a let-go), and
+    a decline arriving just after a 3 s request ended was taken as "takeover refused" and held nothing."""
+    net = make_net(fleet_dir)
+    assert net.command("A", consent("B")) is Answer.DENIED  # release to B: B asked nothing
+    net.command("B", ask(timeout=3.0))
+    net.run(net.now + 3.5)  # shown, then expired unanswered
+    assert "operator_request_expired" in net.kinds("A")
+    assert net.command("A", consent("B", request=True)) is Answer.ACCEPTED  # the operator's decline, late
+    assert "operator_request_declined" in net.kinds("A")
+    shown = net.kinds("A").count("operator_request")
+    net.command("B", ask(timeout=3.0))
+    net.run(net.now + 5.0)
+    assert net.kinds("A").count("operator_request") == shown and "operator_request_held_off" in net.kinds("A")
