@@ -43,12 +43,27 @@ failsafe obeys the same heir rule. A consented release may go to a GS outside co
 operations centre over the backhaul): its proof is that of its link, wherever the drone is.
 
 The machine is pure: every event carries ``now``; ``handle(event)`` returns a list of actions that
-the drone node adapter carries out (forward a frame, send a control message, subscribe, command
-the vehicle). After every event's handler, one pass (``_settle``) applies the rules that follow
-from the state alone (a proven pending recipient takes authority), so each such rule is written
-once. The per-event behaviour is the table ``TRANSITIONS``: (state, event type) -> (handler,
-allowed next states). A pair missing from the table is an illegal step: a GS-originated event
-gets a ``Reject`` action, anything else raises ``IllegalTransition`` (a programming error).
+the drone node adapter carries out (forward a frame, send a control message, command the vehicle).
+One step is three passes:
+
+1. the event's handler, found in the table ``TRANSITIONS``: (state, event type) -> (handler,
+   allowed next states). A pair missing from the table is an illegal step: a GS-originated event
+   gets a ``Reject`` action, anything else raises ``IllegalTransition`` (a programming error);
+2. the rules that follow from the state and the time alone (``SETTLE``: a proven pending recipient
+   takes authority, deadlines pass), each a row with the states it applies in and the next states it
+   may choose, checked as the handlers' are; at most one fires per step;
+3. the effects of the state change, computed once from the state before the step and after it
+   (``_effects``), never appended by handlers: the GSs the drone listens to (``subscribed``: in LINKED
+   and HANDOVER_PENDING every linked GS whose coverage holds the vehicle, the owner and a pending
+   recipient; in FAILSAFE those it listened to when the failsafe began; none in UNPAIRED), and the
+   authority status. The status (owner, epoch, state, pending recipient, takeover) goes, as it is
+   after the step, to every GS listened to after the step and to the owner before and after it
+   whenever it changed -- except in a step that enters FAILSAFE, which every linked GS hears as a
+   ``FailsafeNotice`` -- and to whoever a handler asks it for (``_tell``: every listened GS after an
+   accepted pairing or a takeover setting, the owner with a relayed request), once per GS.
+
+Handlers return only what is theirs to say: forwards and drops, rejects, the operator's request,
+the failsafe's command and notice, and the event-log notes.
 
 Key grants and pairings have typed results. ``grant(KeyGranted)`` returns ``GrantAccepted`` (the
 adapter installs the key: live if the link has none, else a candidate the GS must prove) or
@@ -217,16 +232,6 @@ class SendControl(Action):
 
 
 @dataclass(frozen=True, slots=True)
-class Subscribe(Action):
-    gs: str
-
-
-@dataclass(frozen=True, slots=True)
-class Unsubscribe(Action):
-    gs: str
-
-
-@dataclass(frozen=True, slots=True)
 class CommandVehicle(Action):
     command: str  # "LAND" | "RTL"
     reason: str
@@ -334,6 +339,8 @@ class AuthorityMachine:
         self.takeover_to: str | None = None  # ... for this GS only (a consent's window), None: any
         self.first_claim: str | None = None  # after a restart on the ground: the last owner, pairing back first
         self.first_claim_until: float | None = None  # ... until then
+        self._tell: set[str] = set()  # who hears the status after this step whether it changed or not
+        self._tell_everyone = False  # ... and every GS listened to after it
 
     # ------------------------------------------------------------------ queries
     def is_authorized(self, gs: str) -> bool:
@@ -424,8 +431,8 @@ class AuthorityMachine:
                     CommandVehicle(action, "restarted during the failsafe")]
         self.repair_deadline = now + grace
         self._set_state(State.LINKED, now)
-        return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair"),
-                *self._update_subscriptions()]
+        self._follow_subscriptions()  # no status: nobody holds a key yet
+        return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair")]
 
     def restore_on_ground(self, owner: str, epoch: int, now: float, window: float = FIRST_CLAIM_S) -> list[Action]:
         """Come back after a companion restart on the ground: UNPAIRED, no key for anyone, the epoch
@@ -452,65 +459,108 @@ class AuthorityMachine:
                 sender = getattr(event, "sender", None) or getattr(event, "gs")
                 return self._reject(sender, type(event).__name__, f"illegal in state {self.state.value}")
             raise IllegalTransition(f"{type(event).__name__} in state {self.state.value}")
+        before = self._before()
+        self._tell, self._tell_everyone = set(), False
         handler, allowed = entry
         next_state, actions = handler(self, event)
-        if next_state not in allowed:
-            raise IllegalTransition(f"{handler.__name__} chose {next_state} from {self.state}")
-        self._set_state(next_state, event.now)
+        self._move(handler.__name__, next_state, allowed, event.now)
         actions += self._settle(event.now)
-        # status messages describe the state after this step (once per GS), not the one it started in
-        st, told = self.status(), set()
-        out: list[Action] = []
-        for a in actions:
-            if isinstance(a, SendControl) and isinstance(a.msg, AuthorityStatus):
-                if a.gs in told:
-                    continue
-                told.add(a.gs)
-                a = SendControl(a.gs, st)
-            out.append(a)
-        return out
+        return actions + self._effects(before)
+
+    def _move(self, rule: str, next_state: State, allowed: frozenset[State], now: float) -> None:
+        if next_state not in allowed:
+            raise IllegalTransition(f"{rule} chose {next_state} from {self.state}")
+        self._set_state(next_state, now)
+        self._follow_subscriptions()  # the state's rule, as it stands after this move
 
     def _settle(self, now: float) -> list[Action]:
-        """The rules that follow from the state and the time alone, applied once after every event,
-        whatever the event was (as h11's state-triggered transitions):
-
-        * a pending recipient whose link is proven takes authority (make-before-break);
-        * a hand-over past its deadline ends, authority staying where it was;
-        * an owner that has not re-paired by its deadline after a restart has lost its link;
-        * a first claim after a restart on the ground ends at its deadline.
-
-        (The authority link going LOST is an event, ``LinkChanged``: its rule is in ``_on_link``.)"""
-        if self.state is State.HANDOVER_PENDING and self.pending_to is not None and self.is_proven(self.pending_to):
-            acts = self._complete_handover(now)
-            self._set_state(State.LINKED, now)
-            return acts
-        if self.state is State.HANDOVER_PENDING and self.pending_deadline is not None and now >= self.pending_deadline:
-            to = self.pending_to
-            self.pending_to = self.pending_deadline = None
-            self._set_state(State.LINKED, now)
-            return [Note("handover_timeout", f"{self.owner} -> {to}: authority stays with {self.owner}"),
-                    *self._update_subscriptions(), *self._status_to_all()]
-        if (self.repair_deadline is not None and now >= self.repair_deadline and self.owner is not None
-                and self.state in (State.LINKED, State.HANDOVER_PENDING)):
-            self.repair_deadline = None  # the owner did not come back after the restart: its link is LOST
-            nxt, acts = self._on_link(LinkChanged(now, self.owner, LinkState.LOST))
-            self._set_state(nxt, now)
-            return acts
-        if (self.state is State.FAILSAFE and self.on_ground and self.owner is not None
-                and self.links.get(self.owner) is not None and self.links[self.owner].state is LinkState.OK
-                and self.proven_in_cover(self.owner)):
-            # the vehicle is down and its owner's link is back (proven, covering it): the owner has it back
-            owner = self.owner
-            acts = [Note("failsafe_recovered", f"{owner}'s link is back with the vehicle on the ground")]
-            acts += self._switch(owner, now, "regained")
-            self._set_state(State.LINKED, now)
-            return acts + self._update_subscriptions() + self._status_to_all()
-        if self.first_claim_until is not None and now >= self.first_claim_until:
-            last = self.first_claim
-            self.first_claim = self.first_claim_until = None
-            return [Note("first_claim_over", f"{last} did not pair back in time: any authorized GS whose coverage "
-                                             f"holds the vehicle may pair (epoch {self.epoch + 1})")]
+        """The rules that follow from the state and the time alone, looked at once after every event,
+        whatever the event was (as h11's state-triggered transitions): the first row of ``SETTLE``
+        whose rule fires applies, and the state it chooses must be one of the row's."""
+        for states, rule, allowed in SETTLE:
+            if self.state not in states:
+                continue
+            fired = rule(self, now)
+            if fired is not None:
+                next_state, actions = fired
+                self._move(rule.__name__, next_state, allowed, now)
+                return actions
         return []
+
+    # the rules of ``SETTLE``: each returns (next state, actions) if it fires, else None
+    def _proven_recipient(self, now: float) -> tuple[State, list[Action]] | None:
+        """A pending recipient whose link is proven takes authority (make-before-break)."""
+        if self.pending_to is None or not self.is_proven(self.pending_to):
+            return None
+        return State.LINKED, self._switch(self.pending_to, now, "handover")
+
+    def _handover_deadline(self, now: float) -> tuple[State, list[Action]] | None:
+        """A hand-over past its deadline ends, authority staying where it was."""
+        if self.pending_deadline is None or now < self.pending_deadline:
+            return None
+        to = self.pending_to
+        self.pending_to = self.pending_deadline = None
+        return State.LINKED, [Note("handover_timeout", f"{self.owner} -> {to}: authority stays with {self.owner}")]
+
+    def _repair_deadline(self, now: float) -> tuple[State, list[Action]] | None:
+        """An owner that has not re-paired by its deadline after a restart has lost its link."""
+        if self.repair_deadline is None or now < self.repair_deadline or self.owner is None:
+            return None
+        self.repair_deadline = None
+        return self._on_link(LinkChanged(now, self.owner, LinkState.LOST))
+
+    def _owner_back_on_ground(self, now: float) -> tuple[State, list[Action]] | None:
+        """The vehicle is down and its owner's link is back (proven, covering it): the owner has it back."""
+        link = self.links.get(self.owner or "")
+        if not (self.on_ground and self.owner is not None and link is not None and link.state is LinkState.OK
+                and self.proven_in_cover(self.owner)):
+            return None
+        owner = self.owner
+        acts: list[Action] = [Note("failsafe_recovered", f"{owner}'s link is back with the vehicle on the ground")]
+        return State.LINKED, acts + self._switch(owner, now, "regained")
+
+    def _first_claim_over(self, now: float) -> tuple[State, list[Action]] | None:
+        """A first claim after a restart on the ground ends at its deadline."""
+        if self.first_claim_until is None or now < self.first_claim_until:
+            return None
+        last = self.first_claim
+        self.first_claim = self.first_claim_until = None
+        return self.state, [Note("first_claim_over", f"{last} did not pair back in time: any authorized GS whose "
+                                                     f"coverage holds the vehicle may pair (epoch {self.epoch + 1})")]
+
+    # the effects of a step
+    def _status_key(self) -> tuple[object, ...]:
+        """What the authority status says (its list of linked GSs aside)."""
+        st = self.status()
+        return st.owner, st.epoch, st.state, st.pending_to, st.takeover, st.takeover_to
+
+    def _before(self) -> tuple[tuple[object, ...], str | None, State]:
+        return self._status_key(), self.owner, self.state
+
+    def _effects(self, before: tuple[tuple[object, ...], str | None, State]) -> list[Action]:
+        """What follows from the step's state change (the module docstring, pass 3)."""
+        key, owner, state = before
+        tell, self._tell = self._tell, set()
+        if self._tell_everyone:
+            tell |= self.subscribed | ({self.owner} if self.owner else set())
+            self._tell_everyone = False
+        entered_failsafe = self.state is State.FAILSAFE and state is not State.FAILSAFE  # told by its notice
+        if key != self._status_key() and not entered_failsafe:
+            tell |= self.subscribed | {g for g in (owner, self.owner) if g is not None}
+        st = self.status()
+        return [SendControl(gs, st) for gs in sorted(tell)]
+
+    def _follow_subscriptions(self) -> None:
+        """Listen to every linked GS whose coverage holds the vehicle, and always to the owner and a
+        pending recipient, in LINKED and HANDOVER_PENDING (so the old GS is dropped once the vehicle
+        leaves its coverage); FAILSAFE keeps the GSs it listened to, UNPAIRED has none."""
+        if self.state in (State.LINKED, State.HANDOVER_PENDING):
+            self.subscribed = {gs for gs in self.links if gs in self.inside}
+            self.subscribed |= {g for g in (self.owner, self.pending_to) if g}
+
+    def _tell_all(self) -> None:
+        """The status goes to every GS listened to after this step, changed or not."""
+        self._tell_everyone = True
 
     def _set_state(self, new: State, now: float) -> None:
         if new is not self.state:
@@ -524,30 +574,12 @@ class AuthorityMachine:
         log.info("authority: reject %s from %s: %s", what, gs, reason)
         return [SendControl(gs, Reject(what, reason)), Note("reject", f"{what} from {gs}: {reason}")]
 
-    def _status_to_all(self) -> list[Action]:
-        st = self.status()
-        return [SendControl(gs, st) for gs in sorted(self.subscribed | ({self.owner} if self.owner else set()))]
-
     def _switch(self, to: str, now: float, kind: str) -> list[Action]:
         old = self.owner
         self.owner, self.epoch = to, self.epoch + 1
         self.pending_to = self.pending_deadline = None
         self.first_claim = self.first_claim_until = None  # authority is held again: no claim stands
-        acts: list[Action] = [AuthorityChanged(old, to, self.epoch, kind)]
-        if to not in self.subscribed:
-            self.subscribed.add(to)
-            acts.append(Subscribe(to))
-        return acts
-
-    def _update_subscriptions(self) -> list[Action]:
-        """Listen to every linked GS whose coverage holds the vehicle, and always to the owner
-        and a pending recipient; drop the others (the old GS once the vehicle leaves the region)."""
-        want = {gs for gs in self.links if gs in self.inside}
-        want |= {g for g in (self.owner, self.pending_to) if g}
-        acts: list[Action] = [Subscribe(gs) for gs in sorted(want - self.subscribed)]
-        acts += [Unsubscribe(gs) for gs in sorted(self.subscribed - want)]
-        self.subscribed = want
-        return acts
+        return [AuthorityChanged(old, to, self.epoch, kind)]
 
     # ----------------------------------------------------------------- handlers
     def pair_refusal(self, gs: str, on_ground: bool, now: float) -> PairRefused | None:
@@ -573,8 +605,7 @@ class AuthorityMachine:
         if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return State.UNPAIRED, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
-        acts = self._switch(ev.gs, ev.now, "paired")
-        return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+        return State.LINKED, self._switch(ev.gs, ev.now, "paired")
 
     def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
@@ -582,20 +613,20 @@ class AuthorityMachine:
         if ev.gs == self.owner:
             self.repair_deadline = None  # the owner is back (after a restart, or re-keying)
         self.links.setdefault(ev.gs, _Link())
-        return self.state, self._update_subscriptions() + self._status_to_all()
+        self._tell_all()  # every GS learns of the pairing (the links the status lists), changed or not
+        return self.state, []
 
     def _on_pair_failsafe(self, ev: Paired) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return State.FAILSAFE, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
-        acts = self._switch(ev.gs, ev.now, "repaired")
-        return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+        return State.LINKED, self._switch(ev.gs, ev.now, "repaired")
 
     def _on_key_granted(self, ev: KeyGranted) -> tuple[State, list[Action]]:
         if (why := self.grant_rejection(ev.sender, ev.gs)) is not None:
             return self.state, self._reject(ev.sender, "key_grant", why.detail)
         self.links.setdefault(ev.gs, _Link())  # the adapter installs the key (``grant``: GrantAccepted)
-        return self.state, [Note("key_installed", ev.gs)] + self._update_subscriptions()
+        return self.state, [Note("key_installed", ev.gs)]
 
     def _on_frame(self, ev: Frame) -> tuple[State, list[Action]]:
         link = self.links.get(ev.gs)
@@ -636,12 +667,6 @@ class AuthorityMachine:
         self.drops[reason] += 1
         return State.FAILSAFE, [DropFrame(ev.gs, reason)]
 
-    def _complete_handover(self, now: float) -> list[Action]:
-        to = self.pending_to
-        assert to is not None
-        acts = self._switch(to, now, "handover")
-        return acts + self._update_subscriptions() + self._status_to_all()
-
     def _on_release(self, ev: Release) -> tuple[State, list[Action]]:
         if ev.sender != self.owner:
             return self.state, self._reject(ev.sender, "release", "not the authority")
@@ -656,7 +681,7 @@ class AuthorityMachine:
         self.pending_to, self.pending_deadline = ev.to, ev.now + self.config.handover_timeout
         acts: list[Action] = [Note("handover_start", f"{self.owner} -> {ev.to}")]
         # pending; if ``to`` is proven already, ``_settle`` completes it in this same step
-        return State.HANDOVER_PENDING, acts + self._update_subscriptions() + self._status_to_all()
+        return State.HANDOVER_PENDING, acts
 
     def _on_request(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
         if not self.is_authorized(ev.sender):
@@ -668,8 +693,9 @@ class AuthorityMachine:
                 return self.state, [Note("takeover_setting", f"{ev.sender} is not the owner: setting ignored")]
             self.takeover_epoch = self.epoch if ev.takeover else None
             self.takeover_to = ev.takeover_to if ev.takeover else None  # what the GSs are shown, no more
+            self._tell_all()  # the setting's sender hears it stands, changed or not
             return self.state, [Note("takeover_setting", f"{ev.sender}: takeover {'allowed' if ev.takeover else 'refused'}"
-                                                         f" in epoch {self.epoch}")] + self._status_to_all()
+                                                         f" in epoch {self.epoch}")]
         if ev.sender == self.owner and ev.to == ev.sender:  # a request that crossed its own success: nothing to do
             return self.state, []
         if ev.sender == self.owner:  # the owner asking is a release
@@ -679,7 +705,6 @@ class AuthorityMachine:
         if not self.relay_limit.allow(ev.sender, ev.now):
             self.rejects["request_rate"] += 1  # counted, not answered: the owner hears one a second at most
             return self.state, []
-        st = self.status()
         note = Note("handover_requested", f"{ev.sender} asks for {ev.to}")
         if not self.owner:
             return self.state, [note]
@@ -687,7 +712,8 @@ class AuthorityMachine:
         # the sealed request's sender, whatever it claims; its timeout is the spec's 3-60 s
         timeout = min(max(ev.timeout, REQUEST_TIMEOUT_MIN_S), REQUEST_TIMEOUT_MAX_S) if ev.timeout > 0 else 0.0
         ask = OperatorRequest(ev.sender, ev.sender, self.epoch, timeout, ev.ask_id)
-        return self.state, [note, SendControl(self.owner, ask), SendControl(self.owner, st)]
+        self._tell.add(self.owner)  # with the authority status it is asked in
+        return self.state, [note, SendControl(self.owner, ask)]
 
     def _on_request_failsafe(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
         """An operator's explicit request to take control back after the failsafe (never automatic):
@@ -702,8 +728,7 @@ class AuthorityMachine:
                    else f"not proven: no live link from {ev.sender} proven inside its coverage")
             return State.FAILSAFE, self._reject(ev.sender, "handover_request", f"{why}")
         acts: list[Action] = [Note("failsafe_recovered", f"{ev.sender} took control after the failsafe")]
-        acts += self._switch(ev.sender, ev.now, "regained")
-        return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+        return State.LINKED, acts + self._switch(ev.sender, ev.now, "regained")
 
     def _on_link(self, ev: LinkChanged) -> tuple[State, list[Action]]:
         link = self.links.get(ev.gs)
@@ -718,7 +743,7 @@ class AuthorityMachine:
             return State.FAILSAFE, []
         if ev.gs == self.pending_to:
             self.pending_to = self.pending_deadline = None
-            return State.LINKED, [Note("handover_aborted", f"link to {ev.gs} lost")] + self._update_subscriptions() + self._status_to_all()
+            return State.LINKED, [Note("handover_aborted", f"link to {ev.gs} lost")]
         if ev.gs != self.owner:
             return self.state, []
         if self.on_ground:
@@ -735,11 +760,8 @@ class AuthorityMachine:
         ev = LinkChanged(now, self.owner or "", LinkState.LOST)
         heirs = self.heirs()
         if heirs:
-            self.pending_to = heirs[0]
             acts = [Note("authority_link_lost", f"{ev.gs}: authority to {heirs[0]}")]
-            acts += self._switch(heirs[0], ev.now, "emergency")
-            self.pending_to = self.pending_deadline = None
-            return State.LINKED, acts + self._update_subscriptions() + self._status_to_all()
+            return State.LINKED, acts + self._switch(heirs[0], ev.now, "emergency")
         action = self.config.failsafe_action
         self.pending_to = self.pending_deadline = None
         notice = FailsafeNotice(action, f"authority link to {ev.gs} lost")
@@ -758,9 +780,7 @@ class AuthorityMachine:
             acts.append(Note("region_entered", ",".join(sorted(ev.inside))))
         elif was and not self.in_region:
             acts.append(Note("region_left", ",".join(sorted(ev.inside))))
-        if self.state in (State.LINKED, State.HANDOVER_PENDING):
-            acts += self._update_subscriptions()
-        return self.state, acts
+        return self.state, acts  # whom to listen to follows (``_follow_subscriptions``)
 
     def _on_ground_changed(self, ev: GroundChanged) -> tuple[State, list[Action]]:
         was, self.on_ground = self.on_ground, ev.on_ground
@@ -769,9 +789,6 @@ class AuthorityMachine:
                 and owner.state is LinkState.LOST):
             return self._owner_lost(ev.now)  # lifted off with the owner's link lost: the failsafe rule, now
         return self.state, []
-
-    def _on_tick(self, ev: Tick) -> tuple[State, list[Action]]:
-        return self.state, []  # time alone: the deadlines are rules of ``_settle``
 
     def _ignore(self, ev: Event) -> tuple[State, list[Action]]:
         return self.state, []
@@ -793,7 +810,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.LINKED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.LINKED})),
     (S.LINKED, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
     (S.LINKED, Release): (AuthorityMachine._on_release, frozenset({S.LINKED, S.HANDOVER_PENDING})),
-    (S.LINKED, Tick): (AuthorityMachine._on_tick, frozenset({S.LINKED, S.FAILSAFE})),
+    (S.LINKED, Tick): (AuthorityMachine._ignore, frozenset({S.LINKED, S.FAILSAFE})),
     (S.LINKED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.LINKED, S.FAILSAFE})),
     (S.HANDOVER_PENDING, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
@@ -802,7 +819,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.HANDOVER_PENDING, RegionChanged): (AuthorityMachine._on_region, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({S.HANDOVER_PENDING, S.LINKED})),
-    (S.HANDOVER_PENDING, Tick): (AuthorityMachine._on_tick, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
+    (S.HANDOVER_PENDING, Tick): (AuthorityMachine._ignore, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.HANDOVER_PENDING, GroundChanged): (AuthorityMachine._on_ground_changed,
                                           frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.FAILSAFE, Paired): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
@@ -815,3 +832,15 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
 }
 # Missing on purpose (illegal steps, answered with a Reject): KeyGranted, HandoverRequest and
 # Release in UNPAIRED; KeyGranted and Release in FAILSAFE.
+
+#: The rules of state and time alone (``_settle``), in order, the first that fires applies:
+#: (states it applies in, rule, next states it may choose)
+SETTLE: tuple[tuple[frozenset[State], Callable[[AuthorityMachine, float], "tuple[State, list[Action]] | None"],
+                    frozenset[State]], ...] = (
+    (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._proven_recipient, frozenset({S.LINKED})),
+    (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._handover_deadline, frozenset({S.LINKED})),
+    (frozenset({S.LINKED, S.HANDOVER_PENDING}), AuthorityMachine._repair_deadline,
+     frozenset({S.LINKED, S.HANDOVER_PENDING, S.FAILSAFE})),
+    (frozenset({S.FAILSAFE}), AuthorityMachine._owner_back_on_ground, frozenset({S.LINKED})),
+    (frozenset({S.UNPAIRED}), AuthorityMachine._first_claim_over, frozenset({S.UNPAIRED})),
+)

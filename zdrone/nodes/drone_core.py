@@ -389,7 +389,7 @@ class DroneCore:
                 if note is not None:
                     out.append(Emit(note(detail=a.detail, position=self.position)))
                 log.info("%s: %s", a.kind, a.detail)
-            # Subscribe / Unsubscribe: what to listen to follows from the state (``_effects``)
+            # whom to listen to follows from the state (the machine's ``subscribed``, ``_effects``)
         return out
 
     def _on_control(self, gs: str, msg: wire.Control | None, now: float) -> list[Out]:
