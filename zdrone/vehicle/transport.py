@@ -7,6 +7,12 @@ Connection strings (pymavlink style, ``//`` after the colon optional):
 * ``udpout:HOST:PORT``: send to HOST:PORT, receive its answers.
 * ``tcpin:HOST:PORT``: listen for TCP clients (several at once).
 * ``tcp:HOST:PORT`` (or ``tcpout:``): connect to a TCP server.
+
+A UDP listener is bound without ``SO_REUSEADDR`` (``bind_udp``): on Linux two UDP sockets that both set
+it may share a port, and unicast datagrams then go to the one bound last, so any process of the same
+user could take the port over from under a listener (the simulator's, the GCS gateway's, the
+companion's vehicle link) and absorb what is sent to it. Without it a second bind fails
+(``EADDRINUSE``), whatever the second socket sets.
 """
 
 from __future__ import annotations
@@ -22,6 +28,19 @@ from ..core.mavlink import split_frames
 
 log = logging.getLogger(__name__)
 PEER_TIMEOUT_S = 30.0
+
+
+def bind_udp(host: str, port: int) -> socket.socket:
+    """A UDP socket bound to ``host:port`` for listening, without ``SO_REUSEADDR`` (nobody else can
+    bind the port while it is open). Raises ``OSError`` (``EADDRINUSE``) if the port is taken."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
+        s.bind((host, port))
+    except OSError:
+        s.close()
+        raise
+    return s
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,13 +82,12 @@ class MavTransport:
         self.skipped_bytes = 0  # bytes that were not part of any valid frame (counted, never silent)
         try:
             if ep.kind in ("udpin", "udpout"):
-                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
                 if ep.kind == "udpin":
-                    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                    s.bind((ep.host, ep.port))
+                    s = bind_udp(ep.host, ep.port)  # no SO_REUSEADDR: nobody binds the port after us
                     for host, port in peers:  # sent to from the start, whether or not they ever talk
                         self.udp_peers[(socket.gethostbyname(host), port)] = float("inf")
                 else:
+                    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
                     s.bind(("127.0.0.1" if ep.host.startswith("127.") or ep.host == "localhost" else "", 0))
                     self.udp_peers[(socket.gethostbyname(ep.host), ep.port)] = float("inf")
                 s.setblocking(False)
