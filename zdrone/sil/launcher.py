@@ -368,8 +368,16 @@ def _check_unauthorized(o: Outcome) -> list[str]:
     return why + _need(not x_linked, "GS X holds a link")
 
 
+def _failsafe_confirmed(o: Outcome) -> list[str]:
+    """The autopilot showed the failsafe (the drone's ``failsafe_confirmed``): a failsafe commanded into
+    a link someone else holds (a hijacked port, a relay) is none."""
+    from ..core.records import FailsafeConfirmed
+
+    return _need(bool(only(o.drone, FailsafeConfirmed)), "the autopilot never showed the failsafe (no failsafe_confirmed)")
+
+
 def _check_link_loss(o: Outcome) -> list[str]:
-    return _need(o.summary["failsafe"] is not None, "no failsafe")
+    return _need(o.summary["failsafe"] is not None, "no failsafe") + _failsafe_confirmed(o)
 
 
 def _check_gs_crash(o: Outcome) -> list[str]:
@@ -555,7 +563,7 @@ def _check_site_router_down_alone(o: Outcome) -> list[str]:
     """``site-router-down-alone``: no other site reaches the drone: the failsafe, on time."""
     s, fs = o.summary, o.summary["failsafe"]
     why = _need(any("router restarted" in n for n in s["notes"]), "site 1's router did not die")
-    why += _need(fs is not None, "no failsafe")
+    why += _need(fs is not None, "no failsafe") + _failsafe_confirmed(o)
     why += _need(fs is not None and fs.get("detect_to_command_ms") is not None and fs["detect_to_command_ms"] <= 100,
                  f"failsafe late: {fs}")
     return why + _need(not s["handovers"], f"a hand-over out of the overlap: {s['handovers']}")
@@ -604,7 +612,7 @@ def _check_failsafe_recover(o: Outcome) -> list[str]:
     fs_epoch = next((e.epoch for e in reversed(only(o.drone, AuthorityMoved)) if fs_t is not None and e.t <= fs_t),
                     None)  # the epoch the failsafe ended
     regained = s.get("regained", [])
-    why = _need(s["failsafe"] is not None, "no failsafe")
+    why = _need(s["failsafe"] is not None, "no failsafe") + _failsafe_confirmed(o)
     why += _need(len(regained) == 1 and regained[0]["to"] == "A", f"control not regained by A: {regained}")
     why += _need(bool(regained) and fs_epoch is not None and regained[0]["epoch"] == fs_epoch + 1,
                  f"regained in epoch {regained[0]['epoch'] if regained else None}, failsafe epoch {fs_epoch}")
