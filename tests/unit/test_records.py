@@ -270,18 +270,16 @@ def test_the_launcher_reads_typed_records(tmp_path):
 def test_the_launcher_reads_the_radio_log(tmp_path):
     """Each radio/backhaul change, and for a site's radio lost: the paths still connected, how soon
     the drone noticed, and the copies the other paths delivered."""
-    from zdrone.sil.launcher import Demo, DemoOptions
+    from zdrone.sil.summary import radio_summary
 
-    _log(tmp_path, "radio.jsonl", RADIO_LOG)
+    radio_log = read_records(_log(tmp_path, "radio.jsonl", RADIO_LOG)).records
     ep1, ep2 = "tls/10.0.0.1:7447", "tls/10.0.0.2:7447"
     drone = [rec.PathState(t=1795340375.5, node="d1", router=ep1, connected=True),
              rec.PathState(t=1795340382.6, node="d1", router=ep2, connected=True),
              rec.PathState(t=1795340387.0, node="d1", router=ep1, connected=False)]
     drone.append(msgspec.structs.replace(rec.only(read_records(_log(tmp_path, "drone.jsonl", DRONE_LOG)).records,
                                                   rec.DroneStop)[0], inbox_dropped={"up:duplicate_path": 77}))
-    demo = Demo(DemoOptions(out=tmp_path, live=False, quiet=True, report=False), tmp_path)
-    demo.site_of_endpoint = {ep1: "site-1", ep2: "site-2"}
-    radio = demo._radio_summary(drone)
+    radio = radio_summary(radio_log, drone, {ep1: "site-1", ep2: "site-2"})
     assert radio["changes"] == [
         {"t": 1795340375.0189, "site": "site-1", "link": None, "up": True},
         {"t": 1795340382.5018, "site": "site-2", "link": None, "up": True},
