@@ -11,6 +11,10 @@ writing into the companion's UDP vehicle link, against ``zdrone sim`` as a proce
   ids, written into the link of the default topology (``udpout``: the companion's port found as a
   local process finds it). Control: pymavlink's ``udpout`` takes them; the vehicle link drops them
   (``foreign_endpoint``) and its position stays the vehicle's.
+* The reflection (a stored key, both booting): the attacker claims the autopilot's ids first and
+  sends the companion's own signed frames back to it (``tests/integration/reflector.py``, its own
+  process). Control: the old rule takes the attacker for the autopilot, signed; the vehicle link
+  drops the reflections and takes the real autopilot.
 * The ``fake-autopilot`` scenario end to end (both personalities; ArduPilot with ``--fc-signing off``,
   the issue's own configuration): never system 7, nothing sent to the fake, no position near B, no
   hand-over to B, the failsafe LAND confirmed by the real autopilot.
@@ -22,6 +26,7 @@ import json
 import os
 import socket
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -32,7 +37,8 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
 from tests.integration.test_flight_e2e import _clean_shutdown, run_demo  # noqa: E402
-from tests.procs import ZDRONE, free_port, spawn, wait_until  # noqa: E402
+from tests.procs import ZDRONE, Proc, free_port, spawn, wait_until  # noqa: E402
+from zdrone.core import fcsign  # noqa: E402
 from zdrone.core.geometry import GeoPoint, distance_m  # noqa: E402
 from zdrone.core.reference import COVERAGE_RADIUS_M, GS_B, HOME  # noqa: E402
 from zdrone.fleet.files import init_fleet  # noqa: E402
@@ -127,6 +133,76 @@ def test_a_fake_that_claims_the_autopilot_ids_before_it_leaves_the_vehicle_unkno
             link.close()
         attacker.stop()
     assert not (tmp_path / "d1.fc-signing.json").exists()
+
+
+REFLECTOR = str(Path(__file__).with_name("reflector.py"))
+
+
+class _Forget(set):
+    """The old rule's memory of the streams the companion emits: none."""
+
+    def add(self, item) -> None:  # noqa: D102
+        pass
+
+
+@pytest.mark.parametrize("old_rule", [True, False], ids=["control-old-rule", "vehicle-link"])
+def test_a_stored_key_and_a_fake_that_reflects_the_companions_signed_frames(tmp_path, old_rule):
+    """The reflection attack (a local process, no key) on a listening link that already holds a key the
+    autopilot confirmed: the autopilot is not signing yet when the companion starts (both booting);
+    the attacker sends the autopilot's HEARTBEAT (1/1) first and sends every signed frame it gets from
+    the companion straight back. Control: with the old rule (any frame signed with the key proves the
+    autopilot) the attacker's address becomes the autopilot, "signed", even under ``require``. The
+    vehicle link drops the reflections (``reflected``): only the autopilot's own stream proves it, and
+    the real autopilot, which signs back, is the endpoint."""
+    port = free_port(socket.SOCK_DGRAM)
+    store, sd = FcKeyStore(tmp_path / "d1.fc-signing.json"), tmp_path / "sd"
+    sim_args = (ZDRONE, "sim", "--mavlink", f"udpout:127.0.0.1:{port}", "--speedup", "4", "--storage", str(sd))
+    bench = VehicleLink(f"udpin:127.0.0.1:{port}", signing=FcSigning(store, "require"))  # the key installed once
+    try:
+        with spawn(*sim_args) as sim:
+            sim.wait_line("zdrone sim:", 20)
+            assert bench.wait_vehicle(20) and bench.signing_status()["signed"]
+    finally:
+        bench.close()
+    assert store.load().confirmed
+    sims: list[Proc] = []  # the autopilot boots a second after the companion: it does not sign yet
+    boot = threading.Timer(1.0, lambda: sims.append(Proc(list(sim_args))))
+    with spawn(sys.executable, REFLECTOR, str(port), "15") as attacker:
+        me = tuple(json.loads(attacker.wait_line('"ready"', 20))["me"])
+        wait_until(lambda: False, 0.3)  # the attacker's HEARTBEATs are on their way before the companion listens
+        link = VehicleLink(f"udpin:127.0.0.1:{port}", signing=FcSigning(store, "require", confirm_timeout=10.0))
+        try:
+            if old_rule:
+                key = link.signing.key
+                link.endpoint.signed_by_us = lambda f: fcsign.is_signed(f) and fcsign.signed_with(f, key)
+                link.signing.autopilot_ids, link.signing.emitted = None, _Forget()
+            boot.start()
+            assert link.wait_vehicle(20)
+            ep = link.endpoint.status()
+            attacker.wait_line('"reflected"', 10)
+            if old_rule:  # taken: the attacker is "the autopilot, signed", the link "signed" by its own frames
+                assert link.endpoint.address == me and link.endpoint.how == "signed", ep
+                assert link.signing_status()["signed"]
+                return
+            assert link.endpoint.how == "signed" and link.endpoint.address != me, ep
+            # the reflections were dropped: as ``reflected`` while the attacker was still the address that
+            # sent the HEARTBEAT first, as ``foreign_endpoint`` once the autopilot signed
+            assert link.signing_status()["signed"] and link.signing.counters["dropped:reflected"] > 0
+            assert wait_until(lambda: (link.heartbeat(), link.recv(0.05), link.position_signed)[2], 10)
+            assert distance_m(HOME, link.position) < 5.0 and link.sysid == 1
+            for _ in range(20):
+                link.heartbeat()
+                link.recv(0.05)
+            assert link.endpoint.address != me and link.endpoint.counters["dropped:foreign_endpoint"] > 0
+        finally:
+            boot.cancel()
+            link.close()
+            boot.join()
+            for sim in sims:
+                sim.stop()
+        assert attacker.p.wait(30) == 0
+    done = json.loads(attacker.wait_line('"done"', 5))
+    assert done["heartbeats"] > 0 and done["reflected"] > 0
 
 
 def _local_port(conn) -> int:

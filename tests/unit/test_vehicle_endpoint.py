@@ -287,3 +287,105 @@ def test_a_fake_autopilot_racing_the_start_is_never_the_vehicle_and_its_position
     finally:
         link.close()
         fake.close()
+
+
+# ------------------------------------------------------------------------------ reflection (R1)
+def _stored(tmp_path, confirmed: bool = True) -> FcKeyStore:
+    store = FcKeyStore(tmp_path / "d1.fc-signing.json")
+    store.save(StoredKey(KEY, 0, None, confirmed))
+    return store
+
+
+def test_the_companions_own_signed_frames_sent_back_prove_nothing_and_are_dropped(tmp_path):
+    """A local process that got the companion's signed HEARTBEAT (1/191) sends it straight back: it is
+    signed with the key and a new stream to the replay check, but no stream of the autopilot's."""
+    s = FcSigning(_stored(tmp_path), "require", confirm_timeout=4.0)
+    s.expect((1, 1), (1, 191))
+    s.start(0.0, False, 1, resend_stored=False)
+    ours = s.outgoing(FrameCodec(1, 191).encode(mav.MAVLink_heartbeat_message(
+        mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 4, 3)))
+    assert fcsign.is_signed(ours) and not s.vouches(ours) and not s.proves(ours)
+    assert s.incoming(ours) == "reflected" and s.state is FcState.PROVISIONING
+    forwarded = s.outgoing(FrameCodec(255, 190).encode(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3)))
+    assert s.incoming(forwarded) == "reflected"  # a GS's frame we forwarded, sent back: dropped too
+    # a frame of ours carrying the autopilot's ids would prove it: the link never signs one (below)
+    assert s.counters["dropped:reflected"] == 2 and s.counters.get("verified_in", 0) == 0
+    s.due_setup(4.0)
+    assert s.state is FcState.FAILED  # nobody signed on the autopilot's stream: require refuses to fly
+
+
+def test_only_a_fresh_frame_on_the_autopilots_stream_proves_it(tmp_path):
+    s = FcSigning(_stored(tmp_path), "require", confirm_timeout=4.0)
+    s.expect((1, 1), (1, 191))
+    s.start(0.0, False, 1, resend_stored=False)
+    ts = fcsign.units(time.time()) + 10_000_000
+    other_component = fcsign.sign(_hb(1, compid=154), KEY, 0, ts)
+    assert not s.proves(other_component) and s.incoming(other_component) is None  # taken, but proves nothing
+    assert s.state is FcState.PROVISIONING
+    real = fcsign.sign(_hb(1), KEY, 0, ts + 1)
+    assert s.proves(real) and s.incoming(real) is None and s.state is FcState.SIGNED
+    assert s.vouches(real) and not s.proves(real)  # the same frame again (relayed from elsewhere): no proof
+    assert s.proves(fcsign.sign(_hb(1), KEY, 0, ts + 2))
+
+
+def test_an_endpoint_found_by_heartbeat_is_not_proven_by_a_reflection(tmp_path):
+    s = FcSigning(_stored(tmp_path), "require")
+    s.expect((1, 1), (1, 191))
+    s.start(0.0, False, 1, resend_stored=False)
+    ep = AutopilotEndpoint(1, signed_by_us=s.proves)
+    assert ep.admit(FAKE, [_hb(1)]) is None and ep.how == "heartbeat"  # raced with the autopilot's ids
+    assert ep.admit(REAL, [_hb(1)]) == "foreign_endpoint" and ep.claimants == [REAL]
+    ours = s.outgoing(FrameCodec(1, 191).encode(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3)))
+    assert ep.admit(FAKE, [ours]) is None and ep.how == "heartbeat"  # taken as before, never "signed"
+    assert ep.admit(OTHER, [ours]) == "foreign_endpoint" and ep.address == FAKE
+    real = fcsign.sign(_hb(1), KEY, 0, fcsign.units(time.time()) + 10_000_000)
+    assert ep.admit(REAL, [real]) is None and (ep.address, ep.how) == (REAL, "signed")
+
+
+def test_the_link_never_sends_a_frame_carrying_the_autopilots_ids(tmp_path):
+    port = _free_udp()
+    fake = Fake(port)
+    link = VehicleLink(f"udpin:127.0.0.1:{port}", signing=FcSigning(_stored(tmp_path), "prefer"))
+    try:
+        link.endpoint.admit(fake.sock.getsockname(), [_hb(1)])
+        link.send(_hb(1))  # as the autopilot: not sent, counted
+        link.send(_hb(255, compid=190))  # a GS's: sent
+        time.sleep(0.1)
+        assert fake.drain() == 1 and link.refused_autopilot_ids == 1
+        assert link.stream_stats()["refused_autopilot_ids"] == 1
+    finally:
+        link.close()
+        fake.close()
+
+
+def test_a_position_not_reported_again_is_unknown():
+    """A relay that withholds GLOBAL_POSITION_INT cannot keep an old (signed) position in place."""
+    t = VehicleTracker(*COMPANION)
+    codec = FrameCodec(0, 0)
+    t.on_message(codec.decode(_hb(1)), 0.0)
+    t.on_message(codec.decode(_position(47.4, 8.5)), 1.0, signed=True)
+    assert t.position_at(1.0) is not None and t.position_signed_at(2.0)
+    assert t.position_at(2.6) is None and not t.position_signed_at(2.6)
+    assert t.position_unknown(2.6).startswith("no position report for 1.6 s")
+    assert t.stats(2.6)["position"]["known"] is False
+    t.on_message(codec.decode(_position(47.4, 8.5)), 2.7, signed=True)
+    assert t.position_at(2.8) is not None and t.position_unknown(2.8) is None
+
+
+def test_the_listening_socket_cannot_be_bound_again(tmp_path):
+    """udpin: the link's socket is bound without SO_REUSEADDR: a second bind of its port fails, even
+    one that sets SO_REUSEADDR (pymavlink's own socket would have let it take the port over)."""
+    port = _free_udp()
+    link = VehicleLink(f"udpin:127.0.0.1:{port}", signing=FcSigning(None, "off"))
+    try:
+        assert link.m.port.getsockname() == ("127.0.0.1", port)
+        thief = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        thief.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        with pytest.raises(OSError):
+            thief.bind(("127.0.0.1", port))
+        thief.close()
+        from zdrone.core.fleet import ConfigError
+        with pytest.raises(ConfigError):
+            VehicleLink(f"udpin:127.0.0.1:{port}", signing=FcSigning(None, "off"))
+    finally:
+        link.close()

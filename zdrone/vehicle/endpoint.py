@@ -13,13 +13,17 @@ the autopilot:
   address that proves to be the autopilot becomes its endpoint: a datagram holding a HEARTBEAT of an
   autopilot with the drone's fleet sysid and the autopilot's component (``heartbeat``), or a frame
   signed with the link's key (``signed``: only the autopilot holds it). Until then every datagram is
-  dropped (``before_autopilot``); afterwards any other address's (``foreign_endpoint``). An endpoint
+  dropped (``before_autopilot``); afterwards any other address's (``foreign_endpoint``). "Signed"
+  means signed on the autopilot's own stream (its ids, not a stream the companion emits) with a fresh
+  timestamp (``FcSigning.proves``): the companion's own signed frames sent straight back (a
+  reflection), or a copy of an autopilot frame the link already took, prove nothing. An endpoint
   found by its HEARTBEAT alone gives way once, to an address that proves itself by signature
   (``moved_to_signed``): someone who raced the real autopilot with its ids is overruled by the one
   holding the key. The companion sends only to the endpoint (``destinations``), and while it is
   known by HEARTBEAT alone, to the other addresses that claimed to be the autopilot as well (so
-  the real one receives signed traffic and signs back; nothing secret goes to them: the link never
-  re-sends a stored key over a learned endpoint).
+  the real one receives signed traffic and signs back: an autopilot signs once signed traffic reaches
+  it; nothing secret goes to them: the link never re-sends a stored key over a learned endpoint, and
+  nothing they can send back from it proves anything).
 
 Every drop is counted by reason; ``status`` gives the endpoint, how it was found and the counters.
 """

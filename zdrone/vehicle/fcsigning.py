@@ -38,6 +38,17 @@ trusted place to install and keep that key. ``FcSigning`` does it for one vehicl
   timestamp that grows per stream (``StreamClock``); once the link is SIGNED an unsigned frame from
   the flight controller's side is dropped too (someone else on the wire). Each drop is counted by
   reason.
+* **Only the autopilot's own stream proves the autopilot.** The companion signs with the same key:
+  its own frames (its sysid, component 191, link id ``link_id``) and the GSs' frames it forwards. A
+  process that can write into the link can send any of them straight back (a reflection): signed
+  with the key, on a stream the autopilot never used, so "a new stream" to the replay check. So a
+  signed frame on a stream the companion itself emits (``emitted``: every stream ``sign_with`` has
+  signed, and the companion's own from the start) is dropped (``reflected``), and only a frame
+  signed on the autopilot's ids (``expect``: the drone's sysid, component 1) confirms the key
+  (``state`` SIGNED) or vouches for the autopilot (``vouches``; ``proves`` also wants its
+  timestamp fresh: a copy of a frame already taken proves nothing). The link never signs a frame
+  carrying the autopilot's ids itself (``VehicleLink.send``), so nothing the companion emits can be
+  turned into that proof.
 
 Thread-safe: the vehicle link's reader thread calls ``incoming``, its loop thread the rest.
 """
@@ -179,10 +190,23 @@ class FcSigning:
         self._setup_key: bytes | None = None  # the key that signs it (None: unsigned)
         self._next_setup = 0.0
         self.reason = ""
+        #: the ids (sysid, compid) whose signed frames confirm the key and vouch for the autopilot;
+        #: None until ``expect`` (then any ids: the pure tests)
+        self.autopilot_ids: tuple[int, int] | None = None
+        #: the streams (link id, sysid, compid) the companion has signed: never the autopilot's
+        self.emitted: set[tuple[int, int, int]] = set()
         self._lock = threading.RLock()
         if mode == "off" and store is not None and store.path.exists():
             log.warning("--fc-signing off, but %s holds a key: an autopilot that has it refuses unsigned commands",
                         store.path)
+
+    def expect(self, autopilot: tuple[int, int], own: tuple[int, int]) -> None:
+        """The autopilot's ids (only its signed frames prove it) and the companion's own (sysid, compid):
+        its stream is the companion's from the start, so a reflection of it is dropped even before
+        the first frame of this run went out."""
+        with self._lock:
+            self.autopilot_ids = autopilot
+            self.emitted.add((self.link_id, *own))
 
     # -------------------------------------------------------------------- state
     @property
@@ -308,6 +332,7 @@ class FcSigning:
                 self.counters["unsignable"] += 1  # a MAVLink 1 frame: goes as it is
                 return frame
             self.counters["signed_out"] += 1
+            self.emitted.add((self.link_id, out[5], out[6]))
             return out
 
     def outgoing(self, frame: bytes) -> bytes:
@@ -328,14 +353,18 @@ class FcSigning:
                 return None
             key = self.key
             if key is not None and fcsign.signed_with(frame, key):
+                if self._reflected(frame):
+                    return self._drop("reflected")
                 refusal = self.peer.check(frame, key)
                 if refusal is not None:
                     return self._drop(refusal.value)
                 self.counters["verified_in"] += 1
-                if self.state is not FcState.SIGNED:
+                if self.state is not FcState.SIGNED and self._autopilots(frame):
                     self._confirmed()
                 return None
             if self.previous is not None and fcsign.signed_with(frame, self.previous):
+                if self._reflected(frame):
+                    return self._drop("reflected")
                 self.counters["old_key_in"] += 1  # the autopilot has not taken the new key (yet)
                 if self.state is FcState.PROVISIONING:
                     return None if self.peer.check(frame, self.previous) is None else self._drop("replay")
@@ -343,12 +372,39 @@ class FcSigning:
             self.counters["foreign_signature"] += 1
             return self._drop("bad_signature")
 
+    def _reflected(self, frame: bytes) -> bool:
+        """A signed frame on a stream the companion emits: its own, sent back (never the autopilot's)."""
+        sig = fcsign.read_signature(frame)
+        return sig is not None and sig.stream in self.emitted
+
+    def _autopilots(self, frame: bytes) -> bool:
+        """The frame carries the autopilot's ids (any ids before ``expect``)."""
+        return self.autopilot_ids is None or (frame[5], frame[6]) == self.autopilot_ids
+
     def vouches(self, frame: bytes) -> bool:
-        """The frame is signed with the link's key (or the one a rotation replaces): it comes from the
-        autopilot. Only meaningful for a frame ``incoming`` took (its timestamp checked there)."""
+        """The frame comes from the autopilot: signed with the link's key (or the one a rotation
+        replaces) on the autopilot's own ids, on no stream the companion emits. Only meaningful for a
+        frame ``incoming`` took (its timestamp checked there)."""
         if self.mode == "off" or not fcsign.is_signed(frame):
             return False
-        return any(k is not None and fcsign.signed_with(frame, k) for k in (self.key, self.previous))
+        with self._lock:
+            return self._autopilots(frame) and not self._reflected(frame) and any(
+                k is not None and fcsign.signed_with(frame, k) for k in (self.key, self.previous))
+
+    def proves(self, frame: bytes) -> bool:
+        """``vouches``, and ``incoming`` would take its timestamp (a new stream, or one that grows): a
+        frame that proves which address is the autopilot, before ``incoming`` has seen it. A copy of
+        a frame already taken (the autopilot's own frame relayed from elsewhere) proves nothing."""
+        if not self.vouches(frame):
+            return False
+        sig = fcsign.read_signature(frame)
+        if sig is None:
+            return False
+        with self._lock:
+            last = self.peer.streams.get(sig.stream)
+            if last is not None:
+                return sig.timestamp > last
+            return sig.timestamp + fcsign.NEW_STREAM_WINDOW >= self.peer.timestamp
 
     def _drop(self, reason: str) -> str:
         self.counters[f"dropped:{reason}"] += 1

@@ -18,7 +18,11 @@ Over UDP the link takes frames from the autopilot's endpoint only (``zdrone.vehi
 address it sends to with ``udpout:``; with ``udpin:`` the first address that proves to be the
 autopilot) and sends to it only; its tracker adopts only the drone's own fleet sysid with the
 autopilot's component. A position counts for authority only if it came signed
-(``position_signed``). A LAND / RTL the link commands is followed until the autopilot shows it, and
+(``position_signed``), and only while it is fresh: a position not reported again within
+``Timing.position_stale`` is unknown (``VehicleTracker.position_at``), so a relay that withholds the
+autopilot's positions cannot freeze an old one in place. The listening socket of ``udpin:`` is the
+link's own, bound without ``SO_REUSEADDR`` (``transport.bind_udp``): no other process can bind the
+port after it and take the autopilot's datagrams. A LAND / RTL the link commands is followed until the autopilot shows it, and
 sent again meanwhile (``VehicleTracker.watch_failsafe``).
 
 Two ways to read it: ``recv`` (the caller polls; ``wait_vehicle`` and the tests), or, once
@@ -51,7 +55,8 @@ from .endpoint import AutopilotEndpoint  # noqa: E402
 from .fcsigning import FcSigning, FcSigningError, FcState  # noqa: E402
 from ..core.geometry import GeoPoint  # noqa: E402
 from .modes import ARDUPILOT, set_mode_params  # noqa: E402
-from .tracker import DEFAULT_STREAMS, FailsafeOutcome, StreamWant, Timing, VehicleTracker  # noqa: E402
+from .transport import bind_udp  # noqa: E402
+from .tracker import AUTOPILOT_COMPID, DEFAULT_STREAMS, FailsafeOutcome, StreamWant, Timing, VehicleTracker  # noqa: E402
 
 log = logging.getLogger(__name__)
 COMPANION_COMPID = mav.MAV_COMP_ID_ONBOARD_COMPUTER
@@ -67,6 +72,17 @@ READ_WAIT_S = 0.1
 CLAIM_WINDOW_S = 1.5
 #: Datagrams from other addresses dropped per read at most (then the reader looks at ``close`` again).
 DROPS_PER_READ = 256
+
+
+def _udp_listen_address(conn: str) -> tuple[str, int] | None:
+    """HOST, PORT of a listening UDP connection string (pymavlink's ``udpin:`` and ``udp:``), else None."""
+    scheme, sep, rest = conn.partition(":")
+    if not sep or scheme not in ("udpin", "udp"):
+        return None
+    host, _, port = rest.removeprefix("//").rpartition(":")
+    if not host or not port.isdigit():
+        return None
+    return host, int(port)
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,12 +104,18 @@ class VehicleLink:
     def __init__(self, conn: str, companion_sysid: int = 1, baud: int = 57600,
                  streams: tuple[StreamWant, ...] = DEFAULT_STREAMS, timing: Timing = Timing(),
                  signing: FcSigning | None = None) -> None:
+        listen = _udp_listen_address(conn)
         try:
             # ardupilotmega (a superset of common): its ids are checked and decoded; ids of no dialect pass raw
-            self.m = mavutil.mavlink_connection(conn, source_system=companion_sysid, source_component=COMPANION_COMPID,
+            # (a listening UDP socket: pymavlink's binds with SO_REUSEADDR, so it gets a throwaway port and
+            # the link's own socket, bound without it, takes its place)
+            self.m = mavutil.mavlink_connection(conn if listen is None else f"udpin:{listen[0]}:0",
+                                                source_system=companion_sysid, source_component=COMPANION_COMPID,
                                                 dialect="ardupilotmega", baud=baud, autoreconnect=True)
         except Exception as exc:  # mavutil raises assorted errors for bad strings / ports
             raise ConfigError(f"vehicle connection {conn!r}: {exc}") from None
+        if listen is not None:
+            self._own_udp_socket(conn, listen)
         self.conn = conn
         self.tracker = VehicleTracker(companion_sysid, COMPANION_COMPID, streams, timing)
         self._last_hb_sent = 0.0
@@ -103,9 +125,31 @@ class VehicleLink:
         self._reader: threading.Thread | None = None
         self.read_errors = 0
         self.signing = signing
+        if signing is not None:  # only the autopilot's own signed stream proves it; ours are never taken back
+            signing.expect((companion_sysid, AUTOPILOT_COMPID), (companion_sysid, COMPANION_COMPID))
+        #: frames handed to ``send`` carrying the autopilot's own ids, not sent (the companion never
+        #: signs a frame as the autopilot: that would be the proof a reflection needs)
+        self.refused_autopilot_ids = 0
         self.endpoint: AutopilotEndpoint | None = None
         if isinstance(self.m, mavutil.mavudp) and not self.m.broadcast:
             self._guard_udp(companion_sysid)
+
+    def _own_udp_socket(self, conn: str, listen: tuple[str, int]) -> None:
+        """Replace pymavlink's listening socket (bound with SO_REUSEADDR to a throwaway port) by one
+        bound to ``listen`` without it (``bind_udp``)."""
+        m = self.m
+        try:
+            sock = bind_udp(*listen)
+        except OSError as exc:
+            m.close()
+            raise ConfigError(f"vehicle connection {conn!r}: {exc.strerror or exc}") from None
+        sock.setblocking(False)
+        try:
+            os.set_inheritable(sock.fileno(), False)
+        except OSError:
+            pass
+        m.port.close()
+        m.port, m.fd = sock, sock.fileno()
 
     def _guard_udp(self, sysid: int) -> None:
         """Take datagrams from the autopilot's endpoint only, and send to it only (``AutopilotEndpoint``)."""
@@ -123,7 +167,9 @@ class VehicleLink:
             m.write = self._udp_write
 
     def _signed_by_us(self, frame: bytes) -> bool:
-        return self.signing is not None and self.signing.vouches(frame)
+        """The frame proves its sender is the autopilot: signed with the link's key on the autopilot's
+        own stream, fresh (``FcSigning.proves``; a reflection of the companion's own frames never does)."""
+        return self.signing is not None and self.signing.proves(frame)
 
     def _udp_recv(self, n: int | None = None) -> bytes:
         """The next datagram from the autopilot's endpoint (b"" if none is waiting); others dropped, counted."""
@@ -162,8 +208,9 @@ class VehicleLink:
 
     @property
     def position(self) -> GeoPoint | None:
-        """None while the autopilot has no position of its own (``VehicleTracker.position``)."""
-        return self.tracker.position
+        """None while the autopilot has no position of its own or has not reported it within
+        ``Timing.position_stale`` (``VehicleTracker.position_at``)."""
+        return self.tracker.position_at(time.monotonic())
 
     @property
     def armed(self) -> bool:
@@ -187,13 +234,15 @@ class VehicleLink:
 
     @property
     def position_signed(self) -> bool:
-        """The position came signed with the link's key: it is the autopilot's (``VehicleTracker``)."""
-        return self.tracker.position_signed
+        """The position, fresh, came signed with the link's key: it is the autopilot's (``VehicleTracker``)."""
+        return self.tracker.position_signed_at(time.monotonic())
 
     def stream_stats(self) -> dict[str, Any]:
         """What was asked of the vehicle and what came (``VehicleTracker.stats``), and over UDP the
         autopilot's endpoint (``AutopilotEndpoint.status``)."""
-        stats = self.tracker.stats()
+        stats = self.tracker.stats(time.monotonic())
+        if self.refused_autopilot_ids:
+            stats["refused_autopilot_ids"] = self.refused_autopilot_ids
         if self.endpoint is not None:
             stats["endpoint"] = self.endpoint.status()
         return stats
@@ -203,8 +252,9 @@ class VehicleLink:
         return self.tracker.failsafe_outcomes()
 
     def state(self) -> VehicleState:
-        return VehicleState(self.sysid, self.position, self.armed, self.mode, self.landed_state, self.autopilot,
-                            self.tracker.fix.unknown_because)
+        now = time.monotonic()
+        return VehicleState(self.sysid, self.tracker.position_at(now), self.armed, self.mode, self.landed_state,
+                            self.autopilot, self.tracker.position_unknown(now))
 
     def signing_status(self) -> dict[str, Any]:
         """MAVLink signing of this link (``FcSigning.status``); mode "off" without one."""
@@ -331,7 +381,15 @@ class VehicleLink:
                 self._closing.wait(READ_WAIT_S)
 
     def send(self, frame: bytes) -> None:
-        """Send one raw MAVLink frame to the vehicle (signed while signing)."""
+        """Send one raw MAVLink frame to the vehicle (signed while signing); never one that carries the
+        autopilot's own ids (nobody speaks to the autopilot as the autopilot; signed by us, it would be
+        a frame on the autopilot's stream for anyone to send back: counted, not sent)."""
+        if len(frame) > 6 and (frame[5], frame[6]) == self.tracker.autopilot_ids:
+            self.refused_autopilot_ids += 1
+            if self.refused_autopilot_ids <= 3:
+                log.warning("vehicle %s: a frame carrying the autopilot's own ids (%d/%d) not sent", self.conn,
+                            *self.tracker.autopilot_ids)
+            return
         if self.signing is not None:
             frame = self.signing.outgoing(frame)
         with self._io:

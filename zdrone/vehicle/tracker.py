@@ -16,6 +16,10 @@ a gap of ``Timing.reboot_gap`` seconds, or a ``time_boot_ms`` of its messages go
 
 **Position.** A position is one only while the autopilot vouches for it (``fix.PositionFix``: a GPS
 fix, not lat = lon = 0, an absolute estimate); until then ``position`` is None and ``stats`` says why.
+And only while it is fresh (``position_at``): a GLOBAL_POSITION_INT not followed by another within
+``Timing.position_stale`` seconds leaves the position unknown, so whoever stands between the
+autopilot and the companion cannot hold an old position in place by withholding the new ones (an
+heir chosen from where the vehicle was).
 
 **Streams.** The drone node needs GLOBAL_POSITION_INT (region, coverage) and the landed state; the
 GSs need those, HEARTBEAT, MISSION_CURRENT, SYS_STATUS, HOME_POSITION and the unsolicited protocol
@@ -129,6 +133,7 @@ class Timing:
     reboot_gap: float = 3.0  # heartbeats resuming after this gap: a reboot (or a link back)
     boot_back_ms: int = 1000  # time_boot_ms going back by more than this: a reboot
     landed_stale: float = 5.0  # EXTENDED_SYS_STATE older than this: landed state from HEARTBEAT
+    position_stale: float = 1.5  # no GLOBAL_POSITION_INT for this long: the position is unknown
 
     def wait_before_asking(self, want: StreamWant) -> float:
         return max(self.grace, 2.5 * want.interval)  # time for two messages: one alone is no stream
@@ -219,6 +224,7 @@ class VehicleTracker:
         self._failsafe: _FailsafeWatch | None = None
         self._failsafe_out: list[FailsafeOutcome] = []
         self._position_signed = False  # the last GLOBAL_POSITION_INT came signed with the link's key
+        self._position_at: float | None = None  # when the last GLOBAL_POSITION_INT came
         #: the only ids that are the vehicle: the drone's fleet sysid (the companion's own) and the autopilot's component
         self.autopilot_ids = (companion_sysid, AUTOPILOT_COMPID)
         self.timing = timing
@@ -256,6 +262,24 @@ class VehicleTracker:
         """The position held came in a frame signed with the link's key (False while there is none)."""
         return self._position_signed and self.position is not None
 
+    def position_at(self, now: float) -> GeoPoint | None:
+        """``position`` while it is fresh: reported within ``Timing.position_stale`` of ``now``, else None."""
+        if self._position_at is None or now - self._position_at > self.timing.position_stale:
+            return None
+        return self.fix.position
+
+    def position_signed_at(self, now: float) -> bool:
+        """``position_signed``, for a position fresh at ``now`` (``position_at``)."""
+        return self._position_signed and self.position_at(now) is not None
+
+    def position_unknown(self, now: float) -> str | None:
+        """Why ``position_at(now)`` is None (None: there is one)."""
+        why = self.fix.unknown_because
+        if why is None and (self._position_at is None or now - self._position_at > self.timing.position_stale):
+            return (f"no position report for {now - self._position_at:.1f} s" if self._position_at is not None
+                    else "no position report")
+        return why
+
     @property
     def mode(self) -> str:
         return mode_name(self.autopilot, self.custom_mode)
@@ -268,14 +292,19 @@ class VehicleTracker:
             return mav.MAV_LANDED_STATE_UNDEFINED
         return landed_from_heartbeat(self.autopilot, self.system_status, self.armed)
 
-    def stats(self) -> dict[str, Any]:
+    def stats(self, now: float | None = None) -> dict[str, Any]:
         """Per wanted stream: its state, how it came (unasked / interval / data_stream), asks and refusal;
-        plus the counters (refusals, retries, failures, reboots)."""
+        plus the counters (refusals, retries, failures, reboots); given ``now``, the position's age."""
+        position = self.fix.describe()
+        if now is not None:
+            why = self.position_unknown(now)
+            position.update(known=why is None, why=why, age_s=None if self._position_at is None
+                            else round(now - self._position_at, 3))
         return {"autopilot": self.autopilot, "connections": self.connections,
                 "streams": {s.want.name: {"state": s.state.value, "via": s.via, "interval_asks": s.interval_asks,
                                           "stream_asks": s.stream_asks, "lapses": s.lapses, "refusal": s.refusal}
                             for s in self._streams.values()},
-                "position": self.fix.describe(), "counters": dict(self.counters)}
+                "position": position, "counters": dict(self.counters)}
 
     # ------------------------------------------------------------------ input
     def on_message(self, msg: Any, now: float, signed: bool = False) -> None:
@@ -299,7 +328,7 @@ class VehicleTracker:
         if src[1] == self.compid:
             self.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT
             if t == "GLOBAL_POSITION_INT":
-                self._position_signed = signed
+                self._position_signed, self._position_at = signed, now
         if t == "EXTENDED_SYS_STATE":
             self._ext_landed, self._ext_at = msg.landed_state, now
         elif t == "COMMAND_ACK":
@@ -354,7 +383,7 @@ class VehicleTracker:
         self._pending = self._refused = None
         self._groups.clear()
         self.fix = PositionFix()  # a rebooted autopilot has no fix yet; a link back: the next report says
-        self._position_signed = False
+        self._position_signed, self._position_at = False, None
         self._streams = self._fresh_streams()
         if self.connections > 1:
             self.counters["reconnects"] += 1
