@@ -90,6 +90,8 @@ class AutopilotEndpoint:
         if any(self.signed_by_us(f) for f in frames):
             was = self.address
             self.address, self.how = address, "signed"
+            if address in self.claimants:
+                self.claimants.remove(address)
             if was is not None:
                 self.counters["moved_to_signed"] += 1
                 log.warning("vehicle link: %s signs with the link's key: it is the autopilot, not %s (which sent its "
