@@ -3,12 +3,20 @@ coordination and mission stages. ``gs/station.py`` is its thin Zenoh adapter.
 
 Theory of operation
 -------------------
-``StationCore`` holds one ``DroneView`` per drone the GS serves. Time comes in as ``now``; bytes
-and events come in through ``on_*`` methods; what the adapter must do comes out as actions:
-``Put`` (publish a sealed envelope), ``Ask`` (send a query; its replies come back through
-``on_pair_reply`` / ``on_linkkey_reply``), ``Log`` (an event-log record), ``FrameUp`` (a drone frame
-for the GCS gateway) and ``Say`` (a line for the operator). An incoming key-sharing query is
-answered with a ``QueryAnswer`` value. Nothing here blocks, reads a clock or touches a socket.
+``StationCore`` holds one ``DroneView`` per drone the GS serves (its own business: adapters name a
+drone and read a ``DroneStatus``). Time comes in as ``now``; bytes and events come in through
+``on_*`` methods and ``operator_command``; what the adapter must do comes out as actions: ``Put``
+(publish a sealed envelope), ``Ask`` (send a query; its replies come back through ``on_pair_reply``
+/ ``on_linkkey_reply``), ``Log`` (an event-log record), ``FrameUp`` (a drone frame for the GCS
+gateway) and ``Say`` (a line for the operator). An incoming key-sharing query is answered with a
+``QueryAnswer`` value. Nothing here blocks, reads a clock or touches a socket.
+
+Timers, as the drone's core: the adapter calls ``handle_timer(now)`` when ``now`` reaches
+``get_timer()`` and otherwise sleeps until then or until input arrives. The timer is due at once
+after any input (what came in may decide something: a status, a position in the overlap), at the
+next heartbeat, and every ``LOOK_S`` for the periodic work whose deadlines are not yet computed
+one by one (pairing and key-sharing retries, the mission's stages, the operator's windows, a hold
+for a key). ``tick(now)`` is ``handle_timer`` for callers that still poll.
 
 Per drone:
 
@@ -391,6 +399,28 @@ class DroneView:
         self.fix.reported = value
 
 
+#: The periodic work without a deadline of its own is looked at this often (``get_timer``): what the
+#: station's loop did when it polled the core.
+LOOK_S = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class DroneStatus:
+    """What an adapter reads of one drone (``StationCore.drone_status``): the drone's authority as
+    this GS knows it and what the operator's control shows of it."""
+
+    name: str
+    sysid: int
+    linked: bool  # this GS holds a live link key for it
+    owner: str | None
+    epoch: int
+    state: HaState | None  # None: no status heard yet
+    holds_authority: bool  # this GS commands it now (``StationCore.holds_authority``)
+    operator_owner: bool  # this GS's operator owns it (``OperatorControl.is_owner``)
+    request: Any  # another GS's request for control our operator is asked about (``PendingRequest``), or None
+    takeover: bool  # what CONTROL_STATUS says of takeover (``OperatorControl.shown_takeover``)
+
+
 def _due(last: float | None, now: float, period: float) -> bool:
     return last is None or now - last >= period
 
@@ -415,6 +445,35 @@ class StationCore:
         self._grant_id = 0
         self._sm_seq = 0
         self._hb_due = 0.0
+        self._look_due = 0.0  # the next look at the periodic work
+        self._input_at: float | None = None  # an input came at this time since ``handle_timer`` last ran
+
+    # --------------------------------------------------------------- by name
+    @property
+    def drones(self) -> tuple[str, ...]:
+        """The drones this GS serves."""
+        return tuple(self.views)
+
+    def _view(self, drone: "str | DroneView") -> DroneView:
+        return self.views[drone] if isinstance(drone, str) else drone
+
+    def drone_status(self, drone: str, now: float) -> DroneStatus:
+        """Drone ``drone`` as this GS sees it at ``now`` (``KeyError``: not one of ``drones``)."""
+        v = self.views[drone]
+        op = v.operator
+        return DroneStatus(name=v.name, sysid=v.sysid, linked=v.link is not None, owner=v.owner, epoch=v.epoch,
+                           state=v.ha_state, holds_authority=self.holds_authority(v), operator_owner=op.is_owner(v),
+                           request=op.live_request(v, now), takeover=op.shown_takeover(v, now))
+
+    def describe(self, drone: str, now: float) -> str | None:
+        """One line for the operator's console (``view_line``), None while there is no link."""
+        v = self.views[drone]
+        return None if v.link is None else view_line(self.name, drone, v, now)
+
+    def _input(self, now: float) -> None:
+        """An input came: the periodic work looks at what it changed at once (``get_timer``)."""
+        if self._input_at is None or now < self._input_at:
+            self._input_at = now
 
     # ------------------------------------------------------------------ sending
     def _new_link(self, view: DroneView, key: LinkKey, now: float) -> SecureLink:
@@ -422,18 +481,20 @@ class StationCore:
                           rx_keyexpr=kx.down(view.name, self.name), peer_sysid=view.sysid, now=now,
                           cipher=self.opts.cipher)
 
-    def send_frame(self, view: DroneView, frame: bytes) -> list[Action]:
+    def send_frame(self, drone: "str | DroneView", frame: bytes) -> list[Action]:
         """Seal one MAVLink frame for the drone (nothing without a link)."""
+        view = self._view(drone)
         if view.link is None:
             return []
         if read_header(frame).commanding:
             view.commands_sent[view.epoch] += 1  # every commanding frame, to check none is lost
         return [Put(kx.up(view.name, self.name), view.link.seal(frame))]
 
-    def send_msg(self, view: DroneView, msg: Any) -> list[Action]:
-        return self.send_frame(view, self.codec.encode(msg))
+    def send_msg(self, drone: "str | DroneView", msg: Any) -> list[Action]:
+        return self.send_frame(drone, self.codec.encode(msg))
 
-    def send_control(self, view: DroneView, msg: wire.Control) -> list[Action]:
+    def send_control(self, drone: "str | DroneView", msg: wire.Control) -> list[Action]:
+        view = self._view(drone)
         if view.link is None:
             return []
         return [Put(kx.up(view.name, self.name), view.link.seal_control(msg))]
@@ -454,7 +515,8 @@ class StationCore:
         return (view.link is not None and view.owner == self.name and view.ha_state is not HaState.FAILSAFE
                 and view.link.tbm.since_last(now) > SILENT_REPAIR_S)
 
-    def holds_authority(self, view: DroneView) -> bool:
+    def holds_authority(self, drone: "str | DroneView") -> bool:
+        view = self._view(drone)
         return (view.owner == self.name and view.released_epoch != view.epoch
                 and view.ha_state is not HaState.FAILSAFE and not view.stale)
 
@@ -476,8 +538,20 @@ class StationCore:
         return self.send_msg(view, mav.MAVLink_command_long_message(view.sysid, 1, command, 0, *p))
 
     # -------------------------------------------------------------------- time
+    def get_timer(self) -> float:
+        """When ``handle_timer`` must next be called if no input comes (see the module docstring)."""
+        due = min(self._hb_due, self._look_due)
+        return due if self._input_at is None else min(due, self._input_at)
+
     def tick(self, now: float, wall: float | None = None) -> list[Action]:
-        """One pass of the GS's periodic work (``wall``: the time of day, for key-sharing stamps)."""
+        """``handle_timer``, for callers that call it on a rhythm of their own."""
+        return self.handle_timer(now, wall)
+
+    def handle_timer(self, now: float, wall: float | None = None) -> list[Action]:
+        """The GS's periodic work at ``now`` (``wall``: the time of day, for key-sharing stamps):
+        whatever is due is done, whenever it is called."""
+        self._input_at = None
+        self._look_due = now + LOOK_S
         out: list[Action] = []
         for view in self.views.values():
             stamp = now if wall is None else wall
@@ -527,6 +601,7 @@ class StationCore:
 
     def on_pair_reply(self, drone: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply to our pairing query (``ok`` payload, or the drone's error text)."""
+        self._input(now)
         view = self.views.get(drone)
         if view is None or view.pairing is None or now >= view.pairing_deadline:
             self.counters["pair_reply_late"] += 1
@@ -580,6 +655,7 @@ class StationCore:
         Refusals before any crypto: malformed, unknown asker, not authorized for the drone; then the
         cheap tag, a repeated message 1 (its first answer again), the asker's rate limit (charged
         only for authentic queries), and the handshake (``KeyShareResponder``)."""
+        self._input(now)
         logs: list[Action] = []
         req = decode_query(payload)
         if isinstance(req, Refused):
@@ -641,6 +717,7 @@ class StationCore:
 
     def on_linkkey_reply(self, drone: str, gs: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply from ``gs`` to our key-sharing query about ``drone``."""
+        self._input(now)
         view = self.views.get(drone)
         if view is None:
             self.counters["linkkey_reply:unknown_drone"] += 1
@@ -675,6 +752,7 @@ class StationCore:
     # ----------------------------------------------------------------- receiving
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
         """One sealed envelope from ``drone``."""
+        self._input(now)
         view = self.views.get(drone)
         if view is None:
             self.counters["down:unknown_drone"] += 1
@@ -782,11 +860,13 @@ class StationCore:
         return out
 
     # ---------------------------------------------------------- operator control
-    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float, app: str = "",
+    def operator_command(self, drone: "str | DroneView", req: OperatorControlRequest, now: float, app: str = "",
                          app_sysid: int | None = None) -> tuple[Answer, list[Action]]:
         """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL (``gs.opcontrol``): the answer it gets at once.
         ``app`` names the application (its key, or ``unsigned:<peer>``); ``app_sysid`` is its own sysid,
         which the gateway never shows it as another GCS's (``sysid_as_seen_by``): p4 is read the same way."""
+        self._input(now)
+        view = self._view(drone)
         named = self._gs_named(req.sysid, app_sysid)
         answer, step = view.operator.command(view, req, now, app=app, named=named)
         return answer, self._operator(view, step)
@@ -1250,6 +1330,28 @@ class StationCore:
                       "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c},
                       "fc_signed": v.fc_signed}
         return {"drones": out, "counters": dict(self.counters)}
+
+
+def view_line(gs: str, drone: str, v: DroneView, now: float) -> str:
+    """One drone as this GS sees it: how old its last report is and whether this GS holds its
+    authority. A drone not heard for the TBM's DEGRADED threshold is shown as STALE with the age of
+    what is shown (its authority, position, state are as of then, not now), never as a live line."""
+    assert v.link is not None
+    age = v.link.tbm.since_last(now)
+    state = v.link.tbm.state(now)
+    mine = "this GS" if v.owner == gs else "not this GS"
+    authority = f"authority {v.owner} (epoch {v.epoch}, {v.ha_state.value if v.ha_state else 'unknown'}), {mine}"
+    pos = (f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position
+           else f"position unknown ({v.fix.unknown_because})")
+    vehicle = f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.autopilot, v.custom_mode)} | mission item {v.mission_seq}"
+    link = f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}"
+    if v.link.tbm.last_seen is None:
+        return f"gs {gs} | {drone}: nothing heard yet ({age:.1f} s since the link was made) | {link}"
+    if state is LinkState.OK:
+        return f"gs {gs} | {drone}: report {age:.1f} s old | {authority} | {pos} | {vehicle} | {link}"
+    since = "may have moved since" if v.owner == gs else "may have changed"
+    return (f"gs {gs} | {drone}: STALE, last report {age:.1f} s ago (link {state.value}): as of then {authority} "
+            f"(it {since}) | last position {pos} | was {vehicle} | {link}")
 
 
 Handler = Callable[[StationCore, DroneView, Any], "list[Action]"]

@@ -254,9 +254,10 @@ class GcsGateway:
         self._signed_peers: dict[int, dict[Any, str]] | None = None  # endpoint -> peer -> key name (None: stale)
         self._drop_logs: dict[str, RateLimit] = {}
         self.station = station
-        self.drone = drone or next(iter(station.views))
-        if self.drone not in station.views:
+        self.drone = drone or station.drones[0]
+        if self.drone not in station.drones:
             raise ValueError(f"the station does not serve {self.drone}")
+        self.vehicle_sysid = station.drone_status(self.drone, 0.0).sysid
         self.counters: Counter[str] = Counter()
         self.apps = AppTable(max_apps, app_expiry, FIRST_APP_COMPID, self.counters)
         self.transports = [MavTransport(e) for e in endpoints]
@@ -272,9 +273,9 @@ class GcsGateway:
         station.frame_listeners.append(self.on_drone_frame)
         station.loop_hooks.append(self.poll)
 
-    @property
-    def view(self) -> Any:
-        return self.station.views[self.drone]
+    def status(self, now: float) -> Any:
+        """The drone as the station sees it (``gs.core.DroneStatus``)."""
+        return self.station.drone_status(self.drone, now)
 
     def endpoints(self) -> list[str]:
         return [f"{t.endpoint.kind}:{t.endpoint.host}:{t.port}" for t in self.transports]
@@ -406,9 +407,9 @@ class GcsGateway:
             except OSError:
                 self.counters["send_failed"] += 1
 
-    def _to_drone(self, view: Any, frame: bytes) -> None:
+    def _to_drone(self, frame: bytes) -> None:
         try:
-            self.station.send_frame(view, frame)
+            self.station.send_frame(self.drone, frame)
         except SEND_ERRORS:
             self.counters["send_failed"] += 1
 
@@ -455,7 +456,7 @@ class GcsGateway:
         except FrameError:
             self.counters["malformed"] += 1
             return
-        if hdr.sysid == self.view.sysid:  # an application never speaks as the vehicle (a frame of ours sent back)
+        if hdr.sysid == self.vehicle_sysid:  # an application never speaks as the vehicle (a frame of ours sent back)
             self.counters["vehicle_sysid"] += 1
             return
         signer: SigningKey | None = None
@@ -481,7 +482,6 @@ class GcsGateway:
             self._signing_drop("unsigned_after_signed", peer, hdr, now)  # not the application that signed
             return
         app.frames_in += 1
-        view = self.view
         if hdr.msgid == mav.MAVLINK_MSG_ID_SETUP_SIGNING and self.signing_mode != "off":
             self.counters["setup_signing_dropped"] += 1  # keys are the key file's, never the link's
             return
@@ -489,7 +489,7 @@ class GcsGateway:
         if hdr.msgid in COMMAND_MSGIDS:
             msg = app.decoder.decode(frame)
             if msg is not None and msg.command == MAV_CMD_REQUEST_OPERATOR_CONTROL:
-                if msg.target_system != view.sysid:  # ours to the applications (the request shown), sent back
+                if msg.target_system != self.vehicle_sysid:  # ours to the applications (the request shown), sent back
                     self.counters["operator_request_not_for_vehicle"] += 1
                     return
                 if not trusted:
@@ -505,26 +505,27 @@ class GcsGateway:
         if not trusted and hdr.commanding:
             self._refuse_unsigned(app, hdr, frame, UNSIGNED_KINDS.get(hdr.msgid, "other"), MAV_RESULT_NOT_IN_CONTROL)
             return
-        if view.link is None:
+        status = self.status(now)
+        if not status.linked:
             self.counters["no_link"] += 1
             self._refuse(app, hdr, frame, mav.MAV_RESULT_TEMPORARILY_REJECTED, "no link to the drone")
             return
-        if hdr.commanding and not self.station.holds_authority(view):
+        if hdr.commanding and not self.station.holds_authority(self.drone):
             self._refuse(app, hdr, frame, MAV_RESULT_NOT_IN_CONTROL, f"{self.station.name} is not in control"
-                         f" ({view.owner or 'nobody'} is)")
+                         f" ({status.owner or 'nobody'} is)")
             return
         try:
             out = rewrite_source(frame, self.station.sysid, app.gs_compid)
         except (FrameError, KeyError, ValueError):
             self.counters["rewrite_failed"] += 1
             return
-        self._to_drone(view, out)
+        self._to_drone(out)
 
     def _refuse(self, app: App, hdr: Any, frame: bytes, result: int, why: str) -> None:
         """Answer a frame that will not reach the vehicle as the vehicle would refuse it."""
         app.refused += 1
         self.counters["refused"] += 1
-        codec = self._vehicle_codec(self.view.sysid, 1)
+        codec = self._vehicle_codec(self.vehicle_sysid, 1)
         if hdr.msgid in COMMAND_MSGIDS:
             msg = app.decoder.decode(frame)
             if msg is not None:
@@ -557,8 +558,8 @@ class GcsGateway:
     def _operator_command(self, app: App, req: Any, now: float) -> int:
         """The station's operator entry, told which application spoke (when it takes it)."""
         if self._op_takes_app:
-            return int(self.station.operator_command(self.view, req, now, app=self.identity(app), app_sysid=app.sysid))
-        return int(self.station.operator_command(self.view, req, now))
+            return int(self.station.operator_command(self.drone, req, now, app=self.identity(app), app_sysid=app.sysid))
+        return int(self.station.operator_command(self.drone, req, now))
 
     def _operator_control(self, app: App, msg: Any, now: float) -> None:
         """MAV_CMD_REQUEST_OPERATOR_CONTROL from an application: this GS's operator requests, releases
@@ -584,15 +585,14 @@ class GcsGateway:
         self._ack(app, msg.command, result)
 
     def _ack(self, app: App, command: int, result: int) -> None:
-        codec = self._vehicle_codec(self.view.sysid, 1)
+        codec = self._vehicle_codec(self.vehicle_sysid, 1)
         self._reply(app, codec, mav.MAVLink_command_ack_message(command, result, 0, 0, app.sysid, app.compid))
 
     def _operator_poll(self, now: float) -> None:
         """Operator control's periodic part: the final answers of requests in progress, another GS's
         request presented to the applications, CONTROL_STATUS."""
-        view = self.view
-        op = view.operator
-        owner = op.is_owner(view)
+        status = self.status(now)
+        owner = status.operator_owner
         for key, deadline in list(self._awaiting.items()):
             if not owner and now < deadline:
                 continue
@@ -600,41 +600,41 @@ class GcsGateway:
             app = next((a for a in self.apps if a.key == key), None)
             if app is not None:  # still there: the request's final answer
                 self._ack(app, MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED if owner else mav.MAV_RESULT_FAILED)
-        req = op.live_request(view, now)
+        req = status.request
         if req is not None and req.seq != self._shown_seq and self.apps:
             self._shown_seq = req.seq
             requester = self._sysid_of(req.requester)
-            codec = self._vehicle_codec(view.sysid, 1)
+            codec = self._vehicle_codec(self.vehicle_sysid, 1)
             for app in self.apps:
                 p4 = _not_the_apps(requester, app.sysid)
                 self._reply(app, codec, mav.MAVLink_command_long_message(
                     app.sysid, app.compid, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, req.timeout, p4, 0, 0, 0))
             self.station.events.write_record(rec.OperatorRequestShown(drone=self.drone, requester=req.requester, apps=len(self.apps)))
-        takeover = op.shown_takeover(view, now)
-        control = (view.link is not None, view.owner, view.epoch, view.ha_state, owner, takeover)
+        takeover = status.takeover
+        control = (status.linked, status.owner, status.epoch, status.state, owner, takeover)
         if now >= self._next_status or control != self._last_control:
             self._next_status = now + CONTROL_STATUS_PERIOD_S
             self._last_control = control
-            self._control_status(owner, takeover)
+            self._control_status(status)
 
     def _sysid_of(self, gs: str | None) -> int:
         node = self.station.fleet.nodes.get(gs) if gs else None
         return node.sysid if node is not None else 0
 
-    def _control_status(self, mine: bool, takeover: bool) -> None:
+    def _control_status(self, status: Any) -> None:
         """CONTROL_STATUS (512) on the vehicle's behalf, to each application: who is in control as that
         application should see it (itself while this GS is; never itself while another GS is)."""
-        view = self.view
-        if view.link is None or not self.apps:
+        if not status.linked or not self.apps:
             return
-        in_control = None if view.ha_state is HaState.FAILSAFE else view.owner
+        mine, takeover = status.operator_owner, status.takeover
+        in_control = None if status.state is HaState.FAILSAFE else status.owner
         owner_sysid = self._sysid_of(in_control)
         flags = FLAG_SYSTEM_MANAGER | (FLAG_TAKEOVER_ALLOWED if takeover and in_control else 0)
         for app in self.apps:  # an unsigned application under ``require`` is never the one in control
             main = app.sysid if mine and self.trusted(app) else _not_the_apps(owner_sysid, app.sysid)
             self._seq = (self._seq + 1) % 256
             try:
-                frame = encode_control_status(ControlStatus(flags, main), view.sysid, 1, self._seq)
+                frame = encode_control_status(ControlStatus(flags, main), self.vehicle_sysid, 1, self._seq)
             except ENCODE_ERRORS:
                 self.counters["encode_failed"] += 1
                 continue

@@ -12,11 +12,12 @@ blocks: pairing and key-sharing queries are asynchronous (their replies come bac
 inbox), and the handshakes for incoming key-sharing queries are bounded per loop turn
 (``LINKKEY_PER_TURN``) and rate-limited per asker in the core.
 
-The loop sleeps until input arrives (an envelope, a query reply) or its next tick is due. The
-core's periodic work (heartbeats, the command stream, retries, mission stages) is looked at every
-``tick_period`` (a quarter of the shortest period it keeps, ``MAX_SLEEP_S`` at most), the status
-event at its own time. Loop hooks that poll sockets (the GCS gateway) keep the loop at
-``HOOK_POLL_S``.
+The loop sleeps until input arrives (an envelope, a query reply) or the core's timer is due
+(``StationCore.get_timer``: at once after an input, the next heartbeat, the next look at its
+periodic work), and calls ``handle_timer`` only then; the status event has its own time. The
+key-sharing queryable's ring is looked at on every wake, at least every ``MAX_SLEEP_S``; loop hooks
+that poll sockets (the GCS gateway) keep the loop at ``HOOK_POLL_S``. The adapter names drones and
+reads ``DroneStatus``es: the core's ``DroneView``s are its own.
 """
 
 from __future__ import annotations
@@ -33,12 +34,12 @@ from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.errors import ConfigError
 from zdrone.core.mavcontrol import OperatorControlRequest
-from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
 
-from .core import GCS_COMPID, Action, Ask, AskKind, CoreOptions, DroneView, FrameUp, Log, Put, Say, StationCore
+from .core import (GCS_COMPID, Action, Ask, AskKind, CoreOptions, DroneStatus, DroneView, FrameUp, Log, Put, Say,
+                   StationCore, view_line)
 from .planner import PlannedItem
 
 log = logging.getLogger(__name__)
@@ -52,7 +53,7 @@ MAX_SLEEP_S = 0.05
 #: The loop's period while a hook polls sockets of its own (the GCS gateway's endpoints).
 HOOK_POLL_S = 0.005
 
-__all__ = ["GCS_COMPID", "DroneView", "GroundStation", "StationOptions", "run_station"]
+__all__ = ["GCS_COMPID", "DroneStatus", "DroneView", "GroundStation", "StationOptions", "run_station", "view_line"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +95,7 @@ class GroundStation:
             pair=opts.pair, mission=opts.mission, heartbeat_hz=opts.heartbeat_hz, command_rate=opts.command_rate,
             hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
             take_control=opts.take_control, allow_takeover=opts.allow_takeover))
-        self.views = self.core.views
+        self.views = self.core.views  # for the bench's counts (``zdrone.bench.scale``); adapters go by name
         self.counters = self.core.counters
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
@@ -127,24 +128,31 @@ class GroundStation:
             gs = a.gs
             self.rt.ask(a.keyexpr, a.payload, a.timeout, "linkkey", a.drone, wrap=lambda r: (gs, r))
 
-    def send_frame(self, view: DroneView, frame: bytes) -> None:
+    @property
+    def drones(self) -> tuple[str, ...]:
+        return self.core.drones
+
+    def drone_status(self, drone: str, now: float) -> DroneStatus:
+        return self.core.drone_status(drone, now)
+
+    def send_frame(self, drone: str, frame: bytes) -> None:
         """Seal and send one MAVLink frame to the drone (no-op without a link)."""
-        self._do(self.core.send_frame(view, frame))
+        self._do(self.core.send_frame(drone, frame))
 
-    def send_msg(self, view: DroneView, msg: Any) -> None:
-        self._do(self.core.send_msg(view, msg))
+    def send_msg(self, drone: str, msg: Any) -> None:
+        self._do(self.core.send_msg(drone, msg))
 
-    def send_control(self, view: DroneView, msg: wire.Control) -> None:
-        self._do(self.core.send_control(view, msg))
+    def send_control(self, drone: str, msg: wire.Control) -> None:
+        self._do(self.core.send_control(drone, msg))
 
-    def holds_authority(self, view: DroneView) -> bool:
-        return self.core.holds_authority(view)
+    def holds_authority(self, drone: str) -> bool:
+        return self.core.holds_authority(drone)
 
-    def operator_command(self, view: DroneView, req: OperatorControlRequest, now: float, app: str = "",
+    def operator_command(self, drone: str, req: OperatorControlRequest, now: float, app: str = "",
                          app_sysid: int | None = None) -> int:
         """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL: carried out; the MAV_RESULT it gets at once
         (``app``: the application's name, ``app_sysid``: its own sysid; see ``StationCore.operator_command``)."""
-        answer, actions = self.core.operator_command(view, req, now, app=app, app_sysid=app_sysid)
+        answer, actions = self.core.operator_command(drone, req, now, app=app, app_sysid=app_sysid)
         self._do(actions)
         return int(answer)
 
@@ -196,9 +204,10 @@ class GroundStation:
 
     def print_view(self, now: float) -> None:
         """The telemetry view: one line per linked drone on stdout (``view_line``)."""
-        for d, v in self.views.items():
-            if v.link is not None:
-                print(view_line(self.name, d, v, now), flush=True)
+        for d in self.core.drones:
+            line = self.core.describe(d, now)
+            if line is not None:
+                print(line, flush=True)
 
     def stop(self, *_: object) -> None:
         self.rt.stop()
@@ -206,14 +215,15 @@ class GroundStation:
     def step(self, now: float) -> None:
         """One pass of the loop."""
         self._serve_linkkeys(now)
-        self._do(self.core.tick(now, time.time()))
+        if now >= self.core.get_timer():
+            self._do(self.core.handle_timer(now, time.time()))
         self.rt.flush(now)
 
     def wait_time(self, until: float) -> float:
-        """How long the loop may wait for input: until ``until``, the next tick or the next paced
-        frame, whichever comes first."""
+        """How long the loop may wait for input: until ``until``, the core's timer, the next paced
+        frame or the next look at the key-sharing ring (``poll_period``), whichever comes first."""
         now = time.monotonic()
-        due = [until - now, self.tick_period()]
+        due = [until - now, self.core.get_timer() - now, self.poll_period()]
         paced = self.rt.next_flush()
         if paced is not None:
             due.append(paced - now)
@@ -222,16 +232,10 @@ class GroundStation:
     def drain(self, timeout: float) -> None:
         self.rx.drain(timeout, self._on_inbox)
 
-    def tick_period(self) -> float:
-        """How often the core's periodic work is looked at without input: a quarter of the shortest
-        period it keeps (heartbeats, the command stream), ``MAX_SLEEP_S`` at most, and
-        ``HOOK_POLL_S`` while a loop hook polls sockets."""
-        if self.loop_hooks:
-            return HOOK_POLL_S
-        periods = [1.0 / self.opts.heartbeat_hz] if self.opts.heartbeat_hz > 0 else []
-        if self.opts.command_rate > 0:
-            periods.append(1.0 / self.opts.command_rate)
-        return min([MAX_SLEEP_S] + [p / 4 for p in periods])
+    def poll_period(self) -> float:
+        """How long the loop sleeps at most without input, for what wakes nobody: the key-sharing
+        queryable's ring (``MAX_SLEEP_S``), the sockets a loop hook polls (``HOOK_POLL_S``)."""
+        return HOOK_POLL_S if self.loop_hooks else MAX_SLEEP_S
 
     def run(self) -> None:
         print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)
@@ -256,30 +260,6 @@ class GroundStation:
 
     def close(self) -> None:
         self.rt.close(self.status(), rec.GsStop)
-
-
-def view_line(gs: str, drone: str, v: DroneView, now: float) -> str:
-    """One drone as this GS sees it: how old its last report is and whether this GS holds its
-    authority. A drone not heard for the TBM's DEGRADED threshold is shown as STALE with the age of
-    what is shown (its authority, position, state are as of then, not now), never as a live line."""
-    from zdrone.vehicle.modes import mode_name
-
-    assert v.link is not None
-    age = v.link.tbm.since_last(now)
-    state = v.link.tbm.state(now)
-    mine = "this GS" if v.owner == gs else "not this GS"
-    authority = f"authority {v.owner} (epoch {v.epoch}, {v.ha_state.value if v.ha_state else 'unknown'}), {mine}"
-    pos = (f"{v.position.lat:.6f},{v.position.lon:.6f} alt {v.position.alt:5.1f} m" if v.position
-           else f"position unknown ({v.fix.unknown_because})")
-    vehicle = f"{'ARMED' if v.armed else 'disarmed'} {mode_name(v.autopilot, v.custom_mode)} | mission item {v.mission_seq}"
-    link = f"link rx {v.link.opened} tx {v.link.sent} drops {sum(v.link.drops.values())}"
-    if v.link.tbm.last_seen is None:
-        return f"gs {gs} | {drone}: nothing heard yet ({age:.1f} s since the link was made) | {link}"
-    if state is LinkState.OK:
-        return f"gs {gs} | {drone}: report {age:.1f} s old | {authority} | {pos} | {vehicle} | {link}"
-    since = "may have moved since" if v.owner == gs else "may have changed"
-    return (f"gs {gs} | {drone}: STALE, last report {age:.1f} s ago (link {state.value}): as of then {authority} "
-            f"(it {since}) | last position {pos} | was {vehicle} | {link}")
 
 
 def run_station(opts: StationOptions) -> int:

@@ -208,8 +208,8 @@ class CoreFlight:
 
     def _stations(self) -> None:
         for name, st in self.gs.items():
-            if not st.down:
-                self.station(name, st.core.tick(self.now, WALL0 + self.now))
+            if not st.down and self.now >= st.core.get_timer():
+                self.station(name, st.core.handle_timer(self.now, WALL0 + self.now))
         self.was_armed |= self.sim.armed
         if self.drone_down_until is None:
             m = self.drone.machine

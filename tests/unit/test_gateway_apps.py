@@ -25,6 +25,7 @@ from zenoh import ZError
 import gs.gateway as gateway_mod
 from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, STATION_COMPID, AppKey, AppTable,
                         GcsGateway)
+from gs.core import DroneStatus
 from gs.opcontrol import OperatorControl
 from zdrone.core import wire
 from zdrone.core.mavlink import FrameCodec, FrameError, crc_seed, encode_raw, read_header
@@ -75,19 +76,29 @@ class StubStation:
         self.sent: list[bytes] = []
         self.controls: list[Any] = []
 
-    def holds_authority(self, view: Any) -> bool:
+    @property
+    def drones(self) -> tuple[str, ...]:
+        return tuple(self.views)
+
+    def drone_status(self, drone: str, now: float) -> DroneStatus:
+        v = self.views[drone]
+        op = v.operator
+        return DroneStatus(v.name, v.sysid, v.link is not None, v.owner, v.epoch, v.ha_state, self.authority,
+                           op.is_owner(v), op.live_request(v, now), op.shown_takeover(v, now))
+
+    def holds_authority(self, drone: str) -> bool:
         return self.authority
 
-    def send_frame(self, view: Any, frame: bytes) -> None:
+    def send_frame(self, drone: str, frame: bytes) -> None:
         self.sent.append(frame)
 
-    def send_control(self, view: Any, msg: Any) -> None:
+    def send_control(self, drone: str, msg: Any) -> None:
         self.controls.append(msg)
 
-    def operator_command(self, view: Any, req: Any, now: float) -> int:
+    def operator_command(self, drone: str, req: Any, now: float) -> int:
         if self.authority:
             return mav.MAV_RESULT_ACCEPTED
-        self.send_control(view, wire.HandoverRequest(self.name, view.epoch, timeout=req.timeout))
+        self.send_control(drone, wire.HandoverRequest(self.name, self.views[drone].epoch, timeout=req.timeout))
         return mav.MAV_RESULT_FAILED
 
 

@@ -290,6 +290,13 @@ class CoreStation:
         self.loop_hooks: list = []
         self.events = StubEvents()
 
+    @property
+    def drones(self) -> tuple[str, ...]:
+        return self.core.drones
+
+    def drone_status(self, drone: str, now: float):
+        return self.core.drone_status(drone, now)
+
     def holds_authority(self, view) -> bool:
         return self.core.holds_authority(view)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from zdrone.core import wire
 from zdrone.core.keys import Identity
 from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
@@ -638,3 +639,43 @@ def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_
     assert fast and fast[0] - heard > SILENT_REPAIR_S
     assert all(0.9 * SILENT_RETRY_S < y - x <= SILENT_RETRY_S + 0.1 for x, y in zip(fast, fast[1:]))
     assert slow and all(0.9 * SILENT_SLOW_RETRY_S < y - x <= SILENT_SLOW_RETRY_S + 0.1 for x, y in zip(slow, slow[1:]))
+
+
+# ------------------------------------------------------------------ timers and the API by name
+def test_the_timer_is_due_at_once_after_an_input_and_else_at_the_next_heartbeat_or_look(fleet_dir):
+    """As the drone's core: the adapter calls ``handle_timer`` when ``get_timer`` is due and sleeps
+    otherwise; an input makes it due at once, for what the input changed may decide something."""
+    from gs.core import LOOK_S
+
+    a = paired_a(fleet_dir)
+    assert a.get_timer() <= 0.1  # the pairing reply was an input
+    a.handle_timer(1.0)
+    assert a.get_timer() == pytest.approx(min(1.0 + LOOK_S, a._hb_due))
+    a.on_envelope("d1", b"not an envelope", 1.01)
+    assert a.get_timer() == 1.01
+    a.handle_timer(1.01)
+    assert a.get_timer() > 1.01
+    hb = a._hb_due
+    out = a.tick(hb)  # ``tick`` is ``handle_timer`` for callers that poll
+    assert any(isinstance(x, Put) for x in out) and a._hb_due > hb  # the heartbeat went out
+
+
+def test_adapters_name_a_drone_and_read_its_status(fleet_dir):
+    a = paired_a(fleet_dir)
+    assert a.drones == tuple(a.views)
+    st = a.drone_status("d1", 1.0)
+    v = a.views["d1"]
+    assert (st.name, st.sysid, st.linked, st.owner, st.epoch) == ("d1", v.sysid, True, "A", 1)
+    assert st.holds_authority == a.holds_authority("d1") == a.holds_authority(v)
+    assert st.request is None and not st.takeover
+    assert a.send_control("d1", wire.KeyGrantAck("B", 1)) and a.send_frame("d1", FrameCodec(1, 1).encode(
+        _heartbeat_msg()))
+    assert (a.describe("d1", 1.0) or "").startswith("gs A | d1: nothing heard yet")
+    with pytest.raises(KeyError):
+        a.drone_status("nobody", 1.0)
+
+
+def _heartbeat_msg():
+    from pymavlink.dialects.v20 import common as mav
+
+    return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)

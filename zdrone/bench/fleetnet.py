@@ -125,8 +125,8 @@ class FleetNet:
         assert self.drone is not None
         self.now = round(self.now + dt, 6)
         for name, core in self.gss.items():
-            if name not in self.hung:
-                self.gs_outs(name, core.tick(self.now, WALL0 + self.now))
+            if name not in self.hung and self.now >= core.get_timer():
+                self.gs_outs(name, core.handle_timer(self.now, WALL0 + self.now))
         pos = None if self.position is None else (self.position.lat, self.position.lon, 30.0)
         self.drone_outs(self.drone.on_vehicle(pos, self.on_ground, self.now))
         if self.position is not None:
