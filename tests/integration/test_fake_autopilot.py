@@ -89,7 +89,7 @@ def test_the_vehicle_link_never_adopts_the_fake_sends_it_nothing_and_counts_its_
     """Behaviour 5 tried again: the attacker starts first and keeps racing; the vehicle link listens
     where the simulator sends (PX4's onboard link) and adopts system 1 only."""
     port = free_port(socket.SOCK_DGRAM)
-    with _attacker(fleet, port, tmp_path / "rogue.jsonl", duration=4.0) as attacker:
+    with _attacker(fleet, port, tmp_path / "rogue.jsonl", duration=10.0) as attacker:  # races 5 s
         attacker.wait_line("rogue: ready", 20)
         link = VehicleLink(f"udpin:127.0.0.1:{port}",
                            signing=FcSigning(FcKeyStore(tmp_path / "d1.fc-signing.json"), "prefer", confirm_timeout=30.0))
