@@ -32,7 +32,8 @@ Per drone:
   live link is never touched — until the drone speaks under it.
 * **Hand-over**: while it holds authority and the vehicle is inside its and another authorized GS's
   coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``); if the
-  drone reports the release timed out, the GS commands RTL. A release toward a GS whose key the drone
+  drone reports the release timed out, the GS commands RTL. Where the release stands in the drone's
+  epoch (released, confirmed, failed) is the sub-machine ``gs.handover.Handover``, a table. A release toward a GS whose key the drone
   does not hold yet waits for it: while the key is known to be coming (a restarted companion), the
   vehicle is held where it is and its mission resumed just before the release, so that how fast the
   vehicle flies does not decide whether the hand-over happens inside the overlap.
@@ -68,6 +69,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
+from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
 from .opcontrol import Answer, OperatorControl, Step
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
@@ -361,13 +363,7 @@ class DroneView:
     uploader: MissionUploader | None = None
     stage: Stage = Stage.IDLE
     stage_time: float = 0.0
-    released_epoch: int | None = None
-    release_sent: float = 0.0
-    release_confirmed: bool = False  # the drone reported HANDOVER_PENDING for our release
-    release_from: tuple[int, float] | None = None  # (epoch, distance from our centre) at its first release
-    handover_failed_epoch: int | None = None
-    handover_failed_at: float = 0.0  # the last failure in ``handover_failed_epoch`` (a retry waits)
-    rtl_epoch: int | None = None  # the epoch in which a failed hand-over commanded RTL (once per epoch)
+    handover: Handover = field(default_factory=lambda: Handover(""))  # our release, in the current epoch
     stale: bool = False  # the drone was silent: our view of the authority waits for its status
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
     autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
@@ -437,7 +433,7 @@ class StationCore:
         node = fleet.node(name)
         self.sysid = node.sysid
         self.coverage: Circle | None = node.coverage.circle() if node.coverage else None
-        self.views = {d: DroneView(d, fleet.nodes[d].sysid,
+        self.views = {d: DroneView(d, fleet.nodes[d].sysid, handover=Handover(d),
                                    operator=OperatorControl(name, allow_takeover=opts.allow_takeover)) for d in drones}
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
         self.counters: Counter[str] = Counter()
@@ -517,7 +513,7 @@ class StationCore:
 
     def holds_authority(self, drone: "str | DroneView") -> bool:
         view = self._view(drone)
-        return (view.owner == self.name and view.released_epoch != view.epoch
+        return (view.owner == self.name and not view.handover.released_in(view.epoch)
                 and view.ha_state is not HaState.FAILSAFE and not view.stale)
 
     def _mark_stale(self, view: DroneView, now: float) -> None:
@@ -834,10 +830,11 @@ class StationCore:
             if changed:
                 out.append(Log(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
                                                    pending_to=msg.pending_to)))
-            if was_mine and msg.owner == self.name and view.released_epoch == msg.epoch:
+            ho = self._ho(view)  # of the epoch the drone reports
+            if was_mine and msg.owner == self.name and ho.released:
                 if state is HaState.HANDOVER_PENDING:
-                    view.release_confirmed = True
-                elif state is HaState.LINKED and view.release_confirmed:
+                    ho.handle(Confirmed(now))
+                elif state is HaState.LINKED and ho.phase is HandoverPhase.CONFIRMED:
                     out += self._handover_failed(view, "release timed out", now)  # authority stayed here
         elif isinstance(msg, wire.KeyGrantAck):
             if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
@@ -847,7 +844,7 @@ class StationCore:
         elif isinstance(msg, wire.Reject):
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
             out.append(Log(rec.Rejected(drone=view.name, what=msg.what, reason=msg.reason)))
-            if msg.what == "release" and view.owner == self.name and view.released_epoch == view.epoch:
+            if msg.what == "release" and view.owner == self.name and self._ho(view).released:
                 out += self._handover_failed(view, f"release refused: {msg.reason}", now)
         elif isinstance(msg, wire.OperatorRequest):
             out += self._operator(view, view.operator.on_request(view, msg, now))
@@ -891,11 +888,11 @@ class StationCore:
         every ``HANDOVER_RETRY_S`` while the vehicle is in the overlap (a target that comes back takes
         it). If the vehicle is leaving our coverage, it comes home (RTL, once per epoch) rather than
         flying out of it into a failsafe; flying into our coverage, it flies on."""
-        first = view.handover_failed_epoch != view.epoch
-        view.handover_failed_epoch, view.handover_failed_at = view.epoch, now
-        view.released_epoch = None
+        ho = self._ho(view)
+        first = ho.failures == 0
+        ho.handle(Failed(now, reason))
         self.counters["handover_failed"] += 1
-        rtl = view.rtl_epoch != view.epoch and (self._leaving(view) if rtl is None else rtl)
+        rtl = not ho.rtl_done and (self._leaving(view) if rtl is None else rtl)
         if not rtl and not first:
             return []  # a retry that failed again: counted, not logged
         action = "RTL" if rtl else "retry"
@@ -905,17 +902,22 @@ class StationCore:
                              Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); "
                                  + ("commanding RTL" if rtl else "trying again"))]
         if rtl:
-            view.rtl_epoch = view.epoch
+            ho.rtl_done = True
             out += self._command(view, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH)
         return out
+
+    def _ho(self, view: DroneView) -> Handover:
+        """Our release of ``view``'s drone, in the drone's current epoch (``gs.handover``)."""
+        return view.handover.for_epoch(view.epoch)
 
     def _leaving(self, view: DroneView) -> bool:
         """The vehicle is moving out of our coverage: farther from our centre than at the release (no
         release made, or no position: assume it is)."""
-        if self.coverage is None or view.position is None or view.release_from is None or view.release_from[0] != view.epoch:
+        first = self._ho(view).first_distance
+        if self.coverage is None or view.position is None or first is None:
             return True
         here = GeoPoint(view.position.lat, view.position.lon)
-        return distance_m(self.coverage.centre, here) > view.release_from[1] + LEAVING_M
+        return distance_m(self.coverage.centre, here) > first + LEAVING_M
 
     # ----------------------------------------------------------------- flying
     def _set_stage(self, view: DroneView, stage: Stage, now: float) -> None:
@@ -1147,9 +1149,10 @@ class StationCore:
         """Release authority toward the GS whose coverage the drone is flying into."""
         if view.owner != self.name or view.stale or view.position is None or self.coverage is None:
             return []
-        if view.handover_failed_epoch == view.epoch and now - view.handover_failed_at < HANDOVER_RETRY_S:
+        ho = self._ho(view)
+        if ho.retry_waits(now, HANDOVER_RETRY_S):
             return []  # failed a moment ago: the retry waits
-        if view.released_epoch == view.epoch and (view.release_confirmed or now - view.release_sent < RELEASE_RESEND_S):
+        if ho.resend_waits(now, RELEASE_RESEND_S):
             return []  # released: wait for the drone (re-send only if it never confirmed)
         here = GeoPoint(view.position.lat, view.position.lon)
         if not self.coverage.contains(here):
@@ -1175,12 +1178,9 @@ class StationCore:
                 if resuming is not None:
                     return resuming  # the release waits for the mission mode
                 out: list[Action] = []
-                if view.released_epoch != view.epoch:
-                    view.release_confirmed = False
-                    if view.release_from is None or view.release_from[0] != view.epoch:  # the epoch's first
-                        view.release_from = (view.epoch, mine)
+                if not ho.released:  # sent for the first time (not again)
                     out.append(Log(rec.HandoverRelease(drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])))
-                view.released_epoch, view.release_sent = view.epoch, now
+                ho.handle(Release(now, g, mine))
                 return out + self.send_control(view, wire.HandoverRelease(g, view.epoch))
         return []
 
@@ -1226,7 +1226,7 @@ class StationCore:
         hold.phase = HoldPhase.OVER
         self.counters[f"handover_hold_over:{why}"] += 1
         if why == "mode changed" and self._mode(view) != hold.mission_mode:
-            view.rtl_epoch = view.epoch
+            self._ho(view).rtl_done = True
 
     def _hold_over(self, view: DroneView, hold: KeyHold, why: str, rtl: bool, now: float) -> list[Action]:
         """The hold ends without the hand-over: a failed hand-over, with RTL if ``rtl``."""

@@ -1,0 +1,164 @@
+"""The GS's side of a hand-over, per drone and per epoch it holds: a table, sans-IO.
+
+Theory of operation
+-------------------
+While this GS holds a drone's authority, ``StationCore._coordinate`` decides *whether* to release it
+(the vehicle flies into another authorized GS's coverage) and *to whom*; this machine keeps *where
+the release stands* in the drone's current epoch, which the core used to spell as flags stamped
+with the epoch they were true in. Phases:
+
+* ``IDLE``: nothing released in this epoch;
+* ``RELEASED``: a ``HANDOVER_RELEASE`` went out and the drone has not confirmed it (the core sends it
+  again every ``RELEASE_RESEND_S`` until it does);
+* ``CONFIRMED``: the drone reports ``HANDOVER_PENDING`` for it: authority moves once the recipient
+  proves its link, or the drone's deadline passes (then the drone reports LINKED again, with us);
+* ``FAILED``: the hand-over failed in this epoch (the drone had no key for the recipient, the release
+  was refused or timed out): authority stays here and the core tries again after ``HANDOVER_RETRY_S``.
+
+Events (``HandoverEvent``, frozen): ``Release`` (the core sent a release, first or again),
+``Confirmed`` (the drone reports HANDOVER_PENDING for it), ``Failed`` (the hand-over cannot happen
+now). ``TABLE`` maps (phase, event type) to (handler, next phase); a pair not in the table changes
+nothing (``handle`` returns False): e.g. a confirmation while nothing is released, a status seen
+after an operator's own release. A new epoch starts the machine afresh (``for_epoch``): whatever
+was released or failed belonged to the epoch before.
+
+Besides the phase, the machine keeps what the epoch's hand-over decisions need: when the release
+was last sent, when and how often it failed (the first failure is logged, retries are counted), the
+distance from our centre at the epoch's first release (is the vehicle leaving our coverage?) and
+whether an RTL of ours, or a mode someone else chose, already stands in this epoch (RTL at most once).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+from dataclasses import dataclass
+from typing import Callable
+
+log = logging.getLogger(__name__)
+
+
+class HandoverPhase(enum.Enum):
+    IDLE = "idle"
+    RELEASED = "released"
+    CONFIRMED = "confirmed"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True, slots=True)
+class HandoverEvent:
+    now: float
+
+
+@dataclass(frozen=True, slots=True)
+class Release(HandoverEvent):
+    """A release toward ``to`` went out, at ``distance`` metres from our coverage's centre."""
+
+    to: str
+    distance: float
+
+
+@dataclass(frozen=True, slots=True)
+class Confirmed(HandoverEvent):
+    """The drone reports HANDOVER_PENDING for our release."""
+
+
+@dataclass(frozen=True, slots=True)
+class Failed(HandoverEvent):
+    """The hand-over cannot happen now (``reason`` for the log)."""
+
+    reason: str
+
+
+P = HandoverPhase
+
+
+class Handover:
+    """Where this GS's release of one drone stands in the drone's current epoch."""
+
+    def __init__(self, drone: str) -> None:
+        self.drone = drone
+        self.epoch: int | None = None
+        self._fresh()
+
+    def _fresh(self) -> None:
+        """Nothing released, failed or commanded yet (a new epoch)."""
+        self.phase = P.IDLE
+        self.to: str | None = None  # the recipient of the last release
+        self.sent = 0.0  # the last release went out then
+        self.failed_at = 0.0  # the last failure
+        self.failures = 0  # in this epoch
+        self.first_distance: float | None = None  # from our centre, at the epoch's first release
+        self.rtl_done = False  # an RTL of ours, or a mode someone else chose, stands in this epoch
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def released(self) -> bool:
+        """A release of ours stands (sent, confirmed or not): we no longer command the drone."""
+        return self.phase in (P.RELEASED, P.CONFIRMED)
+
+    def released_in(self, epoch: int) -> bool:
+        return self.epoch == epoch and self.released
+
+    def retry_waits(self, now: float, retry: float) -> bool:
+        """Failed less than ``retry`` seconds ago: the next try waits."""
+        return self.phase is P.FAILED and now - self.failed_at < retry
+
+    def resend_waits(self, now: float, resend: float) -> bool:
+        """Released: wait for the drone (the release is sent again only if it never confirmed)."""
+        return self.phase is P.CONFIRMED or self.phase is P.RELEASED and now - self.sent < resend
+
+    # ------------------------------------------------------------------ engine
+    def for_epoch(self, epoch: int) -> "Handover":
+        """The machine of ``epoch``: a new epoch starts afresh (``IDLE``, nothing failed, no RTL)."""
+        if epoch != self.epoch:
+            if self.phase is not P.IDLE:
+                log.info("hand-over of %s: epoch %s -> %d, %s -> idle", self.drone, self.epoch, epoch, self.phase.value)
+            self._fresh()
+            self.epoch = epoch
+        return self
+
+    def handle(self, ev: HandoverEvent) -> bool:
+        """Apply ``ev``; False if the table has no row for it in this phase (nothing changed)."""
+        row = TABLE.get((self.phase, type(ev)))
+        if row is None:
+            return False
+        handler, next_phase = row
+        handler(self, ev)
+        self._set_phase(next_phase)
+        return True
+
+    def _set_phase(self, new: HandoverPhase) -> None:
+        if new is not self.phase:
+            log.info("hand-over of %s (epoch %s): %s -> %s", self.drone, self.epoch, self.phase.value, new.value)
+            self.phase = new
+
+    # ------------------------------------------------------------------ handlers
+    def _on_release(self, ev: Release) -> None:
+        if self.first_distance is None:  # the epoch's first release
+            self.first_distance = ev.distance
+        self.to, self.sent = ev.to, ev.now
+
+    def _on_confirmed(self, ev: Confirmed) -> None:
+        pass
+
+    def _on_failed(self, ev: Failed) -> None:
+        self.failures += 1
+        self.failed_at = ev.now
+
+
+Handler = Callable[[Handover, HandoverEvent], None]
+#: (phase, event type) -> (handler, next phase). Pairs not listed change nothing.
+TABLE: dict[tuple[HandoverPhase, type], tuple[Handler, HandoverPhase]] = {
+    (P.IDLE, Release): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
+    (P.FAILED, Release): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
+    (P.RELEASED, Release): (Handover._on_release, P.RELEASED),  # sent again, never confirmed  # type: ignore[dict-item]
+    (P.RELEASED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),  # type: ignore[dict-item]
+    (P.CONFIRMED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),  # type: ignore[dict-item]
+    (P.IDLE, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
+    (P.RELEASED, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
+    (P.CONFIRMED, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
+    (P.FAILED, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
+}
+# Not listed: a release while CONFIRMED (the core waits for the drone), a confirmation while IDLE or
+# FAILED (a release that is not ours, e.g. the operator's, or one that failed already).
