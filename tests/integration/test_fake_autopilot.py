@@ -165,8 +165,8 @@ def test_a_stored_key_and_a_fake_that_reflects_the_companions_signed_frames(tmp_
     finally:
         bench.close()
     assert store.load().confirmed
-    sims: list[Proc] = []  # the autopilot boots a second after the companion: it does not sign yet
-    boot = threading.Timer(1.0, lambda: sims.append(Proc(list(sim_args))))
+    sims: list[Proc] = []  # the autopilot boots 3 s after the companion (signing starts 1.5 s after its HEARTBEAT)
+    boot = threading.Timer(3.0, lambda: sims.append(Proc(list(sim_args))))
     with spawn(sys.executable, REFLECTOR, str(port), "15") as attacker:
         me = tuple(json.loads(attacker.wait_line('"ready"', 20))["me"])
         wait_until(lambda: False, 0.3)  # the attacker's HEARTBEATs are on their way before the companion listens
