@@ -33,10 +33,11 @@ Per drone:
 * **Hand-over**: while it holds authority and the vehicle is inside its and another authorized GS's
   coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``); if the
   drone reports the release timed out, the GS commands RTL. Where the release stands in the drone's
-  epoch (released, confirmed, failed) is the sub-machine ``gs.handover.Handover``, a table. A release toward a GS whose key the drone
-  does not hold yet waits for it: while the key is known to be coming (a restarted companion), the
-  vehicle is held where it is and its mission resumed just before the release, so that how fast the
-  vehicle flies does not decide whether the hand-over happens inside the overlap.
+  epoch (released, confirmed, failed) is the sub-machine ``gs.handover.Handover``, a table. A
+  release toward a GS whose key the drone does not hold yet waits for it: while the key is known to
+  be coming (a restarted companion), the vehicle is held where it is and its mission resumed just
+  before the release, so that how fast the vehicle flies does not decide whether the hand-over
+  happens inside the overlap.
 * **Mission stages** are a table, ``FLIGHT``: (stage, event) -> handler; pairs not in it are no-ops
   by definition.
 """
@@ -70,7 +71,7 @@ from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
 from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
-from .opcontrol import Answer, OperatorControl, Step
+from .opcontrol import Answer, OperatorControl, PendingRequest, Step
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
 log = logging.getLogger(__name__)
@@ -413,7 +414,7 @@ class DroneStatus:
     state: HaState | None  # None: no status heard yet
     holds_authority: bool  # this GS commands it now (``StationCore.holds_authority``)
     operator_owner: bool  # this GS's operator owns it (``OperatorControl.is_owner``)
-    request: Any  # another GS's request for control our operator is asked about (``PendingRequest``), or None
+    request: PendingRequest | None  # another GS's request for control our operator is asked about
     takeover: bool  # what CONTROL_STATUS says of takeover (``OperatorControl.shown_takeover``)
 
 
