@@ -390,24 +390,25 @@ def test_the_nodes_write_typed_records_only():
 
 
 def test_every_event_the_testbed_writes_has_its_record():
-    """The testbed's attacker writes its records too; its ``attack_done`` alone is untyped by design
-    (its fields are each attack's own)."""
+    """The testbed's attackers (``zdrone.sil.rogue`` and its package ``zdrone.sil.attackers``) write their
+    records too; their ``attack_done`` alone is untyped by design (its fields are each attack's own)."""
     checked, bad = 0, []
-    path, vocabulary = ROOT / "sil" / "rogue.py", trec.TESTBED_RECORDS
+    vocabulary = trec.TESTBED_RECORDS
     names = {c.__name__ for c in vocabulary}
-    for call in _calls(path):
-        f = call.func
-        if _is_event_write(call):
-            type_, (written, unnamed) = _const(call.args[0]), _written_names(call)
-            checked += 1
-            if type_ not in UNTYPED_BY_DESIGN:
-                bad.append(f"rogue.py:{call.lineno}: {type_} {sorted(written)} untyped")
-        elif isinstance(f, ast.Attribute) and f.attr == "write_record" and call.args and isinstance(call.args[0], ast.Call):
-            inner = call.args[0].func
-            cls = inner.attr if isinstance(inner, ast.Attribute) else None
-            checked += 1
-            if cls not in names:
-                bad.append(f"rogue.py:{call.lineno}: {cls}")
+    for path in [ROOT / "sil" / "rogue.py", *sorted((ROOT / "sil" / "attackers").glob("*.py"))]:
+        for call in _calls(path):
+            f = call.func
+            if _is_event_write(call):
+                type_, (written, unnamed) = _const(call.args[0]), _written_names(call)
+                checked += 1
+                if type_ not in UNTYPED_BY_DESIGN:
+                    bad.append(f"{path.name}:{call.lineno}: {type_} {sorted(written)} untyped")
+            elif isinstance(f, ast.Attribute) and f.attr == "write_record" and call.args and isinstance(call.args[0], ast.Call):
+                inner = call.args[0].func
+                cls = inner.attr if isinstance(inner, ast.Attribute) else None
+                checked += 1
+                if cls not in names:
+                    bad.append(f"{path.name}:{call.lineno}: {cls}")
     assert checked > 20 and not bad, "\n".join(bad)
 
 

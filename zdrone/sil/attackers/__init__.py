@@ -1,0 +1,42 @@
+"""TESTBED ONLY: the attackers of the demo scenarios, the tests and ``zdrone bench attack``, one module
+per class of attacker (what it holds decides what it may try):
+
+- ``outsider``: stolen router passwords, captured bytes, a certificate of its own; no key of any GS
+  (``no-key``, ``key-injection``, ``linkkey-knockout``, ``pair-replay``, ``uplink-unsealed``,
+  ``no-cert``, ``stale-pairing``);
+- ``unauthorized``: a fleet GS not authorized for the drone (``unauthorized``);
+- ``insider``: an authorized GS gone bad, with B's own key (``uplink-sealed``, ``insider-heir``,
+  ``key-escrow``);
+- ``gs_host``: a local process on GS A's host (``gateway-flood``, ``local-app``);
+- ``companion_host``: on the vehicle: a process on the companion host, a radio on the autopilot's
+  second port (``fake-autopilot``, ``fc-radio``);
+- ``flood``: floods and junk (``pair-flood``, ``big-flood``, ``junk-flood``);
+- ``common``: what they share (``Ctx``, frames, uplink lanes, a reply counter).
+
+Each runs as its own process: ``python -m zdrone.sil.rogue --mode MODE`` (``zdrone.sil.rogue``).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from .common import Ctx
+from .companion_host import fake_autopilot, fc_radio
+from .flood import big_flood, junk_flood, pair_flood
+from .gs_host import gateway_flood, local_app
+from .insider import insider_heir, key_escrow, uplink_sealed
+from .outsider import key_injection, linkkey_knockout, no_cert, no_key, pair_replay, stale_pairing, uplink_unsealed
+from .unauthorized import unauthorized
+
+MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
+         "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert", "insider-heir",
+         "key-escrow", "stale-pairing", "fc-radio", "fake-autopilot", "local-app")
+ATTACKS: dict[str, Callable[[Ctx], None]] = {
+    "no-key": no_key, "unauthorized": unauthorized, "key-injection": key_injection,
+    "linkkey-knockout": linkkey_knockout, "pair-replay": pair_replay, "pair-flood": pair_flood,
+    "uplink-sealed": uplink_sealed, "uplink-unsealed": uplink_unsealed, "gateway-flood": gateway_flood,
+    "big-flood": big_flood, "junk-flood": junk_flood, "no-cert": no_cert, "insider-heir": insider_heir,
+    "key-escrow": key_escrow, "stale-pairing": stale_pairing, "fc-radio": fc_radio, "fake-autopilot": fake_autopilot,
+    "local-app": local_app,
+}
+assert set(ATTACKS) == set(MODES)
