@@ -94,3 +94,22 @@ def test_no_package_cycles():
                     seen.add(x)
                     stack += edges.get(x, ())
     assert not cycles, "package cycles:\n" + "\n".join(sorted(cycles))
+
+
+def test_every_import_of_the_project_names_one_of_its_modules():
+    """A relative import, or one of ``zdrone`` or ``gs``, names a module that exists: lazy imports (inside
+    a function) too, which nothing runs before that function does (a module moved into a package must
+    take them along)."""
+    mods, missing = _modules(), []
+    for module, path in mods.items():
+        base = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                target = ".".join(base[: len(base) - node.level + 1] + ([node.module] if node.module else []))
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in ("zdrone", "gs"):
+                target = node.module or ""
+            else:
+                continue
+            if target not in mods:
+                missing.append(f"{path.relative_to(ROOT)}:{node.lineno}: {target}")
+    assert not missing, "imports of modules that do not exist:\n" + "\n".join(missing)
