@@ -69,7 +69,7 @@ def test_flood_of_applications_and_garbage_leaves_the_gateway_serving():
             for i in range(50):
                 s = _udp(port)
                 socks.append(s)
-                s.send(heartbeat(1 + (batch * 50 + i) % 249, 190))
+                s.send(heartbeat(2 + (batch * 50 + i) % 248, 190))  # never sysid 1, the vehicle's
             _pump(gw)
         assert gw.counters["app_table_full"] == 300 - (MAX_APPS - 1)
         assert len(gw.apps) == MAX_APPS
@@ -84,7 +84,7 @@ def test_flood_of_applications_and_garbage_leaves_the_gateway_serving():
         junk.send(rng.randbytes(MAX_UDP))
         _pump(gw)
         hb = heartbeat(9)
-        packed = b"".join(FrameCodec(1 + i % 249, 1 + i // 249).encode(
+        packed = b"".join(FrameCodec(2 + i % 248, 1 + i // 248).encode(
             mav.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)) for i in range(MAX_UDP // len(hb)))
         junk.send(packed)
         _pump(gw)
