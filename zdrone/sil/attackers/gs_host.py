@@ -97,7 +97,18 @@ class _GcsApp:
         self.bad = 0  # frames our own signature check refused
         self._hb = 0.0
 
+    def _wall_clock(self) -> None:
+        """Signing timestamps follow the wall clock, as QGroundControl's and MAVProxy's do: pymavlink only
+        counts up from its start, and a stream first heard a minute after that start is stale (refused)."""
+        from ...core import fcsign as _fcsign
+
+        if self.enc.signing.secret_key is not None:
+            now = _fcsign.units(time.time())
+            for m in (self.enc, self.dec):
+                m.signing.timestamp = max(m.signing.timestamp, now)
+
     def send(self, msg: Any) -> None:
+        self._wall_clock()
         try:
             self.sock.send(bytes(msg.pack(self.enc)))
         except OSError:
@@ -124,6 +135,7 @@ class _GcsApp:
             if st is not None:
                 self.gcs_main.append(st.gcs_main)
                 continue
+            self._wall_clock()
             try:
                 msg = self.dec.parse_char(data)
             except mav.MAVError:
