@@ -10,48 +10,69 @@ import sys
 from pymavlink.dialects.v20 import common as mav
 
 from gs.planner import reference_mission
-from zdrone.core.records import (AuthorityChange, AutopilotFound, DroneStop, Failsafe, HandoverComplete,
-                                 MissionProgress, Start)
+from zdrone.core.records import (AuthorityChange, AutopilotFound, DroneStatus, DroneStop, Failsafe, HandoverComplete,
+                                 HandoverStart, MissionProgress, RegionEntered, Start)
 from zdrone.core.reference import DELIVERY, HOME
 from zdrone.core.wire import AuthorityState
+from zdrone.sil.moments import AIRBORNE, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
 from zdrone.sil.scenarios import SCENARIO_BY_NAME
-from zdrone.sil.summary import RunFacts, RunLogs, picked, summarize, watch_state
+from zdrone.sil.summary import RunFacts, RunLogs, follow, summarize, watch, watch_state
 from zdrone.sil.verdicts import Outcome, flight_unaffected, safety_invariants
 
 T0 = 1795338600.0
+ON_GROUND, IN_AIR = mav.MAV_LANDED_STATE_ON_GROUND, mav.MAV_LANDED_STATE_IN_AIR
 
 
 def _at(p, alt: float = 0.0) -> tuple[float, float, float]:
     return (p.lat, p.lon, alt)
 
 
-def _final(forwarded_epochs: dict[str, int]) -> DroneStop:
-    """The drone's last word: back home on the ground, A holding authority (epoch 3)."""
-    return DroneStop(t=T0 + 200, node="d1", owner="A", epoch=3, state=AuthorityState.LINKED, pending_to=None,
-                     position=_at(HOME), armed=False, mode="LAND", landed_state=mav.MAV_LANDED_STATE_ON_GROUND,
-                     in_region=False, subscribed=("A",), links={}, keys={}, ha_drops={}, rejects={},
-                     counters={"pair_answered": 1}, forwarded_commands={"A": 60, "B": 40},
-                     forwarded_epochs=forwarded_epochs, out_of_coverage={})
+def _state(cls, t: float, position, armed: bool, landed_state: int, owner: str = "A", epoch: int = 1,
+           forwarded_epochs: dict[str, int] | None = None):
+    """A status of the drone (``DroneStatus``, or its last word ``DroneStop``)."""
+    return cls(t=t, node="d1", owner=owner, epoch=epoch, state=AuthorityState.LINKED, pending_to=None, position=position,
+               armed=armed, mode="MISSION", landed_state=landed_state, in_region=False, subscribed=(owner,), links={},
+               keys={}, ha_drops={}, rejects={}, counters={"pair_answered": 1}, forwarded_commands={"A": 60, "B": 40},
+               forwarded_epochs=forwarded_epochs or {}, out_of_coverage={})
 
 
-def _flight(forwarded_epochs: dict[str, int] | None = None) -> tuple[RunLogs, dict]:
-    """The reference flight's records: A pairs, A->B, B->A, the delivery at B heard by B, home; and
-    the watch loop's state as it would have gathered it from the drone's log."""
+def _flight(forwarded_epochs: dict[str, int] | None = None) -> RunLogs:
+    """The reference flight's records: A pairs, takes off, A->B in the overlap, the delivery at B (on the
+    ground, still armed, heard by B), back in the overlap B->A, landed and disarmed at home."""
     gripper = next(i for i, it in enumerate(reference_mission(autopilot="px4")) if it.command == mav.MAV_CMD_DO_GRIPPER)
-    moves = [AuthorityChange(t=T0 + 1, node="d1", from_=None, to="A", epoch=1, kind="paired", time=T0 + 1, position=None),
+    drone = [Start(t=T0, node="d1", vehicle="udpout:127.0.0.1:14540"),
+             AuthorityChange(t=T0 + 1, node="d1", from_=None, to="A", epoch=1, kind="paired", time=T0 + 1, position=None),
+             _state(DroneStatus, T0 + 10, _at(HOME, 30.0), True, IN_AIR),
+             RegionEntered(t=T0 + 50, node="d1", detail="A, B", position=None),
+             HandoverStart(t=T0 + 59, node="d1", detail="A -> B", position=None),
              HandoverComplete(t=T0 + 60, node="d1", from_="A", to="B", epoch=2, kind="handover", time=T0 + 60,
                               position=_at(DELIVERY, 30.0)),
+             _state(DroneStatus, T0 + 100, _at(DELIVERY), True, ON_GROUND, owner="B", epoch=2),
+             RegionEntered(t=T0 + 130, node="d1", detail="A, B", position=None),
              HandoverComplete(t=T0 + 140, node="d1", from_="B", to="A", epoch=3, kind="handover", time=T0 + 140,
-                              position=_at(HOME, 30.0))]
-    drone = [Start(t=T0, node="d1", vehicle="udpout:127.0.0.1:14540"), *moves,
-             _final(forwarded_epochs or {"1:A": 40, "2:B": 40, "3:A": 20})]
+                              position=_at(HOME, 30.0)),
+             _state(DroneStatus, T0 + 199, _at(HOME), False, ON_GROUND, epoch=3),
+             _state(DroneStop, T0 + 200, _at(HOME), False, ON_GROUND, epoch=3,
+                    forwarded_epochs=forwarded_epochs or {"1:A": 40, "2:B": 40, "3:A": 20})]
     gs_a = [AutopilotFound(t=T0 + 0.5, node="A", drone="d1", autopilot="px4", mav_type=2)]
-    gs_b = [MissionProgress(t=T0 + 100, node="B", drone="d1", seq=gripper + 1, reached=False,
-                            landed_state=mav.MAV_LANDED_STATE_ON_GROUND, position=_at(DELIVERY))]
-    state = watch_state()
-    state["handovers"] = [picked(e, ("from", "to", "epoch", "time", "kind", "position")) for e in moves[1:]]
-    state["final_position"] = list(_at(HOME))
-    return RunLogs(drone=drone, gs={"A": gs_a, "B": gs_b, "X": []}), state
+    gs_b = [MissionProgress(t=T0 + 100, node="B", drone="d1", seq=gripper + 1, reached=False, landed_state=ON_GROUND,
+                            position=_at(DELIVERY))]
+    return RunLogs(drone=drone, gs={"A": gs_a, "B": gs_b, "X": []})
+
+
+def test_the_watch_state_and_the_moments_from_the_drones_records():
+    """What the watch loop gathers, record by record, and the moments each record reaches (the
+    launcher fires each the first time only)."""
+    logs, state = _flight(), watch_state()
+    moments = [m for ev in logs.drone for m in follow(state, ev, ev.t)]
+    assert moments == [AIRBORNE, REGION_ENTERED, HANDOVER_STARTED, REGION_ENTERED, RETURNING, HANDOVERS_DONE]
+    assert state["done"] and state["delivered"] and state["final_position"] == list(_at(HOME))
+    assert [(h["from"], h["to"]) for h in state["handovers"]] == [("A", "B"), ("B", "A")]
+    fs = Failsafe(t=T0 + 201, node="d1", action="LAND", reason="authority link to A lost", detect_to_command_ms=1.5,
+                  position=None)
+    assert follow(state, fs, fs.t) == [FAILSAFE_FIRED] and state["failsafe"] is fs
+    lingering = watch(logs.drone, linger=3.0)  # the end comes ``linger`` seconds after the landing
+    assert lingering["landed_at"] == T0 + 199 and not lingering["done"]
 
 
 def _facts(**kw) -> RunFacts:
@@ -60,8 +81,8 @@ def _facts(**kw) -> RunFacts:
 
 
 def test_a_summary_and_its_verdict_from_records_without_a_demo():
-    logs, state = _flight()
-    summary = summarize(SCENARIO_BY_NAME["nominal"], logs, state, _facts())
+    logs = _flight()
+    summary = summarize(SCENARIO_BY_NAME["nominal"], logs, watch(logs.drone), _facts())
     assert summary["ok"] is True and summary["why_not_ok"] == [] and summary["flight_problems"] == []
     assert [(h["from"], h["to"], h["kind"]) for h in summary["handovers"]] == [("A", "B", "handover"),
                                                                               ("B", "A", "handover")]
@@ -73,12 +94,10 @@ def test_a_summary_and_its_verdict_from_records_without_a_demo():
 
 def test_the_verdict_names_what_failed():
     """A failsafe, an exit code that is not a fault's, and a command of B in A's epoch: each named."""
-    logs, state = _flight(forwarded_epochs={"1:A": 40, "2:B": 40, "3:A": 20, "3:B": 2})
-    fs = Failsafe(t=T0 + 150, node="d1", action="LAND", reason="authority link to A lost", detect_to_command_ms=1.5,
-                  position=_at(HOME, 30.0))
-    logs.drone.insert(-1, fs)
-    state["failsafe"] = fs
-    summary = summarize(SCENARIO_BY_NAME["nominal"], logs, state,
+    logs = _flight(forwarded_epochs={"1:A": 40, "2:B": 40, "3:A": 20, "3:B": 2})
+    logs.drone.insert(-2, Failsafe(t=T0 + 150, node="d1", action="LAND", reason="authority link to A lost",
+                                   detect_to_command_ms=1.5, position=_at(HOME, 30.0)))
+    summary = summarize(SCENARIO_BY_NAME["nominal"], logs, watch(logs.drone),
                         _facts(exit_codes={"drone": 0, "gsA": -9, "gsB": 1}, stopped=frozenset({"gsA"})))
     assert summary["ok"] is False
     assert summary["why_not_ok"] == ["non-zero exit codes {'gsB': '1'}", "failsafe triggered"]

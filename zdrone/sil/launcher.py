@@ -28,12 +28,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..core.geometry import GeoPoint, distance_m
-from ..core.records import (AnyRecord, AuthorityChange, Drop, DroneStatus, Failsafe, HandoverComplete, HandoverStart,
-                            LinkStateChanged, MissionFailed, MissionStarted, RegionEntered, Subscribe, Unsubscribe,
-                            fields_of)
+from ..core.records import (AnyRecord, Drop, DroneStatus, LinkStateChanged, MissionFailed, MissionStarted, Subscribe,
+                            Unsubscribe, fields_of)
 from .records import LinkFault, RadioLinkChanged
-from ..core.reference import DEFAULT_NODES, DELIVERY
+from ..core.reference import DEFAULT_NODES
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, LogTail
 from . import procs
@@ -45,7 +43,8 @@ from .ports import free_port
 from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
 from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
                         SCENARIO_TLS, SCENARIOS, Fault, RogueSpec, Scenario, scenario_help)
-from .summary import RunFacts, RunLogs, authority_link, picked, repair_after_restart, summarize, watch_state
+from .summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart, summarize, watch,
+                      watch_state)
 from .verdicts import (DELIVERY_RADIUS_M, FAILSAFE_LATE_MS, SILENT_AUTHORITY_S, Outcome, active_faults, delivered,
                        delivered_at, escrow_left_standing, fault_over_check, flight_completes, flight_unaffected,
                        insider_takeovers, return_time, safety_invariants)
@@ -59,7 +58,7 @@ __all__ = [  # the orchestration, and the testbed's public names as they were be
     "DELIVERY_RADIUS_M", "FAILSAFE_LATE_MS", "SILENT_AUTHORITY_S", "Outcome", "active_faults", "delivered",
     "delivered_at", "escrow_left_standing", "fault_over_check", "flight_completes", "flight_unaffected",
     "insider_takeovers", "return_time", "safety_invariants",
-    "RunFacts", "RunLogs", "authority_link", "repair_after_restart", "summarize", "watch_state",
+    "RunFacts", "RunLogs", "authority_link", "follow", "repair_after_restart", "summarize", "watch", "watch_state",
     "LiveView", "free_port",
 ]
 
@@ -67,8 +66,6 @@ PY = sys.executable
 
 #: GS A's GCS application key file in the run folder (``Scenario.app_signing``), mode 0600.
 GCS_KEYS = "gcs-keys"
-#: Within this distance of the delivery point the vehicle has reached it (``RETURNING`` can come next).
-NEAR_DELIVERY_M = 60.0
 
 #: The deadline of a flight with an autopilot already running (``--vehicle``) allows for its start-up.
 EXTERNAL_BOOT_S = 60.0
@@ -649,42 +646,11 @@ class Demo:
     def _on_event(self, ev: AnyRecord, state: dict[str, Any], live: "LiveView") -> None:
         """Follow one drone event: the flight's progress in ``state``, the scenario's moments, the live view."""
         if isinstance(ev, DroneStatus):
-            state["status"] = ev
             self.progress["status"] = fields_of(ev)  # the benches' displays read the status as logged
-            pos = ev.position
-            if ev.armed:
-                state["armed_seen"] = True
-                if pos and pos[2] > 5.0:
-                    state["flown"] = True  # an arm refused or undone on the ground is not the end
-                if pos and pos[2] > 15.0:
-                    self._fire(AIRBORNE, live, ev.t)
-            if pos and distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) < NEAR_DELIVERY_M:
-                state["near_delivery"] = True
-                if ev.landed_state == 1 and pos[2] < 1.0 and \
-                        distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) <= DELIVERY_RADIUS_M:
-                    state["delivered"] = True  # on the ground at the delivery point (the drone's own status)
-            landed = ev.landed_state == 1 and not ev.armed
-            if state.get("flown") and landed:  # the end (or, with ``linger``, that much later)
-                state.setdefault("final_position", list(pos) if pos else pos)
-                landed_at = state.setdefault("landed_at", time.monotonic())
-                state["done"] = time.monotonic() >= landed_at + self.spec.linger
+        for trigger in follow(state, ev, time.monotonic(), self.spec.linger):
+            self._fire(trigger, live, ev.t)
+        if isinstance(ev, DroneStatus):
             return
-        if isinstance(ev, RegionEntered):
-            state["region_entered"] += 1
-            self._fire(REGION_ENTERED, live, ev.t)
-            if state.get("near_delivery"):
-                self._fire(RETURNING, live, ev.t)
-        if isinstance(ev, HandoverStart):
-            self._fire(HANDOVER_STARTED, live, ev.t)
-        if isinstance(ev, HandoverComplete):
-            state["handovers"].append(picked(ev, ("from", "to", "epoch", "time", "kind", "position")))
-            if len(state["handovers"]) == 2:
-                self._fire(HANDOVERS_DONE, live, ev.t)
-        if isinstance(ev, Failsafe):
-            state["failsafe"] = ev
-            self._fire(FAILSAFE_FIRED, live, ev.t)
-        if isinstance(ev, AuthorityChange) and ev.kind == "regained":
-            state.setdefault("regained", []).append(picked(ev, ("from", "to", "epoch", "time", "position")))
         quiet = isinstance(ev, (Subscribe, Unsubscribe, LinkStateChanged, Drop))
         if not quiet or (isinstance(ev, Drop) and len(live.lines) < 200):
             live.event(ev.t, describe(ev))

@@ -14,15 +14,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..core.geometry import GeoPoint, distance_m
-from ..core.records import (AnyRecord, AuthorityMoved, AutopilotFound, DroneState, DroneStatus, DroneStop, GsState,
-                            LinkStateChanged, Paired, PathState, Restarted, Start, fields_of, logged, only,
-                            record_type)
-from ..core.reference import HOME
+from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AutopilotFound, DroneState, DroneStatus, DroneStop,
+                            Failsafe, GsState, HandoverComplete, HandoverStart, LinkStateChanged, Paired, PathState,
+                            RegionEntered, Restarted, Start, fields_of, logged, only, record_type)
+from ..core.reference import DELIVERY, HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..crashes import exit_text
 from ..net.eventlog import read_records
+from .moments import AIRBORNE, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
 from .records import LinkFault, RadioLinkChanged
-from .verdicts import Outcome, delivered_at, flight_unaffected
+from .verdicts import DELIVERY_RADIUS_M, Outcome, delivered_at, flight_unaffected
 
 if TYPE_CHECKING:
     from .scenarios import Scenario
@@ -77,6 +78,10 @@ class RunFacts:
     exit_codes: dict[str, int | None] = field(default_factory=dict)
     stopped: frozenset[str] = frozenset()  # children stopped by a fault: their exit codes are no failure
     site_of_endpoint: dict[str, str] = field(default_factory=dict)  # with sites: the drone's path endpoint -> site
+
+
+#: Within this distance of the delivery point the vehicle has reached it (``RETURNING`` can come next).
+NEAR_DELIVERY_M = 60.0
 
 
 def _forwarded_over_restarts(drone_events: list[AnyRecord]) -> dict[str, int]:
@@ -147,6 +152,60 @@ def watch_state() -> dict[str, Any]:
     the hand-overs and regained controls (their fields as logged), the failsafe and the last status
     (records), the moments seen."""
     return {"handovers": [], "failsafe": None, "armed_seen": False, "status": None, "region_entered": 0, "done": False}
+
+
+def follow(state: dict[str, Any], ev: AnyRecord, now: float, linger: float = 0.0) -> list[str]:
+    """Fold one drone record into the watch state (``watch_state``): the flight's progress, its end
+    (landed and disarmed after having flown; with ``linger``, that many seconds of ``now``'s clock
+    later). Returns the moments of the flight the record reached, in order (the launcher fires each
+    the first time only)."""
+    reached: list[str] = []
+    if isinstance(ev, DroneStatus):
+        state["status"] = ev
+        pos = ev.position
+        if ev.armed:
+            state["armed_seen"] = True
+            if pos and pos[2] > 5.0:
+                state["flown"] = True  # an arm refused or undone on the ground is not the end
+            if pos and pos[2] > 15.0:
+                reached.append(AIRBORNE)
+        if pos and distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) < NEAR_DELIVERY_M:
+            state["near_delivery"] = True
+            if ev.landed_state == 1 and pos[2] < 1.0 and \
+                    distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) <= DELIVERY_RADIUS_M:
+                state["delivered"] = True  # on the ground at the delivery point (the drone's own status)
+        landed = ev.landed_state == 1 and not ev.armed
+        if state.get("flown") and landed:  # the end (or, with ``linger``, that much later)
+            state.setdefault("final_position", list(pos) if pos else pos)
+            landed_at = state.setdefault("landed_at", now)
+            state["done"] = now >= landed_at + linger
+        return reached
+    if isinstance(ev, RegionEntered):
+        state["region_entered"] += 1
+        reached.append(REGION_ENTERED)
+        if state.get("near_delivery"):
+            reached.append(RETURNING)
+    if isinstance(ev, HandoverStart):
+        reached.append(HANDOVER_STARTED)
+    if isinstance(ev, HandoverComplete):
+        state["handovers"].append(picked(ev, ("from", "to", "epoch", "time", "kind", "position")))
+        if len(state["handovers"]) == 2:
+            reached.append(HANDOVERS_DONE)
+    if isinstance(ev, Failsafe):
+        state["failsafe"] = ev
+        reached.append(FAILSAFE_FIRED)
+    if isinstance(ev, AuthorityChange) and ev.kind == "regained":
+        state.setdefault("regained", []).append(picked(ev, ("from", "to", "epoch", "time", "position")))
+    return reached
+
+
+def watch(drone: list[AnyRecord], linger: float = 0.0) -> dict[str, Any]:
+    """The watch state of a whole drone log, as the watch loop would have gathered it (the records'
+    own times as the clock)."""
+    state = watch_state()
+    for ev in drone:
+        follow(state, ev, ev.t, linger)
+    return state
 
 
 def picked(rec: AnyRecord, names: tuple[str, ...]) -> dict[str, Any]:
