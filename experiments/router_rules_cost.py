@@ -1,6 +1,5 @@
 """What the router's uplink limits cost it: memory and session set-up with one downsampling rule per
-(GS, lane) on egress (as generated since issue 30: GSs x UP_LANES), one per uplink lane on ingress
-(drones x GSs x UP_LANES, before), one per uplink (drones x GSs, before lanes), or none.
+uplink lane (as generated: drones x GSs x UP_LANES), one per uplink (drones x GSs, before lanes), or none.
 
 A real router (``zdrone router -c``) with the project's config for a fleet of ``--drones`` drones and
 ``--stations`` GSs (each authorized for every drone), then one client session per node, opened one
@@ -25,7 +24,7 @@ from pathlib import Path
 from zdrone.core.geometry import GeoPoint
 from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
-from zdrone.fleet.routerconfig import UPLINK_MAX_HZ, router_config, uplink_downsampling_per_uplink
+from zdrone.fleet.routerconfig import UPLINK_MAX_HZ, router_config
 from zdrone.net.session import open_client
 
 
@@ -37,10 +36,8 @@ def rss_kb(pid: int) -> int:
 
 
 def variant_rules(fleet, variant: str) -> list[dict]:
-    if variant == "gs-lanes":
-        return router_config(fleet, "credentials.txt")["downsampling"]
     if variant == "lanes":
-        return uplink_downsampling_per_uplink(fleet)
+        return router_config(fleet, "credentials.txt")["downsampling"]
     if variant == "key":
         rules = [{"key_expr": kx.up(d, g), "freq": UPLINK_MAX_HZ} for d in fleet.drones() for g in fleet.ground_stations()]
         return [{"id": "uplink-rate", "flows": ["ingress"], "messages": ["put"], "rules": rules}]
@@ -90,12 +87,12 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--drones", type=int, default=150)
     ap.add_argument("--stations", type=int, default=3)
-    ap.add_argument("--variants", default="none,key,lanes,gs-lanes")
+    ap.add_argument("--variants", default="none,key,lanes")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="router-rules-"))
     gss = [chr(ord("A") + i) for i in range(args.stations)]
-    spec = [(f"d{i + 1}", "drone", 1 + i, None, gss) for i in range(args.drones)]
-    spec += [(g, "gs", 255 - i, GeoPoint(47.3977, 8.5456 + 0.01 * i), []) for i, g in enumerate(gss)]
+    spec = [(f"d{i + 1}", "drone", 100 + i, None, gss) for i in range(args.drones)]
+    spec += [(g, "gs", 10 + i, GeoPoint(47.3977, 8.5456 + 0.01 * i), []) for i, g in enumerate(gss)]
     init_fleet(tmp / "fleet", nodes_spec=spec)
     for v in args.variants.split(","):
         print(json.dumps(measure(tmp / "fleet", v)), flush=True)

@@ -1,9 +1,9 @@
 """Does the router's per-key downsampling drop a paced publisher's frames when the router stalls?
 
 A real router (``zdrone router -c``) with the config the project generates for the default fleet
-(auth, ACL, the downsampling of the uplink lanes on egress to the drone, one rule per (GS, lane); ``--freq`` changes the uplink's rate,
+(auth, ACL, the downsampling of every uplink lane on ingress; ``--freq`` changes the uplink's rate,
 spread over its lanes, 0 removes it), one client publishing a sequence number every 10 ms on the
-uplink's first ``--lanes`` lanes in turn (1: a single key, as before uplinks had lanes) as GS B (INTERACTIVE_HIGH, DROP, ``LINK_EXPRESS``: as ``Runtime.put(link=True)``), the drone d1
+uplink's first ``--lanes`` lanes in turn (1: a single key, as before uplinks had lanes) as GS B (express, INTERACTIVE_HIGH, DROP: as ``Runtime.put(link=True)``), the drone d1
 subscribed, counting what never arrives. Meanwhile the router is stalled: SIGSTOP/SIGCONT of its
 PID (``--stall sigstop``), or starved on one core beside a busy loop (``--stall starve``).
 
@@ -35,7 +35,6 @@ from zdrone.core.fleet import Coverage, Fleet, Node
 from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES
 from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.routerconfig import router_config
-from zdrone.net.runtime import LINK_EXPRESS
 from zdrone.sil.ports import free_port
 
 
@@ -126,7 +125,7 @@ def main() -> int:
                 min_gap[0] = min(min_gap[0], now - last)
                 last = now
                 pub_s.put(lanes[sent[0] % len(lanes)], struct.pack("!Q", sent[0]) + pad, congestion_control=zenoh.CongestionControl.DROP,
-                          priority=zenoh.Priority.INTERACTIVE_HIGH, express=LINK_EXPRESS)
+                          priority=zenoh.Priority.INTERACTIVE_HIGH, express=True)
                 sent[0] += 1
 
         t = threading.Thread(target=publish, daemon=True)
