@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mav
 from gs.gateway import FIRST_APP_COMPID, MAX_APPS, GcsGateway
 from tests.procs import free_port
 from tests.unit.test_gateway_apps import GS_SYSID, VEHICLE_SYSID, StubStation, command_long, heartbeat
+from tests.waiting import readable
 from zdrone.core.mavlink import FrameCodec, read_header
 
 MAX_UDP = 65507  # the largest IPv4 UDP payload: a "64 KiB" datagram
@@ -30,10 +31,11 @@ def _udp(port: int) -> socket.socket:
 
 
 def _pump(gw: GcsGateway, rounds: int = 5) -> None:
-    """The station's loop: a few passes of the gateway's hook."""
+    """The station's loop: a few passes of the gateway's hook, each once its socket has input (or 2 ms on)."""
+    socks = [t.sock for t in gw.transports if t.sock is not None]
     for _ in range(rounds):
+        readable(socks, 0.002)
         gw.poll(time.monotonic())
-        time.sleep(0.002)
 
 
 def _recv_msgid(s: socket.socket, msgid: int, gw: GcsGateway) -> bytes | None:

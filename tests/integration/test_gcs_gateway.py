@@ -19,7 +19,9 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from gs.planner import reference_mission
+from tests.mavproxy import MavProxy
 from tests.procs import ZDRONE, free_port, spawn
+from tests.waiting import wait_until
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.mavcontrol import MAV_RESULT_NOT_IN_CONTROL, ControlStatus, decode_control_status
 from zdrone.core.reference import DELIVERY, HOME
@@ -58,48 +60,6 @@ def stack(tmp: Path, speedup: str, with_b: bool, autopilot: str = "px4"):
                                    "--gcs", f"tcpin:127.0.0.1:{ta}", "--events", str(tmp / "A.jsonl")))
         a.wait_line("paired", 30)
         yield {"a": pa, "b": pb, "a_tcp": ta}
-
-
-class MavProxy:
-    """MAVProxy as an operator runs it, on a GS's gateway: its output read without blocking."""
-
-    def __init__(self, port: int, cwd: Path, modules: str) -> None:
-        self.p = subprocess.Popen([str(Path(sys.executable).parent / "mavproxy.py"), f"--master=udpout:127.0.0.1:{port}",
-                                   "--source-system=250", f"--default-modules={modules}"],
-                                  cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, start_new_session=True)
-        assert self.p.stdout is not None
-        os.set_blocking(self.p.stdout.fileno(), False)
-        self.out: list[str] = []
-
-    def wait_for(self, needle: str, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            line = self.p.stdout.readline()  # type: ignore[union-attr]
-            if line:
-                self.out.append(line)
-                if needle in line:
-                    return True
-            else:
-                time.sleep(0.05)
-        return False
-
-    def type(self, cmd: str) -> None:
-        """The operator types at MAVProxy's prompt."""
-        assert self.p.stdin is not None
-        self.p.stdin.write(cmd + "\n")
-        self.p.stdin.flush()
-
-    def text(self) -> str:
-        return "".join(self.out)
-
-    def stop(self) -> None:
-        os.killpg(self.p.pid, signal.SIGTERM)
-        try:
-            self.p.wait(5)
-        except subprocess.TimeoutExpired:  # MAVProxy's own threads may ignore SIGTERM
-            os.killpg(self.p.pid, signal.SIGKILL)
-            self.p.wait(5)
 
 
 class RawApp:
@@ -234,9 +194,10 @@ def test_mavsdk_flies_through_a_while_b_is_refused_until_it_holds_authority(tmp_
             mission = FlightMode.MISSION.value
             refused = accepted = resumed = False
             closest_delivery = math.inf
-            finished = False
-            deadline = time.monotonic() + 150
-            while time.monotonic() < deadline:
+
+            def flown() -> bool:
+                """One look at both applications; True once the flight ended at home after the delivery."""
+                nonlocal closest_delivery, refused, accepted, resumed
                 # the delivery point is beyond A's coverage: B's application sees it through B's gateway
                 while (gp := b.recv_match(type="GLOBAL_POSITION_INT", blocking=False)) is not None:
                     if gp.relative_alt < 1000:
@@ -249,17 +210,17 @@ def test_mavsdk_flies_through_a_while_b_is_refused_until_it_holds_authority(tmp_
                     if ack is not None and ack.result == MAV_RESULT_NOT_IN_CONTROL:
                         refused = True  # B's application while B is not in control
                     elif ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED:
-                        accepted = True  # after the hand-over to B
-                        time.sleep(1.0)
+                        accepted = True  # after the hand-over to B: it holds until the vehicle's next heartbeat
+                        b.recv_match(type="HEARTBEAT", blocking=True, timeout=3.0)
                         b.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                                                 mission[0], mission[1], 0, 0, 0, 0)
                         resumed = (_ack(b, mav.MAV_CMD_DO_SET_MODE, 3.0) or ack).result == mav.MAV_RESULT_ACCEPTED
                 if accepted and not tel.armed() and closest_delivery < 5:
                     p = tel.position()
-                    if math.isfinite(p.latitude_deg) and distance_m(HOME, GeoPoint(p.latitude_deg, p.longitude_deg)) < 3:
-                        finished = True
-                        break
-                time.sleep(0.2)
+                    return math.isfinite(p.latitude_deg) and distance_m(HOME, GeoPoint(p.latitude_deg, p.longitude_deg)) < 3
+                return False
+
+            finished = wait_until(flown, 150, step=0.2)
             events = read_events(tmp_path / "drone.jsonl")
             hv = [(e["from"], e["to"]) for e in events if e["type"] == "handover_complete"]
             assert refused, "B's application was never refused while A held authority"
@@ -307,18 +268,14 @@ def test_mavsdk_sees_and_arms_the_ardupilot_personality_through_the_gateway(tmp_
         system = m.first_autopilot(20.0)
         assert system is not None, "MAVSDK did not find the vehicle behind GS A's gateway"
         tel, act = Telemetry(system), Action(system)
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline and not math.isfinite(tel.position().latitude_deg):
-            time.sleep(0.2)
+        wait_until(lambda: math.isfinite(tel.position().latitude_deg), 20, step=0.2)
         p = tel.position()
         assert math.isfinite(p.latitude_deg) and distance_m(HOME, GeoPoint(p.latitude_deg, p.longitude_deg)) < 5
-        armed = False
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and not armed:
+        def arms() -> bool:
             try:
                 act.arm()
-                armed = True
+                return True
             except ActionError:  # "Arm: Accels inconsistent" and friends until the vehicle is ready
-                time.sleep(1.0)
-        assert armed
+                return False
+        assert wait_until(arms, 30, step=1.0)
         act.disarm()

@@ -23,6 +23,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mav
 
 from gs.appkeys import passphrase_key
+from tests.mavproxy import MavProxy
 from tests.procs import ZDRONE, free_port, spawn
 from zdrone.core import fcsign
 from zdrone.core.geometry import offset
@@ -146,48 +147,6 @@ class App:
         self.sock.close()
 
 
-class MavProxy:
-    """MAVProxy as an operator runs it, with its signing module given the key on its command line."""
-
-    def __init__(self, port: int, cwd: Path, passphrase: str) -> None:
-        self.p = subprocess.Popen([str(Path(sys.executable).parent / "mavproxy.py"), f"--master=udpout:127.0.0.1:{port}",
-                                   "--source-system=251", "--default-modules=signing,cmdlong",
-                                   f"--cmd=signing key {passphrase}"],
-                                  cwd=cwd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, start_new_session=True, env={**os.environ, "HOME": str(cwd)})
-        assert self.p.stdout is not None
-        os.set_blocking(self.p.stdout.fileno(), False)
-        self.out: list[str] = []
-
-    def wait_for(self, needle: str, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            line = self.p.stdout.readline()  # type: ignore[union-attr]
-            if line:
-                self.out.append(line)
-                if needle in line:
-                    return True
-            else:
-                time.sleep(0.05)
-        return False
-
-    def type(self, cmd: str) -> None:
-        assert self.p.stdin is not None
-        self.p.stdin.write(cmd + "\n")
-        self.p.stdin.flush()
-
-    def text(self) -> str:
-        return "".join(self.out)
-
-    def stop(self) -> None:
-        os.killpg(self.p.pid, signal.SIGTERM)
-        try:
-            self.p.wait(5)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.p.pid, signal.SIGKILL)
-            self.p.wait(5)
-
-
 def _gateway_status(events: list[dict[str, Any]]) -> dict[str, Any]:
     st = [e for e in events if e["type"] in ("status", "stop") and isinstance(e.get("gateway"), dict)]
     return st[-1]["gateway"] if st else {}
@@ -256,7 +215,7 @@ def test_only_signed_applications_consent_mavproxy_with_a_key_does_an_unsigned_l
             assert len(attacker.acks(MAV_CMD_REQUEST_OPERATOR_CONTROL, tried)) == 2  # the forged one got no answer
 
             # MAVProxy with its key (the signing module, 'signing key <passphrase>') consents: B takes control
-            mp = MavProxy(ports["a"], cwd, MAVPROXY_PASSPHRASE)
+            mp = MavProxy(ports["a"], cwd, "signing,cmdlong", sysid=251, cmd=f"signing key {MAVPROXY_PASSPHRASE}")
             assert mp.wait_for("Setup signing key", 20), mp.text()
             assert mp.wait_for("Detected vehicle 1:1", 30), mp.text()
             mp.type(f"long 32100 0 0 0 {B_SYSID}")

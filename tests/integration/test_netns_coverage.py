@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from tests.procs import ZDRONE, free_port, spawn
+from tests.waiting import wait_until
 from zdrone.fleet.files import init_fleet
 from zdrone.net.eventlog import read_events
 
@@ -53,12 +54,8 @@ def netns():
 
 
 def _wait(pred, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
+    if not wait_until(pred, timeout, step=0.1):
+        raise AssertionError(f"timed out waiting for {what}")
 
 
 def _events(path: Path, type_: str) -> list[dict]:

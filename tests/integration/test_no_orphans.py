@@ -173,11 +173,11 @@ def test_a_child_dies_with_its_launcher_killed_outright(tmp_path):
     through ``procs.spawn`` dies with it (Linux: the parent-death signal)."""
     if not sys.platform.startswith("linux"):
         pytest.skip("the parent-death signal is Linux only")
-    script = ("import subprocess, sys, time\n"
+    script = ("import signal, subprocess, sys\n"
               "from zdrone.sil import procs\n"
-              "p = procs.spawn([sys.executable, '-c', 'import time; time.sleep(60)'], cwd=sys.argv[1])\n"
+              "p = procs.spawn([sys.executable, '-c', 'import signal; signal.pause()'], cwd=sys.argv[1])\n"
               "print(p.pid, flush=True)\n"
-              "time.sleep(60)\n")
+              "signal.pause()\n")
     run = tmp_path.resolve()
     with spawn(sys.executable, "-c", script, str(run)) as launcher:
         child = int(launcher.wait_line("\n", 30))

@@ -11,6 +11,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from tests.procs import ZDRONE, free_port, spawn
+from tests.waiting import wait_until
 from zdrone.core.geometry import GeoPoint, distance_m, offset
 from zdrone.core.reference import HOME
 
@@ -42,18 +43,17 @@ def test_mavsdk_flies_a_four_waypoint_mission():
             mis.start_mission()
             closest = [math.inf] * len(points)
             progress_seen: set[int] = set()
-            deadline = time.monotonic() + 90
-            finished = False
-            while time.monotonic() < deadline:
+
+            def finished_mission() -> bool:
+                nonlocal closest
                 pos = tel.position()
                 if math.isfinite(pos.latitude_deg):
                     here = GeoPoint(pos.latitude_deg, pos.longitude_deg)
                     closest = [min(c, distance_m(p, here)) for c, p in zip(closest, points)]
                 progress_seen.add(mis.mission_progress().current)
-                if mis.is_mission_finished() and not tel.armed():
-                    finished = True
-                    break
-                time.sleep(0.1)
+                return mis.is_mission_finished() and not tel.armed()
+
+            finished = wait_until(finished_mission, 90, step=0.1)
             assert finished, f"mission did not finish; progress seen {sorted(progress_seen)}"
             assert all(c <= 4.0 for c in closest), f"waypoints missed: {closest}"
             assert {1, 2, 3} <= progress_seen
