@@ -33,7 +33,8 @@ from pymavlink.dialects.v20 import common as mav
 
 from ..core.reference import DEFAULT_NODES
 from ..net.eventlog import EventLog
-from .operator import A_SYSID, APP_SYSID, B_SYSID, OperatorApp, Script, StepFailed
+from ..crashes import stacks_on_crash
+from .operator import A_SYSID, APP_SYSID, B_SYSID, OperatorApp, Script, StepFailed, inside_both, play
 
 X_SYSID = next(n[2] for n in DEFAULT_NODES if n[0] == "X")
 
@@ -59,15 +60,7 @@ class ConsentScript(Script):
     def run(self) -> None:
         a, b, x = self.a, self.b, self.x
         # 1. in both coverages: A's operator holds the vehicle there
-        from ..core.geometry import distance_m
-        from ..core.reference import COVERAGE_RADIUS_M, GS_A, GS_B
-        from .operator import INSIDE_MARGIN_M
-
-        def inside_both() -> bool:
-            p = a.position
-            return p is not None and p.alt > 10 and all(
-                distance_m(c, p) < COVERAGE_RADIUS_M - INSIDE_MARGIN_M for c in (GS_A, GS_B))
-        self.wait("the drone inside both coverages", inside_both, 150.0)
+        self.wait("the drone inside both coverages", lambda: inside_both(a), 150.0)
         self.set_mode(a, "hold")
         self.wait("every application sees A in control", lambda: self.in_control("A"), 10.0)
         self.step("held")
@@ -147,23 +140,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--events", default="operator.jsonl")
     p.add_argument("--duration", type=float, default=240.0, help="give up after this many seconds")
     args = p.parse_args(argv)
+    stacks_on_crash()  # a crash leaves every thread's stack in our log
     events = EventLog(args.events, "operator")
     apps = OperatorApp("A", args.a_port), OperatorApp("B", args.b_port), OperatorApp("X", args.x_port)
-    script = ConsentScript(*apps, events, time.monotonic() + args.duration)
-    print("operator: ready", flush=True)
-    try:
-        script.run()
-    except StepFailed as exc:
-        events.write("operator_done", ok=False, failed=str(exc), steps=list(script.results))
-        print(f"operator: FAILED: {exc}", flush=True)
-        return 1
-    events.write("operator_done", ok=True, failed=None, steps=list(script.results))
-    print("operator: done", flush=True)
-    return 0
+    return play(ConsentScript(*apps, events, time.monotonic() + args.duration))
 
 
 if __name__ == "__main__":
-    import faulthandler
-
-    faulthandler.enable()
     sys.exit(main())

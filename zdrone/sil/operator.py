@@ -50,6 +50,13 @@ MODES = {mav.MAV_AUTOPILOT_PX4: {"hold": FlightMode.HOLD.value, "mission": Fligh
 INSIDE_MARGIN_M = 15.0
 
 
+def inside_both(app: "OperatorApp") -> bool:
+    """The drone, as ``app`` hears it, flies inside A's and B's coverages with a margin."""
+    p = app.position
+    return p is not None and p.alt > 10 and all(
+        distance_m(c, p) < COVERAGE_RADIUS_M - INSIDE_MARGIN_M for c in (GS_A, GS_B))
+
+
 class StepFailed(Exception):
     pass
 
@@ -177,11 +184,7 @@ class Script:
     def run(self) -> None:
         a, b = self.a, self.b
         # 1. in both coverages: A's operator holds the vehicle there
-        def inside_both() -> bool:
-            p = a.position
-            return p is not None and p.alt > 10 and all(
-                distance_m(c, p) < COVERAGE_RADIUS_M - INSIDE_MARGIN_M for c in (GS_A, GS_B))
-        self.wait("the drone inside both coverages", inside_both, 150.0)
+        self.wait("the drone inside both coverages", lambda: inside_both(a), 150.0)
         self.set_mode(a, "hold")
         took = self.wait("B sees A in control", lambda: b.in_control() == A_SYSID and a.in_control() == APP_SYSID, 10.0)
         assert b.status is not None
@@ -263,15 +266,19 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     events = EventLog(args.events, "operator")
     a, b = OperatorApp("A", args.a_port), OperatorApp("B", args.b_port)
-    script = Script(a, b, events, time.monotonic() + args.duration)
+    return play(Script(a, b, events, time.monotonic() + args.duration))
+
+
+def play(script: Script) -> int:
+    """Run an operators' script: every step to its events file, ``operator_done`` last; the exit status."""
     print("operator: ready", flush=True)
     try:
         script.run()
     except StepFailed as exc:
-        events.write("operator_done", ok=False, failed=str(exc), steps=list(script.results))
+        script.events.write("operator_done", ok=False, failed=str(exc), steps=list(script.results))
         print(f"operator: FAILED: {exc}", flush=True)
         return 1
-    events.write("operator_done", ok=True, failed=None, steps=list(script.results))
+    script.events.write("operator_done", ok=True, failed=None, steps=list(script.results))
     print("operator: done", flush=True)
     return 0
 
