@@ -396,33 +396,7 @@ class Explorer:
     def run(self) -> tuple[Violation | None, dict[str, Any]]:
         logging.getLogger("zdrone.core.authority").setLevel(logging.WARNING)
         t0 = time.perf_counter()
-        start = self.initial()
-        seen = {start.key()}
-        frontier: deque[tuple[World, tuple[str, ...]]] = deque([(start, ())])
-        violation: Violation | None = self._liveness()
-        while frontier and violation is None:
-            w, trace = frontier.popleft()
-            if len(trace) >= self.depth:
-                continue
-            for label, move in self.moves(w):
-                nxt = w.clone()
-                self.transitions += 1
-                try:
-                    move(nxt)
-                    self._invariants(nxt, w)
-                except _Broken as b:
-                    violation = Violation(b.invariant, b.detail, trace + (label,))
-                    break
-                k = nxt.key()
-                if k in seen:
-                    continue
-                seen.add(k)
-                self.max_depth_reached = max(self.max_depth_reached, len(trace) + 1)
-                frontier.append((nxt, trace + (label,)))
-                if self.max_states is not None and len(seen) >= self.max_states:
-                    frontier.clear()
-                    break
-        self.states = len(seen)
+        violation = self._liveness() or breadth_first(self, self.initial(), self._invariants)
         elapsed = time.perf_counter() - t0
         return violation, {"states": self.states, "transitions": self.transitions, "depth": self.depth,
                            "depth_reached": self.max_depth_reached, "faults": self.max_faults, "flaw": self.flaw,
@@ -470,6 +444,40 @@ class _Broken(Exception):
     def __init__(self, invariant: str, detail: str) -> None:
         super().__init__(detail)
         self.invariant, self.detail = invariant, detail
+
+
+def breadth_first(explorer: Any, start: Any, check: Callable[[Any, Any], None] | None = None) -> Violation | None:
+    """Every interleaving of ``explorer.moves`` from ``start``, breadth-first up to ``explorer.depth``
+    moves, states told apart by their ``key()``: the first violation (a move or ``check(after, before)``
+    raising ``_Broken``) with its trace, the shortest there is, or None. Counts states, transitions and
+    the depth reached on the explorer."""
+    seen = {start.key()}
+    frontier: deque[tuple[Any, tuple[str, ...]]] = deque([(start, ())])
+    while frontier:
+        w, trace = frontier.popleft()
+        if len(trace) >= explorer.depth:
+            continue
+        for label, move in explorer.moves(w):
+            nxt = w.clone()
+            explorer.transitions += 1
+            try:
+                move(nxt)
+                if check is not None:
+                    check(nxt, w)
+            except _Broken as b:
+                explorer.states = len(seen)
+                return Violation(b.invariant, b.detail, trace + (label,))
+            k = nxt.key()
+            if k in seen:
+                continue
+            seen.add(k)
+            explorer.max_depth_reached = max(explorer.max_depth_reached, len(trace) + 1)
+            frontier.append((nxt, trace + (label,)))
+            if explorer.max_states is not None and len(seen) >= explorer.max_states:
+                explorer.states = len(seen)
+                return None
+    explorer.states = len(seen)
+    return None
 
 
 def run(depth: int = 8, faults: int = 2, flaw: str | None = None, max_states: int | None = None,

@@ -45,6 +45,7 @@ from ..core.authority import AuthorityMachine, Config, State
 from ..core.mavcontrol import OperatorControlRequest
 from ..core.tbm import LinkState
 from ..core.uplink import UplinkClass
+from .check import _Broken, breadth_first
 
 GSS = ("A", "B", "C")
 FLAWS = ("consent-to-last-asker", "window-across-epochs")
@@ -227,40 +228,9 @@ class ConsentExplorer:
         for name in ("zdrone.core.authority", "gs.opcontrol"):
             logging.getLogger(name).setLevel(logging.WARNING)
         t0 = time.perf_counter()
-        start = self.initial()
-        seen = {start.key()}
-        frontier: deque[tuple[ConsentWorld, tuple[str, ...]]] = deque([(start, ())])
-        violation: tuple[str, str, tuple[str, ...]] | None = None
-        while frontier and violation is None:
-            w, trace = frontier.popleft()
-            if len(trace) >= self.depth:
-                continue
-            for label, move in self.moves(w):
-                nxt = w.clone()
-                self.transitions += 1
-                try:
-                    move(nxt)
-                except _Broken as b:
-                    violation = (b.invariant, b.detail, trace + (label,))
-                    break
-                k = nxt.key()
-                if k in seen:
-                    continue
-                seen.add(k)
-                self.max_depth_reached = max(self.max_depth_reached, len(trace) + 1)
-                frontier.append((nxt, trace + (label,)))
-                if self.max_states is not None and len(seen) >= self.max_states:
-                    frontier.clear()
-                    break
-        self.states = len(seen)
+        found = breadth_first(self, self.initial())
         elapsed = time.perf_counter() - t0
+        violation = None if found is None else (found.invariant, found.detail, found.trace)
         return violation, {"states": self.states, "transitions": self.transitions, "depth": self.depth,
                            "depth_reached": self.max_depth_reached, "faults": 0,
                            "seconds": round(elapsed, 2), "states_per_s": round(self.states / elapsed) if elapsed else None}
-
-
-class _Broken(Exception):
-    def __init__(self, invariant: str, detail: str) -> None:
-        super().__init__(detail)
-        self.invariant, self.detail = invariant, detail
-
