@@ -43,7 +43,7 @@ lines (the station core turns them into its actions).
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
@@ -64,10 +64,9 @@ ASK_RESEND_S = 1.0
 TELL_RESEND_S = 0.5
 #: A requester the operator declined is not shown again for this long (said to the operator).
 DECLINE_HOLD_S = 60.0
-#: A requester whose request expired unanswered may ask again at once (the operator may have missed
-#: it); each request stands at least REQUEST_TIMEOUT_MIN_S, so one requester prompts at most 20 times a
-#: minute until the operator declines it.
-EXPIRED_HOLD_S = 0.0
+#: (A requester whose request expired unanswered may ask again at once: the operator may have missed
+#: it. Each request stands REQUEST_TIMEOUT_MIN_S at least, so one requester prompts at most 20 times a
+#: minute until the operator declines it.)
 
 
 class Answer(enum.IntEnum):
@@ -136,8 +135,8 @@ class OperatorControl:
     window: TakeoverWindow | None = None  # a consent: one requester may take control for a while
     request: PendingRequest | None = None  # as owner: the request shown to the operator
     closed: tuple[str, int, int] | None = None  # (requester, epoch, ask id) decided: its re-sends ignored
-    held_off: dict[str, float] | None = None  # requester -> not shown again until then (declined, expired)
-    noted: set[tuple[str, str, int]] | None = None  # (why, requester, ask id) ignored requests, recorded once
+    held_off: dict[str, float] = field(default_factory=dict)  # declined requester -> not shown again until then
+    noted: set[tuple[str, str, int]] = field(default_factory=set)  # (why, requester, ask id) ignored, recorded once
     seq: int = 0
     asked_until: float | None = None  # as requester: our operator's request stands until then
     asked_timeout: float = DEFAULT_REQUEST_TIMEOUT_S
@@ -258,7 +257,7 @@ class OperatorControl:
         if not self.is_owner(view) or msg.epoch != view.epoch or msg.to != msg.requester:
             # control goes to whoever asks, never to a GS it names; and only ours, in our epoch
             return self._log(rec.OperatorRequestStale(drone=view.name, requester=msg.requester, epoch=msg.epoch))
-        until = (self.held_off or {}).get(msg.requester)
+        until = self.held_off.get(msg.requester)
         if until is not None and now < until:  # declined: not shown, and not granted by an allow-takeover either
             return self._once("held_off", msg, rec.OperatorRequestHeldOff(drone=view.name, requester=msg.requester,
                                                                           seconds_left=round(until - now, 1)))
@@ -293,14 +292,12 @@ class OperatorControl:
 
     def _once(self, why: str, msg: wire.OperatorRequest, record: rec.OperatorControlEvent) -> Step:
         """An ignored request, recorded once per request (its re-sends come every second)."""
-        noted = self.noted if self.noted is not None else set()
-        self.noted = noted
         key = (why, msg.requester, msg.ask_id)
-        if key in noted:
+        if key in self.noted:
             return NOTHING
-        if len(noted) > 256:
-            noted.clear()
-        noted.add(key)
+        if len(self.noted) > 256:
+            self.noted.clear()
+        self.noted.add(key)
         return self._log(record)
 
     def _grant(self, view: Any, req: PendingRequest, now: float, why: str, app: str) -> Step:
@@ -323,7 +320,7 @@ class OperatorControl:
             step += self._log(rec.TakeoverWindowClosed(drone=view.name))
         if self.request is not None and self.live_request(view, now) is None:
             req = self.request
-            self._close(req, now, EXPIRED_HOLD_S if not req.alive(now) else 0.0)
+            self._close(req, now)
             if not req.alive(now):
                 step += self._log(rec.OperatorRequestExpired(drone=view.name, requester=req.requester))
         if view.link is None:
@@ -364,14 +361,13 @@ class OperatorControl:
         self.last_tell = now
         return Step(send=(wire.HandoverRequest(self.gs, view.epoch, takeover=want, takeover_to=to if want else None),))
 
-    def _close(self, req: PendingRequest, now: float, hold: float) -> None:
+    def _close(self, req: PendingRequest, now: float, hold: float = 0.0) -> None:
         """``req`` is decided (declined, expired): the requester's re-sends of it change nothing, and
-        it is not shown again for ``hold`` seconds."""
+        it is not shown again for ``hold`` seconds (a decline's)."""
         self.request = None
         self.closed = (req.requester, req.epoch, req.ask_id)
         if hold > 0:
-            held = self.held_off if self.held_off is not None else {}
-            self.held_off = {r: t for r, t in held.items() if t > now}
+            self.held_off = {r: t for r, t in self.held_off.items() if t > now}
             self.held_off[req.requester] = now + hold
 
     def _ask(self, view: Any) -> wire.HandoverRequest:

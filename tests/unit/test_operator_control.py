@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from gs.core import Log, Put, Say, StationCore
 from gs.gateway import GcsGateway
-from gs.opcontrol import DECLINE_HOLD_S, EXPIRED_HOLD_S, GRANT_WINDOW_S, Answer
+from gs.opcontrol import DECLINE_HOLD_S, GRANT_WINDOW_S, Answer
 from zdrone.core import authority as ha
 from zdrone.core import wire
 from zdrone.core.envelope import Opened, SecureLink

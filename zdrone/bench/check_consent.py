@@ -115,7 +115,7 @@ class ConsentWorld:
             w = o.window
             return ((r.requester, r.epoch, rel(r.since + r.timeout), r.ask_id == o.seq) if r else None,
                     (w.to, w.epoch, rel(w.until)) if w else None, o.setting_epoch == m.epoch, o.allow_takeover,
-                    tuple(sorted((g, rel(t)) for g, t in (o.held_off or {}).items() if t > self.now)),
+                    tuple(sorted((g, rel(t)) for g, t in o.held_off.items() if t > self.now)),
                     rel(o.asked_until), o.closed is not None and o.closed[1] == m.epoch,
                     (o.release_to, o.release_epoch == m.epoch, rel(o.release_until)) if o.release_to else None,
                     o.held_epoch == m.epoch)
