@@ -42,10 +42,16 @@ class Node(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     coverage: Coverage | None = None
     authorized_gs: list[Name] = []
     uplink: UplinkPolicy = UplinkPolicy()  # drones only: what a GS may send up (zdrone.core.uplink)
+    signing_key: str = ""  # the node's Ed25519 public key (what it signs, e.g. its authority record)
 
     @property
     def public_bytes(self) -> bytes:
         return unb64(self.public_key, 32)
+
+    @property
+    def signing_public_bytes(self) -> bytes | None:
+        """The node's Ed25519 public key (32 bytes), None in a fleet made before nodes had one."""
+        return unb64(self.signing_key, 32) if self.signing_key else None
 
 
 class Home(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -60,6 +66,18 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     version: Literal[1]
     nodes: dict[Name, Node]
     home: Home | None = None
+    #: the fleet's Ed25519 public key, pinned by every bundle: the only key a fleet revision
+    #: (``zdrone.core.revision``) is signed with; its private half stays offline with the CA key
+    fleet_key: str = ""
+
+    @property
+    def fleet_key_bytes(self) -> bytes | None:
+        """The fleet signing public key (32 bytes), None in a fleet made before it had one."""
+        return unb64(self.fleet_key, 32) if self.fleet_key else None
+
+    def signing_public(self, name: str) -> bytes | None:
+        """Node ``name``'s Ed25519 public key (``KeyError`` if no such node; None if it has none)."""
+        return self.node(name).signing_public_bytes
 
     def node(self, name: str) -> Node:
         try:
@@ -123,6 +141,10 @@ def _where(exc: msgspec.ValidationError, prefix: str = "$") -> str:
 
 
 def _check(fleet: Fleet, source: str) -> None:
+    try:
+        fleet.fleet_key_bytes
+    except ValueError as exc:
+        raise FleetError(f"{source}: field $.fleet_key: {exc}") from None
     seen: dict[int, str] = {}
     for name, node in fleet.nodes.items():
         where = f"{source}: field $.nodes.{name}"
@@ -130,6 +152,10 @@ def _check(fleet: Fleet, source: str) -> None:
             node.public_bytes
         except ValueError as exc:
             raise FleetError(f"{where}.public_key: {exc}") from None
+        try:
+            node.signing_public_bytes
+        except ValueError as exc:
+            raise FleetError(f"{where}.signing_key: {exc}") from None
         if node.sysid in seen:
             raise FleetError(f"{where}.sysid: {node.sysid} already used by {seen[node.sysid]}")
         seen[node.sysid] = name
@@ -150,7 +176,11 @@ def _check(fleet: Fleet, source: str) -> None:
 def encode_fleet(fleet: Fleet) -> str:
     """Serialize a fleet as (JSON-compatible) JSON5 text; a default ``uplink`` is left out."""
     raw = msgspec.to_builtins(fleet)
+    if not fleet.fleet_key:
+        raw.pop("fleet_key", None)
     for name, node in fleet.nodes.items():
         if node.uplink.is_default:
             del raw["nodes"][name]["uplink"]
+        if not node.signing_key:
+            raw["nodes"][name].pop("signing_key", None)
     return msgspec.json.format(msgspec.json.encode(raw), indent=2).decode() + "\n"

@@ -1,4 +1,8 @@
-"""Key material: X25519 identities, directional link keys and their per-epoch ratchet.
+"""Key material: X25519 identities, Ed25519 signing keys, directional link keys and their per-epoch ratchet.
+
+Signing keys (Ed25519): the fleet's own (signs fleet revisions, ``zdrone.core.revision``; kept offline
+with the CA key) and one per node (signs what the node records, e.g. its authority record). Their
+public halves are in ``fleet.json5`` (``Fleet.fleet_key``, ``Node.signing_key``).
 
 A link (drone, gs) has one 32-byte secret per direction ("up" GS->drone, "down" drone->GS). The
 key used for epoch ``e`` of a direction comes from a chain: ``chain[0] = HKDF(secret, dir)`` and
@@ -14,6 +18,8 @@ import hmac
 from dataclasses import dataclass, field
 
 from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from cryptography.hazmat.primitives.asymmetric.x25519 import X25519PrivateKey, X25519PublicKey
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
@@ -66,6 +72,43 @@ class Identity:
 
     def __repr__(self) -> str:
         return f"Identity(public={b64(self.public)[:12]}…)"
+
+
+@dataclass(frozen=True, slots=True, repr=False)
+class SigningKey:
+    """An Ed25519 private key (32 raw bytes): the fleet's or a node's. Never printed or logged."""
+
+    private: bytes
+
+    @classmethod
+    def generate(cls) -> "SigningKey":
+        raw = Ed25519PrivateKey.generate().private_bytes(
+            serialization.Encoding.Raw, serialization.PrivateFormat.Raw, serialization.NoEncryption())
+        return cls(raw)
+
+    def private_key(self) -> Ed25519PrivateKey:
+        return Ed25519PrivateKey.from_private_bytes(self.private)
+
+    @property
+    def public(self) -> bytes:
+        return self.private_key().public_key().public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+
+    def sign(self, message: bytes) -> bytes:
+        """A 64-byte Ed25519 signature of ``message``."""
+        return self.private_key().sign(message)
+
+    def __repr__(self) -> str:
+        return f"SigningKey(public={b64(self.public)[:12]}…)"
+
+
+def verify_signature(public: bytes, message: bytes, signature: bytes) -> bool:
+    """Whether ``signature`` is ``public``'s Ed25519 signature of ``message`` (a malformed key or
+    signature is simply not valid)."""
+    try:
+        Ed25519PublicKey.from_public_bytes(public).verify(signature, message)
+    except (InvalidSignature, ValueError):
+        return False
+    return True
 
 
 def public_key(raw: bytes) -> X25519PublicKey:

@@ -11,13 +11,14 @@ command takes a bundle where it takes a fleet directory):
   ``router/router.key`` (0600) and ``tls/ca.crt``; a site router ``site-N`` likewise with
   ``router/site-N.*`` and ``router/sites.json``;
 
-and ``bundle.json`` (public) naming the node. Never the CA's private key, never another node's
-secret.
+and ``bundle.json`` (public) naming the node. Never the CA's private key, never the fleet signing
+key (``offline/fleet-signing.json``: only its public half travels, pinned in ``fleet.json5`` as
+``fleet_key``), never another node's secret.
 
 ``check_bundle(folder)`` says which node a bundle is for and refuses one that holds any other
 secret: another node's secret file or TLS key, the CA key, the router's credentials or key in a
-node's bundle, or any file holding a private key (PEM, or a secret file's key) that is not the
-node's own, wherever it lies and whatever its name.
+node's bundle, the fleet signing key, or any file holding a private key (PEM, or a secret file's
+key) that is not the node's own, wherever it lies and whatever its name.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from pathlib import Path
 
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet
-from ..core.keys import Identity, unb64
-from .files import FLEET_FILE, load_fleet, load_secret
+from ..core.keys import Identity, SigningKey, unb64
+from .files import FLEET_FILE, FLEET_SIGNING_FILE, load_fleet, load_secret
 
 BUNDLE_FILE = "bundle.json"
 ROUTER = "router"
@@ -85,6 +86,8 @@ def export_bundle(fleet_dir: str | Path, node: str, out: str | Path) -> Bundle:
     else:
         role = fleet.nodes[node].role if node in fleet.nodes else ""
     files = bundle_files(src, fleet, node)
+    if FLEET_SIGNING_FILE in files or "tls/ca.key" in files:
+        raise ConfigError(f"{src / FLEET_SIGNING_FILE}: the fleet's offline keys never go into a bundle")
     if not _is_router(node):
         load_secret(src, node, fleet)  # the secret is sound before it travels
     if dst.exists() and (not dst.is_dir() or any(dst.iterdir())):
@@ -124,6 +127,28 @@ def _private_keys_in(path: Path) -> list[bytes]:
     return []
 
 
+def _holds_fleet_signing_key(path: Path, fleet: Fleet) -> bool:
+    """Whether a file is (or holds, as JSON or raw) the fleet's signing key."""
+    data = path.read_bytes()
+    if b"fleet_signing_key" in data:
+        return True
+    pinned = fleet.fleet_key_bytes
+    if pinned is None:
+        return False
+    try:
+        raw = json.loads(data)
+    except ValueError:
+        return False
+    values = [v for v in raw.values() if isinstance(v, str)] if isinstance(raw, dict) else []
+    for v in values:
+        try:
+            if SigningKey(unb64(v, 32)).public == pinned:
+                return True
+        except ValueError:
+            continue
+    return False
+
+
 def check_bundle(folder: str | Path) -> Bundle:
     """Whose bundle ``folder`` is; ``ConfigError`` if it holds any secret that is not that node's,
     if its own secret does not match the fleet, or if a private file is readable by others."""
@@ -144,6 +169,8 @@ def check_bundle(folder: str | Path) -> Bundle:
             continue
         if rel == "tls/ca.key":
             raise ConfigError(f"{p}: the fleet CA's private key: it never leaves the machine that issues certificates")
+        if rel == FLEET_SIGNING_FILE or _holds_fleet_signing_key(p, fleet):
+            raise ConfigError(f"{p}: the fleet signing key: it stays offline with the CA key, never in a bundle")
         if rel in (f"secrets/{node}.authority.json", f"secrets/{node}.authority.tmp", f"secrets/{node}.fc-signing.json",
                    f"secrets/{node}.fc-signing.tmp") and role == "drone":
             continue  # the drone's own authority state and autopilot signing key, run from the bundle outside systemd

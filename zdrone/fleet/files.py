@@ -3,7 +3,9 @@
 Layout of a fleet directory::
 
     fleet.json5                  public: nodes, sysids, public keys, coverage, authorized lists
-    secrets/<name>.json          private (mode 0600): the node's X25519 key and router password
+    secrets/<name>.json          private (mode 0600): the node's X25519 key, Ed25519 signing key and router password
+    offline/fleet-signing.json   private (mode 0600): the fleet's Ed25519 signing key (signs revisions);
+                                 stays on the offline machine like tls/ca.key: never in a bundle
     router/credentials.txt       private (mode 0600): user:password lines for the router
     router/router.json5          the router's config: auth from credentials.txt, default-deny ACL
 """
@@ -20,20 +22,25 @@ from pathlib import Path
 import msgspec
 
 from ..core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
-from ..core.keys import Identity, b64, unb64
+from ..core.keys import Identity, SigningKey, b64, unb64
 from ..core.geometry import GeoPoint, offset
 from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
 
 FLEET_FILE = "fleet.json5"
+#: the fleet signing key's file, relative to the fleet directory (``load_fleet_signing_key``)
+FLEET_SIGNING_FILE = "offline/fleet-signing.json"
 
 
 @dataclass(frozen=True, slots=True, repr=False)
 class NodeSecret:
-    """What only one node knows: its static key and its router password."""
+    """What only one node knows: its static key, its router password and its Ed25519 signing key
+    (None in a fleet made before nodes had one). ``signing.sign(msg)``; the public half is
+    ``fleet.signing_public(name)``."""
 
     name: str
     identity: Identity
     router_password: str
+    signing: SigningKey | None = None
 
     def __repr__(self) -> str:
         return f"NodeSecret({self.name})"
@@ -43,11 +50,17 @@ class _SecretFile(msgspec.Struct, forbid_unknown_fields=True):
     name: str
     private_key: str
     router_password: str
+    signing_key: str = ""
+
+
+class _FleetSigningFile(msgspec.Struct, forbid_unknown_fields=True):
+    fleet_signing_key: str
 
 
 #: built at import, in one thread: a Struct type's first use from two threads at once can crash
 #: (``zdrone.core.fleet``)
 _SECRET_FILE = msgspec.json.Decoder(_SecretFile)
+_FLEET_SIGNING_FILE = msgspec.json.Decoder(_FleetSigningFile)
 
 
 def fleet_path(where: str | Path) -> Path:
@@ -108,18 +121,19 @@ def init_fleet(directory: str | Path, force: bool = False,
     nodes: dict[str, Node] = {}
     creds: list[str] = []
     for name, role, sysid, centre, authorized in nodes_spec or DEFAULT_NODES:
-        ident = Identity.generate()
+        ident, signing = Identity.generate(), SigningKey.generate()
         password = secrets.token_urlsafe(18)
         cov = Coverage(centre.lat, centre.lon, COVERAGE_RADIUS_M) if centre is not None else None
         nodes[name] = Node(role=role, sysid=sysid, public_key=b64(ident.public), coverage=cov,  # type: ignore[arg-type]
-                           authorized_gs=list(authorized))
-        secret = {"name": name, "private_key": b64(ident.private), "router_password": password}
-        _write_private(d / "secrets" / f"{name}.json", json.dumps(secret, indent=2) + "\n")
+                           authorized_gs=list(authorized), signing_key=b64(signing.public))
+        write_secret(d, NodeSecret(name, ident, password, signing))
         creds.append(f"{name}:{password}")
+    fleet_signing = SigningKey.generate()
+    _write_private(d / FLEET_SIGNING_FILE, json.dumps({"fleet_signing_key": b64(fleet_signing.private)}, indent=2) + "\n")
     site_names = [f"site-{i + 1}" for i in range(len(sites or []))]
     site_passwords = {site: secrets.token_urlsafe(18) for site in site_names}  # for the router mesh
     creds += [f"router-{site}:{pw}" for site, pw in site_passwords.items()]
-    fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt))
+    fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt), fleet_key=b64(fleet_signing.public))
     (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
     from .routerconfig import HEADER, render, router_config
@@ -137,6 +151,37 @@ def init_fleet(directory: str | Path, force: bool = False,
     if sites:
         _write_sites(d, fleet, sites, site_passwords)
     return fleet
+
+
+def write_secret(d: Path, secret: NodeSecret) -> None:
+    """Write ``secrets/<name>.json`` (mode 0600) in fleet directory ``d``."""
+    raw = {"name": secret.name, "private_key": b64(secret.identity.private), "router_password": secret.router_password}
+    if secret.signing is not None:
+        raw["signing_key"] = b64(secret.signing.private)
+    _write_private(d / "secrets" / f"{secret.name}.json", json.dumps(raw, indent=2) + "\n")
+
+
+def load_fleet_signing_key(where: str | Path, fleet: Fleet | None = None) -> SigningKey:
+    """The fleet's Ed25519 signing key from ``offline/fleet-signing.json`` of a fleet directory (it is
+    in no bundle); refuses a file readable by others or one that does not match ``fleet.fleet_key``."""
+    path = fleet_path(where).parent / FLEET_SIGNING_FILE
+    try:
+        mode = stat.S_IMODE(path.stat().st_mode)
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no fleet signing key (it is kept on the machine that ran 'zdrone fleet init', "
+                          f"never in a bundle)") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
+    if mode & 0o077:
+        raise ConfigError(f"{path}: key file is accessible by others (mode {mode:04o}); run chmod 600 {path}")
+    try:
+        key = SigningKey(unb64(_FLEET_SIGNING_FILE.decode(data).fleet_signing_key, 32))
+    except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
+        raise ConfigError(f"{path}: malformed fleet signing key file: {str(exc).splitlines()[0]}") from None
+    if fleet is not None and fleet.fleet_key_bytes != key.public:
+        raise ConfigError(f"{path}: does not match the fleet's fleet_key")
+    return key
 
 
 def _write_sites(d: Path, fleet: Fleet, endpoints: list[str], passwords: dict[str, str]) -> None:
@@ -196,6 +241,7 @@ def load_secret(where: str | Path, name: str, fleet: Fleet | None = None) -> Nod
     try:
         raw = _SECRET_FILE.decode(path.read_bytes())
         ident = Identity(unb64(raw.private_key, 32))
+        signing = SigningKey(unb64(raw.signing_key, 32)) if raw.signing_key else None
     except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
         raise ConfigError(f"{path}: malformed secret file: {str(exc).splitlines()[0]}") from None
     except OSError as exc:
@@ -208,4 +254,6 @@ def load_secret(where: str | Path, name: str, fleet: Fleet | None = None) -> Nod
             raise ConfigError(f"{path}: node {name!r} is not in the fleet")
         if node.public_bytes != ident.public:
             raise ConfigError(f"{path}: private key does not match the fleet's public key for {name!r}")
-    return NodeSecret(name, ident, raw.router_password)
+        if node.signing_public_bytes is not None and (signing is None or signing.public != node.signing_public_bytes):
+            raise ConfigError(f"{path}: signing key does not match the fleet's signing_key for {name!r}")
+    return NodeSecret(name, ident, raw.router_password, signing)
