@@ -69,6 +69,9 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     #: the fleet's Ed25519 public key, pinned by every bundle: the only key a fleet revision
     #: (``zdrone.core.revision``) is signed with; its private half stays offline with the CA key
     fleet_key: str = ""
+    #: pairing and key sharing add ML-KEM-768 to X25519 (``zdrone.core.kk``); once on, a classical
+    #: pairing is refused (no downgrade)
+    pairing_pq: bool = False
 
     @property
     def fleet_key_bytes(self) -> bytes | None:
@@ -178,6 +181,8 @@ def encode_fleet(fleet: Fleet) -> str:
     raw = msgspec.to_builtins(fleet)
     if not fleet.fleet_key:
         raw.pop("fleet_key", None)
+    if not fleet.pairing_pq:
+        raw.pop("pairing_pq", None)
     for name, node in fleet.nodes.items():
         if node.uplink.is_default:
             del raw["nodes"][name]["uplink"]
