@@ -5,18 +5,20 @@ Theory of operation
 -------------------
 ``StationCore`` holds one ``DroneView`` per drone the GS serves (its own business: adapters name a
 drone and read a ``DroneStatus``). Time comes in as ``now``; bytes and events come in through
-``on_*`` methods and ``operator_command``; what the adapter must do comes out as actions: ``Put``
-(publish a sealed envelope), ``Ask`` (send a query; its replies come back through ``on_pair_reply``
-/ ``on_linkkey_reply``), ``Log`` (an event-log record), ``FrameUp`` (a drone frame for the GCS
-gateway) and ``Say`` (a line for the operator). An incoming key-sharing query is answered with a
-``QueryAnswer`` value. Nothing here blocks, reads a clock or touches a socket.
+``on_*`` methods and ``operator_command``; what the adapter must do comes out as actions
+(``gs.actions``, the vocabulary it shares with the drone's core, ``zdrone.core.outputs``): ``Put``
+(publish a sealed envelope on the link to a drone), ``Ask`` (send a query; its replies come back
+through ``on_pair_reply`` / ``on_linkkey_reply``), ``Emit`` (an event-log record), ``FrameUp`` (a
+drone frame for the GCS gateway) and ``Say`` (a line for the operator). An incoming key-sharing
+query is answered with a ``QueryAnswer`` value. ``report(now)`` is the core's part of the GS's
+status record. Nothing here blocks, reads a clock or touches a socket.
 
 Timers, as the drone's core: the adapter calls ``handle_timer(now)`` when ``now`` reaches
 ``get_timer()`` and otherwise sleeps until then or until input arrives. The timer is due at once
 after any input (what came in may decide something: a status, a position in the overlap), at the
 next heartbeat, and every ``LOOK_S`` for the periodic work whose deadlines are not yet computed
 one by one (pairing and key-sharing retries, the mission's stages, the operator's windows, a hold
-for a key). ``tick(now)`` is ``handle_timer`` for callers that still poll.
+for a key).
 
 Per drone:
 
@@ -70,6 +72,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
+from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, QueryAnswer, Say
 from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
@@ -189,77 +192,6 @@ class Stage(enum.Enum):
     TAKING_OFF = "taking_off"  # started: armed and leaving the ground is awaited
     FLYING = "flying"  # left the ground
     FAILED = "failed"
-
-
-class AskKind(enum.Enum):
-    PAIR = "pair"
-    LINKKEY = "linkkey"
-
-
-# ---------------------------------------------------------------------------- actions
-@dataclass(frozen=True, slots=True)
-class Put:
-    """Publish ``payload`` (a sealed envelope) on ``keyexpr``."""
-
-    keyexpr: str
-    payload: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class Ask:
-    """Send a query; hand every reply back with ``on_pair_reply`` / ``on_linkkey_reply``."""
-
-    kind: AskKind
-    drone: str
-    gs: str
-    keyexpr: str
-    payload: bytes
-    timeout: float
-
-
-@dataclass(frozen=True, slots=True)
-class Log:
-    """One event-log record, typed (``zdrone.core.records``, the GS's vocabulary): the station writes
-    it as it is (``EventLog.write_record``)."""
-
-    record: rec.Record
-
-    @property
-    def kind(self) -> str:
-        """The record's event type (its tag)."""
-        return rec.record_type(self.record)
-
-    @property
-    def fields(self) -> dict[str, Any]:
-        """The record's own fields as logged (JSON values)."""
-        return rec.fields_of(self.record)
-
-
-@dataclass(frozen=True, slots=True)
-class FrameUp:
-    """An authentic MAVLink frame from ``drone`` for the GCS gateway."""
-
-    drone: str
-    frame: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class Say:
-    """A line for the operator (stdout)."""
-
-    text: str
-
-
-Action = Put | Ask | Log | FrameUp | Say
-
-
-@dataclass(frozen=True, slots=True)
-class QueryAnswer:
-    """How to answer one key-sharing query: a reply payload, or an error (None: no answer at all)."""
-
-    reply: bytes | None = None
-    error: bytes | None = None
-    crypto: bool = False  # a handshake was computed (the adapter bounds these per loop turn)
 
 
 # ----------------------------------------------------------------------- flight events
@@ -485,7 +417,7 @@ class StationCore:
             return []
         if read_header(frame).commanding:
             view.commands_sent[view.epoch] += 1  # every commanding frame, to check none is lost
-        return [Put(kx.up(view.name, self.name), view.link.seal(frame))]
+        return [Put(view.name, view.link.seal(frame))]
 
     def send_msg(self, drone: "str | DroneView", msg: Any) -> list[Action]:
         return self.send_frame(drone, self.codec.encode(msg))
@@ -494,7 +426,7 @@ class StationCore:
         view = self._view(drone)
         if view.link is None:
             return []
-        return [Put(kx.up(view.name, self.name), view.link.seal_control(msg))]
+        return [Put(view.name, view.link.seal_control(msg))]
 
     def request_control(self, view: DroneView, now: float) -> list[Action]:
         """Ask the drone for authority (an operator's request): honoured in its failsafe if our link is
@@ -504,7 +436,7 @@ class StationCore:
         if not _due(view.last_take_control, now, 1.0):
             return []
         view.last_take_control = now
-        return [Log(rec.ControlRequested(drone=view.name, state=view.ha_state)),
+        return [Emit(rec.ControlRequested(drone=view.name, state=view.ha_state)),
                 *self.send_control(view, wire.HandoverRequest(self.name, view.epoch))]
 
     def _silent_authority(self, view: DroneView, now: float) -> bool:
@@ -539,10 +471,6 @@ class StationCore:
         """When ``handle_timer`` must next be called if no input comes (see the module docstring)."""
         due = min(self._hb_due, self._look_due)
         return due if self._input_at is None else min(due, self._input_at)
-
-    def tick(self, now: float, wall: float | None = None) -> list[Action]:
-        """``handle_timer``, for callers that call it on a rhythm of their own."""
-        return self.handle_timer(now, wall)
 
     def handle_timer(self, now: float, wall: float | None = None) -> list[Action]:
         """The GS's periodic work at ``now`` (``wall``: the time of day, for key-sharing stamps):
@@ -609,11 +537,11 @@ class StationCore:
             if self.counters["pair_refused"] > 5:  # the first few in the log; all in the counters
                 return []
             log.warning("pairing with %s refused: %s", drone, reason)
-            return [Log(rec.GsPairRefused(drone=drone, reason=reason))]
+            return [Emit(rec.GsPairRefused(drone=drone, reason=reason))]
         key = view.pairing.finish(ok)
         if isinstance(key, PairingFailed):
             self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
-            return [Log(rec.PairFailed(drone=drone, reason=key.reason))] if self.counters["pair_bad_reply"] <= 5 else []
+            return [Emit(rec.PairFailed(drone=drone, reason=key.reason))] if self.counters["pair_bad_reply"] <= 5 else []
         kept = view.pairing.peer_kept_key
         view.pairing = None
         again = view.link is not None
@@ -621,7 +549,7 @@ class StationCore:
             # the drone still holds our key: its silence was the radio (out of coverage), not a
             # restart; switching to a key it cannot confirm now would cut us off later
             self.counters["pair_not_needed"] += 1
-            return [Log(rec.PairNotNeeded(drone=drone))]
+            return [Emit(rec.PairNotNeeded(drone=drone))]
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
         view.slot.install(self._new_link(view, key, now), now)
@@ -631,7 +559,7 @@ class StationCore:
             view.granted.clear()
             view.grants.clear()
             view.drone_links = {self.name}
-        return [Log(rec.GsPaired(drone=drone, again=again)), Say(f"zdrone gs {self.name}: paired with {drone}"),
+        return [Emit(rec.GsPaired(drone=drone, again=again)), Say(f"zdrone gs {self.name}: paired with {drone}"),
                 *self._heartbeat(view)]
 
     # --------------------------------------------------------------- key sharing
@@ -639,7 +567,7 @@ class StationCore:
         key = f"linkkey_refused:{reason.value}"
         self.counters[key] += 1
         if self.counters[key] <= 5:  # the first few in the log; all of them in the counters
-            logs.append(Log(rec.LinkkeyRefused(drone=drone, asker=asker, reason=reason.value, detail=detail)))
+            logs.append(Emit(rec.LinkkeyRefused(drone=drone, asker=asker, reason=reason.value, detail=detail)))
         crypto = reason is ShareRefusal.AUTH_FAILED
         if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC, ShareRefusal.STALE):
             return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
@@ -680,7 +608,7 @@ class StationCore:
         candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
         view.slot.offer(candidate, now, f"linkkey:{req.asker}", LINKKEY_CANDIDATE_TTL)
         self.counters["linkkey_shared"] += 1
-        logs.append(Log(rec.LinkkeyShared(drone=drone, asker=req.asker)))
+        logs.append(Emit(rec.LinkkeyShared(drone=drone, asker=req.asker)))
         log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.name, req.asker)
         return QueryAnswer(reply=reply, crypto=True), logs
 
@@ -726,7 +654,7 @@ class StationCore:
                 view.live_refused[gs] = now
             if self.counters["linkkey_reply_error"] > 5:  # the first few in the log; all in the counters
                 return []
-            return [Log(rec.LinkkeyError(drone=drone, gs=gs, reason=(err or b"").decode(errors="replace")[:120]))]
+            return [Emit(rec.LinkkeyError(drone=drone, gs=gs, reason=(err or b"").decode(errors="replace")[:120]))]
         ask = view.asks.get(gs)
         if ask is None:
             self.counters["linkkey_reply:not_waiting"] += 1
@@ -738,13 +666,13 @@ class StationCore:
             if self.counters[key] > 5:  # the first few in the log; all in the counters
                 return []
             log.warning("key-sharing reply for %s from %s refused: %s", drone, gs, secret.reason.value)
-            return [Log(rec.LinkkeyBadReply(drone=drone, gs=gs, reason=secret.reason.value))]
+            return [Emit(rec.LinkkeyBadReply(drone=drone, gs=gs, reason=secret.reason.value))]
         del view.asks[gs]
         view.ask_again.pop(gs, None)
         self._grant_id += 1
         view.grants[gs] = wire.KeyGrant(gs, self.fleet.nodes[gs].sysid, secret, self._grant_id)
         view.grant_sent = None
-        return [Log(rec.LinkkeyReceived(drone=drone, gs=gs))]
+        return [Emit(rec.LinkkeyReceived(drone=drone, gs=gs))]
 
     # ----------------------------------------------------------------- receiving
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
@@ -764,7 +692,7 @@ class StationCore:
         out: list[Action] = []
         if promoted is not None:
             view.link = view.slot.live
-            out.append(Log(rec.GsLinkConfirmed(drone=drone, how=promoted.origin, replaced=promoted.replaced)))
+            out.append(Emit(rec.GsLinkConfirmed(drone=drone, how=promoted.origin, replaced=promoted.replaced)))
             log.info("link to %s: key confirmed by the drone (%s)", drone, promoted.origin)
         if res.control is not None:
             return out + self._on_control(view, res.control, now)
@@ -784,7 +712,7 @@ class StationCore:
             view.custom_mode = msg.custom_mode
             if view.autopilot is None:
                 view.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, "other")
-                out.append(Log(rec.AutopilotFound(drone=drone, autopilot=view.autopilot, mav_type=msg.type)))
+                out.append(Emit(rec.AutopilotFound(drone=drone, autopilot=view.autopilot, mav_type=msg.type)))
         elif t == "SYS_STATUS":
             if msg.onboard_control_sensors_present & mav.MAV_SYS_STATUS_PREARM_CHECK:
                 view.prearm_ok = bool(msg.onboard_control_sensors_health & mav.MAV_SYS_STATUS_PREARM_CHECK)
@@ -798,7 +726,7 @@ class StationCore:
         elif t == "STATUSTEXT":
             text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
             view.texts = (view.texts + [(now, text)])[-TEXTS_KEPT:]
-            out.append(Log(rec.VehicleText(drone=drone, text=text, severity=msg.severity)))
+            out.append(Emit(rec.VehicleText(drone=drone, text=text, severity=msg.severity)))
         if view.uploader is not None:
             for m in view.uploader.on_message(msg, now, self.sysid):
                 out += self.send_msg(view, m)
@@ -820,7 +748,7 @@ class StationCore:
             view.takeover, view.takeover_to = msg.takeover, msg.takeover_to
             if msg.fc_signed is not None and msg.fc_signed != view.fc_signed:
                 view.fc_signed = msg.fc_signed
-                out.append(Log(rec.FcSigningHeard(drone=view.name, signed=msg.fc_signed)))
+                out.append(Emit(rec.FcSigningHeard(drone=view.name, signed=msg.fc_signed)))
             roles = MODE_ROLES.get(view.autopilot or "")
             if (changed and msg.owner == self.name and not was_mine and roles is not None and view.armed
                     and self._mode(view) == roles["hold"] and view.landed_state == mav.MAV_LANDED_STATE_IN_AIR):
@@ -829,7 +757,7 @@ class StationCore:
                 out.append(Say(f"zdrone gs {self.name}: {view.name} is ours and holds in the air "
                                f"({roles['hold']}): resume its mission or bring it home"))
             if changed:
-                out.append(Log(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
+                out.append(Emit(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
                                                    pending_to=msg.pending_to)))
             ho = self._ho(view)  # of the epoch the drone reports
             if was_mine and msg.owner == self.name and ho.released:
@@ -841,10 +769,10 @@ class StationCore:
             if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
                 del view.grants[msg.gs]
                 view.granted.add(msg.gs)
-                out.append(Log(rec.KeyGranted(drone=view.name, gs=msg.gs)))
+                out.append(Emit(rec.KeyGranted(drone=view.name, gs=msg.gs)))
         elif isinstance(msg, wire.Reject):
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
-            out.append(Log(rec.Rejected(drone=view.name, what=msg.what, reason=msg.reason)))
+            out.append(Emit(rec.Rejected(drone=view.name, what=msg.what, reason=msg.reason)))
             if msg.what == "release" and view.owner == self.name and self._ho(view).released:
                 out += self._handover_failed(view, f"release refused: {msg.reason}", now)
         elif isinstance(msg, wire.OperatorRequest):
@@ -852,7 +780,7 @@ class StationCore:
         elif isinstance(msg, wire.FailsafeNotice):
             view.ha_state = HaState.FAILSAFE  # nobody holds authority until a GS takes control back
             log.warning("drone %s failsafe: %s (%s)", view.name, msg.action, msg.reason)
-            out.append(Log(rec.FailsafeNoticed(drone=view.name, action=msg.action, reason=msg.reason)))
+            out.append(Emit(rec.FailsafeNoticed(drone=view.name, action=msg.action, reason=msg.reason)))
         else:
             self.counters[f"control_ignored:{type(msg).__name__}"] += 1
         return out
@@ -878,7 +806,7 @@ class StationCore:
         return None
 
     def _operator(self, view: DroneView, step: Step) -> list[Action]:
-        out: list[Action] = [Log(record) for record in step.logs]
+        out: list[Action] = [Emit(record) for record in step.logs]
         out += [Say(text) for text in step.say]
         for msg in step.send:
             out += self.send_control(view, msg)
@@ -899,7 +827,7 @@ class StationCore:
         action = "RTL" if rtl else "retry"
         log.warning("hand-over of %s failed (%s): authority stays here; %s", view.name, reason,
                     "commanding RTL" if rtl else f"trying again every {HANDOVER_RETRY_S:g} s")
-        out: list[Action] = [Log(rec.HandoverFailed(drone=view.name, epoch=view.epoch, action=action, reason=reason)),
+        out: list[Action] = [Emit(rec.HandoverFailed(drone=view.name, epoch=view.epoch, action=action, reason=reason)),
                              Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); "
                                  + ("commanding RTL" if rtl else "trying again"))]
         if rtl:
@@ -939,7 +867,7 @@ class StationCore:
     def _give_up(self, view: DroneView, now: float, reason: str) -> list[Action]:
         """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
         self._set_stage(view, Stage.FAILED, now)
-        out: list[Action] = [Log(rec.MissionFailed(drone=view.name, reason=reason)),
+        out: list[Action] = [Emit(rec.MissionFailed(drone=view.name, reason=reason)),
                              Say(f"zdrone gs {self.name}: mission for {view.name} failed: {reason}")]
         if view.armed and view.landed_state != mav.MAV_LANDED_STATE_IN_AIR:
             out += self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0)
@@ -971,7 +899,7 @@ class StationCore:
     def _preparing_param(self, view: DroneView, ev: FlightParam) -> list[Action]:
         if ev.name != "MIS_OPTIONS" or not int(ev.value) & ARDUPILOT_CONTINUE_AFTER_LAND:
             return []
-        return [Log(rec.VehicleParam(drone=view.name, name=ev.name, value=ev.value)),
+        return [Emit(rec.VehicleParam(drone=view.name, name=ev.name, value=ev.value)),
                 *self._start_upload(view, FlightTick(ev.now))]
 
     def _start_upload(self, view: DroneView, ev: FlightTick) -> list[Action]:
@@ -982,7 +910,7 @@ class StationCore:
         for m in view.uploader.start(ev.now):
             out += self.send_msg(view, m)
         self._set_stage(view, Stage.UPLOADING, ev.now)
-        return out + [Log(rec.MissionUpload(drone=view.name, items=len(items), autopilot=view.autopilot))]
+        return out + [Emit(rec.MissionUpload(drone=view.name, items=len(items), autopilot=view.autopilot))]
 
     def _upload_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
         assert view.uploader is not None
@@ -1026,7 +954,7 @@ class StationCore:
             return []
         view.waiting = waiting
         text = f"{view.name} ready: arming" if waiting is None else f"{view.name} not ready: {waiting}"
-        return [Log(rec.VehicleWaiting(drone=view.name, waiting=waiting)), Say(f"zdrone gs {self.name}: {text}")]
+        return [Emit(rec.VehicleWaiting(drone=view.name, waiting=waiting)), Say(f"zdrone gs {self.name}: {text}")]
 
     def _airborne(self, view: DroneView) -> bool:
         """The vehicle is armed and off the ground: its mission is being flown."""
@@ -1037,7 +965,7 @@ class StationCore:
         """The start's answer was lost (a lossy radio) but the vehicle flies: the mission started. Never
         start it again (that would fly it from its first item)."""
         self._set_stage(view, Stage.FLYING, now)
-        return [Log(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
+        return [Emit(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
                 Say(f"zdrone gs {self.name}: {view.name} is flying (its start's answer was lost)")]
 
     def _ready_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
@@ -1068,7 +996,7 @@ class StationCore:
         what = "arm" if view.stage is Stage.ARMING else "mission start"
         view.next_try = ev.now + RETRY_AFTER_S
         self._set_stage(view, Stage.WAITING_READY, ev.now)
-        return [Log(rec.VehicleRefused(drone=view.name, what=f"{what} (no answer)", result=None, try_=view.tries, texts=[]))]
+        return [Emit(rec.VehicleRefused(drone=view.name, what=f"{what} (no answer)", result=None, try_=view.tries, texts=[]))]
 
     def _step_refused(self, view: DroneView, ev: FlightAck, what: str) -> list[Action]:
         """A refusal: classified only after ``REASON_WAIT_S`` (ArduPilot says why after its ACK)."""
@@ -1091,7 +1019,7 @@ class StationCore:
         if not ev.accepted:
             return self._step_refused(view, ev, "mission start")
         self._set_stage(view, Stage.TAKING_OFF, ev.now)
-        return [Log(rec.MissionStarted(drone=view.name, result=ev.result))]
+        return [Emit(rec.MissionStarted(drone=view.name, result=ev.result))]
 
     def _classify_refusal(self, view: DroneView, ev: FlightTick) -> list[Action]:
         """``REASON_WAIT_S`` after a refusal, with the texts that came before and after its ACK: not
@@ -1105,7 +1033,7 @@ class StationCore:
         texts = self._reasons(view, r.at - REASON_BEFORE_S)
         said = " ".join(texts).lower()
         view.tries += 1
-        out: list[Action] = [Log(rec.VehicleRefused(drone=view.name, what=r.what, result=r.result, try_=view.tries, texts=texts))]
+        out: list[Action] = [Emit(rec.VehicleRefused(drone=view.name, what=r.what, result=r.result, try_=view.tries, texts=texts))]
         reason = "; ".join(texts) or f"result {r.result}"
         final = any(p in said for p in REFUSED_FOR_GOOD)
         not_ready = (r.result == mav.MAV_RESULT_TEMPORARILY_REJECTED or any(p in said for p in NOT_READY)
@@ -1113,7 +1041,7 @@ class StationCore:
         if not (final or not_ready):
             view.unexplained += 1
         if final or view.unexplained >= MAX_UNEXPLAINED:
-            out.append(Log(rec.MissionStartFailed(drone=view.name, result=r.result, texts=texts)))
+            out.append(Emit(rec.MissionStartFailed(drone=view.name, result=r.result, texts=texts)))
             return out + self._give_up(view, ev.now, f"{r.what} refused (result {r.result}): {reason}")
         view.next_try = ev.now + RETRY_AFTER_S
         self._set_stage(view, Stage.WAITING_READY, ev.now)
@@ -1128,7 +1056,7 @@ class StationCore:
             view.fix.position is not None and view.fix.position.alt > LEFT_GROUND_M)
         if left and view.armed:
             self._set_stage(view, Stage.FLYING, ev.now)
-            return [Log(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
+            return [Emit(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
                     Say(f"zdrone gs {self.name}: {view.name} took off")]
         disarmed = (view.disarmed_at is not None and view.disarmed_at > view.stage_time) or (
             not view.armed and ev.now - view.stage_time > ARMED_REPORT_S)
@@ -1138,7 +1066,7 @@ class StationCore:
             view.next_try = ev.now + RETRY_AFTER_S
             self._set_stage(view, Stage.WAITING_READY, ev.now)
             reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"
-            return [Log(rec.TakeoffRestart(drone=view.name, reason=reason, restarts=view.restarts)),
+            return [Emit(rec.TakeoffRestart(drone=view.name, reason=reason, restarts=view.restarts)),
                     Say(f"zdrone gs {self.name}: {view.name} {reason}: arming and starting again")]
         if ev.now - view.stage_time > TAKEOFF_CONFIRM_S and not view.takeoff_late_said:
             view.takeoff_late_said = True
@@ -1180,7 +1108,7 @@ class StationCore:
                     return resuming  # the release waits for the mission mode
                 out: list[Action] = []
                 if not ho.released:  # sent for the first time (not again)
-                    out.append(Log(rec.HandoverRelease(drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])))
+                    out.append(Emit(rec.HandoverRelease(drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])))
                 ho.handle(Release(now, g, mine))
                 return out + self.send_control(view, wire.HandoverRelease(g, view.epoch))
         return []
@@ -1267,7 +1195,7 @@ class StationCore:
         self.counters["handover_hold"] += 1
         log.warning("hand-over of %s to %s waits for its key: holding the vehicle (%s) for at most %g s",
                     view.name, g, hold_mode, HOLD_FOR_KEY_S)
-        return [Log(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=hold_mode)),
+        return [Emit(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=hold_mode)),
                 Say(f"zdrone gs {self.name}: holding {view.name} in the overlap until {g}'s key is there"),
                 *self._hold_command(view, hold, hold_mode, now)]
 
@@ -1283,7 +1211,7 @@ class StationCore:
                 return None
             hold.phase, hold.confirmed = HoldPhase.RESUMING, False
             self.counters["handover_resume"] += 1
-            return [Log(rec.HandoverResume(drone=view.name, to=g, epoch=view.epoch, held_s=round(now - hold.since, 2))),
+            return [Emit(rec.HandoverResume(drone=view.name, to=g, epoch=view.epoch, held_s=round(now - hold.since, 2))),
                     *self._hold_command(view, hold, hold.mission_mode, now)]
         if hold.confirmed or self._mode(view) == hold.mission_mode and now - hold.sent >= HOLD_RESEND_S:
             hold.phase = HoldPhase.OVER
@@ -1313,11 +1241,12 @@ class StationCore:
             view.mission_seq = seq
         p = view.fix.position
         position = None if p is None else (round(p.lat, 7), round(p.lon, 7), round(p.alt, 2))
-        return [Log(rec.MissionProgress(drone=view.name, seq=seq, reached=reached, landed_state=view.landed_state,
+        return [Emit(rec.MissionProgress(drone=view.name, seq=seq, reached=reached, landed_state=view.landed_state,
                                         position=position))]
 
     # ------------------------------------------------------------------ status
-    def status(self) -> dict[str, Any]:
+    def report(self, now: float) -> dict[str, Any]:
+        """The core's part of the GS's status record."""
         out = {}
         for d, v in self.views.items():
             out[d] = {"linked": v.link is not None, "owner": v.owner, "epoch": v.epoch,

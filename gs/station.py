@@ -38,8 +38,10 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
 
-from .core import (GCS_COMPID, Action, Ask, AskKind, CoreOptions, DroneStatus, DroneView, FrameUp, Log, Put, Say,
-                   StationCore, view_line)
+from zdrone.core.outputs import Handlers, dispatch
+
+from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, Say
+from .core import GCS_COMPID, CoreOptions, DroneStatus, DroneView, StationCore, view_line
 from .planner import PlannedItem
 
 log = logging.getLogger(__name__)
@@ -103,23 +105,23 @@ class GroundStation:
         self.session = self.rt.session
         self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of)
         self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
+        self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask,
+                                    Emit: lambda a: self.events.write_record(a.record),
+                                    Say: lambda a: print(a.text, flush=True)}
 
     # ------------------------------------------------------------------ plumbing
 
     def _do(self, actions: list[Action]) -> None:
         """Carry out the core's actions."""
-        for a in actions:
-            if isinstance(a, Put):  # a link frame on an uplink key: paced, priority, express
-                self.rt.put_link(a.keyexpr, a.payload, time.monotonic())
-            elif isinstance(a, FrameUp):
-                for listener in self.frame_listeners:
-                    listener(a.drone, a.frame)
-            elif isinstance(a, Log):
-                self.events.write_record(a.record)
-            elif isinstance(a, Ask):
-                self._ask(a)
-            elif isinstance(a, Say):
-                print(a.text, flush=True)
+        dispatch(actions, self._handlers)
+
+    def _put(self, a: Put) -> None:
+        """A link frame on the drone's uplink key: paced, priority, express."""
+        self.rt.put_link(kx.up(a.peer, self.name), a.payload, time.monotonic())
+
+    def _frame_up(self, a: FrameUp) -> None:
+        for listener in self.frame_listeners:
+            listener(a.drone, a.frame)
 
     def _ask(self, a: Ask) -> None:
         if a.kind is AskKind.PAIR:
@@ -200,7 +202,7 @@ class GroundStation:
     # -------------------------------------------------------------------- loop
     def status(self) -> dict[str, Any]:
         extra = {name: source() for name, source in self.status_sources.items()}
-        return {**self.core.status(), "inbox_dropped": self.rx.stats(), **extra}
+        return {**self.core.report(time.monotonic()), "inbox_dropped": self.rx.stats(), **extra}
 
     def print_view(self, now: float) -> None:
         """The telemetry view: one line per linked drone on stdout (``view_line``)."""

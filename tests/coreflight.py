@@ -21,16 +21,16 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from gs.core import Ask, AskKind, CoreOptions, FrameUp, Log, Put, Say, StationCore
+from gs.actions import Ask, AskKind, Emit, FrameUp, Put, Say
+from gs.core import CoreOptions, StationCore
 from gs.planner import reference_plan
 from zdrone.core import records as rec
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
 from zdrone.core.reference import HOME
-from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
-from zdrone.nodes.drone_core import (CommandVehicle, DroneCore, DroneCoreOptions, Emit, Listen, Persist, PutDown,
-                                     ToVehicle)
+from zdrone.core.outputs import dispatch
+from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Persist, ToVehicle
 from zdrone.vehicle.link import COMPANION_COMPID
 from zdrone.vehicle.modes import ARDUPILOT, set_mode_params
 from zdrone.vehicle.personality import PX4, Personality
@@ -105,63 +105,61 @@ class CoreFlight:
     # ------------------------------------------------------------------ carrying out
     def handle(self, outs: list[Any]) -> None:
         """Carry out the drone core's outputs."""
-        for o in outs:
-            if isinstance(o, PutDown):
-                if self.in_range(o.gs):
-                    self.station(o.gs, self.gs[o.gs].core.on_envelope(DRONE, o.payload, self.now))
-                else:
-                    self.lost_frames[o.gs] += 1
-            elif isinstance(o, ToVehicle):
-                self.sim.receive(o.frame, self.sim.t)
-            elif isinstance(o, CommandVehicle):
-                self.commands.append(o)  # as VehicleLink.command_land / command_rtl
-                params = set_mode_params(self.tracker.autopilot, o.command) if self.tracker.autopilot == ARDUPILOT else None
-                if params is not None:
-                    self._to_vehicle(self.tracker.command(mav.MAV_CMD_DO_SET_MODE, tuple(params), self.now))
-                else:
-                    cmd = mav.MAV_CMD_NAV_LAND if o.command == "LAND" else mav.MAV_CMD_NAV_RETURN_TO_LAUNCH
-                    self._to_vehicle(self.tracker.command(cmd, (0.0,) * 7, self.now))
-            elif isinstance(o, Emit):
-                self.records.append((self.now, o.record))
-            elif isinstance(o, Listen):
-                self.listening = o.gss
-            elif isinstance(o, Persist):
-                self.persisted.append(o)
-            else:
-                raise AssertionError(f"unknown drone output {o!r}")
+        dispatch(outs, {Put: self._put_down, ToVehicle: lambda o: self.sim.receive(o.frame, self.sim.t),
+                        CommandVehicle: self._command_vehicle, Emit: lambda o: self.records.append((self.now, o.record)),
+                        Listen: self._listen, Persist: self.persisted.append})
+
+    def _put_down(self, o: Put) -> None:
+        if self.in_range(o.peer):
+            self.station(o.peer, self.gs[o.peer].core.on_envelope(DRONE, o.payload, self.now))
+        else:
+            self.lost_frames[o.peer] += 1
+
+    def _listen(self, o: Listen) -> None:
+        self.listening = o.gss
+
+    def _command_vehicle(self, o: CommandVehicle) -> None:
+        self.commands.append(o)  # as VehicleLink.command_land / command_rtl
+        params = set_mode_params(self.tracker.autopilot, o.command) if self.tracker.autopilot == ARDUPILOT else None
+        if params is not None:
+            self._to_vehicle(self.tracker.command(mav.MAV_CMD_DO_SET_MODE, tuple(params), self.now))
+        else:
+            cmd = mav.MAV_CMD_NAV_LAND if o.command == "LAND" else mav.MAV_CMD_NAV_RETURN_TO_LAUNCH
+            self._to_vehicle(self.tracker.command(cmd, (0.0,) * 7, self.now))
 
     def station(self, name: str, actions: list[Any]) -> None:
         """Carry out GS ``name``'s actions."""
         st = self.gs[name]
-        for a in actions:
-            if isinstance(a, Put):
-                assert a.keyexpr == kx.up(DRONE, name), a.keyexpr
-                if name in self.listening and self.in_range(name):
-                    self.handle(self.drone.on_envelope(name, a.payload, self.now))
-                else:
-                    self.lost_frames[name] += 1
-            elif isinstance(a, Ask) and a.kind is AskKind.PAIR:
-                if self.in_range(name):
-                    ans, outs = self.drone.on_pair_query(name, a.payload, self.now, bytes(32), WALL0 + self.now)
-                    self.handle(outs)
-                    if hasattr(ans, "reply"):
-                        self.station(name, st.core.on_pair_reply(DRONE, ans.reply, None, self.now))
-                    elif not ans.silent:
-                        self.station(name, st.core.on_pair_reply(DRONE, None, ans.text.encode(), self.now))
-            elif isinstance(a, Ask) and a.kind is AskKind.LINKKEY:
-                other = self.gs[a.gs]
-                if not other.down:  # the backhaul: no radio involved
-                    answer, logs = other.core.on_linkkey_query(DRONE, a.payload, self.now, bytes([len(self.records) % 256]) * 32,
-                                                               WALL0 + self.now)
-                    self.station(a.gs, logs)
-                    if answer.reply is not None or answer.error is not None:
-                        self.station(name, st.core.on_linkkey_reply(DRONE, a.gs, answer.reply, answer.error, self.now))
-            elif isinstance(a, Log):
-                st.logs.append((self.now, a.kind, a.fields))
-            elif isinstance(a, (FrameUp, Say)):
-                pass  # the GCS gateway and the operator's console
+
+        def put(a: Put) -> None:
+            assert a.peer == DRONE, a.peer
+            if name in self.listening and self.in_range(name):
+                self.handle(self.drone.on_envelope(name, a.payload, self.now))
             else:
-                raise AssertionError(f"unknown GS action {a!r}")
+                self.lost_frames[name] += 1
+
+        dispatch(actions, {Put: put, Ask: lambda a: self._ask(name, a),
+                           Emit: lambda a: st.logs.append((self.now, a.kind, a.fields)),
+                           FrameUp: lambda a: None, Say: lambda a: None})  # the GCS gateway, the operator's console
+
+    def _ask(self, name: str, a: Ask) -> None:
+        st = self.gs[name]
+        if a.kind is AskKind.PAIR:
+            if self.in_range(name):
+                ans, outs = self.drone.on_pair_query(name, a.payload, self.now, bytes(32), WALL0 + self.now)
+                self.handle(outs)
+                if hasattr(ans, "reply"):
+                    self.station(name, st.core.on_pair_reply(DRONE, ans.reply, None, self.now))
+                elif not ans.silent:
+                    self.station(name, st.core.on_pair_reply(DRONE, None, ans.text.encode(), self.now))
+            return
+        other = self.gs[a.gs]
+        if not other.down:  # the backhaul: no radio involved
+            answer, logs = other.core.on_linkkey_query(DRONE, a.payload, self.now, bytes([len(self.records) % 256]) * 32,
+                                                       WALL0 + self.now)
+            self.station(a.gs, logs)
+            if answer.reply is not None or answer.error is not None:
+                self.station(name, st.core.on_linkkey_reply(DRONE, a.gs, answer.reply, answer.error, self.now))
 
     # ------------------------------------------------------------------ time
     def restart_drone(self, down_for: float) -> None:

@@ -9,7 +9,8 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from gs.core import Log, Put, Say, StationCore
+from gs.actions import Emit, Put, Say
+from gs.core import StationCore
 from gs.gateway import GcsGateway
 from gs.opcontrol import DECLINE_HOLD_S, GRANT_WINDOW_S, Answer
 from zdrone.core import authority as ha
@@ -51,7 +52,7 @@ class Net:
     machine: ha.AuthorityMachine
     drone_links: dict[str, SecureLink]
     now: float = 0.0
-    logs: dict[str, list[Log]] = field(default_factory=lambda: {"A": [], "B": [], "X": []})
+    logs: dict[str, list[Emit]] = field(default_factory=lambda: {"A": [], "B": [], "X": []})
     said: list[str] = field(default_factory=list)
     queue: deque = field(default_factory=deque)
     gateways: dict[str, GcsGateway] = field(default_factory=dict)
@@ -76,11 +77,11 @@ class Net:
             self.pumping = False
 
     def _to_drone(self, gs: str, a) -> None:
-        if isinstance(a, Log):
+        if isinstance(a, Emit):
             self.logs[gs].append(a)
         elif isinstance(a, Say):
             self.said.append(a.text)
-        elif isinstance(a, Put) and a.keyexpr == kx.up("d1", gs):
+        elif isinstance(a, Put) and a.peer == "d1":
             res = self.drone_links[gs].open(a.payload, self.now)
             assert isinstance(res, Opened)
             if res.control is None:
@@ -106,7 +107,7 @@ class Net:
                 frame = self.vehicle.encode(mav.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3))
                 self.deliver(g, self.cores[g].on_envelope("d1", self.drone_links[g].seal(frame), self.now))
             for g, c in self.cores.items():
-                self.deliver(g, c.tick(self.now))
+                self.deliver(g, c.handle_timer(self.now))
             for gw in self.gateways.values():
                 gw.poll(self.now)
 
@@ -144,7 +145,7 @@ def make_net(fleet_dir, gss: tuple[str, ...] = ("A", "B"), **a_opts) -> Net:
     for g in gss:
         sysid = cores[g].fleet.nodes[g].sysid
         c = cores[g]
-        m1 = next(x for x in c.tick(0.0) if type(x).__name__ == "Ask")
+        m1 = next(x for x in c.handle_timer(0.0) if type(x).__name__ == "Ask")
         m2, key = respond(ident(fleet_dir, "d1"), "d1", g, c.fleet.nodes[g].public_bytes, m1.payload, bytes([sysid]) * 32)
         links[g] = SecureLink(key=key, role="drone", tx_keyexpr=kx.down("d1", g), rx_keyexpr=kx.up("d1", g),
                               peer_sysid=sysid, now=0.0)
@@ -255,10 +256,10 @@ def test_a_passed_on_request_for_another_epoch_or_at_a_non_owner_is_ignored(flee
     net = make_net(fleet_dir)
     b = net.cores["B"]
     out = b._on_control(b.views["d1"], wire.OperatorRequest("A", "A", 1, 5.0), net.now)  # B is not the owner
-    assert [x.kind for x in out if isinstance(x, Log)] == ["operator_request_stale"]
+    assert [x.kind for x in out if isinstance(x, Emit)] == ["operator_request_stale"]
     a = net.cores["A"]
     out = a._on_control(a.views["d1"], wire.OperatorRequest("B", "B", 7, 5.0), net.now)  # another epoch
-    assert [x.kind for x in out if isinstance(x, Log)] == ["operator_request_stale"]
+    assert [x.kind for x in out if isinstance(x, Emit)] == ["operator_request_stale"]
     assert a.views["d1"].operator.request is None
 
 

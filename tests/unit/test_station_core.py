@@ -9,7 +9,8 @@ from zdrone.core.keys import Identity
 from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
-from gs.core import Ask, AskKind, CoreOptions, Log, Put, Say, StationCore, Stage
+from gs.actions import Ask, AskKind, Emit, Put, Say
+from gs.core import CoreOptions, StationCore, Stage
 from zdrone.core.mavlink import FrameCodec
 
 
@@ -33,7 +34,7 @@ def ident(fleet_dir, name: str) -> Identity:
 def paired_a(fleet_dir) -> StationCore:
     """GS A, paired with d1 (the drone side of the handshake done here by hand) and holding authority."""
     a = core(fleet_dir, "A", pair=True)
-    asks = [x for x in a.tick(0.0) if isinstance(x, Ask)]
+    asks = [x for x in a.handle_timer(0.0) if isinstance(x, Ask)]
     assert [x.kind for x in asks] == [AskKind.PAIR]
     m2, _key = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, asks[0].payload, bytes(32))
     out = a.on_pair_reply("d1", m2, None, 0.1)
@@ -43,7 +44,7 @@ def paired_a(fleet_dir) -> StationCore:
 
 
 def share(a: StationCore, b: StationCore, now: float) -> Ask:
-    asks = [x for x in a.tick(now) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    asks = [x for x in a.handle_timer(now) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
     assert len(asks) == 1 and asks[0].gs == "B" and asks[0].keyexpr == "backhaul/B/linkkey/d1"
     return asks[0]
 
@@ -55,7 +56,7 @@ def test_key_sharing_end_to_end_leaves_the_owner_live_link_alone(fleet_dir):
     assert ans.reply is not None and ans.crypto and [x.kind for x in logs] == ["linkkey_shared"]
     assert b.views["d1"].link is None and len(b.views["d1"].slot.candidates) == 1  # pending the drone's proof
     out = a.on_linkkey_reply("d1", "B", ans.reply, None, 1.2)
-    assert [x.kind for x in out if isinstance(x, Log)] == ["linkkey_received"]
+    assert [x.kind for x in out if isinstance(x, Emit)] == ["linkkey_received"]
     assert a.views["d1"].grants["B"].secret == bytes(range(32))
 
 
@@ -105,7 +106,7 @@ def test_unauthorized_asker_and_rate_limit_refused_before_crypto(fleet_dir):
 
 def test_forged_pairing_reply_does_not_spoil_pairing(fleet_dir):
     a = core(fleet_dir, "A", pair=True)
-    ask = [x for x in a.tick(0.0) if isinstance(x, Ask)][0]
+    ask = [x for x in a.handle_timer(0.0) if isinstance(x, Ask)][0]
     a.on_pair_reply("d1", b"\x02" * 64, None, 0.1)
     assert a.counters["pair_bad_reply"] == 1 and a.views["d1"].link is None
     m2, _ = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, ask.payload, bytes(32))
@@ -121,7 +122,7 @@ def test_mission_stages_are_a_table(fleet_dir):
     a = paired_a(fleet_dir)
     assert a.views["d1"].stage is Stage.IDLE
     a.opts = CoreOptions(pair=True, mission=None)
-    a.tick(5.0)
+    a.handle_timer(5.0)
     assert a.views["d1"].stage is Stage.IDLE  # no mission: nothing to fly
     assert a._flight(a.views["d1"], FlightAck(5.0, 400, True, 0)) == []
     assert a._flight(a.views["d1"], FlightTick(5.0)) == []
@@ -145,15 +146,15 @@ def test_no_release_toward_a_gs_the_drone_has_no_key_for_the_vehicle_comes_home(
 
     a = paired_a(fleet_dir)
     _in_overlap_nearer_b(a, {"A"})
-    out = a.tick(10.0)
+    out = a.handle_timer(10.0)
     assert [x.gs for x in out if isinstance(x, Ask) and x.kind is AskKind.LINKKEY] == ["B"]  # B's key: asked for
-    assert not [x for x in out if isinstance(x, Log) and x.kind in ("handover_failed", "handover_release")]
+    assert not [x for x in out if isinstance(x, Emit) and x.kind in ("handover_failed", "handover_release")]
     a.views["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m: no more waiting
-    out = a.tick(10.5)
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    out = a.handle_timer(10.5)
+    failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert len(failed) == 1 and "no link to B" in failed[0].fields["reason"] and failed[0].fields["action"] == "RTL"
     assert not a.views["d1"].handover.released and a.holds_authority(a.views["d1"])
-    assert not [x for x in a.tick(11.0) if isinstance(x, Log) and x.kind in ("handover_failed", "handover_release")]
+    assert not [x for x in a.handle_timer(11.0) if isinstance(x, Emit) and x.kind in ("handover_failed", "handover_release")]
 
 
 def test_a_key_sharing_query_refused_for_a_live_link_is_asked_again_soon(fleet_dir):
@@ -165,11 +166,11 @@ def test_a_key_sharing_query_refused_for_a_live_link_is_asked_again_soon(fleet_d
     a = paired_a(fleet_dir)
     ask = share(a, core(fleet_dir, "B"), 1.0)
     a.on_linkkey_reply("d1", "B", None, b"live_link", 1.05)
-    assert not [x for x in a.tick(1.2) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
-    again = [x for x in a.tick(1.05 + LIVE_LINK_RETRY_S + 0.01) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    assert not [x for x in a.handle_timer(1.2) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    again = [x for x in a.handle_timer(1.05 + LIVE_LINK_RETRY_S + 0.01) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
     assert len(again) == 1 and again[0].payload != ask.payload and a.counters["linkkey_asked_again"] == 1
     a.on_linkkey_reply("d1", "B", None, b"rate_limited", 1.7)  # any other refusal: the query's own timeout
-    assert not [x for x in a.tick(2.5) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
+    assert not [x for x in a.handle_timer(2.5) if isinstance(x, Ask) and x.kind is AskKind.LINKKEY]
 
 
 def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
@@ -183,22 +184,22 @@ def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
     a = paired_a(fleet_dir)
     view = a.views["d1"]
     _in_overlap_nearer_b(a, {"A", "B"})
-    out = a.tick(10.0)
-    assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["B"]
+    out = a.handle_timer(10.0)
+    assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["B"]
     out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 10.5)
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert len(failed) == 1 and failed[0].fields["reason"].startswith("release refused")
     assert failed[0].fields["action"] == "retry" and a.holds_authority(view)
-    assert not [x for x in a.tick(10.6) if isinstance(x, Log) and x.kind == "handover_release"]  # the retry waits
+    assert not [x for x in a.handle_timer(10.6) if isinstance(x, Emit) and x.kind == "handover_release"]  # the retry waits
     view.position = offset(HOME, 0.0, 340.0)  # 40 m farther from A's centre: leaving A's coverage
-    assert [x for x in a.tick(10.5 + HANDOVER_RETRY_S + 0.01) if isinstance(x, Put)]  # the release again
+    assert [x for x in a.handle_timer(10.5 + HANDOVER_RETRY_S + 0.01) if isinstance(x, Put)]  # the release again
     out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 13.0)
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert [x.fields["action"] for x in failed] == ["RTL"] and a.holds_authority(view)
     assert any(isinstance(x, Put) for x in out)  # the RTL command
-    a.tick(15.1)
+    a.handle_timer(15.1)
     out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 15.2)
-    assert not [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]  # counted, not logged again
+    assert not [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]  # counted, not logged again
     assert not [x for x in out if isinstance(x, Put)]  # RTL once per epoch
 
 
@@ -219,17 +220,17 @@ def test_a_timed_out_hand_back_is_tried_again_when_the_vehicle_flies_into_our_co
     view.link = view.slot.live
     view.owner, view.epoch, view.drone_links = "B", 2, {"A", "B"}
     view.position = offset(HOME, 0.0, 200.0)  # nearer A's centre than B's
-    out = b.tick(1.0)
-    assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["A"]
+    out = b.handle_timer(1.0)
+    assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["A"]
     b._on_control(view, wire.AuthorityStatus("B", 2, HaState.HANDOVER_PENDING, "A", ["A", "B"]), 1.1)
     view.position = offset(HOME, 0.0, 220.0)  # flying toward B
     out = b._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.6)
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "handover_failed"]
+    failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert [(x.fields["action"], x.fields["reason"]) for x in failed] == [("retry", "release timed out")]
     assert not [x for x in out if isinstance(x, Put)]  # no RTL
-    assert not [x for x in b.tick(4.0) if isinstance(x, Log) and x.kind == "handover_release"]
-    out = b.tick(3.6 + HANDOVER_RETRY_S + 0.01)
-    assert [x.fields["to"] for x in out if isinstance(x, Log) and x.kind == "handover_release"] == ["A"]
+    assert not [x for x in b.handle_timer(4.0) if isinstance(x, Emit) and x.kind == "handover_release"]
+    out = b.handle_timer(3.6 + HANDOVER_RETRY_S + 0.01)
+    assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["A"]
 
 
 def test_a_gs_cut_off_learns_who_holds_authority_before_it_acts(fleet_dir):
@@ -246,13 +247,13 @@ def test_a_gs_cut_off_learns_who_holds_authority_before_it_acts(fleet_dir):
     a.opts = CoreOptions(pair=True, command_rate=5.0)
     view.armed = True
     view.link.tbm.observe(1.0)  # the drone was heard, then fell silent
-    out = a.tick(1.0 + STALE_VIEW_S + 0.5)
+    out = a.handle_timer(1.0 + STALE_VIEW_S + 0.5)
     assert view.stale and not a.holds_authority(view)
-    assert not [x for x in out if isinstance(x, Log) and x.kind in ("handover_release", "handover_failed")]
+    assert not [x for x in out if isinstance(x, Emit) and x.kind in ("handover_release", "handover_failed")]
     assert not [x for x in out if isinstance(x, Put) and len(x.payload) > 60]  # no command (heartbeats only)
     a._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.0)
     assert not view.stale and view.owner == "B" and not a.holds_authority(view)
-    assert not [x for x in a.tick(3.1) if isinstance(x, Log) and x.kind in ("handover_release", "handover_failed")]
+    assert not [x for x in a.handle_timer(3.1) if isinstance(x, Emit) and x.kind in ("handover_release", "handover_failed")]
     a._on_control(view, wire.AuthorityStatus("A", 3, HaState.LINKED, None, ["A", "B"]), 4.0)
     assert a.holds_authority(view)  # handed back: A acts again
 
@@ -265,9 +266,9 @@ def test_after_a_failsafe_the_gs_asks_for_control_only_with_the_operators_reques
         a.opts = CoreOptions(pair=True, take_control=standing)
         a._on_control(a.views["d1"], wire.FailsafeNotice("LAND", "authority link to A lost"), 5.0)
         assert not a.holds_authority(a.views["d1"])  # the drone obeys nobody in its failsafe
-        asked = [x for x in a.tick(6.0) if isinstance(x, Log) and x.kind == "control_requested"]
+        asked = [x for x in a.handle_timer(6.0) if isinstance(x, Emit) and x.kind == "control_requested"]
         assert len(asked) == (1 if standing else 0)
-        assert not [x for x in a.tick(6.5) if isinstance(x, Log) and x.kind == "control_requested"]  # 1/s at most
+        assert not [x for x in a.handle_timer(6.5) if isinstance(x, Emit) and x.kind == "control_requested"]  # 1/s at most
 
 
 def _flying_core(fleet_dir, autopilot: str) -> StationCore:
@@ -283,12 +284,12 @@ def test_the_mission_is_encoded_for_the_autopilot_found(fleet_dir):
     from gs.core import FlightParam, FlightTick
 
     px4 = _flying_core(fleet_dir, "px4")
-    logs = [x for x in px4._flight(px4.views["d1"], FlightTick(1.0)) if isinstance(x, Log)]
+    logs = [x for x in px4._flight(px4.views["d1"], FlightTick(1.0)) if isinstance(x, Emit)]
     assert logs[-1].kind == "mission_upload" and logs[-1].fields["items"] == 7  # no second take-off
     ap = _flying_core(fleet_dir, "ardupilot")
     assert ap._flight(ap.views["d1"], FlightTick(1.0)) and ap.views["d1"].stage is Stage.PREPARING  # MIS_OPTIONS first
     assert ap._flight(ap.views["d1"], FlightParam(1.1, "MIS_OPTIONS", 0.0)) == []  # not yet set
-    logs = [x for x in ap._flight(ap.views["d1"], FlightParam(1.2, "MIS_OPTIONS", 4.0)) if isinstance(x, Log)]
+    logs = [x for x in ap._flight(ap.views["d1"], FlightParam(1.2, "MIS_OPTIONS", 4.0)) if isinstance(x, Emit)]
     assert logs[-1].fields["items"] == 9 and ap.views["d1"].stage is Stage.UPLOADING  # home placeholder + both take-offs
 
 
@@ -350,7 +351,7 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
         a._flight(view, FlightAck(301.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
         out = a._flight(view, FlightTick(301.6 + i))
         assert view.stage is Stage.WAITING_READY, i
-    refused = [x for x in out if isinstance(x, Log) and x.kind == "vehicle_refused"]
+    refused = [x for x in out if isinstance(x, Emit) and x.kind == "vehicle_refused"]
     assert refused and refused[0].fields["texts"] == ["Arm: Accels inconsistent"]
     # a refusal nothing explains (no reason, the vehicle says it is ready) is tried a few times only
     from gs.core import MAX_UNEXPLAINED
@@ -359,7 +360,7 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
         view.stage, view.texts = Stage.ARMING, []
         a._flight(view, FlightAck(400.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
         out = a._flight(view, FlightTick(400.6 + i))
-    assert view.stage is Stage.FAILED and any(isinstance(x, Log) and x.kind == "mission_failed" for x in out)
+    assert view.stage is Stage.FAILED and any(isinstance(x, Emit) and x.kind == "mission_failed" for x in out)
 
 
 def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir):
@@ -391,7 +392,7 @@ def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir)
     a._flight(view, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
     view.texts = [(30.1, "Mission rejected: takeoff not first waypoint item")]
     out = a._flight(view, FlightTick(30.7))
-    failed = [x for x in out if isinstance(x, Log) and x.kind == "mission_failed"]
+    failed = [x for x in out if isinstance(x, Emit) and x.kind == "mission_failed"]
     assert view.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
     assert any(isinstance(x, Say) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
 
@@ -409,7 +410,7 @@ def test_take_off_is_verified_and_a_disarm_on_the_ground_arms_and_starts_again(f
     view.landed_state = mav.MAV_LANDED_STATE_ON_GROUND
     a._flight(view, FlightAck(40.0, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
     assert view.stage is Stage.TAKING_OFF  # not flying: it has not left the ground
-    assert a._flight(view, FlightTick(41.0)) == [] and a.status()["drones"]["d1"]["stage"] == "taking_off"
+    assert a._flight(view, FlightTick(41.0)) == [] and a.report(0.0)["drones"]["d1"]["stage"] == "taking_off"
     view.armed, view.disarmed_at, view.custom_mode = False, 42.0, 3  # disarmed by itself, left in AUTO
     out = a._flight(view, FlightTick(42.1))
     assert view.stage is Stage.WAITING_READY and view.restarts == 1
@@ -425,7 +426,7 @@ def test_take_off_is_verified_and_a_disarm_on_the_ground_arms_and_starts_again(f
     view.landed_state = mav.MAV_LANDED_STATE_IN_AIR
     out = a._flight(view, FlightTick(46.5))
     assert view.stage is Stage.FLYING and _says(out) == ["zdrone gs A: d1 took off"]
-    assert [x.fields["restarts"] for x in out if isinstance(x, Log) and x.kind == "takeoff_confirmed"] == [1]
+    assert [x.fields["restarts"] for x in out if isinstance(x, Emit) and x.kind == "takeoff_confirmed"] == [1]
 
 
 def test_the_gs_takes_no_position_from_an_autopilot_without_a_fix(fleet_dir):
@@ -436,14 +437,14 @@ def test_the_gs_takes_no_position_from_an_autopilot_without_a_fix(fleet_dir):
     view = a.views["d1"]
     codec = FrameCodec(1, 1)
     view.fix.on_message(codec.decode(codec.encode(mav.MAVLink_global_position_int_message(0, 0, 0, 0, 0, 0, 0, 0, 0))))
-    assert view.position is None and a.status()["drones"]["d1"]["position"] is None
+    assert view.position is None and a.report(0.0)["drones"]["d1"]["position"] is None
     assert a._coordinate(view, 5.0) == []
 
 
 def _repair(fleet_dir, holds_key: bool):
     a = paired_a(fleet_dir)
     live = a.views["d1"].link
-    asks = [x for x in a.tick(10.0) if isinstance(x, Ask) and x.kind is AskKind.PAIR]  # silent 10 s: pair again
+    asks = [x for x in a.handle_timer(10.0) if isinstance(x, Ask) and x.kind is AskKind.PAIR]  # silent 10 s: pair again
     assert len(asks) == 1
     m2, _ = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, asks[0].payload, bytes(32),
                     holds_key=holds_key)
@@ -455,9 +456,9 @@ def test_pairing_again_after_silence_keeps_the_key_the_drone_still_holds(fleet_d
     """Out of radio coverage is not a restart: the drone says it still holds our key, and we keep it
     (switching would leave us with a key the drone cannot confirm until it is back in range)."""
     a, live, out = _repair(fleet_dir, holds_key=True)
-    assert a.views["d1"].link is live and [x.kind for x in out if isinstance(x, Log)] == ["pair_not_needed"]
+    assert a.views["d1"].link is live and [x.kind for x in out if isinstance(x, Emit)] == ["pair_not_needed"]
     b, live_b, out_b = _repair(fleet_dir, holds_key=False)  # a restarted companion holds nothing
-    assert b.views["d1"].link is not live_b and any(isinstance(x, Log) and x.kind == "paired" for x in out_b)
+    assert b.views["d1"].link is not live_b and any(isinstance(x, Emit) and x.kind == "paired" for x in out_b)
 
 
 def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
@@ -498,7 +499,7 @@ def _mode_commands(a: StationCore, out) -> list[str]:
     for x in out:
         if not isinstance(x, Put):
             continue
-        peer = SecureLink(key=view.link.key, role="drone", tx_keyexpr="", rx_keyexpr=x.keyexpr, peer_sysid=a.sysid, now=0.0)
+        peer = SecureLink(key=view.link.key, role="drone", tx_keyexpr="", rx_keyexpr=f"zdrone/{x.peer}/up/A", peer_sysid=a.sysid, now=0.0)
         res = peer.open(x.payload, 0.0)
         msg = FrameCodec(1, 1).decode(res.plaintext) if getattr(res, "plaintext", None) else None
         if msg is not None and msg.get_type() == "COMMAND_LONG" and msg.command == mav.MAV_CMD_DO_SET_MODE:
@@ -528,7 +529,7 @@ def _set_mode(a: StationCore, name: str) -> None:
 
 
 def _handover_logs(out) -> list[str]:
-    return [x.kind for x in out if isinstance(x, Log) and x.kind.startswith("handover")]
+    return [x.kind for x in out if isinstance(x, Emit) and x.kind.startswith("handover")]
 
 
 def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_before_the_release(fleet_dir):
@@ -540,17 +541,17 @@ def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_bef
 
     a = _held_for_b(fleet_dir)
     view = a.views["d1"]
-    out = a.tick(10.2)
+    out = a.handle_timer(10.2)
     assert _handover_logs(out) == ["handover_hold"] and _mode_commands(a, out) == ["HOLD"] and a.holds_authority(view)
-    assert _mode_commands(a, a.tick(10.2 + HOLD_RESEND_S + 0.01)) == ["HOLD"]  # not confirmed: sent again
+    assert _mode_commands(a, a.handle_timer(10.2 + HOLD_RESEND_S + 0.01)) == ["HOLD"]  # not confirmed: sent again
     _set_mode(a, "HOLD")  # the vehicle's HEARTBEAT: holding
-    assert _mode_commands(a, a.tick(11.5)) == [] and not _handover_logs(a.tick(12.0))
+    assert _mode_commands(a, a.handle_timer(11.5)) == [] and not _handover_logs(a.handle_timer(12.0))
     view.drone_links = {"A", "B"}  # B's key reached the drone and B proved it
-    out = a.tick(13.0)
+    out = a.handle_timer(13.0)
     assert _handover_logs(out) == ["handover_resume"] and _mode_commands(a, out) == ["MISSION"]
-    assert _mode_commands(a, a.tick(13.0 + HOLD_RESEND_S + 0.01)) == ["MISSION"]  # not confirmed: sent again
+    assert _mode_commands(a, a.handle_timer(13.0 + HOLD_RESEND_S + 0.01)) == ["MISSION"]  # not confirmed: sent again
     a.on_mode_ack(view, True, 13.6)  # COMMAND_ACK accepted
-    out = a.tick(13.7)
+    out = a.handle_timer(13.7)
     assert _handover_logs(out) == ["handover_release"]
 
 
@@ -561,10 +562,10 @@ def test_a_hold_the_vehicle_never_confirms_ends_in_rtl_past_the_key_wait_radius(
     from zdrone.core.reference import HOME
 
     a = _held_for_b(fleet_dir)
-    assert _mode_commands(a, a.tick(10.2)) == ["HOLD"]
+    assert _mode_commands(a, a.handle_timer(10.2)) == ["HOLD"]
     a.views["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m, still in MISSION
-    out = a.tick(10.8)
-    assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+    out = a.handle_timer(10.8)
+    assert [x.fields["action"] for x in out if isinstance(x, Emit) and x.kind == "handover_failed"] == ["RTL"]
     assert _mode_commands(a, out) == ["RTL"]
 
 
@@ -573,12 +574,12 @@ def test_a_hold_that_runs_out_commands_rtl_wherever_the_vehicle_holds(fleet_dir)
     from gs.core import HOLD_FOR_KEY_S
 
     a = _held_for_b(fleet_dir)
-    a.tick(10.2)
+    a.handle_timer(10.2)
     _set_mode(a, "HOLD")
-    a.tick(11.0)
-    out = a.tick(10.2 + HOLD_FOR_KEY_S + 0.1)
+    a.handle_timer(11.0)
+    out = a.handle_timer(10.2 + HOLD_FOR_KEY_S + 0.1)
     assert "RTL" in _mode_commands(a, out) and a.counters["handover_hold_over:expired"] == 1
-    assert not _mode_commands(a, a.tick(10.2 + HOLD_FOR_KEY_S + 3.0))  # once
+    assert not _mode_commands(a, a.handle_timer(10.2 + HOLD_FOR_KEY_S + 3.0))  # once
 
 
 def test_a_mode_someone_else_chose_during_the_hold_stands(fleet_dir):
@@ -588,15 +589,15 @@ def test_a_mode_someone_else_chose_during_the_hold_stands(fleet_dir):
 
     a = _held_for_b(fleet_dir)
     view = a.views["d1"]
-    a.tick(10.2)
+    a.handle_timer(10.2)
     _set_mode(a, "HOLD")
-    a.tick(11.0)
+    a.handle_timer(11.0)
     _set_mode(a, "LAND")
-    out = a.tick(11.5)
+    out = a.handle_timer(11.5)
     assert a.counters["handover_hold_over:mode changed"] == 1 and not _mode_commands(a, out)
-    assert not _mode_commands(a, a.tick(10.2 + HOLD_FOR_KEY_S + 0.1))
+    assert not _mode_commands(a, a.handle_timer(10.2 + HOLD_FOR_KEY_S + 0.1))
     view.drone_links = {"A", "B"}
-    out = a.tick(10.2 + HOLD_FOR_KEY_S + 3.0)
+    out = a.handle_timer(10.2 + HOLD_FOR_KEY_S + 3.0)
     assert "MISSION" not in _mode_commands(a, out)
 
 
@@ -609,8 +610,8 @@ def test_an_unauthenticated_live_link_error_alone_holds_nothing(fleet_dir):
 
     a = _held_for_b(fleet_dir, restarted=False)
     a.views["d1"].position = offset(HOME, 0.0, 320.0)
-    out = a.tick(10.2)
-    assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+    out = a.handle_timer(10.2)
+    assert [x.fields["action"] for x in out if isinstance(x, Emit) and x.kind == "handover_failed"] == ["RTL"]
     assert "handover_hold" not in _handover_logs(out)
     b = paired_a(fleet_dir)
     _in_overlap_nearer_b(b, {"A"})
@@ -618,8 +619,8 @@ def test_an_unauthenticated_live_link_error_alone_holds_nothing(fleet_dir):
     b.views["d1"].lost_key_at = 9.0
     share(b, core(fleet_dir, "B"), 10.0)  # no answer at all
     b.views["d1"].position = offset(HOME, 0.0, 320.0)
-    out = b.tick(10.2)
-    assert [x.fields["action"] for x in out if isinstance(x, Log) and x.kind == "handover_failed"] == ["RTL"]
+    out = b.handle_timer(10.2)
+    assert [x.fields["action"] for x in out if isinstance(x, Emit) and x.kind == "handover_failed"] == ["RTL"]
 
 
 def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_a_second(fleet_dir):
@@ -633,7 +634,7 @@ def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_
     times = []
     for i in range(1, 800):  # 40 s of ticks, not a word from the drone, no answer to any query
         now = 0.1 + i * 0.05
-        times += [now for x in a.tick(now) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
+        times += [now for x in a.handle_timer(now) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
     fast = [t for t in times if t - heard <= SILENT_FAST_S]
     slow = [t for t in times if t - heard > SILENT_FAST_S + SILENT_SLOW_RETRY_S]
     assert fast and fast[0] - heard > SILENT_REPAIR_S
@@ -656,7 +657,7 @@ def test_the_timer_is_due_at_once_after_an_input_and_else_at_the_next_heartbeat_
     a.handle_timer(1.01)
     assert a.get_timer() > 1.01
     hb = a._hb_due
-    out = a.tick(hb)  # ``tick`` is ``handle_timer`` for callers that poll
+    out = a.handle_timer(hb)  # ``tick`` is ``handle_timer`` for callers that poll
     assert any(isinstance(x, Put) for x in out) and a._hb_due > hb  # the heartbeat went out
 
 

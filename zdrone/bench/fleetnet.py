@@ -16,15 +16,19 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mav
 
-from gs.core import Ask, AskKind, CoreOptions, Put, StationCore
+from gs.actions import Ask, AskKind, Emit, FrameUp, Put, Say
+from gs.core import CoreOptions, StationCore
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
-from zdrone.fleet import keyexprs as kx
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
-from zdrone.nodes.drone_core import (CommandVehicle, DroneCore, DroneCoreOptions, Emit, Listen, Out, Persist, PutDown,
-                                     ToVehicle)
+from zdrone.core.outputs import dispatch
+from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
 
 WALL0 = 1_800_000_000.0  # the time of day at now = 0
+
+
+def _ignored(_: object) -> None:
+    """The GS's records, its frames for the gateway and its console lines: not needed here."""
 
 
 def make_fleet(directory: Path) -> Path:
@@ -78,47 +82,50 @@ class FleetNet:
 
     # ------------------------------------------------------------------ delivery
     def drone_outs(self, outs: list[Out]) -> None:
-        for o in outs:
-            if isinstance(o, PutDown):
-                if o.gs not in self.cut and o.gs in self.gss and o.gs not in self.hung:
-                    self.gs_outs(o.gs, self.gss[o.gs].on_envelope("d1", o.payload, self.now))
-            elif isinstance(o, Listen):
-                self.listening = o.gss
-            elif isinstance(o, ToVehicle):
-                self.to_vehicle.append(o.frame)
-            elif isinstance(o, CommandVehicle):
-                self.commands.append(o)
-            elif isinstance(o, Emit):
-                self.records.append(o.record)
-            elif isinstance(o, Persist):
-                self.persisted = o
+        dispatch(outs, {Put: self._put_down, Listen: self._listen, ToVehicle: lambda o: self.to_vehicle.append(o.frame),
+                        CommandVehicle: self.commands.append, Emit: lambda o: self.records.append(o.record),
+                        Persist: self._persist})
+
+    def _put_down(self, o: Put) -> None:
+        if o.peer not in self.cut and o.peer in self.gss and o.peer not in self.hung:
+            self.gs_outs(o.peer, self.gss[o.peer].on_envelope("d1", o.payload, self.now))
+
+    def _listen(self, o: Listen) -> None:
+        self.listening = o.gss
+
+    def _persist(self, o: Persist) -> None:
+        self.persisted = o
 
     def gs_outs(self, gs: str, outs: list) -> None:
+        dispatch(outs, {Put: lambda a: self._put_up(gs, a), Ask: lambda a: self._ask(gs, a),
+                        Emit: _ignored, FrameUp: _ignored, Say: _ignored})
+
+    def _put_up(self, gs: str, a: Put) -> None:
+        assert self.drone is not None and a.peer == "d1", a.peer
+        self.captured_up[gs] = a.payload
+        if gs not in self.cut and gs in self.listening:
+            self.drone_outs(self.drone.on_envelope(gs, a.payload, self.now))
+
+    def _ask(self, gs: str, a: Ask) -> None:
         assert self.drone is not None
-        for a in outs:
-            if isinstance(a, Put):
-                if a.keyexpr == kx.up("d1", gs):
-                    self.captured_up[gs] = a.payload
-                if gs not in self.cut and a.keyexpr == kx.up("d1", gs) and gs in self.listening:
-                    self.drone_outs(self.drone.on_envelope(gs, a.payload, self.now))
-            elif isinstance(a, Ask) and a.kind is AskKind.PAIR:
-                self.captured_pairings.append((gs, a.payload))
-                if gs in self.cut:
-                    continue
-                ans, outs2 = self.drone.on_pair_query(gs, a.payload, self.now, os.urandom(32), WALL0 + self.now)
-                self.drone_outs(outs2)
-                reply = getattr(ans, "reply", None)
-                if reply is not None:
-                    self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", reply, None, self.now))
-                elif not getattr(ans, "silent", True):
-                    self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", None, ans.text.encode(), self.now))
-            elif isinstance(a, Ask) and a.kind is AskKind.LINKKEY:
-                owner = self.gss.get(a.gs)
-                if owner is None or a.gs in self.hung:
-                    continue
-                answer, logs = owner.on_linkkey_query("d1", a.payload, self.now, os.urandom(32), WALL0 + self.now)
-                if answer.reply is not None or answer.error is not None:
-                    self.gs_outs(gs, self.gss[gs].on_linkkey_reply("d1", a.gs, answer.reply, answer.error, self.now))
+        if a.kind is AskKind.PAIR:
+            self.captured_pairings.append((gs, a.payload))
+            if gs in self.cut:
+                return
+            ans, outs = self.drone.on_pair_query(gs, a.payload, self.now, os.urandom(32), WALL0 + self.now)
+            self.drone_outs(outs)
+            reply = getattr(ans, "reply", None)
+            if reply is not None:
+                self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", reply, None, self.now))
+            elif not getattr(ans, "silent", True):
+                self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", None, ans.text.encode(), self.now))
+            return
+        owner = self.gss.get(a.gs)
+        if owner is None or a.gs in self.hung:
+            return
+        answer, _logs = owner.on_linkkey_query("d1", a.payload, self.now, os.urandom(32), WALL0 + self.now)
+        if answer.reply is not None or answer.error is not None:
+            self.gs_outs(gs, self.gss[gs].on_linkkey_reply("d1", a.gs, answer.reply, answer.error, self.now))
 
     # ---------------------------------------------------------------------- time
     def step(self, dt: float = 0.1) -> None:

@@ -20,6 +20,7 @@ every wake).
 
 from __future__ import annotations
 
+import functools
 import heapq
 import logging
 import os
@@ -38,12 +39,13 @@ from ..core.fleet import ConfigError
 from ..core.tbm import TbmThresholds
 from ..vehicle.fcsigning import FcKeyStore, FcSigning
 from ..vehicle.link import VehicleLink, VehicleState
+from ..fleet.routerconfig import UPLINK_MAX_BYTES
 from ..fleet import keyexprs as kx
 from ..net.authstore import AuthorityStore, SavedAuthority
 from ..net.inbox import payload_bytes
 from ..net.runtime import NodeRuntime
-from .drone_core import (CommandVehicle, DroneCore, DroneCoreOptions, Emit, Listen, Out, Persist, PutDown, ToVehicle,
-                         next_link_change)
+from ..core.outputs import Emit, Handlers, Put, dispatch
+from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle, next_link_change
 
 __all__ = ["DroneNode", "DroneOptions", "next_link_change", "run_drone"]
 
@@ -181,22 +183,20 @@ class DroneNode:
     # ------------------------------------------------------------- outputs
     def _do(self, outs: list[Out], now: float) -> None:
         """Carry out the core's outputs."""
-        for o in outs:
-            if isinstance(o, PutDown):
-                self._publish(o.gs, o.payload)
-            elif isinstance(o, ToVehicle):
-                self.vehicle.send(o.frame)
-            elif isinstance(o, Emit):
-                self._emit(o.record)
-            elif isinstance(o, Listen):
-                self._listen(o.gss)
-            elif isinstance(o, CommandVehicle):
-                (self.vehicle.command_land if o.command == "LAND" else self.vehicle.command_rtl)()
-            elif isinstance(o, Persist):
-                if o.owner is None:
-                    self.store.clear()
-                else:
-                    self.store.save(SavedAuthority(o.owner, o.epoch, o.state))
+        dispatch(outs, self._handlers)
+
+    @functools.cached_property
+    def _handlers(self) -> Handlers:
+        return {Put: lambda o: self._publish(o.peer, o.payload), ToVehicle: lambda o: self.vehicle.send(o.frame),
+                Emit: lambda o: self._emit(o.record), Listen: lambda o: self._listen(o.gss),
+                CommandVehicle: lambda o: (self.vehicle.command_land if o.command == "LAND" else self.vehicle.command_rtl)(),
+                Persist: self._persist}
+
+    def _persist(self, o: Persist) -> None:
+        if o.owner is None:
+            self.store.clear()
+        else:
+            self.store.save(SavedAuthority(o.owner, o.epoch, o.state))
 
     def _emit(self, record: rec.Record) -> None:
         if isinstance(record, rec.AuthorityMoved) and not record.time:
@@ -205,7 +205,9 @@ class DroneNode:
 
     def _listen(self, gss: frozenset[str]) -> None:
         for gs in sorted(gss - set(self.subs)):
-            self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink) for lane in kx.up_lanes(self.name, gs)]
+            # the router's size limit, held here too
+            self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
+                             for lane in kx.up_lanes(self.name, gs)]
         for gs in sorted(set(self.subs) - gss):
             for handle in self.subs.pop(gs):
                 self.rt.undeclare(handle)

@@ -9,11 +9,11 @@ live key, candidates waiting for their proof, the key just replaced), the pairin
 peer's time stamp is compared, ``wall`` (time of day); bytes and facts come in through ``on_*``
 methods; what the adapter must do comes out as values:
 
-* ``PutDown(gs, payload)``: publish a sealed envelope on ``down/<gs>``;
+* ``Put(gs, payload)``: publish a sealed envelope on ``down/<gs>`` (``zdrone.core.outputs``);
 * ``ToVehicle(frame)``: send a MAVLink frame to the flight controller;
 * ``CommandVehicle(command, reason, ...)``: the failsafe (LAND or RTL);
 * ``Listen(gss)``: the uplinks to subscribe from now on (only when the set changes);
-* ``Emit(record)``: a typed event-log record (``zdrone.core.records``);
+* ``Emit(record)``: a typed event-log record (``zdrone.core.records``; ``zdrone.core.outputs``);
 * ``Persist(owner, epoch, state)``: the authority to keep across a restart, in the air or on the
   ground (only when it changes; a restart on the ground keeps what was saved until the next owner).
 
@@ -45,6 +45,7 @@ from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.linkslot import LinkSlot, Promoted
+from zdrone.core.outputs import Emit, Put
 from zdrone.core.kk import check_message1
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
                                  _prologue as pairing_prologue)
@@ -67,14 +68,6 @@ Position = tuple[float, float, float]
 
 
 # ------------------------------------------------------------------------------ outputs
-@dataclass(frozen=True, slots=True)
-class PutDown:
-    """Publish ``payload`` (a sealed envelope) on ``down/<gs>``."""
-
-    gs: str
-    payload: bytes
-
-
 @dataclass(frozen=True, slots=True)
 class ToVehicle:
     """Send ``frame`` (MAVLink, as a GS sent it) to the flight controller."""
@@ -99,13 +92,6 @@ class Listen:
 
 
 @dataclass(frozen=True, slots=True)
-class Emit:
-    """Write ``record`` to the event log (``AuthorityMoved.time`` 0: the adapter stamps the time of day)."""
-
-    record: rec.Record
-
-
-@dataclass(frozen=True, slots=True)
 class Persist:
     """Keep this authority across a restart (``owner`` None: forget what was kept)."""
 
@@ -114,7 +100,7 @@ class Persist:
     state: str
 
 
-Out = Union[PutDown, ToVehicle, CommandVehicle, Listen, Emit, Persist]
+Out = Union[Put, ToVehicle, CommandVehicle, Listen, Emit, Persist]
 
 _NOTE_RECORDS: dict[str, type[rec.AuthorityNote]] = {
     cls.__struct_config__.tag: cls for cls in rec.AuthorityNote.__subclasses__()  # type: ignore[misc]
@@ -251,7 +237,7 @@ class DroneCore:
 
     def on_telemetry(self, frame: bytes, now: float) -> list[Out]:
         """A vehicle frame: sealed to every GS the drone talks to."""
-        return [PutDown(gs, link.seal(frame)) for gs in self.machine.telemetry_targets()
+        return [Put(gs, link.seal(frame)) for gs in self.machine.telemetry_targets()
                 if (link := self.links.get(gs)) is not None]
 
     def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
@@ -304,7 +290,7 @@ class DroneCore:
         if now >= self._next_beacon:
             self._next_beacon = now + self.opts.status_beacon
             st = self._stamped(self.machine.status())
-            out += [PutDown(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
+            out += [Put(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
         return out + self._effects(now)
 
     # -------------------------------------------------------------- reports
@@ -345,7 +331,7 @@ class DroneCore:
 
     def _control(self, gs: str, msg: wire.Control) -> list[Out]:
         link = self.links.get(gs)
-        return [] if link is None else [PutDown(gs, link.seal_control(self._stamped(msg)))]
+        return [] if link is None else [Put(gs, link.seal_control(self._stamped(msg)))]
 
     def _stamped(self, msg: wire.Control) -> wire.Control:
         """An authority status tells each GS whether the drone's autopilot link is signed."""
