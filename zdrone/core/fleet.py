@@ -72,6 +72,13 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     #: pairing and key sharing add ML-KEM-768 to X25519 (``zdrone.core.kk``); once on, a classical
     #: pairing is refused (no downgrade)
     pairing_pq: bool = False
+    #: set by a fleet revision (``zdrone.core.revision.apply_revision``), never in fleet.json5: the
+    #: revision in force (0: none) and the nodes it revoked
+    revision: int = 0
+    revoked: frozenset[Name] = frozenset()
+
+    def is_revoked(self, name: str) -> bool:
+        return name in self.revoked
 
     @property
     def fleet_key_bytes(self) -> bytes | None:
@@ -96,7 +103,8 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def is_authorized(self, drone: str, gs: str) -> bool:
         node = self.nodes.get(drone)
-        return node is not None and node.role == "drone" and gs in node.authorized_gs
+        return (node is not None and node.role == "drone" and gs in node.authorized_gs
+                and gs not in self.revoked and drone not in self.revoked)
 
     def by_sysid(self, sysid: int) -> str | None:
         for name, node in self.nodes.items():
@@ -181,6 +189,9 @@ def encode_fleet(fleet: Fleet) -> str:
     raw = msgspec.to_builtins(fleet)
     if not fleet.fleet_key:
         raw.pop("fleet_key", None)
+    for field, default in (("revision", 0), ("revoked", [])):
+        if raw.get(field) == default:
+            raw.pop(field, None)
     if not fleet.pairing_pq:
         raw.pop("pairing_pq", None)
     for name, node in fleet.nodes.items():
