@@ -25,6 +25,11 @@ encrypted payload is a fresh 32-byte link secret for (drone, B).
   the ask is finished and every later reply (a second queryable, a consolidation artefact, a
   replay) is counted and ignored. Two different authentic replies to one ask are impossible.
 
+Post-quantum hybrid: ``KeyShareAsk(hybrid=True)`` adds ML-KEM-768 exactly as pairing does (``kk``'s
+module text); a ``KeyShareResponder`` with ``require_hybrid`` (the fleet's ``pairing_pq``) refuses a
+classical query after its tag check (``downgrade``). The secret handed on ends up as a link key the
+drone installs, so a classical ask would be the weak door into a hybrid fleet.
+
 Alternatives considered: HPKE Auth mode (sender-authenticated, but the request would still need its
 own proof and freshness) and a static-static MAC (no forward secrecy). Noise KK gives both proofs,
 freshness and forward secrecy in two 48/64-byte messages, with the same code as drone pairing.
@@ -37,7 +42,7 @@ import enum
 import msgspec
 
 from .keys import KEY_LEN, Identity
-from .kk import KKFail, KKInitiator, ResponseCache, check_message1, respond
+from .kk import MAX_MESSAGE, KKFail, KKInitiator, ResponseCache, check_message1, is_hybrid, respond
 from .ratelimit import RateLimiter
 
 #: How long an ask waits for B's reply before it is given up (the adapter asks again later).
@@ -64,6 +69,7 @@ class ShareRefusal(enum.Enum):
     EXHAUSTED = "exhausted"  # too many tag-valid replies to one ask
     NOT_WAITING = "not_waiting"  # a reply after the ask finished, expired or was never made
     LIVE_LINK = "live_link"  # the answering GS's own link to the drone is alive: it needs no new key
+    DOWNGRADE = "downgrade"  # a classical query where the fleet requires the hybrid (ML-KEM-768) exchange
 
 
 class Refused(msgspec.Struct, frozen=True):
@@ -85,7 +91,7 @@ def decode_query(payload: bytes) -> LinkKeyQuery | Refused:
         q = _decoder.decode(payload)
     except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:  # ValueError: bad UTF-8 in a name
         return Refused(ShareRefusal.MALFORMED, str(exc)[:80])
-    if len(q.m1) > 256:
+    if len(q.m1) > MAX_MESSAGE:
         return Refused(ShareRefusal.MALFORMED, "message 1 too long")
     return q
 
@@ -94,12 +100,13 @@ class KeyShareAsk:
     """The asking GS's side of one key-sharing exchange (one query, at most one accepted reply)."""
 
     def __init__(self, me: Identity, asker: str, owner: str, owner_public: bytes, drone: str, now: float,
-                 timeout: float = ASK_TIMEOUT, ephemeral: bytes | None = None, wall: float | None = None) -> None:
+                 timeout: float = ASK_TIMEOUT, ephemeral: bytes | None = None, wall: float | None = None,
+                 hybrid: bool = False) -> None:
         self.asker, self.owner, self.drone = asker, owner, drone
         self.deadline = now + timeout
         self.done = False
         self._kk = KKInitiator(me, owner_public, _prologue(drone, owner, asker), ephemeral,
-                               stamp=now if wall is None else wall)
+                               stamp=now if wall is None else wall, hybrid=hybrid)
         self.payload = _encoder.encode(LinkKeyQuery(asker, self._kk.message1))
 
     def expired(self, now: float) -> bool:
@@ -148,10 +155,13 @@ class KeyShareResponder:
     2. a message 1 seen before gets the same message 2 again and no new secret (``repeated``);
     3. the asker's rate limit, charged only now (nobody without its key can spend its tokens);
     4. the Noise handshake.
+
+    With ``require_hybrid`` a classical query that passed its tag is refused (``DOWNGRADE``).
     """
 
-    def __init__(self, me: Identity, owner: str, rate: float, burst: float) -> None:
+    def __init__(self, me: Identity, owner: str, rate: float, burst: float, require_hybrid: bool = False) -> None:
         self.me, self.owner = me, owner
+        self.require_hybrid = require_hybrid
         self.limiter = RateLimiter(rate, burst)
         self.cache = ResponseCache(SHARE_RESPONSE_TTL)
 
@@ -165,6 +175,8 @@ class KeyShareResponder:
             return Refused(ShareRefusal.STALE, f"query made more than {MAX_AGE:.0f} s ago: a replay")
         if fail is not None:
             return Refused(ShareRefusal(fail.value), f"query does not prove {asker}'s static key")
+        if self.require_hybrid and not is_hybrid(m1):
+            return Refused(ShareRefusal.DOWNGRADE, "the fleet requires the hybrid (ML-KEM-768) exchange")
         cached = self.cache.get(m1, now)
         if cached is not None:
             return cached, False

@@ -29,6 +29,39 @@ it (key sharing between ground stations, whose clocks agree) refuses a message 1
 the *same* message 2 (``ResponseCache``, kept at least twice as long): a replay, or a copy
 forwarded by an on-path party, creates no second secret and evicts nothing, and the genuine
 initiator still gets its answer.
+
+Hybrid (post-quantum) mode
+--------------------------
+With ``hybrid=True`` the exchange adds ML-KEM-768 (FIPS 203) next to X25519, so that the secret
+message 2 carries stays secret if *either* holds. The chosen shape is an *ephemeral* ML-KEM key of
+the initiator, the responder encapsulating, the KEM secret mixed in as a Noise pre-shared key:
+
+* message 1 = Noise message 1 || the initiator's fresh ML-KEM-768 public key (1 184 bytes) || stamp
+  || tag; the public key is hashed into the Noise prologue (``hybrid_prologue``), so it is bound to
+  the transcript that the static X25519 keys authenticate (a swapped key fails the responder's
+  Noise read, and the tag before it);
+* the responder encapsulates to it: (secret, ciphertext); the pattern is ``KKpsk2`` and the PSK is
+  HKDF(KEM secret). ``psk2`` mixes it into the chaining key after ``ee, se``: the key that encrypts
+  message 2's payload depends on the Diffie-Hellman chain *and* the KEM secret (as WireGuard's PSK
+  slot, and what Noise's ``hfs`` pattern does with its ``ekem1`` token);
+* message 2 = Noise message 2 || ciphertext (1 088 bytes) || tag. A ciphertext changed on the way
+  decapsulates to another secret (ML-KEM's implicit rejection), so the payload does not open: the
+  pairing fails (``auth_failed``), even for one who could forge the tag.
+
+Why ephemeral and not a static ML-KEM key of the responder: the threat a hybrid answers today is
+"record now, decrypt later" with a future quantum computer. An ephemeral KEM key gives forward
+secrecy against it (a drone captured later yields nothing of past pairings), needs no new key
+material in the fleet, no distribution and no rotation, and its public key needs no separate
+authentication (the transcript binds it). What it does not give is post-quantum *authentication*:
+an attacker with a quantum computer at pairing time could impersonate a static X25519 key. That
+needs post-quantum signatures or static KEM keys in the fleet, a later step. The cost: +1 184 bytes
+in message 1, +1 088 in message 2, one ML-KEM key generation and one decapsulation at the
+initiator, one encapsulation at the responder (``zdrone bench crypto``).
+
+The mode is in the message: a message 1 longer than ``CLASSICAL_MAX`` is hybrid (``is_hybrid``) and
+the reply follows it (its tag covers the hybrid prologue, so no one can strip it to classical). A
+responder that requires hybrid refuses a classical message 1 (the callers' ``downgrade``); one that
+does not still accepts a hybrid one (a fleet turning it on reaches the ground stations first).
 """
 
 from __future__ import annotations
@@ -40,15 +73,23 @@ import hmac
 import struct
 import warnings
 from collections import OrderedDict
+from typing import NamedTuple
 
+from cryptography.hazmat.primitives.asymmetric.mlkem import MLKEM768PrivateKey, MLKEM768PublicKey
 from cryptography.hazmat.primitives.asymmetric.x25519 import X25519PrivateKey, X25519PublicKey
 from noise.connection import Keypair, NoiseConnection
 
 from .keys import Identity, hkdf
 
 PROTOCOL = b"Noise_KK_25519_ChaChaPoly_SHA256"
+PROTOCOL_HYBRID = b"Noise_KKpsk2_25519_ChaChaPoly_SHA256"
 MAX_REPLY_ATTEMPTS = 8
-MAX_MESSAGE = 512
+#: a classical message is at most this long; a longer message 1 is a hybrid one
+CLASSICAL_MAX = 512
+KEM_PUBLIC_LEN = 1184  # ML-KEM-768 encapsulation key
+KEM_CIPHERTEXT_LEN = 1088  # ML-KEM-768 ciphertext
+KEM_SEED_LEN = 64
+MAX_MESSAGE = 2048
 TAG_LEN = 16
 STAMP_LEN = 8
 EPHEMERAL_LEN = 32
@@ -60,7 +101,7 @@ class KKFail(enum.Enum):
     MALFORMED = "malformed"  # too short or too long
     BAD_MAC = "bad_mac"  # the cheap tag failed: forged or garbage, no crypto spent
     STALE = "stale"  # message 1 made too long ago (its tagged time stamp): a replay
-    AUTH_FAILED = "auth_failed"  # the tag passed but the Noise message did not (should not happen)
+    AUTH_FAILED = "auth_failed"  # the tag passed but the Noise message (or the KEM ciphertext) did not
     EXHAUSTED = "exhausted"  # too many authentic-looking replies to one exchange
 
 
@@ -80,12 +121,27 @@ def _tag(key: bytes, label: bytes, *parts: bytes) -> bytes:
     return h.digest()
 
 
+def hybrid_prologue(prologue: bytes, kem_public: bytes) -> bytes:
+    """The prologue of a hybrid exchange: the caller's, the mode, and the initiator's ML-KEM key."""
+    return prologue + b"|hybrid mlkem768|" + hashlib.sha256(kem_public).digest()
+
+
+def _kem_psk(kem_secret: bytes) -> bytes:
+    return hkdf(kem_secret, b"zdrone kk mlkem768 psk v1")
+
+
+#: the PSK slot's content before the KEM secret is known (message 1 of ``KKpsk2`` does not use it)
+_NO_PSK = bytes(32)
+
+
 def _conn(me: Identity, peer_public: bytes, prologue: bytes, initiator: bool,
-          ephemeral: bytes | None = None) -> NoiseConnection:
-    conn = NoiseConnection.from_name(PROTOCOL)
+          ephemeral: bytes | None = None, psk: bytes | None = None) -> NoiseConnection:
+    conn = NoiseConnection.from_name(PROTOCOL if psk is None else PROTOCOL_HYBRID)
     conn.set_keypair_from_private_bytes(Keypair.STATIC, me.private)
     conn.set_keypair_from_public_bytes(Keypair.REMOTE_STATIC, peer_public)
     conn.set_prologue(prologue)
+    if psk is not None:
+        conn.set_psks(psk=psk)
     if ephemeral is not None:
         conn.set_keypair_from_private_bytes(Keypair.EPHEMERAL, ephemeral)
     conn.set_as_initiator() if initiator else conn.set_as_responder()
@@ -102,30 +158,60 @@ def _split(message: bytes) -> tuple[bytes, bytes] | None:
     return message[:-TAG_LEN], message[-TAG_LEN:]
 
 
-def _split1(message1: bytes) -> tuple[bytes, float, bytes] | None:
-    """Message 1 on the wire: Noise message 1, the initiator's time stamp, the tag."""
+def is_hybrid(message1: bytes) -> bool:
+    """Whether a message 1 is a hybrid one (by its length; ``check_message1`` checks the rest)."""
+    return len(message1) > CLASSICAL_MAX
+
+
+class _Message1(NamedTuple):
+    noise: bytes  # Noise message 1
+    kem_public: bytes  # the initiator's ML-KEM-768 key (empty in a classical message)
+    stamp: float
+    tag: bytes
+
+
+def _split1(message1: bytes) -> _Message1 | None:
+    """Message 1 on the wire: Noise message 1, (hybrid) the ML-KEM key, the initiator's time stamp, the tag."""
     parts = _split(message1)
-    if parts is None or len(parts[0]) < EPHEMERAL_LEN + STAMP_LEN:
+    kem_len = KEM_PUBLIC_LEN if is_hybrid(message1) else 0
+    if parts is None or len(parts[0]) < EPHEMERAL_LEN + kem_len + STAMP_LEN:
         return None
     body, tag = parts
-    return body[:-STAMP_LEN], struct.unpack(">d", body[-STAMP_LEN:])[0], tag
+    noise_end = len(body) - STAMP_LEN - kem_len
+    return _Message1(body[:noise_end], body[noise_end:-STAMP_LEN], struct.unpack(">d", body[-STAMP_LEN:])[0], tag)
+
+
+def _mode_prologue(prologue: bytes, kem_public: bytes) -> bytes:
+    return hybrid_prologue(prologue, kem_public) if kem_public else prologue
 
 
 class KKInitiator:
-    """The initiator of one KK exchange: ``message1`` to send, ``read_reply`` for each reply."""
+    """The initiator of one KK exchange: ``message1`` to send, ``read_reply`` for each reply.
+    ``hybrid``: add ML-KEM-768 (see the module's text; ``kem_seed`` fixes its key, for vectors)."""
 
     def __init__(self, me: Identity, peer_public: bytes, prologue: bytes, ephemeral: bytes | None = None,
-                 stamp: float = 0.0) -> None:
-        self._me, self._peer, self._prologue = me, peer_public, prologue
+                 stamp: float = 0.0, hybrid: bool = False, kem_seed: bytes | None = None) -> None:
+        self._me, self._peer = me, peer_public
         self._ephemeral = ephemeral if ephemeral is not None else Identity.generate().private
         self._mac = pair_mac_key(me.private, peer_public)
-        self._m1 = bytes(self._fresh().write_message(b""))
-        body = self._m1 + struct.pack(">d", stamp)
-        self.message1 = body + _tag(self._mac, b"1", prologue, body)
+        self._kem: MLKEM768PrivateKey | None = None
+        kem_public = b""
+        if hybrid:
+            self._kem = (MLKEM768PrivateKey.from_seed_bytes(kem_seed) if kem_seed is not None
+                         else MLKEM768PrivateKey.generate())
+            kem_public = self._kem.public_key().public_bytes_raw()
+        self._prologue = _mode_prologue(prologue, kem_public)
+        self._m1 = bytes(self._fresh(None if self._kem is None else _NO_PSK).write_message(b""))
+        body = self._m1 + kem_public + struct.pack(">d", stamp)
+        self.message1 = body + _tag(self._mac, b"1", self._prologue, body)
         self.attempts = 0
 
-    def _fresh(self) -> NoiseConnection:
-        return _conn(self._me, self._peer, self._prologue, True, self._ephemeral)
+    @property
+    def hybrid(self) -> bool:
+        return self._kem is not None
+
+    def _fresh(self, psk: bytes | None) -> NoiseConnection:
+        return _conn(self._me, self._peer, self._prologue, True, self._ephemeral, psk)
 
     def read_reply(self, message2: bytes) -> bytes | KKFail:
         """The payload of an authentic message 2, or why it was not accepted."""
@@ -133,12 +219,18 @@ class KKInitiator:
         if parts is None:
             return KKFail.MALFORMED
         m2, tag = parts
+        if self._kem is not None and len(m2) < EPHEMERAL_LEN + KEM_CIPHERTEXT_LEN:
+            return KKFail.MALFORMED
         if not hmac.compare_digest(tag, _tag(self._mac, b"2", self._prologue, self._m1, m2)):
             return KKFail.BAD_MAC  # forged, replayed or garbage: no attempt spent
         if self.attempts >= MAX_REPLY_ATTEMPTS:
             return KKFail.EXHAUSTED
         self.attempts += 1
-        conn = self._fresh()
+        psk = None
+        if self._kem is not None:
+            m2, ciphertext = m2[:-KEM_CIPHERTEXT_LEN], m2[-KEM_CIPHERTEXT_LEN:]
+            psk = _kem_psk(self._kem.decapsulate(ciphertext))
+        conn = self._fresh(psk)
         conn.write_message(b"")
         try:
             payload = bytes(conn.read_message(m2))
@@ -150,15 +242,16 @@ class KKInitiator:
 def check_message1(me: Identity, peer_public: bytes, prologue: bytes, message1: bytes,
                    now: float | None = None, max_age: float | None = None) -> KKFail | None:
     """The cheap check of message 1 (no Diffie-Hellman once the peer's tag key is cached): its tag,
-    and with ``max_age`` its tagged time stamp against the responder's clock ``now``."""
+    and with ``max_age`` its tagged time stamp against the responder's clock ``now``. Classical or
+    hybrid, as the message is (``is_hybrid``)."""
     parts = _split1(bytes(message1))
     if parts is None:
         return KKFail.MALFORMED
-    m1, stamp, tag = parts
-    if not hmac.compare_digest(tag, _tag(pair_mac_key(me.private, peer_public), b"1", prologue,
-                                         bytes(message1[:-TAG_LEN]))):
+    if not hmac.compare_digest(parts.tag, _tag(pair_mac_key(me.private, peer_public), b"1",
+                                               _mode_prologue(prologue, parts.kem_public),
+                                               bytes(message1[:-TAG_LEN]))):
         return KKFail.BAD_MAC
-    if max_age is not None and now is not None and not abs(now - stamp) <= max_age:
+    if max_age is not None and now is not None and not abs(now - parts.stamp) <= max_age:
         return KKFail.STALE
     return None
 
@@ -166,7 +259,7 @@ def check_message1(me: Identity, peer_public: bytes, prologue: bytes, message1: 
 def stamp_of(message1: bytes) -> float:
     """The initiator's tagged time stamp of a message 1 (call after ``check_message1`` passed)."""
     parts = _split1(bytes(message1))
-    return parts[1] if parts is not None else float("-inf")
+    return parts.stamp if parts is not None else float("-inf")
 
 
 def ephemeral_of(message1: bytes) -> bytes:
@@ -174,21 +267,33 @@ def ephemeral_of(message1: bytes) -> bytes:
     return bytes(message1[:EPHEMERAL_LEN])
 
 
-def respond(me: Identity, peer_public: bytes, prologue: bytes, message1: bytes, payload: bytes) -> bytes | KKFail:
-    """Check message 1 from the peer (tag, then Noise); return message 2 carrying ``payload``."""
+def respond(me: Identity, peer_public: bytes, prologue: bytes, message1: bytes, payload: bytes,
+            ephemeral: bytes | None = None) -> bytes | KKFail:
+    """Check message 1 from the peer (tag, then Noise); return message 2 carrying ``payload``. A
+    hybrid message 1 gets a hybrid message 2 (the ML-KEM ciphertext mixed in as the PSK).
+    ``ephemeral`` fixes the responder's ephemeral key (vectors only)."""
     fail = check_message1(me, peer_public, prologue, message1)
     if fail is not None:
         return fail
-    m1 = bytes(message1[:-(TAG_LEN + STAMP_LEN)])
-    conn = _conn(me, peer_public, prologue, False)
+    parts = _split1(bytes(message1))
+    assert parts is not None  # checked above
+    psk, ciphertext = None, b""
+    if parts.kem_public:
+        try:
+            kem_secret, ciphertext = MLKEM768PublicKey.from_public_bytes(parts.kem_public).encapsulate()
+        except ValueError:  # not a valid ML-KEM-768 key (under a valid tag: should not happen)
+            return KKFail.AUTH_FAILED
+        psk = _kem_psk(kem_secret)
+    mode_prologue = _mode_prologue(prologue, parts.kem_public)
+    conn = _conn(me, peer_public, mode_prologue, False, ephemeral, psk)
     try:
-        conn.read_message(m1)
+        conn.read_message(parts.noise)
     except Exception:
         return KKFail.AUTH_FAILED
-    m2 = bytes(conn.write_message(payload))
+    m2 = bytes(conn.write_message(payload)) + ciphertext
     if not conn.handshake_finished:
         return KKFail.AUTH_FAILED
-    return m2 + _tag(pair_mac_key(me.private, peer_public), b"2", prologue, m1, m2)
+    return m2 + _tag(pair_mac_key(me.private, peer_public), b"2", mode_prologue, parts.noise, m2)
 
 
 class ResponseCache:

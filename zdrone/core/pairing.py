@@ -27,6 +27,13 @@ Each query gets one typed result: ``PairAccepted`` (message 2 and a candidate ke
 over the rate limit) is dropped without an answer, counted by reason; an authentic-looking but
 illegal query (unknown or unauthorized GS, re-pairing in failsafe in the air) is answered with the
 reason. A programming error (a link secret of the wrong length) raises.
+
+**Post-quantum hybrid.** ``PairingInitiator(hybrid=True)`` adds ML-KEM-768 next to X25519 (``kk``:
+an ephemeral ML-KEM key in message 1, the drone's encapsulation in message 2, mixed in as Noise's
+pre-shared key, so the link secret holds if either holds). The fleet turns it on (``pairing_pq`` in
+``fleet.json5``, or a fleet revision); a responder with ``require_hybrid`` then refuses a classical
+message 1 after its tag check, with an answer (``downgrade``): no downgrade, and a ground station
+left on the old setting learns why. A responder without it still accepts a hybrid message 1.
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ from typing import ClassVar
 import msgspec
 
 from .keys import KEY_LEN, Identity, LinkKey
-from .kk import KKFail, KKInitiator, ResponseCache, check_message1, respond as kk_respond, stamp_of
+from .kk import KKFail, KKInitiator, ResponseCache, check_message1, is_hybrid, respond as kk_respond, stamp_of
 from .ratelimit import RateLimiter
 
 
@@ -67,13 +74,15 @@ class PairingInitiator:
     """
 
     def __init__(self, me: Identity, gs: str, drone: str, drone_public: bytes, ephemeral: bytes | None = None,
-                 stamp: float = 0.0) -> None:
+                 stamp: float = 0.0, hybrid: bool = False, kem_seed: bytes | None = None) -> None:
         """``stamp``: the GS's clock (time of day) when message 1 is made: the drone refuses it
-        once older than ``PAIR_MAX_AGE``."""
+        once older than ``PAIR_MAX_AGE``. ``hybrid``: add ML-KEM-768 (the fleet's ``pairing_pq``);
+        ``kem_seed`` fixes its key (test vectors only)."""
         self.gs, self.drone = gs, drone
         self.state = PairingState.IDLE
         self.peer_kept_key = False
-        self._kk = KKInitiator(me, drone_public, _prologue(drone, gs), ephemeral, stamp=stamp)
+        self._kk = KKInitiator(me, drone_public, _prologue(drone, gs), ephemeral, stamp=stamp, hybrid=hybrid,
+                               kem_seed=kem_seed)
 
     def start(self) -> bytes:
         if self.state is not PairingState.IDLE:
@@ -127,6 +136,7 @@ class PairRefusal(enum.Enum):
     STALE = "stale"  # message 1's tagged time stamp is too old
     RATE_LIMITED = "rate_limited"  # the GS's handshakes per second are spent
     AUTH_FAILED = "auth_failed"  # the tag passed but the Noise handshake did not (should not happen)
+    DOWNGRADE = "downgrade"  # a classical message 1 where the fleet requires the hybrid (ML-KEM-768) pairing
 
 
 #: Bad input: dropped without an answer (counted; an answer would only help a prober).
@@ -213,14 +223,18 @@ class PairingResponder:
     4. the GS's rate limit (``rate`` handshakes per second, bursts of ``burst``), charged only now,
        so nobody without the GS's key can spend its tokens;
     5. the Noise handshake.
+
+    With ``require_hybrid`` (the fleet's ``pairing_pq``; a revision may set it live), a classical
+    message 1 that passed its tag is refused as ``downgrade`` (after 2, before 3).
     """
 
     def __init__(self, me: Identity, drone: str, ground_stations: dict[str, bytes], authorized: frozenset[str],
                  rate: float = PAIR_RATE, burst: float = PAIR_BURST, max_age: float = PAIR_MAX_AGE,
-                 not_before: float | None = None) -> None:
+                 not_before: float | None = None, require_hybrid: bool = False) -> None:
         """``not_before``: the drone's clock when its companion became ready (message 1s stamped
         earlier than that, less ``MAX_SKEW``, are stale)."""
         self.me, self.drone = me, drone
+        self.require_hybrid = require_hybrid
         self.max_age = max_age
         self.not_before = not_before
         self.newest: dict[str, float] = {}  # per GS: the stamp of the newest message 1 answered
@@ -251,6 +265,8 @@ class PairingResponder:
                               None if wall is None else self.max_age)
         if fail is not None:
             return PairRefused(PairRefusal(fail.value))
+        if self.require_hybrid and not is_hybrid(message1):
+            return PairRefused(PairRefusal.DOWNGRADE, "the fleet requires the hybrid (ML-KEM-768) pairing")
         stamp = stamp_of(message1)
         if wall is not None and stamp > wall + MAX_AHEAD:
             # stamped in the drone's future: a GS clock ahead of the drone's would let its tries made

@@ -17,6 +17,8 @@ import time
 from collections import Counter, deque
 from typing import Any, Callable
 
+from ..core.kk import MAX_MESSAGE
+
 #: Items handled per drain at most, so the rest of the loop still runs under load.
 MAX_BATCH = 512
 #: Items of one (kind, sender) handled per drain at most: the rest waits for the next drain.
@@ -30,8 +32,9 @@ INBOX_SIZE = 1024
 MAX_SENDERS = 256
 #: A sealed envelope carries one MAVLink frame (<= 280 bytes) or one small control message.
 MAX_ENVELOPE = 1024
-#: A pairing or key-sharing query or reply: a Noise message (<= 512 bytes) and a few names.
-MAX_HANDSHAKE = 768
+#: A pairing or key-sharing query or reply: a Noise message (classical <= 512 bytes, hybrid with
+#: ML-KEM-768 about 1.3 kB: ``kk.MAX_MESSAGE``) and a few names.
+MAX_HANDSHAKE = MAX_MESSAGE + 256
 
 
 class Inbox:
