@@ -68,3 +68,11 @@ def gs_of(keyexpr: str) -> str:
 def drone_of(keyexpr: str) -> str:
     """The second chunk: the drone of a ``zdrone/<drone>/...`` key expression."""
     return str(keyexpr).split("/")[1]
+
+
+def revision() -> str:
+    """Fleet revisions (``zdrone.core.revision``): every node subscribes to it and declares a
+    queryable on it answering with the latest revision it holds; a node that starts, reconnects or
+    comes back in reach asks it. Signed by the fleet key, so any node may relay one. Its first chunk
+    is no ``zdrone/<drone>`` key: a node may be named ``fleet``."""
+    return "zdrone-fleet/revision"

@@ -73,6 +73,8 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
         subjects.append({"id": "routers", "cert_common_names": list(routers)})
         policies.append({"id": "policy-routers", "rules": ["routers-all"], "subjects": ["routers"]})
     for name, node in fleet.nodes.items():
+        if fleet.is_revoked(name):  # a revoked node (fleet revision) is no subject: it gets nothing
+            continue
         ids: list[str] = []
 
         def add(suffix: str, messages: list[str], flows: list[str], keys: list[str]) -> None:
@@ -99,6 +101,9 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
                 add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
                 add("linkkey-ask", ["query"], ["ingress"], [kx.linkkey("*", d) for d in drones])
                 add("linkkey-ans", ["reply"], ["egress"], [kx.linkkey("*", d) for d in drones])
+        # fleet revisions (signed by the fleet key, checked by every node): any node relays them
+        add("revision", ["put", "declare_subscriber", "query", "declare_queryable", "reply"], ["ingress", "egress"],
+            [kx.revision()])
         # with TLS, a client is this node only with its certificate *and* its password
         subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {})})
         policies.append({"id": f"policy-{name}", "rules": ids, "subjects": [f"user-{name}"]})

@@ -142,7 +142,8 @@ class DroneCore:
                                                      opts.failsafe))
         self.responder = PairingResponder(identity, name,
                                           {g: fleet.nodes[g].public_bytes for g in fleet.ground_stations()},
-                                          frozenset(node.authorized_gs), not_before=started_wall)
+                                          frozenset(node.authorized_gs), not_before=started_wall,
+                                          require_hybrid=fleet.pairing_pq)
         self.gs_sysids = {n: fleet.nodes[n].sysid for n in fleet.ground_stations()}
         self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
                          if fleet.nodes[n].coverage is not None}
