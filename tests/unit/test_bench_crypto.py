@@ -27,3 +27,13 @@ def test_bench_crypto_has_the_flight_controller_signing_row(capsys):
     fc = json.loads(capsys.readouterr().out)["fc_signing"]
     assert set(fc["added_bytes"].values()) == {13}  # the MAVLink 2 signature block: a wire-format fact
     assert fc["sign_us"] > 0 and fc["verify_us"] > 0
+
+
+def test_bench_crypto_has_the_classical_and_hybrid_handshake_rows(capsys):
+    assert main(["bench", "crypto", "--quick", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["handshake"]
+    assert [r["mode"].split()[0] for r in rows] == ["classical", "hybrid"]
+    classical, hybrid = rows
+    assert (classical["message1_bytes"], classical["message2_bytes"]) == (72, 97)  # wire-format facts
+    assert (hybrid["message1_bytes"], hybrid["message2_bytes"]) == (72 + 1184, 97 + 1088)
+    assert all(r["gs_us"] > 0 and r["drone_us"] > 0 for r in rows)
