@@ -367,6 +367,26 @@ class OwnerLinkLostOnGround(AuthorityNote, frozen=True, tag="owner_link_lost_on_
     """The owner's link was lost with the vehicle on the ground: no failsafe; the owner keeps authority."""
 
 
+class RevokedNote(AuthorityNote, frozen=True, tag="revoked"):
+    """A fleet revision took a GS off the authorized list: its link dropped, its keys erased."""
+
+
+class RevisionApplied(Record, frozen=True, tag="revision_applied"):
+    """A signed fleet revision was checked and applied (``zdrone.core.revision``)."""
+
+    number: int
+    revoked: list[str]
+    rotated: list[str]
+    pairing_pq: bool = False
+
+
+class RevisionRefused(Record, frozen=True, tag="revision_refused"):
+    """A fleet revision was refused (``malformed``, ``bad_signature``, ``stale``, ``replayed``, ...)."""
+
+    reason: str
+    number: int | None = None
+
+
 class RegionEntered(AuthorityNote, frozen=True, tag="region_entered"):
     """The drone entered a region covered by more GSs (``detail``: the GSs covering it)."""
 
@@ -856,6 +876,7 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
     HandoverRequested, TakeoverSetting, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
     AuthorityLinkLost, RegionEntered, RegionLeft, OwnerLinkLostOnGround,
     FailsafeConfirmed, FailsafeRetried, FailsafeUnconfirmed, VehicleFound, FcUnsigned,
+    RevokedNote, RevisionApplied, RevisionRefused,
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)
 GS_RECORDS: tuple[type[Record], ...] = (
@@ -864,7 +885,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, FcSigningHeard, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
     VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, HandoverHold, HandoverResume, GcsApp, GcsAppGone, OperatorControlRequested,
-    *OPERATOR_CONTROL_RECORDS,
+    *OPERATOR_CONTROL_RECORDS, RevisionApplied, RevisionRefused,
 )
 VOCABULARIES: dict[str, tuple[type[Record], ...]] = {"drone": DRONE_RECORDS, "gs": GS_RECORDS}
 #: every typed record class, each once (``register_vocabulary`` adds to it)
