@@ -72,6 +72,13 @@ refuses a grant whose content does not fit the fleet before it reaches the machi
 ``pair_refusal`` gives the machine's rule for pairing as a ``PairRefused`` (the pairing responder's
 result type), or None.
 
+Fleet revisions (``zdrone.core.revision``). A signed revision may take GSs off the drone's
+authorized list (revoked, or de-authorized) or add some: ``Revised(authorized)`` gives the new
+list. A GS no longer on it loses its link at once (its proof, its pending hand-over, its takeover
+window, its first claim); if it held authority, authority goes as when the owner's link is LOST in
+the air: to an heir (an authorized GS proven inside its coverage), else the failsafe. In FAILSAFE
+the machine stays there (the revoked owner is only the epoch's name; nobody commands).
+
 First claim after a restart on the ground. A companion restarted on the ground holds no key and no
 owner, yet the GS that held authority never released it: for ``FIRST_CLAIM_S`` after the restart only
 that last owner may pair into authority (another authorized GS is refused ``first_claim``), and its
@@ -84,7 +91,7 @@ from __future__ import annotations
 import enum
 import logging
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Mapping
 
 from .errors import ProtocolError
@@ -196,6 +203,14 @@ class GroundChanged(Event):
     EXTENDED_SYS_STATE. The machine starts "in the air": the failsafe rule holds until told otherwise."""
 
     on_ground: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Revised(Event):
+    """A fleet revision was applied: ``authorized`` is the drone's authorized list under it."""
+
+    authorized: frozenset[str]
+    revision: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -790,6 +805,32 @@ class AuthorityMachine:
             return self._owner_lost(ev.now)  # lifted off with the owner's link lost: the failsafe rule, now
         return self.state, []
 
+    def _on_revised(self, ev: Revised) -> tuple[State, list[Action]]:
+        """A fleet revision: the new authorized list; a GS off it loses its link, and authority if it held it."""
+        self.config = replace(self.config, authorized=ev.authorized)
+        gone = sorted(g for g in {*self.links, *self.subscribed, self.pending_to, self.owner, self.takeover_to,
+                                  self.first_claim} if g is not None and g not in ev.authorized)
+        acts: list[Action] = []
+        for gs in gone:
+            self.links.pop(gs, None)
+            self.subscribed.discard(gs)
+            acts.append(Note("revoked", f"{gs}: off the authorized list (revision {ev.revision}): link dropped"))
+        if self.takeover_to in gone:
+            self.takeover_to = None
+        if self.first_claim in gone:
+            self.first_claim = self.first_claim_until = None
+        if self.pending_to in gone:
+            self.pending_to = self.pending_deadline = None
+            acts.append(Note("handover_aborted", "the recipient was revoked"))
+            if self.state is State.HANDOVER_PENDING and self.owner not in gone:
+                return State.LINKED, acts
+        if self.state in (State.LINKED, State.HANDOVER_PENDING) and self.owner in gone:
+            self.repair_deadline = None
+            self.pending_to = self.pending_deadline = None
+            next_state, more = self._owner_lost(ev.now)
+            return next_state, acts + more
+        return self.state, acts
+
     def _ignore(self, ev: Event) -> tuple[State, list[Action]]:
         return self.state, []
 
@@ -829,6 +870,10 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.FAILSAFE})),
+    (S.UNPAIRED, Revised): (AuthorityMachine._on_revised, frozenset({S.UNPAIRED})),
+    (S.LINKED, Revised): (AuthorityMachine._on_revised, frozenset({S.LINKED, S.FAILSAFE})),
+    (S.HANDOVER_PENDING, Revised): (AuthorityMachine._on_revised, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
+    (S.FAILSAFE, Revised): (AuthorityMachine._on_revised, frozenset({S.FAILSAFE})),
 }
 # Missing on purpose (illegal steps, answered with a Reject): KeyGranted, HandoverRequest and
 # Release in UNPAIRED; KeyGranted and Release in FAILSAFE.

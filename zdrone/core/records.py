@@ -375,8 +375,8 @@ class RevisionApplied(Record, frozen=True, tag="revision_applied"):
     """A signed fleet revision was checked and applied (``zdrone.core.revision``)."""
 
     number: int
-    revoked: list[str]
-    rotated: list[str]
+    revoked: tuple[str, ...]
+    rotated: tuple[str, ...]
     pairing_pq: bool = False
 
 

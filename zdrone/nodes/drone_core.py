@@ -116,6 +116,10 @@ class DroneCoreOptions:
     status_beacon: float = STATUS_BEACON_S
     pairing_ttl: float = PAIRING_TTL
     first_claim: float = ha.FIRST_CLAIM_S  # after a restart on the ground: the last owner pairs back first this long
+    #: the revision lease (s; 0: off): once the fleet has a signed revision, authority stands only while
+    #: the drone has heard a valid revision (its own number or newer) within this long; else the
+    #: owner's authority lapses as if its link were LOST (an heir, else the failsafe)
+    revision_lease: float = 0.0
 
 
 def next_link_change(tbm: TimeBetweenMessages, now: float) -> float | None:
@@ -161,6 +165,8 @@ class DroneCore:
         self._persisted: tuple[str | None, int, str] | None = None
         self._next_beacon = 0.0
         self._timer_handled = float("-inf")
+        self.revision_synced: float | None = None  # when a valid revision (>= ours) was last heard
+        self._lease_lapsed = False
 
     # ---------------------------------------------------------------- inputs
     def on_envelope(self, gs: str, data: bytes, now: float) -> list[Out]:
@@ -264,6 +270,69 @@ class DroneCore:
         out += self._apply(self.machine.restore(owner, epoch, now, self.opts.thresholds.lost, failsafe), now)
         return out + self._effects(now)
 
+    def on_revision(self, fleet: Fleet, now: float) -> list[Out]:
+        """A fleet revision the adapter checked (signature, number) and applied (``fleet``, the new
+        effective fleet). A GS off the drone's authorized list (revoked, or no longer authorized)
+        loses its link at once: its keys and candidates erased, its uplink no longer heard, its
+        requests refused; if it held authority, an heir takes over, else the failsafe
+        (``AuthorityMachine._on_revised``). A rotated GS pairs from now on under its new key only;
+        its live link goes on until its new pairing's key is proven (no gap)."""
+        old, self.fleet = self.fleet, fleet
+        node = fleet.nodes[self.name]
+        authorized = frozenset() if fleet.is_revoked(self.name) else frozenset(
+            g for g in node.authorized_gs if not fleet.is_revoked(g))
+        gone = sorted(g for g in {*self.slots, *self.probation} if g not in authorized)
+        for gs in gone:  # keys erased: the slot (live key, candidates) and its link dropped
+            self.slots.pop(gs, None)
+            self.links.pop(gs, None)
+            self.probation.pop(gs, None)
+            self.counters["revoked_links"] += 1
+        r = self.responder
+        r.ground_stations = {g: fleet.nodes[g].public_bytes for g in fleet.ground_stations()}
+        r.authorized = authorized
+        r.require_hybrid = fleet.pairing_pq
+        self.uplink = node.uplink
+        self.gs_sysids = {n: fleet.nodes[n].sysid for n in fleet.ground_stations()}
+        self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
+                         if fleet.nodes[n].coverage is not None}
+        rotated = sorted(n for n, v in fleet.nodes.items() if n in old.nodes and v.public_key != old.nodes[n].public_key)
+        self.revision_synced, self._lease_lapsed = now, False
+        out: list[Out] = [Emit(rec.RevisionApplied(number=fleet.revision, revoked=tuple(sorted(fleet.revoked)), rotated=tuple(rotated),
+                                                   pairing_pq=fleet.pairing_pq))]
+        out += self._handle(ha.Revised(now, authorized, fleet.revision), now)
+        return out + self._effects(now)
+
+    def on_revision_sync(self, number: int, now: float) -> list[Out]:
+        """A valid revision numbered ``number`` was heard (the adapter checked it; it may be the one in
+        force, heard again): the revision lease is renewed if it is not older than ours (after a
+        lapse, the authorized list is whole again: the GSs may take control back by the usual rules)."""
+        if number < self.fleet.revision:
+            return []
+        self.revision_synced = now
+        if not self._lease_lapsed:
+            return []
+        self._lease_lapsed = False
+        node = self.fleet.nodes[self.name]
+        authorized = frozenset() if self.fleet.is_revoked(self.name) else frozenset(node.authorized_gs)
+        return self._handle(ha.Revised(now, authorized, self.fleet.revision), now) + self._effects(now)
+
+    def lease_due(self) -> float | None:
+        """When the revision lease lapses if no revision is heard (None: no lease)."""
+        if self.opts.revision_lease <= 0 or self.fleet.revision == 0 or self._lease_lapsed:
+            return None
+        return (self.revision_synced or 0.0) + self.opts.revision_lease
+
+    def _lease(self, now: float) -> list[Out]:
+        due = self.lease_due()
+        if due is None or now < due or self.machine.owner is None or self.on_ground:
+            return []
+        self._lease_lapsed = True
+        self.counters["revision_lease_lapsed"] += 1
+        log.warning("no fleet revision heard for %.0f s: the authority of %s lapses", self.opts.revision_lease,
+                    self.machine.owner)
+        authorized = frozenset(self.machine.config.authorized) - {self.machine.owner}
+        return self._handle(ha.Revised(now, authorized, self.fleet.revision), now)
+
     def ready(self, wall: float) -> None:
         """The companion is ready (its vehicle heard, its saved authority restored) at time of day
         ``wall``: pairing message 1s made before it (less the clock skew allowed) are stale."""
@@ -278,6 +347,8 @@ class DroneCore:
         due += [t for link in self.links.values() if (t := link.tbm.next_change()) is not None]
         if self.probation:
             due.append(min(self.probation.values()))
+        if (lease := self.lease_due()) is not None:
+            due.append(lease)
         return min(due)
 
     def handle_timer(self, now: float) -> list[Out]:
@@ -462,7 +533,7 @@ class DroneCore:
         """What follows from the state after an input: link-state changes, the machine's expired
         deadlines, the uplinks to listen to (the machine's plus every GS whose new pairing key waits
         for its proof), and what to persist."""
-        out = self._poll_links(now)
+        out = self._poll_links(now) + self._lease(now)
         timer = self.machine.get_timer()
         if timer is not None and now >= timer:
             self._timer_handled = timer

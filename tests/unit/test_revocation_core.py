@@ -1,0 +1,142 @@
+"""Fleet revisions applied in flight, in memory (``zdrone.bench.fleetnet``: the drone's pure core
+with the GSs' pure cores, real crypto, explicit time): a revoked GS loses its link, its keys and its
+authority (to an heir whose coverage holds the drone, else the failsafe); a revoked GS that did not
+hold authority costs nothing; the revision lease; the authority machine's table with revisions."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from zdrone.bench.fleetnet import FleetNet, make_fleet
+from zdrone.core import authority as ha
+from zdrone.core import records as rec
+from zdrone.core.authority import State
+from zdrone.core.revision import Changes, apply_revision, make_revision, with_revoked
+from zdrone.fleet.files import load_base_fleet, load_fleet_signing_key
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    return make_fleet(tmp_path_factory.mktemp("fleet"))
+
+
+def revoked(fleet_dir, *nodes: str, number: int = 1):
+    base = load_base_fleet(fleet_dir)
+    changes = Changes()
+    for n in nodes:
+        changes = with_revoked(changes, n)
+    return apply_revision(base, make_revision(base, number, changes, load_fleet_signing_key(fleet_dir, base)))
+
+
+def linked(fleet_dir) -> FleetNet:
+    net = FleetNet(fleet_dir)
+    net.add_gs("A", pair=True)
+    net.add_gs("B")
+    net.run(4.0)
+    assert net.drone.machine.owner == "A" and set(net.drone.links) == {"A", "B"}
+    return net
+
+
+def in_region_owned_by_b(fleet_dir) -> FleetNet:
+    """B holds authority (handed over by A), the drone inside both coverages, both links proven."""
+    net = linked(fleet_dir)
+    net.on_ground = False
+    a, b = net.centre("A"), net.centre("B")
+    net.fly(a, b, 30.0)  # handed over to B on the way
+    net.fly(b, net.between(a, b, 0.55), 8.0)  # back into the region: B keeps authority
+    m = net.drone.machine
+    assert m.owner == "B" and {"A", "B"} <= m.inside, (m.owner, m.inside)
+    return net
+
+
+def apply(net: FleetNet, fleet) -> None:
+    net.drone_outs(net.drone.on_revision(fleet, net.now))
+
+
+def test_revoking_the_owner_in_the_region_hands_over_to_the_heir_without_a_failsafe(fleet_dir):
+    net = in_region_owned_by_b(fleet_dir)
+    net.run(1.0)
+    epoch = net.drone.machine.epoch
+    apply(net, revoked(fleet_dir, "B"))
+    m = net.drone.machine
+    assert m.owner == "A" and m.epoch == epoch + 1 and m.state is State.LINKED
+    assert "B" not in net.drone.links and "B" not in net.drone.slots and "B" not in m.links
+    assert not net.commands
+    before = net.drone.counters["no_link"]
+    net.run(2.0)  # B goes on sending: every frame is refused before any key is tried
+    assert net.drone.counters["no_link"] > before or "B" not in net.drone._listening
+    assert [r.number for r in net.records if isinstance(r, rec.RevisionApplied)] == [1]
+
+
+def test_revoking_the_owner_where_no_other_gs_covers_the_drone_lands_it(fleet_dir):
+    net = in_region_owned_by_b(fleet_dir)
+    b = net.centre("B")
+    net.fly(net.position, b, 15.0)  # deep in B's coverage, out of A's
+    assert net.drone.machine.owner == "B" and "A" not in net.drone.machine.inside
+    apply(net, revoked(fleet_dir, "B"))
+    assert net.drone.machine.state is State.FAILSAFE
+    assert [c.command for c in net.commands] == ["LAND"]
+
+
+def test_revoking_a_gs_that_holds_no_authority_costs_the_owner_nothing(fleet_dir):
+    net = linked(fleet_dir)
+    net.on_ground = False
+    apply(net, revoked(fleet_dir, "B"))
+    net.run(3.0)
+    m = net.drone.machine
+    assert m.owner == "A" and m.state is State.LINKED and not net.commands
+    assert "B" not in net.drone.links
+    # B may no longer pair: the responder refuses it (unauthorized) before any crypto
+    assert not net.drone.responder.authorized & {"B"}
+
+
+def test_the_revision_lease_lapses_without_a_revision_heard_and_is_renewed_by_one(fleet_dir):
+    import dataclasses
+
+    net = linked(fleet_dir)
+    net.drone.opts = dataclasses.replace(net.drone.opts, revision_lease=5.0)
+    net.on_ground = False
+    apply(net, revoked(fleet_dir, "X"))  # revision 1: the lease runs from here
+    net.run(3.0)
+    net.drone.on_revision_sync(1, net.now)  # heard again: renewed
+    net.run(4.0)
+    assert net.drone.machine.state is State.LINKED and not net.commands
+    net.run(2.0)  # 6 s without a revision heard
+    assert net.drone.counters["revision_lease_lapsed"] == 1
+    assert net.drone.machine.state is State.FAILSAFE and [c.command for c in net.commands] == ["LAND"]
+
+
+# ----------------------------------------------------------- the machine's table with revisions
+AUTH = frozenset({"A", "B"})
+GS = st.sampled_from(["A", "B", "X"])
+times = st.floats(0, 1000, allow_nan=False)
+EVENTS = st.one_of(
+    st.builds(ha.Paired, times, GS, st.booleans()),
+    st.builds(ha.KeyGranted, times, GS, GS),
+    st.builds(ha.Frame, times, GS, st.sampled_from(list(ha.UplinkClass))),
+    st.builds(ha.LinkChanged, times, GS, st.sampled_from(list(ha.LinkState))),
+    st.builds(ha.RegionChanged, times, st.frozensets(GS)),
+    st.builds(ha.Release, times, GS, GS, st.integers(0, 4)),
+    st.builds(ha.GroundChanged, times, st.booleans()),
+    st.builds(ha.Revised, times, st.frozensets(st.sampled_from(["A", "B"]))),
+)
+
+
+def test_the_table_has_a_revision_row_in_every_state():
+    for state in State:
+        assert (state, ha.Revised) in ha.TRANSITIONS
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(EVENTS, max_size=40))
+def test_after_any_revision_no_gs_off_the_list_holds_a_link_or_authority(events):
+    m = ha.AuthorityMachine(ha.Config(AUTH))
+    for ev in events:
+        m.grant(ev) if isinstance(ev, ha.KeyGranted) else m.handle(ev)
+        auth = m.config.authorized
+        assert set(m.links) <= auth
+        assert m.pending_to is None or m.pending_to in auth
+        if m.state in (State.LINKED, State.HANDOVER_PENDING):
+            assert m.owner in auth and m.owner in m.subscribed
+        assert (m.pending_to is not None) == (m.state is State.HANDOVER_PENDING)
