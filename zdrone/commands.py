@@ -402,8 +402,38 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_report)
 
 
+def _audit_verify(args: argparse.Namespace) -> int:
+    from .report import audit_files, run_fleet, verify_audit
+
+    files = audit_files(args.targets)
+    results = verify_audit(files, run_fleet(args.targets, args.fleet))
+    if args.json:
+        import json
+
+        print(json.dumps([{"file": str(f), "node": r.node, "ok": r.ok, "entries": r.entries,
+                           "signed_through": r.signed_through, "witnessed_through": r.witnessed_through,
+                           "kind": r.kind, "first_bad": r.first_bad, "problem": r.problem} for f, r in results],
+                         indent=2))
+    else:
+        for f, r in results:
+            print(f"{'ok ' if r.ok else 'BAD'} {f}: {r.summary()}")
+    return 0 if all(r.ok for _, r in results) else 1
+
+
+def add_audit(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("audit", help="the signed, hash-chained record of every authority decision")
+    asub = p.add_subparsers(dest="audit_command", required=True)
+    v = asub.add_parser("verify", help="check authority records offline against the fleet's public keys; names "
+                                       "the first bad entry (modified, deleted, reordered, truncated); exit 1 if any")
+    v.add_argument("targets", nargs="+", metavar="RUN_DIR|FILE",
+                   help="a run folder (its *.audit.jsonl) or authority record files")
+    v.add_argument("--fleet", help="the fleet folder (its public fleet.json5); default: RUN_DIR/fleet")
+    v.add_argument("--json", action="store_true", help="one object per record instead of lines")
+    v.set_defaults(func=_audit_verify)
+
+
 #: The node subcommands, in ``zdrone --help`` order (the fleet and bench commands live in ``cli``).
 NODE_COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
-    add_sim, add_router, add_drone, add_gs, add_demo, add_report)
+    add_sim, add_router, add_drone, add_gs, add_demo, add_report, add_audit)
 #: Commands whose SIGTERM/SIGINT are served by a signal thread (``zdrone.net.shutdown``).
 SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs, _router)

@@ -3,6 +3,11 @@
 Input: a run folder (as ``zdrone demo`` writes it) or its ``drone.jsonl``. The fleet (coverage
 circles) is read from ``fleet/fleet.json5`` next to the log when present, else the reference fleet.
 Output: ``report.html`` and ``track.png`` (the ground track alone, for a README) in the run folder.
+The page shows each node's authority record (``zdrone.core.audit``): verified, or its first bad entry.
+
+``verify_audit`` is ``zdrone audit verify``: every ``*.audit.jsonl`` of a run folder (or the files
+given) checked offline against the fleet's public signing keys, and against every witness line found
+in any of them.
 """
 
 from __future__ import annotations
@@ -14,7 +19,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .core.fleet import ConfigError, parse_fleet
+from .core.audit import AuditWitness, ChainReport, decode_line, verify_chain
+from .core.fleet import ConfigError, Fleet, parse_fleet
 from .core.geometry import GeoPoint, ne_of
 from .core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
                            LinkStateChanged, Start, Subscribe, Unsubscribe, fields_of, only, record_type)
@@ -45,6 +51,76 @@ def _coverage(run: Path) -> dict[str, tuple[GeoPoint, float]]:
         except ConfigError:
             pass
     return {"A": (GS_A, COVERAGE_RADIUS_M), "B": (GS_B, COVERAGE_RADIUS_M)}
+
+
+def audit_files(targets: list[str | Path]) -> list[Path]:
+    """The authority records named: files as given, a folder's ``*.audit.jsonl``."""
+    files: list[Path] = []
+    for t in targets:
+        p = Path(t)
+        if p.is_dir():
+            files += sorted(p.glob("*.audit.jsonl"))
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise ConfigError(f"{p}: no such file or folder")
+    if not files:
+        raise ConfigError(f"{', '.join(map(str, targets))}: no authority record (*.audit.jsonl)")
+    return files
+
+
+def run_fleet(targets: list[str | Path], fleet_dir: str | Path | None) -> Fleet:
+    """The fleet to verify against: ``--fleet``, else ``fleet/`` of the run folder given."""
+    from .fleet.files import load_fleet
+
+    if fleet_dir is None:
+        found = [Path(t) / "fleet" for t in targets if (Path(t) / "fleet" / "fleet.json5").is_file()]
+        if not found:
+            raise ConfigError("no fleet to check the signatures against: give --fleet DIR (its public fleet.json5)")
+        fleet_dir = found[0]
+    return load_fleet(fleet_dir)
+
+
+def verify_audit(files: list[Path], fleet: Fleet) -> list[tuple[Path, ChainReport]]:
+    """Each file's record verified (its node: the one its entries name), against every witness."""
+    contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
+    witnesses: list[AuditWitness] = []
+    owners: dict[Path, str | None] = {}
+    for f, lines in contents.items():
+        owners[f] = None
+        for raw in lines:
+            try:
+                line = decode_line(raw)
+            except Exception:  # reported by verify_chain with its line number
+                continue
+            if isinstance(line, AuditWitness):
+                witnesses.append(line)
+            elif owners[f] is None:
+                owners[f] = line.node
+    keys = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
+    out = []
+    for f, lines in contents.items():
+        node = owners[f]
+        if node is None:
+            if not lines:
+                out.append((f, ChainReport(f.stem, 0, 0, -1, -1, 0)))
+            continue  # only witness lines: a ground station that took no decision of its own
+        out.append((f, verify_chain(node, lines, keys.get(node), witnesses, keys)))
+    return out
+
+
+def _audit_section(run: Path) -> str:
+    """The flight report's view of the run's authority records."""
+    files = sorted(run.glob("*.audit.jsonl"))
+    if not files:
+        return "<h2>Authority record</h2><p>none in this run</p>"
+    try:
+        results = verify_audit(files, run_fleet([run], None))
+    except ConfigError as exc:
+        return f"<h2>Authority record</h2><p>not verified: {html.escape(str(exc))}</p>"
+    rows = "".join(f"<tr><td>{html.escape(f.name)}</td><td>{'verified' if r.ok else '<b>BAD</b>'}</td>"
+                   f"<td>{html.escape(r.summary())}</td></tr>" for f, r in results)
+    return f"<h2>Authority record</h2><table><tr><th>file</th><th>chain</th><th>detail</th></tr>{rows}</table>"
 
 
 def _png(fig: Any) -> bytes:
@@ -200,6 +276,7 @@ td,th{{border:1px solid #ccc;padding:2px 8px;text-align:left}}img{{max-width:100
 <img alt="ground track" src="data:image/png;base64,{img['track']}">
 <img alt="time between messages" src="data:image/png;base64,{img['tbm']}">
 <img alt="altitude" src="data:image/png;base64,{img['alt']}">
+{_audit_section(run)}
 <h2>Drops and refusals by reason</h2><table><tr><th>reason</th><th>count</th></tr>{drop_rows}</table>
 <h2>Events</h2><table><tr><th>t (s)</th><th>event</th><th>detail</th></tr>{rows}</table></body></html>"""
     out = run / "report.html"

@@ -171,7 +171,7 @@ class AuditChain:
 
     def append(self, kind: str, fields: dict[str, Any], now: float) -> list[AuditLine]:
         """The entry of one decision (and a checkpoint when ``every`` entries are unsigned)."""
-        entry = AuditEntry(self.node, self.seq, round(now, 4), kind, msgspec.to_builtins(fields), self.head)
+        entry = AuditEntry(self.node, self.seq, round(now, 4), kind, msgspec.to_builtins(fields, enc_hook=str), self.head)
         self.head, self.seq = entry_hash(entry), self.seq + 1
         if not self._pending:
             self._first_pending_at = now
@@ -180,6 +180,11 @@ class AuditChain:
         if self._pending >= self.every:
             out.append(self.checkpoint(now))
         return out
+
+    @property
+    def pending(self) -> int:
+        """Entries appended since the last checkpoint."""
+        return self._pending
 
     def tick(self, now: float) -> list[AuditLine]:
         """A checkpoint when an entry has waited ``interval`` seconds unsigned."""
@@ -289,7 +294,8 @@ def verify_chain(node: str, lines: Iterable[bytes | str], node_public: bytes | N
             hashes.append(prev)
         else:
             if line.seq >= len(hashes) or line.seq < 0:
-                return bad("out_of_order", len(hashes), f"checkpoint of entry {line.seq} before that entry")
+                return bad("missing", len(hashes), f"entry {len(hashes)} is missing (a checkpoint signs entry "
+                                                   f"{line.seq} here): deleted or reordered")
             if hashes[line.seq] != line.head:
                 return bad("modified", line.seq, f"entry {line.seq} is not the one its checkpoint signed")
             if node_public is None or not verify_signature(node_public, checkpoint_message(node, line.seq, line.head),

@@ -21,6 +21,14 @@ environment variable ``ZDRONE_STRICT_EVENTS=1`` (inherited by the node processes
 
 The node commands set both for every log of the process (``configure``) so node code needs no
 option of its own.
+
+**The authority record.** ``start_audit(signing_key)`` gives the log a signed hash chain
+(``zdrone.core.audit``) in a file of its own beside it (``drone.jsonl`` -> ``drone.audit.jsonl``,
+never rotated: decisions are few). Every event of an ``audit.AUDITED`` type is appended to it as
+well, whatever the rate limit left out of the log, and every write is a tick of its clock
+(a checkpoint a second after an unsigned entry at the latest; ``on_checkpoint`` hears each one: the
+drone shows its newest to its ground stations). A ground station writes the checkpoints it
+countersigned there too (``write_witness``). A restarted node continues its chain.
 """
 
 from __future__ import annotations
@@ -37,6 +45,8 @@ from typing import Any, Callable, NamedTuple, TextIO, TypeVar
 
 import msgspec
 
+from ..core import audit
+from ..core.keys import SigningKey
 from ..core.records import (AnyRecord, Suppressed, UntypedRecord, decode_record, encode_record, misfit, record_type,
                             records_for)
 
@@ -123,6 +133,9 @@ class EventLog:
         self._path = Path(path) if path else None
         self._fh: TextIO | None = None
         self._size = 0
+        self.audit: audit.AuditChain | None = None
+        self._audit_fh: TextIO | None = None
+        self._on_checkpoint: Callable[[audit.AuditCheckpoint], None] | None = None
         if self._path is not None:
             self._path.parent.mkdir(parents=True, exist_ok=True)
             self._open()
@@ -137,6 +150,8 @@ class EventLog:
         now = self._clock()
         ev = {"t": round(now, 4), "node": self.node, "type": type_, **fields}
         reason = fields.get("reason")
+        if self.audit is not None:
+            self._audit(type_, fields, now)
         with self._lock:
             if not self._admit(type_, reason if isinstance(reason, str) or reason is None else str(reason), now):
                 return ev
@@ -156,6 +171,8 @@ class EventLog:
         if not rec.t or not rec.node:
             rec = msgspec.structs.replace(rec, t=rec.t or round(now, 4), node=rec.node or self.node)
         reason = getattr(rec, "reason", None)
+        if self.audit is not None:
+            self._audit(record_type(rec), rec, now)
         with self._lock:
             if not self._admit(record_type(rec), reason if isinstance(reason, str) or reason is None else str(reason), now):
                 return rec
@@ -179,6 +196,43 @@ class EventLog:
             self._misfit(str(tag), f"{cls.__name__}: {exc}")
             return self.write(str(tag), **fields)
         return self.write_record(record)
+
+    # ---------------------------------------------------------------- authority record
+    def start_audit(self, key: SigningKey,
+                    on_checkpoint: Callable[[audit.AuditCheckpoint], None] | None = None) -> None:
+        """Keep this node's authority record (see the module's text); a log without a file keeps none."""
+        if self._path is None:
+            return
+        path = audit_path(self._path)
+        lines = path.read_bytes().splitlines() if path.exists() else []
+        self.audit = audit.AuditChain.resume(self.node, key, lines)
+        self._audit_fh = open(path, "a", buffering=1, encoding="utf-8")
+        self._on_checkpoint = on_checkpoint
+
+    def write_witness(self, witness: audit.AuditWitness) -> None:
+        """A checkpoint of another node this node countersigned."""
+        with self._lock:
+            self._audit_lines([witness])
+
+    def _audit(self, type_: str, what: Any, now: float) -> None:
+        """Append a decision to the chain (``what``: a record or its fields), then tick the chain."""
+        assert self.audit is not None
+        with self._lock:
+            lines: list[audit.AuditLine] = []
+            if type_ in audit.AUDITED:
+                fields = msgspec.to_builtins(what) if not isinstance(what, dict) else what
+                fields = {k: v for k, v in fields.items() if k not in ("t", "node", "type")}
+                lines += self.audit.append(type_, fields, now)
+            lines += self.audit.tick(now)
+            self._audit_lines(lines)
+
+    def _audit_lines(self, lines: list[audit.AuditLine]) -> None:
+        if self._audit_fh is None:
+            return
+        for line in lines:
+            self._audit_fh.write(audit.encode_line(line).decode() + "\n")
+            if isinstance(line, audit.AuditCheckpoint) and self._on_checkpoint is not None:
+                self._on_checkpoint(line)
 
     # ---------------------------------------------------------------- rate
     def _admit(self, type_: str, reason: str | None, now: float) -> bool:
@@ -264,11 +318,22 @@ class EventLog:
 
     def close(self) -> None:
         with self._lock:
+            if self.audit is not None and self.audit.pending:
+                self._audit_lines([self.audit.checkpoint(self._clock())])  # nothing left unsigned
+            if self._audit_fh is not None:
+                self._audit_fh.close()
+                self._audit_fh = None
             if self._buckets:
                 self._summaries(self._clock(), due_only=False)  # every count left out, exactly
             if self._fh is not None:
                 self._fh.close()
                 self._fh = None
+
+
+def audit_path(path: str | Path) -> Path:
+    """The authority record beside an event log: ``drone.jsonl`` -> ``drone.audit.jsonl``."""
+    p = Path(path)
+    return p.with_name(f"{p.stem}.audit{p.suffix or '.jsonl'}")
 
 
 def rotated(path: str | Path, i: int) -> Path:
