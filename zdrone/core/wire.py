@@ -72,6 +72,15 @@ class HandoverRelease(Control, frozen=True, tag="handover_release"):
     epoch: int
 
 
+class AuditHead(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The newest checkpoint of the drone's authority record (``zdrone.core.audit``): entry ``seq``
+    has hash ``head``, signed (``sig``) with the drone's fleet signing key; a GS countersigns it."""
+
+    seq: int
+    head: bytes
+    sig: bytes
+
+
 class AuthorityStatus(Control, frozen=True, tag="authority"):
     """Drone -> every linked GS: who holds authority, in which epoch, in which state."""
 
@@ -83,6 +92,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     takeover: bool = False  # the owner allows takeover in this epoch (its operator's setting)
     takeover_to: str | None = None  # ... for this GS only (a consent's window); None: for any
     fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
+    audit: AuditHead | None = None  # the drone's newest authority-record checkpoint (None: none yet)
 
 
 class Reject(Control, frozen=True, tag="reject"):

@@ -161,6 +161,7 @@ class DroneCore:
         self.position_trusted = False  # the position may grant authority (``on_vehicle``)
         self.on_ground = True
         self.fc_signed: bool | None = None  # the adapter's word: the autopilot link is MAVLink-signed (None: unknown)
+        self.audit_head: wire.AuditHead | None = None  # the authority record's newest checkpoint (the adapter's)
         self._listening: frozenset[str] = frozenset()
         self._persisted: tuple[str | None, int, str] | None = None
         self._next_beacon = 0.0
@@ -405,10 +406,18 @@ class DroneCore:
         link = self.links.get(gs)
         return [] if link is None else [Put(gs, link.seal_control(self._stamped(msg)))]
 
+    def on_audit_checkpoint(self, seq: int, head: bytes, sig: bytes) -> None:
+        """The authority record signed its head (the adapter's log): shown to every GS in the status,
+        which countersigns it (``zdrone.core.audit``)."""
+        self.audit_head = wire.AuditHead(seq, head, sig)
+
     def _stamped(self, msg: wire.Control) -> wire.Control:
-        """An authority status tells each GS whether the drone's autopilot link is signed."""
+        """An authority status tells each GS whether the drone's autopilot link is signed, and the
+        authority record's newest checkpoint."""
         if isinstance(msg, wire.AuthorityStatus) and self.fc_signed is not None:
-            return msgspec.structs.replace(msg, fc_signed=self.fc_signed)
+            msg = msgspec.structs.replace(msg, fc_signed=self.fc_signed)
+        if isinstance(msg, wire.AuthorityStatus) and self.audit_head is not None:
+            msg = msgspec.structs.replace(msg, audit=self.audit_head)
         return msg
 
     def _handle(self, event: ha.Event, now: float, frame: bytes | None = None) -> list[Out]:
