@@ -83,6 +83,10 @@ class AuditCheckpoint(msgspec.Struct, frozen=True, tag="checkpoint", tag_field="
     t: float
     sig: str
 
+    def raw(self) -> tuple[int, bytes, bytes]:
+        """(seq, head, signature) as bytes: what the drone sends its ground stations (``wire.AuditHead``)."""
+        return self.seq, bytes.fromhex(self.head), _unb64(self.sig)
+
 
 class AuditWitness(msgspec.Struct, frozen=True, tag="witness", tag_field="audit", forbid_unknown_fields=True):
     """A witness's countersignature (``wsig``) of ``node``'s checkpoint (seq, head, the node's ``sig``)."""

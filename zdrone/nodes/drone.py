@@ -160,6 +160,8 @@ class DroneNode:
         self.core = DroneCore(self.fleet, self.name, self.secret.identity,
                               DroneCoreOptions(opts.thresholds, opts.failsafe, opts.handover_timeout, opts.cipher),
                               started_wall=time.time())
+        if self.secret.signing is not None:  # the signed authority record beside the event log (zdrone.core.audit)
+            self.events.start_audit(self.secret.signing, on_checkpoint=lambda cp: self.core.on_audit_checkpoint(*cp.raw()))
         self.store = AuthorityStore(opts.fleet, opts.drone)
         self.gate: LinkGate | None = opts.gate
         self.radio = opts.radio
