@@ -33,7 +33,7 @@ from pathlib import Path
 from ..core.errors import ConfigError
 from ..core.fleet import Fleet
 from ..core.keys import Identity, SigningKey, unb64
-from .files import FLEET_FILE, FLEET_SIGNING_FILE, load_fleet, load_secret
+from .files import FLEET_FILE, FLEET_SIGNING_FILE, REVISION_FILE, load_fleet, load_secret
 
 BUNDLE_FILE = "bundle.json"
 ROUTER = "router"
@@ -57,6 +57,8 @@ def bundle_files(fleet_dir: Path, fleet: Fleet, node: str) -> dict[str, bool]:
     """The files of ``node``'s bundle (relative path -> private), as they exist in ``fleet_dir``."""
     tls = (fleet_dir / "tls" / "ca.crt").is_file()
     files: dict[str, bool] = {FLEET_FILE: False}
+    if (fleet_dir / REVISION_FILE).is_file():  # the latest signed revision: public, applied on load
+        files[REVISION_FILE] = False
     if _is_router(node):
         cfg = "router" if node == ROUTER else node
         if not (fleet_dir / "router" / f"{cfg}.json5").is_file():

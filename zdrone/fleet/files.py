@@ -6,6 +6,12 @@ Layout of a fleet directory::
     secrets/<name>.json          private (mode 0600): the node's X25519 key, Ed25519 signing key and router password
     offline/fleet-signing.json   private (mode 0600): the fleet's Ed25519 signing key (signs revisions);
                                  stays on the offline machine like tls/ca.key: never in a bundle
+    revision.json                public: the latest signed fleet revision (``zdrone fleet revoke`` ...);
+    revisions/<n>.json           every one made (on the issuing machine)
+
+``load_fleet`` gives the *effective* fleet: ``fleet.json5`` with the latest valid revision found
+beside it, or in the node's state directory (``$ZDRONE_STATE_DIR/revision.json``, where a node
+keeps the revisions it received); ``load_base_fleet`` the file alone.
     router/credentials.txt       private (mode 0600): user:password lines for the router
     router/router.json5          the router's config: auth from credentials.txt, default-deny ACL
 """
@@ -18,11 +24,15 @@ import secrets
 import stat
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 
 from ..core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
 from ..core.keys import Identity, SigningKey, b64, unb64
+
+if TYPE_CHECKING:
+    from ..core.revision import Revision
 from ..core.geometry import GeoPoint, offset
 from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
 
@@ -215,8 +225,53 @@ def load_sites(where: str | Path) -> dict[str, dict]:
         raise ConfigError(f"{path}: no sites (run 'zdrone fleet init --sites EP,EP')") from None
 
 
+REVISION_FILE = "revision.json"
+STATE_DIR_ENV = "ZDRONE_STATE_DIR"
+
+
+def revision_paths(where: str | Path) -> list[Path]:
+    """Where a node's latest revision may be: beside fleet.json5, and its state directory's copy."""
+    out = [fleet_path(where).parent / REVISION_FILE]
+    state = os.environ.get(STATE_DIR_ENV)
+    if state:
+        out.append(Path(state) / REVISION_FILE)
+    return out
+
+
+def load_revision(where: str | Path, base: Fleet | None = None) -> "Revision | None":
+    """The latest valid revision kept for this fleet (or bundle) folder, None if there is none;
+    ``ConfigError`` if a kept one is not valid for the fleet (tampered, another fleet's)."""
+    from ..core.revision import RevisionAccepted, check_revision
+
+    base = base if base is not None else load_base_fleet(where)
+    best = None
+    for path in revision_paths(where):
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
+        got = check_revision(data, base, None)
+        if not isinstance(got, RevisionAccepted):
+            raise ConfigError(f"{path}: not a valid revision of this fleet ({got.reason.value})")
+        if best is None or got.revision.number > best.number:
+            best = got.revision
+    return best
+
+
 def load_fleet(where: str | Path) -> Fleet:
-    """Load and validate ``fleet.json5`` (a path to it or to its directory)."""
+    """The effective fleet: ``fleet.json5`` (a path to it or to its directory) with the latest
+    revision kept for it (``load_revision``)."""
+    from ..core.revision import apply_revision
+
+    base = load_base_fleet(where)
+    rev = load_revision(where, base)
+    return apply_revision(base, rev) if rev is not None else base
+
+
+def load_base_fleet(where: str | Path) -> Fleet:
+    """Load and validate ``fleet.json5`` (a path to it or to its directory), no revision applied."""
     path = fleet_path(where)
     try:
         text = path.read_text()
