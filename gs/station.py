@@ -31,6 +31,7 @@ from typing import Any, Callable
 import zenoh
 
 from zdrone.core import records as rec
+from zdrone.core.audit import Witnessing
 from zdrone.core import wire
 from zdrone.core.errors import ConfigError
 from zdrone.core.mavcontrol import OperatorControlRequest
@@ -97,6 +98,11 @@ class GroundStation:
             pair=opts.pair, mission=opts.mission, heartbeat_hz=opts.heartbeat_hz, command_rate=opts.command_rate,
             hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
             take_control=opts.take_control, allow_takeover=opts.allow_takeover))
+        self.witnessing: Witnessing | None = None
+        if self.secret.signing is not None:  # its own authority record; it countersigns the drones' checkpoints
+            self.events.start_audit(self.secret.signing)
+            self.witnessing = Witnessing(self.name, self.secret.signing, {d: self.fleet.signing_public(d) for d in drones})
+            self.core._on_control = self._witnessed(self.core._on_control)  # type: ignore[method-assign]
         self.views = self.core.views  # for the bench's counts (``zdrone.bench.scale``); adapters go by name
         self.counters = self.core.counters
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
@@ -157,6 +163,21 @@ class GroundStation:
         answer, actions = self.core.operator_command(drone, req, now, app=app, app_sysid=app_sysid)
         self._do(actions)
         return int(answer)
+
+    def _witnessed(self, on_control: Callable[[DroneView, wire.Control, float], list[Action]]
+                   ) -> Callable[[DroneView, wire.Control, float], list[Action]]:
+        """The core's handling of a drone's control message, after countersigning the authority-record
+        checkpoint an authentic status carries (``zdrone.core.audit``; logged in this GS's record)."""
+        def witnessed(view: DroneView, msg: wire.Control, now: float) -> list[Action]:
+            if isinstance(msg, wire.AuthorityStatus) and msg.audit is not None and self.witnessing is not None:
+                refused = self.witnessing.refused
+                w = self.witnessing.on_head(view.name, msg.audit.seq, msg.audit.head, msg.audit.sig, time.time())
+                if w is not None:
+                    self.events.write_witness(w)
+                elif self.witnessing.refused > refused:
+                    self.counters["audit_bad_checkpoint"] += 1
+            return on_control(view, msg, now)
+        return witnessed
 
     # ------------------------------------------------------------------ inbox
     def _on_inbox(self, kind: str, drone: str, data: Any, now: float) -> None:

@@ -199,3 +199,16 @@ def test_checkpoints_every_n_entries(n):
     chain = AuditChain("d1", DRONE_KEY, every=64)
     out = [x for i in range(n) for x in chain.append("paired", {"gs": "A"}, float(i))]
     assert sum(isinstance(x, AuditCheckpoint) for x in out) == n // 64
+
+
+def test_a_witness_countersigns_each_checkpoint_once_and_never_a_forged_one():
+    from zdrone.core.audit import Witnessing
+
+    lines, chain = _record()
+    w = Witnessing("B", GS_KEY, {"d1": DRONE_KEY.public})
+    seq, head, sig = chain.last.raw()
+    first = w.on_head("d1", seq, head, sig, 1.0)
+    assert first is not None and _verify(lines, [first]).witnessed_through == seq
+    assert w.on_head("d1", seq, head, sig, 2.0) is None  # repeated in every status: countersigned once
+    assert w.on_head("d1", seq + 1, head, sig, 3.0) is None and w.refused == 1  # the signature is for seq
+    assert w.on_head("X", seq, head, sig, 3.0) is None  # not a node it witnesses

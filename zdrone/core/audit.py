@@ -219,6 +219,26 @@ def countersign(witness: str, key: SigningKey, node: str, node_public: bytes | N
                         _b64(key.sign(witness_message(witness, node, seq, head.hex()))))
 
 
+class Witnessing:
+    """A witness's side: countersign each node's checkpoint once, when its ``seq`` grows (the node
+    repeats its newest in every status); a checkpoint whose signature fails is counted, never signed."""
+
+    def __init__(self, witness: str, key: SigningKey, node_keys: dict[str, bytes | None]) -> None:
+        self.witness, self.key, self.node_keys = witness, key, node_keys
+        self.last: dict[str, int] = {}  # per node: the seq countersigned last (bounded by the fleet's nodes)
+        self.refused = 0
+
+    def on_head(self, node: str, seq: int, head: bytes, sig: bytes, now: float) -> AuditWitness | None:
+        if node not in self.node_keys or seq <= self.last.get(node, -1):
+            return None
+        w = countersign(self.witness, self.key, node, self.node_keys[node], seq, head, sig, now)
+        if w is None:
+            self.refused += 1
+            return None
+        self.last[node] = seq
+        return w
+
+
 def witness_valid(w: AuditWitness, node_public: bytes | None, witness_public: bytes | None) -> bool:
     """Both signatures of a witness line check (the node's and the witness's)."""
     if node_public is None or witness_public is None:
