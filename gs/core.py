@@ -40,8 +40,8 @@ Per drone:
   be coming (a restarted companion), the vehicle is held where it is and its mission resumed just
   before the release, so that how fast the vehicle flies does not decide whether the hand-over
   happens inside the overlap.
-* **Mission stages** are a table, ``FLIGHT``: (stage, event) -> handler; pairs not in it are no-ops
-  by definition.
+* **Mission stages** are the sub-machine ``gs.mission.Mission``, a table: it takes events only while
+  this GS holds authority and no key grant of its is pending.
 """
 
 from __future__ import annotations
@@ -75,7 +75,8 @@ from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, QueryAnswer, Say
 from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
-from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
+from .mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
+from .planner import PlannedItem
 
 log = logging.getLogger(__name__)
 
@@ -88,39 +89,6 @@ USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG
                          mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_GPS_RAW_INT, MSG_EKF_STATUS_REPORT,
                          mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED})
 AUTOPILOT_NAMES = {mav.MAV_AUTOPILOT_PX4: "px4", mav.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
-#: ArduPilot's "continue after land" mission option (MIS_OPTIONS bit 2): the reference flight
-#: lands at the delivery point and goes on.
-ARDUPILOT_CONTINUE_AFTER_LAND = 4
-#: Tries of an unconfirmed PARAM_SET before the mission is given up.
-MAX_TRIES = 30
-#: Refusals of ARM / MISSION_START that neither the vehicle's state nor its words explain, before the
-#: mission is given up (a refusal while not ready never counts: the GS waits for the vehicle).
-MAX_UNEXPLAINED = 5
-RETRY_AFTER_S = 2.0
-#: Without a pre-arm health report, try to arm after this long (the vehicle's refusal decides).
-READY_WAIT_S = 3.0
-#: A refusal is classified this long after its COMMAND_ACK (ArduPilot says why after the ACK) ...
-REASON_WAIT_S = 0.5
-#: ... from the texts since this long before the ACK.
-REASON_BEFORE_S = 1.0
-#: The autopilot's PreArm text shown while the pre-arm checks fail is at most this old.
-PREARM_TEXT_S = 35.0
-PREARM_PREFIXES = ("prearm", "arm:", "arming denied", "preflight fail")
-#: Words of a refusal that says the vehicle is not ready yet (lower case) ...
-NOT_READY = ("requires position", "prearm", "arm:", "not ready", "resolve system health", "need position",
-             "ekf", "gps", "position estimate", "currently not available", "temporarily")
-#: ... and of one that waiting cannot fix.
-REFUSED_FOR_GOOD = ("mission rejected", "no valid mission", "missing takeoff")
-#: ArduCopter's modes that cannot be armed in (AUTO 3, RTL 6, LAND 9): a GS arming again after an
-#: auto-disarm in AUTO first switches to GUIDED.
-ARDUPILOT_NOT_ARMABLE = frozenset({3, 6, 9})
-MODE_SETTLE_S = 1.0
-#: After the mission start: the vehicle must report leaving the ground (landed state, or this height)
-#: within ``TAKEOFF_CONFIRM_S`` (said once if not), or a disarm on the ground starts it again; a
-#: HEARTBEAT must report it armed within ``ARMED_REPORT_S``.
-LEFT_GROUND_M = 1.0
-TAKEOFF_CONFIRM_S = 5.0
-ARMED_REPORT_S = 2.5
 TEXTS_KEPT = 8
 #: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
 LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
@@ -129,7 +97,6 @@ LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
 LINKKEY_CANDIDATE_TTL = 900.0
 PAIR_TIMEOUT = 3.0
 RETRY_S = 2.0
-STAGE_TIMEOUT = 3.0
 #: An unconfirmed HANDOVER_RELEASE is sent again this often (a lossy radio must not make the
 #: drone leave the overlap before it hears one).
 RELEASE_RESEND_S = 0.25
@@ -177,53 +144,6 @@ HOLD_RESEND_S = 0.5
 #: centre than when we released, by at least this much (else it is flying into our coverage and
 #: needs nothing but the retry).
 LEAVING_M = 5.0
-
-
-class Stage(enum.Enum):
-    """Where the GS is in flying its mission with one drone."""
-
-    IDLE = "idle"  # waiting to know the autopilot (its HEARTBEAT)
-    PREPARING = "preparing"  # ArduPilot: MIS_OPTIONS "continue after land" set and confirmed
-    UPLOADING = "uploading"
-    WAITING_READY = "waiting_ready"  # pre-arm checks, position estimate, or the next try after a refusal
-    ARMING = "arming"
-    STARTING = "starting"
-    REFUSED = "refused"  # ARM or MISSION_START refused: the vehicle's reasons are gathered a moment
-    TAKING_OFF = "taking_off"  # started: armed and leaving the ground is awaited
-    FLYING = "flying"  # left the ground
-    FAILED = "failed"
-
-
-# ----------------------------------------------------------------------- flight events
-@dataclass(frozen=True, slots=True)
-class FlightTick:
-    now: float
-
-
-@dataclass(frozen=True, slots=True)
-class FlightAck:
-    now: float
-    command: int
-    accepted: bool
-    result: int
-
-
-@dataclass(frozen=True, slots=True)
-class FlightParam:
-    """A PARAM_VALUE from the vehicle."""
-
-    now: float
-    name: str
-    value: float
-
-
-@dataclass(frozen=True, slots=True)
-class Refusal:
-    """A refused ARM / MISSION_START awaiting its reasons."""
-
-    what: str
-    result: int
-    at: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -293,22 +213,12 @@ class DroneView:
     grants: dict[str, wire.KeyGrant] = field(default_factory=dict)  # gs -> grant not yet acknowledged
     granted: set[str] = field(default_factory=set)
     grant_sent: float | None = None
-    uploader: MissionUploader | None = None
-    stage: Stage = Stage.IDLE
-    stage_time: float = 0.0
     handover: Handover = field(default_factory=lambda: Handover(""))  # our release, in the current epoch
     stale: bool = False  # the drone was silent: our view of the authority waits for its status
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
     autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
     prearm_ok: bool | None = None  # SYS_STATUS pre-arm health (None: not reported)
     texts: list[tuple[float, str]] = field(default_factory=list)  # the vehicle's recent STATUSTEXTs
-    tries: int = 0  # of the current stage's command (arm, start, parameter)
-    next_try: float = 0.0
-    waiting: str | None = None  # what the GS last said it waits for before arming
-    refusal: Refusal | None = None
-    restarts: int = 0  # armed and started again after a disarm on the ground
-    unexplained: int = 0  # refusals neither the vehicle's words nor its state explain
-    takeoff_late_said: bool = False
     last_pair_try: float | None = None
     last_share_try: float | None = None
     last_command: float | None = None
@@ -316,6 +226,7 @@ class DroneView:
     takeover: bool = False  # the owner allows takeover (the drone's AuthorityStatus)
     takeover_to: str | None = None  # ... for this GS only (a consent's window); None: any
     operator: OperatorControl = field(default_factory=lambda: OperatorControl(""))  # set by StationCore
+    mission: Mission = field(default_factory=lambda: Mission("", "", 0, None))  # set by StationCore
 
     @property
     def position(self) -> GeoPoint | None:
@@ -367,7 +278,8 @@ class StationCore:
         self.sysid = node.sysid
         self.coverage: Circle | None = node.coverage.circle() if node.coverage else None
         self.views = {d: DroneView(d, fleet.nodes[d].sysid, handover=Handover(d),
-                                   operator=OperatorControl(name, allow_takeover=opts.allow_takeover)) for d in drones}
+                                   operator=OperatorControl(name, allow_takeover=opts.allow_takeover),
+                                   mission=Mission(name, d, fleet.nodes[d].sysid, opts.mission)) for d in drones}
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
         self.counters: Counter[str] = Counter()
         self.keyshare = KeyShareResponder(identity, name, LINKKEY_RATE, LINKKEY_BURST)
@@ -727,9 +639,7 @@ class StationCore:
             text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
             view.texts = (view.texts + [(now, text)])[-TEXTS_KEPT:]
             out.append(Emit(rec.VehicleText(drone=drone, text=text, severity=msg.severity)))
-        if view.uploader is not None:
-            for m in view.uploader.on_message(msg, now, self.sysid):
-                out += self.send_msg(view, m)
+        out += view.mission.on_message(msg, now, self.sysid, lambda m: self.send_msg(view, m))
         if t == "COMMAND_ACK" and msg.target_system == self.sysid and msg.command == mav.MAV_CMD_DO_SET_MODE:
             self.on_mode_ack(view, msg.result == mav.MAV_RESULT_ACCEPTED, now)
         if t == "COMMAND_ACK" and msg.target_system == self.sysid:
@@ -849,230 +759,14 @@ class StationCore:
         return distance_m(self.coverage.centre, here) > first + LEAVING_M
 
     # ----------------------------------------------------------------- flying
-    def _set_stage(self, view: DroneView, stage: Stage, now: float) -> None:
-        if stage is not view.stage:
-            log.info("mission %s: %s -> %s", view.name, view.stage.value, stage.value)
-            view.stage, view.stage_time = stage, now
+    def _flies(self, view: DroneView) -> bool:
+        """The mission machine takes events: we fly one, hold authority, and no key grant is pending."""
+        return self.opts.mission is not None and self.holds_authority(view) and not view.grants
 
-    def _flight(self, view: DroneView, ev: "FlightTick | FlightAck | FlightParam") -> list[Action]:
-        if self.opts.mission is None or not self.holds_authority(view) or view.grants:
+    def _flight(self, view: DroneView, ev: FlightEvent) -> list[Action]:
+        if not self._flies(view):
             return []
-        handler = FLIGHT.get((view.stage, type(ev)))
-        return handler(self, view, ev) if handler is not None else []
-
-    def _reasons(self, view: DroneView, since: float) -> list[str]:
-        """What the vehicle said since ``since``: the reason of a refusal, as far as it gives one."""
-        return [t for (when, t) in view.texts if when >= since]
-
-    def _give_up(self, view: DroneView, now: float, reason: str) -> list[Action]:
-        """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
-        self._set_stage(view, Stage.FAILED, now)
-        out: list[Action] = [Emit(rec.MissionFailed(drone=view.name, reason=reason)),
-                             Say(f"zdrone gs {self.name}: mission for {view.name} failed: {reason}")]
-        if view.armed and view.landed_state != mav.MAV_LANDED_STATE_IN_AIR:
-            out += self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0)
-        return out
-
-    def _identify(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        """Wait for the autopilot's HEARTBEAT; ArduPilot first gets "continue after land"."""
-        if view.autopilot is None:
-            return []
-        view.tries = 0
-        if view.autopilot == "ardupilot":
-            self._set_stage(view, Stage.PREPARING, ev.now)
-            return self._set_mis_options(view, ev.now)
-        return self._start_upload(view, ev)
-
-    def _set_mis_options(self, view: DroneView, now: float) -> list[Action]:
-        view.next_try = now + RETRY_AFTER_S
-        return self.send_msg(view, mav.MAVLink_param_set_message(view.sysid, 1, b"MIS_OPTIONS", float(ARDUPILOT_CONTINUE_AFTER_LAND),
-                                                               mav.MAV_PARAM_TYPE_INT16))
-
-    def _preparing_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        if ev.now < view.next_try:
-            return []
-        view.tries += 1
-        if view.tries >= MAX_TRIES:
-            return self._give_up(view, ev.now, "MIS_OPTIONS (continue after land) never confirmed")
-        return self._set_mis_options(view, ev.now)
-
-    def _preparing_param(self, view: DroneView, ev: FlightParam) -> list[Action]:
-        if ev.name != "MIS_OPTIONS" or not int(ev.value) & ARDUPILOT_CONTINUE_AFTER_LAND:
-            return []
-        return [Emit(rec.VehicleParam(drone=view.name, name=ev.name, value=ev.value)),
-                *self._start_upload(view, FlightTick(ev.now))]
-
-    def _start_upload(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        assert self.opts.mission is not None
-        items = encode_mission(self.opts.mission, view.autopilot if view.autopilot in AUTOPILOTS else "px4")
-        view.uploader = MissionUploader(items, target=(view.sysid, 1))
-        out: list[Action] = []
-        for m in view.uploader.start(ev.now):
-            out += self.send_msg(view, m)
-        self._set_stage(view, Stage.UPLOADING, ev.now)
-        return out + [Emit(rec.MissionUpload(drone=view.name, items=len(items), autopilot=view.autopilot))]
-
-    def _upload_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        assert view.uploader is not None
-        out: list[Action] = []
-        for m in view.uploader.tick(ev.now):
-            out += self.send_msg(view, m)
-        if view.uploader.done:
-            if view.uploader.accepted:
-                view.tries, view.next_try = 0, 0.0
-                self._set_stage(view, Stage.WAITING_READY, ev.now)
-            else:
-                out += self._give_up(view, ev.now, f"mission upload refused (MISSION_ACK {view.uploader.result})")
-        return out
-
-    # ------------------------------------------------------- ready, arm, start
-    def not_ready(self, view: DroneView, now: float) -> str | None:
-        """What the vehicle still lacks to arm and fly its mission (None: nothing), in the operator's
-        words: the pre-arm checks of SYS_STATUS (with the autopilot's own PreArm text) and, for the
-        mission mode, an absolute horizontal position (ArduPilot: its EKF uses GPS; PX4: a global
-        position estimate)."""
-        if view.prearm_ok is False:
-            said = next((t for (when, t) in reversed(view.texts)
-                         if now - when <= PREARM_TEXT_S and t.lower().startswith(PREARM_PREFIXES)), None)
-            return "pre-arm checks failing" + (f" ({said})" if said else "")
-        if view.prearm_ok is None and now - view.stage_time < READY_WAIT_S:
-            return "waiting for the pre-arm report (SYS_STATUS)"
-        why = view.fix.unknown_because
-        if why is None and view.fix.estimate_absolute:
-            return None
-        if why is not None and why.startswith(("no GPS fix", "position 0, 0")):
-            return f"waiting for a GPS fix ({why})"
-        if view.autopilot == "ardupilot" and view.fix.ekf_flags is not None:
-            return "waiting for the EKF to use GPS (EKF_STATUS_REPORT: no absolute position)"
-        if view.autopilot == "px4":
-            return "waiting for a global position estimate"
-        return f"waiting for a position ({why or 'estimate not absolute'})"
-
-    def _show_waiting(self, view: DroneView, waiting: str | None, now: float) -> list[Action]:
-        """Say what the GS waits for, once each time it changes."""
-        if waiting == view.waiting:
-            return []
-        view.waiting = waiting
-        text = f"{view.name} ready: arming" if waiting is None else f"{view.name} not ready: {waiting}"
-        return [Emit(rec.VehicleWaiting(drone=view.name, waiting=waiting)), Say(f"zdrone gs {self.name}: {text}")]
-
-    def _airborne(self, view: DroneView) -> bool:
-        """The vehicle is armed and off the ground: its mission is being flown."""
-        return view.armed and (view.landed_state in (mav.MAV_LANDED_STATE_IN_AIR, mav.MAV_LANDED_STATE_TAKEOFF) or (
-            view.fix.position is not None and view.fix.position.alt > LEFT_GROUND_M))
-
-    def _flying_already(self, view: DroneView, now: float) -> list[Action]:
-        """The start's answer was lost (a lossy radio) but the vehicle flies: the mission started. Never
-        start it again (that would fly it from its first item)."""
-        self._set_stage(view, Stage.FLYING, now)
-        return [Emit(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
-                Say(f"zdrone gs {self.name}: {view.name} is flying (its start's answer was lost)")]
-
-    def _ready_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        """Arm once the vehicle says it can fly the mission (``not_ready``); no retry counter runs out
-        while it is not ready, the GS says what it waits for."""
-        if self._airborne(view):
-            return self._flying_already(view, ev.now)
-        if ev.now < view.next_try:
-            return []
-        out = self._show_waiting(view, self.not_ready(view, ev.now), ev.now)
-        if view.waiting is not None:
-            return out
-        if view.armed:  # armed already (e.g. a start refused while armed): go on with the start
-            self._set_stage(view, Stage.STARTING, ev.now)
-            return out + self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
-        if view.autopilot == "ardupilot" and view.custom_mode in ARDUPILOT_NOT_ARMABLE:
-            view.next_try = ev.now + MODE_SETTLE_S  # left in AUTO (or RTL, LAND) by a disarm: arm in GUIDED
-            return out + self._command(view, mav.MAV_CMD_DO_SET_MODE, *set_mode_params("ardupilot", "GUIDED"))
-        self._set_stage(view, Stage.ARMING, ev.now)
-        return out + self._command(view, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-
-    def _stage_timeout(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        """No answer to ARM / MISSION_START within ``STAGE_TIMEOUT``: tried again once ready."""
-        if view.stage is Stage.STARTING and self._airborne(view):
-            return self._flying_already(view, ev.now)
-        if ev.now - view.stage_time <= STAGE_TIMEOUT:
-            return []
-        what = "arm" if view.stage is Stage.ARMING else "mission start"
-        view.next_try = ev.now + RETRY_AFTER_S
-        self._set_stage(view, Stage.WAITING_READY, ev.now)
-        return [Emit(rec.VehicleRefused(drone=view.name, what=f"{what} (no answer)", result=None, try_=view.tries, texts=[]))]
-
-    def _step_refused(self, view: DroneView, ev: FlightAck, what: str) -> list[Action]:
-        """A refusal: classified only after ``REASON_WAIT_S`` (ArduPilot says why after its ACK)."""
-        view.refusal = Refusal(what, ev.result, ev.now)
-        self._set_stage(view, Stage.REFUSED, ev.now)
-        return []
-
-    def _arm_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
-        if ev.command != mav.MAV_CMD_COMPONENT_ARM_DISARM:
-            return []
-        if not ev.accepted:
-            return self._step_refused(view, ev, "arm")
-        view.armed = True  # the ACK says so before the next HEARTBEAT does
-        self._set_stage(view, Stage.STARTING, ev.now)
-        return self._command(view, mav.MAV_CMD_MISSION_START, 0, 0)
-
-    def _start_ack(self, view: DroneView, ev: FlightAck) -> list[Action]:
-        if ev.command != mav.MAV_CMD_MISSION_START:
-            return []
-        if not ev.accepted:
-            return self._step_refused(view, ev, "mission start")
-        self._set_stage(view, Stage.TAKING_OFF, ev.now)
-        return [Emit(rec.MissionStarted(drone=view.name, result=ev.result))]
-
-    def _classify_refusal(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        """``REASON_WAIT_S`` after a refusal, with the texts that came before and after its ACK: not
-        ready yet (its result code, its texts, or what the vehicle reports) is waited for; a refusal
-        waiting cannot fix gives the mission up."""
-        r = view.refusal
-        assert r is not None
-        if ev.now - r.at < REASON_WAIT_S:
-            return []
-        view.refusal = None
-        texts = self._reasons(view, r.at - REASON_BEFORE_S)
-        said = " ".join(texts).lower()
-        view.tries += 1
-        out: list[Action] = [Emit(rec.VehicleRefused(drone=view.name, what=r.what, result=r.result, try_=view.tries, texts=texts))]
-        reason = "; ".join(texts) or f"result {r.result}"
-        final = any(p in said for p in REFUSED_FOR_GOOD)
-        not_ready = (r.result == mav.MAV_RESULT_TEMPORARILY_REJECTED or any(p in said for p in NOT_READY)
-                     or self.not_ready(view, ev.now) is not None)
-        if not (final or not_ready):
-            view.unexplained += 1
-        if final or view.unexplained >= MAX_UNEXPLAINED:
-            out.append(Emit(rec.MissionStartFailed(drone=view.name, result=r.result, texts=texts)))
-            return out + self._give_up(view, ev.now, f"{r.what} refused (result {r.result}): {reason}")
-        view.next_try = ev.now + RETRY_AFTER_S
-        self._set_stage(view, Stage.WAITING_READY, ev.now)
-        return out + [Say(f"zdrone gs {self.name}: {view.name}: {r.what} refused ({reason}); "
-                          f"{'not ready yet, waiting' if not_ready else 'trying again'}")]
-
-    # ----------------------------------------------------------- take-off
-    def _takeoff_tick(self, view: DroneView, ev: FlightTick) -> list[Action]:
-        """After the start: the vehicle must leave the ground; if it disarmed on the ground (ArduCopter's
-        auto-disarm, PX4's preflight disarm) it is armed and started again."""
-        left = view.landed_state in (mav.MAV_LANDED_STATE_IN_AIR, mav.MAV_LANDED_STATE_TAKEOFF) or (
-            view.fix.position is not None and view.fix.position.alt > LEFT_GROUND_M)
-        if left and view.armed:
-            self._set_stage(view, Stage.FLYING, ev.now)
-            return [Emit(rec.TakeoffConfirmed(drone=view.name, restarts=view.restarts)),
-                    Say(f"zdrone gs {self.name}: {view.name} took off")]
-        disarmed = (view.disarmed_at is not None and view.disarmed_at > view.stage_time) or (
-            not view.armed and ev.now - view.stage_time > ARMED_REPORT_S)
-        if disarmed:
-            view.restarts += 1
-            view.takeoff_late_said = False
-            view.next_try = ev.now + RETRY_AFTER_S
-            self._set_stage(view, Stage.WAITING_READY, ev.now)
-            reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"
-            return [Emit(rec.TakeoffRestart(drone=view.name, reason=reason, restarts=view.restarts)),
-                    Say(f"zdrone gs {self.name}: {view.name} {reason}: arming and starting again")]
-        if ev.now - view.stage_time > TAKEOFF_CONFIRM_S and not view.takeoff_late_said:
-            view.takeoff_late_said = True
-            return [Say(f"zdrone gs {self.name}: {view.name} started but still on the ground after "
-                        f"{TAKEOFF_CONFIRM_S:g} s (mode {mode_name(view.autopilot, view.custom_mode)})")]
-        return []
+        return view.mission.handle(ev, view, lambda m: self.send_msg(view, m))
 
     def _coordinate(self, view: DroneView, now: float) -> list[Action]:
         """Release authority toward the GS whose coverage the drone is flying into."""
@@ -1250,9 +944,9 @@ class StationCore:
         out = {}
         for d, v in self.views.items():
             out[d] = {"linked": v.link is not None, "owner": v.owner, "epoch": v.epoch,
-                      "state": v.ha_state.value if v.ha_state else "unknown", "stage": v.stage.value,
+                      "state": v.ha_state.value if v.ha_state else "unknown", "stage": v.mission.stage.value,
                       "position": [v.position.lat, v.position.lon, v.position.alt] if v.position else None,
-                      "waiting": v.waiting,
+                      "waiting": v.mission.waiting,
                       "commands_sent": {str(k): c for k, c in v.commands_sent.items()},
                       "link": None if v.link is None else {"opened": v.link.opened, "sent": v.link.sent,
                                                              "dropped": {r.value: c for r, c in v.link.drops.items() if c}},
@@ -1282,20 +976,3 @@ def view_line(gs: str, drone: str, v: DroneView, now: float) -> str:
     since = "may have moved since" if v.owner == gs else "may have changed"
     return (f"gs {gs} | {drone}: STALE, last report {age:.1f} s ago (link {state.value}): as of then {authority} "
             f"(it {since}) | last position {pos} | was {vehicle} | {link}")
-
-
-Handler = Callable[[StationCore, DroneView, Any], "list[Action]"]
-#: The mission stages: (stage, event type) -> handler. Pairs not listed do nothing.
-FLIGHT: dict[tuple[Stage, type], Handler] = {
-    (Stage.IDLE, FlightTick): StationCore._identify,
-    (Stage.PREPARING, FlightTick): StationCore._preparing_tick,
-    (Stage.PREPARING, FlightParam): StationCore._preparing_param,
-    (Stage.UPLOADING, FlightTick): StationCore._upload_tick,
-    (Stage.WAITING_READY, FlightTick): StationCore._ready_tick,
-    (Stage.ARMING, FlightTick): StationCore._stage_timeout,
-    (Stage.STARTING, FlightTick): StationCore._stage_timeout,
-    (Stage.ARMING, FlightAck): StationCore._arm_ack,
-    (Stage.STARTING, FlightAck): StationCore._start_ack,
-    (Stage.REFUSED, FlightTick): StationCore._classify_refusal,
-    (Stage.TAKING_OFF, FlightTick): StationCore._takeoff_tick,
-}

@@ -73,7 +73,7 @@ def _found_and_encoded_for(f: CoreFlight, autopilot: str) -> None:
 @pytest.mark.parametrize("autopilot", AUTOPILOTS)
 def test_the_reference_flight_hands_over_to_b_and_back_inside_the_overlap(fleet_dir, autopilot):
     f = _flight(fleet_dir, autopilot)
-    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].stage}"
+    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].mission.stage}"
     assert _moves(f) == [(None, "A", 1, "paired"), ("A", "B", 2, "handover"), ("B", "A", 3, "handover")]
     for _, r in f.of(rec.HandoverComplete):
         assert _inside(f, "A", r.position) and _inside(f, "B", r.position), r
@@ -241,6 +241,6 @@ def test_a_radio_outage_on_the_ground_after_pairing_is_no_failsafe_and_the_fligh
     _fly_until(f, lambda: f.now >= t0 + 3.65, "the outage's end", timeout=10)
     f.gs["A"].down = False
     assert f.of(rec.OwnerLinkLostOnGround) and f.commands == [] and f.of(rec.Failsafe) == []
-    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].stage}"
+    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].mission.stage}"
     assert _moves(f) == [(None, "A", 1, "paired"), ("A", "B", 2, "handover"), ("B", "A", 3, "handover")]
     assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gs.core import Stage
+from gs.mission import Stage
 from tests.coreflight import DRONE, CoreFlight
 from zdrone.core import records as rec
 from zdrone.sil.launcher import delivered_at
@@ -39,7 +39,7 @@ def test_the_reference_flight_with_the_autopilots_real_start_up(fleet_dir, autop
             assert f.drone.position is None and f.gs["A"].core.views[DRONE].position is None, f.now  # never (0, 0)
         if first_armed is None and f.sim.armed:
             first_armed = f.now
-    assert f.flown(), f"not flown: stage {f.gs['A'].core.views[DRONE].stage}"
+    assert f.flown(), f"not flown: stage {f.gs['A'].core.views[DRONE].mission.stage}"
     assert first_armed is not None and first_armed >= position_at  # armed only once it could fly the mission
     waits = [x["waiting"] for _, x in f.gs_logs("A", "vehicle_waiting")]
     # the first pairing gives authority, so it waits for the vehicle's own position (issue 18: an unknown
@@ -58,10 +58,10 @@ def test_a_vehicle_that_disarms_on_the_ground_after_the_start_is_armed_and_start
     GS used to believe it flew."""
     f = CoreFlight(fleet_dir, personality(autopilot))
     view = f.gs["A"].core.views[DRONE]
-    assert f.run_until(lambda: view.stage is Stage.TAKING_OFF, 100)
+    assert f.run_until(lambda: view.mission.stage is Stage.TAKING_OFF, 100)
     f.sim.disarm("disarmed_preflight")  # the auto-disarm, before it could climb
-    assert view.stage is not Stage.FLYING
-    assert f.run_until(f.flown, 400), f"not flown: stage {view.stage}"
+    assert view.mission.stage is not Stage.FLYING
+    assert f.run_until(f.flown, 400), f"not flown: stage {view.mission.stage}"
     [(_, restart)] = f.gs_logs("A", "takeoff_restart")
     assert restart["restarts"] == 1
     assert [x["restarts"] for _, x in f.gs_logs("A", "takeoff_confirmed")] == [1]

@@ -10,7 +10,8 @@ from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from gs.actions import Ask, AskKind, Emit, Put, Say
-from gs.core import CoreOptions, StationCore, Stage
+from gs.core import CoreOptions, StationCore
+from gs.mission import Stage
 from zdrone.core.mavlink import FrameCodec
 
 
@@ -116,14 +117,14 @@ def test_forged_pairing_reply_does_not_spoil_pairing(fleet_dir):
 
 
 def test_mission_stages_are_a_table(fleet_dir):
-    from gs.core import FLIGHT, FlightAck, FlightTick
+    from gs.mission import TABLE, FlightAck, FlightTick
 
-    assert {s for s, _ in FLIGHT} <= set(Stage)
+    assert {s for s, _ in TABLE} <= set(Stage)
     a = paired_a(fleet_dir)
-    assert a.views["d1"].stage is Stage.IDLE
+    assert a.views["d1"].mission.stage is Stage.IDLE
     a.opts = CoreOptions(pair=True, mission=None)
     a.handle_timer(5.0)
-    assert a.views["d1"].stage is Stage.IDLE  # no mission: nothing to fly
+    assert a.views["d1"].mission.stage is Stage.IDLE  # no mission: nothing to fly
     assert a._flight(a.views["d1"], FlightAck(5.0, 400, True, 0)) == []
     assert a._flight(a.views["d1"], FlightTick(5.0)) == []
 
@@ -276,6 +277,7 @@ def _flying_core(fleet_dir, autopilot: str) -> StationCore:
 
     a = paired_a(fleet_dir)
     a.opts = CoreOptions(pair=True, mission=reference_plan())
+    a.views["d1"].mission.plan = a.opts.mission
     a.views["d1"].autopilot = autopilot
     return a
 
@@ -287,15 +289,15 @@ def test_the_mission_is_encoded_for_the_autopilot_found(fleet_dir):
     logs = [x for x in px4._flight(px4.views["d1"], FlightTick(1.0)) if isinstance(x, Emit)]
     assert logs[-1].kind == "mission_upload" and logs[-1].fields["items"] == 7  # no second take-off
     ap = _flying_core(fleet_dir, "ardupilot")
-    assert ap._flight(ap.views["d1"], FlightTick(1.0)) and ap.views["d1"].stage is Stage.PREPARING  # MIS_OPTIONS first
+    assert ap._flight(ap.views["d1"], FlightTick(1.0)) and ap.views["d1"].mission.stage is Stage.PREPARING  # MIS_OPTIONS first
     assert ap._flight(ap.views["d1"], FlightParam(1.1, "MIS_OPTIONS", 0.0)) == []  # not yet set
     logs = [x for x in ap._flight(ap.views["d1"], FlightParam(1.2, "MIS_OPTIONS", 4.0)) if isinstance(x, Emit)]
-    assert logs[-1].fields["items"] == 9 and ap.views["d1"].stage is Stage.UPLOADING  # home placeholder + both take-offs
+    assert logs[-1].fields["items"] == 9 and ap.views["d1"].mission.stage is Stage.UPLOADING  # home placeholder + both take-offs
 
 
 def _uploaded(a: StationCore) -> None:
     view = a.views["d1"]
-    view.stage, view.stage_time, view.tries, view.next_try = Stage.WAITING_READY, 10.0, 0, 0.0
+    view.mission.stage, view.mission.stage_time, view.mission.tries, view.mission.next_try = Stage.WAITING_READY, 10.0, 0, 0.0
 
 
 def _says(out) -> list[str]:
@@ -329,7 +331,7 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
     view.prearm_ok = False
     view.texts = [(9.0, "PreArm: EKF attitude is bad")]
     out = a._flight(view, FlightTick(11.0))
-    assert not [x for x in out if isinstance(x, Put)] and view.stage is Stage.WAITING_READY  # not ready: no ARM
+    assert not [x for x in out if isinstance(x, Put)] and view.mission.stage is Stage.WAITING_READY  # not ready: no ARM
     assert _says(out) == ["zdrone gs A: d1 not ready: pre-arm checks failing (PreArm: EKF attitude is bad)"]
     assert a._flight(view, FlightTick(11.5)) == []  # said once, until it changes
     view.prearm_ok = True
@@ -340,27 +342,27 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
                           "(EKF_STATUS_REPORT: no absolute position)"]
     for i in range(200):  # no retry counter runs out while the vehicle is not ready
         a._flight(view, FlightTick(13.0 + i))
-    assert view.stage is Stage.WAITING_READY
+    assert view.mission.stage is Stage.WAITING_READY
     _ekf(view, absolute=True)
     out = a._flight(view, FlightTick(300.0))
-    assert _says(out) == ["zdrone gs A: d1 ready: arming"] and view.stage is Stage.ARMING
+    assert _says(out) == ["zdrone gs A: d1 ready: arming"] and view.mission.stage is Stage.ARMING
     assert len([x for x in out if isinstance(x, Put)]) == 1  # the ARM
     # refused all the same, with its reason: waited for, however often
     for i in range(20):
-        view.stage, view.texts = Stage.ARMING, [(301.0 + i, "Arm: Accels inconsistent")]
+        view.mission.stage, view.texts = Stage.ARMING, [(301.0 + i, "Arm: Accels inconsistent")]
         a._flight(view, FlightAck(301.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
         out = a._flight(view, FlightTick(301.6 + i))
-        assert view.stage is Stage.WAITING_READY, i
+        assert view.mission.stage is Stage.WAITING_READY, i
     refused = [x for x in out if isinstance(x, Emit) and x.kind == "vehicle_refused"]
     assert refused and refused[0].fields["texts"] == ["Arm: Accels inconsistent"]
     # a refusal nothing explains (no reason, the vehicle says it is ready) is tried a few times only
-    from gs.core import MAX_UNEXPLAINED
+    from gs.mission import MAX_UNEXPLAINED
 
     for i in range(MAX_UNEXPLAINED):
-        view.stage, view.texts = Stage.ARMING, []
+        view.mission.stage, view.texts = Stage.ARMING, []
         a._flight(view, FlightAck(400.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
         out = a._flight(view, FlightTick(400.6 + i))
-    assert view.stage is Stage.FAILED and any(isinstance(x, Emit) and x.kind == "mission_failed" for x in out)
+    assert view.mission.stage is Stage.FAILED and any(isinstance(x, Emit) and x.kind == "mission_failed" for x in out)
 
 
 def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir):
@@ -373,27 +375,27 @@ def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir)
     b = _flying_core(fleet_dir, "ardupilot")
     vb = b.views["d1"]
     _ekf(vb, absolute=True)
-    vb.stage, vb.armed, vb.prearm_ok = Stage.STARTING, True, True
+    vb.mission.stage, vb.armed, vb.prearm_ok = Stage.STARTING, True, True
     assert b._flight(vb, FlightAck(30.0, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED)) == []
     vb.texts = [(30.0003, "Mode change to AUTO failed: requires position")]  # after the ACK
-    assert b._flight(vb, FlightTick(30.2)) == [] and vb.stage is Stage.REFUSED  # a moment for the reasons
+    assert b._flight(vb, FlightTick(30.2)) == [] and vb.mission.stage is Stage.REFUSED  # a moment for the reasons
     out = b._flight(vb, FlightTick(30.6))
-    assert vb.stage is Stage.WAITING_READY and vb.next_try > 30.6
+    assert vb.mission.stage is Stage.WAITING_READY and vb.mission.next_try > 30.6
     assert "not ready yet" in _says(out)[0] and "requires position" in _says(out)[0]
     _ekf(vb, absolute=False)  # armed, but no absolute position: no MISSION_START until there is one
     out = b._flight(vb, FlightTick(33.0))
     assert not [x for x in out if isinstance(x, Put)] and "EKF to use GPS" in _says(out)[0]
     _ekf(vb, absolute=True)
-    assert [x for x in b._flight(vb, FlightTick(34.0)) if isinstance(x, Put)] and vb.stage is Stage.STARTING
+    assert [x for x in b._flight(vb, FlightTick(34.0)) if isinstance(x, Put)] and vb.mission.stage is Stage.STARTING
     # PX4's infeasible mission: refused for good, whatever order its words and its ACK come in
     a = _flying_core(fleet_dir, "px4")
     view = a.views["d1"]
-    view.stage, view.armed, view.landed_state = Stage.STARTING, True, mav.MAV_LANDED_STATE_ON_GROUND
+    view.mission.stage, view.armed, view.landed_state = Stage.STARTING, True, mav.MAV_LANDED_STATE_ON_GROUND
     a._flight(view, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
     view.texts = [(30.1, "Mission rejected: takeoff not first waypoint item")]
     out = a._flight(view, FlightTick(30.7))
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "mission_failed"]
-    assert view.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
+    assert view.mission.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
     assert any(isinstance(x, Say) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
 
 
@@ -406,26 +408,26 @@ def test_take_off_is_verified_and_a_disarm_on_the_ground_arms_and_starts_again(f
     a = _flying_core(fleet_dir, "ardupilot")
     view = a.views["d1"]
     _ekf(view, absolute=True)
-    view.stage, view.prearm_ok, view.armed = Stage.STARTING, True, True
+    view.mission.stage, view.prearm_ok, view.armed = Stage.STARTING, True, True
     view.landed_state = mav.MAV_LANDED_STATE_ON_GROUND
     a._flight(view, FlightAck(40.0, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
-    assert view.stage is Stage.TAKING_OFF  # not flying: it has not left the ground
+    assert view.mission.stage is Stage.TAKING_OFF  # not flying: it has not left the ground
     assert a._flight(view, FlightTick(41.0)) == [] and a.report(0.0)["drones"]["d1"]["stage"] == "taking_off"
     view.armed, view.disarmed_at, view.custom_mode = False, 42.0, 3  # disarmed by itself, left in AUTO
     out = a._flight(view, FlightTick(42.1))
-    assert view.stage is Stage.WAITING_READY and view.restarts == 1
+    assert view.mission.stage is Stage.WAITING_READY and view.mission.restarts == 1
     assert _says(out) == ["zdrone gs A: d1 disarmed on the ground before taking off (the autopilot's auto-disarm): "
                           "arming and starting again"]
     out = a._flight(view, FlightTick(44.5))  # AUTO cannot be armed in: GUIDED first
-    assert view.stage is Stage.WAITING_READY and len([x for x in out if isinstance(x, Put)]) == 1
+    assert view.mission.stage is Stage.WAITING_READY and len([x for x in out if isinstance(x, Put)]) == 1
     view.custom_mode = 4
     a._flight(view, FlightTick(45.6))
-    assert view.stage is Stage.ARMING
+    assert view.mission.stage is Stage.ARMING
     a._flight(view, FlightAck(45.7, mav.MAV_CMD_COMPONENT_ARM_DISARM, True, mav.MAV_RESULT_ACCEPTED))
     a._flight(view, FlightAck(45.8, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
     view.landed_state = mav.MAV_LANDED_STATE_IN_AIR
     out = a._flight(view, FlightTick(46.5))
-    assert view.stage is Stage.FLYING and _says(out) == ["zdrone gs A: d1 took off"]
+    assert view.mission.stage is Stage.FLYING and _says(out) == ["zdrone gs A: d1 took off"]
     assert [x.fields["restarts"] for x in out if isinstance(x, Emit) and x.kind == "takeoff_confirmed"] == [1]
 
 
@@ -471,14 +473,14 @@ def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
 
     a = _flying_core(fleet_dir, "px4")
     view = a.views["d1"]
-    view.stage, view.stage_time, view.prearm_ok, view.armed = Stage.STARTING, 40.0, True, True
+    view.mission.stage, view.mission.stage_time, view.prearm_ok, view.armed = Stage.STARTING, 40.0, True, True
     view.landed_state = mav.MAV_LANDED_STATE_IN_AIR  # it took off: the start was obeyed, its ACK lost
     out = a._flight(view, FlightTick(44.0))
-    assert view.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
+    assert view.mission.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
     # and from the retry stage (the answer timed out before the vehicle left the ground)
-    view.stage, view.next_try = Stage.WAITING_READY, 0.0
+    view.mission.stage, view.mission.next_try = Stage.WAITING_READY, 0.0
     out = a._flight(view, FlightTick(50.0))
-    assert view.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
+    assert view.mission.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
 
 
 def _flying_mission(a: StationCore) -> None:
