@@ -36,6 +36,7 @@ from zdrone.core import wire
 from zdrone.core.errors import ConfigError
 from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import revisions
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
 
@@ -111,6 +112,7 @@ class GroundStation:
         self.session = self.rt.session
         self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of)
         self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
+        self.revision = revisions.RevisionChannel(self.rt, opts.fleet, write_applied=True)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask,
                                     Emit: lambda a: self.events.write_record(a.record),
                                     Say: lambda a: print(a.text, flush=True)}
@@ -181,13 +183,38 @@ class GroundStation:
 
     # ------------------------------------------------------------------ inbox
     def _on_inbox(self, kind: str, drone: str, data: Any, now: float) -> None:
-        if kind == "down":
+        if kind in revisions.KINDS:
+            self._on_revision(kind, data, now)
+        elif kind == "down":
             self._do(self.core.on_envelope(drone, data, now))
         elif kind == "pair":
             self._do(self.core.on_pair_reply(drone, data[0], data[1], now))
         elif kind == "linkkey":
             gs, (ok, err) = data
             self._do(self.core.on_linkkey_reply(drone, gs, ok, err, now))
+
+    def _on_revision(self, kind: str, data: Any, now: float) -> None:
+        """A fleet revision heard: the next one is applied live (the core reads the new fleet: revoked
+        nodes are on no authorized list); if it rotated this GS's own key, the new secret is taken
+        from the bundle and every linked drone re-paired under it (``adopt_identity``)."""
+        got = self.revision.on_inbox(kind, data)
+        if isinstance(got, revisions.RevisionAccepted):
+            self.fleet = self.core.fleet = got.fleet
+            if self.name in got.revision.changes.keys:
+                self._adopt_own_key(now)
+
+    def _adopt_own_key(self, now: float) -> None:
+        from zdrone.fleet.files import load_secret
+
+        try:
+            secret = load_secret(self.opts.fleet, self.name, self.fleet)
+        except ConfigError as exc:  # the new bundle is not on this host yet: the old key goes on
+            log.warning("own key rotated by the fleet, but the bundle does not hold the new one: %s", exc)
+            self.counters["rotation_pending"] += 1
+            return
+        log.warning("own key rotated by the fleet: re-pairing every linked drone under the new key")
+        self.counters["rotated"] += 1
+        self._do(adopt_identity(self.core, secret.identity, now, time.time()))
 
     def _serve_linkkeys(self, now: float) -> None:
         """Answer key-sharing queries: refusals cost no crypto; ``LINKKEY_PER_TURN`` handshakes at most."""
@@ -238,6 +265,7 @@ class GroundStation:
     def step(self, now: float) -> None:
         """One pass of the loop."""
         self._serve_linkkeys(now)
+        self.revision.serve(now)
         if now >= self.core.get_timer():
             self._do(self.core.handle_timer(now, time.time()))
         self.rt.flush(now)
@@ -283,6 +311,27 @@ class GroundStation:
 
     def close(self) -> None:
         self.rt.close(self.status(), rec.GsStop)
+
+
+def adopt_identity(core: StationCore, identity: Any, now: float, wall: float) -> list[Action]:
+    """This GS's static key was rotated (a fleet revision names its new public key, and its bundle
+    holds the new secret): key sharing answers under the new key from now on, and every drone it
+    holds a link with is re-paired under it at once. Make-before-break: the live link keeps
+    working until the drone's reply gives the new key (the drone, told of the rotation by the same
+    revision, answers as holding no key of ours, so the new key goes live here and the drone takes
+    it with the first frame under it)."""
+    from zdrone.core.keyshare import KeyShareResponder
+
+    from .core import LINKKEY_BURST, LINKKEY_RATE
+
+    core.identity = identity
+    core.keyshare = KeyShareResponder(identity, core.name, LINKKEY_RATE, LINKKEY_BURST)
+    out: list[Action] = []
+    for view in core.views.values():
+        if view.link is not None:
+            view.pairing = None
+            out += core._try_pair(view, now, wall, retry=0.0)
+    return out
 
 
 def run_station(opts: StationOptions) -> int:

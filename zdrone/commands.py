@@ -144,7 +144,8 @@ def _drone(args: argparse.Namespace) -> int:
                                   handover_timeout=args.handover_timeout, gate=_gate(args),
                                   events=args.events, cipher=getattr(args, "cipher", "zdrone"), radio=_radio(args),
                                   fc_signing=args.fc_signing, rotate_fc_key=args.rotate_fc_key,
-                                  trust_unsigned_position=args.trust_unsigned_position))
+                                  trust_unsigned_position=args.trust_unsigned_position,
+                                  revision_lease=args.revision_lease))
 
 
 def _gate(args: argparse.Namespace) -> "Any":
@@ -197,6 +198,10 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
                         "pairing that needs coverage): needed to fly with --fc-signing off or an autopilot that does "
                         "not sign; then any process that can write into the vehicle link can move the drone's "
                         "authority (README, threat model)")
+    p.add_argument("--revision-lease", type=float, default=0.0, metavar="S",
+                   help="once the fleet has a signed revision, authority stands only while a valid revision was heard "
+                        "within S seconds (the drone asks every 2 s); else it lapses as a lost authority link: an heir "
+                        "covering the drone takes over, else the failsafe (default 0: off; docs/deploy.md)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--sil-loss", action="append", metavar="[GS=]P",
                    help="TESTBED ONLY: lose each frame with probability P (every GS link, or GS's); repeatable")

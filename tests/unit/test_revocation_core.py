@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from zdrone.bench.fleetnet import FleetNet, make_fleet
+from zdrone.bench.fleetnet import WALL0, FleetNet, make_fleet
 from zdrone.core import authority as ha
 from zdrone.core import records as rec
 from zdrone.core.authority import State
@@ -140,3 +140,29 @@ def test_after_any_revision_no_gs_off_the_list_holds_a_link_or_authority(events)
         if m.state in (State.LINKED, State.HANDOVER_PENDING):
             assert m.owner in auth and m.owner in m.subscribed
         assert (m.pending_to is not None) == (m.state is State.HANDOVER_PENDING)
+
+
+def test_rotating_the_owner_in_flight_repairs_it_under_the_new_key_without_a_gap(fleet_dir):
+    from gs.station import adopt_identity
+    from zdrone.core.keys import Identity, SigningKey
+    from zdrone.core.revision import with_keys
+
+    net = linked(fleet_dir)
+    net.on_ground = False
+    net.fly(net.centre("A"), net.between(net.centre("A"), net.centre("B"), 0.1), 3.0)
+    m, old_link = net.drone.machine, net.drone.links["A"]
+    epoch, forwarded = m.epoch, len(net.to_vehicle)
+    base = load_base_fleet(fleet_dir)
+    new = Identity.generate()
+    rev = make_revision(base, 1, with_keys(Changes(), "A", new.public, SigningKey.generate().public),
+                        load_fleet_signing_key(fleet_dir, base))
+    fleet = apply_revision(base, rev)
+    apply(net, fleet)
+    for core in net.gss.values():
+        core.fleet = fleet
+    net.gs_outs("A", adopt_identity(net.gss["A"], new, net.now, WALL0 + net.now))
+    net.run(3.0)
+    assert m.owner == "A" and m.epoch == epoch and m.state is State.LINKED and not net.commands
+    assert net.drone.links["A"] is not old_link and "A" not in net.drone.rekey  # the new key is live
+    assert len(net.to_vehicle) > forwarded  # A's frames went on reaching the vehicle
+    assert net.drone.responder.ground_stations["A"] == new.public

@@ -43,6 +43,8 @@ from ..fleet import keyexprs as kx
 from ..net.authstore import AuthorityStore, SavedAuthority
 from ..net.inbox import payload_bytes
 from ..net.runtime import NodeRuntime
+from ..fleet import revisions
+from ..core.revision import RevisionAccepted, RevisionRefusal, RevisionRefused
 from ..core.outputs import Emit, Handlers, Put, dispatch
 from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle, next_link_change
 
@@ -146,6 +148,7 @@ class DroneOptions:
     # the operator's opt-in for this drone: a position that did not come over a signed autopilot link
     # may grant authority (an heir, a pairing that needs coverage); off, only signed positions do
     trust_unsigned_position: bool = False
+    revision_lease: float = 0.0  # DroneCoreOptions.revision_lease (0: off)
 
 
 class DroneNode:
@@ -158,7 +161,8 @@ class DroneNode:
         self.name = opts.drone
         self.sysid = self.rt.node.sysid
         self.core = DroneCore(self.fleet, self.name, self.secret.identity,
-                              DroneCoreOptions(opts.thresholds, opts.failsafe, opts.handover_timeout, opts.cipher),
+                              DroneCoreOptions(opts.thresholds, opts.failsafe, opts.handover_timeout, opts.cipher,
+                                               revision_lease=opts.revision_lease),
                               started_wall=time.time())
         if self.secret.signing is not None:  # the signed authority record beside the event log (zdrone.core.audit)
             self.events.start_audit(self.secret.signing, on_checkpoint=lambda cp: self.core.on_audit_checkpoint(*cp.raw()))
@@ -175,6 +179,7 @@ class DroneNode:
             signing=FcSigning(FcKeyStore.for_node(opts.fleet, opts.drone), opts.fc_signing, opts.rotate_fc_key))
         self._vehicle_pushes = False  # True once the vehicle's frames come through the inbox
         self.pairing = self.rt.queryable(kx.pair_all(self.name))
+        self.revision = revisions.RevisionChannel(self.rt, opts.fleet)  # fleet revisions: heard, kept, answered
 
     @property
     def machine(self) -> ha.AuthorityMachine:
@@ -256,11 +261,27 @@ class DroneNode:
         if kind == VEHICLE:
             self._do(self.core.on_telemetry(self.vehicle.accept(data, now), now), now)
             return
+        if kind in revisions.KINDS:
+            self._on_revision(kind, data, now)
+            return
         if self.gate is not None and not self.gate.allow(peer, "up"):
             return
         if self.radio is not None and not self._through_radio("up", peer, data):
             return
         self._do(self.core.on_envelope(peer, data, now), now)
+
+    def _on_revision(self, kind: str, data: Any, now: float) -> None:
+        """A fleet revision heard (published, or a query's reply): applied live if it is the next one;
+        the one in force heard again renews the revision lease. TESTBED: out of every GS's radio
+        (the coverage gate), the drone hears none."""
+        if self.gate is not None and not any(self.gate.allow(g, "up") for g in self.fleet.ground_stations()):
+            return
+        got = self.revision.on_inbox(kind, data)
+        if isinstance(got, RevisionAccepted):
+            self.fleet = got.fleet
+            self._do(self.core.on_revision(got.fleet, now), now)
+        elif isinstance(got, RevisionRefused) and got.reason is RevisionRefusal.REPLAYED and got.number is not None:
+            self._do(self.core.on_revision_sync(got.number, now), now)
 
     def _restore(self, now: float) -> None:
         """At start: back to the authority saved before a restart (in the air: its owner re-pairs; on
@@ -307,6 +328,7 @@ class DroneNode:
             "out_of_coverage": dict(self.gate.blocked) if self.gate else {},
             "radio_lost": dict(self.radio.lost) if self.radio else {},
             "fc_signing": self._fc_signing(),
+            "revision": self.revision.keeper.stats(),
         }
 
     def _fc_signing(self) -> dict[str, Any]:
@@ -380,6 +402,7 @@ class DroneNode:
         if self._late:
             self._release_late(now)
         self._serve_pairing(now)
+        self.revision.serve(now)
         self.vehicle.heartbeat(now)
         if not self._vehicle_pushes:
             for frame in self.vehicle.recv(0.0):

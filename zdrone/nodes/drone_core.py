@@ -167,6 +167,7 @@ class DroneCore:
         self._next_beacon = 0.0
         self._timer_handled = float("-inf")
         self.revision_synced: float | None = None  # when a valid revision (>= ours) was last heard
+        self.rekey: set[str] = set()  # rotated GSs whose live key predates their new static key
         self._lease_lapsed = False
 
     # ---------------------------------------------------------------- inputs
@@ -206,8 +207,10 @@ class DroneCore:
             # the authority's refusal (first_claim with the seconds left, outside_coverage, ...) tells
             # something: only to a query that passed its tag check; anything else is dropped, counted
             forged = None if policy is None else self._message1_refusal(gs, payload, wall)
-            ans = forged or self.responder.answer(gs, payload, now, secret, policy, holds_key=gs in self.links,
-                                                  wall=wall)
+            # a rotated GS is told we hold no key of its: it switches to the new pairing's key at once
+            # (make-before-break: our live key keeps opening its frames until the new one is proven)
+            ans = forged or self.responder.answer(gs, payload, now, secret, policy,
+                                                  holds_key=gs in self.links and gs not in self.rekey, wall=wall)
         if isinstance(ans, PairAccepted):
             # a candidate until the GS proves it (the newest pairing replaces an older one)
             self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, ans.key, now), now, "pair",
@@ -297,6 +300,7 @@ class DroneCore:
         self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
                          if fleet.nodes[n].coverage is not None}
         rotated = sorted(n for n, v in fleet.nodes.items() if n in old.nodes and v.public_key != old.nodes[n].public_key)
+        self.rekey = (self.rekey | {g for g in rotated if g in self.links}) & authorized
         self.revision_synced, self._lease_lapsed = now, False
         out: list[Out] = [Emit(rec.RevisionApplied(number=fleet.revision, revoked=tuple(sorted(fleet.revoked)), rotated=tuple(rotated),
                                                    pairing_pq=fleet.pairing_pq))]
@@ -515,6 +519,7 @@ class DroneCore:
         out: list[Out] = [Emit(rec.LinkConfirmed(gs=gs, how=promoted.origin, replaced=promoted.replaced))]
         log.info("link to %s: new key proven (%s)", gs, promoted.origin)
         if promoted.origin == "pair":
+            self.rekey.discard(gs)  # a rotated GS's new key is live: the old one is gone with the slot's swap
             refusal = self.machine.pair_refusal(gs, self.on_ground, now)
             if refusal is not None:  # the authority's state changed since message 1 (e.g. failsafe in the air)
                 self.counters["pair_refused"] += 1
