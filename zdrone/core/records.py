@@ -128,6 +128,7 @@ class DroneState(Record, frozen=True, kw_only=True):
     radio_lost: dict[str, int] = {}
     paths: dict[str, dict[str, Any]] = {}  # with a router per site: each path (open, connected)
     fc_signing: dict[str, Any] = {}  # MAVLink signing of the autopilot's link (``FcSigning.status``)
+    revision: dict[str, Any] = {}  # the fleet revision in force and the ones refused (``RevisionKeeper.stats``)
 
 
 class DroneStatus(DroneState, frozen=True, tag="status"):
