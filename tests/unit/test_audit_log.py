@@ -115,3 +115,17 @@ def test_a_restarted_node_continues_its_chain(tmp_path, fleet_dir, capsys):
 def test_verify_without_a_fleet_or_a_record_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["audit", "verify", str(tmp_path)]) == 2
     assert main(["audit", "verify", str(tmp_path / "nope")]) == 2
+
+
+def test_the_flight_report_shows_each_record(tmp_path, fleet_dir):
+    import shutil
+
+    from zdrone.report import _audit_section
+
+    _fly(tmp_path, fleet_dir)
+    shutil.copytree(fleet_dir, tmp_path / "fleet")
+    page = _audit_section(tmp_path)
+    assert "d1: verified 3 of 3 entries" in page and "BAD" not in page
+    path = audit_path(tmp_path / "drone.jsonl")
+    path.write_text("\n".join(path.read_text().splitlines()[1:]) + "\n")  # the first entry deleted
+    assert "BAD" in _audit_section(tmp_path) and "d1: BAD at entry 0" in _audit_section(tmp_path)

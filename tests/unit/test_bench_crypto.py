@@ -37,3 +37,9 @@ def test_bench_crypto_has_the_classical_and_hybrid_handshake_rows(capsys):
     assert (classical["message1_bytes"], classical["message2_bytes"]) == (72, 97)  # wire-format facts
     assert (hybrid["message1_bytes"], hybrid["message2_bytes"]) == (72 + 1184, 97 + 1088)
     assert all(r["gs_us"] > 0 and r["drone_us"] > 0 for r in rows)
+
+
+def test_bench_crypto_has_the_authority_record_row(capsys):
+    assert main(["bench", "crypto", "--quick", "--json"]) == 0
+    au = json.loads(capsys.readouterr().out)["audit"]
+    assert au["entries"] == 10_000 and au["verify_s"] > 0 and au["append_us"] > 0

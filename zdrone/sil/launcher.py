@@ -41,7 +41,7 @@ from .moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAIL
 from .netns import NetnsTopology
 from .ports import free_port
 from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
-from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
+from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, ROTATE, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
                         SCENARIO_TLS, SCENARIOS, Fault, RogueSpec, Scenario, scenario_help)
 from .summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart, summarize, watch,
                       watch_state)
@@ -573,6 +573,9 @@ class Demo:
                 self.fault_log.append(entry)
             if fault.sig in (LINK_DOWN, LINK_UP):
                 self.link_fault(fault.target, fault.sig == LINK_UP)
+            elif fault.sig in (REVOKE, ROTATE):
+                self.revise(fault.target, rotate=fault.sig == ROTATE)
+                entry["ends"] = time.time()
             elif fault.sig == RESTART:
                 self.restart(fault.target, fault.down)
                 entry["ends"] = time.time()
@@ -582,6 +585,41 @@ class Demo:
             else:
                 self.signal(fault.target, fault.sig)
                 self.children[fault.target].stopped = fault.sig != signal.SIGCONT
+
+    def revise(self, node: str, rotate: bool) -> None:
+        """The operator's revocation (or rotation) of ``node`` in flight, as docs/deploy.md says: the next
+        signed revision made on the fleet machine (the run's fleet directory), published through a GS
+        that is not ``node``; a rotated node's new secret dropped into its bundle before (its station
+        adopts it when the revision arrives); after a revocation, each router restarted in turn on the
+        regenerated files (the revoked node's password and certificate refused from then on)."""
+        import shutil
+
+        from ..fleet import revise as rv
+
+        fleet, bundles = self.out / "fleet", self.out / "bundles"
+        if rotate:
+            rv.rotate(fleet, node)
+            shutil.copyfile(fleet / "secrets" / f"{node}.json", bundles / node / "secrets" / f"{node}.json")
+        else:
+            rv.revoke(fleet, node)
+        via = next(g for g in ("A", "B") if g != node)
+        router, ns = self._common(via)[-1], self._ns(via)
+        prefix = self.netns.exec_prefix(ns) if (ns and self.netns) else []
+        with open(self.out / "publish.log", "a") as log:
+            subprocess.run([*prefix, PY, *self._z(), "fleet", "publish", "--fleet", f"bundles/{via}", "--revision",
+                            "fleet/revision.json", "--id", via, "--router", router], cwd=self.out, stdout=log,
+                           stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, timeout=30.0, check=False)
+        self.notes.append(f"revision {'rotating' if rotate else 'revoking'} {node} published through {via}")
+        if rotate:
+            return
+        routers = sorted(n for n in self.children if n.startswith("router"))
+        for name, site in zip(routers, list(self.sites) if self.sites else ["router"]):
+            cfg = "router" if site == "router" else site
+            for f in (f"router/{cfg}.json5", "router/credentials.txt"):
+                shutil.copyfile(fleet / f, bundles / site / f)
+            self.restart(name, 0.3)
+            self._wait_restarted(20.0)
+        self.notes.append(f"routers restarted on the files without {node}: {', '.join(routers)}")
 
     def _send_go(self, live: "LiveView | None") -> None:
         """SIGUSR2 to each attacker whose moment came, once it has set up (its handler is in place)."""
