@@ -52,7 +52,7 @@ AUDITED = frozenset({
     # a drone's
     "authority", "handover_complete", "handover_start", "handover_timeout", "handover_aborted", "paired",
     "failsafe", "failsafe_entered", "failsafe_recovered", "key_installed", "restarted", "restored",
-    "restore_refused", "authority_forgotten", "first_claim", "first_claim_over", "revision_applied",
+    "restore_refused", "authority_forgotten", "first_claim", "first_claim_over", "revision_applied", "revoked",
     # a ground station's: consent (with the application named) and what it released
     "operator_request_granted", "operator_request_declined", "operator_consent_refused",
     "takeover_window_opened", "handover_release",
