@@ -4,6 +4,7 @@ forged checkpoint, a rewritten tail."""
 
 from __future__ import annotations
 
+import base64
 import json
 
 import pytest
@@ -34,7 +35,6 @@ def _record(n: int = 20, every: int = 4) -> tuple[list[bytes], AuditChain]:
 def _witness(chain: AuditChain, now: float = 200.0) -> AuditWitness:
     cp = chain.last
     assert cp is not None
-    import base64
     w = countersign("B", GS_KEY, "d1", DRONE_KEY.public, cp.seq, bytes.fromhex(cp.head), base64.b64decode(cp.sig), now)
     assert w is not None
     return w
@@ -149,10 +149,9 @@ def test_a_rewritten_unsigned_tail_is_detected_against_a_witness():
 def test_a_forged_checkpoint_signature_is_named():
     lines, _ = _record()
     i = next(i for i, raw in enumerate(lines) if isinstance(decode_line(raw), AuditCheckpoint))
-    cp = decode_line(lines[i])
-    lines[i] = _edit(lines[i], sig=__import__("base64").b64encode(OTHER_KEY.sign(b"x")).decode())
+    lines[i] = _edit(lines[i], sig=base64.b64encode(OTHER_KEY.sign(b"x")).decode())
     r = _verify(lines)
-    assert r.kind == "bad_signature" and r.first_bad == 0 and isinstance(cp, AuditCheckpoint)
+    assert r.kind == "bad_signature" and r.first_bad == 0
 
 
 def test_a_witness_with_a_bad_countersignature_counts_for_nothing():
