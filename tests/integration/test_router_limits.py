@@ -15,7 +15,7 @@ import zenoh
 from tests.procs import ZDRONE, free_port, spawn, wait_until
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet import keyexprs as kx
-from zdrone.fleet.routerconfig import UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S
+from zdrone.fleet.routerconfig import UPLINK_LANE_HZ, UPLINK_MAX_BYTES, UPLINK_MAX_HZ, UPLINK_PACE_S
 from zdrone.net.session import open_client
 
 
@@ -71,27 +71,35 @@ FLOODER = """
 import sys, time, zenoh
 from zdrone.fleet import keyexprs as kx
 from zdrone.net.session import open_client
-s = open_client(sys.argv[1], "B", sys.argv[2])
+sessions = [open_client(sys.argv[1], "B", sys.argv[2]) for _ in range(int(sys.argv[4]))]
 lanes = kx.up_lanes("d1", "B")
+small, big = b"j" * 40, b"J" * 1000
 print("flooding", flush=True)
 n, t0 = 0, time.monotonic()
 while time.monotonic() - t0 < float(sys.argv[3]):
     for i in range(496):
-        s.put(lanes[i % len(lanes)], b"j" * 40, congestion_control=zenoh.CongestionControl.DROP)
+        # every lane from every session; a third of the frames big
+        sessions[(i // len(lanes)) % len(sessions)].put(lanes[i % len(lanes)], big if i % 3 == 0 else small,
+                                        congestion_control=zenoh.CongestionControl.DROP)
     n += 496
 print("sent", n, round(time.monotonic() - t0, 3), flush=True)
-s.close()
+for s in sessions:
+    s.close()
 """
 
 
-def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(tmp_path):
-    """Bounded ingress, in the router of zenoh-python: a process with B's password floods every lane
-    of up/B as fast as it can while A sends a frame every 20 ms on up/A's lanes in turn; the drone
-    gets up/B at the uplink's rate limit at most, and A's frames keep coming (a few may be lost while
-    the flood saturates the machine). Counts, not speed: how fast the flood went is the machine's."""
+def test_a_flood_on_one_uplink_is_cut_to_one_budget_whatever_its_sessions_and_another_is_not_held_back(tmp_path):
+    """Bounded per credential, in the router of zenoh-python: a process with B's password opens four
+    sessions and floods every lane of up/B from all of them as fast as it can, a third of its frames over
+    the uplink's size limit, while A sends a frame every 20 ms on up/A's lanes in turn; the drone gets
+    up/B at ONE uplink's rate limit at most (four sessions get no more than one), none of the big
+    frames, and A's frames keep coming (a few may be lost while the flood saturates the machine).
+    Counts, not speed: how fast the flood went is the machine's."""
     with _router_with_d1_and_a(tmp_path) as (fleet, ep, d, a):
         got: dict[str, list[float]] = {"A": [], "B": []}
-        subs = [d.declare_subscriber(lane, lambda s: got[kx.gs_of_uplink(s.key_expr)].append(time.monotonic()))
+        sizes: list[int] = []
+        subs = [d.declare_subscriber(lane, lambda s: (got[kx.gs_of_uplink(s.key_expr)].append(time.monotonic()),
+                                                      sizes.append(len(s.payload))))
                 for lane in kx.up_lanes("d1", "*")]
         lanes = kx.up_lanes("d1", "A")
         try:
@@ -100,7 +108,7 @@ def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(t
                 return bool(wait_until(lambda: got["A"], 0.1, 0.02))
 
             assert wait_until(routed, 5.0, 0.0), "no route from A to the drone"
-            with spawn(sys.executable, "-c", FLOODER, ep, load_secret(fleet, "B").router_password, "2.0") as flooder:
+            with spawn(sys.executable, "-c", FLOODER, ep, load_secret(fleet, "B").router_password, "2.0", "4") as flooder:
                 flooder.wait_line("flooding", 20)
                 t0, sent_a = time.monotonic(), 0
                 got["A"].clear()
@@ -116,6 +124,7 @@ def test_a_flood_on_one_uplink_is_cut_to_its_rate_and_another_is_not_held_back(t
             allowed = 1.2 * UPLINK_MAX_HZ * float(seconds) + 20  # what the limit lets through in the flood's time
             assert nb <= min(int(n), allowed), f"up/B not limited: {nb} of {n} in {seconds} s"  # (n: the machine's pace)
             assert len(got["A"]) >= 0.9 * sent_a, f"A's frames held back: {len(got['A'])} of {sent_a}"
+            assert max(sizes) <= UPLINK_MAX_BYTES < 1000, "a frame over the uplink's size limit reached the drone"
         finally:
             for sub in subs:
                 sub.undeclare()

@@ -38,20 +38,55 @@ def test_acl_is_default_deny_and_scoped_per_identity():
     assert subjects == {"user-d1": ["d1"], "user-A": ["A"], "user-B": ["B"], "user-X": ["X"]}
 
 
-def test_each_uplink_lane_has_its_own_rate_limit_per_sending_session():
-    """Bounded ingress: one downsampling rule per (drone, GS, lane), on ingress (per sending
-    session), so a flood on up/B spends up/B's budget only, UPLINK_MAX_HZ over its lanes; a GS paces
-    its frames so that one lane's are far above the lane's interval."""
+def test_each_gs_has_one_budget_per_lane_toward_each_drone_session():
+    """Bounded per credential: one downsampling rule per (GS, lane) on egress of client transports —
+    a drone's session carries only its own uplinks, so each rule is one budget per (drone, GS, lane)
+    that every session sending as that GS shares; the rules grow with the GSs, not drones x GSs."""
     from zdrone.fleet import keyexprs as kx
-    from zdrone.fleet.routerconfig import UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S
+    from zdrone.fleet.routerconfig import (PAIR_MAX_HZ, UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S)
 
-    (ds,) = router_config(default_fleet(), "c.txt")["downsampling"]
-    assert ds["flows"] == ["ingress"] and ds["messages"] == ["put"]
-    assert {r["key_expr"] for r in ds["rules"]} == {f"zdrone/d1/up/{g}/{i}" for g in "ABX" for i in range(kx.UP_LANES)}
-    assert len(ds["rules"]) == 3 * kx.UP_LANES  # no key twice (each rule its own budget)
-    assert all(r["freq"] == UPLINK_LANE_HZ for r in ds["rules"])
+    ups, pairs = router_config(default_fleet(), "c.txt")["downsampling"]
+    assert ups["flows"] == pairs["flows"] == ["egress"] and ups["messages"] == ["put"] and pairs["messages"] == ["query"]
+    assert ups["link_protocols"] == pairs["link_protocols"] == ["tcp", "tls"]  # never the mesh (QUIC)
+    assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/*/up/{g}/{i}" for g in "ABX" for i in range(kx.UP_LANES)}
+    assert len(ups["rules"]) == 3 * kx.UP_LANES  # no key twice (each rule its own budget)
+    assert all(r["freq"] == UPLINK_LANE_HZ for r in ups["rules"])
+    assert {r["key_expr"]: r["freq"] for r in pairs["rules"]} == {f"zdrone/*/pair/{g}": PAIR_MAX_HZ for g in "ABX"}
     assert UPLINK_LANE_HZ * kx.UP_LANES == UPLINK_MAX_HZ
-    assert kx.UP_LANES * UPLINK_PACE_S >= 20 / UPLINK_LANE_HZ
+    assert kx.UP_LANES * UPLINK_PACE_S >= 4 / UPLINK_LANE_HZ  # a lane's frames four of its intervals apart
+
+
+def test_the_policy_grows_with_nodes_not_with_drones_times_stations():
+    from zdrone.fleet.files import scale_nodes
+
+    def size(k: int) -> tuple[int, int]:
+        nodes = {n: Node(role=r, sysid=s, public_key="A" * 43 + "=", coverage=None, authorized_gs=a)  # type: ignore[arg-type]
+                 for n, r, s, _c, a in scale_nodes(k, 3)}
+        cfg = router_config(Fleet(version=1, nodes=nodes), "c.txt")
+        return sum(len(d["rules"]) for d in cfg["downsampling"]), len(cfg["access_control"]["rules"])
+
+    assert size(10)[0] == size(100)[0]  # budgets: per GS only
+    assert size(100)[1] - size(10)[1] == 90 * (size(11)[1] - size(10)[1])  # ACL rules: linear in the nodes
+
+
+def test_uplinks_and_pairing_queries_are_bounded_in_bytes_on_ingress():
+    """The drone's own size limit, enforced where a put enters the router."""
+    from zdrone.fleet.routerconfig import PAIR_MAX_BYTES, UPLINK_MAX_BYTES, UPLINK_MAX_BYTES_S
+    from zdrone.net.inbox import MAX_HANDSHAKE
+
+    ups, pairs = router_config(default_fleet(), "c.txt")["low_pass_filter"]
+    assert ups["flows"] == ["ingress"] and ups["key_exprs"] == ["zdrone/*/up/**"] and ups["size_limit"] == UPLINK_MAX_BYTES
+    assert pairs["messages"] == ["query"] and pairs["size_limit"] == PAIR_MAX_BYTES == MAX_HANDSHAKE
+    assert UPLINK_MAX_BYTES_S * 8 <= 4_000_000 / 4  # a credential's uplink: at most a quarter of a 4 Mbit/s radio
+
+
+def test_nodes_only_over_client_links_and_routers_only_over_the_mesh():
+    from zdrone.fleet.routerconfig import access_control
+
+    acl = access_control(default_fleet(), tls=True, routers=("router-site-2",))
+    by_id = {s["id"]: s for s in acl["subjects"]}
+    assert by_id["routers"]["link_protocols"] == ["quic"]
+    assert all(s["link_protocols"] == ["tcp", "tls"] for i, s in by_id.items() if i != "routers")
 
 
 def test_lanes_are_keys_of_their_uplink_and_name_its_gs():
@@ -65,10 +100,16 @@ def test_lanes_are_keys_of_their_uplink_and_name_its_gs():
             kx.up_lane("d1", "A", bad)
 
 
-def test_every_site_router_limits_the_uplink_keys_too():
-    """A site router's clients (and the mesh's copies) meet the same per-lane limit."""
-    from zdrone.fleet.routerconfig import site_router_config, uplink_downsampling
+def test_every_site_router_limits_its_clients_and_meshes_over_quic():
+    """A site router's clients meet the same budgets; its mesh links are QUIC on the same ports."""
+    from zdrone.fleet.routerconfig import mesh_endpoint, site_router_config, uplink_downsampling
 
     cfg = site_router_config(default_fleet(), "c.txt", "site-2", "tls/127.0.0.1:7448", ["tls/127.0.0.1:7447"],
                              ("router-site-1",), "pw")
     assert cfg["downsampling"] == uplink_downsampling(default_fleet()) != []
+    assert cfg["listen"]["endpoints"] == ["tls/127.0.0.1:7448", "quic/127.0.0.1:7448"]
+    assert cfg["connect"]["endpoints"] == ["quic/127.0.0.1:7447"]
+    assert mesh_endpoint("tls/10.0.0.1:7447") == "quic/10.0.0.1:7447"
+    import pytest
+    with pytest.raises(ValueError):
+        mesh_endpoint("tcp/10.0.0.1:7447")

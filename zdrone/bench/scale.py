@@ -1,7 +1,7 @@
 """``zdrone bench scale``: K drones x G ground stations through one router, or through a router per
 site (``--sites N``), on this machine.
 
-Layout: the router (or one router per site, meshed over mutual TLS: site n connects to sites
+Layout: the router (or one router per site, meshed over QUIC with mutual TLS: site n connects to sites
 1..n-1); one process hosting the K drone nodes, each with its own Zenoh session, authority machine,
 security module and an in-process simulator (no sockets; all stepped by one loop); one process
 hosting the G ground stations, each with its own session, serving all K drones. GSs stand 500 m
@@ -19,10 +19,10 @@ healthy (TBM never LOST).
 Load, over the flight (take-off -> drones host done): CPU of every process (100 % = one
 core, from ``/proc/<pid>/stat``; the drones host measures its own); samples delivered to the nodes
 per second, and those whose sender is on another site's router (each crossed one mesh link),
-counted per (receiver, sender) in the hosts and placed by each session's router; and the wire of the
-router-to-router links (TCP data segments and bytes, both ways, from ``ss -ti``: every Zenoh message,
-query and declaration that crossed the mesh, batched). Zenoh 1.x's admin space (``@/<zid>/router``)
-lists sessions and links but carries no message counters in the Python build (no ``stats`` feature).
+counted per (receiver, sender) in the hosts and placed by each session's router; the routers' TCP
+client links (data segments, from ``ss -ti``). The mesh runs over QUIC (UDP): no per-link byte
+counters there, and Zenoh 1.x's admin space (``@/<zid>/router``) lists sessions and links but
+carries no message counters in the Python build (no ``stats`` feature).
 """
 
 from __future__ import annotations
@@ -274,11 +274,6 @@ def _port(addr: str) -> int:
     return int(addr.rsplit(":", 1)[1])
 
 
-def _mesh_links(socks: dict[tuple[str, str], dict[str, int]], router_pids: set[int], site_ports: set[int]) -> list[tuple[str, str]]:
-    """Router-to-router links, each once: from the connecting router's side (its peer is a site's port)."""
-    return [key for key, s in socks.items() if s["pid"] in router_pids and _port(key[1]) in site_ports]
-
-
 def _traffic(before: dict | None, after: dict | None, keys: list[tuple[str, str]]) -> dict[str, int]:
     """Bytes and data segments, both ways, that crossed ``keys`` between two ``_tcp_sockets`` snapshots."""
     total = {"bytes": 0, "segments": 0}
@@ -355,13 +350,6 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             zid = re.search(r"zid (\w+)", line)
             zid_site[zid.group(1) if zid else name] = name
         router_pids = {procs[n].pid for n in router_cmds}
-        links_wanted = sites * (sites - 1) // 2
-        deadline = time.monotonic() + 15
-        while links_wanted and time.monotonic() < deadline:  # the mesh is up before any node connects
-            socks = _tcp_sockets(router_pids)
-            if socks is None or len(_mesh_links(socks, router_pids, set(ports))) >= links_wanted:
-                break
-            time.sleep(0.2)
         common = ["--fleet", str(d / "fleet"), "--out", str(d)]
         procs["drones"] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(SPEEDUP),
                                                  "--duration", str(timeout), "--hold", str(hold_limit(k)),
@@ -439,12 +427,12 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         row["error"] = error
     refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in row["gs_inbox_drops"].items()}
     row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
-    row.update(_load(drones, stations, window, zid_site, router_pids, set(ports)))
+    row.update(_load(drones, stations, window, zid_site, sites))
     return row
 
 
 def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, Any], zid_site: dict[str, str],
-          router_pids: set[int], site_ports: set[int]) -> dict[str, Any]:
+          sites: int) -> dict[str, Any]:
     """CPU per process and message rates over the flight window."""
     if "t_end" not in window:
         return {}
@@ -466,12 +454,10 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
         "samples_per_s": round(delivered / span, 1)}
     before, after = window.get("socks"), window.get("socks_end")
     if after is not None:
-        links = _mesh_links(after, router_pids, site_ports)
-        mesh = _traffic(before, after, links)
-        routers = _traffic(before, after, list(after))
-        out["mesh"] = {"links": len(links), "samples_per_s": round(across / span, 1),
-                       "tcp_segments_per_s": round(mesh["segments"] / span, 1), "kbytes_per_s": round(mesh["bytes"] / span / 1000, 1)}
+        routers = _traffic(before, after, list(after))  # the routers' client links (the mesh is QUIC: UDP)
         out["routers_tcp_segments_per_s"] = round(routers["segments"] / span, 1)
+    if sites:
+        out["mesh"] = {"samples_per_s": round(across / span, 1)}
     return out
 
 
@@ -568,15 +554,14 @@ def render(r: dict[str, Any]) -> None:
         return "/".join("-" if v is None else f"{v['rss']:.0f} ({v['peak']:.0f})" for v in vals) or "-"
 
     load = [[layout(x), f"{x['k']} x {x['g']}", cpu(x, "router"), mem(x, "router"), cpu(x, "drones host"), cpu(x, "stations host"),
-             rate(x.get("samples_per_s")), mesh(x, "samples_per_s"), mesh(x, "tcp_segments_per_s"), mesh(x, "kbytes_per_s")]
+             rate(x.get("samples_per_s")), mesh(x, "samples_per_s")]
             for x in r["rows"] if "cpu_percent" in x]
     if load:
         print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers", "RSS MB routers (peak)", "CPU % drones",
-                    "CPU % GSs", "samples /s", "mesh samples /s", "mesh TCP segs /s", "mesh kB /s"], load,
+                    "CPU % GSs", "samples /s", "mesh samples /s"], load,
                     caption="CPU: each router, the drones host, the GSs host; RSS: each router's resident memory at the end of the flight (its peak); samples: pub/sub samples delivered to the "
                             "nodes; mesh samples: those from a node on another site's router (each crossed one "
-                            "router-to-router link); mesh TCP segments and kB: the router-to-router links, both ways, "
-                            "TLS included (--json: every router socket too)")
+                            "router-to-router link, QUIC with mutual TLS; --json: every router's TCP client sockets)")
 
 
 def main(argv: list[str] | None = None) -> int:

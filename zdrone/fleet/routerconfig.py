@@ -12,21 +12,34 @@ Rules (the router checks ``ingress`` from the sender's session and ``egress`` to
 The ACL is the second wall: every exchange it allows is also authenticated end to end by the
 fleet's static keys, so a leaked router password alone gets nothing.
 
-Bounded ingress: each uplink (drone d, GS g) is rate-limited by Zenoh's downsampling on ingress,
-per sending session (``UPLINK_MAX_HZ`` in all): a flood on one GS's uplink, by anyone holding its
-router password, reaches the drone at that rate per session it opens, and leaves every other GS's
-uplink alone (each key has its own rule, each session its own budget). Zenoh's limit is a minimum
-interval between puts on a key, measured when the router processes them, with no burst allowance:
-a router that stalls (scheduling, load) processes the frames that waited back to back and dropped
-all but the first, at any rate (measured: ``experiments/router_stall.py``, docs/results.md). So an
-uplink has ``UP_LANES`` keys ``zdrone/d/up/g/<lane>``, each with its own rule at
-``UPLINK_MAX_HZ / UP_LANES``: the GS sends its frames on the lanes in turn, and frames bunched by a
-stall are on different lanes (a burst allowance of ``UP_LANES`` frames), while a flood over every
-lane still gets ``UPLINK_MAX_HZ`` through. The ACL allows a GS exactly those lanes (no other key
-escapes the limit). A GS paces its own frames on an uplink ``UPLINK_PACE_S`` apart
-(``net/pacing.py``), so that one lane's frames are ``UP_LANES`` paces apart, far above its interval.
-Not on egress: there the router's own scheduling under load bunches a GS's paced frames together,
-and the limit dropped them (measured: 23 of 141 frames 20 ms apart lost under a flood; none on ingress).
+Bounded per credential, in messages and bytes, where a drone's radio begins. Each GS ``g`` has one
+budget per lane of its uplinks, ``zdrone/*/up/g/<lane>`` (Zenoh's downsampling), kept on **egress**
+toward each drone's session: the router holds them once per session, and a drone's session only
+ever carries its own uplinks, so the rule is one budget per (drone session, GS, lane) — every
+session that writes as ``g`` (the real GS, a leaked password's flood, K parallel sessions) shares
+it, and no other GS's budget is touched. ``UP_LANES`` x ``UPLINK_MAX_HZ / UP_LANES`` puts/s, each
+at most ``UPLINK_MAX_BYTES`` (Zenoh's low-pass filter, on ingress: a bigger put never enters the
+router), so what one credential can push toward a drone is bounded in bytes per second
+(``UPLINK_MAX_BYTES_S``), sized for a slow radio. Pairing queries ``zdrone/*/pair/g`` likewise
+(``PAIR_MAX_HZ``, ``PAIR_MAX_BYTES``). The policy's size grows with the fleet's GSs (rules) and
+its nodes (ACL subjects), not with drones x GSs x sessions.
+
+The budgets apply to client transports only (``tcp``, ``tls``): site routers mesh over **QUIC**
+(mutual TLS as well), so the backhaul between two routers — which carries every GS's frames for
+every drone behind it — is never limited as if it were one drone; the ACL admits a node only over
+``tcp``/``tls`` and a site router only over ``quic`` (a node's credentials over QUIC get nothing).
+
+Zenoh's limit is a minimum interval between puts on a key, measured when the router processes them,
+with no burst allowance: a router that stalls (scheduling, load) processes the frames that waited back
+to back and drops all but the first, at any rate (measured: ``experiments/router_stall.py``,
+docs/results.md). So an uplink has ``UP_LANES`` keys, each with its own budget: the GS sends its frames
+on the lanes in turn, ``UPLINK_PACE_S`` apart at least (``net/pacing.py``), so that one lane's frames
+are ``UP_LANES`` paces apart (``UPLINK_PACE_S * UPLINK_MAX_HZ`` of the lane's intervals), and frames
+bunched by a stall are on different lanes (a burst allowance of ``UP_LANES`` frames).
+
+Not bounded here: the number of sessions one credential opens (Zenoh 1.x has one ``max_sessions``
+for all; extra sessions gain no budget above), and a holder of a GS's own password *and* certificate
+can spend that GS's budget toward a drone (it is that GS as far as the network can tell: revoke it).
 """
 
 from __future__ import annotations
@@ -35,6 +48,7 @@ import json
 from typing import Any
 
 from ..core.fleet import Fleet
+from ..core.kk import MAX_MESSAGE
 from . import keyexprs as kx
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -45,16 +59,31 @@ TLS_FILE_FIELDS = ("root_ca_certificate", "listen_certificate", "listen_private_
 #: The largest Zenoh message a router or node accepts (Zenoh's default is 1 GiB). zdrone's largest
 #: is under 1 KiB; a bigger one is dropped by the receiving transport, and its sender's session stays.
 MAX_MESSAGE_SIZE = 65536
-#: Puts per second a router lets through on each uplink ``zdrone/<drone>/up/<gs>``, over all its
-#: lanes (``keyexprs.UP_LANES``).
-UPLINK_MAX_HZ = 2000.0
+#: Puts per second a router lets through toward a drone on each uplink ``zdrone/<drone>/up/<gs>``,
+#: over all its lanes (``keyexprs.UP_LANES``), whoever sends them as ``<gs>``.
+UPLINK_MAX_HZ = 200.0
 #: Puts per second on each lane (Zenoh's downsampling: a put closer than 1/UPLINK_LANE_HZ s to the
 #: previous one on that lane is dropped).
 UPLINK_LANE_HZ = UPLINK_MAX_HZ / kx.UP_LANES
-#: A GS's frames on one uplink go out this far apart at least (on the lanes in turn): one lane's
-#: frames are then UP_LANES * UPLINK_PACE_S apart, twenty of its router intervals, so that delays on
-#: the way (a busy sender, batching) do not bring two closer than the limit.
-UPLINK_PACE_S = 20.0 / UPLINK_MAX_HZ
+#: A GS's frames on one uplink go out this far apart at least (on the lanes in turn), so at most
+#: 1/UPLINK_PACE_S frames/s (50: a joystick's MANUAL_CONTROL stream fits): one lane's frames are then
+#: UP_LANES * UPLINK_PACE_S apart, four of its router intervals, so that delays on the way (a busy
+#: sender, batching) do not bring two closer than the limit.
+UPLINK_PACE_S = 4.0 / UPLINK_MAX_HZ
+#: The largest uplink put (a sealed envelope: one MAVLink frame, <= 280 bytes, or one small control
+#: message, plus the envelope's 24): the router's low-pass filter drops a bigger one on ingress, and
+#: the drone's own subscriber refuses it too (``net/inbox.py``).
+UPLINK_MAX_BYTES = 512
+#: What one credential can push toward one drone on an uplink, bytes/s: 0.8 Mbit/s, a fifth of a
+#: 4 Mbit/s radio.
+UPLINK_MAX_BYTES_S = UPLINK_MAX_HZ * UPLINK_MAX_BYTES
+#: Pairing queries per second a router passes toward a drone from one GS (a GS re-pairing asks 5/s).
+PAIR_MAX_HZ = 20.0
+#: The largest pairing query (a Noise message and names, ``net/inbox.py``'s ``MAX_HANDSHAKE``).
+PAIR_MAX_BYTES = MAX_MESSAGE + 256
+#: Client transports: what the budgets and a node's ACL apply to. Site routers mesh over QUIC.
+CLIENT_LINKS = ["tcp", "tls"]
+MESH_LINK = "quic"
 
 
 def _rule(rid: str, messages: list[str], flows: list[str], keys: list[str]) -> dict[str, Any]:
@@ -70,7 +99,7 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
                            ["ingress", "egress"], ["**"]))
         # by certificate only: a router-to-router link has a username on one side at most, but
         # mutual TLS shows each side the other's certificate
-        subjects.append({"id": "routers", "cert_common_names": list(routers)})
+        subjects.append({"id": "routers", "cert_common_names": list(routers), "link_protocols": [MESH_LINK]})
         policies.append({"id": "policy-routers", "rules": ["routers-all"], "subjects": ["routers"]})
     for name, node in fleet.nodes.items():
         if fleet.is_revoked(name):  # a revoked node (fleet revision) is no subject: it gets nothing
@@ -105,19 +134,34 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
         add("revision", ["put", "declare_subscriber", "query", "declare_queryable", "reply"], ["ingress", "egress"],
             [kx.revision()])
         # with TLS, a client is this node only with its certificate *and* its password
-        subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {})})
+        subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {}),
+                         "link_protocols": CLIENT_LINKS})
         policies.append({"id": f"policy-{name}", "rules": ids, "subjects": [f"user-{name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def uplink_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
-    """Zenoh downsampling of every uplink lane, one rule per (drone, GS, lane) so that each lane has
-    its own budget, on ingress (per sending session)."""
-    rules = [{"key_expr": key, "freq": UPLINK_LANE_HZ}
-             for d in fleet.drones() for g in fleet.ground_stations() for key in kx.up_lanes(d, g)]
-    if not rules:
+    """Zenoh downsampling toward the drones: one rule per (GS, lane) and one per GS's pairing key, on
+    egress of client transports — a drone's session carries only its own uplinks, so each is one
+    budget per (drone, GS, lane) shared by every session sending as that GS."""
+    gss = fleet.ground_stations()
+    if not gss or not fleet.drones():
         return []
-    return [{"id": "uplink-rate", "flows": ["ingress"], "messages": ["put"], "rules": rules}]
+    lanes = [{"key_expr": kx.up_lane("*", g, lane), "freq": UPLINK_LANE_HZ} for g in gss for lane in range(kx.UP_LANES)]
+    pairs = [{"key_expr": kx.pair("*", g), "freq": PAIR_MAX_HZ} for g in gss]
+    return [{"id": "uplink-rate", "flows": ["egress"], "messages": ["put"], "link_protocols": CLIENT_LINKS, "rules": lanes},
+            {"id": "pair-rate", "flows": ["egress"], "messages": ["query"], "link_protocols": CLIENT_LINKS, "rules": pairs}]
+
+
+def size_limits(fleet: Fleet) -> list[dict[str, Any]]:
+    """Zenoh's low-pass filter on ingress: the largest uplink put and pairing query (bytes of payload
+    and attachment); a bigger one is dropped where it enters the router."""
+    if not fleet.drones():
+        return []
+    return [{"id": "uplink-size", "flows": ["ingress"], "messages": ["put"], "key_exprs": ["zdrone/*/up/**"],
+             "size_limit": UPLINK_MAX_BYTES},
+            {"id": "pair-size", "flows": ["ingress"], "messages": ["query"], "key_exprs": ["zdrone/*/pair/*"],
+             "size_limit": PAIR_MAX_BYTES}]
 
 
 def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None, tls: bool = False) -> dict[str, Any]:
@@ -138,6 +182,7 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
                       "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet, tls),
         "downsampling": uplink_downsampling(fleet),
+        "low_pass_filter": size_limits(fleet),
     }
 
 
@@ -150,9 +195,13 @@ SITE_KEEP_ALIVE = 4
 def site_router_config(fleet: Fleet, credentials_file: str, site: str, listen: str, peers: list[str],
                        peer_routers: tuple[str, ...], password: str) -> dict[str, Any]:
     """The router of one site, mutual TLS only: the fleet's ACL for its clients (certificate CN and
-    username), and a mesh link to the routers in ``peers`` (router-to-router, certificate
-    ``router-<site>``); the other sites' routers (``peer_routers``, their CNs) may carry everything."""
+    username) on ``listen`` (``tls/HOST:PORT``), and a mesh link to the routers in ``peers`` (their
+    client endpoints; the mesh runs over QUIC on the same host and port, ``mesh_endpoint``;
+    router-to-router, certificate ``router-<site>``); the other sites' routers (``peer_routers``,
+    their CNs) may carry everything."""
     cfg = router_config(fleet, credentials_file, listen, tls=True)
+    cfg["listen"]["endpoints"].append(mesh_endpoint(listen))
+    peers = [mesh_endpoint(p) for p in peers]
     tls = cfg["transport"]["link"]["tls"]
     for field in ("listen_certificate", "connect_certificate"):
         tls[field] = f"{site}.crt"
@@ -165,6 +214,15 @@ def site_router_config(fleet: Fleet, credentials_file: str, site: str, listen: s
     cfg["transport"]["auth"]["usrpwd"].update({"user": f"router-{site}", "password": password})  # to the others
     cfg["access_control"] = access_control(fleet, tls=True, routers=peer_routers)
     return cfg
+
+
+def mesh_endpoint(endpoint: str) -> str:
+    """The router-to-router (QUIC) endpoint of a site router whose client endpoint is ``endpoint``
+    (``tls/HOST:PORT`` -> ``quic/HOST:PORT``: UDP, the same port number)."""
+    proto, _, addr = endpoint.partition("/")
+    if proto not in ("tls", "quic") or not addr:
+        raise ValueError(f"{endpoint!r}: a site router's endpoint is tls/HOST:PORT")
+    return f"{MESH_LINK}/{addr}"
 
 
 def render(config: dict[str, Any], header: str = "") -> str:

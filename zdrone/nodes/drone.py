@@ -39,6 +39,7 @@ from ..core.fleet import ConfigError
 from ..core.tbm import TbmThresholds
 from ..vehicle.fcsigning import FcKeyStore, FcSigning
 from ..vehicle.link import VehicleLink, VehicleState
+from ..fleet.routerconfig import UPLINK_MAX_BYTES
 from ..fleet import keyexprs as kx
 from ..net.authstore import AuthorityStore, SavedAuthority
 from ..net.inbox import payload_bytes
@@ -211,7 +212,9 @@ class DroneNode:
 
     def _listen(self, gss: frozenset[str]) -> None:
         for gs in sorted(gss - set(self.subs)):
-            self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink) for lane in kx.up_lanes(self.name, gs)]
+            # the router's size limit, held here too
+            self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
+                             for lane in kx.up_lanes(self.name, gs)]
         for gs in sorted(set(self.subs) - gss):
             for handle in self.subs.pop(gs):
                 self.rt.undeclare(handle)

@@ -40,7 +40,8 @@ from .moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAIL
                       HANDOVERS_DONE, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
 from .netns import NetnsTopology
 from .ports import free_port
-from .radiolink import RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
+from ..fleet.routerconfig import mesh_endpoint
+from .radiolink import DatagramLink, RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
 from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, ROTATE, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
                         SCENARIO_TLS, SCENARIOS, Fault, RogueSpec, Scenario, scenario_help)
 from .summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart, summarize, watch,
@@ -324,9 +325,9 @@ class Demo:
         for n, site in enumerate(names):
             connect: list[str] = []
             for earlier in names[:n]:  # site N reaches sites < N over its backhaul link to each
-                link = RadioLink(f"backhaul-{earlier}-{site}", ("127.0.0.1", ports[earlier]), up=True)
+                link = DatagramLink(f"backhaul-{earlier}-{site}", ("127.0.0.1", ports[earlier]), up=True)
                 self.links[link.name] = link
-                connect += ["--connect", f"tls/{link.endpoint}"]
+                connect += ["--connect", mesh_endpoint(f"tls/{link.endpoint}")]  # the mesh runs over QUIC
             name = "router" if n == 0 else f"router{n + 1}"
             r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", *connect])
             self.wait_line(r, "listening", 20)
@@ -350,7 +351,8 @@ class Demo:
         for n, site in enumerate(names):
             name = "router" if n == 0 else f"router{n + 1}"
             r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", "--listen",
-                                              f"tls/127.0.0.1:{port}", "--listen", f"tls/{topo.radio_ip[site]}:{port}"],
+                                              f"tls/127.0.0.1:{port}", "--listen", f"tls/{topo.radio_ip[site]}:{port}",
+                                              "--listen", mesh_endpoint(f"tls/{topo.radio_ip[site]}:{port}")],
                            ns=topo.site_ns[site])
             self.wait_line(r, "listening", 20)
         self.links.update(topo.backhauls)

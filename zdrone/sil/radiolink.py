@@ -16,7 +16,9 @@ which sites' radios reach it: a site reaches the vehicle when the vehicle is ins
 circle of any of the site's ground stations (fleet.json5). It brings each site's link up or down
 and logs every change. No frame filter is involved: what does not reach a site's router simply
 does not arrive. With network namespaces (root) the same links would be veth pairs; on loopback
-the relay plays that part.
+the relay plays that part. Site routers mesh over QUIC (UDP): their backhaul is a
+``DatagramLink``, a UDP relay with the same switch (down drops every datagram, both ways, and
+forgets the flows, so the routers' QUIC connection dies of silence as over a cut backhaul).
 """
 
 from __future__ import annotations
@@ -140,6 +142,93 @@ class RadioLink:
             self._conns.discard(dst)
         _hang_up(src)
         _hang_up(dst)
+
+
+class DatagramLink:
+    """One emulated datagram link: a loopback UDP relay to ``target`` that can be brought up and
+    down. Each client address gets its own socket toward the target (a flow); replies go back to
+    the client it belongs to."""
+
+    def __init__(self, name: str, target: tuple[str, int], up: bool = True) -> None:
+        self.name = name
+        self.target = target
+        self._up = up
+        self._lock = threading.Lock()
+        self._flows: dict[tuple[str, int], socket.socket] = {}
+        self.counters: Counter[str] = Counter()
+        self._front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._front.bind(("127.0.0.1", 0))
+        self._front.settimeout(0.2)
+        self.port: int = self._front.getsockname()[1]
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._front_loop, name=f"radio-{name}", daemon=True)
+        self._thread.start()
+
+    @property
+    def endpoint(self) -> str:
+        return f"127.0.0.1:{self.port}"
+
+    @property
+    def up(self) -> bool:
+        return self._up
+
+    def set_up(self, up: bool) -> bool:
+        """Bring the link up or down; True if that changed it. Down forgets every flow at once."""
+        with self._lock:
+            if up == self._up:
+                return False
+            self._up = up
+            doomed = list(self._flows.values()) if not up else []
+            if not up:
+                self._flows.clear()
+        for s in doomed:
+            s.close()
+        self.counters["up" if up else "down"] += 1
+        return True
+
+    def close(self) -> None:
+        self._closed.set()
+        self.set_up(False)
+        self._front.close()
+        self._thread.join(2.0)
+
+    def _front_loop(self) -> None:
+        while not self._closed.is_set():
+            try:
+                data, client = self._front.recvfrom(CHUNK)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            with self._lock:
+                if not self._up:
+                    self.counters["dropped"] += 1
+                    continue
+                back = self._flows.get(client)
+                if back is None:
+                    back = self._flows[client] = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                    back.connect(self.target)
+                    threading.Thread(target=self._back_loop, args=(back, client), name=f"radio-{self.name}-back",
+                                     daemon=True).start()
+                    self.counters["flows"] += 1
+            try:
+                back.send(data)
+            except OSError:
+                self.counters["target_unreachable"] += 1
+
+    def _back_loop(self, back: socket.socket, client: tuple[str, int]) -> None:
+        while True:
+            try:
+                data = back.recv(CHUNK)
+            except OSError:  # closed by set_up(False) / close, or the target refused
+                return
+            if not self._up:
+                self.counters["dropped"] += 1
+                continue
+            try:
+                self._front.sendto(data, client)
+            except OSError:
+                return
 
 
 def _hang_up(s: socket.socket) -> None:
