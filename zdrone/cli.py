@@ -190,6 +190,16 @@ def _bench_restart(args: argparse.Namespace) -> int:
     return 0 if result["ok"] else 1
 
 
+def _bench_revoke(args: argparse.Namespace) -> int:
+    from .bench import revoke
+
+    if args.drones is not None and not 1 <= args.drones <= 150:
+        raise UsageError(f"--drones {args.drones}: must be 1..150")
+    result = revoke.run(args.quick, args.drones)
+    _emit(args, result, revoke.render)
+    return 0 if all("error" not in row for row in result["rows"]) else 1
+
+
 def _bench_sweep(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -380,6 +390,12 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--quick", action="store_true", help="2 runs at most")
     br.add_argument("--runs", type=int, default=20, metavar="N", help="flights, two at a time (default 20, ~40 s each)")
     br.set_defaults(func=_bench_restart)
+    bv = bsub.add_parser("revoke", help="K drones x 3 GSs in flight, GS B revoked by a signed revision: time to apply it "
+                                          "(p50, p99), where B's drones went, commands of others lost, failsafes")
+    bv.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bv.add_argument("--quick", action="store_true", help="3 drones (default 100)")
+    bv.add_argument("--drones", type=int, metavar="K", help="drones (1..150)")
+    bv.set_defaults(func=_bench_revoke)
     bw = bsub.add_parser("sweep", help="every scenario at speed-ups 1, 2, 4 and each fault at every moment of the flight")
     bw.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bw.add_argument("--quick", action="store_true", help="3 cells (~80 s, 2 at a time): the CI subset")

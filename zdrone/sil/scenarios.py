@@ -17,12 +17,13 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
 from .moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
-                      MISSION_STARTED, MOMENTS, REGION_ENTERED, TRIGGERS)
+                      MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
 from .verdicts import (check_backhaul_cut_early, check_big_flood, check_companion_restart, check_consent_bound,
                        check_failsafe_recover, check_fake_autopilot, check_fc_rogue_radio, check_gateway_flood,
                        check_gs_crash, check_gs_hang, check_insider_heir, check_key_escrow, check_key_injection,
                        check_link_loss, check_linkkey_knockout, check_local_app, check_lossy_radio, check_no_cert,
-                       check_no_key, check_operator_consent, check_pair_flood, check_pair_replay, check_router_restart,
+                       check_no_key, check_operator_consent, check_pair_flood, check_pair_replay, check_revoke_in_flight,
+                       check_rotate_in_flight, check_router_restart,
                        check_site_router_down, check_site_router_down_alone, check_stale_pairing, check_unauthorized,
                        check_uplink_policy, fault_over_check, flight_unaffected)
 
@@ -117,6 +118,10 @@ _KILL_B = Fault(REGION_ENTERED, "gsB", signal.SIGKILL, "GS B crashes (SIGKILL)")
 _RESUME_A = Fault(FAILSAFE_FIRED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT)")
 RESTART = -1
 LINK_DOWN, LINK_UP = -2, -3  # a testbed link (``backhaul``) cut or mended
+#: the operator revokes / rotates the target node in flight (``Demo.revise``: the next signed revision
+#: on the fleet machine, published through another GS; a revocation restarts the routers on the
+#: regenerated files one at a time; a rotation drops the new secret into the node's bundle)
+REVOKE, ROTATE = -4, -5
 _HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in the overlap", after=0.5)
 _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
 _RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
@@ -128,6 +133,9 @@ _SITE1_DOWN_ALONE = Fault(AIRBORNE, "router", RESTART, "site 1's router dies bef
                           down=6.0, after=0.5)
 _BACKHAUL_CUT_EARLY = Fault(BEFORE_GS_A, "backhaul", LINK_DOWN, "the backhaul between the sites is cut before A pairs")
 _BACKHAUL_CUT = Fault(AIRBORNE, "backhaul", LINK_DOWN, "the backhaul between the sites is cut in flight")
+_REVOKE_B = Fault(RETURNING, "B", REVOKE, "the operator revokes GS B (its host is lost) while B holds authority",
+                  after=1.2)
+_ROTATE_A = Fault(AIRBORNE, "A", ROTATE, "the operator rotates GS A's key while A holds authority", after=1.0)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
 
@@ -155,6 +163,15 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the emergency hand-over to B (proven link); A learns it is no longer the authority and none of its "
              "commands is forwarded; B hands back to A as usual",
              check_gs_hang, faults=(_HANG_A, _WAKE_A)),
+    Scenario("revoke-in-flight",
+             "GS B, the authority on the way back, is revoked by a signed fleet revision published in flight",
+             "the drone drops B's link and keys, A (covering it) takes over, no failsafe, no command of B after the "
+             "revision; routers restarted on the new files without a failsafe; landing at home",
+             check_revoke_in_flight, faults=(_REVOKE_B,), fixed_moment=True),
+    Scenario("rotate-in-flight",
+             "GS A's static key is rotated by a signed fleet revision while A holds authority",
+             "A re-pairs under its new key make-before-break: no failsafe, no emergency hand-over, both hand-overs",
+             check_rotate_in_flight, faults=(_ROTATE_A,), fixed_moment=True),
     Scenario("lossy-radio",
              "every radio link loses 20 % of frames at random and delays the rest by 50 ± 20 ms",
              "no false failsafe, the authority link never LOST; both hand-overs; landing at home",

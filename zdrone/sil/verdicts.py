@@ -23,8 +23,8 @@ from ..core.pairing import PAIR_BURST, PAIR_RATE
 from ..core.records import (AnyRecord, OperatorConsentRefused, OperatorRequestDeclined, OwnerLinkLostOnGround,
                             AuthorityMoved, AuthorityStatus, ControlRequested, DroneState, DroneStatus, Failsafe,
                             GsState, HandoverComplete, HandoverFailed, GsLinkConfirmed, LinkConfirmed, LinkInstalled,
-                            LinkkeyReceived, LinkStateChanged, MissionProgress, Paired, R, Restarted, Start, logged,
-                            only, record_type)
+                            LinkkeyReceived, LinkStateChanged, MissionProgress, Paired, R, Restarted, RevisionApplied,
+                            Start, logged, only, record_type)
 from .records import Captured, UnauthorizedAttempt
 from ..core.reference import COVERAGE_RADIUS_M, DELIVERY, GS_B
 from ..core.tbm import LinkState
@@ -687,3 +687,45 @@ def check_local_app(o: Outcome) -> list[str]:
                  and done.get("signed_in_control") is True and done.get("resumed") is True,
                  f"A's operator's signed application did not work: {done}")
     return why + flight_unaffected(o)
+
+
+def _revision_applied(o: Outcome, **want: Any) -> RevisionApplied | None:
+    return next((e for e in only(o.drone, RevisionApplied) if all(getattr(e, k) == v for k, v in want.items())), None)
+
+
+def _forwarded_after(o: Outcome, gs: str, t: float) -> int:
+    """Commanding frames of ``gs`` the drone forwarded after ``t`` (from its periodic status)."""
+    seen = [e.forwarded_commands.get(gs, 0) for e in only(o.drone, DroneStatus) if e.t >= t]
+    return seen[-1] - seen[0] if seen else 0
+
+
+def check_revoke_in_flight(o: Outcome) -> list[str]:
+    """``revoke-in-flight``: B, holding authority on the way back, is revoked: the drone applies the
+    signed revision, drops B's link and keys, and A (proven inside its coverage) takes authority in
+    an emergency hand-over; no failsafe; no frame of B forwarded after the revision; B never holds
+    authority again; the routers were restarted on the regenerated files and the flight did not notice."""
+    s = o.summary
+    why = safety_invariants(o)
+    rev = _revision_applied(o, revoked=("B",))
+    why += _need(rev is not None, "the drone never applied the revision revoking B")
+    if rev is None:
+        return why
+    why += _need(_forwarded_after(o, "B", rev.t) == 0, "a command of B was forwarded after the revision")
+    why += _need(not any(isinstance(e, AuthorityMoved) and e.to == "B" and e.t > rev.t for e in o.drone),
+                 "B held authority after its revocation")
+    why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}, expected A")
+    why += _need(s["failsafe"] is None, "failsafe: A covered the drone and should have taken over")
+    why += _need(any("routers restarted" in n for n in s["notes"]), "the routers were not restarted on the new files")
+    return why + _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0, "not landed at home")
+
+
+def check_rotate_in_flight(o: Outcome) -> list[str]:
+    """``rotate-in-flight``: A's static key is rotated while A holds authority: A re-pairs under its
+    new key (a new pairing key proven on the drone after the revision), authority never moves
+    because of it (no failsafe, no emergency hand-over), and the flight is the reference one."""
+    why = flight_unaffected(o)
+    rev = _revision_applied(o, rotated=("A",))
+    why += _need(rev is not None, "the drone never applied the revision rotating A")
+    if rev is not None:
+        why += _need(any(e.t >= rev.t for e in o.confirmed("A", "pair")), "A never re-paired under its new key")
+    return why
