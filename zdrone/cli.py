@@ -137,8 +137,10 @@ def _bench_scale(args: argparse.Namespace) -> int:
         ks = [int(x) for x in args.drones.split(",")] if args.drones else None
     except ValueError:
         raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
-    if ks and not all(1 <= k <= 150 for k in ks) or not 2 <= args.stations <= 26:
-        raise UsageError("--drones: each 1..150; --stations: 2..26")
+    from .fleet.files import MAX_SCALE_DRONES
+
+    if ks and not all(1 <= k <= MAX_SCALE_DRONES for k in ks) or not 2 <= args.stations <= 26:
+        raise UsageError(f"--drones: each 1..{MAX_SCALE_DRONES}; --stations: 2..26")
     if args.sites is not None and not 2 <= args.sites <= args.stations:
         raise UsageError(f"--sites {args.sites}: must be 2..{args.stations} (a site per ground station at most)")
     if args.drone_router is not None and args.sites is None:

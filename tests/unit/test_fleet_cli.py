@@ -13,6 +13,7 @@ import pytest
 from zdrone.cli import main
 from zdrone.core.fleet import FleetError, parse_fleet
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
+from zdrone.fleet.routerconfig import mesh_endpoint
 
 
 @pytest.fixture()
@@ -138,9 +139,9 @@ def test_fleet_with_sites_makes_a_meshed_router_per_site(tmp_path):
     assert [s["endpoint"] for s in sites.values()] == eps
     assert sites["site-1"]["ground_stations"] == ["A", "X"] and sites["site-2"]["ground_stations"] == ["B"]
     s2 = json5.loads((tmp_path / "f" / "router" / "site-2.json5").read_text())
-    assert s2["connect"]["endpoints"] == [eps[0]] and s2["transport"]["link"]["tls"]["enable_mtls"]
+    assert s2["connect"]["endpoints"] == [mesh_endpoint(eps[0])] and s2["transport"]["link"]["tls"]["enable_mtls"]
     routers = [x for x in s2["access_control"]["subjects"] if x["id"] == "routers"]
-    assert routers == [{"id": "routers", "cert_common_names": ["router-site-1"]}]
+    assert routers == [{"id": "routers", "cert_common_names": ["router-site-1"], "link_protocols": ["quic"]}]
     assert all("cert_common_names" in x for x in s2["access_control"]["subjects"])  # every subject by certificate
     assert (tmp_path / "f" / "router" / "site-2.key").stat().st_mode & 0o077 == 0
     with pytest.raises(ConfigError):
@@ -158,9 +159,27 @@ def test_fleet_with_three_sites_puts_gs_i_at_site_i_in_a_full_mesh(tmp_path):
     assert {s: v["ground_stations"] for s, v in sites.items()} == {"site-1": ["A"], "site-2": ["B"], "site-3": ["C"]}
     for n, site in enumerate(sites):  # site n connects to sites 1..n-1: one link per pair
         cfg = json5.loads((tmp_path / "f" / "router" / f"{site}.json5").read_text())
-        assert cfg["connect"]["endpoints"] == eps[:n] and cfg["listen"]["endpoints"] == [eps[n]]
+        assert cfg["connect"]["endpoints"] == [mesh_endpoint(e) for e in eps[:n]]  # the mesh: QUIC
+        assert cfg["listen"]["endpoints"] == [eps[n], mesh_endpoint(eps[n])]
         routers = next(x for x in cfg["access_control"]["subjects"] if x["id"] == "routers")
         assert routers["cert_common_names"] == [f"router-site-{i + 1}" for i in range(3) if i != n]
     creds = (tmp_path / "f" / "router" / "credentials.txt").read_text().split()
     assert sorted(c.split(":")[0] for c in creds if c.startswith("router-")) == [f"router-site-{i}" for i in (1, 2, 3)]
     assert all((tmp_path / "f" / "tls" / f"d{i}.crt").is_file() for i in range(1, 5))
+
+
+def test_a_drones_sysid_is_unique_in_its_mavlink_network_and_a_gss_in_the_fleet(tmp_path):
+    """More than 255 drones: each MAVLink network (what one GCS shows) has its own sysids; a GS's
+    sysid names it to every drone's GCS, so no drone in any network may take it."""
+    from zdrone.core.fleet import encode_fleet
+    from zdrone.fleet.files import scale_nodes
+
+    fleet = init_fleet(tmp_path / "f", nodes_spec=scale_nodes(300, 3))
+    drones = [fleet.nodes[d] for d in fleet.drones()]
+    assert len({(n.mavlink_net, n.sysid) for n in drones}) == 300 and max(n.sysid for n in drones) < 200
+    assert parse_fleet(encode_fleet(fleet)) == fleet
+    text = encode_fleet(fleet)
+    with pytest.raises(FleetError, match=r"nodes\.d200\.sysid: 1 already used by d1"):  # the same network
+        parse_fleet(text.replace('"mavlink_net": 1', '"mavlink_net": 0', 1))
+    with pytest.raises(FleetError, match=r"\.sysid: 200 already used by A"):  # a GS's sysid, in another network
+        parse_fleet(text.replace('"sysid": 2,', '"sysid": 200,').replace('"sysid": 1,\n      "public_key"', '"sysid": 1,\n      "public_key"'))

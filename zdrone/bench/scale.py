@@ -109,14 +109,15 @@ def _host_drones(args: argparse.Namespace) -> int:
     from ..vehicle.inproc import InProcessVehicle
 
     routers = args.router.split(",")
+    fleet = load_fleet(args.fleet)
     nodes = []
     for i in range(args.k):
         name = f"d{i + 1}"
         router = routers[i % len(routers)] if args.drone_router == "spread" else args.router
-        opts = DroneOptions(drone=name, fleet=args.fleet, router=router, vehicle="inproc", gate=CoverageGate(load_fleet(args.fleet)),
+        opts = DroneOptions(drone=name, fleet=args.fleet, router=router, vehicle="inproc", gate=CoverageGate(fleet),
                             events=str(Path(args.out) / f"{name}.jsonl"), handover_timeout=max(1.5, 5.0 / args.speedup),
                             status_period=2.0)
-        nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=i + 1, speedup=args.speedup, seed=i)))
+        nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)))
     deliveries = {n.name: DeliveryCounter(n.rt.inbox) for n in nodes}
     router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
     gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}

@@ -43,6 +43,9 @@ class Node(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     authorized_gs: list[Name] = []
     uplink: UplinkPolicy = UplinkPolicy()  # drones only: what a GS may send up (zdrone.core.uplink)
     signing_key: str = ""  # the node's Ed25519 public key (what it signs, e.g. its authority record)
+    #: drones only: the MAVLink network the drone's sysid is unique in (a GCS that shows drones together
+    #: shows one network; a fleet of more than 255 drones spreads them over several)
+    mavlink_net: Annotated[int, msgspec.Meta(ge=0, le=255)] = 0
 
     @property
     def public_bytes(self) -> bytes:
@@ -156,7 +159,8 @@ def _check(fleet: Fleet, source: str) -> None:
         fleet.fleet_key_bytes
     except ValueError as exc:
         raise FleetError(f"{source}: field $.fleet_key: {exc}") from None
-    seen: dict[int, str] = {}
+    seen: dict[tuple[int | None, int], str] = {}  # (MAVLink network, None for a GS; sysid) -> node
+    nets: set[int | None] = {None} | {n.mavlink_net for n in fleet.nodes.values() if n.role == "drone"}
     for name, node in fleet.nodes.items():
         where = f"{source}: field $.nodes.{name}"
         try:
@@ -167,9 +171,14 @@ def _check(fleet: Fleet, source: str) -> None:
             node.signing_public_bytes
         except ValueError as exc:
             raise FleetError(f"{where}.signing_key: {exc}") from None
-        if node.sysid in seen:
-            raise FleetError(f"{where}.sysid: {node.sysid} already used by {seen[node.sysid]}")
-        seen[node.sysid] = name
+        # a GS's sysid is unique in the whole fleet (it names the GS to every drone's GCS); a drone's
+        # within its MAVLink network
+        taken = [seen.get((net, node.sysid)) for net in (nets if node.role == "gs" else (node.mavlink_net, None))]
+        if any(taken):
+            raise FleetError(f"{where}.sysid: {node.sysid} already used by {next(t for t in taken if t)}")
+        seen[(node.mavlink_net if node.role == "drone" else None, node.sysid)] = name
+        if node.role == "gs" and node.mavlink_net:
+            raise FleetError(f"{where}.mavlink_net: only drones have a MAVLink network")
         if node.role == "gs":
             if node.coverage is None:
                 raise FleetError(f"{where}.coverage: a ground station needs a coverage circle")
@@ -199,4 +208,6 @@ def encode_fleet(fleet: Fleet) -> str:
             del raw["nodes"][name]["uplink"]
         if not node.signing_key:
             raw["nodes"][name].pop("signing_key", None)
+        if not node.mavlink_net:
+            raw["nodes"][name].pop("mavlink_net", None)
     return msgspec.json.format(msgspec.json.encode(raw), indent=2).decode() + "\n"

@@ -105,19 +105,23 @@ def _write_private(path: Path, text: str) -> None:
     os.chmod(path, 0o600)
 
 
-def scale_nodes(drones: int, stations: int) -> list[tuple[str, str, int, GeoPoint | None, list[str]]]:
+#: The most drones ``bench scale`` flies.
+MAX_SCALE_DRONES = 300
+
+
+def scale_nodes(drones: int, stations: int) -> list[tuple]:
     """A fleet for ``bench scale``: GSs A, B, C… 500 m apart eastwards; every drone authorized for all."""
-    if not 1 <= drones <= 150 or not 2 <= stations <= 26:
-        raise ConfigError("scale fleet: 1..150 drones and 2..26 ground stations")
+    if not 1 <= drones <= MAX_SCALE_DRONES or not 2 <= stations <= 26:
+        raise ConfigError(f"scale fleet: 1..{MAX_SCALE_DRONES} drones and 2..26 ground stations")
     gss = [chr(ord("A") + i) for i in range(stations)]
-    nodes: list[tuple[str, str, int, GeoPoint | None, list[str]]] = [
-        (gs, "gs", 200 + i, offset(HOME, 0.0, 500.0 * i), []) for i, gs in enumerate(gss)]
-    nodes += [(f"d{i + 1}", "drone", i + 1, None, list(gss)) for i in range(drones)]
+    nodes: list[tuple] = [(gs, "gs", 200 + i, offset(HOME, 0.0, 500.0 * i), []) for i, gs in enumerate(gss)]
+    # sysids 1..199 in each MAVLink network (a GS's sysid is 200 + i)
+    nodes += [(f"d{i + 1}", "drone", 1 + i % 199, None, list(gss), i // 199) for i in range(drones)]
     return nodes
 
 
 def init_fleet(directory: str | Path, force: bool = False,
-               nodes_spec: list[tuple[str, str, int, GeoPoint | None, list[str]]] | None = None,
+               nodes_spec: list[tuple] | None = None,
                tls: bool = False, sites: list[str] | None = None) -> Fleet:
     """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials;
     with ``tls`` also a fleet CA and certificates, and a router config that requires them; with
@@ -130,12 +134,13 @@ def init_fleet(directory: str | Path, force: bool = False,
     d.mkdir(parents=True, exist_ok=True)
     nodes: dict[str, Node] = {}
     creds: list[str] = []
-    for name, role, sysid, centre, authorized in nodes_spec or DEFAULT_NODES:
+    for name, role, sysid, centre, authorized, *net in nodes_spec or DEFAULT_NODES:  # net: the MAVLink network
         ident, signing = Identity.generate(), SigningKey.generate()
         password = secrets.token_urlsafe(18)
         cov = Coverage(centre.lat, centre.lon, COVERAGE_RADIUS_M) if centre is not None else None
         nodes[name] = Node(role=role, sysid=sysid, public_key=b64(ident.public), coverage=cov,  # type: ignore[arg-type]
-                           authorized_gs=list(authorized), signing_key=b64(signing.public))
+                           authorized_gs=list(authorized), signing_key=b64(signing.public),
+                           mavlink_net=net[0] if net else 0)
         write_secret(d, NodeSecret(name, ident, password, signing))
         creds.append(f"{name}:{password}")
     fleet_signing = SigningKey.generate()
