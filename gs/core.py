@@ -22,16 +22,15 @@ for a key).
 
 Per drone:
 
-* **Pairing** (with ``pair``): message 1 is an ``Ask``; the first reply that proves the drone's
-  static key installs the new link (our own fresh key: live at once, the old one readable for a
-  grace period) and a HEARTBEAT goes out under it, the proof the drone waits for. Forged replies are
-  counted and leave the exchange open.
-* **Key sharing, as authority**: for every other authorized GS without a link on the drone, one
-  ``KeyShareAsk`` at a time (Noise KK); its single authentic reply becomes a ``KEY_GRANT`` re-sent
-  each second until the drone acknowledges it.
-* **Key sharing, as owner**: a query is checked against the fleet and the asker's rate limit before
-  any crypto; an authentic one gets a fresh secret that becomes a *candidate* of our own link — the
-  live link is never touched — until the drone speaks under it.
+* **Linking** is the sub-machine ``gs.linking.Linking``, tables: pairing (with ``pair``, and again
+  when the drone falls silent while we hold its authority: a restarted companion) and, as authority,
+  key sharing for every other authorized GS without a link on the drone (one ``KeyShareAsk`` at a
+  time; its authentic reply becomes a ``KEY_GRANT`` re-sent each second until the drone acknowledges
+  it). A reply proving the drone's static key installs the new link here (our own fresh key: live at
+  once, the old one readable for a grace period) and a HEARTBEAT goes out under it, the proof the
+  drone waits for. As owner, ``gs.linking.KeyOwner`` answers other GSs' queries: checked against the
+  fleet and the asker's rate limit before any crypto; an authentic one gets a fresh secret that
+  becomes a *candidate* of our own link (the live link is never touched) until the drone speaks under it.
 * **Hand-over**: while it holds authority and the vehicle is inside its and another authorized GS's
   coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``); if the
   drone reports the release timed out, the GS commands RTL. Where the release stands in the drone's
@@ -47,6 +46,7 @@ Per drone:
 from __future__ import annotations
 
 import enum
+import itertools
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
@@ -61,11 +61,9 @@ from zdrone.core.envelope import Dropped, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
-from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
 from zdrone.core.linkslot import LinkSlot
 from zdrone.core.mavcontrol import OperatorControlRequest, sysid_as_seen_by
 from zdrone.core.mavlink import FrameCodec, read_header
-from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 
@@ -75,6 +73,8 @@ from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, QueryAnswer, Say
 from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
+from .linking import (LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue,
+                      PairReply)
 from .mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from .planner import PlannedItem
 
@@ -90,13 +90,6 @@ USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG
                          mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED})
 AUTOPILOT_NAMES = {mav.MAV_AUTOPILOT_PX4: "px4", mav.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 TEXTS_KEPT = 8
-#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
-LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
-#: A secret handed out over the backhaul waits this long for the drone to prove it (the drone first
-#: speaks under it when it reaches this GS's coverage).
-LINKKEY_CANDIDATE_TTL = 900.0
-PAIR_TIMEOUT = 3.0
-RETRY_S = 2.0
 #: An unconfirmed HANDOVER_RELEASE is sent again this often (a lossy radio must not make the
 #: drone leave the overlap before it hears one).
 RELEASE_RESEND_S = 0.25
@@ -119,10 +112,6 @@ STALE_VIEW_S = 1.0
 #: A hand-over that failed (timed out: the target was not heard; refused) is tried again this often
 #: while the vehicle is still where it should happen: a target that comes back takes authority.
 HANDOVER_RETRY_S = 2.0
-#: A key-sharing query refused because the answering GS's link still looks alive (a drone that just
-#: restarted holds no key for it, but that GS hears the silence only at the loss threshold) is asked
-#: again this soon, the first ask still open for the genuine reply.
-LIVE_LINK_RETRY_S = 0.5
 #: Toward a GS whose key is still being shared, the hand-over waits while the vehicle is inside this
 #: fraction of our coverage radius; past it, the hand-over has failed (the vehicle comes home) ...
 KEY_WAIT_RADIUS = 0.9
@@ -183,7 +172,7 @@ class KeyHold:
     seen: bool = False  # the vehicle's HEARTBEAT showed the hold mode
 
 
-@dataclass
+@dataclass(slots=True)
 class DroneView:
     """What this GS knows of one drone."""
 
@@ -191,12 +180,6 @@ class DroneView:
     sysid: int
     link: SecureLink | None = None  # the live link (``slot.live``)
     slot: LinkSlot = field(default_factory=LinkSlot)
-    pairing: PairingInitiator | None = None
-    pairing_deadline: float = 0.0
-    asks: dict[str, KeyShareAsk] = field(default_factory=dict)  # other GS -> ask in flight
-    ask_again: dict[str, float] = field(default_factory=dict)  # other GS -> when to ask again (refused: live link)
-    live_refused: dict[str, float] = field(default_factory=dict)  # other GS -> its last "live link" refusal
-    lost_key_at: float | None = None  # our pairing found the companion had lost our key (it restarted)
     hold: "KeyHold | None" = None  # the vehicle held for a key (one per epoch)
     fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     armed: bool = False
@@ -208,25 +191,20 @@ class DroneView:
     epoch: int = 0
     ha_state: HaState | None = None
     pending_to: str | None = None
-    drone_links: set[str] = field(default_factory=set)  # GSs the drone already holds keys for
     fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
-    grants: dict[str, wire.KeyGrant] = field(default_factory=dict)  # gs -> grant not yet acknowledged
-    granted: set[str] = field(default_factory=set)
-    grant_sent: float | None = None
     handover: Handover = field(default_factory=lambda: Handover(""))  # our release, in the current epoch
     stale: bool = False  # the drone was silent: our view of the authority waits for its status
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
     autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
     prearm_ok: bool | None = None  # SYS_STATUS pre-arm health (None: not reported)
     texts: list[tuple[float, str]] = field(default_factory=list)  # the vehicle's recent STATUSTEXTs
-    last_pair_try: float | None = None
-    last_share_try: float | None = None
     last_command: float | None = None
     last_take_control: float | None = None
     takeover: bool = False  # the owner allows takeover (the drone's AuthorityStatus)
     takeover_to: str | None = None  # ... for this GS only (a consent's window); None: any
     operator: OperatorControl = field(default_factory=lambda: OperatorControl(""))  # set by StationCore
     mission: Mission = field(default_factory=lambda: Mission("", "", 0, None))  # set by StationCore
+    linking: "Linking | None" = None  # set by StationCore
 
     @property
     def position(self) -> GeoPoint | None:
@@ -265,13 +243,18 @@ def _due(last: float | None, now: float, period: float) -> bool:
     return last is None or now - last >= period
 
 
+def _linking(view: DroneView) -> Linking:
+    assert view.linking is not None  # set by StationCore for every view
+    return view.linking
+
+
 class StationCore:
     """The protocol logic of one ground station (see the module docstring)."""
 
     def __init__(self, name: str, fleet: Fleet, identity: Identity, drones: tuple[str, ...],
                  opts: CoreOptions = CoreOptions()) -> None:
         self.name = name
-        self.fleet = fleet
+        self._fleet = fleet
         self.identity = identity
         self.opts = opts
         node = fleet.node(name)
@@ -282,12 +265,25 @@ class StationCore:
                                    mission=Mission(name, d, fleet.nodes[d].sysid, opts.mission)) for d in drones}
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
         self.counters: Counter[str] = Counter()
-        self.keyshare = KeyShareResponder(identity, name, LINKKEY_RATE, LINKKEY_BURST)
-        self._grant_id = 0
+        self.key_owner = KeyOwner(identity, name, fleet, self.counters)
+        grant_ids = itertools.count(1)
+        for d, view in self.views.items():
+            view.linking = Linking(Context(name, d, identity, fleet, self.counters, grant_ids))
         self._sm_seq = 0
         self._hb_due = 0.0
         self._look_due = 0.0  # the next look at the periodic work
         self._input_at: float | None = None  # an input came at this time since ``handle_timer`` last ran
+
+    @property
+    def fleet(self) -> Fleet:
+        return self._fleet
+
+    @fleet.setter
+    def fleet(self, fleet: Fleet) -> None:
+        """A fleet revision took effect: every part reads the new fleet from now on."""
+        self._fleet = self.key_owner.fleet = fleet
+        for view in self.views.values():
+            _linking(view).ctx.fleet = fleet
 
     # --------------------------------------------------------------- by name
     @property
@@ -403,7 +399,7 @@ class StationCore:
                 continue
             self._mark_stale(view, now)
             if view.owner == self.name and not view.stale:
-                out += self._share_keys(view, now, now if wall is None else wall)
+                out += _linking(view).share_keys(now, now if wall is None else wall, lambda m, v=view: self.send_control(v, m))
             out += self._flight(view, FlightTick(now))
             out += self._operator(view, view.operator.tick(view, now))
             if not view.operator.holds(view):  # an epoch our operator took stays ours until it lets go
@@ -420,137 +416,67 @@ class StationCore:
                     out += self.send_control(view, wire.SmHeartbeat(self._sm_seq))
         return out
 
-    # ------------------------------------------------------------------ pairing
+    # ------------------------------------------------------------------ linking
     def _try_pair(self, view: DroneView, now: float, stamp: float, retry: float = RETRY_S,
                   timeout: float = PAIR_TIMEOUT) -> list[Action]:
-        """Send a pairing message 1 (stamped with ``stamp``, our time of day: the drone refuses an
-        old one) unless one is pending or the last try was less than ``retry`` ago."""
-        if view.pairing is not None and now < view.pairing_deadline:
-            return []
-        if not _due(view.last_pair_try, now, retry):
-            return []
-        view.last_pair_try = now
-        self.counters["pair_sent"] += 1
-        view.pairing = PairingInitiator(self.identity, self.name, view.name, self.fleet.nodes[view.name].public_bytes,
-                                        stamp=stamp)
-        view.pairing_deadline = now + timeout
-        return [Ask(AskKind.PAIR, view.name, self.name, kx.pair(view.name, self.name), view.pairing.start(), timeout)]
+        """Pair (``gs.linking``) unless an exchange is open or the last try was less than ``retry`` ago."""
+        out, _ = _linking(view).on_pair(PairDue(now, stamp, retry, timeout))
+        return out
 
     def on_pair_reply(self, drone: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply to our pairing query (``ok`` payload, or the drone's error text)."""
         self._input(now)
         view = self.views.get(drone)
-        if view is None or view.pairing is None or now >= view.pairing_deadline:
+        if view is None:
             self.counters["pair_reply_late"] += 1
             return []
-        if ok is None:
-            reason = (err or b"error").decode(errors="replace")[:200]
-            self.counters["pair_refused"] += 1
-            if self.counters["pair_refused"] > 5:  # the first few in the log; all in the counters
-                return []
-            log.warning("pairing with %s refused: %s", drone, reason)
-            return [Emit(rec.GsPairRefused(drone=drone, reason=reason))]
-        key = view.pairing.finish(ok)
-        if isinstance(key, PairingFailed):
-            self.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
-            return [Emit(rec.PairFailed(drone=drone, reason=key.reason))] if self.counters["pair_bad_reply"] <= 5 else []
-        kept = view.pairing.peer_kept_key
-        view.pairing = None
+        out, paired = _linking(view).on_pair(PairReply(now, ok, err))
+        if paired is None:
+            return out
         again = view.link is not None
-        if again and kept:
+        if again and paired.kept:
             # the drone still holds our key: its silence was the radio (out of coverage), not a
             # restart; switching to a key it cannot confirm now would cut us off later
             self.counters["pair_not_needed"] += 1
             return [Emit(rec.PairNotNeeded(drone=drone))]
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
-        view.slot.install(self._new_link(view, key, now), now)
+        view.slot.install(self._new_link(view, paired.key, now), now)
         view.link = view.slot.live
         if again:  # the drone may have restarted with no key but ours: share the others' keys again
-            view.lost_key_at = now  # authenticated: the drone's message 2 said it no longer held our key
-            view.granted.clear()
-            view.grants.clear()
-            view.drone_links = {self.name}
+            _linking(view).keys_lost(now)
         return [Emit(rec.GsPaired(drone=drone, again=again)), Say(f"zdrone gs {self.name}: paired with {drone}"),
                 *self._heartbeat(view)]
 
-    # --------------------------------------------------------------- key sharing
-    def _refused(self, logs: list[Action], reason: ShareRefusal, drone: str, asker: str, detail: str = "") -> QueryAnswer:
-        key = f"linkkey_refused:{reason.value}"
-        self.counters[key] += 1
-        if self.counters[key] <= 5:  # the first few in the log; all of them in the counters
-            logs.append(Emit(rec.LinkkeyRefused(drone=drone, asker=asker, reason=reason.value, detail=detail)))
-        crypto = reason is ShareRefusal.AUTH_FAILED
-        if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC, ShareRefusal.STALE):
-            return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
-        return QueryAnswer(error=reason.value.encode(), crypto=crypto)
+    def adopt_identity(self, identity: Identity, now: float, wall: float) -> list[Action]:
+        """Our static key was rotated: key sharing answers under ``identity`` from now on, and every
+        drone we hold a link with is re-paired under it at once (make-before-break: the live link
+        works until the drone's reply gives the new key)."""
+        self.identity = identity
+        self.key_owner.adopt(identity)
+        out: list[Action] = []
+        for view in self.views.values():
+            linking = _linking(view)
+            linking.ctx.identity = identity
+            if view.link is not None:
+                linking.abandon_pairing()
+                out += self._try_pair(view, now, wall, retry=0.0)
+        return out
 
     def on_linkkey_query(self, drone: str, payload: bytes, now: float, secret: bytes,
                          wall: float | None = None) -> tuple[QueryAnswer, list[Action]]:
-        """Answer one key-sharing query for link (``drone``, us); ``secret`` is fresh randomness.
-
-        Refusals before any crypto: malformed, unknown asker, not authorized for the drone; then the
-        cheap tag, a repeated message 1 (its first answer again), the asker's rate limit (charged
-        only for authentic queries), and the handshake (``KeyShareResponder``)."""
+        """Answer one key-sharing query for link (``drone``, us); ``secret`` is fresh randomness
+        (``gs.linking.KeyOwner``). The secret handed out never touches the live link: it is a
+        candidate until the drone speaks under it (one per asker: the newest replaces an older one)."""
         self._input(now)
-        logs: list[Action] = []
-        req = decode_query(payload)
-        if isinstance(req, Refused):
-            return self._refused(logs, req.reason, drone, "?", req.detail), logs
-        asker = self.fleet.nodes.get(req.asker)
-        if asker is None or asker.role != "gs" or req.asker == self.name:
-            return self._refused(logs, ShareRefusal.UNKNOWN_ASKER, drone, req.asker), logs
-        if (drone not in self.views or not self.fleet.is_authorized(drone, req.asker)
-                or not self.fleet.is_authorized(drone, self.name)):
-            return self._refused(logs, ShareRefusal.UNAUTHORIZED, drone, req.asker), logs
-        view = self.views[drone]
-        if view.link is not None and view.link.tbm.state(now) is not LinkState.LOST:
-            # our own link is alive (we may even hold authority): nobody needs a new key for it, and a
-            # secret handed out now could only serve whoever asked (issue 18: key escrow)
-            return self._refused(logs, ShareRefusal.LIVE_LINK, drone, req.asker), logs
-        out = self.keyshare.answer(drone, req.asker, asker.public_bytes, req.m1, now, secret, wall)
-        if isinstance(out, Refused):  # forged, over the rate limit, or claimed without the key
-            return self._refused(logs, out.reason, drone, req.asker, out.detail), logs
-        reply, fresh = out
-        if not fresh:
-            self.counters["linkkey_repeated"] += 1  # a replay or a retransmission: same answer, nothing new
-            return QueryAnswer(reply=reply), logs
-        # Never touch the live link: the secret is a candidate until the drone speaks under it
-        # (one per asker: the newest replaces an older one).
-        candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
-        view.slot.offer(candidate, now, f"linkkey:{req.asker}", LINKKEY_CANDIDATE_TTL)
-        self.counters["linkkey_shared"] += 1
-        logs.append(Emit(rec.LinkkeyShared(drone=drone, asker=req.asker)))
-        log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.name, req.asker)
-        return QueryAnswer(reply=reply, crypto=True), logs
-
-    def _share_keys(self, view: DroneView, now: float, wall: float) -> list[Action]:
-        """As authority: ask the other authorized GSs for their link keys; grant them to the drone."""
-        out: list[Action] = []
-        for g in self.fleet.nodes[view.name].authorized_gs:
-            if g == self.name:
-                continue
-            ask = view.asks.get(g)
-            again = view.ask_again.get(g)
-            if ask is not None and not ask.expired(now) and (again is None or now < again):
-                continue
-            if ask is not None:
-                del view.asks[g]
-                self.counters["linkkey_no_answer" if again is None else "linkkey_asked_again"] += 1
-            if g in view.drone_links or g in view.granted or g in view.grants:
-                continue
-            if again is None and not _due(view.last_share_try, now, RETRY_S):
-                continue
-            view.ask_again.pop(g, None)
-            view.last_share_try = now
-            ask = KeyShareAsk(self.identity, self.name, g, self.fleet.nodes[g].public_bytes, view.name, now, wall=wall)
-            view.asks[g] = ask
-            out.append(Ask(AskKind.LINKKEY, view.name, g, kx.linkkey(g, view.name), ask.payload, ask.deadline - now))
-        if view.grants and _due(view.grant_sent, now, 1.0):
-            view.grant_sent = now
-            for grant in view.grants.values():
-                out += self.send_control(view, grant)
-        return out
+        view = self.views.get(drone)
+        live = view is not None and view.link is not None and view.link.tbm.state(now) is not LinkState.LOST
+        answer, logs, asker = self.key_owner.answer(drone, payload, now, secret, wall, serves=view is not None, live=live)
+        if asker is not None:
+            assert view is not None
+            candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
+            view.slot.offer(candidate, now, f"linkkey:{asker}", LINKKEY_CANDIDATE_TTL)
+        return answer, logs
 
     def on_linkkey_reply(self, drone: str, gs: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply from ``gs`` to our key-sharing query about ``drone``."""
@@ -559,32 +485,7 @@ class StationCore:
         if view is None:
             self.counters["linkkey_reply:unknown_drone"] += 1
             return []
-        if ok is None:
-            self.counters["linkkey_reply_error"] += 1
-            if err == ShareRefusal.LIVE_LINK.value.encode() and gs in view.asks:
-                view.ask_again[gs] = now + LIVE_LINK_RETRY_S  # soon: its link is about to be LOST
-                view.live_refused[gs] = now
-            if self.counters["linkkey_reply_error"] > 5:  # the first few in the log; all in the counters
-                return []
-            return [Emit(rec.LinkkeyError(drone=drone, gs=gs, reason=(err or b"").decode(errors="replace")[:120]))]
-        ask = view.asks.get(gs)
-        if ask is None:
-            self.counters["linkkey_reply:not_waiting"] += 1
-            return []
-        secret = ask.on_reply(ok, now)
-        if isinstance(secret, Refused):
-            key = f"linkkey_reply:{secret.reason.value}"
-            self.counters[key] += 1
-            if self.counters[key] > 5:  # the first few in the log; all in the counters
-                return []
-            log.warning("key-sharing reply for %s from %s refused: %s", drone, gs, secret.reason.value)
-            return [Emit(rec.LinkkeyBadReply(drone=drone, gs=gs, reason=secret.reason.value))]
-        del view.asks[gs]
-        view.ask_again.pop(gs, None)
-        self._grant_id += 1
-        view.grants[gs] = wire.KeyGrant(gs, self.fleet.nodes[gs].sysid, secret, self._grant_id)
-        view.grant_sent = None
-        return [Emit(rec.LinkkeyReceived(drone=drone, gs=gs))]
+        return _linking(view).on_share_reply(gs, ok, err, now)
 
     # ----------------------------------------------------------------- receiving
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
@@ -654,7 +555,7 @@ class StationCore:
             was_mine = view.owner == self.name and not view.stale
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
             view.stale = False  # the drone's own word: our view is current again
-            view.drone_links = set(msg.linked)
+            _linking(view).drone_links = set(msg.linked)
             view.takeover, view.takeover_to = msg.takeover, msg.takeover_to
             if msg.fc_signed is not None and msg.fc_signed != view.fc_signed:
                 view.fc_signed = msg.fc_signed
@@ -676,10 +577,7 @@ class StationCore:
                 elif state is HaState.LINKED and ho.phase is HandoverPhase.CONFIRMED:
                     out += self._handover_failed(view, "release timed out", now)  # authority stayed here
         elif isinstance(msg, wire.KeyGrantAck):
-            if msg.gs in view.grants and view.grants[msg.gs].grant_id == msg.grant_id:
-                del view.grants[msg.gs]
-                view.granted.add(msg.gs)
-                out.append(Emit(rec.KeyGranted(drone=view.name, gs=msg.gs)))
+            out += _linking(view).on_grant_ack(msg.gs, msg.grant_id, now)
         elif isinstance(msg, wire.Reject):
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
             out.append(Emit(rec.Rejected(drone=view.name, what=msg.what, reason=msg.reason)))
@@ -761,7 +659,7 @@ class StationCore:
     # ----------------------------------------------------------------- flying
     def _flies(self, view: DroneView) -> bool:
         """The mission machine takes events: we fly one, hold authority, and no key grant is pending."""
-        return self.opts.mission is not None and self.holds_authority(view) and not view.grants
+        return self.opts.mission is not None and self.holds_authority(view) and not _linking(view).grants_pending
 
     def _flight(self, view: DroneView, ev: FlightEvent) -> list[Action]:
         if not self._flies(view):
@@ -787,11 +685,12 @@ class StationCore:
                 continue
             circle = other.coverage.circle()
             if circle.contains(here) and distance_m(circle.centre, here) + self.opts.hysteresis_m < mine:
-                if g not in view.drone_links and g not in view.granted:  # the drone holds no key for g
+                linking = _linking(view)
+                if g not in linking.drone_links and not linking.granted(g):  # the drone holds no key for g
                     held = self._hold_for_key(view, g, mine, now)
                     if held is not None:
                         return held
-                    sharing = g in view.asks or g in view.grants
+                    sharing = linking.asking(g) or linking.granting(g)
                     no_hold = view.hold is None or view.hold.epoch != view.epoch
                     if sharing and no_hold and mine < KEY_WAIT_RADIUS * self.coverage.radius_m:
                         self.counters["handover_waiting_key"] += 1  # g's key is on its way: not yet
@@ -809,10 +708,11 @@ class StationCore:
 
     def _key_coming(self, view: DroneView, g: str, now: float) -> bool:
         """``g``'s key for the drone is known to be coming (see ``HOLD_FOR_KEY_S``)."""
-        if g in view.grants:
+        linking = _linking(view)
+        if linking.granting(g):
             return True
-        refused, restarted = view.live_refused.get(g), view.lost_key_at
-        return (g in view.asks and refused is not None and now - refused < KEY_COMING_S
+        refused, restarted = linking.live_refused(g), linking.lost_key_at
+        return (linking.asking(g) and refused is not None and now - refused < KEY_COMING_S
                 and restarted is not None and now - restarted < RESTART_EVIDENCE_S)
 
     def _mode(self, view: DroneView) -> str:

@@ -196,7 +196,7 @@ class GroundStation:
     def _on_revision(self, kind: str, data: Any, now: float) -> None:
         """A fleet revision heard: the next one is applied live (the core reads the new fleet: revoked
         nodes are on no authorized list); if it rotated this GS's own key, the new secret is taken
-        from the bundle and every linked drone re-paired under it (``adopt_identity``)."""
+        from the bundle and every linked drone re-paired under it (``StationCore.adopt_identity``)."""
         got = self.revision.on_inbox(kind, data)
         if isinstance(got, revisions.RevisionAccepted):
             self.fleet = self.core.fleet = got.fleet
@@ -214,7 +214,7 @@ class GroundStation:
             return
         log.warning("own key rotated by the fleet: re-pairing every linked drone under the new key")
         self.counters["rotated"] += 1
-        self._do(adopt_identity(self.core, secret.identity, now, time.time()))
+        self._do(self.core.adopt_identity(secret.identity, now, time.time()))
 
     def _serve_linkkeys(self, now: float) -> None:
         """Answer key-sharing queries: refusals cost no crypto; ``LINKKEY_PER_TURN`` handshakes at most."""
@@ -311,27 +311,6 @@ class GroundStation:
 
     def close(self) -> None:
         self.rt.close(self.status(), rec.GsStop)
-
-
-def adopt_identity(core: StationCore, identity: Any, now: float, wall: float) -> list[Action]:
-    """This GS's static key was rotated (a fleet revision names its new public key, and its bundle
-    holds the new secret): key sharing answers under the new key from now on, and every drone it
-    holds a link with is re-paired under it at once. Make-before-break: the live link keeps
-    working until the drone's reply gives the new key (the drone, told of the rotation by the same
-    revision, answers as holding no key of ours, so the new key goes live here and the drone takes
-    it with the first frame under it)."""
-    from zdrone.core.keyshare import KeyShareResponder
-
-    from .core import LINKKEY_BURST, LINKKEY_RATE
-
-    core.identity = identity
-    core.keyshare = KeyShareResponder(identity, core.name, LINKKEY_RATE, LINKKEY_BURST)
-    out: list[Action] = []
-    for view in core.views.values():
-        if view.link is not None:
-            view.pairing = None
-            out += core._try_pair(view, now, wall, retry=0.0)
-    return out
 
 
 def run_station(opts: StationOptions) -> int:

@@ -143,7 +143,6 @@ def test_after_any_revision_no_gs_off_the_list_holds_a_link_or_authority(events)
 
 
 def test_rotating_the_owner_in_flight_repairs_it_under_the_new_key_without_a_gap(fleet_dir):
-    from gs.station import adopt_identity
     from zdrone.core.keys import Identity, SigningKey
     from zdrone.core.revision import with_keys
 
@@ -160,7 +159,7 @@ def test_rotating_the_owner_in_flight_repairs_it_under_the_new_key_without_a_gap
     apply(net, fleet)
     for core in net.gss.values():
         core.fleet = fleet
-    net.gs_outs("A", adopt_identity(net.gss["A"], new, net.now, WALL0 + net.now))
+    net.gs_outs("A", net.gss["A"].adopt_identity(new, net.now, WALL0 + net.now))
     net.run(3.0)
     assert m.owner == "A" and m.epoch == epoch and m.state is State.LINKED and not net.commands
     assert net.drone.links["A"] is not old_link and "A" not in net.drone.rekey  # the new key is live

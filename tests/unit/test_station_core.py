@@ -58,7 +58,7 @@ def test_key_sharing_end_to_end_leaves_the_owner_live_link_alone(fleet_dir):
     assert b.views["d1"].link is None and len(b.views["d1"].slot.candidates) == 1  # pending the drone's proof
     out = a.on_linkkey_reply("d1", "B", ans.reply, None, 1.2)
     assert [x.kind for x in out if isinstance(x, Emit)] == ["linkkey_received"]
-    assert a.views["d1"].grants["B"].secret == bytes(range(32))
+    assert a.views["d1"].linking.shares["B"].grant.secret == bytes(range(32))
 
 
 def test_attack1_forged_reply_before_and_after_the_real_one(fleet_dir):
@@ -71,12 +71,12 @@ def test_attack1_forged_reply_before_and_after_the_real_one(fleet_dir):
     assert isinstance(forged, bytes)
     a.on_linkkey_reply("d1", "B", forged, None, 1.1)
     a.on_linkkey_reply("d1", "B", b"\x00" * 80, None, 1.1)
-    assert a.counters["linkkey_reply:bad_mac"] == 2 and not a.views["d1"].grants  # refused by the tag
+    assert a.counters["linkkey_reply:bad_mac"] == 2 and not a.views["d1"].linking.grants_pending  # refused by the tag
     ans, _ = b.on_linkkey_query("d1", ask.payload, 1.2, bytes(range(32)))
     a.on_linkkey_reply("d1", "B", ans.reply, None, 1.3)
-    assert a.views["d1"].grants["B"].secret == bytes(range(32))
+    assert a.views["d1"].linking.shares["B"].grant.secret == bytes(range(32))
     a.on_linkkey_reply("d1", "B", forged, None, 1.4)  # later replies: nobody is waiting
-    assert a.counters["linkkey_reply:not_waiting"] == 1 and a.views["d1"].grants["B"].secret == bytes(range(32))
+    assert a.counters["linkkey_reply:not_waiting"] == 1 and a.views["d1"].linking.shares["B"].grant.secret == bytes(range(32))
 
 
 def test_attack2_query_claiming_b_without_b_key_is_refused_and_changes_nothing(fleet_dir):
@@ -135,7 +135,7 @@ def _in_overlap_nearer_b(a: StationCore, links: set[str]) -> None:
 
     view = a.views["d1"]
     view.position = offset(HOME, 0.0, 300.0)  # 300 m from A's centre, 200 m from B's: inside both
-    view.drone_links = links
+    view.linking.drone_links = links
 
 
 def test_no_release_toward_a_gs_the_drone_has_no_key_for_the_vehicle_comes_home(fleet_dir):
@@ -162,7 +162,7 @@ def test_a_key_sharing_query_refused_for_a_live_link_is_asked_again_soon(fleet_d
     """A restarted drone holds no key for B, but B hears the silence only at the loss threshold and
     refuses to share its key meanwhile (``live_link``). A asks again ``LIVE_LINK_RETRY_S`` later, not
     after the query's 5 s: the key must be there before the overlap."""
-    from gs.core import LIVE_LINK_RETRY_S
+    from gs.linking import LIVE_LINK_RETRY_S
 
     a = paired_a(fleet_dir)
     ask = share(a, core(fleet_dir, "B"), 1.0)
@@ -219,7 +219,7 @@ def test_a_timed_out_hand_back_is_tried_again_when_the_vehicle_flies_into_our_co
     from zdrone.core.keys import LinkKey
     view.slot.install(b._new_link(view, LinkKey.from_secret("d1", "B", bytes(32)), 0.0), 0.0)
     view.link = view.slot.live
-    view.owner, view.epoch, view.drone_links = "B", 2, {"A", "B"}
+    view.owner, view.epoch, view.linking.drone_links = "B", 2, {"A", "B"}
     view.position = offset(HOME, 0.0, 200.0)  # nearer A's centre than B's
     out = b.handle_timer(1.0)
     assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["A"]
@@ -518,7 +518,7 @@ def _held_for_b(fleet_dir, restarted: bool = True) -> StationCore:
     _in_overlap_nearer_b(a, {"A"})
     _flying_mission(a)
     if restarted:
-        a.views["d1"].lost_key_at = 9.0
+        a.views["d1"].linking.lost_key_at = 9.0
     share(a, core(fleet_dir, "B"), 10.0)
     a.on_linkkey_reply("d1", "B", None, b"live_link", 10.1)
     return a
@@ -548,7 +548,7 @@ def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_bef
     assert _mode_commands(a, a.handle_timer(10.2 + HOLD_RESEND_S + 0.01)) == ["HOLD"]  # not confirmed: sent again
     _set_mode(a, "HOLD")  # the vehicle's HEARTBEAT: holding
     assert _mode_commands(a, a.handle_timer(11.5)) == [] and not _handover_logs(a.handle_timer(12.0))
-    view.drone_links = {"A", "B"}  # B's key reached the drone and B proved it
+    view.linking.drone_links = {"A", "B"}  # B's key reached the drone and B proved it
     out = a.handle_timer(13.0)
     assert _handover_logs(out) == ["handover_resume"] and _mode_commands(a, out) == ["MISSION"]
     assert _mode_commands(a, a.handle_timer(13.0 + HOLD_RESEND_S + 0.01)) == ["MISSION"]  # not confirmed: sent again
@@ -598,7 +598,7 @@ def test_a_mode_someone_else_chose_during_the_hold_stands(fleet_dir):
     out = a.handle_timer(11.5)
     assert a.counters["handover_hold_over:mode changed"] == 1 and not _mode_commands(a, out)
     assert not _mode_commands(a, a.handle_timer(10.2 + HOLD_FOR_KEY_S + 0.1))
-    view.drone_links = {"A", "B"}
+    view.linking.drone_links = {"A", "B"}
     out = a.handle_timer(10.2 + HOLD_FOR_KEY_S + 3.0)
     assert "MISSION" not in _mode_commands(a, out)
 
@@ -618,7 +618,7 @@ def test_an_unauthenticated_live_link_error_alone_holds_nothing(fleet_dir):
     b = paired_a(fleet_dir)
     _in_overlap_nearer_b(b, {"A"})
     _flying_mission(b)
-    b.views["d1"].lost_key_at = 9.0
+    b.views["d1"].linking.lost_key_at = 9.0
     share(b, core(fleet_dir, "B"), 10.0)  # no answer at all
     b.views["d1"].position = offset(HOME, 0.0, 320.0)
     out = b.handle_timer(10.2)

@@ -1,0 +1,497 @@
+"""The GS's links with one drone, sans-IO: pairing, and key sharing as the drone's authority. Tables.
+
+Theory of operation
+-------------------
+A GS talks to a drone only under a link key. It gets one by **pairing** (a Noise KK exchange over
+``pair/<gs>``, ``zdrone.core.pairing``), and, while it holds the drone's authority, it gets the
+other authorized GSs their keys by **key sharing** (``zdrone.core.keyshare``): it asks each one for
+a fresh key of link (drone, it) over the backhaul and grants that key to the drone inside its own
+sealed link (``KEY_GRANT``), re-sent each second until the drone acknowledges it. ``Linking`` keeps,
+for one drone, where both exchanges stand; what the key is used for (the link itself, ``LinkSlot``)
+stays with the core, which installs the key a reply proves (``Paired``). As the owner of a link,
+answering another GS's key-sharing query, the GS uses ``KeyOwner`` (one per GS).
+
+Pairing phases (``PairPhase``): ``IDLE`` (no exchange open) and ``ASKING`` (a message 1 is out; its
+reply is taken until ``deadline``). Events: ``PairDue`` (the core's timer: pair now, unless the last
+try was less than ``retry`` ago) and ``PairReply`` (the drone's answer, or its error). A reply that
+does not prove the drone's static key is counted and leaves the exchange open (the genuine one may
+still come); the one that does closes it with a ``Paired`` (the new key, and whether the drone still
+held our old one). If we had a link and the drone lost our key, it restarted: ``keys_lost``.
+
+Key-sharing phases, per other authorized GS (``SharePhase``): ``NONE`` (nothing asked: the drone may
+hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link" refusal asks again
+after ``LIVE_LINK_RETRY_S``, a query with no answer again after its deadline), ``GRANTING`` (the
+reply's key is granted to the drone, re-sent each second) and ``GRANTED`` (the drone acknowledged
+it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``ShareReply``, ``GrantAcked``
+and ``KeysLost`` (the drone restarted: every key we shared for it is gone). One new query per
+``RETRY_S`` per drone (a "live link" retry excepted).
+
+``PAIR_TABLE`` and ``SHARE_TABLE`` map (phase, event type) to (handler, the phases it may move to);
+pairs not in a table change nothing, a handler moving elsewhere is a programming error
+(``_set_state`` raises), every move is logged ``old -> new``. ``deadline(now)`` is when the timer next
+matters for these exchanges if no input comes.
+"""
+
+from __future__ import annotations
+
+import enum
+import itertools
+import logging
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator
+
+from zdrone.core import records as rec
+from zdrone.core import wire
+from zdrone.core.fleet import Fleet
+from zdrone.core.keys import Identity, LinkKey
+from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
+from zdrone.core.pairing import PairingFailed, PairingInitiator
+from zdrone.fleet import keyexprs as kx
+
+from .actions import Action, Ask, AskKind, Emit, QueryAnswer
+
+log = logging.getLogger(__name__)
+
+#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
+LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
+#: A secret handed out over the backhaul waits this long for the drone to prove it (the drone first
+#: speaks under it when it reaches this GS's coverage).
+LINKKEY_CANDIDATE_TTL = 900.0
+PAIR_TIMEOUT = 3.0
+RETRY_S = 2.0
+#: A key grant not yet acknowledged is sent again this often.
+GRANT_RESEND_S = 1.0
+#: A key-sharing query refused because the answering GS's link still looks alive (a drone that just
+#: restarted holds no key for it, but that GS hears the silence only at the loss threshold) is asked
+#: again this soon, the first ask still open for the genuine reply.
+LIVE_LINK_RETRY_S = 0.5
+#: The first few of each refusal or bad reply go to the event log; all of them to the counters.
+LOGGED = 5
+
+
+def _due(last: float | None, now: float, period: float) -> bool:
+    return last is None or now - last >= period
+
+
+class PairPhase(enum.Enum):
+    IDLE = "idle"
+    ASKING = "asking"
+
+
+class SharePhase(enum.Enum):
+    NONE = "none"
+    ASKED = "asked"
+    GRANTING = "granting"
+    GRANTED = "granted"
+
+
+# ------------------------------------------------------------------------- events
+@dataclass(frozen=True, slots=True)
+class PairDue:
+    """Pair now (``stamp``: our time of day) unless the last try was less than ``retry`` ago."""
+
+    now: float
+    stamp: float
+    retry: float = RETRY_S
+    timeout: float = PAIR_TIMEOUT
+
+
+@dataclass(frozen=True, slots=True)
+class PairReply:
+    """The drone's reply to our message 1 (``ok``), or its error text (``err``)."""
+
+    now: float
+    ok: bytes | None
+    err: bytes | None
+
+
+@dataclass(frozen=True, slots=True)
+class ShareDue:
+    """As authority: ask for ``gs``'s key if it is due, re-send its grant if that is due."""
+
+    now: float
+    wall: float
+
+
+@dataclass(frozen=True, slots=True)
+class ShareReply:
+    now: float
+    ok: bytes | None
+    err: bytes | None
+
+
+@dataclass(frozen=True, slots=True)
+class GrantAcked:
+    now: float
+    grant_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class KeysLost:
+    """The drone restarted: no key we shared for it survives."""
+
+    now: float
+
+
+@dataclass(frozen=True, slots=True)
+class Paired:
+    """A pairing reply proved the drone's static key: ``key`` is our new link key."""
+
+    key: LinkKey
+    kept: bool  # the drone still held our old key (its silence was the radio, not a restart)
+
+
+class IllegalPhase(AssertionError):
+    """A handler moved to a phase its table row does not allow: a programming error."""
+
+
+@dataclass
+class Share:
+    """Where key sharing for one other GS stands."""
+
+    phase: SharePhase = SharePhase.NONE
+    ask: KeyShareAsk | None = None
+    grant: wire.KeyGrant | None = None
+    ask_again: float | None = None  # a "live link" refusal: ask again then
+    live_refused: float | None = None  # its last "live link" refusal
+
+
+@dataclass
+class Context:
+    """What the exchanges of one drone need of their GS (set once by the core)."""
+
+    gs: str
+    drone: str
+    identity: Identity
+    fleet: Fleet
+    counters: Counter[str]
+    grant_ids: Iterator[int] = field(default_factory=lambda: itertools.count(1))
+
+
+class Linking:
+    """Pairing and key sharing with one drone (see the module docstring)."""
+
+    def __init__(self, ctx: Context) -> None:
+        self.ctx = ctx
+        self.pair_phase = PairPhase.IDLE
+        self.pairing: PairingInitiator | None = None
+        self.pairing_deadline = 0.0
+        self.last_pair_try: float | None = None
+        self.lost_key_at: float | None = None  # our pairing found the companion had lost our key (it restarted)
+        self.shares: dict[str, Share] = {}  # other GS -> where its key stands (made when first needed)
+        self.drone_links: set[str] = set()  # GSs the drone already holds keys for (its status)
+        self.last_share_try: float | None = None
+        self.grant_sent: float | None = None
+        self._allowed: frozenset[Any] = frozenset()
+
+    # ------------------------------------------------------------------ queries
+    def asking(self, g: str) -> bool:
+        return g in self.shares and self.shares[g].phase is SharePhase.ASKED
+
+    def granting(self, g: str) -> bool:
+        return g in self.shares and self.shares[g].phase is SharePhase.GRANTING
+
+    def granted(self, g: str) -> bool:
+        return g in self.shares and self.shares[g].phase is SharePhase.GRANTED
+
+    @property
+    def grants_pending(self) -> bool:
+        """A key grant waits for the drone's acknowledgement."""
+        return any(s.phase is SharePhase.GRANTING for s in self.shares.values())
+
+    def live_refused(self, g: str) -> float | None:
+        return self.shares[g].live_refused if g in self.shares else None
+
+    def deadline(self, now: float, sharing: bool) -> float | None:
+        """When, after ``now``, the timer next matters for these exchanges (``sharing``: we hold the
+        drone's authority); None: only an input moves them."""
+        due: list[float] = []
+        if self.pair_phase is PairPhase.ASKING:
+            due.append(self.pairing_deadline)
+        if sharing:
+            for s in self.shares.values():
+                if s.phase is SharePhase.ASKED and s.ask is not None:
+                    due.append(s.ask.deadline if s.ask_again is None else min(s.ask.deadline, s.ask_again))
+            if self.grants_pending and self.grant_sent is not None:
+                due.append(self.grant_sent + GRANT_RESEND_S)
+            needed = any(s.phase is SharePhase.NONE and g not in self.drone_links for g, s in self.shares.items())
+            if needed and self.last_share_try is not None:
+                due.append(self.last_share_try + RETRY_S)
+        later = [d for d in due if d > now]
+        return min(later) if later else None
+
+    def pair_retry_due(self, now: float, retry: float) -> float | None:
+        """When a ``PairDue`` with ``retry`` may next start an exchange (None: at once)."""
+        due = [self.pairing_deadline] if self.pair_phase is PairPhase.ASKING else []
+        if self.last_pair_try is not None:
+            due.append(self.last_pair_try + retry)
+        return max(due) if due else None
+
+    # ------------------------------------------------------------------ pairing
+    def on_pair(self, ev: PairDue | PairReply) -> tuple[list[Action], Paired | None]:
+        """Apply a pairing event: the actions, and the new key if a reply proved it."""
+        if self.pair_phase is PairPhase.ASKING and isinstance(ev, PairDue) and ev.now >= self.pairing_deadline:
+            self._set_state(None, PairPhase.IDLE, "deadline")  # the exchange expired unanswered
+        if self.pair_phase is PairPhase.ASKING and isinstance(ev, PairReply) and ev.now >= self.pairing_deadline:
+            self._set_state(None, PairPhase.IDLE, "deadline")
+        row = PAIR_TABLE.get((self.pair_phase, type(ev)))
+        if row is None:
+            return [], None
+        handler, self._allowed = row
+        return handler(self, ev)
+
+    def _pair_start(self, ev: PairDue) -> tuple[list[Action], Paired | None]:
+        """Send a message 1 (stamped with our time of day: the drone refuses an old one) unless the
+        last try was less than ``retry`` ago."""
+        if not _due(self.last_pair_try, ev.now, ev.retry):
+            return [], None
+        c = self.ctx
+        self.last_pair_try = ev.now
+        c.counters["pair_sent"] += 1
+        self.pairing = PairingInitiator(c.identity, c.gs, c.drone, c.fleet.nodes[c.drone].public_bytes, stamp=ev.stamp)
+        self.pairing_deadline = ev.now + ev.timeout
+        self._set_state(None, PairPhase.ASKING, "message 1")
+        return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
+
+    def _pair_late(self, ev: PairReply) -> tuple[list[Action], Paired | None]:
+        self.ctx.counters["pair_reply_late"] += 1
+        return [], None
+
+    def _pair_reply(self, ev: PairReply) -> tuple[list[Action], Paired | None]:
+        c = self.ctx
+        assert self.pairing is not None
+        if ev.ok is None:
+            reason = (ev.err or b"error").decode(errors="replace")[:200]
+            c.counters["pair_refused"] += 1
+            if c.counters["pair_refused"] > LOGGED:
+                return [], None
+            log.warning("pairing with %s refused: %s", c.drone, reason)
+            return [Emit(rec.GsPairRefused(drone=c.drone, reason=reason))], None
+        key = self.pairing.finish(ev.ok)
+        if isinstance(key, PairingFailed):
+            c.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
+            return ([Emit(rec.PairFailed(drone=c.drone, reason=key.reason))] if c.counters["pair_bad_reply"] <= LOGGED
+                    else []), None
+        kept = self.pairing.peer_kept_key
+        self.pairing = None
+        self._set_state(None, PairPhase.IDLE, "paired")
+        return [], Paired(key, kept=kept)
+
+    def abandon_pairing(self) -> None:
+        """Forget the open exchange (our static key changed: its reply could only give the old one)."""
+        self.pairing = None
+        self._allowed = frozenset({PairPhase.IDLE})
+        self._set_state(None, PairPhase.IDLE, "abandoned")
+
+    # ------------------------------------------------------------------ key sharing
+    def keys_lost(self, now: float) -> None:
+        """The drone restarted with no key but ours: every key shared for it must be shared again."""
+        self.lost_key_at = now  # authenticated: the drone's message 2 said it no longer held our key
+        for g in self.shares:
+            self._share(g, KeysLost(now))
+        self.drone_links = {self.ctx.gs}
+
+    def others(self) -> list[str]:
+        """The other GSs authorized for the drone, in the fleet as it is now (a revision may change it)."""
+        c = self.ctx
+        return [g for g in c.fleet.nodes[c.drone].authorized_gs if g != c.gs]
+
+    def share_keys(self, now: float, wall: float, send_control: Callable[[wire.Control], list[Action]]) -> list[Action]:
+        """As authority: ask the other authorized GSs for their link keys; grant them to the drone."""
+        out: list[Action] = []
+        for g in self.others():
+            self.shares.setdefault(g, Share())
+            out += self._share(g, ShareDue(now, wall))
+        if self.grants_pending and _due(self.grant_sent, now, GRANT_RESEND_S):
+            self.grant_sent = now
+            for s in self.shares.values():
+                if s.phase is SharePhase.GRANTING:
+                    assert s.grant is not None
+                    out += send_control(s.grant)
+        return out
+
+    def on_share_reply(self, g: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
+        if g not in self.shares:
+            return self._reply_unasked(g, ShareReply(now, ok, err))
+        return self._share(g, ShareReply(now, ok, err))
+
+    def on_grant_ack(self, g: str, grant_id: int, now: float) -> list[Action]:
+        return self._share(g, GrantAcked(now, grant_id)) if g in self.shares else []
+
+    def _share(self, g: str, ev: Any) -> list[Action]:
+        row = SHARE_TABLE.get((self.shares[g].phase, type(ev)))
+        if row is None:
+            return []
+        handler, self._allowed = row
+        return handler(self, g, ev)
+
+    def _ask(self, g: str, ev: ShareDue) -> list[Action]:
+        s, c = self.shares[g], self.ctx
+        if g in self.drone_links:
+            return []
+        if s.ask_again is None and not _due(self.last_share_try, ev.now, RETRY_S):
+            return []
+        s.ask_again = None
+        self.last_share_try = ev.now
+        s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall)
+        self._set_state(g, SharePhase.ASKED, "asked")
+        return [Ask(AskKind.LINKKEY, c.drone, g, kx.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
+
+    def _ask_over(self, g: str, ev: ShareDue) -> list[Action]:
+        """An open query: past its deadline (no answer) or its "live link" retry, asked again."""
+        s = self.shares[g]
+        assert s.ask is not None
+        if not s.ask.expired(ev.now) and (s.ask_again is None or ev.now < s.ask_again):
+            return []
+        self.ctx.counters["linkkey_no_answer" if s.ask_again is None else "linkkey_asked_again"] += 1
+        s.ask = None
+        self._set_state(g, SharePhase.NONE, "ask over")
+        return self._ask(g, ev)
+
+    def _reply(self, g: str, ev: ShareReply) -> list[Action]:
+        s, c = self.shares[g], self.ctx
+        if ev.ok is None:
+            c.counters["linkkey_reply_error"] += 1
+            if ev.err == ShareRefusal.LIVE_LINK.value.encode():
+                s.ask_again = ev.now + LIVE_LINK_RETRY_S  # soon: its link is about to be LOST
+                s.live_refused = ev.now
+            return self._reply_error(g, ev)
+        assert s.ask is not None
+        secret = s.ask.on_reply(ev.ok, ev.now)
+        if isinstance(secret, Refused):
+            key = f"linkkey_reply:{secret.reason.value}"
+            c.counters[key] += 1
+            if c.counters[key] > LOGGED:
+                return []
+            log.warning("key-sharing reply for %s from %s refused: %s", c.drone, g, secret.reason.value)
+            return [Emit(rec.LinkkeyBadReply(drone=c.drone, gs=g, reason=secret.reason.value))]
+        s.ask, s.ask_again = None, None
+        s.grant = wire.KeyGrant(g, c.fleet.nodes[g].sysid, secret, next(c.grant_ids))
+        self.grant_sent = None
+        self._set_state(g, SharePhase.GRANTING, "reply")
+        return [Emit(rec.LinkkeyReceived(drone=c.drone, gs=g))]
+
+    def _reply_error(self, g: str, ev: ShareReply) -> list[Action]:
+        c = self.ctx
+        if c.counters["linkkey_reply_error"] > LOGGED:  # the first few in the log; all in the counters
+            return []
+        return [Emit(rec.LinkkeyError(drone=c.drone, gs=g, reason=(ev.err or b"").decode(errors="replace")[:120]))]
+
+    def _reply_unasked(self, g: str, ev: ShareReply) -> list[Action]:
+        if ev.ok is None:
+            self.ctx.counters["linkkey_reply_error"] += 1
+            return self._reply_error(g, ev)
+        self.ctx.counters["linkkey_reply:not_waiting"] += 1
+        return []
+
+    def _acked(self, g: str, ev: GrantAcked) -> list[Action]:
+        s = self.shares[g]
+        assert s.grant is not None
+        if s.grant.grant_id != ev.grant_id:
+            return []
+        s.grant = None
+        self._set_state(g, SharePhase.GRANTED, "acknowledged")
+        return [Emit(rec.KeyGranted(drone=self.ctx.drone, gs=g))]
+
+    def _forget(self, g: str, ev: KeysLost) -> list[Action]:
+        self.shares[g].grant = None
+        self._set_state(g, SharePhase.NONE, "keys lost")
+        return []
+
+    # ------------------------------------------------------------------ engine
+    def _set_state(self, g: str | None, new: Any, why: str) -> None:
+        """Move the pairing exchange (``g`` None) or the key sharing for ``g`` to ``new``."""
+        old = self.pair_phase if g is None else self.shares[g].phase
+        if new is old:
+            return
+        if why != "deadline" and new not in self._allowed:
+            raise IllegalPhase(f"{self.ctx.drone}: {old.value} -> {new.value} is not in the table")
+        what = "pairing" if g is None else f"key of {g}"
+        log.debug("%s, %s: %s -> %s (%s)", self.ctx.drone, what, old.value, new.value, why)
+        if g is None:
+            self.pair_phase = new
+        else:
+            self.shares[g].phase = new
+
+
+class KeyOwner:
+    """Key sharing as the owner of our links: answering other GSs' queries (one per GS)."""
+
+    def __init__(self, identity: Identity, gs: str, fleet: Fleet, counters: Counter[str]) -> None:
+        self.gs, self.fleet, self.counters = gs, fleet, counters
+        self.adopt(identity)
+
+    def adopt(self, identity: Identity) -> None:
+        """Answer under ``identity`` from now on (our static key was rotated)."""
+        self.responder = KeyShareResponder(identity, self.gs, LINKKEY_RATE, LINKKEY_BURST)
+
+    def refused(self, logs: list[Action], reason: ShareRefusal, drone: str, asker: str, detail: str = "") -> QueryAnswer:
+        key = f"linkkey_refused:{reason.value}"
+        self.counters[key] += 1
+        if self.counters[key] <= LOGGED:  # the first few in the log; all of them in the counters
+            logs.append(Emit(rec.LinkkeyRefused(drone=drone, asker=asker, reason=reason.value, detail=detail)))
+        crypto = reason is ShareRefusal.AUTH_FAILED
+        if reason in (ShareRefusal.RATE_LIMITED, ShareRefusal.BAD_MAC, ShareRefusal.STALE):
+            return QueryAnswer(crypto=crypto)  # no answer at all: the cheapest refusal
+        return QueryAnswer(error=reason.value.encode(), crypto=crypto)
+
+    def answer(self, drone: str, payload: bytes, now: float, secret: bytes, wall: float | None, serves: bool,
+               live: bool) -> tuple[QueryAnswer, list[Action], str | None]:
+        """One query for link (``drone``, us): the answer, the logs, and the asker whose candidate key
+        ``secret`` now is (None: nothing handed out). ``serves``: we serve the drone; ``live``: our
+        own link with it is not LOST.
+
+        Refusals before any crypto: malformed, unknown asker, not authorized for the drone, our link
+        alive; then the cheap tag, a repeated message 1 (its first answer again), the asker's rate
+        limit (charged only for authentic queries), and the handshake (``KeyShareResponder``)."""
+        logs: list[Action] = []
+        req = decode_query(payload)
+        if isinstance(req, Refused):
+            return self.refused(logs, req.reason, drone, "?", req.detail), logs, None
+        asker = self.fleet.nodes.get(req.asker)
+        if asker is None or asker.role != "gs" or req.asker == self.gs:
+            return self.refused(logs, ShareRefusal.UNKNOWN_ASKER, drone, req.asker), logs, None
+        if not serves or not self.fleet.is_authorized(drone, req.asker) or not self.fleet.is_authorized(drone, self.gs):
+            return self.refused(logs, ShareRefusal.UNAUTHORIZED, drone, req.asker), logs, None
+        if live:
+            # our own link is alive (we may even hold authority): nobody needs a new key for it, and a
+            # secret handed out now could only serve whoever asked (issue 18: key escrow)
+            return self.refused(logs, ShareRefusal.LIVE_LINK, drone, req.asker), logs, None
+        out = self.responder.answer(drone, req.asker, asker.public_bytes, req.m1, now, secret, wall)
+        if isinstance(out, Refused):  # forged, over the rate limit, or claimed without the key
+            return self.refused(logs, out.reason, drone, req.asker, out.detail), logs, None
+        reply, fresh = out
+        if not fresh:
+            self.counters["linkkey_repeated"] += 1  # a replay or a retransmission: same answer, nothing new
+            return QueryAnswer(reply=reply), logs, None
+        self.counters["linkkey_shared"] += 1
+        logs.append(Emit(rec.LinkkeyShared(drone=drone, asker=req.asker)))
+        log.info("link key for (%s, %s) shared with %s (pending the drone's proof)", drone, self.gs, req.asker)
+        return QueryAnswer(reply=reply, crypto=True), logs, req.asker
+
+
+P, S = PairPhase, SharePhase
+#: The pairing exchange: (phase, event type) -> (handler, the phases it may move to). An exchange
+#: past its deadline is IDLE before the table is read.
+PAIR_TABLE: dict[tuple[PairPhase, type], tuple[Callable[..., Any], frozenset[PairPhase]]] = {
+    (P.IDLE, PairDue): (Linking._pair_start, frozenset({P.ASKING})),
+    (P.IDLE, PairReply): (Linking._pair_late, frozenset()),
+    (P.ASKING, PairReply): (Linking._pair_reply, frozenset({P.IDLE})),
+}
+# Not listed: PairDue while ASKING (the exchange is open until its deadline).
+
+#: Key sharing for one other GS: (phase, event type) -> (handler, the phases it may move to).
+SHARE_TABLE: dict[tuple[SharePhase, type], tuple[Callable[..., Any], frozenset[SharePhase]]] = {
+    (S.NONE, ShareDue): (Linking._ask, frozenset({S.ASKED})),
+    (S.ASKED, ShareDue): (Linking._ask_over, frozenset({S.NONE, S.ASKED})),
+    (S.ASKED, ShareReply): (Linking._reply, frozenset({S.GRANTING})),
+    (S.NONE, ShareReply): (Linking._reply_unasked, frozenset()),
+    (S.GRANTING, ShareReply): (Linking._reply_unasked, frozenset()),
+    (S.GRANTED, ShareReply): (Linking._reply_unasked, frozenset()),
+    (S.GRANTING, GrantAcked): (Linking._acked, frozenset({S.GRANTED})),
+    (S.GRANTING, KeysLost): (Linking._forget, frozenset({S.NONE})),
+    (S.GRANTED, KeysLost): (Linking._forget, frozenset({S.NONE})),
+}
+# Not listed: ShareDue while GRANTING or GRANTED (the grant is re-sent by share_keys; granted is
+# done), an acknowledgement of no grant of ours, KeysLost while NONE or ASKED (the query stands).
