@@ -84,13 +84,20 @@ def _node(base: Fleet, node: str, role: str | None = None) -> None:
         raise ConfigError(f"node {node!r}: not a {'ground station' if role == 'gs' else role}")
 
 
-def revoke(where: str | Path, node: str, note: str = "") -> Revised:
+def _live_node(where: str | Path, node: str, revoked: str) -> Path:
+    """The fleet directory, once ``node`` is known to be a node of it not revoked yet (``revoked``:
+    what to say if it is)."""
     d = _fleet_dir(where)
     base = load_base_fleet(d)
     _node(base, node)
     current = load_revision(d, base)
     if current is not None and node in current.changes.revoked:
-        raise ConfigError(f"node {node!r}: already revoked (revision {current.number})")
+        raise ConfigError(f"node {node!r}: {revoked} (revision {current.number})")
+    return d
+
+
+def revoke(where: str | Path, node: str, note: str = "") -> Revised:
+    d = _live_node(where, node, "already revoked")
     return _next(d, lambda c: with_revoked(c, node), note or f"revoke {node}")
 
 
@@ -98,12 +105,7 @@ def rotate(where: str | Path, node: str, out: str | Path | None = None, note: st
            password: bool = False) -> Revised:
     """New keys for ``node`` (and with ``password`` a new router password and TLS certificate); its
     bundle re-exported into ``out`` (a new folder)."""
-    d = _fleet_dir(where)
-    base = load_base_fleet(d)
-    _node(base, node)
-    current = load_revision(d, base)
-    if current is not None and node in current.changes.revoked:
-        raise ConfigError(f"node {node!r}: revoked (revision {current.number}): a revoked node is not rotated")
+    d = _live_node(where, node, "revoked: a revoked node is not rotated")
     if out is not None and Path(out).exists() and (not Path(out).is_dir() or any(Path(out).iterdir())):
         raise ConfigError(f"{out}: exists and is not an empty folder (a bundle is written into a new one)")
     ident, signing = Identity.generate(), SigningKey.generate()
