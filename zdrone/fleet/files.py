@@ -78,10 +78,11 @@ def fleet_path(where: str | Path) -> Path:
     return p if p.suffix in (".json5", ".json") else p / FLEET_FILE
 
 
-def write_durably(path: Path, data: bytes) -> None:
+def write_durably(path: Path, data: bytes, writer: str = "") -> None:
     """Replace ``path`` with ``data`` atomically and durably, mode 0600: a temporary file written and
-    fsynced, renamed over ``path``, the directory fsynced (a crash leaves the old file or the new)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
+    fsynced, renamed over ``path``, the directory fsynced (a crash leaves the old file or the new).
+    ``writer`` names the temporary file when several writers share the folder."""
+    tmp = path.with_suffix(path.suffix + (f".{writer}" if writer else "") + ".tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     try:
         os.fchmod(fd, 0o600)

@@ -47,8 +47,8 @@ MAX_REVISION_BYTES = 256 * 1024
 class RevisionKeeper:
     """The revision in force at one node, and what was refused (``counters``)."""
 
-    def __init__(self, fleet_dir: str | Path) -> None:
-        self.fleet_dir = Path(fleet_dir)
+    def __init__(self, fleet_dir: str | Path, name: str = "") -> None:
+        self.fleet_dir, self.name = Path(fleet_dir), name
         self.base: Fleet = load_base_fleet(fleet_dir)
         self.current: Revision | None = load_revision(fleet_dir, self.base)
         self.data: bytes | None = encode_revision(self.current) if self.current is not None else None
@@ -71,8 +71,12 @@ class RevisionKeeper:
         if isinstance(got, RevisionRefused):
             self.counters[f"refused:{got.reason.value}"] += 1
             return got
-        write_durably(self.store_path(), data)
-        os.chmod(self.store_path(), 0o644)
+        try:  # kept before it is applied; a folder that cannot take it is counted, the revision applied all the same
+            write_durably(self.store_path(), data, writer=f"{self.name}.{os.getpid()}")
+            os.chmod(self.store_path(), 0o644)
+        except OSError as exc:
+            self.counters["store_failed"] += 1
+            log.error("fleet revision %d not kept in %s: %s", got.revision.number, self.store_path(), exc)
         self.current, self.data = got.revision, data
         self.counters["applied"] += 1
         log.warning("fleet revision %d applied (revoked: %s)", got.revision.number,
@@ -99,7 +103,7 @@ class RevisionChannel:
         from .keyexprs import revision
 
         self.rt, self.key = rt, revision()
-        self.keeper = RevisionKeeper(fleet_dir)
+        self.keeper = RevisionKeeper(fleet_dir, rt.name)
         self.write_applied = write_applied  # the drone's core writes its own record
         rt.subscribe(self.key, PUBLISHED, lambda _k: "fleet", limit=MAX_REVISION_BYTES)
         self.queries = rt.queryable(self.key)
