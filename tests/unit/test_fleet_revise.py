@@ -83,3 +83,24 @@ def test_revisions_are_made_only_where_the_offline_key_is(fleet_dir, tmp_path, c
     export_bundle(fleet_dir, "A", tmp_path / "A")
     assert main(["fleet", "revoke", "B", "--dir", str(tmp_path / "A")]) == 2
     assert "offline keys" in capsys.readouterr().err
+
+
+def test_a_node_keeps_the_next_revision_durably_and_counts_the_rest(fleet_dir, tmp_path, monkeypatch):
+    from zdrone.core.revision import RevisionRefused
+    from zdrone.fleet.revisions import RevisionKeeper
+
+    export_bundle(fleet_dir, "d1", tmp_path / "d1")
+    state = tmp_path / "state"
+    state.mkdir()
+    monkeypatch.setenv("ZDRONE_STATE_DIR", str(state))
+    keeper = RevisionKeeper(tmp_path / "d1", "d1")
+    main(["fleet", "revoke", "B", "--dir", str(fleet_dir)])
+    data = (fleet_dir / REVISION_FILE).read_bytes()
+    assert isinstance(keeper.offer(data), RevisionAccepted) and (state / REVISION_FILE).read_bytes() == data
+    assert isinstance(keeper.offer(data), RevisionRefused) and isinstance(keeper.offer(b"\xff" * 9), RevisionRefused)
+    assert keeper.stats() == {"number": 1, "applied": 1, "refused:replayed": 1, "refused:malformed": 1}
+    assert load_fleet(tmp_path / "d1").is_revoked("B")  # a restart comes back under it
+    monkeypatch.setenv("ZDRONE_STATE_DIR", str(tmp_path / "gone"))  # a folder that cannot take it:
+    main(["fleet", "revoke", "X", "--dir", str(fleet_dir)])  # counted, applied all the same
+    assert isinstance(keeper.offer((fleet_dir / REVISION_FILE).read_bytes()), RevisionAccepted)
+    assert keeper.counters["store_failed"] == 1 and keeper.number == 2
