@@ -245,8 +245,16 @@ def _bench_attack(args: argparse.Namespace) -> int:
         raise UsageError(f"--rate {args.rate:g}: must be 1..100000 queries/s")
     if not 1.0 <= args.junk_rate <= 1_000_000.0:
         raise UsageError(f"--junk-rate {args.junk_rate:g}: must be 1..1000000 puts/s")
+    sizes = None
+    if args.radio_sizes is not None:
+        try:
+            sizes = [int(x) for x in args.radio_sizes.split(",") if x]
+        except ValueError:
+            raise UsageError(f"--radio-sizes {args.radio_sizes!r}: expected byte counts like 500,1000,60000") from None
+        if not all(2 <= x <= 1 << 20 for x in sizes):
+            raise UsageError("--radio-sizes: each 2..1048576 bytes")
     result = attack.run(quick=args.quick, scenarios=names, trials=args.trials, rate=args.rate, progress=not args.json,
-                        junk_rate=args.junk_rate, junk_trials=args.junk_trials)
+                        junk_rate=args.junk_rate, junk_trials=args.junk_trials, radio_sizes=sizes)
     _emit(args, result, attack.render)
     return 0 if result["all_ok"] else 1
 
@@ -368,6 +376,9 @@ def build_parser() -> argparse.ArgumentParser:
     ba.add_argument("--junk-trials", type=int, metavar="N",
                     help="trials of A's link under junk on B's key (default 3; --quick: none)")
     ba.add_argument("--junk-rate", type=float, default=80_000.0, metavar="P", help="junk puts per second on up/B (80000)")
+    ba.add_argument("--radio-sizes", metavar="B,B,…",
+                    help="junk floods on up/B over a 4 Mbit/s shaped radio (root), bytes per envelope "
+                         "(default 500,1000,60000; --quick: none; '' for none)")
     ba.set_defaults(func=_bench_attack)
     bk = bsub.add_parser("soak", help="one long shuttle flight under a 20 Hz command stream; memory, descriptors, "
                                       "threads and CPU of every process over it")

@@ -22,10 +22,21 @@ publishes junk on ``zdrone/<drone>/up/B`` at ``--junk-rate`` puts per second (80
 the drone's log: the worst TBM state of A's link and its longest stretch out of OK during the flood,
 the longest silence of A's link seen in its status, and how much of the flood reached the drone
 (its security module's drops on B's link). Goal: A never LOST, never out of OK for more than 1 s.
+
+Part 4 floods over a slow radio (root: a network namespace). The drone and its simulator alone in a
+namespace behind one veth pair shaped to ``RADIO_KBIT`` (4 Mbit/s) each way (``tc tbf``, a 200 ms
+queue: ``sil.netns.ShapedRadio``); the router, A, B and the attacker on the host. As in part 3 A
+holds authority in the overlap and the drone listens to B's uplink; an attacker with B's router
+password floods every lane of ``up/B`` with ``--size`` bytes per envelope, far above the radio
+(``RADIO_FLOOD_RATE`` puts/s), for 10 s: 500 bytes (under the uplink's size limit: the router passes
+B's budget, ``UPLINK_MAX_BYTES_S``, a fifth of the radio), 1 000 and 60 000 bytes (over it: none
+enters the router). From the drone's log: A's frames lost over the flood (its link's ``missing``
+count), A's worst TBM state, the owners (no hand-over) and failsafes. Goal: A loses 0 frames.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -34,6 +45,8 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+import json5
 
 from pymavlink.dialects.v20.common import MAV_LANDED_STATE_IN_AIR
 
@@ -56,6 +69,10 @@ JUNK_SECONDS = 10.0
 JUNK_EAST_M = 200.0
 #: A's link may leave OK for at most this long under the flood (and never be LOST).
 JUNK_NOT_OK_GOAL_S = 1.0
+#: The shaped radio's rate each way (kbit/s), the flood's puts per second and its envelope sizes.
+RADIO_KBIT = 4000
+RADIO_FLOOD_RATE = 4000.0
+RADIO_FLOOD_SIZES = (500, 1000, 60_000)
 
 
 # ----------------------------------------------------------------- part 1: scenarios
@@ -254,6 +271,91 @@ def _junk_flood_trial(base: Path, i: int, rate: float) -> dict[str, Any]:
     return row
 
 
+def _a_missing(events: list[AnyRecord], before: float | None = None) -> int | None:
+    """A's frames the drone counted missing, in its last status (before ``before``)."""
+    st = [e for e in only(events, DroneStatus) if "A" in e.links and (before is None or e.t < before)]
+    return st[-1].links["A"].missing if st else None
+
+
+def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD_RATE, budget: bool = True) -> dict[str, Any]:
+    """One trial: the drone behind a 4 Mbit/s radio, A holding authority, ``size``-byte junk on up/B.
+    Without ``budget`` (a what-if, the control): the router's rate budgets taken out of its config."""
+    from ..fleet.files import init_fleet
+    from ..fleet.routerconfig import UPLINK_MAX_BYTES, UPLINK_MAX_BYTES_S
+    from ..sil.netns import NetnsError, ShapedRadio
+
+    d = base / f"shaped-radio-{size}-{i}{'' if budget else '-no-budget'}"
+    d.mkdir(parents=True, exist_ok=True)
+    row: dict[str, Any] = {"size": size, "budget": budget, "target_rate_per_s": rate, "radio_kbit": RADIO_KBIT,
+                           "passes_router": size <= UPLINK_MAX_BYTES,
+                           "budget_kbit": (round(UPLINK_MAX_BYTES_S * 8 / 1000) if budget else None) if size <= UPLINK_MAX_BYTES else 0}
+    radio = ShapedRadio(RADIO_KBIT)
+    try:
+        radio.create()
+    except NetnsError as exc:
+        return row | {"error": f"no shaped radio here: {exc}", "ok": False, "skipped": True}
+    demo = Demo(DemoOptions(out=d, speedup=1.0, quiet=True, live=False, report=False, command_rate=0.0), d.resolve())
+    demo.netns = radio  # type: ignore[assignment]  # children with ns= run behind the radio; shutdown removes it
+    spot = offset(HOME, 0.0, JUNK_EAST_M)
+    try:
+        init_fleet(d / "fleet")
+        if not budget:
+            cfg_path = d / "fleet" / "router" / "router.json5"
+            cfg = json5.loads(cfg_path.read_text())
+            cfg.pop("downsampling", None)
+            cfg_path.write_text(json.dumps(cfg, indent=2))
+        port, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
+        local, far = f"tcp/127.0.0.1:{port}", f"tcp/{radio.host_ip}:{port}"
+        z = ["-m", "zdrone", "-v"]
+        r = demo.start("router", z + ["router", "-c", "fleet/router/router.json5", "--listen", local, "--listen", far])
+        demo.wait_line(r, "listening", 20)
+        sim = demo.start("sim", z + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--home", f"{spot.lat:.7f},{spot.lon:.7f}"],
+                         ns=radio.ns)
+        demo.wait_line(sim, "zdrone sim:", 20)
+        drone = demo.start("drone", z + ["drone", "--id", "d1", "--fleet", "fleet", "--router", far, "--vehicle",
+                                         f"udpout:127.0.0.1:{sport}", "--events", "drone.jsonl"], ns=radio.ns)
+        demo.wait_line(drone, "ready", 40)
+        for gs, extra in (("B", []), ("A", ["--pair"])):
+            demo.wait_line(demo.start(f"gs{gs}", z + ["gs", "--id", gs, "--fleet", "fleet", "--router", local,
+                                                       "--events", f"{gs}.jsonl", *extra]), f"zdrone gs {gs}", 20)
+        if _wait_event(d / "drone.jsonl", Paired, 30.0) is None:
+            raise RuntimeError("A did not pair")
+        deadline = time.monotonic() + 30.0
+        while not _b_heard(d / "drone.jsonl"):
+            if time.monotonic() > deadline:
+                raise RuntimeError("the drone never listened to B's uplink")
+            time.sleep(0.2)
+        time.sleep(2.0)  # A's link settled (two statuses)
+        rogue = demo.start("rogue-junk-flood", ["-m", "zdrone.sil.rogue", "--mode", "junk-flood", "--fleet", "fleet",
+                                                "--router", local, "--duration", f"{JUNK_SECONDS:.2f}", "--rate",
+                                                str(rate), "--size", str(size), "--events", "rogue.jsonl"])
+        demo.wait_line(rogue, "rogue: flooding", 30)
+        t0 = time.time()
+        demo.wait_line(rogue, "rogue: flood done", JUNK_SECONDS + 60)
+        t1 = time.time()
+        time.sleep(2.0)  # the drone's next statuses (and frames still queued in the radio)
+        events = read_records(d / "drone.jsonl").records
+        done = next((fields_of(e) for e in read_records(d / "rogue.jsonl").records if record_type(e) == "attack_done"), {})
+        worst, not_ok = _not_ok_periods(events, "A", t0, t1 + 2.0)
+        during = [e for e in only(events, DroneStatus) if t0 <= e.t <= t1 + 2.0]
+        m0, m1 = _a_missing(events, t0), _a_missing(events)
+        b = [e.links["B"] for e in during if "B" in e.links]
+        row |= {"flood_rate_per_s": done.get("rate"), "sent": done.get("sent"),
+                "offered_kbit": round((done.get("rate") or 0) * size * 8 / 1000),
+                "a_lost": None if m0 is None or m1 is None else m1 - m0, "a_worst_state": worst.upper(),
+                "a_longest_not_ok_s": not_ok, "owners": sorted({e.owner or "-" for e in during}),
+                "failsafes": len(only(events, Failsafe)),
+                "junk_reached_drone": (sum(b[-1].dropped.values()) - sum(b[0].dropped.values())) if len(b) > 1 else None}
+        row["ok"] = (row["a_lost"] == 0 and worst == "ok" and row["owners"] == ["A"] and row["failsafes"] == 0)
+        if not budget:  # the control: the flood must hurt A when nothing bounds it, or the radio shapes nothing
+            row["ok"] = bool(row["a_lost"]) or worst != "ok"
+    except RuntimeError as exc:
+        row |= {"error": str(exc), "ok": False}
+    finally:
+        demo.shutdown()  # and the radio's namespace
+    return row
+
+
 def _b_heard(path: Path) -> bool:
     """B's key is proven on the drone and the drone listens to B's uplink."""
     if not path.exists():
@@ -276,7 +378,8 @@ def _stats(vals: list[float]) -> dict[str, float | None]:
 
 
 def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | None = None, rate: float = DEFAULT_RATE,
-        progress: bool = True, junk_rate: float = JUNK_RATE, junk_trials: int | None = None) -> dict[str, Any]:
+        progress: bool = True, junk_rate: float = JUNK_RATE, junk_trials: int | None = None,
+        radio_sizes: list[int] | None = None) -> dict[str, Any]:
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-attack-"))
     names = scenarios if scenarios is not None else (["pair-flood"] if quick else list(ATTACK_SCENARIOS))
     m = trials if trials is not None else (1 if quick else 3)
@@ -298,6 +401,13 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
     for i in range(junk_trials if junk_trials is not None else (0 if quick else 3)):
         status.say(f"A's link under {junk_rate:.0f}/s junk on up/B: trial {i + 1}")
         junk.append(_junk_flood_trial(base, i, junk_rate))
+    radio = []
+    for size in radio_sizes if radio_sizes is not None else ([] if quick else list(RADIO_FLOOD_SIZES)):
+        status.say(f"A's link over a {RADIO_KBIT / 1000:g} Mbit/s radio under {size}-byte junk on up/B")
+        radio.append(_shaped_radio_trial(base, 0, size))
+    if radio and not quick and radio_sizes is None:
+        status.say("the control: the same flood of 500-byte junk with the router's budgets taken out")
+        radio.append(_shaped_radio_trial(base, 0, 500, budget=False))
     status.close()
     late = [r["detect_to_command_ms"] for r in flood if r.get("detect_to_command_ms") is not None]
     per_q = [r["cpu_us_per_query"] for r in flood if r.get("cpu_us_per_query") is not None]
@@ -313,8 +423,9 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
                 "missing": m - len(late), "goal_ms": 100.0},
             "authority_link_under_junk_flood": {"target_rate_per_s": junk_rate, "flood_s": JUNK_SECONDS,
                                                 "goal_not_ok_s": JUNK_NOT_OK_GOAL_S, "trials": junk},
+            "shaped_radio_floods": {"radio_kbit": RADIO_KBIT, "flood_s": JUNK_SECONDS, "goal_a_lost": 0, "trials": radio},
             "all_ok": all(r["ok"] for r in rows) and len(late) == m and all(v <= 100.0 for v in late)
-            and all(t["ok"] for t in junk),
+            and all(t["ok"] for t in junk) and all(t["ok"] or t.get("skipped") for t in radio),
             "wall_s": round(time.monotonic() - t0, 1), "runs": str(base)}
 
 
@@ -363,3 +474,17 @@ def render(r: dict[str, Any]) -> None:
                     ["trial", "junk/s sent", "junk/s at drone", "A worst", "A out of OK s", "A silence s",
                      "authority", "drone CPU %", "result"], rows,
                     caption=f"goal: A never LOST, out of OK <= {j['goal_not_ok_s']:.0f} s")
+    q = r.get("shaped_radio_floods")
+    if q and q["trials"]:
+        rows = [[f"{t['size']} B" + ("" if t.get("budget", True) else " (control: no budget)"),
+                 "yes" if t.get("passes_router") else "no (size)", t.get("budget_kbit") or "-",
+                 t.get("offered_kbit", "-"), t.get("junk_reached_drone", "-"), t.get("a_lost", "-"),
+                 t.get("a_worst_state", "-"), t.get("a_longest_not_ok_s", "-"), ",".join(t.get("owners", [])) or "-", t.get("failsafes", "-"),
+                 "OK" if t["ok"] else ("skipped: " if t.get("skipped") else "FAILED") + (f": {t['error']}" if "error" in t else "")]
+                for t in q["trials"]]
+        print_table(f"A's link over a {q['radio_kbit'] / 1000:g} Mbit/s shaped radio under junk on up/B with B's password "
+                    f"({q['flood_s']:.0f} s; A holds authority, vehicle in the overlap, B linked)",
+                    ["envelope", "enters router", "B's budget kbit/s", "offered kbit/s", "junk at drone", "A lost",
+                     "A worst", "A out of OK s", "authority", "failsafes", "result"], rows,
+                    caption="goal: A loses 0 frames, no hand-over, no failsafe; the control (the router's budgets "
+                            "taken out) must hurt A, or the radio shaped nothing")

@@ -160,3 +160,61 @@ class NetnsTopology:
             else:
                 subprocess.run(["ip", "netns", "del", made], capture_output=True, timeout=10)
         self._made.clear()
+
+
+class ShapedRadio:
+    """The drone alone in a network namespace behind one radio: a veth pair from the host
+    (``host_ip``) to the drone's namespace (``drone_ip``), shaped to ``rate_kbit`` each way by a
+    token bucket (``tc tbf``) with a queue of ``queue_ms`` at that rate, as a slow radio is. Root
+    only; ``destroy`` removes the namespace and the pair."""
+
+    def __init__(self, rate_kbit: int = 4000, queue_ms: int = 200) -> None:
+        self.rate_kbit, self.queue_ms = rate_kbit, queue_ms
+        self.tag = f"{os.getpid() % 1000:03d}{random.randint(0, 99):02d}"
+        octet = random.randint(1, 250)
+        self.ns = f"zd{self.tag}r"
+        self.host_if, self.drone_if = f"zd{self.tag}rh", f"zd{self.tag}rd"
+        self.host_ip, self.drone_ip = f"10.235.{octet}.1", f"10.235.{octet}.2"
+        self._made: list[str] = []
+
+    def exec_prefix(self, ns: str) -> list[str]:
+        """How to run a command in namespace ``ns`` (this radio's only: the topology's interface)."""
+        if ns != self.ns:
+            raise ValueError(f"{ns}: not this radio's namespace {self.ns}")
+        return ["ip", "netns", "exec", ns]
+
+    def create(self) -> None:
+        refusal = netns_refusal() or (None if shutil.which("tc") else "a shaped radio needs iproute2 (tc)")
+        if refusal:
+            raise NetnsError(refusal)
+        try:
+            _ip("netns", "add", self.ns)
+            self._made.append(self.ns)
+            _ip("link", "set", "lo", "up", ns=self.ns)
+            _ip("link", "add", self.host_if, "type", "veth", "peer", "name", self.drone_if, "netns", self.ns)
+            self._made.append(f"link:{self.host_if}")
+            _ip("addr", "add", f"{self.host_ip}/30", "dev", self.host_if)
+            _ip("addr", "add", f"{self.drone_ip}/30", "dev", self.drone_if, ns=self.ns)
+            _ip("link", "set", self.host_if, "up")
+            _ip("link", "set", self.drone_if, "up", ns=self.ns)
+            for dev, ns in ((self.host_if, None), (self.drone_if, self.ns)):
+                self._shape(dev, ns)
+        except NetnsError:
+            self.destroy()
+            raise
+
+    def _shape(self, dev: str, ns: str | None) -> None:
+        burst = max(1600, self.rate_kbit * 1000 // 8 // 100)  # 10 ms at the rate
+        cmd = [*(["ip", "netns", "exec", ns] if ns else []), "tc", "qdisc", "replace", "dev", dev, "root", "tbf",
+               "rate", f"{self.rate_kbit}kbit", "burst", str(burst), "latency", f"{self.queue_ms}ms"]
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=10)
+        if out.returncode != 0:
+            raise NetnsError(f"{' '.join(cmd)}: {out.stderr.strip() or out.returncode}")
+
+    def destroy(self) -> None:
+        for made in reversed(self._made):
+            if made.startswith("link:"):
+                subprocess.run(["ip", "link", "del", made[5:]], capture_output=True, timeout=10)
+            else:
+                subprocess.run(["ip", "netns", "del", made], capture_output=True, timeout=10)
+        self._made.clear()

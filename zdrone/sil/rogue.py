@@ -55,16 +55,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fc-port", type=int, help="UDP port of the autopilot's TELEM2 (fc-radio)")
     p.add_argument("--vehicle-port", type=int,
                    help="UDP port the companion listens on for its autopilot (fake-autopilot)")
+    p.add_argument("--size", type=int, default=40, help="junk-flood: bytes per junk envelope (40)")
     p.add_argument("--events")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    if args.rate <= 0 or args.duration <= 0:
-        print("rogue: error: --rate and --duration must be positive", file=sys.stderr)
+    if args.rate <= 0 or args.duration <= 0 or not 2 <= args.size <= 1 << 20:
+        print("rogue: error: --rate and --duration must be positive, --size 2..1048576", file=sys.stderr)
         return 2
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
               max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port, vehicle_port=args.vehicle_port,
-              gcs_port_b=args.gcs_port_b, gcs_keys=args.gcs_keys)
+              gcs_port_b=args.gcs_port_b, gcs_keys=args.gcs_keys, size=args.size)
     # on a thread of their own: a handler in the main thread setting an event the main thread waits on
     # can deadlock it (zdrone.net.shutdown); no thread runs yet (the sessions open in the attack)
     route_signals({signal.SIGTERM: ctx.stop.set, signal.SIGUSR2: ctx.go.set})

@@ -63,6 +63,7 @@ class Ctx:
     vehicle_port: int | None = None  # fake-autopilot: the UDP port the companion listens on for its autopilot
     gcs_port_b: int | None = None  # local-app: GS B's gateway (B's operator asks for control there)
     gcs_keys: str | None = None  # local-app: A's application key file (its own operator's signed application)
+    size: int = 40  # junk-flood: bytes per junk envelope
     stop: threading.Event = field(default_factory=threading.Event)
     go: threading.Event = field(default_factory=threading.Event)
     _fleet: Fleet | None = None

@@ -13,7 +13,7 @@ router drops messages over 64 KiB; the nodes refuse the rest by their length bef
 (``up:oversize``, ``pair_refused:oversize``, ``linkkey_refused:oversize``) and fly on.
 
 ``junk-flood``: B's router password only. Publishes junk envelopes on ``zdrone/<drone>/up/B`` as fast
-as ``--rate`` asks (default 80 000/s), paced in 5 ms slices: 40 random bytes whose epoch byte is, in
+as ``--rate`` asks (default 80 000/s), paced in 5 ms slices: ``--size`` (40) random bytes whose epoch byte is, in
 turn, 0 and 1 (the live epoch and the next one of a fresh link: each costs the drone one AEAD
 attempt) and any other value (unknown epoch). The router cuts the key to its rate limit; GS A's
 link, on its own key, must stay OK.
@@ -107,7 +107,8 @@ def junk_flood(c: Ctx) -> None:
     drone = c.drone
     s = open_client(c.router, "B", c.password("B"))
     rng = random.Random(19)
-    pool = [bytes([e]) + rng.randbytes(39) for e in (0, 1, 7) for _ in range(64)]  # epochs 0, 1, unknown
+    per_epoch = max(1, min(64, (64 << 20) // (3 * c.size)))  # at most 64 MiB of junk in memory
+    pool = [bytes([e]) + rng.randbytes(c.size - 1) for e in (0, 1, 7) for _ in range(per_epoch)]  # epochs 0, 1, unknown
     rng.shuffle(pool)
     keys = kx.up_lanes(drone, "B")  # every lane: the most the router lets through
     drop = zenoh.CongestionControl.DROP
