@@ -16,9 +16,9 @@ status record. Nothing here blocks, reads a clock or touches a socket.
 Timers, as the drone's core: the adapter calls ``handle_timer(now)`` when ``now`` reaches
 ``get_timer()`` and otherwise sleeps until then or until input arrives. The timer is due at once
 after any input (what came in may decide something: a status, a position in the overlap), at the
-next heartbeat, and every ``LOOK_S`` for the periodic work whose deadlines are not yet computed
-one by one (pairing and key-sharing retries, the mission's stages, the operator's windows, a hold
-for a key).
+next heartbeat, and at the earliest deadline of the drones' sub-machines (linking, mission,
+operator control, hand-over, a hold for a key) and re-sends (``_deadlines``): no timer fires for
+nothing to do, and nothing due waits for a poll.
 
 Per drone:
 
@@ -50,7 +50,7 @@ import itertools
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Iterator
 
 from pymavlink.dialects.v20 import common as mav
 
@@ -72,6 +72,7 @@ from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
 from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, QueryAnswer, Say
 from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
+from .ownership import owns
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
 from .linking import (LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue,
                       PairReply)
@@ -217,9 +218,9 @@ class DroneView:
         self.fix.reported = value
 
 
-#: The periodic work without a deadline of its own is looked at this often (``get_timer``): what the
-#: station's loop did when it polled the core.
-LOOK_S = 0.05
+#: A deadline is looked at this long after it: a rule "past T" holds just after T, and a sum of floats
+#: may fall a hair short of it.
+DEADLINE_SLACK_S = 0.001
 
 
 @dataclass(frozen=True, slots=True)
@@ -234,7 +235,7 @@ class DroneStatus:
     epoch: int
     state: HaState | None  # None: no status heard yet
     holds_authority: bool  # this GS commands it now (``StationCore.holds_authority``)
-    operator_owner: bool  # this GS's operator owns it (``OperatorControl.is_owner``)
+    owned: bool  # this GS owns it (``gs.ownership.owns``: what its operator consents as)
     request: PendingRequest | None  # another GS's request for control our operator is asked about
     takeover: bool  # what CONTROL_STATUS says of takeover (``OperatorControl.shown_takeover``)
 
@@ -271,7 +272,7 @@ class StationCore:
             view.linking = Linking(Context(name, d, identity, fleet, self.counters, grant_ids))
         self._sm_seq = 0
         self._hb_due = 0.0
-        self._look_due = 0.0  # the next look at the periodic work
+        self._due = 0.0  # the earliest deadline of the drones' sub-machines (``_deadlines``)
         self._input_at: float | None = None  # an input came at this time since ``handle_timer`` last ran
 
     @property
@@ -299,7 +300,7 @@ class StationCore:
         v = self.views[drone]
         op = v.operator
         return DroneStatus(name=v.name, sysid=v.sysid, linked=v.link is not None, owner=v.owner, epoch=v.epoch,
-                           state=v.ha_state, holds_authority=self.holds_authority(v), operator_owner=op.is_owner(v),
+                           state=v.ha_state, holds_authority=self.holds_authority(v), owned=owns(v, self.name),
                            request=op.live_request(v, now), takeover=op.shown_takeover(v, now))
 
     def describe(self, drone: str, now: float) -> str | None:
@@ -353,9 +354,9 @@ class StationCore:
                 and view.link.tbm.since_last(now) > SILENT_REPAIR_S)
 
     def holds_authority(self, drone: "str | DroneView") -> bool:
+        """We command the drone: we own it (``gs.ownership.owns``) and no release of ours stands in its epoch."""
         view = self._view(drone)
-        return (view.owner == self.name and not view.handover.released_in(view.epoch)
-                and view.ha_state is not HaState.FAILSAFE and not view.stale)
+        return owns(view, self.name) and not view.handover.released_in(view.epoch)
 
     def _mark_stale(self, view: DroneView, now: float) -> None:
         """The drone was silent for ``STALE_VIEW_S`` (once heard): whatever we think of the authority
@@ -377,14 +378,53 @@ class StationCore:
     # -------------------------------------------------------------------- time
     def get_timer(self) -> float:
         """When ``handle_timer`` must next be called if no input comes (see the module docstring)."""
-        due = min(self._hb_due, self._look_due)
+        due = min(self._hb_due, self._due)
         return due if self._input_at is None else min(due, self._input_at)
+
+    def _deadlines(self, view: DroneView, now: float) -> Iterator[float | None]:
+        """When the periodic work for ``view``'s drone may next do something without an input: each
+        sub-machine's deadline and each re-send's. Early is harmless (the work finds nothing due);
+        late is not, so every rule of ``handle_timer`` that reads the time has its moment here."""
+        linking = _linking(view)
+        if view.link is None:
+            yield linking.deadline(now, sharing=False)
+            yield linking.pair_retry_due(now, RETRY_S) if self.opts.pair else None
+            return
+        silence = view.link.tbm.since_last(now)
+        if view.owner == self.name and view.ha_state is not HaState.FAILSAFE:  # re-pairing a silent drone
+            yield now + SILENT_REPAIR_S - silence
+            yield now + SILENT_FAST_S - silence
+            yield linking.pair_retry_due(now, SILENT_RETRY_S if silence <= SILENT_FAST_S else SILENT_SLOW_RETRY_S)
+        if not view.stale and view.link.tbm.last_seen is not None:
+            yield view.link.tbm.last_seen + STALE_VIEW_S
+        yield linking.deadline(now, sharing=view.owner == self.name and not view.stale)
+        if self._flies(view):
+            yield view.mission.deadline(now, view)
+        yield view.operator.deadline(now)
+        ho = view.handover
+        if ho.epoch == view.epoch:
+            yield ho.failed_at + HANDOVER_RETRY_S
+            yield ho.sent + RELEASE_RESEND_S
+        hold = view.hold
+        if hold is not None and hold.epoch == view.epoch and hold.phase is not HoldPhase.OVER:
+            yield from (hold.sent + HOLD_RESEND_S, hold.since + HOLD_RESEND_S, hold.since + HOLD_FOR_KEY_S,
+                        hold.since + HOLD_FOR_KEY_S + 5.0)
+        for g in linking.shares:
+            refused = linking.live_refused(g)
+            yield None if refused is None else refused + KEY_COMING_S
+        if self.opts.take_control and view.ha_state is HaState.FAILSAFE and view.last_take_control is not None:
+            yield view.last_take_control + 1.0
+        if self.opts.command_rate > 0 and view.last_command is not None:
+            yield view.last_command + 1.0 / self.opts.command_rate
+
+    def _next_due(self, now: float) -> float:
+        later = [d for view in self.views.values() for d in self._deadlines(view, now) if d is not None and d > now]
+        return min(later) + DEADLINE_SLACK_S if later else float("inf")
 
     def handle_timer(self, now: float, wall: float | None = None) -> list[Action]:
         """The GS's periodic work at ``now`` (``wall``: the time of day, for key-sharing stamps):
         whatever is due is done, whenever it is called."""
         self._input_at = None
-        self._look_due = now + LOOK_S
         out: list[Action] = []
         for view in self.views.values():
             stamp = now if wall is None else wall
@@ -414,6 +454,7 @@ class StationCore:
                 if self.opts.paper_heartbeat:
                     self._sm_seq += 1
                     out += self.send_control(view, wire.SmHeartbeat(self._sm_seq))
+        self._due = self._next_due(now)
         return out
 
     # ------------------------------------------------------------------ linking

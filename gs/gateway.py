@@ -592,7 +592,7 @@ class GcsGateway:
         """Operator control's periodic part: the final answers of requests in progress, another GS's
         request presented to the applications, CONTROL_STATUS."""
         status = self.status(now)
-        owner = status.operator_owner
+        owner = status.owned
         for key, deadline in list(self._awaiting.items()):
             if not owner and now < deadline:
                 continue
@@ -626,7 +626,7 @@ class GcsGateway:
         application should see it (itself while this GS is; never itself while another GS is)."""
         if not status.linked or not self.apps:
             return
-        mine, takeover = status.operator_owner, status.takeover
+        mine, takeover = status.owned, status.takeover
         in_control = None if status.state is HaState.FAILSAFE else status.owner
         owner_sysid = self._sysid_of(in_control)
         flags = FLAG_SYSTEM_MANAGER | (FLAG_TAKEOVER_ALLOWED if takeover and in_control else 0)

@@ -54,6 +54,8 @@ from zdrone.core.authority import State as HaState
 from zdrone.core.mavcontrol import (DEFAULT_REQUEST_TIMEOUT_S, REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S,
                                     OperatorControlRequest)
 
+from .ownership import owns
+
 #: After the owner's operator consents with "allow takeover", takeover stays allowed this long (the
 #: spec's 10 s in which the requester asks again).
 GRANT_WINDOW_S = 10.0
@@ -153,8 +155,19 @@ class OperatorControl:
 
     # ------------------------------------------------------------------ queries
     def is_owner(self, view: Any) -> bool:
-        return bool(view.link is not None and view.owner == self.gs and view.ha_state is not HaState.FAILSAFE
-                    and not getattr(view, "stale", False))
+        return owns(view, self.gs)
+
+    def deadline(self, now: float) -> float | None:
+        """When, after ``now``, ``tick`` next matters if no input comes (a window or a request ending,
+        a re-send due); None: only an input moves this drone's operator control."""
+        due: list[float | None] = [None if self.window is None else self.window.until,
+                                   None if self.request is None else self.request.since + self.request.timeout,
+                                   None if self.last_tell is None else self.last_tell + TELL_RESEND_S,
+                                   None if self.last_release is None else self.last_release + TELL_RESEND_S,
+                                   self.release_until, self.asked_until,
+                                   None if self.last_ask is None else self.last_ask + ASK_RESEND_S]
+        later = [d for d in due if d is not None and d > now]
+        return min(later) if later else None
 
     def takeover_for(self, view: Any, now: float) -> tuple[bool, str | None]:
         """Our takeover setting now: (allowed, the one requester it is for, or None for any)."""

@@ -645,22 +645,51 @@ def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_
 
 
 # ------------------------------------------------------------------ timers and the API by name
-def test_the_timer_is_due_at_once_after_an_input_and_else_at_the_next_heartbeat_or_look(fleet_dir):
+def test_the_timer_is_due_at_once_after_an_input_and_else_at_the_next_heartbeat_or_deadline(fleet_dir):
     """As the drone's core: the adapter calls ``handle_timer`` when ``get_timer`` is due and sleeps
     otherwise; an input makes it due at once, for what the input changed may decide something."""
-    from gs.core import LOOK_S
-
     a = paired_a(fleet_dir)
     assert a.get_timer() <= 0.1  # the pairing reply was an input
+    a.views["d1"].owner = "B"  # not ours: nothing to re-pair, share or fly
     a.handle_timer(1.0)
-    assert a.get_timer() == pytest.approx(min(1.0 + LOOK_S, a._hb_due))
+    assert a.get_timer() == a._hb_due  # the heartbeat alone: no poll of anything
     a.on_envelope("d1", b"not an envelope", 1.01)
     assert a.get_timer() == 1.01
     a.handle_timer(1.01)
     assert a.get_timer() > 1.01
     hb = a._hb_due
-    out = a.handle_timer(hb)  # ``tick`` is ``handle_timer`` for callers that poll
+    out = a.handle_timer(hb)
     assert any(isinstance(x, Put) for x in out) and a._hb_due > hb  # the heartbeat went out
+
+
+def test_a_deadline_shorter_than_the_heartbeat_is_honoured(fleet_dir):
+    """An unconfirmed release is sent again after RELEASE_RESEND_S (0.25 s), sooner than the next
+    heartbeat: the timer is due then, not at a poll's rhythm."""
+    from gs.core import DEADLINE_SLACK_S, RELEASE_RESEND_S
+
+    a = paired_a(fleet_dir)
+    _in_overlap_nearer_b(a, {"A", "B"})
+    a.handle_timer(10.0)
+    out = a.handle_timer(10.2)  # released at 10.0, a heartbeat or not: the release is not due again yet
+    assert not [x for x in out if isinstance(x, Emit) and x.kind == "handover_release"]
+    assert a.get_timer() == pytest.approx(10.0 + RELEASE_RESEND_S + DEADLINE_SLACK_S)
+    sent = [x for x in a.handle_timer(a.get_timer()) if isinstance(x, Put)]
+    assert sent  # the release again (no heartbeat was due)
+    assert a._hb_due > a.get_timer() - RELEASE_RESEND_S
+
+
+def test_no_timer_fires_without_work(fleet_dir):
+    """Driven by its timer alone for 10 s, a GS whose drone is owned by another wakes for its
+    heartbeats only (a 50 ms poll woke it 200 times)."""
+    a = paired_a(fleet_dir)
+    a.views["d1"].owner = "B"
+    a.handle_timer(0.2)
+    wakes, now = 0, 0.2
+    while (now := a.get_timer()) < 10.2:
+        out = a.handle_timer(now)
+        wakes += 1
+        assert any(isinstance(x, Put) for x in out), f"a wake at {now} with nothing to do"
+    assert wakes <= 10 * 2 + 1  # 2 Hz heartbeats
 
 
 def test_adapters_name_a_drone_and_read_its_status(fleet_dir):
