@@ -14,7 +14,10 @@ Figures, from the drones' event logs and the hosts' results:
   record (wall clock, one machine), p50 / p99 / max. From that instant no frame of B opens on the
   drone (its link and keys are gone): this bounds the time to the last frame of B accepted;
 * the drones B held at the revocation, and where they went (an heir, else the failsafe);
-* commands of the other GSs lost (sent by A or C and not forwarded) and failsafes in all.
+* commands of the other GSs lost (sent by A or C and not forwarded), failsafes in all, and those
+  commanded where an authorized GS's coverage held the vehicle (``covered``: should be 0; in the
+  shuttle, B's area between A and C is covered by nobody once B is out, so a drone flying on into
+  it lands: that is the failsafe the issue expects where no authorized GS covers the drone).
 
 The routers are not restarted here (``zdrone demo --scenario revoke-in-flight`` does that, and the
 ``router-restart`` scenario measures what a restart costs).
@@ -128,6 +131,7 @@ def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
     lat = sorted((t - t_pub) * 1000.0 for t in applied.values() if t is not None)
     after = {n: [e for e in only(r, AuthorityMoved) if e.t >= t_pub] for n, r in recs.items()}
     failsafes = {n: len(only(r, Failsafe)) for n, r in recs.items()}
+    covered = _failsafes_covered(fleet, recs)
     lost_others = 0
     try:
         drones = json.loads((d / "drones.json").read_text())["results"]
@@ -150,8 +154,26 @@ def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
         "b_authority_after": b_after,
         "other_commands_lost": lost_others,
         "failsafes": sum(1 for v in failsafes.values() if v),
+        "failsafes_where_a_gs_covered": covered,
     })
     return result
+
+
+def _failsafes_covered(fleet_dir: Path, recs: dict[str, list[Any]]) -> int:
+    """Failsafes commanded where an authorized GS's coverage held the vehicle (the revision's fleet)."""
+    from ..core.geometry import GeoPoint
+    from ..fleet.files import load_fleet
+
+    fleet = load_fleet(fleet_dir)
+    n = 0
+    for drone, r in recs.items():
+        for e in only(r, Failsafe):
+            if e.position is None:
+                continue
+            p = GeoPoint(e.position[0], e.position[1])
+            n += any(fleet.nodes[g].coverage.circle().contains(p) for g in fleet.nodes[drone].authorized_gs  # type: ignore[union-attr]
+                     if not fleet.is_revoked(g))
+    return n
 
 
 def run(quick: bool = False, k: int | None = None, timeout: float = 240.0) -> dict[str, Any]:
@@ -163,14 +185,15 @@ def run(quick: bool = False, k: int | None = None, timeout: float = 240.0) -> di
 def render(r: dict[str, Any]) -> None:
     print("revoke B in flight (revision signed, published through A; drones ask every 2 s)")
     print(f"{'drones x GSs':>13} {'applied':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'B held':>7} "
-          f"{'B after':>8} {'others lost':>12} {'failsafes':>10}")
+          f"{'B after':>8} {'others lost':>12} {'failsafes':>10} {'covered':>8}")
     for row in r["rows"]:
         if "applied" not in row:
             print(f"{row['k']:>6} x {row['g']:<5} error: {row.get('error')}")
             continue
         a = row["applied_ms"]
         print(f"{row['k']:>6} x {row['g']:<5} {row['applied']:>8} {a['p50']!s:>8} {a['p99']!s:>8} {a['max']!s:>8} "
-              f"{row['held_by_b']:>7} {row['b_authority_after']:>8} {row['other_commands_lost']:>12} {row['failsafes']:>10}")
+              f"{row['held_by_b']:>7} {row['b_authority_after']:>8} {row['other_commands_lost']:>12} {row['failsafes']:>10} "
+              f"{row['failsafes_where_a_gs_covered']:>8}")
         print(f"  where B's drones went: {row['held_went_to']}" + (f"; error: {row['error']}" if row.get("error") else ""))
         print(f"  runs: {row['runs']}")
 
