@@ -112,7 +112,7 @@ class GroundStation:
         self.session = self.rt.session
         self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of)
         self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
-        self.revision = revisions.RevisionChannel(self.rt, opts.fleet, write_applied=True)
+        self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask,
                                     Emit: lambda a: self.events.write_record(a.record),
                                     Say: lambda a: print(a.text, flush=True)}

@@ -46,7 +46,8 @@ def test_each_gs_has_one_budget_per_lane_toward_each_drone_session():
     from zdrone.fleet import keyexprs as kx
     from zdrone.fleet.routerconfig import (PAIR_MAX_HZ, UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S)
 
-    ups, pairs = router_config(default_fleet(), "c.txt")["downsampling"]
+    by_id = {d["id"]: d for d in router_config(default_fleet(), "c.txt")["downsampling"]}
+    ups, pairs = by_id["uplink-rate"], by_id["pair-rate"]
     assert ups["flows"] == pairs["flows"] == ["egress"] and ups["messages"] == ["put"] and pairs["messages"] == ["query"]
     assert ups["link_protocols"] == pairs["link_protocols"] == ["tcp", "tls"]  # never the mesh (QUIC)
     assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/*/up/{g}/{i}" for g in "ABX" for i in range(kx.UP_LANES)}
@@ -75,7 +76,8 @@ def test_uplinks_and_pairing_queries_are_bounded_in_bytes_on_ingress():
     from zdrone.fleet.routerconfig import PAIR_MAX_BYTES, UPLINK_MAX_BYTES, UPLINK_MAX_BYTES_S
     from zdrone.net.inbox import MAX_HANDSHAKE
 
-    ups, pairs = router_config(default_fleet(), "c.txt")["low_pass_filter"]
+    by_id = {d["id"]: d for d in router_config(default_fleet(), "c.txt")["low_pass_filter"]}
+    ups, pairs = by_id["uplink-size"], by_id["pair-size"]
     assert ups["flows"] == ["ingress"] and ups["key_exprs"] == ["zdrone/*/up/**"] and ups["size_limit"] == UPLINK_MAX_BYTES
     assert pairs["messages"] == ["query"] and pairs["size_limit"] == PAIR_MAX_BYTES == MAX_HANDSHAKE
     assert UPLINK_MAX_BYTES_S * 8 <= 4_000_000 / 4  # a credential's uplink: at most a quarter of a 4 Mbit/s radio
@@ -103,14 +105,66 @@ def test_lanes_are_keys_of_their_uplink_and_name_its_gs():
 
 def test_every_site_router_limits_its_clients_and_meshes_over_quic():
     """A site router's clients meet the same budgets; its mesh links are QUIC on the same ports."""
-    from zdrone.fleet.routerconfig import mesh_endpoint, site_router_config, uplink_downsampling
+    from zdrone.fleet.routerconfig import mesh_endpoint, revision_downsampling, site_router_config, uplink_downsampling
 
     cfg = site_router_config(default_fleet(), "c.txt", "site-2", "tls/127.0.0.1:7448", ["tls/127.0.0.1:7447"],
                              ("router-site-1",), "pw")
-    assert cfg["downsampling"] == uplink_downsampling(default_fleet()) != []
+    assert cfg["downsampling"] == uplink_downsampling(default_fleet()) + revision_downsampling(default_fleet())
+    assert uplink_downsampling(default_fleet()) != [] != revision_downsampling(default_fleet())
     assert cfg["listen"]["endpoints"] == ["tls/127.0.0.1:7448", "quic/127.0.0.1:7448"]
     assert cfg["connect"]["endpoints"] == ["quic/127.0.0.1:7447"]
     assert mesh_endpoint("tls/10.0.0.1:7447") == "quic/10.0.0.1:7447"
     import pytest
     with pytest.raises(ValueError):
         mesh_endpoint("tcp/10.0.0.1:7447")
+
+
+def test_revisions_have_one_key_and_one_budget_per_sending_gs():
+    """Only GS g puts, declares a queryable and replies on zdrone-fleet/revision/g; every node hears
+    and asks every sender's key; drones never answer. Each GS's key has its own budget toward each
+    session (puts and replies apart), bounded in bytes, and each session's queries are bounded: the
+    rules grow with the GSs."""
+    from zdrone.fleet import keyexprs as kx
+    from zdrone.fleet.revisions import ASK_GAP_S, MAX_REVISION_BYTES, PUSH_GAP_S, PUSH_PERIOD_S
+    from zdrone.fleet.routerconfig import (MAX_MESSAGE_SIZE, REVISION_MAX_BYTES, REVISION_MAX_BYTES_S, REVISION_MAX_HZ,
+                                           REVISION_QUERY_HZ)
+
+    cfg = router_config(default_fleet(), "c.txt")
+    rules = {r["id"]: r for r in cfg["access_control"]["rules"]}
+    assert kx.revision("A") == "zdrone-fleet/revision/A" and kx.revision_all() == "zdrone-fleet/revision/*"
+    for n in ("d1", "A", "B", "X"):
+        assert rules[f"{n}-revision"]["messages"] == ["declare_subscriber", "query"]
+        assert rules[f"{n}-revision"]["key_exprs"] == rules[f"{n}-revision-recv"]["key_exprs"] == [kx.revision_all()]
+        assert rules[f"{n}-revision-recv"]["flows"] == ["egress"]
+    for g in ("A", "B", "X"):  # its own key only
+        own = rules[f"{g}-revision-own"]
+        assert own["key_exprs"] == [kx.revision(g)] and own["flows"] == ["ingress"]
+        assert own["messages"] == ["put", "declare_queryable", "reply"]
+    assert "d1-revision-own" not in rules and "d1-revision-q" not in rules  # a drone publishes and answers nothing
+    assert not any(kx.revision("d1") in r["key_exprs"] for r in cfg["access_control"]["rules"])
+
+    by_id = {d["id"]: d for d in cfg["downsampling"]}
+    for m in ("put", "reply"):
+        d = by_id[f"revision-{m}-rate"]
+        assert d["flows"] == ["egress"] and d["messages"] == [m] and d["link_protocols"] == ["tcp", "tls"]
+        assert d["rules"] == [{"key_expr": kx.revision(g), "freq": REVISION_MAX_HZ} for g in "ABX"]
+    q = by_id["revision-query-rate"]
+    assert q["flows"] == ["ingress"] and q["messages"] == ["query"]
+    assert q["rules"] == [{"key_expr": kx.revision_all(), "freq": REVISION_QUERY_HZ}]
+    (size,) = [f for f in cfg["low_pass_filter"] if f["id"] == "revision-size"]
+    assert size == {"id": "revision-size", "flows": ["ingress"], "messages": ["put", "reply"],
+                    "key_exprs": [kx.revision_all()], "size_limit": REVISION_MAX_BYTES}
+    assert MAX_REVISION_BYTES == REVISION_MAX_BYTES < MAX_MESSAGE_SIZE - 1024  # a router passes the largest
+    assert REVISION_MAX_BYTES_S * 8 <= 4_000_000 / 4  # one credential: at most a quarter of a 4 Mbit/s radio
+    # an honest node never meets its budget: a GS's puts two intervals apart, a node's queries too
+    assert PUSH_GAP_S >= 2 / REVISION_MAX_HZ and ASK_GAP_S >= 2 / REVISION_QUERY_HZ and PUSH_PERIOD_S > PUSH_GAP_S
+
+
+def test_a_revoked_gs_has_no_revision_budget_or_rights():
+    import msgspec
+
+    cfg = router_config(msgspec.structs.replace(default_fleet(), revoked=frozenset({"B"})), "c.txt")
+    assert not any(r["id"].startswith("B-") for r in cfg["access_control"]["rules"])
+    by_id = {d["id"]: d for d in cfg["downsampling"]}
+    assert {r["key_expr"] for r in by_id["revision-put-rate"]["rules"]} == {"zdrone-fleet/revision/A",
+                                                                           "zdrone-fleet/revision/X"}

@@ -70,9 +70,15 @@ def drone_of(keyexpr: str) -> str:
     return str(keyexpr).split("/")[1]
 
 
-def revision() -> str:
-    """Fleet revisions (``zdrone.core.revision``): every node subscribes to it and declares a
-    queryable on it answering with the latest revision it holds; a node that starts, reconnects or
-    comes back in reach asks it. Signed by the fleet key, so any node may relay one. Its first chunk
-    is no ``zdrone/<drone>`` key: a node may be named ``fleet``."""
-    return "zdrone-fleet/revision"
+def revision(sender: str) -> str:
+    """Fleet revisions (``zdrone.core.revision``) as GS ``sender`` publishes them (its pushes, its
+    answers to revision queries, ``zdrone fleet publish`` with its credentials): one key per sender,
+    so the router budgets each sender on its own (``fleet/routerconfig.py``). Signed by the fleet
+    key, so any GS may hand one on. Its first chunk is no ``zdrone/<drone>`` key: a node may be
+    named ``fleet``."""
+    return f"zdrone-fleet/revision/{sender}"
+
+
+def revision_all() -> str:
+    """Every sender's revision key: what every node subscribes to and asks."""
+    return "zdrone-fleet/revision/*"

@@ -3,21 +3,38 @@
 Theory of operation
 -------------------
 Every node (drone, GS) holds a ``RevisionKeeper``: the base fleet (``fleet.json5`` of its bundle),
-the revision in force and its bytes. Revisions reach it three ways, all on ``kx.revision()``:
+the revision in force and its bytes. Revisions travel on one key per sender,
+``kx.revision(<gs>)`` (``zdrone-fleet/revision/<gs>``): the router lets GS ``g`` put and answer on
+its own key only and budgets each key on its own (``fleet/routerconfig.py``), so a flood with one
+credential never starves the revisions of the others. A node hears them three ways:
 
-* a **publication** (``zdrone fleet publish``, or a node relaying one it just applied);
-* the **reply to its query**: a node asks at start, whenever one of its router paths (re)opens (it
-  reconnected, or came back in reach) and every ``ASK_PERIOD_S``; every node answers with the
-  revision it holds, so one honest node in reach is enough (replies are not consolidated: a stale
-  reply from a revoked node is refused as ``stale``/``replayed`` and the newest wins);
+* a **push**: every GS re-publishes the revision it holds every ``PUSH_PERIOD_S``, and at once when
+  it takes a new one (``zdrone fleet publish`` puts one as its GS, on that GS's key). A push is one
+  put that the router fans out: O(nodes) messages per period for the fleet, whatever its size;
+* the **reply to its query** on ``kx.revision_all()``: only GSs declare the queryable (a drone
+  never answers, so a query costs one reply per GS, not one per node). A node asks at start,
+  whenever it comes back in reach (one of its router paths (re)connected, or the testbed's coverage
+  let it hear a GS again: looked at every ``REACH_LOOK_S``), and then every ``ASK_PERIOD_S``;
+  replies are not consolidated: a stale reply from a revoked GS is refused (``stale``/``replayed``)
+  and the newest wins;
 * the node's own durable copy at start (``load_fleet``: beside ``fleet.json5`` or in
   ``$ZDRONE_STATE_DIR``).
 
+So a drone out of reach for 30 s applies the revision once it is back within the round trip of
+the query it sends then (at most ``REACH_LOOK_S`` after the path or the radio returned), and within
+one push period (``PUSH_PERIOD_S``) at worst, if that query or its replies are lost.
+
+A node's own traffic stays inside the router's budgets: a GS's puts are ``PUSH_GAP_S`` apart at
+least (two of the router's intervals on its key), a node's queries ``ASK_GAP_S`` apart (a query due
+sooner waits for it), so the router never drops an honest one.
+
 ``offer(data)`` checks the bytes (``zdrone.core.revision.check_revision``: fleet key, signature,
-number above the one in force, no revocation undone); a refusal is counted by reason and never
-raised; an acceptance is written durably (``revision.json`` in the state directory if the node runs
-under ``zdrone service``, else in its bundle folder) before the node applies the new effective fleet.
-A revision heard again (``replayed``) renews the drone's revision lease (``DroneCore.on_revision_sync``).
+number above the one in force, no revocation undone); the bytes of the revision in force heard again
+are ``replayed`` without checking the signature again (they were checked when taken); a refusal is
+counted by reason and never raised; an acceptance is written durably (``revision.json`` in the
+state directory if the node runs under ``zdrone service``, else in its bundle folder) before the
+node applies the new effective fleet. A revision heard again (``replayed``) renews the drone's
+revision lease (``DroneCore.on_revision_sync``): the GSs' pushes renew it every ``PUSH_PERIOD_S``.
 """
 
 from __future__ import annotations
@@ -26,22 +43,36 @@ import logging
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..core import records as rec
 from ..core.fleet import Fleet
 from ..core.revision import (Revision, RevisionAccepted, RevisionRefusal, RevisionRefused, RevisionResult,
                              check_revision, encode_revision)
+from ..core.errors import ConfigError
+from . import keyexprs as kx
 from .files import REVISION_FILE, STATE_DIR_ENV, fleet_path, load_base_fleet, load_revision, write_durably
+from .routerconfig import REVISION_MAX_BYTES, REVISION_MAX_HZ, REVISION_QUERY_HZ
 
 log = logging.getLogger(__name__)
 
-#: A node asks for the latest revision this often (and at every path (re)open).
-ASK_PERIOD_S = 2.0
+#: A node asks for the latest revision this often (and at start, and when it comes back in reach).
+ASK_PERIOD_S = 30.0
+#: A node's revision queries are this far apart at least (the router takes ``REVISION_QUERY_HZ``).
+ASK_GAP_S = 2.0 / REVISION_QUERY_HZ
 #: How long a revision query waits for its replies.
 ASK_TIMEOUT_S = 1.0
-#: The largest revision a node takes (a fleet of 150 drones x 26 GSs, every list changed, is ~60 KB).
-MAX_REVISION_BYTES = 256 * 1024
+#: A GS re-publishes the revision it holds this often (and at once when it takes a new one).
+PUSH_PERIOD_S = 10.0
+#: A GS's revision puts are this far apart at least: two of the router's intervals on its key
+#: (``REVISION_MAX_HZ``), so that a router that stalls and processes two back to back drops neither.
+PUSH_GAP_S = 2.0 / REVISION_MAX_HZ
+#: How often a node looks whether it came back in reach (a path reconnected, the radio returned).
+REACH_LOOK_S = 1.0
+#: Revision queries a GS answers per loop turn at most (the rest wait in the queryable's ring).
+ANSWERS_PER_TURN = 16
+#: The largest revision a node takes (the router's size limit on revision keys).
+MAX_REVISION_BYTES = REVISION_MAX_BYTES
 
 
 class RevisionKeeper:
@@ -67,6 +98,9 @@ class RevisionKeeper:
         if data is None or len(data) > MAX_REVISION_BYTES:
             self.counters["refused:oversize"] += 1
             return RevisionRefused(RevisionRefusal.MALFORMED)
+        if data == self.data:  # the revision in force again (a GS's push): its signature was checked when taken
+            self.counters["refused:replayed"] += 1
+            return RevisionRefused(RevisionRefusal.REPLAYED, self.number)
         got = check_revision(data, self.base, self.current)
         if isinstance(got, RevisionRefused):
             self.counters[f"refused:{got.reason.value}"] += 1
@@ -96,24 +130,30 @@ LOGGED_PER_REASON = 5
 
 class RevisionChannel:
     """A node's revision traffic on its runtime (``zdrone.net.runtime.NodeRuntime``): the
-    subscription and the queryable on ``kx.revision()``, its periodic query, the keeper. The node's
-    loop hands it the inbox items of ``KINDS`` (``on_inbox``) and calls ``serve(now)`` every turn."""
+    subscription to every sender's key, its queries, the keeper; for a GS (``publisher``) also the
+    queryable on its own key and its pushes. The node's loop hands it the inbox items of ``KINDS``
+    (``on_inbox``) and calls ``serve(now)`` every turn. ``in_reach`` (the testbed's coverage: can the
+    node hear any GS now?) joins the paths' connectivity in telling when the node came back in reach."""
 
-    def __init__(self, rt: Any, fleet_dir: str | Path, write_applied: bool = False) -> None:
-        from .keyexprs import revision
-
-        self.rt, self.key = rt, revision()
+    def __init__(self, rt: Any, fleet_dir: str | Path, publisher: bool, write_applied: bool = False,
+                 in_reach: Callable[[], bool] | None = None) -> None:
+        self.rt = rt
         self.keeper = RevisionKeeper(fleet_dir, rt.name)
         self.write_applied = write_applied  # the drone's core writes its own record
-        rt.subscribe(self.key, PUBLISHED, lambda _k: "fleet", limit=MAX_REVISION_BYTES)
-        self.queries = rt.queryable(self.key)
-        self._next_ask = 0.0
+        self.in_reach = in_reach
+        rt.subscribe(kx.revision_all(), PUBLISHED, kx.gs_of, limit=MAX_REVISION_BYTES)
+        self.own = kx.revision(rt.name) if publisher else None
+        self.queries = rt.queryable(self.own) if self.own is not None else None
+        self._next_ask, self._last_ask = 0.0, float("-inf")
+        self._next_push, self._last_push = 0.0, float("-inf")
+        self._next_look, self._reach = 0.0, 0
 
     def on_inbox(self, kind: str, data: Any) -> RevisionResult:
-        """A publication's bytes, or a reply's ``(ok, err)``: checked and kept (``RevisionKeeper.offer``)."""
+        """A publication's bytes, or a reply's ``(ok, err)``: checked and kept (``RevisionKeeper.offer``).
+        A GS pushes a new one it took at once (within ``PUSH_GAP_S`` of its last push)."""
         if kind == REPLY:
             ok, _err = data
-            if ok is None:  # a node with no revision answers nothing; an error or oversize is counted
+            if ok is None:  # an error or an oversize reply is counted
                 self.keeper.counters["reply_error"] += 1
                 return RevisionRefused(RevisionRefusal.MALFORMED)
             data = ok
@@ -122,53 +162,78 @@ class RevisionChannel:
             key = f"refused:{got.reason.value}"
             if got.reason is not RevisionRefusal.REPLAYED and self.keeper.counters[key] <= LOGGED_PER_REASON:
                 self.rt.events.write_record(rec.RevisionRefused(reason=got.reason.value, number=got.number))
-        elif self.write_applied:
+            return got
+        self._next_push = 0.0
+        if self.write_applied:
             c = got.revision.changes
             self.rt.events.write_record(rec.RevisionApplied(number=got.revision.number, revoked=tuple(c.revoked),
                                                             rotated=tuple(c.keys), pairing_pq=c.pairing_pq))
         return got
 
     def serve(self, now: float) -> None:
-        """Answer the revision queries that wait (with the revision in force, if any), and ask for
-        the latest every ``ASK_PERIOD_S``."""
-        for _ in range(16):
+        """Answer the revision queries that wait (a GS), push the revision held when due (a GS), and
+        ask for the latest when due: at start, on coming back in reach, every ``ASK_PERIOD_S``."""
+        if self.queries is not None:
+            self._answer()
+        if now >= self._next_look:
+            self._next_look = now + REACH_LOOK_S
+            reach = self._reach_now()
+            if reach > self._reach:  # a path (re)connected or the radio returned: ask now
+                self._next_ask = min(self._next_ask, now)
+            self._reach = reach
+        if self._reach and now >= max(self._next_ask, self._last_ask + ASK_GAP_S):
+            self._last_ask, self._next_ask = now, now + ASK_PERIOD_S
+            self.keeper.counters["asked"] += 1
+            self.rt.ask(kx.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
+        if (self.own is not None and self.keeper.data is not None
+                and now >= max(self._next_push, self._last_push + PUSH_GAP_S)):
+            self._last_push, self._next_push = now, now + PUSH_PERIOD_S
+            self.keeper.counters["pushed"] += 1
+            self.rt.put(self.own, self.keeper.data)
+
+    def _answer(self) -> None:
+        assert self.queries is not None and self.own is not None
+        for _ in range(ANSWERS_PER_TURN):
             q = self.queries.try_recv()
             if q is None:
                 break
             try:
                 if self.keeper.data is not None:
-                    q.reply(self.key, self.keeper.data)
+                    q.reply(self.own, self.keeper.data)
+                    self.keeper.counters["answered"] += 1
             except Exception as exc:  # a reply that cannot go out (session closing): counted
                 self.keeper.counters["reply_failed"] += 1
                 log.info("revision reply failed: %s", exc)
             finally:
                 q.drop()
-        if now >= self._next_ask:
-            self._next_ask = now + ASK_PERIOD_S
-            self.rt.ask(self.key, b"", ASK_TIMEOUT_S, REPLY, "fleet")
 
-    def ask_now(self) -> None:
-        """Ask at the next turn (a path reopened, the node came back in reach)."""
-        self._next_ask = 0.0
+    def _reach_now(self) -> int:
+        """The node's paths that reach a router now; 0 while the testbed's radio reaches no GS."""
+        if self.in_reach is not None and not self.in_reach():
+            return 0
+        return sum(1 for p in self.rt.path_status().values() if p["connected"])
 
 
 def publish(fleet_dir: str | Path, node: str, router: str, data: bytes) -> None:
-    """Put revision ``data`` on the revision key through ``router`` as ``node`` (its bundle's
-    credentials), and close."""
+    """Put revision ``data`` on GS ``node``'s revision key through ``router`` with its bundle's
+    credentials, and close. ``ConfigError`` if ``node`` is not a GS (only GSs publish revisions)."""
     from ..net.session import open_client
     from .files import load_fleet, load_secret
-    from .keyexprs import revision
     from .tls import node_files
 
     fleet = load_fleet(fleet_dir)
+    entry = fleet.nodes.get(node)
+    if entry is None or entry.role != "gs":
+        raise ConfigError(f"--id {node}: revisions are published as a ground station of the fleet "
+                          f"({', '.join(fleet.ground_stations())})")
     secret = load_secret(fleet_dir, node, fleet)
     tls = node_files(fleet_dir, node).check() if router.startswith("tls/") else None
     session = open_client(router, node, secret.router_password, tls, None)
     try:
-        session.put(revision(), data)
+        session.put(kx.revision(node), data)
     finally:
         session.close()
 
 
-__all__ = ["ASK_PERIOD_S", "ASK_TIMEOUT_S", "KINDS", "MAX_REVISION_BYTES", "RevisionAccepted", "RevisionChannel",
-           "RevisionKeeper", "publish"]
+__all__ = ["ASK_GAP_S", "ASK_PERIOD_S", "ASK_TIMEOUT_S", "KINDS", "MAX_REVISION_BYTES", "PUSH_GAP_S", "PUSH_PERIOD_S",
+           "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper", "publish"]

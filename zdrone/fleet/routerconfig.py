@@ -29,6 +29,15 @@ The budgets apply to client transports only (``tcp``, ``tls``): site routers mes
 every drone behind it — is never limited as if it were one drone; the ACL admits a node only over
 ``tcp``/``tls`` and a site router only over ``quic`` (a node's credentials over QUIC get nothing).
 
+Fleet revisions (``zdrone.fleet.revisions``) travel on one key per sender, ``zdrone-fleet/revision/<g>``:
+only GS ``g`` may put, declare a queryable and reply there; every node subscribes and queries
+``zdrone-fleet/revision/*``. Each GS's key has its own budget on egress of client transports
+(``REVISION_MAX_HZ`` puts and as many replies per second toward each receiving session, each at most
+``REVISION_MAX_BYTES``, low-pass on ingress), so a flood with one GS's credential spends that GS's
+budget only: the other GSs' revisions (the one revoking it included) still reach every node. A
+session asks at most ``REVISION_QUERY_HZ`` times per second (on ingress): a drone's leaked password
+cannot make the GSs answer without end. These rules grow with the GSs, like the uplinks'.
+
 Zenoh's limit is a minimum interval between puts on a key, measured when the router processes them,
 with no burst allowance: a router that stalls (scheduling, load) processes the frames that waited back
 to back and drops all but the first, at any rate (measured: ``experiments/router_stall.py``,
@@ -81,6 +90,19 @@ UPLINK_MAX_BYTES_S = UPLINK_MAX_HZ * UPLINK_MAX_BYTES
 PAIR_MAX_HZ = 20.0
 #: The largest pairing query (a Noise message and names, ``net/inbox.py``'s ``MAX_HANDSHAKE``).
 PAIR_MAX_BYTES = MAX_MESSAGE + 256
+#: The largest fleet revision a router passes and a node takes (put or reply, payload bytes): under
+#: ``MAX_MESSAGE_SIZE`` with room for the message's own fields. A revision is cumulative; every list of
+#: a 300-drone fleet changed is about 8 KB, every key rotated about 35 KB.
+REVISION_MAX_BYTES = 60 * 1024
+#: Revision puts per second, and as many replies, a router passes from one GS's revision key toward
+#: each session (a GS pushes at most one put per ``2 / REVISION_MAX_HZ`` s: ``revisions.PUSH_GAP_S``).
+REVISION_MAX_HZ = 2.0
+#: What one credential can push toward one node on its revision key, bytes/s: 0.98 Mbit/s, under a
+#: quarter of a 4 Mbit/s radio (replies only answer the node's own queries, a few a minute).
+REVISION_MAX_BYTES_S = REVISION_MAX_HZ * REVISION_MAX_BYTES
+#: Revision queries per second a router takes from one session (a node asks at most every
+#: ``revisions.ASK_GAP_S``).
+REVISION_QUERY_HZ = 1.0
 #: Client transports: what the budgets and a node's ACL apply to. Site routers mesh over QUIC.
 CLIENT_LINKS = ["tcp", "tls"]
 MESH_LINK = "quic"
@@ -130,9 +152,14 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
                 add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
                 add("linkkey-ask", ["query"], ["ingress"], [kx.linkkey("*", d) for d in drones])
                 add("linkkey-ans", ["reply"], ["egress"], [kx.linkkey("*", d) for d in drones])
-        # fleet revisions (signed by the fleet key, checked by every node): any node relays them
-        add("revision", ["put", "declare_subscriber", "query", "declare_queryable", "reply"], ["ingress", "egress"],
-            [kx.revision()])
+        # fleet revisions (signed by the fleet key, checked by every node): every node hears and asks
+        # on every sender's key; a GS alone publishes and answers, on its own key only
+        add("revision", ["declare_subscriber", "query"], ["ingress"], [kx.revision_all()])
+        add("revision-recv", ["put", "reply"], ["egress"], [kx.revision_all()])
+        if node.role != "drone":
+            add("revision-own", ["put", "declare_queryable", "reply"], ["ingress"], [kx.revision(name)])
+            # the queries on every sender's key (a query names no GS): only GSs declare the queryable
+            add("revision-q", ["query"], ["egress"], [kx.revision_all()])
         # with TLS, a client is this node only with its certificate *and* its password
         subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {}),
                          "link_protocols": CLIENT_LINKS})
@@ -153,6 +180,21 @@ def uplink_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
             {"id": "pair-rate", "flows": ["egress"], "messages": ["query"], "link_protocols": CLIENT_LINKS, "rules": pairs}]
 
 
+def revision_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
+    """Zenoh downsampling of fleet revisions: one rule per GS's revision key on egress of client
+    transports, puts and replies each with a budget of their own (a push and the answer to a query
+    never spend each other's), so each is one budget per (receiving session, GS) shared by every
+    session sending as that GS; and one rule on ingress bounding each session's revision queries."""
+    gss = [g for g in fleet.ground_stations() if not fleet.is_revoked(g)]
+    if not gss:
+        return []
+    rules = [{"key_expr": kx.revision(g), "freq": REVISION_MAX_HZ} for g in gss]
+    return [{"id": f"revision-{m}-rate", "flows": ["egress"], "messages": [m], "link_protocols": CLIENT_LINKS,
+             "rules": rules} for m in ("put", "reply")] + [
+            {"id": "revision-query-rate", "flows": ["ingress"], "messages": ["query"], "link_protocols": CLIENT_LINKS,
+             "rules": [{"key_expr": kx.revision_all(), "freq": REVISION_QUERY_HZ}]}]
+
+
 def size_limits(fleet: Fleet) -> list[dict[str, Any]]:
     """Zenoh's low-pass filter on ingress: the largest uplink put and pairing query (bytes of payload
     and attachment); a bigger one is dropped where it enters the router."""
@@ -162,6 +204,12 @@ def size_limits(fleet: Fleet) -> list[dict[str, Any]]:
              "size_limit": UPLINK_MAX_BYTES},
             {"id": "pair-size", "flows": ["ingress"], "messages": ["query"], "key_exprs": ["zdrone/*/pair/*"],
              "size_limit": PAIR_MAX_BYTES}]
+
+
+def revision_size_limits() -> list[dict[str, Any]]:
+    """Zenoh's low-pass filter on ingress: the largest revision put or reply (``REVISION_MAX_BYTES``)."""
+    return [{"id": "revision-size", "flows": ["ingress"], "messages": ["put", "reply"],
+             "key_exprs": [kx.revision_all()], "size_limit": REVISION_MAX_BYTES}]
 
 
 def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None, tls: bool = False) -> dict[str, Any]:
@@ -181,8 +229,8 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
                       # the size limit (and zdrone's messages are small): off
                       "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet, tls),
-        "downsampling": uplink_downsampling(fleet),
-        "low_pass_filter": size_limits(fleet),
+        "downsampling": uplink_downsampling(fleet) + revision_downsampling(fleet),
+        "low_pass_filter": size_limits(fleet) + revision_size_limits(),
     }
 
 

@@ -40,7 +40,7 @@ from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
 from ..fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
 from ..fleet.tls import node_files
 from .eventlog import EventLog
-from .inbox import MAX_ENVELOPE, Inbox, reply_bytes
+from .inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes
 from .pacing import Pacer
 from .paths import PathQueryable, RecentPayloads, SessionPath
 from .session import open_client, query_queue
@@ -219,14 +219,15 @@ class NodeRuntime:
         return self.pacer.next_due()
 
     def ask(self, keyexpr: str, payload: bytes, timeout: float, kind: str, peer: str,
-            wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r) -> None:
+            wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r, limit: int = MAX_HANDSHAKE) -> None:
         """Query every queryable on ``keyexpr`` (ALL: a second queryable declared with a stolen
         password cannot hide the real one); every reply (NONE) comes back through the inbox as
-        ``(kind, peer, wrap((ok, err)))``. Asynchronous: never waits."""
+        ``(kind, peer, wrap((ok, err)))``, a reply longer than ``limit`` bytes as the error
+        ``oversize`` (not copied). Asynchronous: never waits."""
         inbox = self.inbox
 
         def on_reply(reply: Any) -> None:
-            inbox.put(kind, peer, wrap(reply_bytes(reply)))
+            inbox.put(kind, peer, wrap(reply_bytes(reply, limit)))
 
         sessions = self._out()
         if not sessions:

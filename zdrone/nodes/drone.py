@@ -180,7 +180,8 @@ class DroneNode:
             signing=FcSigning(FcKeyStore.for_node(opts.fleet, opts.drone), opts.fc_signing, opts.rotate_fc_key))
         self._vehicle_pushes = False  # True once the vehicle's frames come through the inbox
         self.pairing = self.rt.queryable(kx.pair_all(self.name))
-        self.revision = revisions.RevisionChannel(self.rt, opts.fleet)  # fleet revisions: heard, kept, answered
+        # fleet revisions: heard and kept, asked for on coming back in reach (a drone never answers)
+        self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=False, in_reach=self._hears_a_gs)
 
     @property
     def machine(self) -> ha.AuthorityMachine:
@@ -277,7 +278,7 @@ class DroneNode:
         """A fleet revision heard (published, or a query's reply): applied live if it is the next one;
         the one in force heard again renews the revision lease. TESTBED: out of every GS's radio
         (the coverage gate), the drone hears none."""
-        if self.gate is not None and not any(self.gate.allow(g, "up") for g in self.fleet.ground_stations()):
+        if not self._hears_a_gs():
             return
         got = self.revision.on_inbox(kind, data)
         if isinstance(got, RevisionAccepted):
@@ -285,6 +286,10 @@ class DroneNode:
             self._do(self.core.on_revision(got.fleet, now), now)
         elif isinstance(got, RevisionRefused) and got.reason is RevisionRefusal.REPLAYED and got.number is not None:
             self._do(self.core.on_revision_sync(got.number, now), now)
+
+    def _hears_a_gs(self) -> bool:
+        """TESTBED: whether the coverage gate lets any GS's traffic through now (True without one)."""
+        return self.gate is None or any(self.gate.allow(g, "up") for g in self.fleet.ground_stations())
 
     def _restore(self, now: float) -> None:
         """At start: back to the authority saved before a restart (in the air: its owner re-pairs; on
