@@ -45,6 +45,8 @@ from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.linkslot import LinkSlot, Promoted
+from zdrone.core.mavlink import FrameError, read_header
+from zdrone.core.standby import StandbyStream
 from zdrone.core.outputs import Emit, Put
 from zdrone.core.kk import check_message1
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
@@ -157,6 +159,7 @@ class DroneCore:
         self.counters: Counter[str] = Counter()
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
+        self.standby = StandbyStream()  # what a GS that does not command the drone is sent of its stream
         self.position: Position | None = None
         self.position_trusted = False  # the position may grant authority (``on_vehicle``)
         self.on_ground = True
@@ -247,9 +250,26 @@ class DroneCore:
         return out + self._effects(now)
 
     def on_telemetry(self, frame: bytes, now: float) -> list[Out]:
-        """A vehicle frame: sealed to every GS the drone talks to."""
-        return [Put(gs, link.seal(frame)) for gs in self.machine.telemetry_targets()
-                if (link := self.links.get(gs)) is not None]
+        """A vehicle frame: sealed to every GS the drone talks to; to a standby GS (not the owner, no
+        hand-over pending to it) a stream message at most once a ``StandbyStream`` interval."""
+        m = self.machine
+        full = {m.owner, m.pending_to}
+        msgid: int | None = None
+        out: list[Out] = []
+        for gs in m.telemetry_targets():
+            link = self.links.get(gs)
+            if link is None:
+                continue
+            if gs not in full:
+                if msgid is None:
+                    try:
+                        msgid = read_header(frame).msgid
+                    except FrameError:
+                        msgid = -1
+                if not self.standby.allow(gs, msgid, now):
+                    continue
+            out.append(Put(gs, link.seal(frame)))
+        return out
 
     def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
         """At start, the authority saved before: back to it in the air (its owner must re-pair within
@@ -388,7 +408,7 @@ class DroneCore:
                           "dropped_unlinked": {r.value: c for r, c in slot.unlinked.items() if c}}
                      for gs, slot in self.slots.items()},
             "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
-            "counters": dict(self.counters), "forwarded_commands": dict(self.forwarded),
+            "counters": dict(self.counters) | ({"standby_held": self.standby.held} if self.standby.held else {}), "forwarded_commands": dict(self.forwarded),
             "forwarded_epochs": dict(self.forwarded_epochs),
         }
 
