@@ -200,7 +200,7 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
                         "authority (README, threat model)")
     p.add_argument("--revision-lease", type=float, default=0.0, metavar="S",
                    help="once the fleet has a signed revision, authority stands only while a valid revision was heard "
-                        "within S seconds (the drone asks every 2 s); else it lapses as a lost authority link: an heir "
+                        "within S seconds (each GS re-publishes it every 10 s: give S more than that); else it lapses as a lost authority link: an heir "
                         "covering the drone takes over, else the failsafe (default 0: off; docs/deploy.md)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--sil-loss", action="append", metavar="[GS=]P",

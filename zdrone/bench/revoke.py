@@ -6,7 +6,7 @@ GSs in another: ``python -m zdrone.bench.scale host-drones | host-stations``), o
 drones and GSs A, B, C 500 m apart, every drone flying the shuttle A -> C -> A. Once B holds
 authority over at least one drone (its first hand-over A -> B in the drones' logs), the bench signs
 the revision revoking B on the fleet directory (``zdrone.fleet.revise.revoke``) and publishes it on
-the revision key as A (``zdrone.fleet.revisions.publish``); the drones also ask for it every 2 s.
+A's revision key (``zdrone.fleet.revisions.publish``); the GSs re-publish it every 10 s.
 
 Figures, from the drones' event logs and the hosts' results:
 

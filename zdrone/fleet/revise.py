@@ -238,10 +238,10 @@ def add_parsers(fsub) -> None:
     rs.add_argument("--pairing-pq", choices=["on", "off"], help="hybrid post-quantum pairing required (on) or not")
     rs.add_argument("--note", default="")
     rs.set_defaults(func=_cli_revise)
-    pb = fsub.add_parser("publish", help="put the latest revision on the fleet's revision key through a router")
+    pb = fsub.add_parser("publish", help="put the latest revision on a GS's revision key through a router")
     pb.add_argument("--fleet", required=True, help="a node's bundle (or the fleet directory) holding revision.json")
     pb.add_argument("--revision", help="the revision file (default: revision.json of --fleet)")
-    pb.add_argument("--id", required=True, help="the node whose credentials publish it")
+    pb.add_argument("--id", required=True, help="the GS whose credentials publish it (on its own revision key)")
     pb.add_argument("--router", required=True, help="router endpoint, e.g. tcp/127.0.0.1:7447")
     pb.set_defaults(func=_cli_publish)
 
