@@ -147,8 +147,11 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError("--drone-router: only with --sites")
     if args.inbox_senders is not None and not 64 <= args.inbox_senders <= 100_000:
         raise UsageError(f"--inbox-senders {args.inbox_senders}: must be 64..100000")
+    if not 0.5 <= args.speedup <= 8.0:
+        raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
     result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
-                       drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders)
+                       drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
+                       speedup=args.speedup)
     _emit(args, result, scale.render)
     return 0
 
@@ -354,6 +357,8 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--quick", action="store_true", help="3 drones only (with --sites: the sites run only)")
     bs.add_argument("--drones", metavar="K,K,…", help="drone counts to try (default 10,25,50; with --sites 25,50,100)")
     bs.add_argument("--stations", type=int, default=3, metavar="G", help="ground stations (default 3)")
+    bs.add_argument("--speedup", type=float, default=4.0, metavar="S",
+                    help="the simulators' speed-up (default 4; the vehicles' telemetry grows with it: 1 for 300 drones)")
     bs.add_argument("--sites", type=int, metavar="N",
                     help="N site routers meshed over mutual TLS (site n connects to sites 1..n-1), GS i at site i; "
                          "each K is also flown through one TLS router for comparison; the load table adds the "

@@ -51,6 +51,8 @@ READY_TIMEOUT_S = 180.0
 #: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
 #: sleeps until its next deadline or input; stepping hundreds in turn, each pass costs them all).
 PASS_S = 0.01
+#: The flight's time limit from take-off, in simulated seconds (150 wall seconds at speed-up 4).
+FLIGHT_SIM_S = 600.0
 #: Readiness of a held vehicle (simulated seconds after boot before it may arm): never, until released.
 HOLD_READY_AFTER = 1e9
 
@@ -317,7 +319,7 @@ def _free_ports(n: int) -> list[int]:
 
 
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
-         drone_router: str = "spread", inbox_senders: int | None = None) -> dict[str, Any]:
+         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
     from ..fleet.files import init_fleet, load_sites, scale_nodes
     from ..sil.procs import spawn  # dies with the bench, however it ends
@@ -356,7 +358,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             zid_site[zid.group(1) if zid else name] = name
         router_pids = {procs[n].pid for n in router_cmds}
         common = ["--fleet", str(d / "fleet"), "--out", str(d)]
-        procs["drones"] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(SPEEDUP),
+        procs["drones"] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
                                                  "--duration", str(timeout), "--hold", str(hold_limit(k)),
                                                  "--router", ",".join(endpoints),
                                                  "--drone-router", drone_router, *common],
@@ -467,10 +469,12 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 
 
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
-        drone_router: str = "spread", inbox_senders: int | None = None) -> dict[str, Any]:
+        drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick``) through one
-    TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported)."""
+    TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
+    ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it)."""
     ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
+    flight_s = FLIGHT_SIM_S / speedup
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
     rows = []
     from .table import ProgressLine
@@ -479,15 +483,16 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
     try:
         for k in ks:
             if sites:
-                status.say(f"{k} drones x {stations} GSs flying over {sites} site routers…")
-                rows.append(_one(k, stations, base, timeout=150.0, sites=sites, drone_router=drone_router,
-                                 inbox_senders=inbox_senders))
+                status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {speedup:g})…")
+                rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
+                                 inbox_senders=inbox_senders, speedup=speedup))
                 if not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
-                    rows.append(_one(k, stations, base, timeout=150.0, tls=True, inbox_senders=inbox_senders))
+                    rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
+                                     speedup=speedup))
             else:
                 status.say(f"{k} drones x {stations} GSs flying…")
-                rows.append(_one(k, stations, base, timeout=150.0, inbox_senders=inbox_senders))
+                rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=speedup))
     finally:
         status.close()
 
@@ -497,17 +502,17 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
 
     main_rows = [r for r in rows if r.get("sites", 1) == (sites or 1)]
     result: dict[str, Any] = {"rows": rows, "largest_k_all_correct": largest(main_rows), "stations": stations,
-                              "gs_inbox_senders": inbox_senders}
+                              "gs_inbox_senders": inbox_senders, "speedup": speedup}
     if sites:
         result.update({"sites": sites, "drone_router": drone_router,
                        "largest_k_all_correct_one_router": largest([r for r in rows if r.get("sites") == 1]),
                        "layout": f"{sites} site routers meshed over mutual TLS (GS i at site i; drones "
                                  f"{'spread round-robin over the sites' if drone_router == 'spread' else 'given every site'}) | "
                                  "one process hosting K drone nodes (in-process simulators) | one hosting the G GSs",
-                       "target": {"k": 100, "g": 3, "sites": 3}})
+                       "target": {"k": 300, "g": 3, "sites": 3}})
     else:
         result.update({"layout": "router | one process hosting K drone nodes (in-process simulators) | one hosting the G GSs",
-                       "target": {"k": 50, "g": 3}})
+                       "target": {"k": 300, "g": 3}})
     return result
 
 
@@ -536,7 +541,7 @@ def render(r: dict[str, Any]) -> None:
     target = r["target"]
     where = f"over {r['sites']} site routers" if r.get("sites") else "through one router"
     caption = (f"largest K with all hand-overs correct and TBM healthy: {r['largest_k_all_correct']} "
-               f"(target {target['k']} x {target['g']})")
+               f"(target {target['k']} x {target['g']}); simulators at speed-up {r.get('speedup', SPEEDUP):g}")
     if r.get("sites"):
         if any(x.get("sites") == 1 for x in r["rows"]):
             caption += f"; through one router: {r['largest_k_all_correct_one_router']}"
