@@ -53,8 +53,9 @@ from .actions import Action, Ask, AskKind, Emit, QueryAnswer
 
 log = logging.getLogger(__name__)
 
-#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``).
-LINKKEY_RATE, LINKKEY_BURST = 1.0, 3.0
+#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``): a fleet of 300 drones
+#: gets every GS's keys on the ground in about a minute; a hostile asker spends a few ms of CPU a second.
+LINKKEY_RATE, LINKKEY_BURST = 5.0, 10.0
 #: A secret handed out over the backhaul waits this long for the drone to prove it (the drone first
 #: speaks under it when it reaches this GS's coverage).
 LINKKEY_CANDIDATE_TTL = 900.0

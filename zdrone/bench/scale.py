@@ -8,9 +8,9 @@ hosting the G ground stations, each with its own session, serving all K drones. 
 apart eastwards (A, B, C, …); with sites, GS i belongs to site i (``router/sites.json``) and
 connects to its site's router, and drone i to site (i mod N)'s router (``spread``) or to the list of
 every site's router (``all``: Zenoh picks one). Coverage stays the in-process gate. Every drone is
-paired by A and gets the other GSs' keys over the backhaul on the ground: each GS shares at most one
-link key per second with an asker (bursts of 3), so the vehicles report "not ready to arm" until
-every drone holds every GS's key (about K s; the table shows it), then all take off at once and fly
+paired by A and gets the other GSs' keys over the backhaul on the ground: each GS shares at most five
+link keys per second with an asker (bursts of 10), so the vehicles report "not ready to arm" until
+every drone holds every GS's key (about K/5 s; the table shows it), then all take off at once and fly
 a shuttle from A's area to the last GS's area and back, so each makes 2 x (G - 1) hand-overs; each
 authority GS sends it a 1 Hz command stream. A drone is *correct* if it made every hand-over, never
 had an authority gap, lost no command, never entered failsafe, and its authority link stayed
@@ -58,9 +58,10 @@ HOLD_READY_AFTER = 1e9
 
 
 def hold_limit(k: int) -> float:
-    """The longest pre-flight hold: each GS shares at most one link key per second with an asker
-    (bursts of 3), so A needs about K s to get B's (and, in parallel, C's) keys for K drones."""
-    return 60.0 + 2.5 * k
+    """The longest pre-flight hold: each GS shares at most five link keys per second with an asker
+    (bursts of 10, ``gs.linking.LINKKEY_RATE``), so A needs about K/5 s to get B's (and, in
+    parallel, C's) keys for K drones; the rest is margin for a loaded machine."""
+    return 60.0 + 1.0 * k
 
 
 log = logging.getLogger(__name__)
