@@ -183,7 +183,7 @@ def run(quick: bool = False, k: int | None = None, timeout: float = 240.0) -> di
 
 
 def render(r: dict[str, Any]) -> None:
-    print("revoke B in flight (revision signed, published through A; drones ask every 2 s)")
+    print("revoke B in flight (revision signed, published through A; the GSs re-publish it every 10 s)")
     print(f"{'drones x GSs':>13} {'applied':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'B held':>7} "
           f"{'B after':>8} {'others lost':>12} {'failsafes':>10} {'covered':>8}")
     for row in r["rows"]:
