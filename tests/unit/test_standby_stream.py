@@ -44,3 +44,29 @@ def test_the_owner_gets_every_frame_and_a_standby_gs_one_position_a_second(tmp_p
     sent = [o.peer for o in drone.on_telemetry(ack, t0 + 0.95) if isinstance(o, Put)]
     assert sorted(sent) == ["A", "B"]
     assert drone.report(t0 + 1.0)["counters"]["standby_held"] >= 9
+
+
+def test_a_gs_that_becomes_the_heir_first_gets_the_newest_of_each_stream_message(tmp_path):
+    """Never decide from a stale position: the moment B is the GS a hand-over is pending to, the next
+    vehicle frame sends it the newest position (held back from it as a standby GS) before anything else."""
+    from zdrone.bench.fleetnet import FleetNet, make_fleet
+    from zdrone.core.mavlink import FrameCodec
+    from zdrone.core.outputs import Put
+
+    net = FleetNet(make_fleet(tmp_path))
+    net.add_gs("A", pair=True)
+    net.add_gs("B")
+    net.run(4.0)
+    net.position = net.between(net.centre("A"), net.centre("B"), 0.45)
+    net.run(1.0)
+    drone, codec = net.drone, FrameCodec(1)
+    pos = [codec.encode(mav.MAVLink_global_position_int_message(i, i, 0, 0, 0, 0, 0, 0, 0)) for i in range(3)]
+    for i, frame in enumerate(pos):
+        drone.on_telemetry(frame, 200.0 + 0.1 * i)  # B got the first only
+    drone.machine.pending_to = "B"  # what a release to B does to the machine
+    ack = codec.encode(mav.MAVLink_command_ack_message(400, 0))
+    to_b = [o for o in drone.on_telemetry(ack, 200.35) if isinstance(o, Put) and o.peer == "B"]
+    assert len(to_b) == 2  # the newest position, then the acknowledgement (sealed: 24 bytes more each)
+    assert [len(o.payload) - 24 for o in to_b] == [len(pos[-1]), len(ack)]
+    # then B is an heir like the owner: every frame
+    assert sum(1 for o in drone.on_telemetry(pos[0], 200.4) if isinstance(o, Put) and o.peer == "B") == 1

@@ -46,7 +46,7 @@ from zdrone.core.geometry import GeoPoint
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.linkslot import LinkSlot, Promoted
 from zdrone.core.mavlink import FrameError, read_header
-from zdrone.core.standby import StandbyStream
+from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.outputs import Emit, Put
 from zdrone.core.kk import check_message1
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
@@ -160,6 +160,8 @@ class DroneCore:
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
         self.standby = StandbyStream()  # what a GS that does not command the drone is sent of its stream
+        self._full_stream: set[str] = set()  # the GSs sent the full stream at the last vehicle frame
+        self._latest: dict[int, bytes] = {}  # the newest frame of each stream message (a new owner's catch-up)
         self.position: Position | None = None
         self.position_trusted = False  # the position may grant authority (``on_vehicle``)
         self.on_ground = True
@@ -251,24 +253,29 @@ class DroneCore:
 
     def on_telemetry(self, frame: bytes, now: float) -> list[Out]:
         """A vehicle frame: sealed to every GS the drone talks to; to a standby GS (not the owner, no
-        hand-over pending to it) a stream message at most once a ``StandbyStream`` interval."""
+        hand-over pending to it) a stream message at most once a ``StandbyStream`` interval. A GS that
+        becomes the owner or heir first gets the newest frame of each stream message, so that it
+        never decides from a position up to an interval old."""
         m = self.machine
-        full = {m.owner, m.pending_to}
-        msgid: int | None = None
+        full = {g for g in (m.owner, m.pending_to) if g is not None}
+        try:
+            msgid = read_header(frame).msgid
+        except FrameError:
+            msgid = -1
         out: list[Out] = []
         for gs in m.telemetry_targets():
             link = self.links.get(gs)
             if link is None:
                 continue
-            if gs not in full:
-                if msgid is None:
-                    try:
-                        msgid = read_header(frame).msgid
-                    except FrameError:
-                        msgid = -1
-                if not self.standby.allow(gs, msgid, now):
-                    continue
+            if gs in full and gs not in self._full_stream:  # it commands now (or is about to): the latest of
+                out += [Put(gs, link.seal(f)) for f in self._latest.values()]  # each stream message at once
+                self.standby.forget(gs)
+            elif gs not in full and not self.standby.allow(gs, msgid, now):
+                continue
             out.append(Put(gs, link.seal(frame)))
+        self._full_stream = full
+        if msgid in STREAMED:
+            self._latest[msgid] = frame
         return out
 
     def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
