@@ -3,7 +3,7 @@
 ``Put`` and ``Emit`` are the outputs the drone's core has too (``zdrone.core.outputs``); the GS adds
 ``Ask`` (a query whose replies come back through ``StationCore.on_pair_reply`` /
 ``on_linkkey_reply``), ``FrameUp`` (an authentic vehicle frame for the GCS gateway) and ``Say`` (a
-line for the operator). An incoming key-sharing query is answered with a ``QueryAnswer`` value.
+line for the operator) and ``Checkpoint`` (a drone's authority-record checkpoint to countersign). An incoming key-sharing query is answered with a ``QueryAnswer`` value.
 The sub-machines of the GS core (``gs.mission``, ``gs.linking``, ``gs.handover``) return these values
 and import them from here, never from ``gs.core``.
 """
@@ -13,9 +13,10 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+from zdrone.core import wire
 from zdrone.core.outputs import Emit, Put
 
-__all__ = ["Action", "Ask", "AskKind", "Emit", "FrameUp", "Put", "QueryAnswer", "Say"]
+__all__ = ["Action", "Ask", "AskKind", "Checkpoint", "Emit", "FrameUp", "Put", "QueryAnswer", "Say"]
 
 
 class AskKind(enum.Enum):
@@ -50,7 +51,16 @@ class Say:
     text: str
 
 
-Action = Put | Ask | Emit | FrameUp | Say
+@dataclass(frozen=True, slots=True)
+class Checkpoint:
+    """The drone's newest authority-record checkpoint, from its authentic status: for this GS to
+    countersign (``zdrone.core.audit``), if it keeps an authority record."""
+
+    drone: str
+    head: wire.AuditHead
+
+
+Action = Put | Ask | Emit | FrameUp | Say | Checkpoint
 
 
 @dataclass(frozen=True, slots=True)

@@ -70,7 +70,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
-from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, QueryAnswer, Say
+from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, QueryAnswer, Say
 from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
 from .ownership import owns
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
@@ -302,6 +302,10 @@ class StationCore:
         return DroneStatus(name=v.name, sysid=v.sysid, linked=v.link is not None, owner=v.owner, epoch=v.epoch,
                            state=v.ha_state, holds_authority=self.holds_authority(v), owned=owns(v, self.name),
                            request=op.live_request(v, now), takeover=op.shown_takeover(v, now))
+
+    def commands_sent(self, drone: str) -> int:
+        """Commanding frames sent to ``drone``, all epochs."""
+        return sum(self.views[drone].commands_sent.values())
 
     def describe(self, drone: str, now: float) -> str | None:
         """One line for the operator's console (``view_line``), None while there is no link."""
@@ -608,6 +612,8 @@ class StationCore:
                 # else will move it now
                 out.append(Say(f"zdrone gs {self.name}: {view.name} is ours and holds in the air "
                                f"({roles['hold']}): resume its mission or bring it home"))
+            if msg.audit is not None:
+                out.append(Checkpoint(view.name, msg.audit))
             if changed:
                 out.append(Emit(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
                                                    pending_to=msg.pending_to)))

@@ -17,7 +17,7 @@ The loop sleeps until input arrives (an envelope, a query reply) or the core's t
 periodic work), and calls ``handle_timer`` only then; the status event has its own time. The
 key-sharing queryable's ring is looked at on every wake, at least every ``MAX_SLEEP_S``; loop hooks
 that poll sockets (the GCS gateway) keep the loop at ``HOOK_POLL_S``. The adapter names drones and
-reads ``DroneStatus``es: the core's ``DroneView``s are its own.
+reads ``DroneStatus``es (``drone_status``) and ``commands_sent``: the core's ``DroneView``s are its own.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from zdrone.net.runtime import NodeRuntime
 
 from zdrone.core.outputs import Handlers, dispatch
 
-from .actions import Action, Ask, AskKind, Emit, FrameUp, Put, Say
-from .core import GCS_COMPID, CoreOptions, DroneStatus, DroneView, StationCore, view_line
+from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, Say
+from .core import GCS_COMPID, CoreOptions, DroneStatus, StationCore, view_line
 from .planner import PlannedItem
 
 log = logging.getLogger(__name__)
@@ -57,7 +57,7 @@ MAX_SLEEP_S = 0.05
 #: The loop's period while a hook polls sockets of its own (the GCS gateway's endpoints).
 HOOK_POLL_S = 0.005
 
-__all__ = ["GCS_COMPID", "DroneStatus", "DroneView", "GroundStation", "StationOptions", "run_station", "view_line"]
+__all__ = ["GCS_COMPID", "DroneStatus", "GroundStation", "StationOptions", "run_station", "view_line"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,8 +103,6 @@ class GroundStation:
         if self.secret.signing is not None:  # its own authority record; it countersigns the drones' checkpoints
             self.events.start_audit(self.secret.signing)
             self.witnessing = Witnessing(self.name, self.secret.signing, {d: self.fleet.signing_public(d) for d in drones})
-            self.core._on_control = self._witnessed(self.core._on_control)  # type: ignore[method-assign]
-        self.views = self.core.views  # for the bench's counts (``zdrone.bench.scale``); adapters go by name
         self.counters = self.core.counters
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
@@ -115,7 +113,7 @@ class GroundStation:
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask,
                                     Emit: lambda a: self.events.write_record(a.record),
-                                    Say: lambda a: print(a.text, flush=True)}
+                                    Say: lambda a: print(a.text, flush=True), Checkpoint: self._countersign}
 
     # ------------------------------------------------------------------ plumbing
 
@@ -145,6 +143,10 @@ class GroundStation:
     def drone_status(self, drone: str, now: float) -> DroneStatus:
         return self.core.drone_status(drone, now)
 
+    def commands_sent(self, drone: str) -> int:
+        """Commanding frames this GS sent the drone, all epochs (``zdrone.bench.scale`` counts them)."""
+        return self.core.commands_sent(drone)
+
     def send_frame(self, drone: str, frame: bytes) -> None:
         """Seal and send one MAVLink frame to the drone (no-op without a link)."""
         self._do(self.core.send_frame(drone, frame))
@@ -166,20 +168,17 @@ class GroundStation:
         self._do(actions)
         return int(answer)
 
-    def _witnessed(self, on_control: Callable[[DroneView, wire.Control, float], list[Action]]
-                   ) -> Callable[[DroneView, wire.Control, float], list[Action]]:
-        """The core's handling of a drone's control message, after countersigning the authority-record
-        checkpoint an authentic status carries (``zdrone.core.audit``; logged in this GS's record)."""
-        def witnessed(view: DroneView, msg: wire.Control, now: float) -> list[Action]:
-            if isinstance(msg, wire.AuthorityStatus) and msg.audit is not None and self.witnessing is not None:
-                refused = self.witnessing.refused
-                w = self.witnessing.on_head(view.name, msg.audit.seq, msg.audit.head, msg.audit.sig, time.time())
-                if w is not None:
-                    self.events.write_witness(w)
-                elif self.witnessing.refused > refused:
-                    self.counters["audit_bad_checkpoint"] += 1
-            return on_control(view, msg, now)
-        return witnessed
+    def _countersign(self, a: Checkpoint) -> None:
+        """Countersign a drone's authority-record checkpoint from its authentic status
+        (``zdrone.core.audit``; logged in this GS's record)."""
+        if self.witnessing is None:
+            return
+        refused = self.witnessing.refused
+        w = self.witnessing.on_head(a.drone, a.head.seq, a.head.head, a.head.sig, time.time())
+        if w is not None:
+            self.events.write_witness(w)
+        elif self.witnessing.refused > refused:
+            self.counters["audit_bad_checkpoint"] += 1
 
     # ------------------------------------------------------------------ inbox
     def _on_inbox(self, kind: str, drone: str, data: Any, now: float) -> None:
@@ -289,8 +288,8 @@ class GroundStation:
         return HOOK_POLL_S if self.loop_hooks else MAX_SLEEP_S
 
     def run(self) -> None:
-        print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.views)}, router {self.opts.router}", flush=True)
-        self.events.write_record(rec.GsStart(drones=list(self.views)))
+        print(f"zdrone gs {self.name}: sysid {self.sysid}, drones {', '.join(self.drones)}, router {self.opts.router}", flush=True)
+        self.events.write_record(rec.GsStart(drones=list(self.drones)))
         next_status = next_view = 0.0
         try:
             while self.rt.running:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mav
 
-from gs.actions import Ask, AskKind, Emit, FrameUp, Put, Say
+from gs.actions import Ask, AskKind, Checkpoint, Emit, FrameUp, Put, Say
 from gs.core import CoreOptions, StationCore
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
@@ -28,7 +28,7 @@ WALL0 = 1_800_000_000.0  # the time of day at now = 0
 
 
 def _ignored(_: object) -> None:
-    """The GS's records, its frames for the gateway and its console lines: not needed here."""
+    """The GS's records, its frames for the gateway, its console lines and its countersignatures: not needed here."""
 
 
 def make_fleet(directory: Path) -> Path:
@@ -98,7 +98,7 @@ class FleetNet:
 
     def gs_outs(self, gs: str, outs: list) -> None:
         dispatch(outs, {Put: lambda a: self._put_up(gs, a), Ask: lambda a: self._ask(gs, a),
-                        Emit: _ignored, FrameUp: _ignored, Say: _ignored})
+                        Emit: _ignored, FrameUp: _ignored, Say: _ignored, Checkpoint: _ignored})
 
     def _put_up(self, gs: str, a: Put) -> None:
         assert self.drone is not None and a.peer == "d1", a.peer
