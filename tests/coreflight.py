@@ -30,6 +30,7 @@ from zdrone.core.mavlink import FrameCodec
 from zdrone.core.reference import HOME
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.core.outputs import dispatch
+from zdrone.core.pairing import query_answer
 from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Persist, ToVehicle
 from zdrone.vehicle.link import COMPANION_COMPID
 from zdrone.vehicle.modes import ARDUPILOT, set_mode_params
@@ -148,10 +149,9 @@ class CoreFlight:
             if self.in_range(name):
                 ans, outs = self.drone.on_pair_query(name, a.payload, self.now, bytes(32), WALL0 + self.now)
                 self.handle(outs)
-                if hasattr(ans, "reply"):
-                    self.station(name, st.core.on_pair_reply(DRONE, ans.reply, None, self.now))
-                elif not ans.silent:
-                    self.station(name, st.core.on_pair_reply(DRONE, None, ans.text.encode(), self.now))
+                answer = query_answer(ans)
+                if answer is not None:
+                    self.station(name, st.core.on_pair_reply(DRONE, *answer, self.now))
             return
         other = self.gs[a.gs]
         if not other.down:  # the backhaul: no radio involved

@@ -22,6 +22,7 @@ from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.core.outputs import dispatch
+from zdrone.core.pairing import query_answer
 from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
 
 WALL0 = 1_800_000_000.0  # the time of day at now = 0
@@ -114,11 +115,9 @@ class FleetNet:
                 return
             ans, outs = self.drone.on_pair_query(gs, a.payload, self.now, os.urandom(32), WALL0 + self.now)
             self.drone_outs(outs)
-            reply = getattr(ans, "reply", None)
-            if reply is not None:
-                self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", reply, None, self.now))
-            elif not getattr(ans, "silent", True):
-                self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", None, ans.text.encode(), self.now))
+            answer = query_answer(ans)
+            if answer is not None:
+                self.gs_outs(gs, self.gss[gs].on_pair_reply("d1", *answer, self.now))
             return
         owner = self.gss.get(a.gs)
         if owner is None or a.gs in self.hung:

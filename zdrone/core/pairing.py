@@ -192,6 +192,14 @@ class PairRefused:
 PairResult = PairAccepted | PairRepeated | PairRefused
 
 
+def query_answer(result: PairResult) -> tuple[bytes | None, bytes | None] | None:
+    """What the querying GS gets for ``result``: ``(reply, None)``, ``(None, error text)``, or None (no
+    answer at all: a silent refusal)."""
+    if isinstance(result, PairRefused):
+        return None if result.silent else (None, result.text.encode())
+    return result.reply, None
+
+
 #: A message 1 made longer ago than this (by its tagged stamp, against the drone's clock) is stale.
 PAIR_MAX_AGE = 30.0
 #: Handshakes per second a GS's pairing queries may cost the drone (bursts of ``PAIR_BURST``): above

@@ -47,6 +47,7 @@ from ..net.runtime import NodeRuntime
 from ..fleet import revisions
 from ..core.revision import RevisionAccepted, RevisionRefusal, RevisionRefused
 from ..core.outputs import Emit, Handlers, Put, dispatch
+from ..core.pairing import query_answer
 from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle, next_link_change
 
 __all__ = ["DroneNode", "DroneOptions", "next_link_change", "run_drone"]
@@ -314,10 +315,11 @@ class DroneNode:
                 ans, outs = self.core.on_pair_query(gs, payload_bytes(q.payload), now, os.urandom(32), time.time())
                 self._do(outs, now)
                 handshakes += int(ans.crypto)
-                if hasattr(ans, "reply"):
-                    q.reply(q.key_expr, ans.reply)  # type: ignore[union-attr]
-                elif not ans.silent:  # type: ignore[union-attr]
-                    q.reply_err(ans.text.encode())  # type: ignore[union-attr]
+                answer = query_answer(ans)
+                if answer is not None and answer[0] is not None:
+                    q.reply(q.key_expr, answer[0])
+                elif answer is not None and answer[1] is not None:
+                    q.reply_err(answer[1])
             except zenoh.ZError as exc:
                 self.core.counters["pair_reply_error"] += 1
                 log.info("pairing reply failed: %s", exc)
