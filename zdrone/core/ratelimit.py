@@ -6,9 +6,27 @@ from dataclasses import dataclass
 
 
 @dataclass(slots=True)
-class _Bucket:
+class TokenBucket:
+    """``rate`` tokens a second, at most ``burst`` held; ``take`` spends one if there is one. Time
+    never runs back for it (an earlier ``now`` refills nothing)."""
+
+    rate: float
+    burst: float
     tokens: float
     stamp: float
+
+    @classmethod
+    def full(cls, rate: float, burst: float, now: float) -> "TokenBucket":
+        return cls(rate, burst, burst, now)
+
+    def take(self, now: float) -> bool:
+        if now > self.stamp:
+            self.tokens = min(self.burst, self.tokens + (now - self.stamp) * self.rate)
+            self.stamp = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
 
 
 class RateLimiter:
@@ -22,18 +40,14 @@ class RateLimiter:
         if rate <= 0 or burst < 1:
             raise ValueError("need rate > 0 and burst >= 1")
         self.rate, self.burst = rate, burst
-        self._buckets: dict[str, _Bucket] = {}
+        self._buckets: dict[str, TokenBucket] = {}
         self.refused = 0
 
     def allow(self, peer: str, now: float) -> bool:
         b = self._buckets.get(peer)
         if b is None:
-            b = self._buckets[peer] = _Bucket(self.burst, now)
-        elif now > b.stamp:
-            b.tokens = min(self.burst, b.tokens + (now - b.stamp) * self.rate)
-            b.stamp = now
-        if b.tokens >= 1.0:
-            b.tokens -= 1.0
+            b = self._buckets[peer] = TokenBucket.full(self.rate, self.burst, now)
+        if b.take(now):
             return True
         self.refused += 1
         return False

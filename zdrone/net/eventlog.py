@@ -45,6 +45,7 @@ from typing import Any, Callable, NamedTuple, TextIO, TypeVar
 
 import msgspec
 
+from ..core.ratelimit import TokenBucket
 from ..core import audit
 from ..core.keys import SigningKey
 from ..core.records import (AnyRecord, Suppressed, UntypedRecord, decode_record, encode_record, misfit, record_type,
@@ -81,8 +82,7 @@ class EventRate:
 
 @dataclass
 class _Bucket:
-    tokens: float
-    at: float
+    tokens: TokenBucket
     left_out: int = 0  # since the last summary
     first: float = 0.0
     last: float = 0.0
@@ -253,11 +253,8 @@ class EventLog:
             else:
                 seen.add(reason)
             if b is None:
-                b = self._buckets[key] = _Bucket(rate.burst, now, summary_at=now)
-        b.tokens = min(rate.burst, b.tokens + max(0.0, now - b.at) * rate.per_s)
-        b.at = now
-        if b.tokens >= 1.0:
-            b.tokens -= 1.0
+                b = self._buckets[key] = _Bucket(TokenBucket.full(rate.per_s, rate.burst, now), summary_at=now)
+        if b.tokens.take(now):
             return True
         if not b.left_out:
             b.first = now
