@@ -2,7 +2,7 @@
 
 ``Put`` and ``Emit`` are the outputs the drone's core has too (``zdrone.core.outputs``); the GS adds
 ``Ask`` (a query whose replies come back through ``StationCore.on_pair_reply`` /
-``on_linkkey_reply``), ``FrameUp`` (an authentic vehicle frame for the GCS gateway) and ``Say`` (a
+``on_linkkey_reply``), ``FrameUp`` (an authentic vehicle frame for the GCS gateway) and ``ToOperator`` (a
 line for the operator) and ``Checkpoint`` (a drone's authority-record checkpoint to countersign). An incoming key-sharing query is answered with a ``QueryAnswer`` value.
 The sub-machines of the GS core (``gs.mission``, ``gs.linking``, ``gs.handover``) return these values
 and import them from here, never from ``gs.core``.
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from zdrone.core import wire
 from zdrone.core.outputs import Emit, Put
 
-__all__ = ["Action", "Ask", "AskKind", "Checkpoint", "Emit", "FrameUp", "Put", "QueryAnswer", "Say"]
+__all__ = ["Action", "Ask", "AskKind", "Checkpoint", "Emit", "FrameUp", "Put", "QueryAnswer", "ToOperator"]
 
 
 class AskKind(enum.Enum):
@@ -45,7 +45,7 @@ class FrameUp:
 
 
 @dataclass(frozen=True, slots=True)
-class Say:
+class ToOperator:
     """A line for the operator (stdout)."""
 
     text: str
@@ -60,7 +60,7 @@ class Checkpoint:
     head: wire.AuditHead
 
 
-Action = Put | Ask | Emit | FrameUp | Say | Checkpoint
+Action = Put | Ask | Emit | FrameUp | ToOperator | Checkpoint
 
 
 @dataclass(frozen=True, slots=True)

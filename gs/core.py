@@ -4,12 +4,12 @@ coordination and mission stages. ``gs/station.py`` is its thin Zenoh adapter.
 Theory of operation
 -------------------
 ``StationCore`` holds one ``DroneView`` per drone the GS serves (its own business: adapters name a
-drone and read a ``DroneStatus``). Time comes in as ``now``; bytes and events come in through
+drone and read a ``DroneSeen``). Time comes in as ``now``; bytes and events come in through
 ``on_*`` methods and ``operator_command``; what the adapter must do comes out as actions
 (``gs.actions``, the vocabulary it shares with the drone's core, ``zdrone.core.outputs``): ``Put``
 (publish a sealed envelope on the link to a drone), ``Ask`` (send a query; its replies come back
 through ``on_pair_reply`` / ``on_linkkey_reply``), ``Emit`` (an event-log record), ``FrameUp`` (a
-drone frame for the GCS gateway) and ``Say`` (a line for the operator). An incoming key-sharing
+drone frame for the GCS gateway) and ``ToOperator`` (a line for the operator). An incoming key-sharing
 query is answered with a ``QueryAnswer`` value. ``report(now)`` is the core's part of the GS's
 status record. Nothing here blocks, reads a clock or touches a socket.
 
@@ -70,8 +70,8 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
-from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, QueryAnswer, Say
-from .handover import Confirmed, Failed, Handover, HandoverPhase, Release
+from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
+from .handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 from .ownership import owns
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
 from .linking import (LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue,
@@ -224,7 +224,7 @@ DEADLINE_SLACK_S = 0.001
 
 
 @dataclass(frozen=True, slots=True)
-class DroneStatus:
+class DroneSeen:
     """What an adapter reads of one drone (``StationCore.drone_status``): the drone's authority as
     this GS knows it and what the operator's control shows of it."""
 
@@ -295,11 +295,11 @@ class StationCore:
     def _view(self, drone: "str | DroneView") -> DroneView:
         return self.views[drone] if isinstance(drone, str) else drone
 
-    def drone_status(self, drone: str, now: float) -> DroneStatus:
+    def drone_status(self, drone: str, now: float) -> DroneSeen:
         """Drone ``drone`` as this GS sees it at ``now`` (``KeyError``: not one of ``drones``)."""
         v = self.views[drone]
         op = v.operator
-        return DroneStatus(name=v.name, sysid=v.sysid, linked=v.link is not None, owner=v.owner, epoch=v.epoch,
+        return DroneSeen(name=v.name, sysid=v.sysid, linked=v.link is not None, owner=v.owner, epoch=v.epoch,
                            state=v.ha_state, holds_authority=self.holds_authority(v), owned=owns(v, self.name),
                            request=op.live_request(v, now), takeover=op.shown_takeover(v, now))
 
@@ -490,7 +490,7 @@ class StationCore:
         view.link = view.slot.live
         if again:  # the drone may have restarted with no key but ours: share the others' keys again
             _linking(view).keys_lost(now)
-        return [Emit(rec.GsPaired(drone=drone, again=again)), Say(f"zdrone gs {self.name}: paired with {drone}"),
+        return [Emit(rec.GsPaired(drone=drone, again=again)), ToOperator(f"zdrone gs {self.name}: paired with {drone}"),
                 *self._heartbeat(view)]
 
     def adopt_identity(self, identity: Identity, now: float, wall: float) -> list[Action]:
@@ -610,7 +610,7 @@ class StationCore:
                     and self._mode(view) == roles["hold"] and view.landed_state == mav.MAV_LANDED_STATE_IN_AIR):
                 # e.g. its owner held it for a hand-over to us and fell silent before it resumed: nobody
                 # else will move it now
-                out.append(Say(f"zdrone gs {self.name}: {view.name} is ours and holds in the air "
+                out.append(ToOperator(f"zdrone gs {self.name}: {view.name} is ours and holds in the air "
                                f"({roles['hold']}): resume its mission or bring it home"))
             if msg.audit is not None:
                 out.append(Checkpoint(view.name, msg.audit))
@@ -662,7 +662,7 @@ class StationCore:
 
     def _operator(self, view: DroneView, step: Step) -> list[Action]:
         out: list[Action] = [Emit(record) for record in step.logs]
-        out += [Say(text) for text in step.say]
+        out += [ToOperator(text) for text in step.say]
         for msg in step.send:
             out += self.send_control(view, msg)
         return out
@@ -683,7 +683,7 @@ class StationCore:
         log.warning("hand-over of %s failed (%s): authority stays here; %s", view.name, reason,
                     "commanding RTL" if rtl else f"trying again every {HANDOVER_RETRY_S:g} s")
         out: list[Action] = [Emit(rec.HandoverFailed(drone=view.name, epoch=view.epoch, action=action, reason=reason)),
-                             Say(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); "
+                             ToOperator(f"zdrone gs {self.name}: hand-over of {view.name} failed ({reason}); "
                                  + ("commanding RTL" if rtl else "trying again"))]
         if rtl:
             ho.rtl_done = True
@@ -749,7 +749,7 @@ class StationCore:
                 out: list[Action] = []
                 if not ho.released:  # sent for the first time (not again)
                     out.append(Emit(rec.HandoverRelease(drone=view.name, to=g, epoch=view.epoch, position=[here.lat, here.lon])))
-                ho.handle(Release(now, g, mine))
+                ho.handle(ReleaseSent(now, g, mine))
                 return out + self.send_control(view, wire.HandoverRelease(g, view.epoch))
         return []
 
@@ -837,7 +837,7 @@ class StationCore:
         log.warning("hand-over of %s to %s waits for its key: holding the vehicle (%s) for at most %g s",
                     view.name, g, hold_mode, HOLD_FOR_KEY_S)
         return [Emit(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=hold_mode)),
-                Say(f"zdrone gs {self.name}: holding {view.name} in the overlap until {g}'s key is there"),
+                ToOperator(f"zdrone gs {self.name}: holding {view.name} in the overlap until {g}'s key is there"),
                 *self._hold_command(view, hold, hold_mode, now)]
 
     def _resume(self, view: DroneView, g: str, now: float) -> list[Action] | None:

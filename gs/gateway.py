@@ -274,7 +274,7 @@ class GcsGateway:
         station.loop_hooks.append(self.poll)
 
     def status(self, now: float) -> Any:
-        """The drone as the station sees it (``gs.core.DroneStatus``)."""
+        """The drone as the station sees it (``gs.core.DroneSeen``)."""
         return self.station.drone_status(self.drone, now)
 
     def endpoints(self) -> list[str]:

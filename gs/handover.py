@@ -15,7 +15,7 @@ with the epoch they were true in. Phases:
 * ``FAILED``: the hand-over failed in this epoch (the drone had no key for the recipient, the release
   was refused or timed out): authority stays here and the core tries again after ``HANDOVER_RETRY_S``.
 
-Events (``HandoverEvent``, frozen): ``Release`` (the core sent a release, first or again),
+Events (``HandoverEvent``, frozen): ``ReleaseSent`` (the core sent a release, first or again),
 ``Confirmed`` (the drone reports HANDOVER_PENDING for it), ``Failed`` (the hand-over cannot happen
 now). ``TABLE`` maps (phase, event type) to (handler, next phase); a pair not in the table changes
 nothing (``handle`` returns False): e.g. a confirmation while nothing is released, a status seen
@@ -51,7 +51,7 @@ class HandoverEvent:
 
 
 @dataclass(frozen=True, slots=True)
-class Release(HandoverEvent):
+class ReleaseSent(HandoverEvent):
     """A release toward ``to`` went out, at ``distance`` metres from our coverage's centre."""
 
     to: str
@@ -134,7 +134,7 @@ class Handover:
             self.phase = new
 
     # ------------------------------------------------------------------ handlers
-    def _on_release(self, ev: Release) -> None:
+    def _on_release(self, ev: ReleaseSent) -> None:
         if self.first_distance is None:  # the epoch's first release
             self.first_distance = ev.distance
         self.to, self.sent = ev.to, ev.now
@@ -150,9 +150,9 @@ class Handover:
 Handler = Callable[[Handover, HandoverEvent], None]
 #: (phase, event type) -> (handler, next phase). Pairs not listed change nothing.
 TABLE: dict[tuple[HandoverPhase, type], tuple[Handler, HandoverPhase]] = {
-    (P.IDLE, Release): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
-    (P.FAILED, Release): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
-    (P.RELEASED, Release): (Handover._on_release, P.RELEASED),  # sent again, never confirmed  # type: ignore[dict-item]
+    (P.IDLE, ReleaseSent): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
+    (P.FAILED, ReleaseSent): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
+    (P.RELEASED, ReleaseSent): (Handover._on_release, P.RELEASED),  # sent again, never confirmed  # type: ignore[dict-item]
     (P.RELEASED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),  # type: ignore[dict-item]
     (P.CONFIRMED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),  # type: ignore[dict-item]
     (P.IDLE, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]

@@ -8,14 +8,14 @@ other authorized GSs their keys by **key sharing** (``zdrone.core.keyshare``): i
 a fresh key of link (drone, it) over the backhaul and grants that key to the drone inside its own
 sealed link (``KEY_GRANT``), re-sent each second until the drone acknowledges it. ``Linking`` keeps,
 for one drone, where both exchanges stand; what the key is used for (the link itself, ``LinkSlot``)
-stays with the core, which installs the key a reply proves (``Paired``). As the owner of a link,
+stays with the core, which installs the key a reply proves (``PairProven``). As the owner of a link,
 answering another GS's key-sharing query, the GS uses ``KeyOwner`` (one per GS).
 
 Pairing phases (``PairPhase``): ``IDLE`` (no exchange open) and ``ASKING`` (a message 1 is out; its
 reply is taken until ``deadline``). Events: ``PairDue`` (the core's timer: pair now, unless the last
 try was less than ``retry`` ago) and ``PairReply`` (the drone's answer, or its error). A reply that
 does not prove the drone's static key is counted and leaves the exchange open (the genuine one may
-still come); the one that does closes it with a ``Paired`` (the new key, and whether the drone still
+still come); the one that does closes it with a ``PairProven`` (the new key, and whether the drone still
 held our old one). If we had a link and the drone lost our key, it restarted: ``keys_lost``.
 
 Key-sharing phases, per other authorized GS (``SharePhase``): ``NONE`` (nothing asked: the drone may
@@ -136,7 +136,7 @@ class KeysLost:
 
 
 @dataclass(frozen=True, slots=True)
-class Paired:
+class PairProven:
     """A pairing reply proved the drone's static key: ``key`` is our new link key."""
 
     key: LinkKey
@@ -230,7 +230,7 @@ class Linking:
         return max(due) if due else None
 
     # ------------------------------------------------------------------ pairing
-    def on_pair(self, ev: PairDue | PairReply) -> tuple[list[Action], Paired | None]:
+    def on_pair(self, ev: PairDue | PairReply) -> tuple[list[Action], PairProven | None]:
         """Apply a pairing event: the actions, and the new key if a reply proved it."""
         if self.pair_phase is PairPhase.ASKING and isinstance(ev, PairDue) and ev.now >= self.pairing_deadline:
             self._set_state(None, PairPhase.IDLE, "deadline")  # the exchange expired unanswered
@@ -242,7 +242,7 @@ class Linking:
         handler, self._allowed = row
         return handler(self, ev)
 
-    def _pair_start(self, ev: PairDue) -> tuple[list[Action], Paired | None]:
+    def _pair_start(self, ev: PairDue) -> tuple[list[Action], PairProven | None]:
         """Send a message 1 (stamped with our time of day: the drone refuses an old one) unless the
         last try was less than ``retry`` ago."""
         if not _due(self.last_pair_try, ev.now, ev.retry):
@@ -255,11 +255,11 @@ class Linking:
         self._set_state(None, PairPhase.ASKING, "message 1")
         return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
 
-    def _pair_late(self, ev: PairReply) -> tuple[list[Action], Paired | None]:
+    def _pair_late(self, ev: PairReply) -> tuple[list[Action], PairProven | None]:
         self.ctx.counters["pair_reply_late"] += 1
         return [], None
 
-    def _pair_reply(self, ev: PairReply) -> tuple[list[Action], Paired | None]:
+    def _pair_reply(self, ev: PairReply) -> tuple[list[Action], PairProven | None]:
         c = self.ctx
         assert self.pairing is not None
         if ev.ok is None:
@@ -277,7 +277,7 @@ class Linking:
         kept = self.pairing.peer_kept_key
         self.pairing = None
         self._set_state(None, PairPhase.IDLE, "paired")
-        return [], Paired(key, kept=kept)
+        return [], PairProven(key, kept=kept)
 
     def abandon_pairing(self) -> None:
         """Forget the open exchange (our static key changed: its reply could only give the old one)."""

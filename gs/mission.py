@@ -37,7 +37,7 @@ from zdrone.core import records as rec
 from zdrone.vehicle.fix import PositionFix
 from zdrone.vehicle.modes import mode_name, set_mode_params
 
-from .actions import Action, Emit, Say
+from .actions import Action, Emit, ToOperator
 from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
 log = logging.getLogger(__name__)
@@ -121,7 +121,7 @@ FlightEvent = FlightTick | FlightAck | FlightParam
 
 
 @dataclass(frozen=True, slots=True)
-class Refusal:
+class PendingRefusal:
     """A refused ARM / MISSION_START awaiting its reasons."""
 
     what: str
@@ -160,7 +160,7 @@ class Mission:
         self.tries = 0  # of the current stage's command (arm, start, parameter)
         self.next_try = 0.0
         self.waiting: str | None = None  # what the GS last said it waits for before arming
-        self.refusal: Refusal | None = None
+        self.refusal: PendingRefusal | None = None
         self.restarts = 0  # armed and started again after a disarm on the ground
         self.unexplained = 0  # refusals neither the vehicle's words nor its state explain
         self.takeoff_late_said = False
@@ -227,7 +227,7 @@ class Mission:
         """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
         self._set_state(Stage.FAILED, now)
         out: list[Action] = [Emit(rec.MissionFailed(drone=self.drone, reason=reason)),
-                             Say(f"zdrone gs {self.gs}: mission for {self.drone} failed: {reason}")]
+                             ToOperator(f"zdrone gs {self.gs}: mission for {self.drone} failed: {reason}")]
         if v.armed and v.landed_state != mav.MAV_LANDED_STATE_IN_AIR:
             out += self._command(send, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0)
         return out
@@ -307,12 +307,12 @@ class Mission:
         return f"waiting for a position ({why or 'estimate not absolute'})"
 
     def _show_waiting(self, waiting: str | None) -> list[Action]:
-        """Say what the GS waits for, once each time it changes."""
+        """ToOperator what the GS waits for, once each time it changes."""
         if waiting == self.waiting:
             return []
         self.waiting = waiting
         text = f"{self.drone} ready: arming" if waiting is None else f"{self.drone} not ready: {waiting}"
-        return [Emit(rec.VehicleWaiting(drone=self.drone, waiting=waiting)), Say(f"zdrone gs {self.gs}: {text}")]
+        return [Emit(rec.VehicleWaiting(drone=self.drone, waiting=waiting)), ToOperator(f"zdrone gs {self.gs}: {text}")]
 
     def _airborne(self, v: VehicleFacts) -> bool:
         """The vehicle is armed and off the ground: its mission is being flown."""
@@ -324,7 +324,7 @@ class Mission:
         start it again (that would fly it from its first item)."""
         self._set_state(Stage.FLYING, now)
         return [Emit(rec.TakeoffConfirmed(drone=self.drone, restarts=self.restarts)),
-                Say(f"zdrone gs {self.gs}: {self.drone} is flying (its start's answer was lost)")]
+                ToOperator(f"zdrone gs {self.gs}: {self.drone} is flying (its start's answer was lost)")]
 
     def _ready_tick(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
         """Arm once the vehicle says it can fly the mission (``not_ready``); no retry counter runs out
@@ -358,7 +358,7 @@ class Mission:
 
     def _step_refused(self, ev: FlightAck, what: str) -> list[Action]:
         """A refusal: classified only after ``REASON_WAIT_S`` (ArduPilot says why after its ACK)."""
-        self.refusal = Refusal(what, ev.result, ev.now)
+        self.refusal = PendingRefusal(what, ev.result, ev.now)
         self._set_state(Stage.REFUSED, ev.now)
         return []
 
@@ -403,7 +403,7 @@ class Mission:
             return out + self._give_up(v, send, ev.now, f"{r.what} refused (result {r.result}): {reason}")
         self.next_try = ev.now + RETRY_AFTER_S
         self._set_state(Stage.WAITING_READY, ev.now)
-        return out + [Say(f"zdrone gs {self.gs}: {self.drone}: {r.what} refused ({reason}); "
+        return out + [ToOperator(f"zdrone gs {self.gs}: {self.drone}: {r.what} refused ({reason}); "
                           f"{'not ready yet, waiting' if not_ready else 'trying again'}")]
 
     # ----------------------------------------------------------- take-off
@@ -413,7 +413,7 @@ class Mission:
         if self._airborne(v):
             self._set_state(Stage.FLYING, ev.now)
             return [Emit(rec.TakeoffConfirmed(drone=self.drone, restarts=self.restarts)),
-                    Say(f"zdrone gs {self.gs}: {self.drone} took off")]
+                    ToOperator(f"zdrone gs {self.gs}: {self.drone} took off")]
         disarmed = (v.disarmed_at is not None and v.disarmed_at > self.stage_time) or (
             not v.armed and ev.now - self.stage_time > ARMED_REPORT_S)
         if disarmed:
@@ -423,10 +423,10 @@ class Mission:
             self._set_state(Stage.WAITING_READY, ev.now)
             reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"
             return [Emit(rec.TakeoffRestart(drone=self.drone, reason=reason, restarts=self.restarts)),
-                    Say(f"zdrone gs {self.gs}: {self.drone} {reason}: arming and starting again")]
+                    ToOperator(f"zdrone gs {self.gs}: {self.drone} {reason}: arming and starting again")]
         if ev.now - self.stage_time > TAKEOFF_CONFIRM_S and not self.takeoff_late_said:
             self.takeoff_late_said = True
-            return [Say(f"zdrone gs {self.gs}: {self.drone} started but still on the ground after "
+            return [ToOperator(f"zdrone gs {self.gs}: {self.drone} started but still on the ground after "
                         f"{TAKEOFF_CONFIRM_S:g} s (mode {mode_name(v.autopilot, v.custom_mode)})")]
         return []
 

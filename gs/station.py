@@ -17,7 +17,7 @@ The loop sleeps until input arrives (an envelope, a query reply) or the core's t
 periodic work), and calls ``handle_timer`` only then; the status event has its own time. The
 key-sharing queryable's ring is looked at on every wake, at least every ``MAX_SLEEP_S``; loop hooks
 that poll sockets (the GCS gateway) keep the loop at ``HOOK_POLL_S``. The adapter names drones and
-reads ``DroneStatus``es (``drone_status``) and ``commands_sent``: the core's ``DroneView``s are its own.
+reads ``DroneSeen``es (``drone_status``) and ``commands_sent``: the core's ``DroneView``s are its own.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from zdrone.net.runtime import NodeRuntime
 
 from zdrone.core.outputs import Handlers, dispatch
 
-from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, Say
-from .core import GCS_COMPID, CoreOptions, DroneStatus, StationCore, view_line
+from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
+from .core import GCS_COMPID, CoreOptions, DroneSeen, StationCore, view_line
 from .planner import PlannedItem
 
 log = logging.getLogger(__name__)
@@ -57,7 +57,7 @@ MAX_SLEEP_S = 0.05
 #: The loop's period while a hook polls sockets of its own (the GCS gateway's endpoints).
 HOOK_POLL_S = 0.005
 
-__all__ = ["GCS_COMPID", "DroneStatus", "GroundStation", "StationOptions", "run_station", "view_line"]
+__all__ = ["GCS_COMPID", "DroneSeen", "GroundStation", "StationOptions", "run_station", "view_line"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,7 +113,7 @@ class GroundStation:
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask,
                                     Emit: lambda a: self.events.write_record(a.record),
-                                    Say: lambda a: print(a.text, flush=True), Checkpoint: self._countersign}
+                                    ToOperator: lambda a: print(a.text, flush=True), Checkpoint: self._countersign}
 
     # ------------------------------------------------------------------ plumbing
 
@@ -140,7 +140,7 @@ class GroundStation:
     def drones(self) -> tuple[str, ...]:
         return self.core.drones
 
-    def drone_status(self, drone: str, now: float) -> DroneStatus:
+    def drone_status(self, drone: str, now: float) -> DroneSeen:
         return self.core.drone_status(drone, now)
 
     def commands_sent(self, drone: str) -> int:

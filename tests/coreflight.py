@@ -21,7 +21,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from gs.actions import Ask, AskKind, Checkpoint, Emit, FrameUp, Put, Say
+from gs.actions import Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
 from gs.core import CoreOptions, StationCore
 from gs.planner import reference_plan
 from zdrone.core import records as rec
@@ -141,7 +141,7 @@ class CoreFlight:
 
         dispatch(actions, {Put: put, Ask: lambda a: self._ask(name, a),
                            Emit: lambda a: st.logs.append((self.now, a.kind, a.fields)),
-                           FrameUp: lambda a: None, Say: lambda a: None, Checkpoint: lambda a: None})  # gateway, console, audit
+                           FrameUp: lambda a: None, ToOperator: lambda a: None, Checkpoint: lambda a: None})  # gateway, console, audit
 
     def _ask(self, name: str, a: Ask) -> None:
         st = self.gs[name]

@@ -25,7 +25,7 @@ from zenoh import ZError
 import gs.gateway as gateway_mod
 from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, STATION_COMPID, AppKey, AppTable,
                         GcsGateway)
-from gs.core import DroneStatus
+from gs.core import DroneSeen
 from gs.opcontrol import OperatorControl
 from zdrone.core import wire
 from zdrone.core.mavlink import FrameCodec, FrameError, crc_seed, encode_raw, read_header
@@ -80,10 +80,10 @@ class StubStation:
     def drones(self) -> tuple[str, ...]:
         return tuple(self.views)
 
-    def drone_status(self, drone: str, now: float) -> DroneStatus:
+    def drone_status(self, drone: str, now: float) -> DroneSeen:
         v = self.views[drone]
         op = v.operator
-        return DroneStatus(v.name, v.sysid, v.link is not None, v.owner, v.epoch, v.ha_state, self.authority,
+        return DroneSeen(v.name, v.sysid, v.link is not None, v.owner, v.epoch, v.ha_state, self.authority,
                            op.is_owner(v), op.live_request(v, now), op.shown_takeover(v, now))
 
     def holds_authority(self, drone: str) -> bool:

@@ -7,20 +7,20 @@ import copy
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gs.handover import TABLE, Confirmed, Failed, Handover, HandoverPhase, Release
+from gs.handover import TABLE, Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 
 P = HandoverPhase
 times = st.floats(0, 1000, allow_nan=False)
 EVENTS = st.one_of(
-    st.builds(Release, times, st.sampled_from(["B", "C"]), st.floats(0, 500, allow_nan=False)),
+    st.builds(ReleaseSent, times, st.sampled_from(["B", "C"]), st.floats(0, 500, allow_nan=False)),
     st.builds(Confirmed, times),
     st.builds(Failed, times, st.just("test")),
 )
 #: A way into each phase from a fresh epoch.
 INTO = {
     P.IDLE: [],
-    P.RELEASED: [Release(1.0, "B", 100.0)],
-    P.CONFIRMED: [Release(1.0, "B", 100.0), Confirmed(1.5)],
+    P.RELEASED: [ReleaseSent(1.0, "B", 100.0)],
+    P.CONFIRMED: [ReleaseSent(1.0, "B", 100.0), Confirmed(1.5)],
     P.FAILED: [Failed(1.0, "no link")],
 }
 
@@ -62,7 +62,7 @@ def test_over_any_sequence_the_machine_keeps_its_epoch_and_its_facts(steps):
         if isinstance(ev, Failed):
             failures += 1
             assert h.phase is P.FAILED and h.failed_at == ev.now and not h.released_in(e)
-        elif isinstance(ev, Release) and was is not P.CONFIRMED:
+        elif isinstance(ev, ReleaseSent) and was is not P.CONFIRMED:
             first = ev.distance if first is None else first
             assert h.phase is P.RELEASED and h.sent == ev.now and h.released_in(e) and h.to == ev.to
         elif isinstance(ev, Confirmed) and was in (P.RELEASED, P.CONFIRMED):
@@ -76,7 +76,7 @@ def test_over_any_sequence_the_machine_keeps_its_epoch_and_its_facts(steps):
 
 def test_the_waits_follow_the_phase():
     h = Handover("d1").for_epoch(1)
-    h.handle(Release(10.0, "B", 50.0))
+    h.handle(ReleaseSent(10.0, "B", 50.0))
     assert h.resend_waits(10.1, 0.25) and not h.resend_waits(10.3, 0.25)  # never confirmed: sent again
     h.handle(Confirmed(10.2))
     assert h.resend_waits(99.0, 0.25)  # confirmed: the drone decides

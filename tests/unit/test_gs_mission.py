@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mav
 
-from gs.actions import Emit, Say
-from gs.mission import (TABLE, FlightAck, FlightParam, FlightTick, Mission, Refusal, Stage)
+from gs.actions import Emit, ToOperator
+from gs.mission import (TABLE, FlightAck, FlightParam, FlightTick, Mission, PendingRefusal, Stage)
 from gs.planner import MissionUploader, encode_mission, reference_plan
 from zdrone.core.geometry import GeoPoint
 from zdrone.vehicle.fix import PositionFix
@@ -57,7 +57,7 @@ def _mission(stage: Stage, at: float = 0.0) -> Mission:
         m.uploader = MissionUploader(encode_mission(m.plan, "px4"))
         m.uploader.start(at)
     if stage is Stage.REFUSED:
-        m.refusal = Refusal("arm", 1, at)
+        m.refusal = PendingRefusal("arm", 1, at)
     return m
 
 
@@ -73,7 +73,7 @@ def test_every_stage_and_event_follows_the_table(stage, ev, vehicle):
         assert out == [] and m.stage is stage
     else:
         assert m.stage is stage or m.stage in row[1]
-    assert all(isinstance(x, (Emit, Say, mav.MAVLink_message)) for x in out)
+    assert all(isinstance(x, (Emit, ToOperator, mav.MAVLink_message)) for x in out)
 
 
 @settings(max_examples=200, deadline=None)

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from gs.actions import Emit, Put, Say
+from gs.actions import Emit, Put, ToOperator
 from gs.core import StationCore
 from gs.gateway import GcsGateway
 from gs.opcontrol import DECLINE_HOLD_S, GRANT_WINDOW_S, Answer
@@ -79,7 +79,7 @@ class Net:
     def _to_drone(self, gs: str, a) -> None:
         if isinstance(a, Emit):
             self.logs[gs].append(a)
-        elif isinstance(a, Say):
+        elif isinstance(a, ToOperator):
             self.said.append(a.text)
         elif isinstance(a, Put) and a.peer == "d1":
             res = self.drone_links[gs].open(a.payload, self.now)

@@ -9,7 +9,7 @@ from zdrone.core.keys import Identity
 from zdrone.core.keyshare import KeyShareAsk, answer, decode_query
 from zdrone.core.pairing import respond
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
-from gs.actions import Ask, AskKind, Emit, Put, Say
+from gs.actions import Ask, AskKind, Emit, Put, ToOperator
 from gs.core import CoreOptions, StationCore
 from gs.mission import Stage
 from zdrone.core.mavlink import FrameCodec
@@ -97,12 +97,15 @@ def test_unauthorized_asker_and_rate_limit_refused_before_crypto(fleet_dir):
     x_ask = KeyShareAsk(ident(fleet_dir, "X"), "X", "B", b.fleet.nodes["B"].public_bytes, "d1", 0.0)
     ans, _ = b.on_linkkey_query("d1", x_ask.payload, 0.0, bytes(32))
     assert ans.error == b"unauthorized" and not ans.crypto
+    from gs.linking import LINKKEY_BURST
+
     a_id = ident(fleet_dir, "A")
+    burst, more = int(LINKKEY_BURST), 7
     results = [b.on_linkkey_query("d1", KeyShareAsk(a_id, "A", "B", b.fleet.nodes["B"].public_bytes, "d1", 0.0).payload,
-                                  0.0, bytes(32))[0] for _ in range(10)]
-    assert sum(r.crypto for r in results) == 3  # the burst; the rest cost no handshake and get no answer
-    assert all(r.reply is None and r.error is None for r in results[3:])
-    assert b.counters["linkkey_refused:rate_limited"] == 7
+                                  0.0, bytes(32))[0] for _ in range(burst + more)]
+    assert sum(r.crypto for r in results) == burst  # the burst; the rest cost no handshake and get no answer
+    assert all(r.reply is None and r.error is None for r in results[burst:])
+    assert b.counters["linkkey_refused:rate_limited"] == more
 
 
 def test_forged_pairing_reply_does_not_spoil_pairing(fleet_dir):
@@ -301,7 +304,7 @@ def _uploaded(a: StationCore) -> None:
 
 
 def _says(out) -> list[str]:
-    return [x.text for x in out if isinstance(x, Say)]
+    return [x.text for x in out if isinstance(x, ToOperator)]
 
 
 def _ekf(view, absolute: bool) -> None:
@@ -396,7 +399,7 @@ def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir)
     out = a._flight(view, FlightTick(30.7))
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "mission_failed"]
     assert view.mission.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
-    assert any(isinstance(x, Say) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
+    assert any(isinstance(x, ToOperator) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
 
 
 def test_take_off_is_verified_and_a_disarm_on_the_ground_arms_and_starts_again(fleet_dir):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mav
 
-from gs.actions import Ask, AskKind, Checkpoint, Emit, FrameUp, Put, Say
+from gs.actions import Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
 from gs.core import CoreOptions, StationCore
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
@@ -99,7 +99,7 @@ class FleetNet:
 
     def gs_outs(self, gs: str, outs: list) -> None:
         dispatch(outs, {Put: lambda a: self._put_up(gs, a), Ask: lambda a: self._ask(gs, a),
-                        Emit: _ignored, FrameUp: _ignored, Say: _ignored, Checkpoint: _ignored})
+                        Emit: _ignored, FrameUp: _ignored, ToOperator: _ignored, Checkpoint: _ignored})
 
     def _put_up(self, gs: str, a: Put) -> None:
         assert self.drone is not None and a.peer == "d1", a.peer

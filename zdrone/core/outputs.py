@@ -12,7 +12,7 @@ in the world comes out as a list of values. The ideas both cores have are spelle
 * ``Emit(record)``: write one typed event-log record (``zdrone.core.records``).
 
 Each core adds the outputs only it has (the drone: ``ToVehicle``, ``CommandVehicle``, ``Listen``,
-``Persist``; the GS: ``Ask``, ``FrameUp``, ``Say``, in ``gs.actions``). Both cores name their status
+``Persist``; the GS: ``Ask``, ``FrameUp``, ``ToOperator``, in ``gs.actions``). Both cores name their status
 for the adapter ``report(now)``.
 
 An adapter carries outputs out with ``dispatch(outputs, handlers)``: ``handlers`` maps each output
