@@ -7,9 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from zdrone.core import authority as ha
-from zdrone.core.authority import (AuthorityChanged, AuthorityMachine, CommandVehicle, Config, DropFrame, Forward,
-                                   Frame, GrantAccepted, GrantRejected, GrantRejection, HaDrop, HandoverRequest,
-                                   IllegalTransition, KeyGranted, LinkChanged, Paired, RegionChanged, Release,
+from zdrone.core.authority import (AuthorityChanged, AuthorityMachine, FailsafeCommand, Config, DropFrame, Forward,
+                                   Frame, GrantAccepted, GrantRejected, GrantRejection, HaDrop, AuthorityAsked,
+                                   IllegalTransition, GrantHeard, LinkChanged, PairingDone, RegionChanged, Release,
                                    SendControl, State, Tick, check_grant)
 from zdrone.core.pairing import PairRefusal, PairRefused
 from zdrone.core.tbm import LinkState
@@ -28,9 +28,9 @@ def machine(inside: frozenset[str] = frozenset({"A"})) -> AuthorityMachine:
 
 
 def linked_with_b(m: AuthorityMachine, now: float = 1.0) -> None:
-    m.handle(Paired(now, "A"))
+    m.handle(PairingDone(now, "A"))
     m.handle(LinkChanged(now, "A", LinkState.OK))
-    m.handle(KeyGranted(now, "A", "B"))
+    m.handle(GrantHeard(now, "A", "B"))
 
 
 def prove(m: AuthorityMachine, gs: str, now: float, n: int = 2) -> list:
@@ -42,14 +42,14 @@ def prove(m: AuthorityMachine, gs: str, now: float, n: int = 2) -> list:
 
 def test_first_pairing_gives_authority_epoch_1():
     m = machine()
-    acts = m.handle(Paired(0.0, "A"))
+    acts = m.handle(PairingDone(0.0, "A"))
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 1
     assert m.subscribed == {"A"} and AuthorityChanged(None, "A", 1, "paired") in acts
 
 
 def test_unauthorized_gs_cannot_pair_and_gets_a_reject():
     m = machine()
-    acts = m.handle(Paired(0.0, "X"))
+    acts = m.handle(PairingDone(0.0, "X"))
     assert m.state is State.UNPAIRED and m.owner is None
     assert any(isinstance(a, SendControl) and isinstance(a.msg, Reject) and a.gs == "X" for a in acts)
     assert m.rejects["unauthorized"] == 1
@@ -137,43 +137,43 @@ def test_illegal_releases_are_rejected():
     m = machine()
     linked_with_b(m)
     for ev, why in [(Release(2.0, "B", "B", 1), "not the authority"), (Release(2.0, "A", "B", 7), "stale epoch"),
-                    (Release(2.0, "A", "X", 1), "unauthorized"), (KeyGranted(2.0, "B", "A"), "not the authority")]:
+                    (Release(2.0, "A", "X", 1), "unauthorized"), (GrantHeard(2.0, "B", "A"), "not the authority")]:
         acts = m.handle(ev)
         rej = [a.msg for a in acts if isinstance(a, SendControl) and isinstance(a.msg, Reject)]
         assert rej and why in rej[0].reason, (ev, rej)
     m2 = machine()
-    m2.handle(Paired(0.0, "A"))
+    m2.handle(PairingDone(0.0, "A"))
     acts = m2.handle(Release(1.0, "A", "B", 1))
     assert "no link" in [a.msg for a in acts if isinstance(a, SendControl)][0].reason
 
 
 def test_authority_link_lost_without_heir_is_failsafe_land():
     m = machine()
-    m.handle(Paired(0.0, "A"))
+    m.handle(PairingDone(0.0, "A"))
     m.handle(LinkChanged(0.5, "A", LinkState.OK))
     acts = m.handle(LinkChanged(3.5, "A", LinkState.LOST))
     assert m.state is State.FAILSAFE
-    assert CommandVehicle("LAND", "authority link to A lost") in acts
+    assert FailsafeCommand("LAND", "authority link to A lost") in acts
     assert SendControl("A", FailsafeNotice("LAND", "authority link to A lost")) in acts
     assert m.handle(Frame(4.0, "A", AO)) == [DropFrame("A", HaDrop.FAILSAFE)]
     assert m.handle(Frame(4.0, "A", DENIED)) == [DropFrame("A", HaDrop.DENIED_BY_POLICY)]
     assert m.handle(Frame(4.0, "A", RO)) == [Forward("A")]
     assert m.handle(Frame(4.0, "B", RO)) == [DropFrame("B", HaDrop.NOT_LINKED)]
     # terminal until a GS re-pairs on the ground
-    m.handle(Paired(5.0, "A", on_ground=False))
+    m.handle(PairingDone(5.0, "A", on_ground=False))
     assert m.state is State.FAILSAFE
-    m.handle(Paired(8.0, "B", on_ground=True))  # a GS whose coverage does not hold the vehicle: no
+    m.handle(PairingDone(8.0, "B", on_ground=True))  # a GS whose coverage does not hold the vehicle: no
     assert m.state is State.FAILSAFE and m.rejects["failsafe"] == 1 and m.rejects["outside_coverage"] == 1
-    m.handle(Paired(9.0, "A", on_ground=True))
+    m.handle(PairingDone(9.0, "A", on_ground=True))
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 2
 
 
 def test_rtl_failsafe_configurable():
     m = AuthorityMachine(Config(authorized=AUTH, failsafe_action="RTL"))
     m.handle(RegionChanged(0.0, frozenset({"A"})))
-    m.handle(Paired(0.0, "A"))
+    m.handle(PairingDone(0.0, "A"))
     acts = m.handle(LinkChanged(3.5, "A", LinkState.LOST))
-    assert any(isinstance(a, CommandVehicle) and a.command == "RTL" for a in acts)
+    assert any(isinstance(a, FailsafeCommand) and a.command == "RTL" for a in acts)
 
 
 def test_authority_link_lost_with_proven_heir_is_emergency_handover():
@@ -184,16 +184,16 @@ def test_authority_link_lost_with_proven_heir_is_emergency_handover():
     acts = m.handle(LinkChanged(13.0, "A", LinkState.LOST))
     assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
     assert AuthorityChanged("A", "B", 2, "emergency") in acts
-    assert not any(isinstance(a, CommandVehicle) for a in acts)
+    assert not any(isinstance(a, FailsafeCommand) for a in acts)
 
 
 def test_request_from_non_authority_is_passed_to_the_owner():
     m = machine()
     linked_with_b(m)
-    acts = m.handle(HandoverRequest(2.0, "B", "B", ask_id=1))  # its operator's request
+    acts = m.handle(AuthorityAsked(2.0, "B", "B", ask_id=1))  # its operator's request
     assert m.state is State.LINKED and m.owner == "A"
     assert any(isinstance(a, SendControl) and a.gs == "A" for a in acts)
-    acts = m.handle(HandoverRequest(2.0, "A", "B"))  # the owner asking = releasing
+    acts = m.handle(AuthorityAsked(2.0, "A", "B"))  # the owner asking = releasing
     assert m.state is State.HANDOVER_PENDING
 
 
@@ -201,7 +201,7 @@ def test_a_request_reaches_the_owner_naming_its_sealed_sender_and_moves_nothing(
     m = machine()
     linked_with_b(m)
     prove(m, "B", 2.0)
-    acts = m.handle(HandoverRequest(3.0, "B", "B", timeout=20.0, ask_id=1))
+    acts = m.handle(AuthorityAsked(3.0, "B", "B", timeout=20.0, ask_id=1))
     asks = [a.msg for a in acts if isinstance(a, SendControl) and isinstance(a.msg, OperatorRequest)]
     assert asks == [OperatorRequest("B", "B", 1, 20.0, 1)]
     assert all(a.gs == "A" for a in acts if isinstance(a, SendControl))  # nobody but the owner hears of it
@@ -216,7 +216,7 @@ def test_a_consented_transfer_may_go_to_a_gs_whose_coverage_does_not_hold_the_dr
     m.handle(RegionChanged(2.0, frozenset({"A"})))  # only A covers the drone: B is an operations centre, say
     prove(m, "B", 2.0)
     assert not m.proven_in_cover("B")  # no heir: an emergency could never go to B
-    m.handle(HandoverRequest(3.0, "B", "B", timeout=10.0, ask_id=1))
+    m.handle(AuthorityAsked(3.0, "B", "B", timeout=10.0, ask_id=1))
     assert m.owner == "A"
     m.handle(Release(4.0, "A", "B", 1))  # A's operator consents
     assert (m.owner, m.epoch, m.state) == ("B", 2, State.LINKED)
@@ -228,17 +228,17 @@ def test_the_owners_takeover_setting_is_in_the_status_of_its_epoch_only():
     m.handle(RegionChanged(2.0, frozenset({"A", "B"})))  # the drone listens to B
     prove(m, "B", 2.0)
     assert not m.status().takeover
-    acts = m.handle(HandoverRequest(3.0, "B", "B", takeover=True))  # not the owner: no setting, and no request
+    acts = m.handle(AuthorityAsked(3.0, "B", "B", takeover=True))  # not the owner: no setting, and no request
     assert not m.status().takeover and not any(isinstance(a, SendControl) for a in acts)
     assert (m.owner, m.epoch) == ("A", 1)
-    acts = m.handle(HandoverRequest(3.0, "A", "A", takeover=True))
+    acts = m.handle(AuthorityAsked(3.0, "A", "A", takeover=True))
     assert m.status().takeover and m.owner == "A" and m.state is State.LINKED
     assert any(isinstance(a, SendControl) and a.gs == "B" and a.msg.takeover for a in acts)  # every GS it talks to sees it
     m.handle(Release(4.0, "A", "B", 1))  # consent: the owner releases; the new owner's epoch starts without it
     assert (m.owner, m.epoch) == ("B", 2) and not m.status().takeover
-    m.handle(HandoverRequest(5.0, "B", "B", takeover=True))
+    m.handle(AuthorityAsked(5.0, "B", "B", takeover=True))
     assert m.status().takeover
-    m.handle(HandoverRequest(6.0, "B", "B", takeover=False))
+    m.handle(AuthorityAsked(6.0, "B", "B", takeover=False))
     assert not m.status().takeover
 
 
@@ -254,12 +254,12 @@ def test_non_gs_event_missing_from_table_is_a_programming_error():
 GS = st.sampled_from(["A", "B", "X"])
 times = st.floats(0, 1000, allow_nan=False)
 EVENTS = st.one_of(
-    st.builds(Paired, times, GS, st.booleans()),
-    st.builds(KeyGranted, times, GS, GS),
+    st.builds(PairingDone, times, GS, st.booleans()),
+    st.builds(GrantHeard, times, GS, GS),
     st.builds(Frame, times, GS, st.sampled_from(list(UplinkClass))),
     st.builds(LinkChanged, times, GS, st.sampled_from(list(LinkState))),
     st.builds(RegionChanged, times, st.frozensets(GS)),
-    st.builds(HandoverRequest, times, GS, GS),
+    st.builds(AuthorityAsked, times, GS, GS),
     st.builds(Release, times, GS, GS, st.integers(0, 4)),
     st.builds(Tick, times),
     st.builds(ha.GroundChanged, times, st.booleans()),
@@ -286,7 +286,7 @@ def _rejects(acts: list) -> list[SendControl]:
     return [a for a in acts if isinstance(a, SendControl) and isinstance(a.msg, Reject)]
 
 
-def check_grant_result(m: AuthorityMachine, ev: KeyGranted, result, acts: list, expected) -> None:
+def check_grant_result(m: AuthorityMachine, ev: GrantHeard, result, acts: list, expected) -> None:
     """A grant's typed result says what its actions do: accepted, the GS is linked and nothing is
     rejected; rejected, exactly one ``Reject`` to the sender with the result's text."""
     assert result == (expected or GrantAccepted(ev.gs))
@@ -302,7 +302,7 @@ def test_every_state_event_pair_ends_valid(prefix, last):
     m = machine()
     for ev in prefix + [last]:
         before_owner, before_state, before_links = m.owner, m.state, set(m.links)
-        if isinstance(ev, KeyGranted):  # never raises; its typed result agrees with its actions
+        if isinstance(ev, GrantHeard):  # never raises; its typed result agrees with its actions
             expected = m.grant_rejection(ev.sender, ev.gs)
             result, acts = m.grant(ev)
             check_grant_result(m, ev, result, acts, expected)
@@ -332,7 +332,7 @@ def test_table_covers_every_non_gs_event_in_every_state():
     for state in State:
         for ev in (LinkChanged, RegionChanged, Tick, ha.GroundChanged):
             assert (state, ev) in ha.TRANSITIONS
-        for ev in (Paired, Frame):
+        for ev in (PairingDone, Frame):
             assert (state, ev) in ha.TRANSITIONS
 
 
@@ -351,21 +351,21 @@ def test_failsafe_is_left_only_on_an_explicit_request_of_a_proven_authorized_gs(
     m.handle(RegionChanged(2.5, frozenset({"B"})))
     prove(m, "B", 3.0)
     assert m.state is State.FAILSAFE  # a proven link alone changes nothing
-    acts = m.handle(HandoverRequest(4.0, "B", "B"))
+    acts = m.handle(AuthorityAsked(4.0, "B", "B"))
     assert m.state is State.LINKED and m.owner == "B" and m.epoch == 2
     assert AuthorityChanged("A", "B", 2, "regained") in acts
-    assert not any(isinstance(a, CommandVehicle) for a in acts)  # the vehicle goes on landing
+    assert not any(isinstance(a, FailsafeCommand) for a in acts)  # the vehicle goes on landing
     assert m.handle(Frame(4.1, "B", AO)) == [Forward("B")]
 
 
 def test_failsafe_request_refused_unless_proven_for_itself_and_authorized():
     m = _failsafe_with_b_linked()
     m.handle(RegionChanged(2.9, frozenset({"B"})))
-    acts = m.handle(HandoverRequest(3.0, "B", "B"))  # B's link not proven yet
+    acts = m.handle(AuthorityAsked(3.0, "B", "B"))  # B's link not proven yet
     assert m.state is State.FAILSAFE and any(isinstance(a, SendControl) and isinstance(a.msg, Reject) for a in acts)
     prove(m, "B", 3.5)
-    m.handle(HandoverRequest(4.0, "B", "A"))  # for someone else: no
-    m.handle(HandoverRequest(4.0, "X", "X"))
+    m.handle(AuthorityAsked(4.0, "B", "A"))  # for someone else: no
+    m.handle(AuthorityAsked(4.0, "X", "X"))
     assert m.state is State.FAILSAFE and m.owner == "A"
     assert m.rejects["failsafe"] == 1 and m.rejects["unauthorized"] == 1 and m.rejects["not proven"] == 1
 
@@ -375,9 +375,9 @@ def test_a_restarted_companion_waits_for_its_owner_to_re_pair():
     m = machine()
     m.restore("A", 4, 100.0, grace=3.0)
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 4 and not m.is_proven("A")
-    m.handle(Paired(101.0, "B", on_ground=False))  # another GS re-pairs: a link, never the authority
+    m.handle(PairingDone(101.0, "B", on_ground=False))  # another GS re-pairs: a link, never the authority
     assert m.owner == "A" and m.epoch == 4
-    m.handle(Paired(101.5, "A", on_ground=False))
+    m.handle(PairingDone(101.5, "A", on_ground=False))
     m.handle(LinkChanged(101.6, "A", LinkState.OK))
     m.handle(Tick(104.0))  # past the grace: the owner is back, nothing happens
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 4
@@ -387,11 +387,11 @@ def test_a_restarted_companion_whose_owner_never_comes_back_fails_safe_or_hands_
     m = machine()
     m.restore("A", 4, 100.0, grace=3.0)
     acts = m.handle(Tick(103.1))
-    assert m.state is State.FAILSAFE and CommandVehicle("LAND", "authority link to A lost") in acts
+    assert m.state is State.FAILSAFE and FailsafeCommand("LAND", "authority link to A lost") in acts
     m2 = machine()
     m2.restore("A", 4, 100.0, grace=3.0)
     m2.handle(RegionChanged(100.2, frozenset({"A", "B"})))
-    m2.handle(Paired(100.5, "B", on_ground=False))
+    m2.handle(PairingDone(100.5, "B", on_ground=False))
     prove(m2, "B", 101.0)
     m2.handle(Tick(103.1))
     assert m2.state is State.LINKED and m2.owner == "B" and m2.epoch == 5  # the emergency hand-over
@@ -400,7 +400,7 @@ def test_a_restarted_companion_whose_owner_never_comes_back_fails_safe_or_hands_
 def test_restore_only_at_start_and_only_for_an_authorized_owner():
     m = machine()
     assert m.restore("X", 2, 0.0, grace=3.0)[0].kind == "restore_refused" and m.state is State.UNPAIRED
-    m.handle(Paired(0.0, "A"))
+    m.handle(PairingDone(0.0, "A"))
     with pytest.raises(IllegalTransition):
         m.restore("A", 1, 1.0, grace=3.0)
 
@@ -415,15 +415,15 @@ def test_a_ground_restart_gives_the_last_owner_the_first_claim_and_the_epoch_goe
     assert m.state is State.UNPAIRED and m.owner is None and m.epoch == 4 and m.get_timer() == 105.0
     assert m.pair_refusal("B", True, 100.1) == PairRefused(
         PairRefusal.FIRST_CLAIM, "A held authority before the restart and pairs first (4.9 s left)")
-    acts = m.handle(Paired(100.1, "B"))
+    acts = m.handle(PairingDone(100.1, "B"))
     assert _rejects(acts) == [SendControl("B", Reject("pair", "first_claim: A held authority before the restart and "
                                                               "pairs first (4.9 s left)"))]
     assert m.state is State.UNPAIRED and m.rejects["first_claim"] == 1
-    acts = m.handle(Paired(100.3, "A"))
+    acts = m.handle(PairingDone(100.3, "A"))
     assert m.state is State.LINKED and m.owner == "A" and m.epoch == 5
     assert AuthorityChanged(None, "A", 5, "paired") in acts
     assert m.first_claim is None and m.get_timer() is None  # the claim is spent: nothing pending
-    m.handle(Paired(100.5, "B"))  # B may pair now: a link, never the authority
+    m.handle(PairingDone(100.5, "B"))  # B may pair now: a link, never the authority
     assert m.owner == "A" and m.epoch == 5 and "B" in m.links
 
 
@@ -434,12 +434,12 @@ def test_after_the_first_claim_a_covering_gs_may_pair_and_the_epoch_still_goes_o
     acts = m.handle_timer(105.0)
     assert [a.kind for a in acts if isinstance(a, ha.Note)] == ["first_claim_over"] and m.first_claim is None
     assert m.pair_refusal("B", True, 105.0) is None
-    acts = m.handle(Paired(105.2, "B"))
+    acts = m.handle(PairingDone(105.2, "B"))
     assert m.owner == "B" and m.epoch == 5 and AuthorityChanged(None, "B", 5, "paired") in acts
     # the window is exact even before the timer is handled
     m2 = machine(frozenset({"A", "B"}))
     m2.restore_on_ground("A", 4, 100.0, window=5.0)
-    m2.handle(Paired(105.0, "B"))
+    m2.handle(PairingDone(105.0, "B"))
     assert m2.owner == "B" and m2.epoch == 5
 
 
@@ -450,9 +450,9 @@ def test_the_last_owner_still_needs_its_coverage_to_hold_the_vehicle():
     m.restore_on_ground("A", 7, 0.0, window=5.0)
     assert m.pair_refusal("A", True, 1.0).reason is PairRefusal.OUTSIDE_COVERAGE  # type: ignore[union-attr]
     assert m.pair_refusal("B", True, 1.0).reason is PairRefusal.FIRST_CLAIM  # type: ignore[union-attr]
-    m.handle(Paired(1.0, "A"))
+    m.handle(PairingDone(1.0, "A"))
     assert m.state is State.UNPAIRED
-    m.handle(Paired(6.0, "B"))
+    m.handle(PairingDone(6.0, "B"))
     assert m.owner == "B" and m.epoch == 8
 
 
@@ -460,7 +460,7 @@ def test_a_ground_restart_for_an_owner_no_longer_authorized_keeps_the_epoch_with
     m = machine(frozenset({"A", "B"}))
     assert [a.kind for a in m.restore_on_ground("X", 3, 0.0)] == ["restore_refused"]
     assert m.first_claim is None and m.get_timer() is None and m.pair_refusal("B", True, 0.1) is None
-    m.handle(Paired(0.1, "B"))
+    m.handle(PairingDone(0.1, "B"))
     assert m.owner == "B" and m.epoch == 4
     with pytest.raises(IllegalTransition):
         m.restore_on_ground("A", 4, 1.0)
@@ -496,16 +496,16 @@ def test_one_pass_after_any_event_completes_a_proven_hand_over_and_sends_one_sta
 # ------------------------------------------------------------------ typed results
 def test_a_grant_is_accepted_from_the_authority_only_and_for_authorized_gss_only():
     m = machine()
-    result, acts = m.grant(KeyGranted(0.5, "A", "B"))
+    result, acts = m.grant(GrantHeard(0.5, "A", "B"))
     assert result == GrantRejected("B", GrantRejection.ILLEGAL_STATE, "illegal in state unpaired")
-    assert _rejects(acts) == [SendControl("A", Reject("KeyGranted", "illegal in state unpaired"))]
-    m.handle(Paired(1.0, "A"))
-    result, acts = m.grant(KeyGranted(1.0, "B", "B"))
+    assert _rejects(acts) == [SendControl("A", Reject("GrantHeard", "illegal in state unpaired"))]
+    m.handle(PairingDone(1.0, "A"))
+    result, acts = m.grant(GrantHeard(1.0, "B", "B"))
     assert result.reason is GrantRejection.NOT_AUTHORITY and "B" not in m.links
     assert _rejects(acts) == [SendControl("B", Reject("key_grant", "not the authority: only the authority grants keys"))]
-    result, acts = m.grant(KeyGranted(1.0, "A", "X"))
+    result, acts = m.grant(GrantHeard(1.0, "A", "X"))
     assert result == GrantRejected("X", GrantRejection.UNAUTHORIZED, "unauthorized: X is not authorized for this drone")
-    result, acts = m.grant(KeyGranted(1.0, "A", "B"))
+    result, acts = m.grant(GrantHeard(1.0, "A", "B"))
     assert result == GrantAccepted("B") and "B" in m.links and not _rejects(acts)
     assert dict(m.rejects) == {"illegal in state unpaired": 1, "not the authority": 1, "unauthorized": 1}
 
@@ -522,7 +522,7 @@ def test_a_grant_that_does_not_fit_the_fleet_is_bad():
 def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
     m = machine()
     assert m.pair_refusal("X", True, 0.0) == PairRefused(PairRefusal.UNAUTHORIZED, "X is not authorized for this drone")
-    acts = m.handle(Paired(0.0, "X"))
+    acts = m.handle(PairingDone(0.0, "X"))
     assert _rejects(acts) == [SendControl("X", Reject("pair", "unauthorized: X is not authorized for this drone"))]
     m = _failsafe_with_b_linked()
     assert m.pair_refusal("B", on_ground=False, now=3.0) == PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
@@ -530,7 +530,7 @@ def test_the_pairing_rule_is_a_typed_refusal_and_its_reject_keeps_its_text():
         PairRefusal.OUTSIDE_COVERAGE, "its coverage does not hold the vehicle")
     m.handle(RegionChanged(3.0, frozenset({"B"})))
     assert m.pair_refusal("B", on_ground=True, now=3.0) is None
-    acts = m.handle(Paired(3.0, "B", on_ground=False))
+    acts = m.handle(PairingDone(3.0, "B", on_ground=False))
     assert _rejects(acts) == [SendControl("B", Reject("pair", "failsafe: re-pair only on the ground"))]
     assert m.rejects["failsafe"] == 1
 
@@ -546,8 +546,8 @@ def test_an_heir_outside_its_coverage_never_takes_authority():
     assert m.is_proven("B") and not m.is_heir("B")
     acts = m.handle(LinkChanged(9.0, "A", LinkState.LOST))
     assert m.state is State.FAILSAFE and m.owner == "A"
-    assert any(isinstance(a, CommandVehicle) for a in acts)
-    m.handle(HandoverRequest(9.5, "B", "B"))  # nor after the failsafe, from outside
+    assert any(isinstance(a, FailsafeCommand) for a in acts)
+    m.handle(AuthorityAsked(9.5, "B", "B"))  # nor after the failsafe, from outside
     assert m.state is State.FAILSAFE and m.rejects["outside coverage"] == 1
 
 
@@ -653,19 +653,19 @@ def test_the_owners_link_lost_on_the_ground_is_no_failsafe_and_the_owner_has_it_
     m = _on_ground_with_a()
     acts = m.handle(LinkChanged(5.0, "A", LinkState.LOST))
     assert (m.state, m.owner, m.epoch) == (State.LINKED, "A", 1)
-    assert not any(isinstance(a, CommandVehicle) for a in acts)
+    assert not any(isinstance(a, FailsafeCommand) for a in acts)
     assert any(isinstance(a, ha.Note) and a.kind == "owner_link_lost_on_ground" for a in acts)
     m.handle(LinkChanged(8.0, "A", LinkState.OK))
     assert m.handle(Frame(8.1, "A", AO)) == [Forward("A")]  # its commands pass again, same epoch
     assert m.handle(Frame(8.2, "B", AO)) == [DropFrame("B", HaDrop.NOT_AUTHORITY)]
-    assert m.handle(KeyGranted(9.0, "A", "B")) is not None and m.state is State.LINKED  # key grants still taken
+    assert m.handle(GrantHeard(9.0, "A", "B")) is not None and m.state is State.LINKED  # key grants still taken
 
 
 def test_lifting_off_with_the_owners_link_lost_is_the_failsafe_at_once():
     m = _on_ground_with_a()
     m.handle(LinkChanged(5.0, "A", LinkState.LOST))
     acts = m.handle(ha.GroundChanged(6.0, False))
-    assert m.state is State.FAILSAFE and any(isinstance(a, CommandVehicle) for a in acts)
+    assert m.state is State.FAILSAFE and any(isinstance(a, FailsafeCommand) for a in acts)
 
 
 def test_lifting_off_with_the_owners_link_lost_goes_to_a_proven_heir():

@@ -88,7 +88,7 @@ class Net:
                 self.drone_acts(self.machine.handle(ha.Frame(self.now, gs, UplinkClass.READ_ONLY)))
             elif isinstance(res.control, wire.HandoverRequest):
                 m = res.control
-                self.drone_acts(self.machine.handle(ha.HandoverRequest(self.now, gs, m.to, m.timeout, m.takeover, m.ask_id, m.takeover_to)))
+                self.drone_acts(self.machine.handle(ha.AuthorityAsked(self.now, gs, m.to, m.timeout, m.takeover, m.ask_id, m.takeover_to)))
             elif isinstance(res.control, wire.HandoverRelease):
                 self.drone_acts(self.machine.handle(ha.Release(self.now, gs, res.control.to, res.control.epoch)))
 
@@ -150,7 +150,7 @@ def make_net(fleet_dir, gss: tuple[str, ...] = ("A", "B"), **a_opts) -> Net:
         links[g] = SecureLink(key=key, role="drone", tx_keyexpr=kx.down("d1", g), rx_keyexpr=kx.up("d1", g),
                               peer_sysid=sysid, now=0.0)
         net.deliver(g, c.on_pair_reply("d1", m2, None, 0.0))
-        net.drone_acts(machine.handle(ha.Paired(0.0, g)))
+        net.drone_acts(machine.handle(ha.PairingDone(0.0, g)))
         net.drone_acts(machine.handle(ha.LinkChanged(0.0, g, LinkState.OK)))
     net.run(1.0)
     assert net.owner == "A" and cores["B"].views["d1"].owner == "A" and machine.is_proven("B")

@@ -112,8 +112,8 @@ AUTH = frozenset({"A", "B"})
 GS = st.sampled_from(["A", "B", "X"])
 times = st.floats(0, 1000, allow_nan=False)
 EVENTS = st.one_of(
-    st.builds(ha.Paired, times, GS, st.booleans()),
-    st.builds(ha.KeyGranted, times, GS, GS),
+    st.builds(ha.PairingDone, times, GS, st.booleans()),
+    st.builds(ha.GrantHeard, times, GS, GS),
     st.builds(ha.Frame, times, GS, st.sampled_from(list(ha.UplinkClass))),
     st.builds(ha.LinkChanged, times, GS, st.sampled_from(list(ha.LinkState))),
     st.builds(ha.RegionChanged, times, st.frozensets(GS)),
@@ -133,7 +133,7 @@ def test_the_table_has_a_revision_row_in_every_state():
 def test_after_any_revision_no_gs_off_the_list_holds_a_link_or_authority(events):
     m = ha.AuthorityMachine(ha.Config(AUTH))
     for ev in events:
-        m.grant(ev) if isinstance(ev, ha.KeyGranted) else m.handle(ev)
+        m.grant(ev) if isinstance(ev, ha.GrantHeard) else m.handle(ev)
         auth = m.config.authorized
         assert set(m.links) <= auth
         assert m.pending_to is None or m.pending_to in auth

@@ -14,8 +14,8 @@ from pymavlink.dialects.v20 import ardupilotmega, common
 
 from tests.corepair import make_pair
 from zdrone.cli import main
-from zdrone.core.authority import (RegionChanged, AuthorityMachine, Config, DropFrame, Forward, Frame, HaDrop, KeyGranted, LinkChanged,
-                                   Paired)
+from zdrone.core.authority import (RegionChanged, AuthorityMachine, Config, DropFrame, Forward, Frame, HaDrop, GrantHeard, LinkChanged,
+                                   PairingDone)
 from zdrone.core.envelope import Opened
 from zdrone.core.fleet import FleetError, encode_fleet, parse_fleet
 from zdrone.core.mavlink import (CRC_EXTRA, MESSAGE_CLASSES, FrameCodec, FrameError, crc_ok, crc_seed, encode_raw, read_header,
@@ -62,9 +62,9 @@ def linked_a_and_b() -> AuthorityMachine:
     """LINKED with owner A; B linked too (its key granted by A)."""
     m = AuthorityMachine(Config(authorized=frozenset({"A", "B"})))
     m.handle(RegionChanged(0.0, frozenset({"A"})))  # home, in A's coverage: the first pairing needs it
-    m.handle(Paired(0.0, "A"))
+    m.handle(PairingDone(0.0, "A"))
     m.handle(LinkChanged(0.1, "A", LinkState.OK))
-    m.handle(KeyGranted(0.2, "A", "B"))
+    m.handle(GrantHeard(0.2, "A", "B"))
     m.handle(LinkChanged(0.3, "B", LinkState.OK))
     assert m.owner == "A" and set(m.links) == {"A", "B"}
     return m

@@ -187,9 +187,9 @@ class Explorer:
                "pairing-without-position": _PairAnywhereMachine}.get(self.flaw or "", AuthorityMachine)
         w = World(cls(Config(frozenset(AUTHORIZED), HANDOVER_TIMEOUT)))
         w.m.handle(ha.RegionChanged(0.0, INSIDE["A"]))
-        w.m.handle(ha.Paired(0.0, "A", on_ground=True))
+        w.m.handle(ha.PairingDone(0.0, "A", on_ground=True))
         w.drone_key["A"] = "own"
-        w.m.handle(ha.KeyGranted(0.0, "A", "B"))  # key sharing on the ground: B's key installed
+        w.m.handle(ha.GrantHeard(0.0, "A", "B"))  # key sharing on the ground: B's key installed
         w.drone_key["B"] = "own"
         for g in AUTHORIZED:  # both links heard on the ground
             w.m.handle(ha.LinkChanged(0.0, g, LinkState.OK))
@@ -229,8 +229,8 @@ class Explorer:
         if w.restarted:
             yield "time passes 1 s; outsider replays 3 captured message 1s", lambda x: self._tick(x, replays=TOKENS)
         # the malicious authorized GS B
-        yield "B asks for authority", lambda x: self._apply(x, ha.HandoverRequest(x.now, "B", "B", 10.0, False, 1), "B")
-        yield "B asks for authority for X", lambda x: self._apply(x, ha.HandoverRequest(x.now, "B", "A", 10.0, False, 2), "B")
+        yield "B asks for authority", lambda x: self._apply(x, ha.AuthorityAsked(x.now, "B", "B", 10.0, False, 1), "B")
+        yield "B asks for authority for X", lambda x: self._apply(x, ha.AuthorityAsked(x.now, "B", "A", 10.0, False, 2), "B")
         if m.owner != "B":
             yield "B forges a release of A's epoch to itself", lambda x: self._apply(x, ha.Release(x.now, "B", "B", x.m.epoch), "B")
         yield "B re-pairs (from wherever it is)", lambda x: self._pair(x, "B")
@@ -238,7 +238,7 @@ class Explorer:
             yield "B (owner) grants a key for A and proves it as A", lambda x: self._grant_over(x, "B", "A")
         yield "B asks A for A's link key and forges a frame under it to A", lambda x: self._escrow(x, "B", "A")
         # the unauthorized fleet GS X
-        yield "X pairs", lambda x: self._apply(x, ha.Paired(x.now, ROGUE, on_ground=False), ROGUE)
+        yield "X pairs", lambda x: self._apply(x, ha.PairingDone(x.now, ROGUE, on_ground=False), ROGUE)
         yield "X sends a command", lambda x: self._apply(x, ha.Frame(x.now, ROGUE, UplinkClass.AUTHORITY_ONLY), ROGUE)
 
     def _apply(self, w: World, ev: ha.Event, actor: str | None = None) -> list[ha.Action]:
@@ -305,7 +305,7 @@ class Explorer:
             return False
         w.drone_key[g] = "own"
         w.gs_key_ok[g] = True
-        self._apply(w, ha.Paired(w.now, g, on_ground=w.ground), g)
+        self._apply(w, ha.PairingDone(w.now, g, on_ground=w.ground), g)
         if g == w.m.owner:
             w.restarted = False
         return True
@@ -370,7 +370,7 @@ class Explorer:
             self._pair(w, owner)
 
     def _grant_over(self, w: World, sender: str, g: str) -> None:
-        result, _ = w.m.grant(ha.KeyGranted(w.now, sender, g))
+        result, _ = w.m.grant(ha.GrantHeard(w.now, sender, g))
         if not isinstance(result, ha.GrantAccepted):
             return
         link = w.m.links.get(g)

@@ -136,10 +136,10 @@ class ConsentExplorer:
             self.flaw or "", OperatorControl)
         m = AuthorityMachine(Config(frozenset(GSS), handover_timeout=5.0))
         m.handle(ha.RegionChanged(0.0, frozenset(GSS)))
-        m.handle(ha.Paired(0.0, "A"))
+        m.handle(ha.PairingDone(0.0, "A"))
         for g in GSS:
             if g != "A":
-                m.handle(ha.KeyGranted(0.0, "A", g))
+                m.handle(ha.GrantHeard(0.0, "A", g))
             m.handle(ha.LinkChanged(0.0, g, LinkState.OK))
             for _ in range(ha.PROOF_FRAMES):
                 m.handle(ha.Frame(0.0, g, UplinkClass.READ_ONLY))
@@ -167,7 +167,7 @@ class ConsentExplorer:
     def _gs(self, w: ConsentWorld, g: str, step: Step) -> None:
         for msg in step.send:
             if isinstance(msg, wire.HandoverRequest):
-                ev: ha.Event = ha.HandoverRequest(w.now, g, msg.to, msg.timeout, msg.takeover, msg.ask_id, msg.takeover_to)
+                ev: ha.Event = ha.AuthorityAsked(w.now, g, msg.to, msg.timeout, msg.takeover, msg.ask_id, msg.takeover_to)
             elif isinstance(msg, wire.HandoverRelease):
                 ev = ha.Release(w.now, g, msg.to, msg.epoch)
             else:

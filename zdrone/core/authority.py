@@ -6,7 +6,7 @@ States: ``UNPAIRED -> LINKED(owner, epoch) -> HANDOVER_PENDING(owner -> to) -> L
 and ``FAILSAFE``. The epoch only counts up, across companion restarts too: a restart in the air comes
 back in the owner's epoch (``restore``); a restart on the ground comes back UNPAIRED with the epoch
 kept, and the next authority, whoever it is, gets epoch+1 (``restore_on_ground``). FAILSAFE ends when a GS whose coverage holds the vehicle re-pairs while it is on the ground, or when an
-authorized GS whose link is proven asks to take control (``HandoverRequest`` for itself: an
+authorized GS whose link is proven asks to take control (``AuthorityAsked`` for itself: an
 operator's explicit request, never automatic) -> ``LINKED(gs, epoch+1)``.
 
 Exactly one GS holds authority in LINKED and HANDOVER_PENDING: ``owner``. Every MAVLink frame a GS
@@ -30,7 +30,7 @@ HANDOVER_PENDING, the owner keeping authority, until the proof arrives (switch, 
 timeout passes (authority stays where it was). There is never an instant with no owner or two.
 
 Least privilege. Authority moves only (a) by the owner's release (``Release``, or the owner's own
-``HandoverRequest``: the owner operator's consent to another GS's request travels as the owner's
+``AuthorityAsked``: the owner operator's consent to another GS's request travels as the owner's
 release), or (b) in an emergency, to an *heir*. When the owner's link becomes LOST, authority
 passes to an heir (an emergency hand-over, epoch+1): an authorized GS whose coverage contains the
 drone's own position (``RegionChanged``: computed on the drone from the vehicle's GPS; an unknown
@@ -65,7 +65,7 @@ One step is three passes:
 Handlers return only what is theirs to say: forwards and drops, rejects, the operator's request,
 the failsafe's command and notice, and the event-log notes.
 
-Key grants and pairings have typed results. ``grant(KeyGranted)`` returns ``GrantAccepted`` (the
+Key grants and pairings have typed results. ``grant(GrantHeard)`` returns ``GrantAccepted`` (the
 adapter installs the key: live if the link has none, else a candidate the GS must prove) or
 ``GrantRejected(reason)`` (its ``Reject`` is among the actions), with the actions; ``check_grant``
 refuses a grant whose content does not fit the fleet before it reaches the machine.
@@ -137,7 +137,7 @@ class Event:
 
 
 @dataclass(frozen=True, slots=True)
-class Paired(Event):
+class PairingDone(Event):
     """Pairing with ``gs`` completed (the adapter already checked its static key)."""
 
     gs: str
@@ -145,7 +145,7 @@ class Paired(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class KeyGranted(Event):
+class GrantHeard(Event):
     """``sender`` (over its sealed link) hands the drone a link key for ``gs``."""
 
     sender: str
@@ -176,7 +176,7 @@ class RegionChanged(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class HandoverRequest(Event):
+class AuthorityAsked(Event):
     """``sender`` asks that authority pass to ``to`` (passed on to the owner, whose operator has
     ``timeout`` seconds to consent); from the owner for itself, its "allow takeover" setting."""
 
@@ -218,7 +218,7 @@ class Tick(Event):
     """Time passes (the adapter ticks the machine at its loop rate)."""
 
 
-GS_EVENTS = (Paired, KeyGranted, Frame, HandoverRequest, Release)
+GS_EVENTS = (PairingDone, GrantHeard, Frame, AuthorityAsked, Release)
 
 
 # ---------------------------------------------------------------------------- actions
@@ -247,7 +247,7 @@ class SendControl(Action):
 
 
 @dataclass(frozen=True, slots=True)
-class CommandVehicle(Action):
+class FailsafeCommand(Action):
     command: str  # "LAND" | "RTL"
     reason: str
 
@@ -411,8 +411,8 @@ class AuthorityMachine:
 
     def grant_rejection(self, sender: str, gs: str) -> GrantRejected | None:
         """Why a key grant from ``sender`` for ``gs`` would be rejected now, or None (a query: the
-        ``KeyGranted`` handler applies the same rules)."""
-        if (self.state, KeyGranted) not in TRANSITIONS:
+        ``GrantHeard`` handler applies the same rules)."""
+        if (self.state, GrantHeard) not in TRANSITIONS:
             return GrantRejected(gs, GrantRejection.ILLEGAL_STATE, f"illegal in state {self.state.value}")
         if sender != self.owner:
             return GrantRejected(gs, GrantRejection.NOT_AUTHORITY, "not the authority: only the authority grants keys")
@@ -420,7 +420,7 @@ class AuthorityMachine:
             return GrantRejected(gs, GrantRejection.UNAUTHORIZED, f"unauthorized: {gs} is not authorized for this drone")
         return None
 
-    def grant(self, ev: KeyGranted) -> tuple[GrantResult, list[Action]]:
+    def grant(self, ev: GrantHeard) -> tuple[GrantResult, list[Action]]:
         """Apply a key grant: its result (accepted: the adapter installs the key and acknowledges
         it; rejected: the ``Reject`` is among the actions) and the actions to carry out."""
         result = self.grant_rejection(ev.sender, ev.gs) or GrantAccepted(ev.gs)
@@ -443,7 +443,7 @@ class AuthorityMachine:
             self._set_state(State.FAILSAFE, now)
             action = self.config.failsafe_action
             return [Note("restored", f"authority {owner} epoch {epoch} in failsafe: {action} again"),
-                    CommandVehicle(action, "restarted during the failsafe")]
+                    FailsafeCommand(action, "restarted during the failsafe")]
         self.repair_deadline = now + grace
         self._set_state(State.LINKED, now)
         self._follow_subscriptions()  # no status: nobody holds a key yet
@@ -599,7 +599,7 @@ class AuthorityMachine:
     # ----------------------------------------------------------------- handlers
     def pair_refusal(self, gs: str, on_ground: bool, now: float) -> PairRefused | None:
         """Why a pairing with ``gs`` would be refused at ``now`` (a query: the adapter asks before any
-        crypto, the ``Paired`` handlers apply the same rule), or None."""
+        crypto, the ``PairingDone`` handlers apply the same rule), or None."""
         if not self.is_authorized(gs):
             return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")
         if self.state is State.FAILSAFE and not on_ground:
@@ -616,13 +616,13 @@ class AuthorityMachine:
                                                         f"pairs first ({self.first_claim_until - now:.1f} s left)")
         return None
 
-    def _on_first_pair(self, ev: Paired) -> tuple[State, list[Action]]:
+    def _on_first_pair(self, ev: PairingDone) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return State.UNPAIRED, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
         return State.LINKED, self._switch(ev.gs, ev.now, "paired")
 
-    def _on_pair_linked(self, ev: Paired) -> tuple[State, list[Action]]:
+    def _on_pair_linked(self, ev: PairingDone) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return self.state, self._reject(ev.gs, "pair", why.text)
         if ev.gs == self.owner:
@@ -631,13 +631,13 @@ class AuthorityMachine:
         self._tell_all()  # every GS learns of the pairing (the links the status lists), changed or not
         return self.state, []
 
-    def _on_pair_failsafe(self, ev: Paired) -> tuple[State, list[Action]]:
+    def _on_pair_failsafe(self, ev: PairingDone) -> tuple[State, list[Action]]:
         if (why := self.pair_refusal(ev.gs, ev.on_ground, ev.now)) is not None:
             return State.FAILSAFE, self._reject(ev.gs, "pair", why.text)
         self.links[ev.gs] = _Link()
         return State.LINKED, self._switch(ev.gs, ev.now, "repaired")
 
-    def _on_key_granted(self, ev: KeyGranted) -> tuple[State, list[Action]]:
+    def _on_key_granted(self, ev: GrantHeard) -> tuple[State, list[Action]]:
         if (why := self.grant_rejection(ev.sender, ev.gs)) is not None:
             return self.state, self._reject(ev.sender, "key_grant", why.detail)
         self.links.setdefault(ev.gs, _Link())  # the adapter installs the key (``grant``: GrantAccepted)
@@ -698,7 +698,7 @@ class AuthorityMachine:
         # pending; if ``to`` is proven already, ``_settle`` completes it in this same step
         return State.HANDOVER_PENDING, acts
 
-    def _on_request(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
+    def _on_request(self, ev: AuthorityAsked) -> tuple[State, list[Action]]:
         if not self.is_authorized(ev.sender):
             return self.state, self._reject(ev.sender, "handover_request", f"unauthorized: {ev.sender} is not authorized")
         if not self.is_authorized(ev.to) or ev.to not in self.links:
@@ -730,7 +730,7 @@ class AuthorityMachine:
         self._tell.add(self.owner)  # with the authority status it is asked in
         return self.state, [note, SendControl(self.owner, ask)]
 
-    def _on_request_failsafe(self, ev: HandoverRequest) -> tuple[State, list[Action]]:
+    def _on_request_failsafe(self, ev: AuthorityAsked) -> tuple[State, list[Action]]:
         """An operator's explicit request to take control back after the failsafe (never automatic):
         the requesting GS must be authorized and its link proven; it becomes the authority of a new
         epoch, and the vehicle goes on with the failsafe action until it commands otherwise."""
@@ -780,7 +780,7 @@ class AuthorityMachine:
         action = self.config.failsafe_action
         self.pending_to = self.pending_deadline = None
         notice = FailsafeNotice(action, f"authority link to {ev.gs} lost")
-        acts = [CommandVehicle(action, notice.reason), Note("failsafe_entered", notice.reason)]
+        acts = [FailsafeCommand(action, notice.reason), Note("failsafe_entered", notice.reason)]
         acts += [SendControl(g, notice) for g in sorted(self.links)]
         return State.FAILSAFE, acts
 
@@ -838,34 +838,34 @@ class AuthorityMachine:
 S = State
 #: (state, event type) -> (handler, next states it may choose)
 TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
-    (S.UNPAIRED, Paired): (AuthorityMachine._on_first_pair, frozenset({S.UNPAIRED, S.LINKED})),
+    (S.UNPAIRED, PairingDone): (AuthorityMachine._on_first_pair, frozenset({S.UNPAIRED, S.LINKED})),
     (S.UNPAIRED, Frame): (AuthorityMachine._on_frame_unpaired, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, Tick): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.UNPAIRED})),
-    (S.LINKED, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.LINKED})),
-    (S.LINKED, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.LINKED})),
+    (S.LINKED, PairingDone): (AuthorityMachine._on_pair_linked, frozenset({S.LINKED})),
+    (S.LINKED, GrantHeard): (AuthorityMachine._on_key_granted, frozenset({S.LINKED})),
     (S.LINKED, Frame): (AuthorityMachine._on_frame, frozenset({S.LINKED})),
     (S.LINKED, LinkChanged): (AuthorityMachine._on_link, frozenset({S.LINKED, S.FAILSAFE})),
     (S.LINKED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.LINKED})),
-    (S.LINKED, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
+    (S.LINKED, AuthorityAsked): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
     (S.LINKED, Release): (AuthorityMachine._on_release, frozenset({S.LINKED, S.HANDOVER_PENDING})),
     (S.LINKED, Tick): (AuthorityMachine._ignore, frozenset({S.LINKED, S.FAILSAFE})),
     (S.LINKED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.LINKED, S.FAILSAFE})),
-    (S.HANDOVER_PENDING, Paired): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
-    (S.HANDOVER_PENDING, KeyGranted): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
+    (S.HANDOVER_PENDING, PairingDone): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
+    (S.HANDOVER_PENDING, GrantHeard): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
     (S.HANDOVER_PENDING, Frame): (AuthorityMachine._on_frame, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, LinkChanged): (AuthorityMachine._on_link, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.HANDOVER_PENDING, RegionChanged): (AuthorityMachine._on_region, frozenset({S.HANDOVER_PENDING})),
-    (S.HANDOVER_PENDING, HandoverRequest): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
+    (S.HANDOVER_PENDING, AuthorityAsked): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({S.HANDOVER_PENDING, S.LINKED})),
     (S.HANDOVER_PENDING, Tick): (AuthorityMachine._ignore, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.HANDOVER_PENDING, GroundChanged): (AuthorityMachine._on_ground_changed,
                                           frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
-    (S.FAILSAFE, Paired): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
+    (S.FAILSAFE, PairingDone): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({S.FAILSAFE})),
-    (S.FAILSAFE, HandoverRequest): (AuthorityMachine._on_request_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
+    (S.FAILSAFE, AuthorityAsked): (AuthorityMachine._on_request_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
     (S.FAILSAFE, LinkChanged): (AuthorityMachine._on_link, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({S.FAILSAFE})),
     (S.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({S.FAILSAFE})),
@@ -875,8 +875,8 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
     (S.HANDOVER_PENDING, Revised): (AuthorityMachine._on_revised, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
     (S.FAILSAFE, Revised): (AuthorityMachine._on_revised, frozenset({S.FAILSAFE})),
 }
-# Missing on purpose (illegal steps, answered with a Reject): KeyGranted, HandoverRequest and
-# Release in UNPAIRED; KeyGranted and Release in FAILSAFE.
+# Missing on purpose (illegal steps, answered with a Reject): GrantHeard, AuthorityAsked and
+# Release in UNPAIRED; GrantHeard and Release in FAILSAFE.
 
 #: The rules of state and time alone (``_settle``), in order, the first that fires applies:
 #: (states it applies in, rule, next states it may choose)

@@ -471,7 +471,7 @@ class DroneCore:
                 self.counters[f"ha_drop:{a.reason.value}"] += 1
             elif isinstance(a, ha.SendControl):
                 out += self._control(a.gs, a.msg)
-            elif isinstance(a, ha.CommandVehicle):
+            elif isinstance(a, ha.FailsafeCommand):
                 latency = self.failsafe_latency_ms(now)
                 out.append(CommandVehicle(a.command, a.reason, latency))
                 out.append(Emit(rec.Failsafe(action=a.command, reason=a.reason, detect_to_command_ms=latency,
@@ -496,7 +496,7 @@ class DroneCore:
         if isinstance(msg, wire.HandoverRelease):
             return self._handle(ha.Release(now, gs, msg.to, msg.epoch), now)
         if isinstance(msg, wire.HandoverRequest):
-            return self._handle(ha.HandoverRequest(now, gs, msg.to, msg.timeout, msg.takeover, msg.ask_id, msg.takeover_to), now)
+            return self._handle(ha.AuthorityAsked(now, gs, msg.to, msg.timeout, msg.takeover, msg.ask_id, msg.takeover_to), now)
         if isinstance(msg, wire.SmHeartbeat):
             self.counters["sm_heartbeat"] += 1
         else:
@@ -515,7 +515,7 @@ class DroneCore:
         known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
         if any(link.key.same_as(key) for link in known):
             return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id))  # a repeated grant
-        result, actions = self.machine.grant(ha.KeyGranted(now, sender, msg.gs))
+        result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         out: list[Out] = []
         if isinstance(result, ha.GrantAccepted):
             out += self._install(result.gs, key, now)
@@ -553,7 +553,7 @@ class DroneCore:
                 out.append(Emit(rec.PairRefused(gs=gs, reason=refusal.text)))
             else:
                 out.append(Emit(rec.Paired(gs=gs)))
-                out += self._handle(ha.Paired(now, gs, self.on_ground), now)
+                out += self._handle(ha.PairingDone(now, gs, self.on_ground), now)
         return out
 
     def _pair_refused(self, gs: str, refusal: PairRefused) -> list[Out]:
