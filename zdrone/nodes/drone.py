@@ -48,9 +48,9 @@ from ..fleet import revisions
 from ..core.revision import RevisionAccepted, RevisionRefusal, RevisionRefused
 from ..core.outputs import Emit, Handlers, Put, dispatch
 from ..core.pairing import query_answer
-from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle, next_link_change
+from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
 
-__all__ = ["DroneNode", "DroneOptions", "next_link_change", "run_drone"]
+__all__ = ["DroneNode", "DroneOptions", "run_drone"]
 
 log = logging.getLogger(__name__)
 

@@ -51,7 +51,7 @@ from zdrone.core.outputs import Emit, Put
 from zdrone.core.kk import check_message1
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
                                  _prologue as pairing_prologue)
-from zdrone.core.tbm import LinkState, TbmThresholds, TimeBetweenMessages
+from zdrone.core.tbm import LinkState, TbmThresholds
 from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
 from zdrone.fleet import keyexprs as kx
@@ -122,16 +122,6 @@ class DroneCoreOptions:
     #: the drone has heard a valid revision (its own number or newer) within this long; else the
     #: owner's authority lapses as if its link were LOST (an heir, else the failsafe)
     revision_lease: float = 0.0
-
-
-def next_link_change(tbm: TimeBetweenMessages, now: float) -> float | None:
-    """When the link's TBM state next changes if nothing arrives (DEGRADED, then LOST), or None."""
-    if tbm.last_seen is None:
-        return None
-    for threshold in (tbm.thresholds.degraded, tbm.thresholds.lost):
-        if tbm.since_last(now) < threshold:  # the comparison ``tbm.state`` makes
-            return tbm.last_seen + threshold
-    return None
 
 
 class DroneCore:
