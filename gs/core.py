@@ -72,11 +72,10 @@ from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
 from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
 from .handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
-from .ownership import owns
-from .opcontrol import Answer, OperatorControl, PendingRequest, Step
-from .linking import (LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue,
-                      PairReply)
+from .linking import LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue, Reply
 from .mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
+from .opcontrol import Answer, OperatorControl, PendingRequest, Step
+from .ownership import owns
 from .planner import PlannedItem
 
 log = logging.getLogger(__name__)
@@ -475,7 +474,7 @@ class StationCore:
         if view is None:
             self.counters["pair_reply_late"] += 1
             return []
-        out, paired = _linking(view).on_pair(PairReply(now, ok, err))
+        out, paired = _linking(view).on_pair(Reply(now, ok, err))
         if paired is None:
             return out
         again = view.link is not None

@@ -13,7 +13,7 @@ answering another GS's key-sharing query, the GS uses ``KeyOwner`` (one per GS).
 
 Pairing phases (``PairPhase``): ``IDLE`` (no exchange open) and ``ASKING`` (a message 1 is out; its
 reply is taken until ``deadline``). Events: ``PairDue`` (the core's timer: pair now, unless the last
-try was less than ``retry`` ago) and ``PairReply`` (the drone's answer, or its error). A reply that
+try was less than ``retry`` ago) and ``Reply`` (the drone's answer, or its error). A reply that
 does not prove the drone's static key is counted and leaves the exchange open (the genuine one may
 still come); the one that does closes it with a ``PairProven`` (the new key, and whether the drone still
 held our old one). If we had a link and the drone lost our key, it restarted: ``keys_lost``.
@@ -22,7 +22,7 @@ Key-sharing phases, per other authorized GS (``SharePhase``): ``NONE`` (nothing 
 hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link" refusal asks again
 after ``LIVE_LINK_RETRY_S``, a query with no answer again after its deadline), ``GRANTING`` (the
 reply's key is granted to the drone, re-sent each second) and ``GRANTED`` (the drone acknowledged
-it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``ShareReply``, ``GrantAcked``
+it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``Reply``, ``GrantAcked``
 and ``KeysLost`` (the drone restarted: every key we shared for it is gone). One new query per
 ``RETRY_S`` per drone (a "live link" retry excepted).
 
@@ -99,8 +99,9 @@ class PairDue:
 
 
 @dataclass(frozen=True, slots=True)
-class PairReply:
-    """The drone's reply to our message 1 (``ok``), or its error text (``err``)."""
+class Reply:
+    """A reply to one of our queries (the drone's to a message 1, another GS's to a key-sharing
+    query): its payload ``ok``, or its error text ``err``."""
 
     now: float
     ok: bytes | None
@@ -113,13 +114,6 @@ class ShareDue:
 
     now: float
     wall: float
-
-
-@dataclass(frozen=True, slots=True)
-class ShareReply:
-    now: float
-    ok: bytes | None
-    err: bytes | None
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,11 +224,11 @@ class Linking:
         return max(due) if due else None
 
     # ------------------------------------------------------------------ pairing
-    def on_pair(self, ev: PairDue | PairReply) -> tuple[list[Action], PairProven | None]:
+    def on_pair(self, ev: PairDue | Reply) -> tuple[list[Action], PairProven | None]:
         """Apply a pairing event: the actions, and the new key if a reply proved it."""
         if self.pair_phase is PairPhase.ASKING and isinstance(ev, PairDue) and ev.now >= self.pairing_deadline:
             self._set_state(None, PairPhase.IDLE, "deadline")  # the exchange expired unanswered
-        if self.pair_phase is PairPhase.ASKING and isinstance(ev, PairReply) and ev.now >= self.pairing_deadline:
+        if self.pair_phase is PairPhase.ASKING and isinstance(ev, Reply) and ev.now >= self.pairing_deadline:
             self._set_state(None, PairPhase.IDLE, "deadline")
         row = PAIR_TABLE.get((self.pair_phase, type(ev)))
         if row is None:
@@ -255,11 +249,11 @@ class Linking:
         self._set_state(None, PairPhase.ASKING, "message 1")
         return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
 
-    def _pair_late(self, ev: PairReply) -> tuple[list[Action], PairProven | None]:
+    def _pair_late(self, ev: Reply) -> tuple[list[Action], PairProven | None]:
         self.ctx.counters["pair_reply_late"] += 1
         return [], None
 
-    def _pair_reply(self, ev: PairReply) -> tuple[list[Action], PairProven | None]:
+    def _pair_reply(self, ev: Reply) -> tuple[list[Action], PairProven | None]:
         c = self.ctx
         assert self.pairing is not None
         if ev.ok is None:
@@ -314,8 +308,8 @@ class Linking:
 
     def on_share_reply(self, g: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         if g not in self.shares:
-            return self._reply_unasked(g, ShareReply(now, ok, err))
-        return self._share(g, ShareReply(now, ok, err))
+            return self._reply_unasked(g, Reply(now, ok, err))
+        return self._share(g, Reply(now, ok, err))
 
     def on_grant_ack(self, g: str, grant_id: int, now: float) -> list[Action]:
         return self._share(g, GrantAcked(now, grant_id)) if g in self.shares else []
@@ -350,7 +344,7 @@ class Linking:
         self._set_state(g, SharePhase.NONE, "ask over")
         return self._ask(g, ev)
 
-    def _reply(self, g: str, ev: ShareReply) -> list[Action]:
+    def _reply(self, g: str, ev: Reply) -> list[Action]:
         s, c = self.shares[g], self.ctx
         if ev.ok is None:
             c.counters["linkkey_reply_error"] += 1
@@ -373,13 +367,13 @@ class Linking:
         self._set_state(g, SharePhase.GRANTING, "reply")
         return [Emit(rec.LinkkeyReceived(drone=c.drone, gs=g))]
 
-    def _reply_error(self, g: str, ev: ShareReply) -> list[Action]:
+    def _reply_error(self, g: str, ev: Reply) -> list[Action]:
         c = self.ctx
         if c.counters["linkkey_reply_error"] > LOGGED:  # the first few in the log; all in the counters
             return []
         return [Emit(rec.LinkkeyError(drone=c.drone, gs=g, reason=(ev.err or b"").decode(errors="replace")[:120]))]
 
-    def _reply_unasked(self, g: str, ev: ShareReply) -> list[Action]:
+    def _reply_unasked(self, g: str, ev: Reply) -> list[Action]:
         if ev.ok is None:
             self.ctx.counters["linkkey_reply_error"] += 1
             return self._reply_error(g, ev)
@@ -477,8 +471,8 @@ P, S = PairPhase, SharePhase
 #: past its deadline is IDLE before the table is read.
 PAIR_TABLE: dict[tuple[PairPhase, type], tuple[Callable[..., Any], frozenset[PairPhase]]] = {
     (P.IDLE, PairDue): (Linking._pair_start, frozenset({P.ASKING})),
-    (P.IDLE, PairReply): (Linking._pair_late, frozenset()),
-    (P.ASKING, PairReply): (Linking._pair_reply, frozenset({P.IDLE})),
+    (P.IDLE, Reply): (Linking._pair_late, frozenset()),
+    (P.ASKING, Reply): (Linking._pair_reply, frozenset({P.IDLE})),
 }
 # Not listed: PairDue while ASKING (the exchange is open until its deadline).
 
@@ -486,10 +480,10 @@ PAIR_TABLE: dict[tuple[PairPhase, type], tuple[Callable[..., Any], frozenset[Pai
 SHARE_TABLE: dict[tuple[SharePhase, type], tuple[Callable[..., Any], frozenset[SharePhase]]] = {
     (S.NONE, ShareDue): (Linking._ask, frozenset({S.ASKED})),
     (S.ASKED, ShareDue): (Linking._ask_over, frozenset({S.NONE, S.ASKED})),
-    (S.ASKED, ShareReply): (Linking._reply, frozenset({S.GRANTING})),
-    (S.NONE, ShareReply): (Linking._reply_unasked, frozenset()),
-    (S.GRANTING, ShareReply): (Linking._reply_unasked, frozenset()),
-    (S.GRANTED, ShareReply): (Linking._reply_unasked, frozenset()),
+    (S.ASKED, Reply): (Linking._reply, frozenset({S.GRANTING})),
+    (S.NONE, Reply): (Linking._reply_unasked, frozenset()),
+    (S.GRANTING, Reply): (Linking._reply_unasked, frozenset()),
+    (S.GRANTED, Reply): (Linking._reply_unasked, frozenset()),
     (S.GRANTING, GrantAcked): (Linking._acked, frozenset({S.GRANTED})),
     (S.GRANTING, KeysLost): (Linking._forget, frozenset({S.NONE})),
     (S.GRANTED, KeysLost): (Linking._forget, frozenset({S.NONE})),

@@ -7,8 +7,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gs.actions import Ask, AskKind, Emit
-from gs.linking import (PAIR_TABLE, SHARE_TABLE, Context, GrantAcked, KeysLost, Linking, PairDue, PairPhase, PairReply,
-                        Share, ShareDue, SharePhase, ShareReply)
+from gs.linking import (PAIR_TABLE, SHARE_TABLE, Context, GrantAcked, KeysLost, Linking, PairDue, PairPhase, Reply,
+                        Share, ShareDue, SharePhase)
 from zdrone.core import wire
 from zdrone.core.keyshare import KeyShareAsk
 from zdrone.core.pairing import PairingInitiator
@@ -49,8 +49,8 @@ REPLIES = st.sampled_from([None, b"", b"\x00" * 48, b"x" * 80])
 ERRORS = st.sampled_from([None, b"live_link", b"unauthorized"])
 NOW = st.floats(0, 10)
 PAIR_EVENTS = st.one_of(st.builds(PairDue, NOW, NOW, st.sampled_from([0.0, 0.2, 2.0]), st.sampled_from([0.2, 3.0])),
-                        st.builds(PairReply, NOW, REPLIES, ERRORS))
-SHARE_EVENTS = st.one_of(st.builds(ShareDue, NOW, NOW), st.builds(ShareReply, NOW, REPLIES, ERRORS),
+                        st.builds(Reply, NOW, REPLIES, ERRORS))
+SHARE_EVENTS = st.one_of(st.builds(ShareDue, NOW, NOW), st.builds(Reply, NOW, REPLIES, ERRORS),
                          st.builds(GrantAcked, NOW, st.sampled_from([7, 8])), st.builds(KeysLost, NOW))
 
 
@@ -82,7 +82,7 @@ def test_key_sharing_follows_its_table(fleet_dir, phase, ev, linked):
     sent: list = []
     if isinstance(ev, ShareDue):
         out = lk.share_keys(ev.now, ev.wall, lambda m: sent.append(m) or [])
-    elif isinstance(ev, ShareReply):
+    elif isinstance(ev, Reply):
         out = lk.on_share_reply("B", ev.ok, ev.err, ev.now)
     elif isinstance(ev, GrantAcked):
         out = lk.on_grant_ack("B", ev.grant_id, ev.now)
