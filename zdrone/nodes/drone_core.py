@@ -246,26 +246,32 @@ class DroneCore:
         hand-over pending to it) a stream message at most once a ``StandbyStream`` interval. A GS that
         becomes the owner or heir first gets the newest frame of each stream message, so that it
         never decides from a position up to an interval old."""
-        m = self.machine
-        full = {g for g in (m.owner, m.pending_to) if g is not None}
         try:
             msgid = read_header(frame).msgid
         except FrameError:
             msgid = -1
-        out: list[Out] = []
-        for gs in m.telemetry_targets():
+        out = self._catch_up()
+        for gs in self.machine.telemetry_targets():
             link = self.links.get(gs)
-            if link is None:
-                continue
-            if gs in full and gs not in self._full_stream:  # it commands now (or is about to): the latest of
-                out += [Put(gs, link.seal(f)) for f in self._latest.values()]  # each stream message at once
-                self.standby.forget(gs)
-            elif gs not in full and not self.standby.allow(gs, msgid, now):
+            if link is None or (gs not in self._full_stream and not self.standby.allow(gs, msgid, now)):
                 continue
             out.append(Put(gs, link.seal(frame)))
-        self._full_stream = full
         if msgid in STREAMED:
             self._latest[msgid] = frame
+        return out
+
+    def _catch_up(self) -> list[Out]:
+        """A GS that now commands the drone (or is the heir of a pending hand-over) gets the newest
+        frame of each stream message at once, before anything the change makes the drone say."""
+        m = self.machine
+        full = {g for g in (m.owner, m.pending_to) if g is not None}
+        out: list[Out] = []
+        for gs in sorted(full - self._full_stream):
+            link = self.links.get(gs)
+            if link is not None:
+                out += [Put(gs, link.seal(f)) for f in self._latest.values()]
+            self.standby.forget(gs)
+        self._full_stream = full
         return out
 
     def restore(self, owner: str | None, epoch: int, state: str, now: float) -> list[Out]:
@@ -452,7 +458,7 @@ class DroneCore:
         return self._apply(acts, now, frame)
 
     def _apply(self, actions: list[ha.Action], now: float, frame: bytes | None = None) -> list[Out]:
-        out: list[Out] = []
+        out: list[Out] = self._catch_up()  # a new owner or heir: the newest position before the news
         for a in actions:
             if isinstance(a, ha.Forward):
                 if frame is not None:
