@@ -10,8 +10,9 @@ What the autopilot is — PX4 v1.16 or ArduCopter 4.7 — is a ``Personality``
 identity and mode numbers, texts (and PX4's EVENTs), readiness after boot, mission rules, auto-disarm,
 streams, parameters, the link-loss failsafe.
 
-This class is the autopilot itself: armed or not, on the ground or flying, the flight mode, the
-target the vehicle flies to, and the rules that join them. The flight mode is a ``FlightMode``
+This class is the autopilot itself: armed or not, on the ground or flying, the flight mode, and the
+rules that join them; where the vehicle flies to (its target, cruise speed, take-off altitude) is its
+``Guidance`` (``guidance``), which the flight mode, the commands and the mission steer by. The flight mode is a ``FlightMode``
 behaviour shown as one of the personality's mode rows; each sets a target (TAKEOFF climbs where the
 vehicle is, LAND descends there, RTL climbs to the return altitude, flies home and lands, HOLD stays,
 MISSION lets the mission fly its items) and the kinematics (``kinematics``) move the vehicle toward
@@ -55,6 +56,7 @@ from ..personality import PX4, ModeRow, Param, Personality, Say, ardupilot_takeo
 from ..px4modes import FlightMode
 from .commands import CommandProtocol
 from .gcslink import GcsLink
+from .guidance import Guidance
 from .kinematics import SUBSTEP_S, Kinematics, Limits, advance, battery_after
 from .mission import MissionItem, MissionProtocol
 from .outbox import Outbox
@@ -103,9 +105,7 @@ class SimAutopilot:
         # what it is flying
         self.mode_row: ModeRow = personality.modes.by_name(personality.boot_mode)
         self.mode: FlightMode = self.mode_row.behaviour
-        self.target: tuple[float, float, float] | None = None  # north, east, alt
-        self.cruise_speed: float | None = None  # set by command or mission; None: the personality's
-        self.takeoff_alt = self.phys("takeoff_alt")
+        self.guidance = Guidance(self.phys("takeoff_alt"))  # where it flies to: the parts steer by it
         self._rtl_descend = False
         # readiness announcements
         self._said_ready = self._said_position = self._said_origin = False
@@ -288,7 +288,7 @@ class SimAutopilot:
         self.k = self.k.halted()
         if self.p.hold_after_touchdown and self.mode is not FlightMode.MISSION:
             self.set_mode(FlightMode.HOLD)
-        self.target = None
+        self.guidance.stop()
 
     def operate_gripper(self, action: float) -> None:
         """DO_GRIPPER's action: release (or 0) drops the payload."""
@@ -331,7 +331,7 @@ class SimAutopilot:
                 and (not self.armed or (self.landed and row.behaviour is not FlightMode.TAKEOFF))):
             return refused
         if row.behaviour is FlightMode.TAKEOFF:
-            self.takeoff_alt = self.phys("takeoff_alt")
+            self.guidance.set_takeoff_alt(self.phys("takeoff_alt"))
         self.set_mode(row.behaviour, row)
         return ok
 
@@ -342,11 +342,13 @@ class SimAutopilot:
             log.info("sim: mode %s -> %s", self.mode_row.name, row.name)
         self.mode, self.mode_row = mode, row
         self.mission_protocol.landing_since = None
-        k = self.k
+        k, g = self.k, self.guidance
         if mode is FlightMode.LAND:  # land where we are, not at the last target
-            self.target = (k.north, k.east, -1.0)
-        if mode is FlightMode.HOLD or mode is FlightMode.POSCTL:
-            self.target = (k.north, k.east, k.alt) if not self.landed else None
+            g.fly_to(k.north, k.east, -1.0)
+        if (mode is FlightMode.HOLD or mode is FlightMode.POSCTL) and self.landed:
+            g.stop()
+        elif mode is FlightMode.HOLD or mode is FlightMode.POSCTL:
+            g.fly_to(k.north, k.east, k.alt)
 
     def _on_set_mode(self, msg: Any, now: float) -> None:
         row = self.p.modes.by_custom(msg.custom_mode) if msg.base_mode & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else None
@@ -379,11 +381,11 @@ class SimAutopilot:
                 self._touchdown_at = None
                 self.disarm("disarmed_landing")
                 return
-        if self.target is None:
+        if self.guidance.target is None:
             self.k = self.k.halted()
             return
-        talt = self.target[2]
-        self.k = advance(self.k, self.target, self._limits(), dt)
+        talt = self.guidance.target[2]
+        self.k = advance(self.k, self.guidance.target, self._limits(), dt)
         if self.k.alt > TAKEOFF_DETECTED_M and self.landed:
             self.landed = False
             self._taken_off = True
@@ -397,36 +399,37 @@ class SimAutopilot:
             if self.mode in (FlightMode.LAND, FlightMode.RTL):
                 if self.p.hold_after_touchdown:
                     self.set_mode(FlightMode.HOLD)
-                self.target = None
+                self.guidance.stop()
                 self._rtl_descend = False
 
     def _aim(self, now: float) -> None:
         """Set the target of the current mode (the mission sets its own)."""
-        k = self.k
+        k, g = self.k, self.guidance
         mode = self.mode
         if mode is FlightMode.MISSION:
             self.mission_protocol.fly(now)
             if not self.armed:  # the mission ended in a disarm
                 return
         elif mode is FlightMode.TAKEOFF:
-            alt = self.takeoff_alt
-            if self.target is None or self.landed:
-                self.target = (k.north, k.east, alt)
+            alt = g.takeoff_alt
+            if g.target is None or self.landed:
+                g.fly_to(k.north, k.east, alt)
             if k.alt >= alt - 0.3:
                 self.set_mode(FlightMode.HOLD)
         elif mode is FlightMode.LAND:
-            self.target = (self.target[0], self.target[1], -1.0) if self.target else (k.north, k.east, -1.0)
+            north, east = (g.target[0], g.target[1]) if g.target else (k.north, k.east)
+            g.fly_to(north, east, -1.0)
         elif mode is FlightMode.RTL:
             rtl_return = self.phys("rtl_alt")
             rtl_alt = max(rtl_return, k.alt) if not self._rtl_descend else -1.0
             if math.hypot(k.north, k.east) > self.phys("accept_radius") and not self._rtl_descend:
-                self.target = (0.0, 0.0, rtl_alt) if k.alt >= rtl_return - 1 else (k.north, k.east, rtl_alt)
+                g.fly_to(*((0.0, 0.0) if k.alt >= rtl_return - 1 else (k.north, k.east)), rtl_alt)
             else:
                 self._rtl_descend = True
-                self.target = (0.0, 0.0, -1.0)
+                g.fly_to(0.0, 0.0, -1.0)
         if mode is not FlightMode.RTL:
             self._rtl_descend = False
 
     def _limits(self) -> Limits:
         return Limits(up=self.phys("up"), down=self.phys("down"), acc=self.phys("acc"),
-                      speed=self.cruise_speed or self.phys("cruise"))
+                      speed=self.guidance.cruise_speed or self.phys("cruise"))

@@ -113,7 +113,7 @@ def _takeoff(ap: SimAutopilot, c: Command, now: float) -> int:
         alt = c.z if math.isfinite(c.z) and c.z > 0 else default
     if not TAKEOFF_ALT_RANGE[0] <= alt <= TAKEOFF_ALT_RANGE[1]:
         return ap.p.denied_result
-    ap.takeoff_alt = alt
+    ap.guidance.set_takeoff_alt(alt)
     ap.set_mode(FlightMode.TAKEOFF)
     return ACCEPTED
 
@@ -180,9 +180,9 @@ def _reposition(ap: SimAutopilot, c: Command, now: float) -> int:
         return DENIED
     speed = c.params[0]
     if math.isfinite(speed) and speed > 0:
-        ap.cruise_speed = min(speed, MAX_SPEED)
+        ap.guidance.set_speed(min(speed, MAX_SPEED))
     ap.set_mode(FlightMode.HOLD, ap.p.modes.by_name(ap.p.modes.shown[FlightMode.HOLD]))
-    ap.target = (n, e, max(alt, 1.0))
+    ap.guidance.fly_to(n, e, max(alt, 1.0))
     return ACCEPTED
 
 
@@ -190,7 +190,7 @@ def _change_speed(ap: SimAutopilot, c: Command, now: float) -> int:
     speed = c.params[1]
     if not (math.isfinite(speed) and 0 < speed <= MAX_SPEED):
         return DENIED
-    ap.cruise_speed = speed
+    ap.guidance.set_speed(speed)
     return ACCEPTED
 
 

@@ -15,7 +15,7 @@ how far the flight has come (items reached, finished), and answers the mission m
 * the personality's rules: ArduPilot stores home as item 0, whatever was sent, and never flies it;
   PX4 checks feasibility after the ACK, and a refusal shows only at MISSION_START.
 
-``fly(now)`` runs while the autopilot is in its mission mode and sets the vehicle's target: DO items
+``fly(now)`` runs while the autopilot is in its mission mode and steers by the vehicle's ``Guidance``: DO items
 (speed, gripper) complete at once; TAKEOFF climbs where the vehicle is; WAYPOINT flies there and
 holds ``param1`` seconds inside the acceptance radius (``param2`` if given); RTL hands over to the
 autopilot's return mode; LAND lands at the item, then ArduPilot disarms and the mission ends there
@@ -154,6 +154,7 @@ class MissionProtocol:
 
     def __init__(self, ap: SimAutopilot) -> None:
         self.ap = ap
+        self.guidance = ap.guidance  # where the mission steers the vehicle
         self.items: list[MissionItem] = []
         self.current = 0
         self.finished = False
@@ -350,7 +351,7 @@ class MissionProtocol:
             log.info("sim: mission finished")
             if not self.ap.landed:
                 k = self.ap.k
-                self.ap.target = (k.north, k.east, k.alt)
+                self.guidance.fly_to(k.north, k.east, k.alt)
         else:
             self.current += 1
         self.send_current()
@@ -370,18 +371,18 @@ class MissionProtocol:
 
     def fly(self, now: float) -> None:
         """Fly the current item: set the vehicle's target, complete items, move on."""
-        ap = self.ap
+        ap, g = self.ap, self.guidance
         k = ap.k
         if self.finished or not self.flyable or not ap.armed:
-            if not ap.landed:
-                ap.target = ap.target or (k.north, k.east, k.alt)
+            if not ap.landed and g.target is None:
+                g.fly_to(k.north, k.east, k.alt)
             return
         self.current = max(self.current, self.first_flown)
         for _ in range(len(self.items)):  # DO items complete at once; stop at the first NAV item
             item = self.items[self.current]
             if item.command == mav.MAV_CMD_DO_CHANGE_SPEED:
                 if item.params[1] > 0:
-                    ap.cruise_speed = item.params[1]
+                    g.set_speed(item.params[1])
                 self._advance()
                 continue
             if item.command == mav.MAV_CMD_DO_GRIPPER:
@@ -406,8 +407,9 @@ class MissionProtocol:
             return
         if item.command == mav.MAV_CMD_NAV_TAKEOFF:
             alt = relative_alt(item.frame, item.alt, ap.home_amsl)
-            ap.target = ((here_n, here_e, alt) if ap.target is None or self.item_started == now
-                         else (ap.target[0], ap.target[1], alt))
+            north, east = ((here_n, here_e) if g.target is None or self.item_started == now
+                           else (g.target[0], g.target[1]))
+            g.fly_to(north, east, alt)
             if k.alt >= alt - 0.5:
                 self._advance()
             return
@@ -416,7 +418,7 @@ class MissionProtocol:
             self._land_at(item, n, e, now)
             return
         alt = relative_alt(item.frame, item.alt, ap.home_amsl)
-        ap.target = (n, e, alt)
+        g.fly_to(n, e, alt)
         radius = ap.phys("accept_radius")
         if item.command == mav.MAV_CMD_NAV_WAYPOINT and item.params[1] > 0:
             radius = item.params[1]  # the waypoint's own acceptance radius
@@ -435,11 +437,11 @@ class MissionProtocol:
         k = ap.k
         far = math.hypot(n - k.north, e - k.east) > ap.phys("accept_radius")
         if far and not ap.landed and self.landing_since is None:
-            ap.target = (n, e, max(k.alt, 5.0))
+            self.guidance.fly_to(n, e, max(k.alt, 5.0))
             return
         if self.landing_since is None:
             self.landing_since = now
-        ap.target = (n, e, -1.0)
+        self.guidance.fly_to(n, e, -1.0)
         if not ap.landed:
             return
         mis_options = int(ap.params["MIS_OPTIONS"].value) if "MIS_OPTIONS" in ap.params else 0
