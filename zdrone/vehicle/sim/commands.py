@@ -10,7 +10,7 @@ a command not in the table is UNSUPPORTED.
 
 Where PX4 and ArduPilot answer differently the personality says how: ``refused_result`` for "not
 now" (disarmed, in the air, wrong mode), ``denied_result`` for a refused mode change, disarm or
-value; the mode changes themselves go through ``SimAutopilot.change_mode``.
+value; the mode changes themselves go through ``CommandedAutopilot.change_mode``.
 
 Bad input never raises: NaN, infinite or out-of-range params get DENIED (or the personality's
 refusal), an unknown mode or message id UNSUPPORTED; every ACK other than ACCEPTED is counted as
@@ -23,7 +23,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
@@ -33,7 +33,44 @@ from ..px4modes import FlightMode
 from .mission import MAX_DISTANCE_M, relative_alt
 
 if TYPE_CHECKING:
-    from .autopilot import SimAutopilot
+    from .guidance import Guidance
+    from .kinematics import Kinematics
+    from .mission import MissionProtocol
+    from .outbox import Outbox
+    from .telemetry import Telemetry
+    from ..personality import ModeRow, Personality, Say
+
+
+class CommandedAutopilot(Protocol):
+    """What the command table reads and does of its autopilot: all it may reach
+    (``tests/unit/test_sim_parts.py``)."""
+
+    out: Outbox
+    p: Personality
+    home: GeoPoint
+    home_amsl: float
+    guidance: Guidance
+    armed: bool
+    landed: bool
+    mode_row: ModeRow
+    k: Kinematics
+    mission_protocol: MissionProtocol
+    telemetry: Telemetry
+
+    def arm(self, now: float, text: str) -> None: ...
+
+    def arm_refusal(self, now: float, forced: bool) -> Say | None: ...
+
+    def disarm(self, text: str) -> None: ...
+
+    def set_mode(self, mode: FlightMode, row: ModeRow | None = None) -> None: ...
+
+    def change_mode(self, row: ModeRow, now: float, first: int | None = None) -> int: ...
+
+    def operate_gripper(self, action: float) -> None: ...
+
+    def phys(self, what: str) -> float: ...
+
 
 FORCE_MAGIC = 21196  # param 2 of ARM_DISARM: force (arm without checks, disarm in the air)
 MAX_SPEED = 25.0  # m/s: DO_CHANGE_SPEED and DO_REPOSITION's speed
@@ -79,11 +116,11 @@ class Reply:
     message: int | None = None  # this message id is sent after the ACK
 
 
-Handler = Callable[["SimAutopilot", Command, float], "int | Reply"]
+Handler = Callable[[CommandedAutopilot, Command, float], "int | Reply"]
 
 
 # ------------------------------------------------------------------ handlers
-def _arm_disarm(ap: SimAutopilot, c: Command, now: float) -> int:
+def _arm_disarm(ap: CommandedAutopilot, c: Command, now: float) -> int:
     p = c.params
     forced = p[1] == FORCE_MAGIC
     if p[0] == 1.0:
@@ -103,7 +140,7 @@ def _arm_disarm(ap: SimAutopilot, c: Command, now: float) -> int:
     return DENIED
 
 
-def _takeoff(ap: SimAutopilot, c: Command, now: float) -> int:
+def _takeoff(ap: CommandedAutopilot, c: Command, now: float) -> int:
     if not ap.armed or not ap.mode_row.user_takeoff or (ap.p.takeoff_needs_ground and not ap.landed):
         return ap.p.refused_result
     default = ap.phys("takeoff_alt")
@@ -118,22 +155,22 @@ def _takeoff(ap: SimAutopilot, c: Command, now: float) -> int:
     return ACCEPTED
 
 
-def _enter(ap: SimAutopilot, behaviour: FlightMode, now: float) -> int:
+def _enter(ap: CommandedAutopilot, behaviour: FlightMode, now: float) -> int:
     """LAND or RTL by command: only armed and in the air, unless the autopilot takes any mode disarmed."""
     if not ap.p.modes_free_when_disarmed and (not ap.armed or ap.landed):
         return ap.p.refused_result
     return ap.change_mode(ap.p.modes.by_name(ap.p.modes.shown[behaviour]), now)
 
 
-def _land(ap: SimAutopilot, c: Command, now: float) -> int:
+def _land(ap: CommandedAutopilot, c: Command, now: float) -> int:
     return _enter(ap, FlightMode.LAND, now)
 
 
-def _return_to_launch(ap: SimAutopilot, c: Command, now: float) -> int:
+def _return_to_launch(ap: CommandedAutopilot, c: Command, now: float) -> int:
     return _enter(ap, FlightMode.RTL, now)
 
 
-def _mission_start(ap: SimAutopilot, c: Command, now: float) -> int | Reply:
+def _mission_start(ap: CommandedAutopilot, c: Command, now: float) -> int | Reply:
     p = c.params
     mission = ap.mission_protocol
     if ap.p.mission_start_needs_zero_params and not (p[0] == 0 and p[1] == 0):
@@ -159,7 +196,7 @@ def _mission_start(ap: SimAutopilot, c: Command, now: float) -> int | Reply:
     return ap.change_mode(row, now, first=first)
 
 
-def _set_mode(ap: SimAutopilot, c: Command, now: float) -> int:
+def _set_mode(ap: CommandedAutopilot, c: Command, now: float) -> int:
     p = c.params
     if not all(math.isfinite(v) for v in p[:3]):
         return DENIED
@@ -169,7 +206,7 @@ def _set_mode(ap: SimAutopilot, c: Command, now: float) -> int:
     return ap.change_mode(row, now)
 
 
-def _reposition(ap: SimAutopilot, c: Command, now: float) -> int:
+def _reposition(ap: CommandedAutopilot, c: Command, now: float) -> int:
     if not ap.armed or ap.landed:
         return ap.p.refused_result
     if not (math.isfinite(c.x) and math.isfinite(c.y) and -90 <= c.x <= 90 and -180 <= c.y <= 180):
@@ -186,7 +223,7 @@ def _reposition(ap: SimAutopilot, c: Command, now: float) -> int:
     return ACCEPTED
 
 
-def _change_speed(ap: SimAutopilot, c: Command, now: float) -> int:
+def _change_speed(ap: CommandedAutopilot, c: Command, now: float) -> int:
     speed = c.params[1]
     if not (math.isfinite(speed) and 0 < speed <= MAX_SPEED):
         return DENIED
@@ -194,7 +231,7 @@ def _change_speed(ap: SimAutopilot, c: Command, now: float) -> int:
     return ACCEPTED
 
 
-def _set_mission_current(ap: SimAutopilot, c: Command, now: float) -> int:
+def _set_mission_current(ap: CommandedAutopilot, c: Command, now: float) -> int:
     seq = int(c.params[0]) if math.isfinite(c.params[0]) else -1
     if not 0 <= seq < len(ap.mission_protocol.items):
         return DENIED
@@ -202,22 +239,22 @@ def _set_mission_current(ap: SimAutopilot, c: Command, now: float) -> int:
     return ACCEPTED
 
 
-def _request_capabilities(ap: SimAutopilot, c: Command, now: float) -> Reply:
+def _request_capabilities(ap: CommandedAutopilot, c: Command, now: float) -> Reply:
     return Reply(ACCEPTED, message=mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
 
 
-def _request_message(ap: SimAutopilot, c: Command, now: float) -> int | Reply:
+def _request_message(ap: CommandedAutopilot, c: Command, now: float) -> int | Reply:
     mid = int(c.params[0]) if math.isfinite(c.params[0]) else -1
     if mid not in ap.p.sendable:
         return UNSUPPORTED
     return Reply(ACCEPTED, message=mid)
 
 
-def _set_message_interval(ap: SimAutopilot, c: Command, now: float) -> int:
+def _set_message_interval(ap: CommandedAutopilot, c: Command, now: float) -> int:
     return ap.telemetry.set_interval(c.params, now)
 
 
-def _gripper(ap: SimAutopilot, c: Command, now: float) -> int:
+def _gripper(ap: CommandedAutopilot, c: Command, now: float) -> int:
     ap.operate_gripper(c.params[1])
     return ACCEPTED
 
@@ -243,7 +280,7 @@ COMMANDS: Mapping[int, Handler] = MappingProxyType({
 class CommandProtocol:
     """COMMAND_LONG and COMMAND_INT for one autopilot (``ap``), answered through ``COMMANDS``."""
 
-    def __init__(self, ap: SimAutopilot) -> None:
+    def __init__(self, ap: CommandedAutopilot) -> None:
         self.ap = ap
         self.handlers: Mapping[str, Callable[[Any, float], None]] = MappingProxyType({
             "COMMAND_LONG": lambda msg, now: self.handle(Command.from_long(msg), now),

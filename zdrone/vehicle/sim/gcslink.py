@@ -21,14 +21,29 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
 from ..px4modes import FlightMode
 
 if TYPE_CHECKING:
-    from .autopilot import SimAutopilot
+    from .outbox import Outbox
+    from ..personality import ModeRow, Param, Personality
+
+
+class LinkAutopilot(Protocol):
+    """What the GCS link reads and does of its autopilot: all it may reach (``tests/unit/test_sim_parts.py``)."""
+
+    out: Outbox
+    p: Personality
+    params: dict[str, Param]
+    armed: bool
+    landed: bool
+    mode: FlightMode
+
+    def set_mode(self, mode: FlightMode, row: ModeRow | None = None) -> None: ...
+
 
 # MAVLink FTP opcodes and error codes (the protocol's, as in MAVProxy's ftp module)
 FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS, FTP_LIST_DIRECTORY, FTP_OPEN_FILE_RO = 1, 2, 3, 4
@@ -41,7 +56,7 @@ FTP_PAYLOAD = 251
 class GcsLink:
     """The GCS side of one autopilot (``ap``): heartbeats heard, the link-loss failsafe, small services."""
 
-    def __init__(self, ap: SimAutopilot) -> None:
+    def __init__(self, ap: LinkAutopilot) -> None:
         self.ap = ap
         self.last_heartbeat: float | None = None  # from any GCS
         self.heartbeats: dict[int, float] = {}  # GCS sysid -> last HEARTBEAT

@@ -35,7 +35,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
@@ -44,7 +44,34 @@ from ..personality import ModeRow, Say
 from ..px4modes import FlightMode
 
 if TYPE_CHECKING:
-    from .autopilot import SimAutopilot
+    from .guidance import Guidance
+    from .kinematics import Kinematics
+    from .outbox import Outbox
+    from ..personality import ModeRow, Param
+
+
+class MissionAutopilot(Protocol):
+    """What the mission reads and does of its autopilot: all it may reach (``tests/unit/test_sim_parts.py``)."""
+
+    out: Outbox
+    p: Personality
+    params: dict[str, Param]
+    home: GeoPoint
+    home_amsl: float
+    guidance: Guidance
+    armed: bool
+    landed: bool
+    mode: FlightMode
+    k: Kinematics
+
+    def set_mode(self, mode: FlightMode, row: ModeRow | None = None) -> None: ...
+
+    def disarm(self, text: str) -> None: ...
+
+    def operate_gripper(self, action: float) -> None: ...
+
+    def phys(self, what: str) -> float: ...
+
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +179,7 @@ def _peer(msg: Any) -> tuple[int, int]:
 class MissionProtocol:
     """The stored mission of one autopilot, its microservice, and flying it (``ap`` is the autopilot)."""
 
-    def __init__(self, ap: SimAutopilot) -> None:
+    def __init__(self, ap: MissionAutopilot) -> None:
         self.ap = ap
         self.guidance = ap.guidance  # where the mission steers the vehicle
         self.items: list[MissionItem] = []

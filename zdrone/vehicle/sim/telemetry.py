@@ -24,7 +24,7 @@ import math
 import struct
 from collections.abc import Callable, Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mav
@@ -40,7 +40,47 @@ except ImportError:  # pragma: no cover
     dev = None  # type: ignore[assignment]
 
 if TYPE_CHECKING:
-    from .autopilot import SimAutopilot
+    import random
+    from .kinematics import Kinematics
+    from .mission import MissionProtocol
+    from .outbox import Outbox
+    from ..personality import ModeRow, Param, Personality
+
+
+class ReportedAutopilot(Protocol):
+    """What the telemetry reads of its autopilot (it reports the whole vehicle, and changes none of
+    it): all it may reach (``tests/unit/test_sim_parts.py``)."""
+
+    out: Outbox
+    p: Personality
+    params: dict[str, Param]
+    sysid: int
+    t: float
+    boot: float
+    ready_after: float
+    rng: random.Random
+    home: GeoPoint
+    home_amsl: float
+    armed: bool
+    landed: bool
+    battery: float
+    mode_row: ModeRow
+    k: Kinematics
+    mission_protocol: MissionProtocol
+
+    @property
+    def position(self) -> GeoPoint: ...
+
+    def landed_state(self) -> int: ...
+
+    def phys(self, what: str) -> float: ...
+
+    def gps_fixed(self, now: float | None = None) -> bool: ...
+
+    def position_ok(self, now: float | None = None) -> bool: ...
+
+    def ready_to_arm(self, now: float | None = None) -> bool: ...
+
 
 UNIX_EPOCH_AT_BOOT = 1_790_000_000  # SYSTEM_TIME: a fixed, deterministic wall clock
 MIN_INTERVAL_S = 0.02  # SET_MESSAGE_INTERVAL: at most 50 Hz
@@ -53,7 +93,7 @@ SENSORS = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCE
 class Telemetry:
     """The streams of one autopilot (``ap``) and the messages they carry."""
 
-    def __init__(self, ap: SimAutopilot, now: float) -> None:
+    def __init__(self, ap: ReportedAutopilot, now: float) -> None:
         self.ap = ap
         self.requested: dict[int, float | None] = {}  # SET_MESSAGE_INTERVAL: id -> interval, None = off
         self.streams: dict[int, float] = dict(ap.p.default_streams)  # id -> interval (s)
