@@ -37,8 +37,8 @@ Per drone:
   epoch (released, confirmed, failed) is the sub-machine ``gs.handover.Handover``, a table. A
   release toward a GS whose key the drone does not hold yet waits for it: while the key is known to
   be coming (a restarted companion), the vehicle is held where it is and its mission resumed just
-  before the release, so that how fast the vehicle flies does not decide whether the hand-over
-  happens inside the overlap.
+  before the release (the sub-machine ``gs.keyhold.KeyHold``, a table), so that how fast the vehicle
+  flies does not decide whether the hand-over happens inside the overlap.
 * **Mission stages** are the sub-machine ``gs.mission.Mission``, a table: it takes events only while
   this GS holds authority and no key grant of its is pending.
 """
@@ -72,6 +72,7 @@ from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
 from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
 from .handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
+from .keyhold import HoldStep, KeyHold, KeyMissing, KeyThere, ModeAck
 from .linking import LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue, Reply
 from .mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from .opcontrol import Answer, OperatorControl, PendingRequest, Step
@@ -122,13 +123,9 @@ KEY_WAIT_RADIUS = 0.9
 #: the other GS said its old link still looks alive (``live_link``, an unauthenticated error) within
 #: ``KEY_COMING_S`` while our own pairing showed, authenticated, that the companion restarted (it
 #: had lost our key) within ``RESTART_EVIDENCE_S``.
-HOLD_FOR_KEY_S = 15.0
+#: (The hold itself, its phases and timings: ``gs.keyhold``.)
 KEY_COMING_S = 2.0
 RESTART_EVIDENCE_S = 30.0
-#: A mode change of the hold (to hold, back to the mission) is sent again this often until the
-#: vehicle confirms it (COMMAND_ACK accepted, or its HEARTBEAT in that mode); a hold not confirmed
-#: this long after it was asked, with the vehicle past ``KEY_WAIT_RADIUS``, has failed: RTL.
-HOLD_RESEND_S = 0.5
 #: A failed hand-over commands RTL only if the vehicle is leaving our coverage: farther from our
 #: centre than when we released, by at least this much (else it is flying into our coverage and
 #: needs nothing but the retry).
@@ -150,28 +147,6 @@ class CoreOptions:
     allow_takeover: bool = False  # the operator's standing "allow takeover" (MAVLink operator control)
 
 
-class HoldPhase(enum.Enum):
-    HOLDING = "holding"  # hold mode asked for (confirmed or not), waiting for the key
-    RESUMING = "resuming"  # the key is there: the mission mode asked for; the release waits for it
-    OVER = "over"  # resumed, expired (RTL), or someone else changed the mode: nothing more of ours
-
-
-@dataclass
-class KeyHold:
-    """A hold of the vehicle while a hand-over waits for the drone's key to ``to``."""
-
-    epoch: int
-    to: str
-    since: float
-    hold_mode: str
-    mission_mode: str
-    params: dict[str, tuple[float, float, float]]  # DO_SET_MODE params 1-3 of each mode
-    phase: HoldPhase = HoldPhase.HOLDING
-    sent: float = 0.0  # the current phase's mode command, last sent
-    confirmed: bool = False  # the current phase's mode confirmed by the vehicle
-    seen: bool = False  # the vehicle's HEARTBEAT showed the hold mode
-
-
 @dataclass(slots=True)
 class DroneView:
     """What this GS knows of one drone."""
@@ -180,7 +155,7 @@ class DroneView:
     sysid: int
     link: SecureLink | None = None  # the live link (``slot.live``)
     slot: LinkSlot = field(default_factory=LinkSlot)
-    hold: "KeyHold | None" = None  # the vehicle held for a key (one per epoch)
+    hold: KeyHold | None = None  # the vehicle held for a key (one per epoch, ``gs.keyhold``)
     fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     armed: bool = False
     disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
@@ -408,10 +383,8 @@ class StationCore:
         if ho.epoch == view.epoch:
             yield ho.failed_at + HANDOVER_RETRY_S
             yield ho.sent + RELEASE_RESEND_S
-        hold = view.hold
-        if hold is not None and hold.epoch == view.epoch and hold.phase is not HoldPhase.OVER:
-            yield from (hold.sent + HOLD_RESEND_S, hold.since + HOLD_RESEND_S, hold.since + HOLD_FOR_KEY_S,
-                        hold.since + HOLD_FOR_KEY_S + 5.0)
+        if view.hold is not None and view.hold.epoch == view.epoch:
+            yield from view.hold.deadlines()
         for g in linking.shares:
             refused = linking.live_refused(g)
             yield None if refused is None else refused + KEY_COMING_S
@@ -753,7 +726,7 @@ class StationCore:
         return []
 
     def _key_coming(self, view: DroneView, g: str, now: float) -> bool:
-        """``g``'s key for the drone is known to be coming (see ``HOLD_FOR_KEY_S``)."""
+        """``g``'s key for the drone is known to be coming (see ``KEY_COMING_S``, ``gs.keyhold``)."""
         linking = _linking(view)
         if linking.granting(g):
             return True
@@ -774,95 +747,50 @@ class StationCore:
             return None
         return roles["mission"], roles["hold"], params  # type: ignore[return-value]
 
-    def _hold_command(self, view: DroneView, hold: KeyHold, mode: str, now: float) -> list[Action]:
-        hold.sent = now
-        return self._command(view, mav.MAV_CMD_DO_SET_MODE, *hold.params[mode])
-
     def on_mode_ack(self, view: DroneView, accepted: bool, now: float) -> None:
         """A COMMAND_ACK of DO_SET_MODE from the vehicle: confirms the hold's current mode change."""
-        hold = view.hold
-        if hold is not None and hold.phase is not HoldPhase.OVER and accepted and now >= hold.sent:
-            hold.confirmed = True
+        if view.hold is not None:
+            view.hold.handle(ModeAck(now, accepted))
 
-    def _overridden(self, view: DroneView, hold: KeyHold) -> bool:
-        """The vehicle is in a mode neither we nor its mission chose, or left the hold it was seen in."""
-        mode = self._mode(view)
-        return mode not in (hold.hold_mode, hold.mission_mode) or (hold.seen and mode != hold.hold_mode)
-
-    def _end_hold(self, view: DroneView, hold: KeyHold, why: str) -> None:
-        """Nothing more of the hold: counted by why. A mode someone else chose (other than the mission's)
-        stands for the rest of the epoch: no RTL of ours over it."""
-        hold.phase = HoldPhase.OVER
-        self.counters[f"handover_hold_over:{why}"] += 1
-        if why == "mode changed" and self._mode(view) != hold.mission_mode:
-            self._ho(view).rtl_done = True
-
-    def _hold_over(self, view: DroneView, hold: KeyHold, why: str, rtl: bool, now: float) -> list[Action]:
-        """The hold ends without the hand-over: a failed hand-over, with RTL if ``rtl``."""
-        self._end_hold(view, hold, why)
-        return self._handover_failed(view, f"the drone has no link to {hold.to} ({why})", now, rtl=rtl)
+    def _hold_step(self, view: DroneView, hold: KeyHold, step: HoldStep | None, now: float) -> list[Action] | None:
+        """Carry out a step of the hold: its record, its mode command, its end (a failed hand-over)."""
+        if hold.stands:
+            self._ho(view).rtl_done = True  # a mode someone else chose stands: no RTL of ours over it
+        if step is None:
+            return None
+        out: list[Action] = [] if step.log is None else [Emit(step.log)]
+        if step.send is not None:
+            out += self._command(view, mav.MAV_CMD_DO_SET_MODE, *step.send)
+        if step.over is not None:
+            out += self._handover_failed(view, f"the drone has no link to {hold.to} ({step.over})", now, rtl=step.rtl)
+        return out
 
     def _hold_for_key(self, view: DroneView, g: str, mine: float, now: float) -> list[Action] | None:
         """Due to release toward ``g`` but its key is still missing on the drone: hold the vehicle (if
-        the key is known to be coming and the vehicle flies its mission; once per epoch), keep holding
-        (the mode re-sent until confirmed), or end the hold. None: no hold of ours (the caller waits up
-        to ``KEY_WAIT_RADIUS`` for a key still asked for, else the hand-over has failed)."""
+        the key is known to be coming and the vehicle flies its mission; once per epoch), keep holding,
+        or end the hold (``gs.keyhold``). None: no hold of ours (the caller waits up to
+        ``KEY_WAIT_RADIUS`` for a key still asked for, else the hand-over has failed)."""
         hold = view.hold
         if hold is not None and hold.epoch == view.epoch:
-            if hold.phase is not HoldPhase.HOLDING:
-                return None
-            if self._mode(view) == hold.hold_mode:
-                hold.confirmed = hold.seen = True
-            elif self._overridden(view, hold):  # someone else (its operator, the autopilot) changed the mode
-                return self._hold_over(view, hold, "mode changed", rtl=False, now=now)
-            if now - hold.since >= HOLD_FOR_KEY_S:  # RTL wherever it holds
-                return self._hold_over(view, hold, "expired", rtl=self._mode(view) == hold.hold_mode, now=now)
-            if not hold.confirmed:
-                if (mine >= KEY_WAIT_RADIUS * self.coverage.radius_m  # type: ignore[union-attr]
-                        and now - hold.since >= HOLD_RESEND_S):
-                    # the vehicle does not hold and is leaving: come home
-                    return self._hold_over(view, hold, "not confirmed", rtl=True, now=now)
-                if now - hold.sent >= HOLD_RESEND_S:
-                    self.counters["handover_hold_resent"] += 1
-                    return self._hold_command(view, hold, hold.hold_mode, now)
-            self.counters["handover_holding_for_key"] += 1
-            return []
+            far = mine >= KEY_WAIT_RADIUS * self.coverage.radius_m  # type: ignore[union-attr]
+            return self._hold_step(view, hold, hold.handle(KeyMissing(now, self._mode(view), far)), now)
         modes = self._hold_modes(view) if self._key_coming(view, g, now) else None
         if modes is None:
             return None
         mission, hold_mode, params = modes
-        view.hold = hold = KeyHold(view.epoch, g, now, hold_mode, mission, params)
-        self.counters["handover_hold"] += 1
-        log.warning("hand-over of %s to %s waits for its key: holding the vehicle (%s) for at most %g s",
-                    view.name, g, hold_mode, HOLD_FOR_KEY_S)
-        return [Emit(rec.HandoverHold(drone=view.name, to=g, epoch=view.epoch, mode=hold_mode)),
-                ToOperator(f"zdrone gs {self.name}: holding {view.name} in the overlap until {g}'s key is there"),
-                *self._hold_command(view, hold, hold_mode, now)]
+        view.hold, step = KeyHold.start(view.name, view.epoch, g, now, hold_mode, mission, params, self.counters)
+        out = self._hold_step(view, view.hold, step, now)
+        assert out is not None
+        return [out[0], ToOperator(f"zdrone gs {self.name}: holding {view.name} in the overlap until {g}'s key is there"),
+                *out[1:]]
 
     def _resume(self, view: DroneView, g: str, now: float) -> list[Action] | None:
         """Before releasing toward ``g``: a mission we hold for ``g``'s key goes on first (the release
         waits until the vehicle confirms its mission mode). None: release now."""
         hold = view.hold
-        if hold is None or hold.epoch != view.epoch or hold.phase is HoldPhase.OVER:
+        if hold is None or hold.epoch != view.epoch:
             return None
-        if hold.phase is HoldPhase.HOLDING:
-            if self._overridden(view, hold):  # someone else changed the mode meanwhile: theirs stands
-                self._end_hold(view, hold, "mode changed")
-                return None
-            hold.phase, hold.confirmed = HoldPhase.RESUMING, False
-            self.counters["handover_resume"] += 1
-            return [Emit(rec.HandoverResume(drone=view.name, to=g, epoch=view.epoch, held_s=round(now - hold.since, 2))),
-                    *self._hold_command(view, hold, hold.mission_mode, now)]
-        if hold.confirmed or self._mode(view) == hold.mission_mode and now - hold.sent >= HOLD_RESEND_S:
-            hold.phase = HoldPhase.OVER
-            return None
-        if now - hold.since >= HOLD_FOR_KEY_S + 5.0:  # the vehicle never took its mission back
-            return self._hold_over(view, hold, "resume not confirmed", rtl=self._mode(view) == hold.hold_mode,
-                                   now=now)
-        if now - hold.sent >= HOLD_RESEND_S:
-            self.counters["handover_resume_resent"] += 1
-            return self._hold_command(view, hold, hold.mission_mode, now)
-        return []
+        return self._hold_step(view, hold, hold.handle(KeyThere(now, self._mode(view), g)), now)
 
     def _command_stream(self, view: DroneView, now: float) -> list[Action]:
         if self.opts.command_rate <= 0 or not self.holds_authority(view) or not view.armed:

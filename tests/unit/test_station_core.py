@@ -542,7 +542,7 @@ def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_bef
     A's own pairing showed the companion restarted): A holds the vehicle in the overlap instead of
     bringing it home; the hold is sent again until the vehicle confirms it; once the key is there the
     mission resumes first, and the release goes out only when the vehicle confirms its mission mode."""
-    from gs.core import HOLD_RESEND_S
+    from gs.keyhold import HOLD_RESEND_S
 
     a = _held_for_b(fleet_dir)
     view = a.views["d1"]
@@ -576,7 +576,7 @@ def test_a_hold_the_vehicle_never_confirms_ends_in_rtl_past_the_key_wait_radius(
 
 def test_a_hold_that_runs_out_commands_rtl_wherever_the_vehicle_holds(fleet_dir):
     """Review 3 M3: at the end of the hold, RTL whether or not the vehicle is "leaving" (it holds)."""
-    from gs.core import HOLD_FOR_KEY_S
+    from gs.keyhold import HOLD_FOR_KEY_S
 
     a = _held_for_b(fleet_dir)
     a.handle_timer(10.2)
@@ -590,7 +590,7 @@ def test_a_hold_that_runs_out_commands_rtl_wherever_the_vehicle_holds(fleet_dir)
 def test_a_mode_someone_else_chose_during_the_hold_stands(fleet_dir):
     """Review 3 M4: the operator (or the autopilot's own failsafe) changed the mode while A held the
     vehicle: A neither resumes the mission over it nor commands RTL at the end of the hold."""
-    from gs.core import HOLD_FOR_KEY_S
+    from gs.keyhold import HOLD_FOR_KEY_S
 
     a = _held_for_b(fleet_dir)
     view = a.views["d1"]
