@@ -39,15 +39,15 @@ def test_acl_is_default_deny_and_scoped_per_identity():
     assert subjects == {"user-d1": ["d1"], "user-A": ["A"], "user-B": ["B"], "user-X": ["X"]}
 
 
-def test_each_gs_has_one_budget_per_lane_toward_each_drone_session():
-    """Bounded per credential: one downsampling rule per (GS, lane) on egress of client transports —
-    a drone's session carries only its own uplinks, so each rule is one budget per (drone, GS, lane)
-    that every session sending as that GS shares; the rules grow with the GSs, not drones x GSs."""
+def test_with_tls_each_gs_has_one_budget_per_lane_toward_each_drone_session():
+    """Bounded per credential (certificate and password): one downsampling rule per (GS, lane) on
+    egress of client transports — a drone's session carries only its own uplinks, so each rule is one
+    budget per (drone, GS, lane) that every session sending as that GS shares; the rules grow with the
+    GSs, not drones x GSs."""
     from zdrone.fleet import keyexprs as kx
     from zdrone.fleet.routerconfig import (PAIR_MAX_HZ, UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S)
 
-    by_id = {d["id"]: d for d in router_config(default_fleet(), "c.txt")["downsampling"]}
-    ups, pairs = by_id["uplink-rate"], by_id["pair-rate"]
+    ups, pairs, *_revisions = router_config(default_fleet(), "c.txt", tls=True)["downsampling"]
     assert ups["flows"] == pairs["flows"] == ["egress"] and ups["messages"] == ["put"] and pairs["messages"] == ["query"]
     assert ups["link_protocols"] == pairs["link_protocols"] == ["tcp", "tls"]  # never the mesh (QUIC)
     assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/*/up/{g}/{i}" for g in "ABX" for i in range(kx.UP_LANES)}
@@ -58,16 +58,27 @@ def test_each_gs_has_one_budget_per_lane_toward_each_drone_session():
     assert kx.UP_LANES * UPLINK_PACE_S >= 4 / UPLINK_LANE_HZ  # a lane's frames four of its intervals apart
 
 
+def test_with_a_password_alone_each_sending_session_has_its_own_budget_per_drone_and_lane():
+    """A leaked password is all it takes to write as a GS without TLS: the budgets are per sending
+    session (ingress), one rule per (drone, lane), so a thief's sessions never spend the real GS's."""
+    from zdrone.fleet import keyexprs as kx
+
+    ups, pairs, *_revisions = router_config(default_fleet(), "c.txt")["downsampling"]
+    assert ups["flows"] == pairs["flows"] == ["ingress"]
+    assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/d1/up/*/{i}" for i in range(kx.UP_LANES)}
+    assert [r["key_expr"] for r in pairs["rules"]] == ["zdrone/d1/pair/*"]
+
+
 def test_the_policy_grows_with_nodes_not_with_drones_times_stations():
     from zdrone.fleet.files import scale_nodes
 
     def size(k: int) -> tuple[int, int]:
         nodes = {n: Node(role=r, sysid=s, public_key="A" * 43 + "=", coverage=None, authorized_gs=a)  # type: ignore[arg-type]
                  for n, r, s, _c, a, *_net in scale_nodes(k, 3)}
-        cfg = router_config(Fleet(version=1, nodes=nodes), "c.txt")
+        cfg = router_config(Fleet(version=1, nodes=nodes), "c.txt", tls=True)
         return sum(len(d["rules"]) for d in cfg["downsampling"]), len(cfg["access_control"]["rules"])
 
-    assert size(10)[0] == size(100)[0]  # budgets: per GS only
+    assert size(10)[0] == size(100)[0]  # budgets (with TLS): per GS only
     assert size(100)[1] - size(10)[1] == 90 * (size(11)[1] - size(10)[1])  # ACL rules: linear in the nodes
 
 
@@ -111,6 +122,7 @@ def test_every_site_router_limits_its_clients_and_meshes_over_quic():
                              ("router-site-1",), "pw")
     assert cfg["downsampling"] == uplink_downsampling(default_fleet()) + revision_downsampling(default_fleet())
     assert uplink_downsampling(default_fleet()) != [] != revision_downsampling(default_fleet())
+    assert cfg["downsampling"][0]["flows"] == ["egress"]  # mutual TLS: per credential
     assert cfg["listen"]["endpoints"] == ["tls/127.0.0.1:7448", "quic/127.0.0.1:7448"]
     assert cfg["connect"]["endpoints"] == ["quic/127.0.0.1:7447"]
     assert mesh_endpoint("tls/10.0.0.1:7447") == "quic/10.0.0.1:7447"

@@ -12,17 +12,21 @@ Rules (the router checks ``ingress`` from the sender's session and ``egress`` to
 The ACL is the second wall: every exchange it allows is also authenticated end to end by the
 fleet's static keys, so a leaked router password alone gets nothing.
 
-Bounded per credential, in messages and bytes, where a drone's radio begins. Each GS ``g`` has one
+Bounded in messages and bytes where a drone's radio begins, per credential where a credential is
+more than a password. With TLS (a node is its certificate *and* its password) each GS ``g`` has one
 budget per lane of its uplinks, ``zdrone/*/up/g/<lane>`` (Zenoh's downsampling), kept on **egress**
 toward each drone's session: the router holds them once per session, and a drone's session only
 ever carries its own uplinks, so the rule is one budget per (drone session, GS, lane) — every
-session that writes as ``g`` (the real GS, a leaked password's flood, K parallel sessions) shares
-it, and no other GS's budget is touched. ``UP_LANES`` x ``UPLINK_MAX_HZ / UP_LANES`` puts/s, each
-at most ``UPLINK_MAX_BYTES`` (Zenoh's low-pass filter, on ingress: a bigger put never enters the
-router), so what one credential can push toward a drone is bounded in bytes per second
-(``UPLINK_MAX_BYTES_S``), sized for a slow radio. Pairing queries ``zdrone/*/pair/g`` likewise
-(``PAIR_MAX_HZ``, ``PAIR_MAX_BYTES``). The policy's size grows with the fleet's GSs (rules) and
-its nodes (ACL subjects), not with drones x GSs x sessions.
+session that writes as ``g`` (K parallel sessions with its certificate and password) shares it, and
+no other GS's budget is touched; the rules grow with the GSs. Without TLS a leaked password is all
+it takes to write as ``g``, and a budget shared with the thief would let it starve ``g`` itself: the
+budgets are per sending session instead, one rule per (drone, lane) on **ingress** (a GS's session
+may publish only its own lanes, so in it each rule is (drone, GS, lane)); they grow with the drones
+(x ``UP_LANES`` rules, kept once per session) and K sessions get K budgets. Either way
+``UPLINK_MAX_HZ`` puts/s over an uplink's lanes, each at most ``UPLINK_MAX_BYTES`` (Zenoh's low-pass
+filter, on ingress: a bigger put never enters the router), so what one budget can push toward a drone
+is bounded in bytes per second (``UPLINK_MAX_BYTES_S``), sized for a slow radio. Pairing queries
+likewise (``PAIR_MAX_HZ``, ``PAIR_MAX_BYTES``).
 
 The budgets apply to client transports only (``tcp``, ``tls``): site routers mesh over **QUIC**
 (mutual TLS as well), so the backhaul between two routers — which carries every GS's frames for
@@ -47,8 +51,9 @@ are ``UP_LANES`` paces apart (``UPLINK_PACE_S * UPLINK_MAX_HZ`` of the lane's in
 bunched by a stall are on different lanes (a burst allowance of ``UP_LANES`` frames).
 
 Not bounded here: the number of sessions one credential opens (Zenoh 1.x has one ``max_sessions``
-for all; extra sessions gain no budget above), and a holder of a GS's own password *and* certificate
-can spend that GS's budget toward a drone (it is that GS as far as the network can tell: revoke it).
+for all, and no limit per username or certificate; with TLS extra sessions gain no budget), and a
+holder of a GS's own certificate *and* password can spend that GS's budget toward a drone (it is that
+GS as far as the network can tell: revoke it, ``zdrone fleet revoke``).
 """
 
 from __future__ import annotations
@@ -167,17 +172,31 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def uplink_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
-    """Zenoh downsampling toward the drones: one rule per (GS, lane) and one per GS's pairing key, on
-    egress of client transports — a drone's session carries only its own uplinks, so each is one
-    budget per (drone, GS, lane) shared by every session sending as that GS."""
-    gss = fleet.ground_stations()
-    if not gss or not fleet.drones():
+def uplink_downsampling(fleet: Fleet, per_credential: bool = True) -> list[dict[str, Any]]:
+    """Zenoh downsampling of what GSs send toward the drones (uplink lanes and pairing queries).
+
+    ``per_credential`` (a router that wants a node's certificate *and* password): one rule per (GS,
+    lane) and one per GS's pairing key, on egress of client transports — a drone's session carries
+    only its own uplinks, so each is one budget per (drone, GS, lane) shared by every session sending
+    as that GS. Otherwise (a password is all it takes to be a GS, and passwords leak): one rule per
+    (drone, lane) and per drone's pairing key, on ingress, so per sending session — a GS's session
+    may publish only its own lanes (the ACL), so each is that session's budget for (drone, GS, lane),
+    and a thief's sessions never spend the real GS's."""
+    gss, drones = fleet.ground_stations(), fleet.drones()
+    if not gss or not drones:
         return []
-    lanes = [{"key_expr": kx.up_lane("*", g, lane), "freq": UPLINK_LANE_HZ} for g in gss for lane in range(kx.UP_LANES)]
-    pairs = [{"key_expr": kx.pair("*", g), "freq": PAIR_MAX_HZ} for g in gss]
-    return [{"id": "uplink-rate", "flows": ["egress"], "messages": ["put"], "link_protocols": CLIENT_LINKS, "rules": lanes},
-            {"id": "pair-rate", "flows": ["egress"], "messages": ["query"], "link_protocols": CLIENT_LINKS, "rules": pairs}]
+    if per_credential:
+        flow = "egress"
+        lanes = [kx.up_lane("*", g, lane) for g in gss for lane in range(kx.UP_LANES)]
+        pairs = [kx.pair("*", g) for g in gss]
+    else:
+        flow = "ingress"
+        lanes = [kx.up_lane(d, "*", lane) for d in drones for lane in range(kx.UP_LANES)]
+        pairs = [kx.pair_all(d) for d in drones]
+    return [{"id": "uplink-rate", "flows": [flow], "messages": ["put"], "link_protocols": CLIENT_LINKS,
+             "rules": [{"key_expr": k, "freq": UPLINK_LANE_HZ} for k in lanes]},
+            {"id": "pair-rate", "flows": [flow], "messages": ["query"], "link_protocols": CLIENT_LINKS,
+             "rules": [{"key_expr": k, "freq": PAIR_MAX_HZ} for k in pairs]}]
 
 
 def revision_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
@@ -229,7 +248,7 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
                       # the size limit (and zdrone's messages are small): off
                       "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet, tls),
-        "downsampling": uplink_downsampling(fleet) + revision_downsampling(fleet),
+        "downsampling": uplink_downsampling(fleet, per_credential=tls) + revision_downsampling(fleet),
         "low_pass_filter": size_limits(fleet) + revision_size_limits(),
     }
 
