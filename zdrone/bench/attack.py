@@ -277,16 +277,18 @@ def _a_missing(events: list[AnyRecord], before: float | None = None) -> int | No
     return st[-1].links["A"].missing if st else None
 
 
-def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD_RATE, budget: bool = True) -> dict[str, Any]:
+def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD_RATE, budget: bool = True,
+                        tls: bool = False) -> dict[str, Any]:
     """One trial: the drone behind a 4 Mbit/s radio, A holding authority, ``size``-byte junk on up/B.
-    Without ``budget`` (a what-if, the control): the router's rate budgets taken out of its config."""
+    Without ``budget`` (a what-if, the control): the router's rate budgets taken out of its config.
+    With ``tls``: a site router (mutual TLS: B's certificate and password, budgets per credential)."""
     from ..fleet.files import init_fleet
     from ..fleet.routerconfig import UPLINK_MAX_BYTES, UPLINK_MAX_BYTES_S
     from ..sil.netns import NetnsError, ShapedRadio
 
-    d = base / f"shaped-radio-{size}-{i}{'' if budget else '-no-budget'}"
+    d = base / f"shaped-radio-{size}-{i}{'' if budget else '-no-budget'}{'-tls' if tls else ''}"
     d.mkdir(parents=True, exist_ok=True)
-    row: dict[str, Any] = {"size": size, "budget": budget, "target_rate_per_s": rate, "radio_kbit": RADIO_KBIT,
+    row: dict[str, Any] = {"size": size, "budget": budget, "tls": tls, "target_rate_per_s": rate, "radio_kbit": RADIO_KBIT,
                            "passes_router": size <= UPLINK_MAX_BYTES,
                            "budget_kbit": (round(UPLINK_MAX_BYTES_S * 8 / 1000) if budget else None) if size <= UPLINK_MAX_BYTES else 0}
     radio = ShapedRadio(RADIO_KBIT)
@@ -298,16 +300,23 @@ def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD
     demo.netns = radio  # type: ignore[assignment]  # children with ns= run behind the radio; shutdown removes it
     spot = offset(HOME, 0.0, JUNK_EAST_M)
     try:
-        init_fleet(d / "fleet")
-        if not budget:
+        port, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
+        if tls:  # the site router of the radio's host (its certificate names the radio address); GSs reach it there too
+            init_fleet(d / "fleet", sites=[f"tls/{radio.host_ip}:{port}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"])
+            cfg_path = d / "fleet" / "router" / "site-1.json5"
+            local = far = f"tls/{radio.host_ip}:{port}"
+            listen: list[str] = []  # the site config's own: the radio address (and the mesh's, unused)
+        else:
+            init_fleet(d / "fleet")
             cfg_path = d / "fleet" / "router" / "router.json5"
+            local, far = f"tcp/127.0.0.1:{port}", f"tcp/{radio.host_ip}:{port}"
+            listen = ["--listen", local, "--listen", far]
+        if not budget:
             cfg = json5.loads(cfg_path.read_text())
             cfg.pop("downsampling", None)
             cfg_path.write_text(json.dumps(cfg, indent=2))
-        port, sport = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_DGRAM)
-        local, far = f"tcp/127.0.0.1:{port}", f"tcp/{radio.host_ip}:{port}"
         z = ["-m", "zdrone", "-v"]
-        r = demo.start("router", z + ["router", "-c", "fleet/router/router.json5", "--listen", local, "--listen", far])
+        r = demo.start("router", z + ["router", "-c", str(cfg_path.relative_to(d)), *listen])
         demo.wait_line(r, "listening", 20)
         sim = demo.start("sim", z + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--home", f"{spot.lat:.7f},{spot.lon:.7f}"],
                          ns=radio.ns)
@@ -405,6 +414,9 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
     for size in radio_sizes if radio_sizes is not None else ([] if quick else list(RADIO_FLOOD_SIZES)):
         status.say(f"A's link over a {RADIO_KBIT / 1000:g} Mbit/s radio under {size}-byte junk on up/B")
         radio.append(_shaped_radio_trial(base, 0, size))
+    for size in [] if quick or radio_sizes is not None else [RADIO_FLOOD_SIZES[0], RADIO_FLOOD_SIZES[-1]]:
+        status.say(f"the same over a site router with mutual TLS: {size}-byte junk with B's certificate and password")
+        radio.append(_shaped_radio_trial(base, 0, size, tls=True))
     if radio and not quick and radio_sizes is None:
         status.say("the control: the same flood of 500-byte junk with the router's budgets taken out")
         radio.append(_shaped_radio_trial(base, 0, 500, budget=False))
@@ -476,13 +488,13 @@ def render(r: dict[str, Any]) -> None:
                     caption=f"goal: A never LOST, out of OK <= {j['goal_not_ok_s']:.0f} s")
     q = r.get("shaped_radio_floods")
     if q and q["trials"]:
-        rows = [[f"{t['size']} B" + ("" if t.get("budget", True) else " (control: no budget)"),
+        rows = [[f"{t['size']} B" + (", TLS site" if t.get("tls") else "") + ("" if t.get("budget", True) else " (control: no budget)"),
                  "yes" if t.get("passes_router") else "no (size)", t.get("budget_kbit") or "-",
                  t.get("offered_kbit", "-"), t.get("junk_reached_drone", "-"), t.get("a_lost", "-"),
                  t.get("a_worst_state", "-"), t.get("a_longest_not_ok_s", "-"), ",".join(t.get("owners", [])) or "-", t.get("failsafes", "-"),
                  "OK" if t["ok"] else ("skipped: " if t.get("skipped") else "FAILED") + (f": {t['error']}" if "error" in t else "")]
                 for t in q["trials"]]
-        print_table(f"A's link over a {q['radio_kbit'] / 1000:g} Mbit/s shaped radio under junk on up/B with B's password "
+        print_table(f"A's link over a {q['radio_kbit'] / 1000:g} Mbit/s shaped radio under junk on up/B with B's password (TLS: and certificate) "
                     f"({q['flood_s']:.0f} s; A holds authority, vehicle in the overlap, B linked)",
                     ["envelope", "enters router", "B's budget kbit/s", "offered kbit/s", "junk at drone", "A lost",
                      "A worst", "A out of OK s", "authority", "failsafes", "result"], rows,

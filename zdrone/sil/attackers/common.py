@@ -153,3 +153,24 @@ class Replies:
     def snapshot(self) -> dict[str, int]:
         with self._lock:
             return dict(self.counts)
+
+
+def session_as(c: Ctx, node: str, own_site: bool = True) -> "zenoh.Session":
+    """A session as fleet member ``node`` with its real credentials: its router password and, with a
+    TLS router, its own certificate; with a router per site and ``own_site``, at ``node``'s own
+    site's router."""
+    from ...core.errors import ConfigError
+    from ...fleet.files import load_sites
+    from ...fleet.tls import node_files
+    from ...net.session import open_client
+
+    if not c.router.startswith("tls/"):
+        return open_client(c.router, node, c.password(node))
+    router = c.router
+    if own_site:
+        try:
+            sites = load_sites(c.fleet_dir)
+        except ConfigError:
+            sites = {}
+        router = next((s["endpoint"] for s in sites.values() if node in s["ground_stations"]), router)
+    return open_client(router, node, c.password(node), node_files(c.fleet_dir, node).check())

@@ -12,7 +12,7 @@ envelopes on ``zdrone/<drone>/up/B``, pairing queries to the drone as B and key-
 router drops messages over 64 KiB; the nodes refuse the rest by their length before copying them
 (``up:oversize``, ``pair_refused:oversize``, ``linkkey_refused:oversize``) and fly on.
 
-``junk-flood``: B's router password only. Publishes junk envelopes on ``zdrone/<drone>/up/B`` as fast
+``junk-flood``: B's router password (with a TLS router, and B's certificate). Publishes junk envelopes on ``zdrone/<drone>/up/B`` as fast
 as ``--rate`` asks (default 80 000/s), paced in 5 ms slices: ``--size`` (40) random bytes whose epoch byte is, in
 turn, 0 and 1 (the live epoch and the next one of a fresh link: each costs the drone one AEAD
 attempt) and any other value (unknown epoch). The router cuts the key to its rate limit; GS A's
@@ -33,7 +33,7 @@ from ...fleet.files import load_secret
 from ...fleet import keyexprs as kx
 from .. import records as trec
 from ...net.session import open_client
-from .common import Ctx, next_up, Replies
+from .common import Ctx, Replies, next_up, session_as
 
 
 def pair_flood(c: Ctx) -> None:
@@ -105,7 +105,7 @@ def big_flood(c: Ctx) -> None:
 
 def junk_flood(c: Ctx) -> None:
     drone = c.drone
-    s = open_client(c.router, "B", c.password("B"))
+    s = session_as(c, "B", own_site=False)  # B's password (and, with TLS, B's certificate), at --router
     rng = random.Random(19)
     per_epoch = max(1, min(64, (64 << 20) // (3 * c.size)))  # at most 64 MiB of junk in memory
     pool = [bytes([e]) + rng.randbytes(c.size - 1) for e in (0, 1, 7) for _ in range(per_epoch)]  # epochs 0, 1, unknown

@@ -42,12 +42,11 @@ from ...core.keyshare import KeyShareAsk
 from ...core.mavlink import FrameCodec
 from ...core.pairing import PairingInitiator
 from ...core import wire
-from ...fleet.files import load_secret, load_sites
+from ...fleet.files import load_secret
 from ...fleet import keyexprs as kx
-from ...fleet.tls import node_files
 from .. import records as trec
 from ...net.session import open_client
-from .common import ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, gcs_heartbeat, next_up
+from .common import ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, gcs_heartbeat, next_up, session_as
 
 
 def uplink_sealed(c: Ctx) -> None:
@@ -113,20 +112,6 @@ PAIR_EVERY_S = 1.0
 PROOF_BURST = 5
 
 
-def _session_as(c: Ctx, node: str) -> zenoh.Session:
-    """A session as fleet member ``node`` with its real credentials: its router password and, with a
-    TLS router, its own certificate; with a router per site, at ``node``'s own site's router."""
-    if not c.router.startswith("tls/"):
-        return open_client(c.router, node, c.password(node))
-    router = c.router
-    try:
-        sites = load_sites(c.fleet_dir)
-    except ConfigError:
-        sites = {}
-    router = next((s["endpoint"] for s in sites.values() if node in s["ground_stations"]), router)
-    return open_client(router, node, c.password(node), node_files(c.fleet_dir, node).check())
-
-
 class _Pairing:
     """One pairing exchange started without blocking: replies land on Zenoh's threads."""
 
@@ -147,7 +132,7 @@ class _Pairing:
 def insider_heir(c: Ctx) -> None:
     fleet, drone = c.fleet, c.drone
     me = load_secret(c.fleet_dir, "B", fleet)  # B's own static key: the drone cannot tell it from B
-    s = _session_as(c, "B")
+    s = session_as(c, "B")
     down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     sub = s.declare_subscriber(kx.down(drone, "B"), lambda smp: down.put(smp.payload.to_bytes()))
     codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
@@ -249,7 +234,7 @@ def key_escrow(c: Ctx) -> None:
     if c.router.startswith("tls/"):
         raise ConfigError("key-escrow injects as the drone: with mutual TLS that needs the drone's certificate")
     me = load_secret(c.fleet_dir, "B", fleet)
-    s_b = _session_as(c, "B")
+    s_b = session_as(c, "B")
     s_d = open_client(c.router, drone, c.password(drone))  # the drone's router password: may publish on down/*
     s_a = open_client(c.router, "A", c.password("A"))  # A's: may publish on up/<drone>/A
     sent: Counter[str] = Counter()
