@@ -45,7 +45,6 @@ Per drone:
 
 from __future__ import annotations
 
-import enum
 import itertools
 import logging
 from collections import Counter
@@ -70,7 +69,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
 from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
 
-from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
+from .actions import Action, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
 from .handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 from .keyhold import HoldStep, KeyHold, KeyMissing, KeyThere, ModeAck
 from .linking import LINKKEY_CANDIDATE_TTL, PAIR_TIMEOUT, RETRY_S, Context, KeyOwner, Linking, PairDue, Reply
@@ -469,6 +468,7 @@ class StationCore:
         """Our static key was rotated: key sharing answers under ``identity`` from now on, and every
         drone we hold a link with is re-paired under it at once (make-before-break: the live link
         works until the drone's reply gives the new key)."""
+        self._input(now)
         self.identity = identity
         self.key_owner.adopt(identity)
         out: list[Action] = []
