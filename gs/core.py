@@ -67,7 +67,7 @@ from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 
 from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
-from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
+from zdrone.vehicle.modes import MODE_ROLES, autopilot_name, mode_name, set_mode_params
 
 from .actions import Action, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
 from .handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
@@ -88,7 +88,6 @@ USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG
                          mav.MAVLINK_MSG_ID_MISSION_ACK, mav.MAVLINK_MSG_ID_SYS_STATUS,
                          mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_GPS_RAW_INT, MSG_EKF_STATUS_REPORT,
                          mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED})
-AUTOPILOT_NAMES = {mav.MAV_AUTOPILOT_PX4: "px4", mav.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 TEXTS_KEPT = 8
 #: An unconfirmed HANDOVER_RELEASE is sent again this often (a lossy radio must not make the
 #: drone leave the overlap before it hears one).
@@ -541,7 +540,7 @@ class StationCore:
             view.armed = armed
             view.custom_mode = msg.custom_mode
             if view.autopilot is None:
-                view.autopilot = AUTOPILOT_NAMES.get(msg.autopilot, "other")
+                view.autopilot = autopilot_name(msg.autopilot) or "other"
                 out.append(Emit(rec.AutopilotFound(drone=drone, autopilot=view.autopilot, mav_type=msg.type)))
         elif t == "SYS_STATUS":
             if msg.onboard_control_sensors_present & mav.MAV_SYS_STATUS_PREARM_CHECK:
