@@ -118,10 +118,10 @@ def test_a_new_key_must_come_signed_with_the_old_one_and_never_while_armed():
     setup = FrameCodec(1, 191).encode(mav.MAVLink_setup_signing_message(1, 1, list(other), fcsign.units(NOW)))
     sim.receive(setup, 0.0, link=0)
     assert sim.signing.key == KEY  # unsigned: dropped
-    sim.armed = True
+    sim.vehicle.armed = True
     sim.receive(fcsign.sign(setup, KEY, 1, fcsign.units(NOW) + 1), 0.0, link=0)
     assert sim.signing.key == KEY and "MAVLink signing: rejected while armed" in [t for _, t in sim.events]
-    sim.armed = False
+    sim.vehicle.armed = False
     sim.receive(fcsign.sign(setup, KEY, 1, fcsign.units(NOW) + 2), 0.0, link=0)
     assert sim.signing.key == other
 

@@ -10,9 +10,12 @@ What the autopilot is — PX4 v1.16 or ArduCopter 4.7 — is a ``Personality``
 identity and mode numbers, texts (and PX4's EVENTs), readiness after boot, mission rules, auto-disarm,
 streams, parameters, the link-loss failsafe.
 
-This class is the autopilot itself: armed or not, on the ground or flying, the flight mode, and the
-rules that join them; where the vehicle flies to (its target, cruise speed, take-off altitude) is its
-``Guidance`` (``guidance``), which the flight mode, the commands and the mission steer by. The flight mode is a ``FlightMode``
+This class is the autopilot itself: the flight mode and the rules that join it to the vehicle. The
+vehicle's own state (where it is, battery, armed or not, on the ground or flying) is a
+``VehicleState`` (``vehicle``) that only the autopilot changes; where the vehicle flies to (its
+target, cruise speed, take-off altitude) is its ``Guidance`` (``guidance``), which the flight mode,
+the commands and the mission steer by. Each part reaches the autopilot through a narrow interface
+it declares (a ``Protocol`` in its module). The flight mode is a ``FlightMode``
 behaviour shown as one of the personality's mode rows; each sets a target (TAKEOFF climbs where the
 vehicle is, LAND descends there, RTL climbs to the return altitude, flies home and lands, HOLD stays,
 MISSION lets the mission fly its items) and the kinematics (``kinematics``) move the vehicle toward
@@ -57,6 +60,7 @@ from ..px4modes import FlightMode
 from .commands import CommandProtocol
 from .gcslink import GcsLink
 from .guidance import Guidance
+from .vehicle import VehicleState
 from .kinematics import SUBSTEP_S, Kinematics, Limits, advance, battery_after
 from .mission import MissionItem, MissionProtocol
 from .outbox import Outbox
@@ -94,14 +98,7 @@ class SimAutopilot:
         self.params: dict[str, Param] = self.param_protocol.params
         self.param_names = self.param_protocol.names
         # the vehicle
-        self.k = Kinematics()
-        self.battery = 100.0  # %
-        self.armed = False
-        self.armed_at: float | None = None
-        self._taken_off = False  # lifted off since arming
-        self.landed = True
-        self._touchdown_at: float | None = None
-        self.payload_released = False
+        self.vehicle = VehicleState()  # its own state: the parts read it, the autopilot changes it
         # what it is flying
         self.mode_row: ModeRow = personality.modes.by_name(personality.boot_mode)
         self.mode: FlightMode = self.mode_row.behaviour
@@ -157,7 +154,7 @@ class SimAutopilot:
             self.out.count("not_for_us", f"{name} for system {target}")
             return
         if name == "SETUP_SIGNING":
-            say = self.signing.setup(msg, fcsign.is_signed(frame) and self.signing.active, self.armed, link)
+            say = self.signing.setup(msg, fcsign.is_signed(frame) and self.signing.active, self.vehicle.armed, link)
             if say is not None:
                 self.out.say(say)
             return
@@ -188,10 +185,31 @@ class SimAutopilot:
         return self.out.drain()
 
     # ------------------------------------------------------------------- the state
+    # the vehicle as callers outside the simulator read it (tests, the in-process benches)
+    @property
+    def armed(self) -> bool:
+        return self.vehicle.armed
+
+    @property
+    def landed(self) -> bool:
+        return self.vehicle.landed
+
+    @property
+    def k(self) -> Kinematics:
+        return self.vehicle.k
+
+    @property
+    def battery(self) -> float:
+        return self.vehicle.battery
+
+    @property
+    def payload_released(self) -> bool:
+        return self.vehicle.payload_released
+
     @property
     def position(self) -> GeoPoint:
         """True position of the vehicle."""
-        return offset(self.home, self.k.north, self.k.east, self.k.alt)
+        return offset(self.home, self.vehicle.k.north, self.vehicle.k.east, self.vehicle.k.alt)
 
     @property
     def mission(self) -> list[MissionItem]:
@@ -205,7 +223,7 @@ class SimAutopilot:
 
     def landed_state(self) -> int:
         """MAV_LANDED_STATE."""
-        if self.landed:
+        if self.vehicle.landed:
             return mav.MAV_LANDED_STATE_ON_GROUND
         if self.mode is FlightMode.LAND or self.mission_protocol.landing_since is not None:
             return mav.MAV_LANDED_STATE_LANDING
@@ -264,7 +282,7 @@ class SimAutopilot:
             self._said_position = True
             if r.on_position is not None:
                 self.out.say(r.on_position)
-        if r.prearm_every > 0 and not self.armed and now >= self._next_prearm:
+        if r.prearm_every > 0 and not self.vehicle.armed and now >= self._next_prearm:
             stage = r.stage(now - self.boot, self.ready_after)
             if stage is not None and stage.prearm is not None:
                 self.out.say(stage.prearm)
@@ -273,19 +291,19 @@ class SimAutopilot:
     # ------------------------------------------------------------ arming, payload
     def arm(self, now: float, text: str) -> None:
         """Arm (the checks passed), saying ``text`` (a personality text key)."""
-        self.armed = True
-        self.armed_at = now
-        self._taken_off = not self.landed
+        self.vehicle.armed = True
+        self.vehicle.armed_at = now
+        self.vehicle.taken_off = not self.vehicle.landed
         self.mission_protocol.finished = False
         self.out.say(text)
 
     def disarm(self, text: str) -> None:
         """Disarm, saying ``text`` if it was armed; the vehicle stops where it is."""
-        if self.armed:
-            self.armed = False
+        if self.vehicle.armed:
+            self.vehicle.armed = False
             self.out.say(text)
-        self.armed_at = None
-        self.k = self.k.halted()
+        self.vehicle.armed_at = None
+        self.vehicle.k = self.vehicle.k.halted()
         if self.p.hold_after_touchdown and self.mode is not FlightMode.MISSION:
             self.set_mode(FlightMode.HOLD)
         self.guidance.stop()
@@ -293,7 +311,7 @@ class SimAutopilot:
     def operate_gripper(self, action: float) -> None:
         """DO_GRIPPER's action: release (or 0) drops the payload."""
         if action == mav.GRIPPER_ACTION_RELEASE or action == 0:
-            self.payload_released = True
+            self.vehicle.payload_released = True
             self.out.say("payload_released")
 
     # -------------------------------------------------------------------- modes
@@ -307,8 +325,8 @@ class SimAutopilot:
         """A GCS asks for mode ``row`` (the mission mode from item ``first``): the personality's
         checks, then the switch. Returns the MAV_RESULT."""
         ok, refused = mav.MAV_RESULT_ACCEPTED, self.p.denied_result
-        checks = self.armed or not self.p.modes_free_when_disarmed  # ArduPilot: anything goes disarmed
-        if checks and self.armed and row.needs_position and not self.position_ok(now):
+        checks = self.vehicle.armed or not self.p.modes_free_when_disarmed  # ArduPilot: anything goes disarmed
+        if checks and self.vehicle.armed and row.needs_position and not self.position_ok(now):
             self.out.say("mode_requires_position", label=row.label)
             return refused
         if row.behaviour is FlightMode.MISSION:
@@ -318,7 +336,7 @@ class SimAutopilot:
                 if not mission.flyable and checks:
                     self.out.say("mode_init_failed", label=row.label)
                     return refused
-                if checks and self.armed and self.landed and not ardupilot_takeoff_next(mission.items, start):
+                if checks and self.vehicle.armed and self.vehicle.landed and not ardupilot_takeoff_next(mission.items, start):
                     self.out.say("auto_missing_takeoff")
                     self.out.say("mode_init_failed", label=row.label)
                     return refused
@@ -328,7 +346,7 @@ class SimAutopilot:
             mission.start(start, row)
             return ok
         if (not self.p.modes_free_when_disarmed and row.behaviour in (FlightMode.RTL, FlightMode.LAND, FlightMode.TAKEOFF)
-                and (not self.armed or (self.landed and row.behaviour is not FlightMode.TAKEOFF))):
+                and (not self.vehicle.armed or (self.vehicle.landed and row.behaviour is not FlightMode.TAKEOFF))):
             return refused
         if row.behaviour is FlightMode.TAKEOFF:
             self.guidance.set_takeoff_alt(self.phys("takeoff_alt"))
@@ -342,10 +360,10 @@ class SimAutopilot:
             log.info("sim: mode %s -> %s", self.mode_row.name, row.name)
         self.mode, self.mode_row = mode, row
         self.mission_protocol.landing_since = None
-        k, g = self.k, self.guidance
+        k, g = self.vehicle.k, self.guidance
         if mode is FlightMode.LAND:  # land where we are, not at the last target
             g.fly_to(k.north, k.east, -1.0)
-        if (mode is FlightMode.HOLD or mode is FlightMode.POSCTL) and self.landed:
+        if (mode is FlightMode.HOLD or mode is FlightMode.POSCTL) and self.vehicle.landed:
             g.stop()
         elif mode is FlightMode.HOLD or mode is FlightMode.POSCTL:
             g.fly_to(k.north, k.east, k.alt)
@@ -361,40 +379,40 @@ class SimAutopilot:
     def _fly(self, dt: float, now: float) -> None:
         """One step of ``dt`` seconds ending at ``now``: the battery, auto-disarm, the mode's target,
         the kinematics, take-off and touchdown."""
-        if self.armed:
-            self.battery = battery_after(self.battery, self.phys("bat_drain"), dt)
-        if not self.armed:
+        if self.vehicle.armed:
+            self.vehicle.battery = battery_after(self.vehicle.battery, self.phys("bat_drain"), dt)
+        if not self.vehicle.armed:
             return
         preflight = self.phys("disarm_preflight")
-        if (self.landed and not self._taken_off and self.armed_at is not None and preflight > 0
-                and now - self.armed_at >= preflight):
+        if (self.vehicle.landed and not self.vehicle.taken_off and self.vehicle.armed_at is not None and preflight > 0
+                and now - self.vehicle.armed_at >= preflight):
             self.disarm("disarmed_preflight")  # armed on the ground and never took off
             return
         if self.mission_protocol.paused_until > now:
             return
         self._aim(now)
-        if not self.armed:
+        if not self.vehicle.armed:
             return
-        if self.landed and self._touchdown_at is not None:
+        if self.vehicle.landed and self.vehicle.touchdown_at is not None:
             mission_continues = self.mode is FlightMode.MISSION and not self.mission_protocol.finished
-            if not mission_continues and now - self._touchdown_at >= self.phys("disarm_land"):
-                self._touchdown_at = None
+            if not mission_continues and now - self.vehicle.touchdown_at >= self.phys("disarm_land"):
+                self.vehicle.touchdown_at = None
                 self.disarm("disarmed_landing")
                 return
         if self.guidance.target is None:
-            self.k = self.k.halted()
+            self.vehicle.k = self.vehicle.k.halted()
             return
         talt = self.guidance.target[2]
-        self.k = advance(self.k, self.guidance.target, self._limits(), dt)
-        if self.k.alt > TAKEOFF_DETECTED_M and self.landed:
-            self.landed = False
-            self._taken_off = True
-            self._touchdown_at = None
+        self.vehicle.k = advance(self.vehicle.k, self.guidance.target, self._limits(), dt)
+        if self.vehicle.k.alt > TAKEOFF_DETECTED_M and self.vehicle.landed:
+            self.vehicle.landed = False
+            self.vehicle.taken_off = True
+            self.vehicle.touchdown_at = None
             self.out.say("takeoff_detected")
-        if self.k.alt <= 0.0 and not self.landed and talt <= 0.0:
-            self.landed = True
-            self.k = self.k.touched_down()
-            self._touchdown_at = now
+        if self.vehicle.k.alt <= 0.0 and not self.vehicle.landed and talt <= 0.0:
+            self.vehicle.landed = True
+            self.vehicle.k = self.vehicle.k.touched_down()
+            self.vehicle.touchdown_at = now
             self.out.say("landing_detected")
             if self.mode in (FlightMode.LAND, FlightMode.RTL):
                 if self.p.hold_after_touchdown:
@@ -404,15 +422,15 @@ class SimAutopilot:
 
     def _aim(self, now: float) -> None:
         """Set the target of the current mode (the mission sets its own)."""
-        k, g = self.k, self.guidance
+        k, g = self.vehicle.k, self.guidance
         mode = self.mode
         if mode is FlightMode.MISSION:
             self.mission_protocol.fly(now)
-            if not self.armed:  # the mission ended in a disarm
+            if not self.vehicle.armed:  # the mission ended in a disarm
                 return
         elif mode is FlightMode.TAKEOFF:
             alt = g.takeoff_alt
-            if g.target is None or self.landed:
+            if g.target is None or self.vehicle.landed:
                 g.fly_to(k.north, k.east, alt)
             if k.alt >= alt - 0.3:
                 self.set_mode(FlightMode.HOLD)

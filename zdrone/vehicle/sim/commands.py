@@ -33,8 +33,8 @@ from ..px4modes import FlightMode
 from .mission import MAX_DISTANCE_M, relative_alt
 
 if TYPE_CHECKING:
+    from .vehicle import VehicleState
     from .guidance import Guidance
-    from .kinematics import Kinematics
     from .mission import MissionProtocol
     from .outbox import Outbox
     from .telemetry import Telemetry
@@ -50,10 +50,8 @@ class CommandedAutopilot(Protocol):
     home: GeoPoint
     home_amsl: float
     guidance: Guidance
-    armed: bool
-    landed: bool
+    vehicle: VehicleState
     mode_row: ModeRow
-    k: Kinematics
     mission_protocol: MissionProtocol
     telemetry: Telemetry
 
@@ -124,7 +122,7 @@ def _arm_disarm(ap: CommandedAutopilot, c: Command, now: float) -> int:
     p = c.params
     forced = p[1] == FORCE_MAGIC
     if p[0] == 1.0:
-        if ap.armed:
+        if ap.vehicle.armed:
             return ACCEPTED
         refusal = ap.arm_refusal(now, forced)
         if refusal is not None:
@@ -133,7 +131,7 @@ def _arm_disarm(ap: CommandedAutopilot, c: Command, now: float) -> int:
         ap.arm(now, "armed")
         return ACCEPTED
     if p[0] == 0.0:
-        if not ap.landed and not forced:
+        if not ap.vehicle.landed and not forced:
             return ap.p.denied_result
         ap.disarm("disarmed_command")
         return ACCEPTED
@@ -141,7 +139,7 @@ def _arm_disarm(ap: CommandedAutopilot, c: Command, now: float) -> int:
 
 
 def _takeoff(ap: CommandedAutopilot, c: Command, now: float) -> int:
-    if not ap.armed or not ap.mode_row.user_takeoff or (ap.p.takeoff_needs_ground and not ap.landed):
+    if not ap.vehicle.armed or not ap.mode_row.user_takeoff or (ap.p.takeoff_needs_ground and not ap.vehicle.landed):
         return ap.p.refused_result
     default = ap.phys("takeoff_alt")
     if ap.p.takeoff_alt_amsl:
@@ -157,7 +155,7 @@ def _takeoff(ap: CommandedAutopilot, c: Command, now: float) -> int:
 
 def _enter(ap: CommandedAutopilot, behaviour: FlightMode, now: float) -> int:
     """LAND or RTL by command: only armed and in the air, unless the autopilot takes any mode disarmed."""
-    if not ap.p.modes_free_when_disarmed and (not ap.armed or ap.landed):
+    if not ap.p.modes_free_when_disarmed and (not ap.vehicle.armed or ap.vehicle.landed):
         return ap.p.refused_result
     return ap.change_mode(ap.p.modes.by_name(ap.p.modes.shown[behaviour]), now)
 
@@ -186,7 +184,7 @@ def _mission_start(ap: CommandedAutopilot, c: Command, now: float) -> int | Repl
     if not 0 <= first < len(mission.items) and ap.p.mission_start_checks_mission:
         return DENIED
     row = ap.p.modes.by_name(ap.p.modes.shown[FlightMode.MISSION])
-    if ap.p.mission_start_arms and not ap.armed:
+    if ap.p.mission_start_arms and not ap.vehicle.armed:
         refusal = ap.arm_refusal(now, False)
         if refusal is not None:
             ap.out.say(refusal)
@@ -207,12 +205,12 @@ def _set_mode(ap: CommandedAutopilot, c: Command, now: float) -> int:
 
 
 def _reposition(ap: CommandedAutopilot, c: Command, now: float) -> int:
-    if not ap.armed or ap.landed:
+    if not ap.vehicle.armed or ap.vehicle.landed:
         return ap.p.refused_result
     if not (math.isfinite(c.x) and math.isfinite(c.y) and -90 <= c.x <= 90 and -180 <= c.y <= 180):
         return DENIED
     n, e = ne_of(ap.home, GeoPoint(c.x, c.y))
-    alt = relative_alt(c.frame, c.z, ap.home_amsl) if math.isfinite(c.z) else ap.k.alt
+    alt = relative_alt(c.frame, c.z, ap.home_amsl) if math.isfinite(c.z) else ap.vehicle.k.alt
     if math.hypot(n, e) > MAX_DISTANCE_M or not REPOSITION_ALT_RANGE[0] <= alt <= REPOSITION_ALT_RANGE[1]:
         return DENIED
     speed = c.params[0]

@@ -28,6 +28,7 @@ from pymavlink.dialects.v20 import common as mav
 from ..px4modes import FlightMode
 
 if TYPE_CHECKING:
+    from .vehicle import VehicleState
     from .outbox import Outbox
     from ..personality import ModeRow, Param, Personality
 
@@ -38,8 +39,7 @@ class LinkAutopilot(Protocol):
     out: Outbox
     p: Personality
     params: dict[str, Param]
-    armed: bool
-    landed: bool
+    vehicle: VehicleState
     mode: FlightMode
 
     def set_mode(self, mode: FlightMode, row: ModeRow | None = None) -> None: ...
@@ -77,7 +77,7 @@ class GcsLink:
         ap = self.ap
         rule = ap.p.link_loss
         action = int(ap.params[rule.action_param].value)
-        if action == 0 or not ap.armed or ap.landed:
+        if action == 0 or not ap.vehicle.armed or ap.vehicle.landed:
             return
         last = (self.heartbeats.get(int(ap.params[rule.gcs_sysid_param].value)) if rule.gcs_sysid_param
                 else self.last_heartbeat)

@@ -44,8 +44,8 @@ from ..personality import ModeRow, Say
 from ..px4modes import FlightMode
 
 if TYPE_CHECKING:
+    from .vehicle import VehicleState
     from .guidance import Guidance
-    from .kinematics import Kinematics
     from .outbox import Outbox
     from ..personality import ModeRow, Param
 
@@ -59,10 +59,8 @@ class MissionAutopilot(Protocol):
     home: GeoPoint
     home_amsl: float
     guidance: Guidance
-    armed: bool
-    landed: bool
+    vehicle: VehicleState
     mode: FlightMode
-    k: Kinematics
 
     def set_mode(self, mode: FlightMode, row: ModeRow | None = None) -> None: ...
 
@@ -356,7 +354,7 @@ class MissionProtocol:
             state = mav.MISSION_STATE_COMPLETE
         elif not self.flyable:
             state = mav.MISSION_STATE_NO_MISSION
-        elif self.ap.mode is FlightMode.MISSION and self.ap.armed:
+        elif self.ap.mode is FlightMode.MISSION and self.ap.vehicle.armed:
             state = mav.MISSION_STATE_ACTIVE
         else:
             state = mav.MISSION_STATE_NOT_STARTED
@@ -376,8 +374,8 @@ class MissionProtocol:
         if self.current + 1 >= len(self.items):
             self.finished = True
             log.info("sim: mission finished")
-            if not self.ap.landed:
-                k = self.ap.k
+            if not self.ap.vehicle.landed:
+                k = self.ap.vehicle.k
                 self.guidance.fly_to(k.north, k.east, k.alt)
         else:
             self.current += 1
@@ -399,9 +397,9 @@ class MissionProtocol:
     def fly(self, now: float) -> None:
         """Fly the current item: set the vehicle's target, complete items, move on."""
         ap, g = self.ap, self.guidance
-        k = ap.k
-        if self.finished or not self.flyable or not ap.armed:
-            if not ap.landed and g.target is None:
+        k = ap.vehicle.k
+        if self.finished or not self.flyable or not ap.vehicle.armed:
+            if not ap.vehicle.landed and g.target is None:
                 g.fly_to(k.north, k.east, k.alt)
             return
         self.current = max(self.current, self.first_flown)
@@ -461,15 +459,15 @@ class MissionProtocol:
     def _land_at(self, item: MissionItem, n: float, e: float, now: float) -> None:
         """A LAND item: fly over it at 5 m at least, descend, and on the ground end or go on."""
         ap = self.ap
-        k = ap.k
+        k = ap.vehicle.k
         far = math.hypot(n - k.north, e - k.east) > ap.phys("accept_radius")
-        if far and not ap.landed and self.landing_since is None:
+        if far and not ap.vehicle.landed and self.landing_since is None:
             self.guidance.fly_to(n, e, max(k.alt, 5.0))
             return
         if self.landing_since is None:
             self.landing_since = now
         self.guidance.fly_to(n, e, -1.0)
-        if not ap.landed:
+        if not ap.vehicle.landed:
             return
         mis_options = int(ap.params["MIS_OPTIONS"].value) if "MIS_OPTIONS" in ap.params else 0
         if not ap.p.continues_after_land(mis_options, self.items, self.current):

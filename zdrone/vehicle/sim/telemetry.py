@@ -40,8 +40,8 @@ except ImportError:  # pragma: no cover
     dev = None  # type: ignore[assignment]
 
 if TYPE_CHECKING:
+    from .vehicle import VehicleState
     import random
-    from .kinematics import Kinematics
     from .mission import MissionProtocol
     from .outbox import Outbox
     from ..personality import ModeRow, Param, Personality
@@ -61,11 +61,8 @@ class ReportedAutopilot(Protocol):
     rng: random.Random
     home: GeoPoint
     home_amsl: float
-    armed: bool
-    landed: bool
-    battery: float
+    vehicle: VehicleState
     mode_row: ModeRow
-    k: Kinematics
     mission_protocol: MissionProtocol
 
     @property
@@ -211,21 +208,21 @@ class Telemetry:
 
     def _heartbeat(self, boot_ms: int, pos: GeoPoint) -> None:
         ap = self.ap
-        base, status = ap.p.heartbeat(ap.mode_row, ap.armed, ap.landed)
+        base, status = ap.p.heartbeat(ap.mode_row, ap.vehicle.armed, ap.vehicle.landed)
         ap.out.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, ap.p.autopilot, base,
                                                   ap.mode_row.custom_mode, status, 3))
 
     def _sys_status(self, boot_ms: int, pos: GeoPoint) -> None:
         ap = self.ap
         # the pre-arm bit is healthy once the arming checks pass (or while armed), as on both autopilots
-        health = SENSORS if ap.armed or ap.ready_to_arm(ap.t) else SENSORS & ~mav.MAV_SYS_STATUS_PREARM_CHECK
-        ap.out.send(mav.MAVLink_sys_status_message(SENSORS, SENSORS, health, 150, battery_millivolts(ap.battery),
-                                                   800 if ap.armed else 50, int(ap.battery), 0, 0, 0, 0, 0, 0))
+        health = SENSORS if ap.vehicle.armed or ap.ready_to_arm(ap.t) else SENSORS & ~mav.MAV_SYS_STATUS_PREARM_CHECK
+        ap.out.send(mav.MAVLink_sys_status_message(SENSORS, SENSORS, health, 150, battery_millivolts(ap.vehicle.battery),
+                                                   800 if ap.vehicle.armed else 50, int(ap.vehicle.battery), 0, 0, 0, 0, 0, 0))
 
     def _global_position_int(self, boot_ms: int, pos: GeoPoint) -> None:
         """ArduPilot: lat = lon = 0 until the GPS fix, then the GPS position; PX4: nothing until its
         estimate is global."""
-        ap, k = self.ap, self.ap.k
+        ap, k = self.ap, self.ap.vehicle.k
         if ap.p.zeros_before_fix and not ap.gps_fixed(ap.t):
             ap.out.send(mav.MAVLink_global_position_int_message(boot_ms, 0, 0, 0, 0, 0, 0, 0, 0))
             return
@@ -237,7 +234,7 @@ class Telemetry:
             int(k.vn * 100), int(k.ve * 100), int(-k.vz * 100), hdg))
 
     def _attitude(self, boot_ms: int, pos: GeoPoint) -> None:
-        k = self.ap.k
+        k = self.ap.vehicle.k
         roll, pitch = k.tilt()
         self.ap.out.send(mav.MAVLink_attitude_message(boot_ms, roll, pitch, wrap_pi(k.yaw), 0.0, 0.0, 0.0))
 
@@ -252,12 +249,12 @@ class Telemetry:
 
     def _battery_status(self, boot_ms: int, pos: GeoPoint) -> None:
         ap = self.ap
-        cells = [battery_millivolts(ap.battery) // 4] * 4 + [65535] * 6
+        cells = [battery_millivolts(ap.vehicle.battery) // 4] * 4 + [65535] * 6
         ap.out.send(mav.MAVLink_battery_status_message(0, mav.MAV_BATTERY_FUNCTION_ALL, mav.MAV_BATTERY_TYPE_LIPO, 2500,
-                                                       cells, 800 if ap.armed else 50, -1, -1, int(ap.battery)))
+                                                       cells, 800 if ap.vehicle.armed else 50, -1, -1, int(ap.vehicle.battery)))
 
     def _gps_raw_int(self, boot_ms: int, pos: GeoPoint) -> None:
-        ap, k = self.ap, self.ap.k
+        ap, k = self.ap, self.ap.vehicle.k
         speed = math.hypot(k.vn, k.ve)
         cog = int(math.degrees(math.atan2(k.ve, k.vn)) % 360 * 100) if speed > 0.1 else 65535
         if not ap.gps_fixed(ap.t):
@@ -277,9 +274,9 @@ class Telemetry:
                                                           [0] * 8, 0, 0, 0x5A44524F4E45 + ap.sysid))
 
     def _vfr_hud(self, boot_ms: int, pos: GeoPoint) -> None:
-        ap, k = self.ap, self.ap.k
+        ap, k = self.ap, self.ap.vehicle.k
         ap.out.send(mav.MAVLink_vfr_hud_message(math.hypot(k.vn, k.ve), math.hypot(k.vn, k.ve),
-                                                int(math.degrees(k.yaw) % 360), 40 if ap.armed else 0,
+                                                int(math.degrees(k.yaw) % 360), 40 if ap.vehicle.armed else 0,
                                                 ap.home_amsl + k.alt, k.vz))
 
     def _system_time(self, boot_ms: int, pos: GeoPoint) -> None:
@@ -293,9 +290,9 @@ class Telemetry:
                                                           self.frames_streamed & 0xFFFFFFFF, 0, 0, 0, 0, 0, 100, 100))
 
     def _time_estimate_to_target(self, boot_ms: int, pos: GeoPoint) -> None:
-        ap, k = self.ap, self.ap.k
-        land = -1 if ap.landed else int(k.alt / max(ap.phys("down"), 0.1))
-        home = int(math.hypot(k.north, k.east) / max(ap.phys("cruise"), 0.1)) if not ap.landed else -1
+        ap, k = self.ap, self.ap.vehicle.k
+        land = -1 if ap.vehicle.landed else int(k.alt / max(ap.phys("down"), 0.1))
+        home = int(math.hypot(k.north, k.east) / max(ap.phys("cruise"), 0.1)) if not ap.vehicle.landed else -1
         ap.out.send_raw(MSG_TIME_ESTIMATE_TO_TARGET, struct.pack("<iiiii", home, land, -1, -1, -1))
 
     def _current_event_sequence(self, boot_ms: int, pos: GeoPoint) -> None:
@@ -311,7 +308,7 @@ class Telemetry:
         self.ap.out.send(apm.MAVLink_meminfo_message(0, 65535, 131072))
 
     def _ahrs2(self, boot_ms: int, pos: GeoPoint) -> None:
-        ap, k = self.ap, self.ap.k
+        ap, k = self.ap, self.ap.vehicle.k
         roll, pitch = k.tilt()
         ap.out.send(apm.MAVLink_ahrs2_message(roll, pitch, wrap_pi(k.yaw), ap.home_amsl + k.alt,
                                               int(pos.lat * 1e7), int(pos.lon * 1e7)))
