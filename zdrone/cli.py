@@ -302,8 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
     fe.add_argument("--out", required=True, metavar="DIR", help="the bundle's folder (new or empty)")
     fe.set_defaults(func=_fleet_export)
     from .fleet.revise import add_parsers as add_revision_parsers
+    from .net.revisions import publish_command
 
-    add_revision_parsers(fsub)  # revoke, rotate, revise, publish (signed fleet revisions)
+    add_revision_parsers(fsub, publish_command)  # revoke, rotate, revise, publish (signed fleet revisions)
 
     sv = sub.add_parser("service", help="print a hardened systemd unit that runs one host's node from its bundle")
     sv.add_argument("node", metavar="NODE", help="the node the bundle is for (d1, A, router, site-1, …)")

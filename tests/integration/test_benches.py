@@ -85,8 +85,8 @@ def test_bench_scale_over_three_site_routers_quick():
     assert row["drones_per_site"] == {"site-1": 1, "site-2": 1, "site-3": 1}  # round-robin over the sites
     assert set(row["cpu_percent"]) == {"router site-1", "router site-2", "router site-3", "drones host", "stations host"}
     assert all(v is not None and v > 0 for v in row["cpu_percent"].values()), row["cpu_percent"]
-    mesh = row["mesh"]
-    assert mesh["links"] == 3 and mesh["samples_per_s"] > 0 and mesh["tcp_segments_per_s"] > 0 and mesh["kbytes_per_s"] > 0
+    mesh = row["mesh"]  # over QUIC: samples counted by the hosts, no TCP counters
+    assert mesh["samples_per_s"] > 0
     assert mesh["samples_per_s"] < row["samples_per_s"]  # GS i's samples from drones on site i stay off the mesh
     assert r["largest_k_all_correct"] == 3
 

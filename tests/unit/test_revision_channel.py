@@ -18,6 +18,7 @@ from zdrone.fleet import keyexprs as kx
 from zdrone.fleet import revisions
 from zdrone.fleet.bundle import export_bundle
 from zdrone.fleet.files import REVISION_FILE
+from zdrone.net.revisions import publish
 from zdrone.fleet.revisions import (ASK_GAP_S, ASK_PERIOD_S, MAX_REVISION_BYTES, PUSH_GAP_S, PUSH_PERIOD_S,
                                     REACH_LOOK_S, RevisionChannel)
 
@@ -176,4 +177,4 @@ def test_the_revision_in_force_heard_again_costs_no_signature_check(fleet_dir, t
 def test_only_a_ground_station_publishes_a_revision(fleet_dir):
     data = _revision(fleet_dir, "B")
     with pytest.raises(ConfigError, match="as a ground station"):
-        revisions.publish(fleet_dir, "d1", "tcp/127.0.0.1:9", data)
+        publish(fleet_dir, "d1", "tcp/127.0.0.1:9", data)

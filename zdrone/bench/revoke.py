@@ -6,7 +6,7 @@ GSs in another: ``python -m zdrone.bench.scale host-drones | host-stations``), o
 drones and GSs A, B, C 500 m apart, every drone flying the shuttle A -> C -> A. Once B holds
 authority over at least one drone (its first hand-over A -> B in the drones' logs), the bench signs
 the revision revoking B on the fleet directory (``zdrone.fleet.revise.revoke``) and publishes it on
-A's revision key (``zdrone.fleet.revisions.publish``); the GSs re-publish it every 10 s.
+A's revision key (``zdrone.net.revisions.publish``); the GSs re-publish it every 10 s.
 
 Figures, from the drones' event logs and the hosts' results:
 
@@ -66,7 +66,7 @@ def _held_by_b(recs: list[Any]) -> bool:
 def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
     from ..fleet.files import init_fleet, scale_nodes
     from ..fleet.revise import revoke
-    from ..fleet.revisions import publish
+    from ..net.revisions import publish
     from ..sil.procs import spawn
     from .scale import SPEEDUP, _free_ports, _wait_line, hold_limit
 

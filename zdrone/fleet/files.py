@@ -24,15 +24,13 @@ import secrets
 import stat
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import msgspec
 
 from ..core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
 from ..core.keys import Identity, SigningKey, b64, unb64
 
-if TYPE_CHECKING:
-    from ..core.revision import Revision
+from ..core.revision import Revision, RevisionAccepted, apply_revision, check_revision  # types built at import
 from ..core.geometry import GeoPoint, offset
 from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
 
@@ -247,7 +245,6 @@ def revision_paths(where: str | Path) -> list[Path]:
 def load_revision(where: str | Path, base: Fleet | None = None) -> "Revision | None":
     """The latest valid revision kept for this fleet (or bundle) folder, None if there is none;
     ``ConfigError`` if a kept one is not valid for the fleet (tampered, another fleet's)."""
-    from ..core.revision import RevisionAccepted, check_revision
 
     base = base if base is not None else load_base_fleet(where)
     best = None
@@ -269,7 +266,6 @@ def load_revision(where: str | Path, base: Fleet | None = None) -> "Revision | N
 def load_fleet(where: str | Path) -> Fleet:
     """The effective fleet: ``fleet.json5`` (a path to it or to its directory) with the latest
     revision kept for it (``load_revision``)."""
-    from ..core.revision import apply_revision
 
     base = load_base_fleet(where)
     rev = load_revision(where, base)

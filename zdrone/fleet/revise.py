@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+from typing import Any, Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -213,7 +214,7 @@ def parse_coverage(specs: list[str]) -> dict[str, Coverage]:
 
 
 # ------------------------------------------------------------------------------ command line
-def add_parsers(fsub) -> None:
+def add_parsers(fsub, publish_command: Callable[[Any], int]) -> None:
     """``zdrone fleet revoke | rotate | revise | publish`` (``zdrone/cli.py`` calls this)."""
     rv = fsub.add_parser("revoke", help="revoke a node for good: the next signed fleet revision")
     rv.add_argument("node", metavar="NODE")
@@ -243,7 +244,7 @@ def add_parsers(fsub) -> None:
     pb.add_argument("--revision", help="the revision file (default: revision.json of --fleet)")
     pb.add_argument("--id", required=True, help="the GS whose credentials publish it (on its own revision key)")
     pb.add_argument("--router", required=True, help="router endpoint, e.g. tcp/127.0.0.1:7447")
-    pb.set_defaults(func=_cli_publish)
+    pb.set_defaults(func=publish_command)  # the network's part: zdrone.net.revisions
 
 
 def _said(r: Revised) -> int:
@@ -269,20 +270,3 @@ def _cli_rotate(args) -> int:
 def _cli_revise(args) -> int:
     pq = None if args.pairing_pq is None else args.pairing_pq == "on"
     return _said(revise(args.dir, parse_authorize(args.authorize), parse_coverage(args.coverage), pq, args.note))
-
-
-def _cli_publish(args) -> int:
-    from ..core.revision import RevisionAccepted, check_revision
-    from .revisions import publish
-
-    path = Path(args.revision) if args.revision else fleet_path(args.fleet).parent / REVISION_FILE
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
-    got = check_revision(data, load_base_fleet(args.fleet), None)
-    if not isinstance(got, RevisionAccepted):
-        raise ConfigError(f"{path}: not a valid revision of this fleet ({got.reason.value})")
-    publish(args.fleet, args.id, args.router, data)
-    print(f"published revision {got.revision.number} on {args.router} as {args.id}")
-    return 0

@@ -214,26 +214,5 @@ class RevisionChannel:
         return sum(1 for p in self.rt.path_status().values() if p["connected"])
 
 
-def publish(fleet_dir: str | Path, node: str, router: str, data: bytes) -> None:
-    """Put revision ``data`` on GS ``node``'s revision key through ``router`` with its bundle's
-    credentials, and close. ``ConfigError`` if ``node`` is not a GS (only GSs publish revisions)."""
-    from ..net.session import open_client
-    from .files import load_fleet, load_secret
-    from .tls import node_files
-
-    fleet = load_fleet(fleet_dir)
-    entry = fleet.nodes.get(node)
-    if entry is None or entry.role != "gs":
-        raise ConfigError(f"--id {node}: revisions are published as a ground station of the fleet "
-                          f"({', '.join(fleet.ground_stations())})")
-    secret = load_secret(fleet_dir, node, fleet)
-    tls = node_files(fleet_dir, node).check() if router.startswith("tls/") else None
-    session = open_client(router, node, secret.router_password, tls, None)
-    try:
-        session.put(kx.revision(node), data)
-    finally:
-        session.close()
-
-
 __all__ = ["ASK_GAP_S", "ASK_PERIOD_S", "ASK_TIMEOUT_S", "KINDS", "MAX_REVISION_BYTES", "PUSH_GAP_S", "PUSH_PERIOD_S",
-           "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper", "publish"]
+           "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper"]

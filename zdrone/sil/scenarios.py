@@ -264,7 +264,8 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
     Scenario("big-flood",
              "B's router password only: 60 KiB envelopes, pairing and key-sharing queries (20/s each) and 4 MiB "
              "ones (1/s each), from the overlap on (through the hand-over)",
-             "the router drops > 64 KiB, the nodes refuse the rest by length (oversize); telemetry never stops",
+             "the router drops uplink puts and pairing queries over the drone's limits where they enter it (none "
+             "reaches the drone) and everything over 64 KiB; A refuses the rest by length (oversize); telemetry never stops",
              check_big_flood,
              rogues=(RogueSpec("big-flood", MISSION_STARTED, go=REGION_ENTERED, sim_s=40.0, min_wall=10.0, rate=20.0),)),
     Scenario("insider-heir",
