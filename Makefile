@@ -7,6 +7,7 @@ STAMP := $(VENV)/.installed
 .PHONY: venv demo test test-fast clean
 
 $(STAMP): pyproject.toml
+	command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium)  # the browser tests' (zdrone view)
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e '.[test]'
