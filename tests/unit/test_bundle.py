@@ -18,7 +18,7 @@ from zdrone.core.keys import unb64
 from zdrone.fleet.bundle import check_bundle, export_bundle
 from zdrone.fleet.files import init_fleet, load_fleet
 
-NODES = ("d1", "A", "B", "X")
+NODES = ("d1", "A", "B", "X", "V")
 
 
 @pytest.fixture(scope="module", params=[False, True], ids=["plain", "tls"])

@@ -31,7 +31,7 @@ def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
 def test_init_writes_default_fleet(fleet_dir: Path):
     fleet = load_fleet(fleet_dir)
     assert {n: (v.role, v.sysid) for n, v in fleet.nodes.items()} == {
-        "d1": ("drone", 1), "A": ("gs", 4), "B": ("gs", 3), "X": ("gs", 7)}
+        "d1": ("drone", 1), "A": ("gs", 4), "B": ("gs", 3), "X": ("gs", 7), "V": ("viewer", 250)}
     assert fleet.is_authorized("d1", "A") and fleet.is_authorized("d1", "B")
     assert not fleet.is_authorized("d1", "X")
     for name in fleet.nodes:
@@ -39,7 +39,7 @@ def test_init_writes_default_fleet(fleet_dir: Path):
         assert oct(path.stat().st_mode & 0o777) == "0o600"
         assert load_secret(fleet_dir, name, fleet).identity.public == fleet.nodes[name].public_bytes
     creds = (fleet_dir / "router" / "credentials.txt").read_text().split()
-    assert sorted(c.split(":")[0] for c in creds) == ["A", "B", "X", "d1"]
+    assert sorted(c.split(":")[0] for c in creds) == ["A", "B", "V", "X", "d1"]
     assert (fleet_dir / "router" / "credentials.txt").stat().st_mode & 0o077 == 0
 
 

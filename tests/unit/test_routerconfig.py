@@ -36,7 +36,7 @@ def test_acl_is_default_deny_and_scoped_per_identity():
     assert not any(r["id"].startswith("d1-") and "query" in r["messages"] and "ingress" in r["flows"]
                    and r["id"] != "d1-revision" for r in acl["rules"])  # a drone asks for nothing but revisions
     subjects = {s["id"]: s["usernames"] for s in acl["subjects"]}
-    assert subjects == {"user-d1": ["d1"], "user-A": ["A"], "user-B": ["B"], "user-X": ["X"]}
+    assert subjects == {"user-d1": ["d1"], "user-A": ["A"], "user-B": ["B"], "user-X": ["X"], "user-V": ["V"]}
 
 
 def test_with_tls_each_gs_has_one_budget_per_lane_toward_each_drone_session():

@@ -36,7 +36,10 @@ class Coverage(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 
 class Node(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    role: Literal["drone", "gs"]
+    #: a "viewer" (``zdrone view``) only reads the GSs' operations pictures sealed for it
+    #: (``zdrone.core.opspicture``): no coverage, no link to any drone, nothing it may publish; its
+    #: sysid is reserved (unique like a GS's) and never spoken
+    role: Literal["drone", "gs", "viewer"]
     sysid: SysId
     public_key: str
     coverage: Coverage | None = None
@@ -103,6 +106,10 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def ground_stations(self) -> list[str]:
         return [n for n, v in self.nodes.items() if v.role == "gs"]
+
+    def viewers(self) -> list[str]:
+        """The nodes that read the GSs' operations pictures (``zdrone view``), revoked ones left out."""
+        return [n for n, v in self.nodes.items() if v.role == "viewer" and n not in self.revoked]
 
     def is_authorized(self, drone: str, gs: str) -> bool:
         node = self.nodes.get(drone)
@@ -173,12 +180,16 @@ def _check(fleet: Fleet, source: str) -> None:
             raise FleetError(f"{where}.signing_key: {exc}") from None
         # a GS's sysid is unique in the whole fleet (it names the GS to every drone's GCS); a drone's
         # within its MAVLink network
-        taken = [seen.get((net, node.sysid)) for net in (nets if node.role == "gs" else (node.mavlink_net, None))]
+        taken = [seen.get((net, node.sysid)) for net in (nets if node.role != "drone" else (node.mavlink_net, None))]
         if any(taken):
             raise FleetError(f"{where}.sysid: {node.sysid} already used by {next(t for t in taken if t)}")
         seen[(node.mavlink_net if node.role == "drone" else None, node.sysid)] = name
-        if node.role == "gs" and node.mavlink_net:
+        if node.role != "drone" and node.mavlink_net:
             raise FleetError(f"{where}.mavlink_net: only drones have a MAVLink network")
+        if node.role == "viewer":
+            if node.coverage is not None or node.authorized_gs or not node.uplink.is_default:
+                raise FleetError(f"{where}: a viewer has no coverage, authorized list or uplink policy")
+            continue
         if node.role == "gs":
             if node.coverage is None:
                 raise FleetError(f"{where}.coverage: a ground station needs a coverage circle")

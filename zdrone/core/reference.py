@@ -2,7 +2,7 @@
 
 GS A sits at the take-off point; GS B 500 m east; both cover 350 m, so the hand-over region is the
 band 150..350 m east of A. The delivery point is at B. The rogue GS X is in the fleet but not on
-d1's authorized list.
+d1's authorized list. V is the viewer: it reads the GSs' operations pictures, nothing else.
 """
 
 from __future__ import annotations
@@ -23,4 +23,5 @@ DEFAULT_NODES: list[tuple[str, str, int, GeoPoint | None, list[str]]] = [
     ("A", "gs", 4, GS_A, []),
     ("B", "gs", 3, GS_B, []),
     ("X", "gs", 7, HOME, []),
+    ("V", "viewer", 250, None, []),  # the fleet's viewer (``zdrone view``): reads only
 ]

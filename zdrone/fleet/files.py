@@ -116,7 +116,7 @@ def scale_nodes(drones: int, stations: int) -> list[tuple]:
     nodes: list[tuple] = [(gs, "gs", 200 + i, offset(HOME, 0.0, 500.0 * i), []) for i, gs in enumerate(gss)]
     # sysids 1..199 in each MAVLink network (a GS's sysid is 200 + i)
     nodes += [(f"d{i + 1}", "drone", 1 + i % 199, None, list(gss), i // 199) for i in range(drones)]
-    return nodes
+    return nodes + [("V", "viewer", 250, None, [])]  # the viewer (``zdrone view``, ``bench view``)
 
 
 def init_fleet(directory: str | Path, force: bool = False,

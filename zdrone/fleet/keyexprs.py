@@ -82,3 +82,14 @@ def revision(sender: str) -> str:
 def revision_all() -> str:
     """Every sender's revision key: what every node subscribes to and asks."""
     return "zdrone-fleet/revision/*"
+
+
+def ops(gs: str) -> str:
+    """GS ``gs``'s operations picture, sealed for the fleet's viewer (``zdrone.core.opspicture``):
+    only ``gs`` may put there, only a viewer subscribes."""
+    return f"zdrone-ops/{gs}"
+
+
+def ops_all() -> str:
+    """Every GS's operations picture: what a viewer subscribes to."""
+    return "zdrone-ops/*"

@@ -42,6 +42,12 @@ budget only: the other GSs' revisions (the one revoking it included) still reach
 session asks at most ``REVISION_QUERY_HZ`` times per second (on ingress): a drone's leaked password
 cannot make the GSs answer without end. These rules grow with the GSs, like the uplinks'.
 
+Operations pictures (``zdrone.core.opspicture``, sealed end to end for the viewer) travel on one key per
+GS, ``zdrone-ops/<g>``: only GS ``g`` may put there; only a viewer (role ``viewer``) may subscribe
+``zdrone-ops/*`` and receive them, and it may do nothing else: no put, no query, no queryable, not even
+the fleet revisions' keys. A part is at most ``OPS_MAX_BYTES`` (low-pass on ingress); a GS publishes at
+most a few a second, so no downsampling (several parts go back to back on one key).
+
 Zenoh's limit is a minimum interval between puts on a key, measured when the router processes them,
 with no burst allowance: a router that stalls (scheduling, load) processes the frames that waited back
 to back and drops all but the first, at any rate (measured: ``experiments/router_stall.py``,
@@ -63,6 +69,7 @@ from typing import Any
 
 from ..core.fleet import Fleet
 from ..core.kk import MAX_MESSAGE
+from ..core.opspicture import OPS_MAX_BYTES
 from . import keyexprs as kx
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -128,6 +135,14 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
         # mutual TLS shows each side the other's certificate
         subjects.append({"id": "routers", "cert_common_names": list(routers), "link_protocols": [MESH_LINK]})
         policies.append({"id": "policy-routers", "rules": ["routers-all"], "subjects": ["routers"]})
+
+    def enrol(name: str, ids: list[str]) -> None:
+        """Node ``name`` gets rules ``ids``; with TLS, a client is this node only with its certificate
+        *and* its password."""
+        subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {}),
+                         "link_protocols": CLIENT_LINKS})
+        policies.append({"id": f"policy-{name}", "rules": ids, "subjects": [f"user-{name}"]})
+
     for name, node in fleet.nodes.items():
         if fleet.is_revoked(name):  # a revoked node (fleet revision) is no subject: it gets nothing
             continue
@@ -138,6 +153,11 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             rules.append(_rule(rid, messages, flows, keys))
             ids.append(rid)
 
+        if node.role == "viewer":  # reads the GSs' pictures sealed for it, and nothing else
+            add("ops-sub", ["declare_subscriber"], ["ingress"], [kx.ops_all()])
+            add("ops-recv", ["put"], ["egress"], [kx.ops_all()])
+            enrol(name, ids)
+            continue
         if node.role == "drone":
             add("pub-down", ["put"], ["ingress"], [f"zdrone/{name}/down/*"])
             # exactly the lanes: a key under an uplink that is not one (unlimited: no rule) never reaches it
@@ -152,6 +172,8 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             add("recv-down", ["put"], ["egress"], [kx.down("*", name)])
             add("linkkey-own", ["declare_queryable", "reply"], ["ingress"], [kx.linkkey_all(name)])
             add("linkkey-own-q", ["query"], ["egress"], [kx.linkkey_all(name)])
+            if fleet.viewers():  # its operations picture, sealed for the viewer
+                add("ops-own", ["put"], ["ingress"], [kx.ops(name)])
             if drones:  # pairing and key sharing only for the drones this GS is authorized for
                 add("pair", ["query"], ["ingress"], [kx.pair(d, name) for d in drones])
                 add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
@@ -165,10 +187,7 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             add("revision-own", ["put", "declare_queryable", "reply"], ["ingress"], [kx.revision(name)])
             # the queries on every sender's key (a query names no GS): only GSs declare the queryable
             add("revision-q", ["query"], ["egress"], [kx.revision_all()])
-        # with TLS, a client is this node only with its certificate *and* its password
-        subjects.append({"id": f"user-{name}", "usernames": [name], **({"cert_common_names": [name]} if tls else {}),
-                         "link_protocols": CLIENT_LINKS})
-        policies.append({"id": f"policy-{name}", "rules": ids, "subjects": [f"user-{name}"]})
+        enrol(name, ids)
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
@@ -225,6 +244,14 @@ def size_limits(fleet: Fleet) -> list[dict[str, Any]]:
              "size_limit": PAIR_MAX_BYTES}]
 
 
+def ops_size_limits(fleet: Fleet) -> list[dict[str, Any]]:
+    """Zenoh's low-pass filter on ingress: the largest part of an operations picture."""
+    if not fleet.viewers():
+        return []
+    return [{"id": "ops-size", "flows": ["ingress"], "messages": ["put"], "key_exprs": [kx.ops_all()],
+             "size_limit": OPS_MAX_BYTES}]
+
+
 def revision_size_limits() -> list[dict[str, Any]]:
     """Zenoh's low-pass filter on ingress: the largest revision put or reply (``REVISION_MAX_BYTES``)."""
     return [{"id": "revision-size", "flows": ["ingress"], "messages": ["put", "reply"],
@@ -249,7 +276,7 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
                       "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet, tls),
         "downsampling": uplink_downsampling(fleet, per_credential=tls) + revision_downsampling(fleet),
-        "low_pass_filter": size_limits(fleet) + revision_size_limits(),
+        "low_pass_filter": size_limits(fleet) + revision_size_limits() + ops_size_limits(fleet),
     }
 
 

@@ -47,7 +47,7 @@ from .session import open_client, query_queue
 
 log = logging.getLogger(__name__)
 
-ROLE_NAMES = {"drone": "a drone", "gs": "a ground station"}
+ROLE_NAMES = {"drone": "a drone", "gs": "a ground station", "viewer": "a viewer"}
 #: The Zenoh priority of link frames from a GS (heartbeats, commands, control messages): above the
 #: data class every other publication uses, so in a router's queue to the drone they pass before
 #: bulk traffic (each priority has its own queue).
