@@ -63,6 +63,7 @@ from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.linkslot import LinkSlot
 from zdrone.core.mavcontrol import OperatorControlRequest, sysid_as_seen_by
 from zdrone.core.mavlink import FrameCodec, read_header
+from zdrone.core.opspicture import DroneOps, OpsRequest
 from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 
@@ -274,6 +275,24 @@ class StationCore:
         return DroneSeen(name=v.name, sysid=v.sysid, linked=v.link is not None, owner=v.owner, epoch=v.epoch,
                            state=v.ha_state, holds_authority=self.holds_authority(v), owned=owns(v, self.name),
                            request=op.live_request(v, now), takeover=op.shown_takeover(v, now))
+
+    def drone_ops(self, drone: str, now: float) -> DroneOps:
+        """Drone ``drone`` as this GS tells the fleet's viewer (``zdrone.core.opspicture``) at ``now``."""
+        v = self.views[drone]
+        link, p = v.link, v.position
+        req = v.operator.live_request(v, now)
+        heard = link is not None and link.tbm.last_seen is not None
+        return DroneOps(
+            drone=v.name, linked=link is not None, owner=v.owner, epoch=v.epoch,
+            state=v.ha_state.value if v.ha_state else "unknown", pending_to=v.pending_to,
+            link="none" if link is None else link.tbm.state(now).value,
+            since_last=round(link.tbm.since_last(now), 3) if heard and link is not None else None,
+            mode=mode_name(v.autopilot, v.custom_mode), armed=v.armed,
+            position=None if p is None else (p.lat, p.lon, p.alt), mission_seq=v.mission_seq,
+            stage=v.mission.stage.value, fc_signed=v.fc_signed, failsafe=v.ha_state is HaState.FAILSAFE,
+            holds=self.holds_authority(v), takeover=v.operator.shown_takeover(v, now),
+            request=None if req is None else OpsRequest(req.requester, req.to, req.epoch, round(now - req.since, 2),
+                                                        req.timeout))
 
     def commands_sent(self, drone: str) -> int:
         """Commanding frames sent to ``drone``, all epochs."""
