@@ -18,6 +18,8 @@ periodic work), and calls ``handle_timer`` only then; the status event has its o
 key-sharing queryable's ring is looked at on every wake, at least every ``MAX_SLEEP_S``; loop hooks
 that poll sockets (the GCS gateway) keep the loop at ``HOOK_POLL_S``. The adapter names drones and
 reads ``DroneSeen``es (``drone_status``) and ``commands_sent``: the core's ``DroneView``s are its own.
+If the fleet has a viewer, the station publishes its operations picture for it
+(``zdrone.view.publish.OpsPublisher``: ``StationCore.drone_ops`` and the authority events it logs).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from zdrone.core.outputs import Handlers, dispatch
 from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
 from .core import GCS_COMPID, CoreOptions, DroneSeen, StationCore, view_line
 from .planner import PlannedItem
+from zdrone.view.publish import OpsPublisher
 
 log = logging.getLogger(__name__)
 #: Key-sharing handshakes answered per loop turn at most (the rest wait in the bounded query queue).
@@ -111,8 +114,9 @@ class GroundStation:
         self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of)
         self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True)
-        self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask,
-                                    Emit: lambda a: self.events.write_record(a.record),
+        # the operations picture for the fleet's viewer (``zdrone view``), if the fleet has one
+        self.ops = OpsPublisher.for_station(self.name, self.fleet, self.secret.identity, self.core, self.rt.put)
+        self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask, Emit: self._emit,
                                     ToOperator: lambda a: print(a.text, flush=True), Checkpoint: self._countersign}
 
     # ------------------------------------------------------------------ plumbing
@@ -124,6 +128,11 @@ class GroundStation:
     def _put(self, a: Put) -> None:
         """A link frame on the drone's uplink key: paced, priority, express."""
         self.rt.put_link(kx.up(a.peer, self.name), a.payload, time.monotonic())
+
+    def _emit(self, a: Emit) -> None:
+        self.events.write_record(a.record)
+        if self.ops is not None:
+            self.ops.on_record(a.record, time.time())
 
     def _frame_up(self, a: FrameUp) -> None:
         for listener in self.frame_listeners:
@@ -274,6 +283,8 @@ class GroundStation:
         frame or the next look at the key-sharing ring (``poll_period``), whichever comes first."""
         now = time.monotonic()
         due = [until - now, self.core.get_timer() - now, self.poll_period()]
+        if self.ops is not None:
+            due.append(self.ops.next_due() - now)
         paced = self.rt.next_flush()
         if paced is not None:
             due.append(paced - now)
@@ -296,6 +307,8 @@ class GroundStation:
                 self.drain(self.wait_time(next_status))
                 now = time.monotonic()
                 self.step(now)
+                if self.ops is not None:
+                    self.ops.publish(now, time.time())
                 for hook in self.loop_hooks:
                     hook(now)
                 self.rt.flush(now)

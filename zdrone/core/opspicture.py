@@ -133,7 +133,6 @@ class OpsReport(msgspec.Struct, frozen=True, array_like=True):
     parts: int
     drones: list[DroneOps]
     events: list[OpsEvent]
-    report_url: str | None = None
 
 
 _ENC = msgspec.msgpack.Encoder()
@@ -292,13 +291,10 @@ class FleetPicture:
         self.heard: dict[str, float] = {}  # GS -> when its last part arrived
         self.feed: deque[dict[str, Any]] = deque(maxlen=FEED_LEN)  # newest last
         self.tracks: dict[str, _Track] = {}
-        self.report_url: str | None = None
         self.version = 0  # moves on with every report taken
 
     def on_report(self, report: OpsReport, now: float) -> None:
         self.heard[report.gs] = now
-        if report.report_url:
-            self.report_url = report.report_url
         for d in report.drones:
             self.claims.setdefault(d.drone, {})[report.gs] = _Claim(d, now)
         for ev in report.events:
@@ -359,7 +355,7 @@ class FleetPicture:
         return {"drones": [self.drone(d, now) for d in sorted(self.claims, key=_natural)],
                 "stations": {gs: {"age": round(now - t, 2), "silent": now - t > GS_SILENT_S}
                              for gs, t in sorted(self.heard.items())},
-                "feed": list(reversed(self.feed)), "report_url": self.report_url}
+                "feed": list(reversed(self.feed))}
 
     def track_points(self) -> dict[str, list[tuple[float, float, str | None]]]:
         return {d: list(t.points) for d, t in self.tracks.items()}

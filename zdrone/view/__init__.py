@@ -1,0 +1,1 @@
+"""``zdrone view``: the live web view of the fleet (``server``), and what a GS publishes for it (``publish``)."""

@@ -1,0 +1,100 @@
+"""A GS's operations picture, published for the fleet's viewer (the GS's side of ``zdrone view``).
+
+The station calls ``on_record`` with every record its core logs and ``publish(now, wall)`` once per
+loop pass (and wakes by ``next_due``). The picture (``StationCore.drone_ops`` of every drone it
+serves, and the authority events logged since the last one) goes out every ``OPS_PERIOD_S``, and at
+once (at most every ``OPS_MIN_GAP_S``) after an authority event, so the viewer shows a hand-over
+within a few tens of milliseconds of the GS hearing it. It is cut into parts under
+``OPS_MAX_BYTES`` and each is sealed for the viewer (``zdrone.core.opspicture``), on ``zdrone-ops/<gs>``
+(the only key the router lets this GS put its picture on; only the viewer receives it).
+
+One viewer per fleet (the first of ``Fleet.viewers``): a fleet without one publishes nothing.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Callable, Protocol
+
+from ..core.fleet import Fleet
+from ..core.keys import Identity
+from ..core.opspicture import (OPS_MAX_EVENTS, OPS_MIN_GAP_S, OPS_PERIOD_S, DroneOps, OpsEvent, OpsSealer, SALT_LEN,
+                               report_parts)
+from ..core.records import AnyRecord, fields_of, record_type
+from ..fleet import keyexprs as kx
+
+#: The records a GS logs that the viewer's authority feed shows (by type).
+AUTHORITY_KINDS = frozenset({
+    "authority_status", "failsafe_notice", "control_requested", "handover_release", "handover_failed",
+    "handover_hold", "handover_resume", "operator_control_requested", "operator_control_asked",
+    "operator_request", "operator_request_granted", "operator_request_declined", "operator_request_expired",
+    "operator_request_timed_out", "operator_request_withdrawn", "operator_control_taken",
+    "operator_control_let_go", "operator_consent_refused", "takeover_window_opened", "takeover_window_closed",
+    "operator_takeover_setting"})
+
+
+class PictureSource(Protocol):
+    """What the publisher reads of the GS core."""
+
+    @property
+    def drones(self) -> tuple[str, ...]: ...
+
+    def drone_ops(self, drone: str, now: float) -> DroneOps: ...
+
+
+def event_text(record: AnyRecord) -> str:
+    """One short line for the feed: the record's fields but the drone."""
+    fields = fields_of(record)
+    return ", ".join(f"{k.rstrip('_')} {v}" for k, v in fields.items() if k != "drone" and v not in (None, "", [], {}))
+
+
+class OpsPublisher:
+    """Publishes one GS's operations picture (see the module docstring)."""
+
+    def __init__(self, gs: str, source: PictureSource, sealer: OpsSealer, put: Callable[[str, bytes], None]) -> None:
+        self.gs, self.source, self.sealer, self._put = gs, source, sealer, put
+        self.events: list[OpsEvent] = []
+        self.events_dropped = 0
+        self.urgent = False
+        self.last: float | None = None
+        self.parts_sent = 0
+
+    @classmethod
+    def for_station(cls, gs: str, fleet: Fleet, identity: Identity, source: PictureSource,
+                    put: Callable[[str, bytes], None]) -> "OpsPublisher | None":
+        viewers = fleet.viewers()
+        if not viewers:
+            return None
+        viewer = viewers[0]
+        sealer = OpsSealer(identity, gs, viewer, fleet.nodes[viewer].public_bytes, kx.ops(gs), os.urandom(SALT_LEN))
+        return cls(gs, source, sealer, put)
+
+    def on_record(self, record: AnyRecord, wall: float) -> None:
+        """A record the GS logged: an authority event goes in the next picture, which goes soon."""
+        kind = record_type(record)
+        if kind not in AUTHORITY_KINDS:
+            return
+        drone = getattr(record, "drone", "")
+        self.events.append(OpsEvent(round(wall, 3), str(drone), kind, event_text(record)))
+        if len(self.events) > OPS_MAX_EVENTS:
+            self.events_dropped += len(self.events) - OPS_MAX_EVENTS
+            del self.events[:-OPS_MAX_EVENTS]
+        self.urgent = True
+
+    def next_due(self) -> float:
+        if self.last is None:
+            return 0.0
+        return self.last + (OPS_MIN_GAP_S if self.urgent else OPS_PERIOD_S)
+
+    def publish(self, now: float, wall: float) -> None:
+        """Publish the picture if it is due."""
+        if now < self.next_due():
+            return
+        drones = [self.source.drone_ops(d, now) for d in self.source.drones]
+        for part in report_parts(self.gs, round(wall, 3), drones, self.events):
+            self._put(kx.ops(self.gs), self.sealer.seal(part))
+            self.parts_sent += 1
+        self.events, self.urgent, self.last = [], False, now
+
+    def stats(self) -> dict[str, Any]:
+        return {"parts_sent": self.parts_sent, "events_dropped": self.events_dropped}
