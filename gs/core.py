@@ -60,7 +60,7 @@ from zdrone.core.envelope import Dropped, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
-from zdrone.core.linkslot import LinkSlot
+from zdrone.core.linkslot import PREVIOUS_GRACE, LinkSlot
 from zdrone.core.mavcontrol import OperatorControlRequest, sysid_as_seen_by
 from zdrone.core.mavlink import FrameCodec, read_header
 from zdrone.core.opspicture import DroneOps, OpsRequest
@@ -179,6 +179,7 @@ class DroneView:
     operator: OperatorControl = field(default_factory=lambda: OperatorControl(""))  # set by StationCore
     mission: Mission = field(default_factory=lambda: Mission("", "", 0, None))  # set by StationCore
     linking: "Linking | None" = None  # set by StationCore
+    switching: bool = False  # our rotated key's pairing made a new key live: the drone has not spoken under it yet
 
     @property
     def position(self) -> GeoPoint | None:
@@ -390,6 +391,8 @@ class StationCore:
             yield now + SILENT_REPAIR_S - silence
             yield now + SILENT_FAST_S - silence
             yield linking.pair_retry_due(now, SILENT_RETRY_S if silence <= SILENT_FAST_S else SILENT_SLOW_RETRY_S)
+        if linking.rekey_pending:
+            yield linking.pair_retry_due(now, RETRY_S)
         if not view.stale and view.link.tbm.last_seen is not None:
             yield view.link.tbm.last_seen + STALE_VIEW_S
         yield linking.deadline(now, sharing=view.owner == self.name and not view.stale)
@@ -428,6 +431,8 @@ class StationCore:
                 fast = view.link.tbm.since_last(now) <= SILENT_FAST_S
                 retry = SILENT_RETRY_S if fast else SILENT_SLOW_RETRY_S
                 out += self._try_pair(view, now, stamp, retry=retry, timeout=retry)
+            elif view.link is not None and _linking(view).rekey_pending:  # our rotated key's pairing, again
+                out += self._try_pair(view, now, stamp)
             if view.link is None:
                 continue
             self._mark_stale(view, now)
@@ -467,7 +472,7 @@ class StationCore:
         out, paired = _linking(view).on_pair(Reply(now, ok, err))
         if paired is None:
             return out
-        again = view.link is not None
+        again = view.link is not None and not paired.fresh  # a rotated key's pairing is no restart
         if again and paired.kept:
             # the drone still holds our key: its silence was the radio (out of coverage), not a
             # restart; switching to a key it cannot confirm now would cut us off later
@@ -477,24 +482,26 @@ class StationCore:
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
         view.slot.install(self._new_link(view, paired.key, now), now)
         view.link = view.slot.live
+        view.switching = paired.fresh  # the old key stays readable until the drone speaks under the new one
         if again:  # the drone may have restarted with no key but ours: share the others' keys again
             _linking(view).keys_lost(now)
-        return [Emit(rec.GsPaired(drone=drone, again=again)), ToOperator(f"zdrone gs {self.name}: paired with {drone}"),
+        how = " under our new key" if paired.fresh else ""
+        return [Emit(rec.GsPaired(drone=drone, again=again)), ToOperator(f"zdrone gs {self.name}: paired with {drone}{how}"),
                 *self._heartbeat(view)]
 
     def adopt_identity(self, identity: Identity, now: float, wall: float) -> list[Action]:
         """Our static key was rotated: key sharing answers under ``identity`` from now on, and every
-        drone we hold a link with is re-paired under it at once (make-before-break: the live link
-        works until the drone's reply gives the new key)."""
+        drone we hold a link with is re-paired under it at once, as a fresh pairing (``Linking.rekey``;
+        tried again every ``RETRY_S`` until one is proven), make-before-break: the live link serves
+        until the drone's reply gives the new key, and the old one stays readable while the drone
+        switches to it. It is no restart of the drone: the keys it holds for other GSs stand."""
         self._input(now)
         self.identity = identity
         self.key_owner.adopt(identity)
         out: list[Action] = []
         for view in self.views.values():
-            linking = _linking(view)
-            linking.ctx.identity = identity
+            _linking(view).rekey(identity, linked=view.link is not None)
             if view.link is not None:
-                linking.abandon_pairing()
                 out += self._try_pair(view, now, wall, retry=0.0)
         return out
 
@@ -534,7 +541,11 @@ class StationCore:
             self.counters["no_link"] += 1
             return []
         self._mark_stale(view, now)  # before the frame counts: a long silence ends here
+        if view.switching and view.slot.previous is not None:
+            view.slot.previous_until = max(view.slot.previous_until, now + PREVIOUS_GRACE)
         res, promoted = view.slot.open(data, now)
+        if view.switching and view.link is not None and view.link.opened:
+            view.switching = False  # the drone speaks under our new key: the old one's grace runs out
         if isinstance(res, Dropped):
             return []
         out: list[Action] = []

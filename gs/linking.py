@@ -17,6 +17,10 @@ try was less than ``retry`` ago) and ``Reply`` (the drone's answer, or its error
 does not prove the drone's static key is counted and leaves the exchange open (the genuine one may
 still come); the one that does closes it with a ``PairProven`` (the new key, and whether the drone still
 held our old one). If we had a link and the drone lost our key, it restarted: ``keys_lost``.
+A rotation of our static key (``rekey``) asks for a *fresh* pairing under the new key while the live
+link goes on: an exchange started while ``rekey_pending`` is one (``PairProven.fresh``: the drone
+answers it as holding no key of ours, which says nothing of a restart), and the core tries again
+every ``retry`` until one is proven.
 
 Key-sharing phases, per other authorized GS (``SharePhase``): ``NONE`` (nothing asked: the drone may
 hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link" refusal asks again
@@ -135,6 +139,7 @@ class PairProven:
 
     key: LinkKey
     kept: bool  # the drone still held our old key (its silence was the radio, not a restart)
+    fresh: bool = False  # a pairing under our rotated static key (``Linking.rekey``): not a restart
 
 
 class IllegalPhase(AssertionError):
@@ -174,6 +179,8 @@ class Linking:
         self.pairing_deadline = 0.0
         self.last_pair_try: float | None = None
         self.lost_key_at: float | None = None  # our pairing found the companion had lost our key (it restarted)
+        self.rekey_pending = False  # our static key was rotated: a pairing under the new one is due
+        self._rekey_exchange = False  # the open exchange is such a pairing
         self.shares: dict[str, Share] = {}  # other GS -> where its key stands (made when first needed)
         self.drone_links: set[str] = set()  # GSs the drone already holds keys for (its status)
         self.last_share_try: float | None = None
@@ -245,6 +252,7 @@ class Linking:
         self.last_pair_try = ev.now
         c.counters["pair_sent"] += 1
         self.pairing = PairingInitiator(c.identity, c.gs, c.drone, c.fleet.nodes[c.drone].public_bytes, stamp=ev.stamp)
+        self._rekey_exchange = self.rekey_pending
         self.pairing_deadline = ev.now + ev.timeout
         self._set_state(None, PairPhase.ASKING, "message 1")
         return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
@@ -268,14 +276,22 @@ class Linking:
             c.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
             return ([Emit(rec.PairFailed(drone=c.drone, reason=key.reason))] if c.counters["pair_bad_reply"] <= LOGGED
                     else []), None
-        kept = self.pairing.peer_kept_key
+        kept, fresh = self.pairing.peer_kept_key, self._rekey_exchange
         self.pairing = None
+        if fresh:
+            self.rekey_pending = False
         self._set_state(None, PairPhase.IDLE, "paired")
-        return [], PairProven(key, kept=kept)
+        return [], PairProven(key, kept=kept, fresh=fresh)
 
-    def abandon_pairing(self) -> None:
-        """Forget the open exchange (our static key changed: its reply could only give the old one)."""
+    def rekey(self, identity: Identity, linked: bool) -> None:
+        """Our static key was rotated: pair under ``identity`` from now on. With a link (``linked``),
+        an open exchange is forgotten (its reply could only give a key of the old one) and a fresh
+        pairing is due; without one, the next pairing is under the new key anyway."""
+        self.ctx.identity = identity
+        if not linked:
+            return
         self.pairing = None
+        self.rekey_pending = True
         self._allowed = frozenset({PairPhase.IDLE})
         self._set_state(None, PairPhase.IDLE, "abandoned")
 
