@@ -225,7 +225,7 @@ def _bench_sweep(args: argparse.Namespace) -> int:
     if not 1 <= args.jobs <= 8:
         raise UsageError(f"--jobs {args.jobs}: must be 1..8")
     result = sweep.run(quick=args.quick, jobs=args.jobs, scenarios=names, speedups=speedups, moments=moments,
-                       out=Path(args.out) if args.out else None, progress=not args.json)
+                       out=Path(args.out) if args.out else None, progress=not args.json, sites=args.sites)
     _emit(args, result, sweep.render)
     return 0 if result["failed"] == 0 and result["cells"] > 0 else 1
 
@@ -423,6 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
     bw.add_argument("--speedups", metavar="X,X,…", help="only these speed-ups (of 1,2,4)")
     bw.add_argument("--moments", metavar="M,M,…", help="only these fault moments")
     bw.add_argument("--out", metavar="DIR", help="folder of the runs and cells.jsonl (default: a fresh temporary one)")
+    bw.add_argument("--sites", action="store_true", help="fly every cell over a router per site (zdrone demo --sites)")
     bw.set_defaults(func=_bench_sweep)
 
     ck = sub.add_parser("check", help="exhaustive bounded exploration of the authority protocol's decisions "

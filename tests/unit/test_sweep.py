@@ -73,3 +73,12 @@ def test_the_sweep_table_names_each_failed_cell_and_how_to_replay_it(capsys):
 
 def test_flight_unaffected_is_still_the_nominal_check():
     assert SCENARIO_BY_NAME["nominal"].check is flight_unaffected
+
+
+def test_a_sweep_over_sites_flies_every_cell_over_a_router_per_site():
+    over = cells(scenarios=["revoke-in-flight", "revoke-uncovered"], speedups=[1.0, 4.0], sites=True)
+    assert [(c.scenario, c.speedup, c.sites) for c in over] == [
+        ("revoke-in-flight", 1.0, True), ("revoke-in-flight", 4.0, True),
+        ("revoke-uncovered", 1.0, True), ("revoke-uncovered", 4.0, True)]
+    assert over[0].replay() == "zdrone demo --scenario revoke-in-flight --speedup 1 --sites"
+    assert over[0].folder != Cell("revoke-in-flight", 1.0, None).folder

@@ -14,7 +14,7 @@ from zdrone.core.records import (AuthorityChange, AutopilotFound, DroneStatus, D
                                  HandoverStart, MissionProgress, RegionEntered, Start)
 from zdrone.core.reference import DELIVERY, HOME
 from zdrone.core.wire import AuthorityState
-from zdrone.sil.moments import AIRBORNE, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
+from zdrone.sil.moments import AIRBORNE, AT_DELIVERY, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
 from zdrone.sil.scenarios import SCENARIO_BY_NAME
 from zdrone.sil.summary import RunFacts, RunLogs, follow, summarize, watch, watch_state
 from zdrone.sil.verdicts import Outcome, flight_unaffected, safety_invariants
@@ -65,7 +65,7 @@ def test_the_watch_state_and_the_moments_from_the_drones_records():
     launcher fires each the first time only)."""
     logs, state = _flight(), watch_state()
     moments = [m for ev in logs.drone for m in follow(state, ev, ev.t)]
-    assert moments == [AIRBORNE, REGION_ENTERED, HANDOVER_STARTED, REGION_ENTERED, RETURNING, HANDOVERS_DONE]
+    assert moments == [AIRBORNE, REGION_ENTERED, HANDOVER_STARTED, AT_DELIVERY, REGION_ENTERED, RETURNING, HANDOVERS_DONE]
     assert state["done"] and state["delivered"] and state["final_position"] == list(_at(HOME))
     assert [(h["from"], h["to"]) for h in state["handovers"]] == [("A", "B"), ("B", "A")]
     fs = Failsafe(t=T0 + 201, node="d1", action="LAND", reason="authority link to A lost", detect_to_command_ms=1.5,
@@ -114,3 +114,20 @@ def test_the_testbeds_rooms_import_without_processes():
             " if n in sys.modules)))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ""
+
+
+def test_revoke_uncovered_wants_the_failsafe_at_once_and_authority_moved_nowhere():
+    """B revoked where no other authorized GS covers the drone: the failsafe within a second of the
+    revision, no hand-over after it; an emergency hand-over to A from outside its coverage fails it."""
+    from zdrone.core.records import AuthorityChange, RevisionApplied
+
+    check = SCENARIO_BY_NAME["revoke-uncovered"].check
+    rev = RevisionApplied(t=T0 + 50, node="d1", number=1, revoked=("B",), rotated=())
+    fs = Failsafe(t=T0 + 50.01, node="d1", action="LAND", reason="authority link to B lost", detect_to_command_ms=None,
+                  position=_at(DELIVERY))
+    summary = {"notes": ["routers restarted on the files without B: router"], "final_owner": "B"}
+    assert check(Outcome(summary, [rev, fs], {"A": [], "B": []}, [])) == []
+    moved = AuthorityChange(t=T0 + 50.01, node="d1", from_="B", to="A", epoch=3, kind="emergency", time=T0 + 50.01,
+                            position=None)
+    why = check(Outcome(summary, [rev, moved], {"A": [], "B": []}, []))
+    assert any("authority moved after the revision" in w for w in why) and any("no failsafe" in w for w in why)

@@ -46,27 +46,31 @@ class Cell:
     scenario: str
     speedup: float
     moment: str | None
+    sites: bool = False  # over a router per site (``zdrone demo --sites``) whatever the scenario's own row says
 
     @property
     def label(self) -> str:
-        return f"{self.scenario} x{self.speedup:g}" + (f" @{self.moment}" if self.moment else "")
+        return (f"{self.scenario} x{self.speedup:g}" + (f" @{self.moment}" if self.moment else "")
+                + (" (sites)" if self.sites else ""))
 
     @property
     def folder(self) -> str:
-        return f"{self.scenario}-x{self.speedup:g}-{self.moment or 'none'}"
+        return f"{self.scenario}-x{self.speedup:g}-{self.moment or 'none'}" + ("-sites" if self.sites else "")
 
     def replay(self) -> str:
         return (f"zdrone demo --scenario {self.scenario} --speedup {self.speedup:g}"
-                + (f" --moment {self.moment}" if self.moment else ""))
+                + (f" --moment {self.moment}" if self.moment else "") + (" --sites" if self.sites else ""))
 
 
 def cells(quick: bool = False, scenarios: Sequence[str] = (), speedups: Sequence[float] = (),
-          moments: Sequence[str] = ()) -> list[Cell]:
-    """The sweep's cells (filtered by scenario, speed-up and moment when given)."""
+          moments: Sequence[str] = (), sites: bool = False) -> list[Cell]:
+    """The sweep's cells (filtered by scenario, speed-up and moment when given); with ``sites``, each
+    flown over a router per site (``zdrone demo --sites``)."""
     if quick:
         out = [Cell(*c) for c in QUICK]
     else:
         out = [Cell(s.name, sp, m) for s in SCENARIO_TABLE for sp in SPEEDUPS for m in (s.moments() or (None,))]
+    out = [Cell(c.scenario, c.speedup, c.moment, True) for c in out] if sites else out
     return [c for c in out if (not scenarios or c.scenario in scenarios) and (not speedups or c.speedup in speedups)
             and (not moments or c.moment in moments)]
 
@@ -80,15 +84,16 @@ def fly(cell: Cell, base: Path) -> dict[str, Any]:
     t0 = time.monotonic()
     opts = DemoOptions(out=out, scenario=cell.scenario, speedup=cell.speedup,
                        moment=cell.moment if cell.moment != own else None, quiet=True, live=False, report=False,
-                       sites=spec.sites, tls=spec.tls)
+                       sites=spec.sites or cell.sites, tls=spec.tls)
     demo = Demo(opts, out.resolve())
     try:
         summary = demo.run()
     except (RuntimeError, OSError) as exc:  # could not start (Demo.run stopped its children): a failed cell
-        return {"scenario": cell.scenario, "speedup": cell.speedup, "moment": cell.moment, "ok": False,
+        return {"scenario": cell.scenario, "speedup": cell.speedup, "moment": cell.moment, "sites": cell.sites, "ok": False,
                 "why": [f"did not start: {exc}"], "wall_s": round(time.monotonic() - t0, 1), "run": str(out),
                 "replay": cell.replay()}
-    return {"scenario": cell.scenario, "speedup": cell.speedup, "moment": cell.moment, "own_moment": cell.moment == own,
+    return {"scenario": cell.scenario, "speedup": cell.speedup, "moment": cell.moment, "sites": cell.sites,
+            "own_moment": cell.moment == own,
             "ok": bool(summary["ok"]), "why": summary["why_not_ok"],
             "handovers": [f"{h['from']}->{h['to']} ({h['kind']})" for h in summary["handovers"]],
             "failsafe": summary["failsafe"] is not None, "delivered": bool(summary.get("delivered")),
@@ -98,8 +103,9 @@ def fly(cell: Cell, base: Path) -> dict[str, Any]:
 
 
 def run(quick: bool = False, jobs: int = DEFAULT_JOBS, scenarios: Sequence[str] = (), speedups: Sequence[float] = (),
-        moments: Sequence[str] = (), out: Path | None = None, progress: bool = True) -> dict[str, Any]:
-    todo = cells(quick, scenarios, speedups, moments)
+        moments: Sequence[str] = (), out: Path | None = None, progress: bool = True,
+        sites: bool = False) -> dict[str, Any]:
+    todo = cells(quick, scenarios, speedups, moments, sites)
     base = out or Path(tempfile.mkdtemp(prefix="zdrone-bench-sweep-"))
     base.mkdir(parents=True, exist_ok=True)
     journal = base / "cells.jsonl"
@@ -120,7 +126,7 @@ def run(quick: bool = False, jobs: int = DEFAULT_JOBS, scenarios: Sequence[str] 
                     f"{'ok' if row['ok'] else 'FAILED'}")
     bar.close()
     order = {c: i for i, c in enumerate(todo)}
-    rows.sort(key=lambda r: order[Cell(r["scenario"], r["speedup"], r["moment"])])
+    rows.sort(key=lambda r: order[Cell(r["scenario"], r["speedup"], r["moment"], r.get("sites", False))])
     return {"cells": len(rows), "failed": sum(not r["ok"] for r in rows), "jobs": jobs, "quick": quick,
             "speedups": sorted({r["speedup"] for r in rows}), "wall_s": round(time.monotonic() - t0, 1),
             "folder": str(base), "rows": rows, "goal": "every cell passes"}
@@ -133,7 +139,8 @@ def render(result: dict[str, Any]) -> None:
     speeds = result["speedups"]
     grid: dict[tuple[str, str], dict[float, str]] = {}
     for r in result["rows"]:
-        moment = (r["moment"] or "-") + (" (own)" if r.get("own_moment") and r["moment"] else "")
+        moment = ((r["moment"] or "-") + (" (own)" if r.get("own_moment") and r["moment"] else "")
+                  + (" (sites)" if r.get("sites") else ""))
         grid.setdefault((r["scenario"], moment), {})[r["speedup"]] = "ok" if r["ok"] else "FAIL"
     rows = [[sc, m, *(cols.get(sp, "") for sp in speeds)] for (sc, m), cols in grid.items()]
     print_table(f"Sweep: {result['cells']} cells, {result['failed']} failed ({result['wall_s']:.0f} s, "

@@ -12,10 +12,11 @@ HANDOVERS_DONE = "handovers_done"  # both hand-overs done: authority back at A, 
 FAILSAFE_FIRED = "failsafe_fired"  # the drone entered its failsafe
 HANDOVER_STARTED = "handover_started"  # the drone took the first release (the hand-over A->B begins)
 RETURNING = "returning"  # on the way back: the first entry into the hand-over region after the delivery point
+AT_DELIVERY = "at_delivery"  # first near the delivery point (only B's coverage; B holding authority)
 DRONE_RESTARTED = "drone_restarted"  # a fault restarted the drone's companion (just started again)
 BEFORE_DRONE = "before_drone"  # the simulator is up, the drone's companion not yet started
 TRIGGERS = (BEFORE_DRONE, BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED, HANDOVER_STARTED,
-            RETURNING, DRONE_RESTARTED)
+            RETURNING, AT_DELIVERY, DRONE_RESTARTED)
 #: The moments of the flight a scenario's fault can be moved to (``zdrone demo --moment``, ``zdrone bench
 #: sweep``): name -> (trigger, wall seconds after it).
 MOMENTS: dict[str, tuple[str, float]] = {

@@ -16,13 +16,14 @@ import textwrap
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
-from .moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
+from .moments import (AIRBORNE, AT_DELIVERY, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
                       MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
 from .verdicts import (check_backhaul_cut_early, check_big_flood, check_companion_restart, check_consent_bound,
                        check_failsafe_recover, check_fake_autopilot, check_fc_rogue_radio, check_gateway_flood,
                        check_gs_crash, check_gs_hang, check_insider_heir, check_key_escrow, check_key_injection,
                        check_link_loss, check_linkkey_knockout, check_local_app, check_lossy_radio, check_no_cert,
                        check_no_key, check_operator_consent, check_pair_flood, check_pair_replay, check_revoke_in_flight,
+                       check_revoke_uncovered,
                        check_rotate_in_flight, check_router_restart,
                        check_site_router_down, check_site_router_down_alone, check_stale_pairing, check_unauthorized,
                        check_uplink_policy, fault_over_check, flight_unaffected)
@@ -135,6 +136,8 @@ _BACKHAUL_CUT_EARLY = Fault(BEFORE_GS_A, "backhaul", LINK_DOWN, "the backhaul be
 _BACKHAUL_CUT = Fault(AIRBORNE, "backhaul", LINK_DOWN, "the backhaul between the sites is cut in flight")
 _REVOKE_B = Fault(RETURNING, "B", REVOKE, "the operator revokes GS B (its host is lost) while B holds authority",
                   after=1.2)
+_REVOKE_B_UNCOVERED = Fault(AT_DELIVERY, "B", REVOKE, "the operator revokes GS B while B holds authority at the "
+                            "delivery point, outside A's coverage", after=0.5)
 _ROTATE_A = Fault(AIRBORNE, "A", ROTATE, "the operator rotates GS A's key while A holds authority", after=1.0)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
@@ -168,6 +171,11 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the drone drops B's link and keys, A (covering it) takes over, no failsafe, no command of B after the "
              "revision; routers restarted on the new files without a failsafe; landing at home",
              check_revoke_in_flight, faults=(_REVOKE_B,), fixed_moment=True),
+    Scenario("revoke-uncovered",
+             "GS B, the authority at the delivery point (no other authorized GS covers it), is revoked in flight",
+             "the drone drops B's link and keys; no heir proven in its coverage: its failsafe at once, nobody holds "
+             "authority after it, no command of B after the revision; routers restarted on the new files",
+             check_revoke_uncovered, faults=(_REVOKE_B_UNCOVERED,), fixed_moment=True),
     Scenario("rotate-in-flight",
              "GS A's static key is rotated by a signed fleet revision while A holds authority",
              "A re-pairs under its new key make-before-break: no failsafe, no emergency hand-over, both hand-overs",

@@ -21,7 +21,7 @@ from ..core.reference import DELIVERY, HOME
 from ..core.tbm import LinkState, TbmThresholds
 from ..crashes import exit_text
 from ..net.eventlog import read_records
-from .moments import AIRBORNE, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
+from .moments import AIRBORNE, AT_DELIVERY, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
 from .records import LinkFault, RadioLinkChanged
 from .verdicts import DELIVERY_RADIUS_M, Outcome, delivered_at, flight_unaffected
 
@@ -171,6 +171,7 @@ def follow(state: dict[str, Any], ev: AnyRecord, now: float, linger: float = 0.0
                 reached.append(AIRBORNE)
         if pos and distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) < NEAR_DELIVERY_M:
             state["near_delivery"] = True
+            reached.append(AT_DELIVERY)
             if ev.landed_state == 1 and pos[2] < 1.0 and \
                     distance_m(DELIVERY, GeoPoint(pos[0], pos[1])) <= DELIVERY_RADIUS_M:
                 state["delivered"] = True  # on the ground at the delivery point (the drone's own status)

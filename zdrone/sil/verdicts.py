@@ -721,6 +721,30 @@ def check_revoke_in_flight(o: Outcome) -> list[str]:
     return why + _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0, "not landed at home")
 
 
+def check_revoke_uncovered(o: Outcome) -> list[str]:
+    """``revoke-uncovered``: B, holding authority at the delivery point where no other authorized GS's
+    coverage holds the drone, is revoked: the drone applies the revision, drops B's link and keys and,
+    with no heir proven inside its coverage, enters its failsafe at once (within a second of the
+    revision); authority never moves after it (A never takes it from outside its coverage); no command
+    of B forwarded after the revision, none of anyone in the failsafe; the routers restarted on the
+    regenerated files."""
+    s = o.summary
+    why = safety_invariants(o)
+    rev = _revision_applied(o, revoked=("B",))
+    why += _need(rev is not None, "the drone never applied the revision revoking B")
+    if rev is None:
+        return why
+    why += _need(_forwarded_after(o, "B", rev.t) == 0, "a command of B was forwarded after the revision")
+    moved = [e for e in only(o.drone, AuthorityMoved) if e.t >= rev.t]
+    why += _need(not moved, f"authority moved after the revision ({', '.join(f'to {e.to}' for e in moved)}): "
+                            "no authorized GS covered the drone")
+    fs = next((e for e in only(o.drone, Failsafe) if e.t >= rev.t), None)
+    why += _need(fs is not None and fs.t - rev.t <= 1.0, "no failsafe within 1 s of the revision (no heir covered the drone)")
+    if fs is not None:  # in FAILSAFE nobody commands (the revoked owner stays only as the epoch's name)
+        why += _need(_forwarded_after(o, "A", fs.t) == 0, "a command of A was forwarded in the failsafe")
+    return why + _need(any("routers restarted" in n for n in s["notes"]), "the routers were not restarted on the new files")
+
+
 def check_rotate_in_flight(o: Outcome) -> list[str]:
     """``rotate-in-flight``: A's static key is rotated while A holds authority: A re-pairs under its
     new key (a new pairing key proven on the drone after the revision), authority never moves
