@@ -337,6 +337,8 @@ def _demo(args: argparse.Namespace) -> int:
             raise UsageError("--ready-after: the built-in simulator's start-up; an autopilot given by --vehicle has its own")
         if not (math.isfinite(args.ready_after) and 0 <= args.ready_after <= 3600):
             raise UsageError(f"--ready-after {args.ready_after:g}: must be 0..3600 simulated seconds")
+    if args.view is not None and not 1 <= args.view <= 65535:
+        raise UsageError(f"--view {args.view}: a port, 1..65535")
     # an autopilot already running flies in real time: its speed-up (deadline, timers) is 1 unless given
     speedup = args.speedup if args.speedup is not None else (1.0 if args.vehicle else 2.0)
     return run_demo(DemoOptions(out=Path(args.out) if args.out else None, scenario=args.scenario, speedup=speedup,
@@ -345,7 +347,7 @@ def _demo(args: argparse.Namespace) -> int:
                                 ready_after=args.ready_after,
                                 sites=args.sites or args.netns or SCENARIO_SITES.get(args.scenario, False),
                                 netns=args.netns, fc_signing=args.fc_signing,
-                                tls=args.tls or SCENARIO_TLS.get(args.scenario, False), moment=moment))
+                                tls=args.tls or SCENARIO_TLS.get(args.scenario, False), moment=moment, view=args.view))
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
@@ -370,6 +372,8 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--live", action="store_true", help="force the live view")
     g.add_argument("--no-live", action="store_true", help="plain event lines (default when not a terminal)")
     p.add_argument("--no-report", action="store_true", help="do not write the HTML flight report")
+    p.add_argument("--view", type=int, default=None, metavar="PORT",
+                   help="also serve the live web view (zdrone view) on 127.0.0.1:PORT, beside the rich view")
     p.add_argument("--netns", action="store_true",
                    help="with --sites (implied): each site and the drone in their own network namespace, radios and "
                         "backhaul as veth pairs (root only; without it, loopback relays)")
@@ -408,10 +412,12 @@ def add_report(sub: argparse._SubParsersAction) -> None:
 
 
 def _audit_verify(args: argparse.Namespace) -> int:
-    from .report import audit_files, run_fleet, verify_audit
+    from .fleet.revisions import signing_key_history
+    from .report import audit_files, run_fleet, run_fleet_dir, verify_audit
 
     files = audit_files(args.targets)
-    results = verify_audit(files, run_fleet(args.targets, args.fleet))
+    results = verify_audit(files, run_fleet(args.targets, args.fleet),
+                           signing_key_history(run_fleet_dir(args.targets, args.fleet)))
     if args.json:
         import json
 
@@ -432,13 +438,19 @@ def add_audit(sub: argparse._SubParsersAction) -> None:
                                        "the first bad entry (modified, deleted, reordered, truncated); exit 1 if any")
     v.add_argument("targets", nargs="+", metavar="RUN_DIR|FILE",
                    help="a run folder (its *.audit.jsonl) or authority record files")
-    v.add_argument("--fleet", help="the fleet folder (its public fleet.json5); default: RUN_DIR/fleet")
+    v.add_argument("--fleet", help="the fleet folder (its public fleet.json5 and its revisions: a rotated node's earlier checkpoints are checked against its earlier key); default: RUN_DIR/fleet")
     v.add_argument("--json", action="store_true", help="one object per record instead of lines")
     v.set_defaults(func=_audit_verify)
 
 
 #: The node subcommands, in ``zdrone --help`` order (the fleet and bench commands live in ``cli``).
+def add_view(sub: argparse._SubParsersAction) -> None:
+    from .view.server import add_view as add
+
+    add(sub)
+
+
 NODE_COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
-    add_sim, add_router, add_drone, add_gs, add_demo, add_report, add_audit)
+    add_sim, add_router, add_drone, add_gs, add_demo, add_view, add_report, add_audit)
 #: Commands whose SIGTERM/SIGINT are served by a signal thread (``zdrone.net.shutdown``).
 SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs, _router)

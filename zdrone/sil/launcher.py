@@ -98,6 +98,7 @@ class DemoOptions:
     ready_after: float | None = None  # the built-in simulator's start-up, simulated s (None: its short default)
     netns: bool = False  # with sites: each site and the drone in their own network namespace (root)
     fc_signing: str = "prefer"  # the drone's --fc-signing (require | prefer | off)
+    view: int | None = None  # serve the live web view (``zdrone view``) on this loopback port
 
 
 @dataclass
@@ -455,9 +456,20 @@ class Demo:
             self.shutdown(timeout=2.0 if isinstance(exc, (KeyboardInterrupt, procs.Terminated)) else 10.0)
             raise
 
+    def start_view(self, port: int) -> Child:
+        """``zdrone view`` as the fleet's viewer V, from its bundle, on loopback ``port`` (the run's
+        folder: its report is linked once written)."""
+        child = self.start("view", self._z() + ["view", "--fleet", "bundles/V", "--router", self.router, "--port",
+                                                str(port), "--run", "."], ns=self._ns("A") if self.netns else None)
+        self.wait_line(child, "zdrone view:", 20)
+        self.notes.append(f"live view: http://127.0.0.1:{port}/")
+        return child
+
     def _run(self) -> dict[str, Any]:
         o, spec = self.opts, self.spec
         self.start_core()
+        if o.view is not None:
+            self.start_view(o.view)
         gs_extra = ["--command-rate", str(o.command_rate), *self._bench_extra()] + (["--paper-heartbeat"] if o.paper_heartbeat else [])
         b_extra = list(gs_extra)
         if spec.operators or spec.app_signing or spec.consent_ops:
@@ -656,7 +668,7 @@ class Demo:
                 self._send_go(live)
                 live.update(state["status"], time.monotonic() - self.t0)
                 for name, child in self.children.items():
-                    if child.proc.poll() is not None and name not in ("gsB", "gsA", "operators") and not name.startswith("rogue") \
+                    if child.proc.poll() is not None and name not in ("gsB", "gsA", "operators", "view") and not name.startswith("rogue") \
                             and not child.stopped:
                         self.notes.append(f"{name} exited early ({_exit_text(child.proc.returncode)})")
                         state["done"] = True
