@@ -69,20 +69,28 @@ def audit_files(targets: list[str | Path]) -> list[Path]:
     return files
 
 
-def run_fleet(targets: list[str | Path], fleet_dir: str | Path | None) -> Fleet:
-    """The fleet to verify against: ``--fleet``, else ``fleet/`` of the run folder given."""
-    from .fleet.files import load_fleet
-
+def run_fleet_dir(targets: list[str | Path], fleet_dir: str | Path | None) -> Path:
+    """The fleet folder to verify against: ``--fleet``, else ``fleet/`` of the run folder given."""
     if fleet_dir is None:
         found = [Path(t) / "fleet" for t in targets if (Path(t) / "fleet" / "fleet.json5").is_file()]
         if not found:
             raise ConfigError("no fleet to check the signatures against: give --fleet DIR (its public fleet.json5)")
         fleet_dir = found[0]
-    return load_fleet(fleet_dir)
+    return Path(fleet_dir)
 
 
-def verify_audit(files: list[Path], fleet: Fleet) -> list[tuple[Path, ChainReport]]:
-    """Each file's record verified (its node: the one its entries name), against every witness."""
+def run_fleet(targets: list[str | Path], fleet_dir: str | Path | None) -> Fleet:
+    """The fleet to verify against: ``--fleet``, else ``fleet/`` of the run folder given."""
+    from .fleet.files import load_fleet
+
+    return load_fleet(run_fleet_dir(targets, fleet_dir))
+
+
+def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[bytes, ...]] | None = None
+                 ) -> list[tuple[Path, ChainReport]]:
+    """Each file's record verified (its node: the one its entries name), against every witness; with
+    ``key_history`` (``zdrone.fleet.revisions.signing_key_history``), each checkpoint against the
+    node's key in force when it was signed (a rotated node's earlier checkpoints under its earlier key)."""
     contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
     witnesses: list[AuditWitness] = []
     owners: dict[Path, str | None] = {}
@@ -97,7 +105,8 @@ def verify_audit(files: list[Path], fleet: Fleet) -> list[tuple[Path, ChainRepor
                 witnesses.append(line)
             elif owners[f] is None:
                 owners[f] = line.node
-    keys = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
+    keys: dict[str, object] = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
+    keys.update(key_history or {})
     out = []
     for f, lines in contents.items():
         node = owners[f]
@@ -114,8 +123,10 @@ def _audit_section(run: Path) -> str:
     files = sorted(run.glob("*.audit.jsonl"))
     if not files:
         return "<h2>Authority record</h2><p>none in this run</p>"
+    from .fleet.revisions import signing_key_history
+
     try:
-        results = verify_audit(files, run_fleet([run], None))
+        results = verify_audit(files, run_fleet([run], None), signing_key_history(run_fleet_dir([run], None)))
     except ConfigError as exc:
         return f"<h2>Authority record</h2><p>not verified: {html.escape(str(exc))}</p>"
     rows = "".join(f"<tr><td>{html.escape(f.name)}</td><td>{'verified' if r.ok else '<b>BAD</b>'}</td>"

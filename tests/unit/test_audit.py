@@ -211,3 +211,48 @@ def test_a_witness_countersigns_each_checkpoint_once_and_never_a_forged_one():
     assert w.on_head("d1", seq, head, sig, 2.0) is None  # repeated in every status: countersigned once
     assert w.on_head("d1", seq + 1, head, sig, 3.0) is None and w.refused == 1  # the signature is for seq
     assert w.on_head("X", seq, head, sig, 3.0) is None  # not a node it witnesses
+
+
+def _rotated_record() -> list[bytes]:
+    """d1 signs its first checkpoints with DRONE_KEY, is rotated to OTHER_KEY, signs on with it."""
+    chain = AuditChain("d1", DRONE_KEY, every=4)
+    lines: list[bytes] = []
+    for i in range(10):
+        lines += [encode_line(x) for x in chain.append("authority", {"epoch": i}, 100.0 + i)]
+        if i == 5:  # two entries unsigned: signed under the old key before the chain goes on under the new
+            rotated = chain.rekey(OTHER_KEY, 105.5)
+            assert [type(x) for x in rotated] == [AuditCheckpoint]
+            lines += [encode_line(x) for x in rotated]
+    lines += [encode_line(x) for x in chain.tick(200.0)]
+    return lines
+
+
+def test_a_rotated_node_s_earlier_checkpoints_verify_against_the_key_in_force_when_signed():
+    lines = _rotated_record()
+    r = verify_chain("d1", lines, (DRONE_KEY.public, OTHER_KEY.public))
+    assert r.ok and r.checkpoints == 3 and r.signed_through == 9, r.summary()
+    # the new key alone: the first checkpoint (signed before the rotation) fails
+    r = verify_chain("d1", lines, OTHER_KEY.public)
+    assert (r.kind, r.first_bad) == ("bad_signature", 0)
+    # the old key alone: the first checkpoint after the rotation fails
+    r = verify_chain("d1", lines, DRONE_KEY.public)
+    assert (r.kind, r.first_bad) == ("bad_signature", 6) and r.signed_through == 5
+
+
+def test_a_checkpoint_under_a_retired_key_after_the_rotation_is_refused():
+    """Whoever stole the retired key signs nothing after the rotation: keys only move forward."""
+    lines = _rotated_record()
+    chain = AuditChain.resume("d1", DRONE_KEY, lines, every=1)  # the old key appends after the new one signed
+    lines += [encode_line(x) for x in chain.append("failsafe", {"action": "LAND"}, 300.0)]
+    r = verify_chain("d1", lines, (DRONE_KEY.public, OTHER_KEY.public))
+    assert (r.kind, r.first_bad) == ("bad_signature", 10) and "retired" in (r.problem or "")
+
+
+def test_a_witness_of_an_earlier_checkpoint_holds_after_the_rotation():
+    lines = _rotated_record()
+    first = decode_line(next(raw for raw in lines if isinstance(decode_line(raw), AuditCheckpoint)))
+    w = countersign("B", GS_KEY, "d1", DRONE_KEY.public, first.seq, bytes.fromhex(first.head),
+                    base64.b64decode(first.sig), 150.0)
+    assert w is not None
+    r = verify_chain("d1", lines, (DRONE_KEY.public, OTHER_KEY.public), [w], KEYS)
+    assert r.ok and r.witnesses == 1 and r.witnessed_through == first.seq

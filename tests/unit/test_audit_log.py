@@ -129,3 +129,41 @@ def test_the_flight_report_shows_each_record(tmp_path, fleet_dir):
     path = audit_path(tmp_path / "drone.jsonl")
     path.write_text("\n".join(path.read_text().splitlines()[1:]) + "\n")  # the first entry deleted
     assert "BAD" in _audit_section(tmp_path) and "d1: BAD at entry 0" in _audit_section(tmp_path)
+
+
+def test_after_a_key_rotation_earlier_checkpoints_verify_against_the_key_in_force_then(tmp_path, capsys):
+    """GS B's record: a consent signed under its first key, B rotated by a fleet revision
+    (``zdrone fleet rotate``), its record going on under the new key (``EventLog.rekey_audit``):
+    ``zdrone audit verify`` checks each checkpoint against the key the revisions say was B's then."""
+    from zdrone.fleet.revise import rotate
+
+    fleet_dir = tmp_path / "fleet"
+    init_fleet(fleet_dir)
+    run = tmp_path / "run"
+    run.mkdir()
+    old = load_secret(fleet_dir, "B", load_fleet(fleet_dir)).signing
+    clock = Clock()
+    gs = EventLog(run / "B.jsonl", "B", clock=clock)
+    gs.start_audit(old)
+    gs.write_record(rec.OperatorRequestGranted(drone="d1", requester="A", to="B", why="consent", epoch=2, app="qgc"))
+    clock.t += 2.0
+    gs.write("link_state", gs="A", state="ok")  # a tick: the consent is signed under the first key
+    rotate(fleet_dir, "B")
+    new = load_secret(fleet_dir, "B", load_fleet(fleet_dir)).signing
+    assert new is not None and new.public != old.public
+    gs.write_record(rec.OperatorRequestGranted(drone="d1", requester="B", to="A", why="consent", epoch=3, app="qgc"))
+    gs.rekey_audit(new)  # the second consent still unsigned: signed under the old key before the switch
+    gs.write_record(rec.OperatorRequestGranted(drone="d1", requester="A", to="B", why="consent", epoch=4, app="qgc"))
+    gs.close()
+    assert main(["audit", "verify", str(run), "--fleet", str(fleet_dir)]) == 0
+    assert "B: verified 3 of 3 entries" in capsys.readouterr().out
+    # without the revisions (the base fleet alone: B's first key), the checkpoint under the new key fails
+    base_only = tmp_path / "base"
+    base_only.mkdir()
+    (base_only / "fleet.json5").write_bytes((fleet_dir / "fleet.json5").read_bytes())
+    assert main(["audit", "verify", str(run), "--fleet", str(base_only), "--json"]) == 1
+    got = json.loads(capsys.readouterr().out)[0]
+    assert (got["kind"], got["first_bad"]) == ("bad_signature", 2)
+    # a tampered revision file is named, not trusted
+    (fleet_dir / "revisions" / "0001.json").write_bytes(b"{}")
+    assert main(["audit", "verify", str(run), "--fleet", str(fleet_dir)]) == 2

@@ -28,6 +28,14 @@ first problem, naming the first bad entry: ``modified`` (an entry's hash is not 
 entry or a checkpoint names), ``missing`` (a sequence number skipped: deleted or reordered),
 ``out_of_order``, ``bad_signature``, ``truncated`` (against a witness), ``undecodable``.
 
+Keys over time: a node whose signing key was rotated (a fleet revision) signed its earlier
+checkpoints with its earlier key. ``verify_chain`` takes a node's keys in the order the fleet gave
+them (the base fleet's, then each revision's that changed it: ``zdrone.fleet.revisions.
+signing_key_history``); each checkpoint must verify under the key in force at the checkpoint before
+it or a later one, never an earlier one: once a checkpoint is signed with a newer key, a checkpoint
+signed with a retired key after it is ``bad_signature`` (a stolen retired key writes nothing after
+the rotation).
+
 Pure: no clock (``now`` comes in), no files (lines in, lines out; ``zdrone.net.eventlog`` writes
 them).
 """
@@ -38,7 +46,7 @@ import base64
 import hashlib
 import struct
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 import msgspec
 
@@ -196,6 +204,13 @@ class AuditChain:
             return [self.checkpoint(now)]
         return []
 
+    def rekey(self, key: SigningKey, now: float) -> list[AuditLine]:
+        """The node's signing key rotated (a fleet revision): the entries still unsigned are signed
+        under the old key first (a checkpoint), then the chain goes on under ``key``."""
+        out: list[AuditLine] = [self.checkpoint(now)] if self._pending else []
+        self.key = key
+        return out
+
     def checkpoint(self, now: float) -> AuditCheckpoint:
         """Sign the head now (the entries so far)."""
         if self.seq == 0:
@@ -239,16 +254,31 @@ class Witnessing:
         return w
 
 
-def witness_valid(w: AuditWitness, node_public: bytes | None, witness_public: bytes | None) -> bool:
-    """Both signatures of a witness line check (the node's and the witness's)."""
-    if node_public is None or witness_public is None:
+#: One node's public signing key, or its keys in the order the fleet's revisions gave them.
+PublicKeys = bytes | Sequence[bytes] | None
+
+
+def key_list(keys: PublicKeys) -> tuple[bytes, ...]:
+    """A node's keys in force over time (oldest first), from one key, a sequence or None."""
+    if keys is None:
+        return ()
+    return (keys,) if isinstance(keys, bytes) else tuple(keys)
+
+
+def witness_valid(w: AuditWitness, node_public: PublicKeys, witness_public: PublicKeys) -> bool:
+    """Both signatures of a witness line check (the node's and the witness's), each under one of its
+    keys over time (a witness line carries no order of its own)."""
+    node_keys, witness_keys = key_list(node_public), key_list(witness_public)
+    if not node_keys or not witness_keys:
         return False
     try:
         bytes.fromhex(w.head)
     except ValueError:
         return False
-    return (verify_signature(node_public, checkpoint_message(w.node, w.seq, w.head), _unb64(w.sig))
-            and verify_signature(witness_public, witness_message(w.witness, w.node, w.seq, w.head), _unb64(w.wsig)))
+    cp, ws = checkpoint_message(w.node, w.seq, w.head), witness_message(w.witness, w.node, w.seq, w.head)
+    sig, wsig = _unb64(w.sig), _unb64(w.wsig)
+    return (any(verify_signature(k, cp, sig) for k in node_keys)
+            and any(verify_signature(k, ws, wsig) for k in witness_keys))
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,11 +313,14 @@ class ChainReport:
         return f"{self.node}: verified {self.signed_through + 1} of {self.entries} entries{tail}{wit}"
 
 
-def verify_chain(node: str, lines: Iterable[bytes | str], node_public: bytes | None,
-                 witnesses: Iterable[AuditWitness] = (), witness_keys: dict[str, bytes | None] | None = None
+def verify_chain(node: str, lines: Iterable[bytes | str], node_public: PublicKeys,
+                 witnesses: Iterable[AuditWitness] = (), witness_keys: dict[str, Any] | None = None
                  ) -> ChainReport:
     """Check ``node``'s record (its entry and checkpoint lines, in file order) against its fleet
-    signing key, then against the witnesses' countersigned checkpoints; stop at the first problem."""
+    signing key (or its keys over time, oldest first: each checkpoint under the one in force then),
+    then against the witnesses' countersigned checkpoints; stop at the first problem."""
+    node_keys = key_list(node_public)
+    in_force = 0  # index in node_keys of the key the last valid checkpoint verified under
     hashes: list[str] = []
     prev = genesis(node)
     checkpoints = 0
@@ -322,10 +355,15 @@ def verify_chain(node: str, lines: Iterable[bytes | str], node_public: bytes | N
                                                    f"{line.seq} here): deleted or reordered")
             if hashes[line.seq] != line.head:
                 return bad("modified", line.seq, f"entry {line.seq} is not the one its checkpoint signed")
-            if node_public is None or not verify_signature(node_public, checkpoint_message(node, line.seq, line.head),
-                                                           _unb64(line.sig)):
+            message, sig = checkpoint_message(node, line.seq, line.head), _unb64(line.sig)
+            under = next((i for i in range(in_force, len(node_keys)) if verify_signature(node_keys[i], message, sig)),
+                         None)
+            if under is None:
+                retired = any(verify_signature(k, message, sig) for k in node_keys[:in_force])
                 return bad("bad_signature", signed + 1,
-                           f"the checkpoint of entry {line.seq} is not signed by {node}'s fleet key")
+                           f"the checkpoint of entry {line.seq} is signed by a key of {node}'s retired before it"
+                           if retired else f"the checkpoint of entry {line.seq} is not signed by {node}'s fleet key")
+            in_force = under
             checkpoints += 1
             signed = max(signed, line.seq)
     witnessed, count = -1, 0

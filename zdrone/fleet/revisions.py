@@ -214,5 +214,36 @@ class RevisionChannel:
         return sum(1 for p in self.rt.path_status().values() if p["connected"])
 
 
+def signing_key_history(fleet_dir: str | Path) -> dict[str, tuple[bytes, ...]]:
+    """Each node's Ed25519 signing keys over time, oldest first: the base fleet's, then each one a
+    revision gave it, from the fleet machine's numbered revisions (``revisions/NNNN.json``, each
+    checked against the pinned fleet key) and the latest kept beside ``fleet.json5``. What ``zdrone
+    audit verify`` checks a rotated node's earlier checkpoints against (``zdrone.core.audit``).
+    ``ConfigError`` (one line) for a revision file that is not a valid revision of this fleet."""
+    d = fleet_path(fleet_dir).parent
+    base = load_base_fleet(d)
+    history: dict[str, list[bytes]] = {n: [k] for n in base.nodes if (k := base.nodes[n].signing_public_bytes)}
+    found: dict[int, bytes] = {}
+    for path in [*sorted((d / "revisions").glob("*.json")), d / REVISION_FILE]:
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
+        got = check_revision(data, base, None)
+        if not isinstance(got, RevisionAccepted):
+            raise ConfigError(f"{path}: not a valid revision of this fleet ({got.reason.value})")
+        found[got.revision.number] = data
+    for number in sorted(found):
+        got = check_revision(found[number], base, None)
+        assert isinstance(got, RevisionAccepted)  # checked above
+        for name, node in got.fleet.nodes.items():
+            key = node.signing_public_bytes
+            if key is not None and history.setdefault(name, [])[-1:] != [key]:
+                history[name].append(key)
+    return {n: tuple(keys) for n, keys in history.items()}
+
+
 __all__ = ["ASK_GAP_S", "ASK_PERIOD_S", "ASK_TIMEOUT_S", "KINDS", "MAX_REVISION_BYTES", "PUSH_GAP_S", "PUSH_PERIOD_S",
-           "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper"]
+           "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper", "signing_key_history"]

@@ -209,6 +209,14 @@ class EventLog:
         self._audit_fh = open(path, "a", buffering=1, encoding="utf-8")
         self._on_checkpoint = on_checkpoint
 
+    def rekey_audit(self, key: SigningKey) -> None:
+        """This node's signing key was rotated (a fleet revision): the record goes on under ``key``,
+        its unsigned entries signed under the old one first (``AuditChain.rekey``)."""
+        if self.audit is None:
+            return
+        with self._lock:
+            self._audit_lines(self.audit.rekey(key, self._clock()))
+
     def write_witness(self, witness: audit.AuditWitness) -> None:
         """A checkpoint of another node this node countersigned."""
         with self._lock:
