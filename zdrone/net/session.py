@@ -7,10 +7,9 @@ import logging
 from pathlib import Path
 from typing import Any
 
-import json5
 import zenoh
 
-from ..core.fleet import ConfigError
+from ..core.fleet import ConfigError, read_json5
 from ..fleet.routerconfig import MAX_MESSAGE_SIZE, SITE_KEEP_ALIVE, TLS_FILE_FIELDS
 from ..fleet.tls import TlsFiles
 
@@ -69,7 +68,7 @@ def load_router_config(path: str | Path, listen: list[str] | str | None = None,
     """Read a router JSON5 file; resolve the credentials path relative to the file."""
     p = Path(path)
     try:
-        raw = json5.loads(p.read_text())
+        raw = read_json5(p.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{p}: no such file") from None
     except ValueError as exc:
