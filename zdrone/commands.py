@@ -444,13 +444,19 @@ def add_audit(sub: argparse._SubParsersAction) -> None:
 
 
 #: The node subcommands, in ``zdrone --help`` order (the fleet and bench commands live in ``cli``).
+def _view(args: argparse.Namespace) -> int:
+    from .view.server import view_command
+
+    return view_command(args)
+
+
 def add_view(sub: argparse._SubParsersAction) -> None:
     from .view.server import add_view as add
 
-    add(sub)
+    add(sub, _view)
 
 
 NODE_COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
     add_sim, add_router, add_drone, add_gs, add_demo, add_view, add_report, add_audit)
 #: Commands whose SIGTERM/SIGINT are served by a signal thread (``zdrone.net.shutdown``).
-SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs, _router)
+SIGNAL_THREAD_COMMANDS: tuple[Callable[[argparse.Namespace], int], ...] = (_drone, _gs, _router, _view)

@@ -28,7 +28,8 @@ whole fleet, could seal a report "from A"); auth mode would do, at a DH per mess
 **The fleet picture** (``FleetPicture``). A GS may be silent (stopped, cut off) and one authorized GS
 may be hostile: every field is shown as *who said it*. Per drone, the authority shown is the claim
 with the highest epoch among the GSs that report it (``disputed`` when two GSs name different owners
-at that epoch); the vehicle's fields come from the freshest claim. The age of the drone's last
+at that epoch); the vehicle's fields come from the owner's claim while it is fresh (a GS in standby
+hears the drone's status, its telemetry only now and then), else from the freshest claim. The age of the drone's last
 report is, per GS, the GS's own age (at its sending) plus the time since the viewer received it:
 a silent GS ages like a silent drone. A drone whose freshest word is older than ``STALE_S`` is
 **stale**: shown as such (its last values, and how old they are), never as live.
@@ -328,10 +329,13 @@ class FleetPicture:
         aged = [(self._age(c, now), gs, c) for gs, c in claims.items()]
         live = sorted(((a, gs, c) for a, gs, c in aged if a is not None), key=lambda x: x[0])
         age = live[0][0] if live else None
-        best = live[0][2].ops if live else (next(iter(claims.values())).ops if claims else None)
         heard = [c for c in claims.values() if c.ops.state != "unknown"]
         top = max(heard, key=lambda c: (c.ops.epoch, c.received)) if heard else None
         owner = top.ops.owner if top else None
+        # the vehicle's fields from the owner's word while it is fresh (a GS in standby hears the drone's
+        # status, but its telemetry only now and then), else from the freshest
+        mine = [c for a, gs, c in live if gs == owner and a <= STALE_S]
+        best = mine[0].ops if mine else (live[0][2].ops if live else (next(iter(claims.values())).ops if claims else None))
         epoch = top.ops.epoch if top else 0
         disputed = sorted({c.ops.owner or "-" for c in heard if c.ops.epoch == epoch}) if top else []
         links = {gs: {"link": c.ops.link, "age": None if a is None else round(a, 2), "holds": c.ops.holds,

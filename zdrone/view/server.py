@@ -41,6 +41,7 @@ import msgspec
 from ..core.errors import ConfigError, UsageError
 from ..core.opspicture import OPS_MAX_BYTES, FleetPicture, OpsOpener, OpsReport
 from ..fleet import keyexprs as kx
+from ..net.shutdown import serve_signals
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +111,7 @@ class Follower:
                                  if not self.fleet.is_revoked(g)})
         self.picture = FleetPicture()
         self.lock = threading.Lock()
+        self.stopping = threading.Event()  # the server is ending: the streams end (the page reconnects)
         self.rt.subscribe(kx.ops_all(), "ops", kx.gs_of, limit=OPS_MAX_BYTES)
         self._thread = threading.Thread(target=self._run, name="follower", daemon=True)
 
@@ -151,7 +153,7 @@ class Follower:
         self._thread.join(2.0)
         from ..core import records as rec
 
-        self.rt.close({"opened": self.opener.opened, "drops": dict(self.opener.drops)}, rec.Closed)
+        self.rt.close({}, rec.Closed)
 
 
 def build_app(follower: Any, opts: ViewOptions, host: str) -> Any:
@@ -220,7 +222,7 @@ def build_app(follower: Any, opts: ViewOptions, host: str) -> Any:
             init = {"geometry": geometry, "tracks": follower.tracks()}
             yield b"retry: %d\nevent: init\ndata: " % RETRY_MS + enc.encode(init) + b"\n\n"
             seen, sent = -1, 0.0
-            while not await request.is_disconnected():
+            while not follower.stopping.is_set() and not await request.is_disconnected():
                 now = time.monotonic()
                 version = follower.version
                 if (version != seen and now - sent >= PUSH_MIN_S) or now - sent >= PUSH_MAX_S:
@@ -255,24 +257,34 @@ def run_view(opts: ViewOptions) -> int:
             print(f"zdrone view: http://{shown}:{opts.port}/ (viewer {follower.rt.name}, router {opts.router})", flush=True)
 
     threading.Thread(target=announce, name="announce", daemon=True).start()
+    # SIGTERM/SIGINT are blocked in every thread (``zdrone.net.shutdown``, as for the other nodes): the
+    # signal thread asks uvicorn to end (it closes the streams within a second), then the session closes
+    closed = threading.Event()
+
+    def stop() -> None:
+        follower.stopping.set()
+        server.should_exit = True
+
+    serve_signals(stop, follower.rt.close_sessions, closed)
     try:
         server.run()
     finally:
         follower.close()
+        closed.set()
     if not server.started:
         print(f"zdrone view: could not serve on {host}:{opts.port}", flush=True)
         return 2
     return 0
 
 
-def _view(args: Any) -> int:
+def view_command(args: Any) -> int:
     if not 1 <= args.port <= 65535:
         raise UsageError(f"--port {args.port}: must be 1..65535")
     return run_view(ViewOptions(fleet=args.fleet, router=args.router, port=args.port, listen=args.listen,
                                 token=args.token, run=args.run, viewer=args.id))
 
 
-def add_view(sub: Any) -> None:
+def add_view(sub: Any, func: Any) -> None:
     """``zdrone view``'s parser."""
     p = sub.add_parser("view", help="live web view of the fleet: who commands which drone, every link (read-only)")
     p.add_argument("--fleet", default="fleet", help="the viewer's bundle (or a fleet directory holding its secret)")
@@ -283,4 +295,4 @@ def add_view(sub: Any) -> None:
                    help="address to serve on (default 127.0.0.1); any other needs --token")
     p.add_argument("--token", default=None, help="a secret every request must carry (?token= once, then a cookie)")
     p.add_argument("--run", default=None, metavar="DIR", help="a run folder: its report.html is linked from the page")
-    p.set_defaults(func=_view)
+    p.set_defaults(func=func)
