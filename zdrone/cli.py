@@ -200,7 +200,10 @@ def _bench_revoke(args: argparse.Namespace) -> int:
 
     if args.drones is not None and not 1 <= args.drones <= 150:
         raise UsageError(f"--drones {args.drones}: must be 1..150")
-    result = revoke.run(args.quick, args.drones)
+    actions = [a for a in (args.only or "revoke,rotate").split(",") if a]
+    if not actions or any(a not in ("revoke", "rotate") for a in actions):
+        raise UsageError(f"--only {args.only}: revoke, rotate or both (revoke,rotate)")
+    result = revoke.run(args.quick, args.drones, actions=actions)
     _emit(args, result, revoke.render)
     return 0 if all("error" not in row for row in result["rows"]) else 1
 
@@ -414,6 +417,8 @@ def build_parser() -> argparse.ArgumentParser:
     bv.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bv.add_argument("--quick", action="store_true", help="3 drones (default 100)")
     bv.add_argument("--drones", type=int, metavar="K", help="drones (1..150)")
+    bv.add_argument("--only", metavar="A,A", help="the runs: revoke (B, a drone out of reach 30 s), rotate (A's keys); "
+                    "default both")
     bv.set_defaults(func=_bench_revoke)
     bw = bsub.add_parser("sweep", help="every scenario at speed-ups 1, 2, 4 and each fault at every moment of the flight")
     bw.add_argument("--json", action="store_true", help="print JSON instead of a table")

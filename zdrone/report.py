@@ -94,13 +94,17 @@ def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[b
     contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
     witnesses: list[AuditWitness] = []
     owners: dict[Path, str | None] = {}
+    decoded: dict[Path, list[Any]] = {}  # each line decoded once; an undecodable one left as bytes for verify_chain
     for f, lines in contents.items():
         owners[f] = None
+        decoded[f] = []
         for raw in lines:
             try:
                 line = decode_line(raw)
             except Exception:  # reported by verify_chain with its line number
+                decoded[f].append(raw)
                 continue
+            decoded[f].append(line)
             if isinstance(line, AuditWitness):
                 witnesses.append(line)
             elif owners[f] is None:
@@ -114,7 +118,7 @@ def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[b
             if not lines:
                 out.append((f, ChainReport(f.stem, 0, 0, -1, -1, 0)))
             continue  # only witness lines: a ground station that took no decision of its own
-        out.append((f, verify_chain(node, lines, keys.get(node), witnesses, keys)))
+        out.append((f, verify_chain(node, decoded[f], keys.get(node), witnesses, keys)))
     return out
 
 

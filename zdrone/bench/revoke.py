@@ -19,6 +19,21 @@ Figures, from the drones' event logs and the hosts' results:
   shuttle, B's area between A and C is covered by nobody once B is out, so a drone flying on into
   it lands: that is the failsafe the issue expects where no authorized GS covers the drone).
 
+* **a drone out of reach for 30 s** (``OUT_OF_REACH_S``): the last drone's radio is cut (the
+  drones host's coverage gate, ``--jam``) just before the revision and mended 30 s later; from back
+  in reach to its ``revision_applied`` (it asks at once on coming back: ``RevisionChannel``). Its
+  own failsafe (out of every GS's reach for 30 s) and commands are not in the row's figures;
+* **commands lost**, per (GS, drone, epoch the GS believed it commanded in) against what the drone
+  forwarded in that epoch: ``in_epoch`` lost while the GS held authority (should be 0), ``after it
+  left``: sent in an epoch the drone had already left (the GS's stream ran on after a hand-over it
+  had not heard of yet; the drone refuses them ``not_authority``): not commands lost, a GS's view
+  that lags its drone by up to one status.
+
+``--only rotate`` (and by default after the revocation): A's keys rotated in flight
+(``zdrone.fleet.revise.rotate``, the revision published through C; the stations host reads A's new
+secret from the fleet folder): revision -> applied, each drone's revision -> A's new key proven,
+emergency hand-overs after it (0), failsafes (0), commands lost (0).
+
 The routers are not restarted here (``zdrone demo --scenario revoke-in-flight`` does that, and the
 ``router-restart`` scenario measures what a restart costs).
 """
@@ -27,19 +42,23 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
-from ..core.records import AuthorityMoved, Failsafe, RevisionApplied, only
+from ..core.records import AuthorityMoved, Failsafe, LinkConfirmed, RevisionApplied, only
 
 QUICK_K = 3
 FULL_K = 100
 STATIONS = 3
 REVOKED = "B"
+ROTATED = "A"
+#: The last drone's radio is cut just before the revocation, for this long (every GS out of reach).
+OUT_OF_REACH_S = 30.0
 
 
 def percentile(sorted_values: list[float], q: float) -> float:
@@ -63,14 +82,16 @@ def _held_by_b(recs: list[Any]) -> bool:
     return bool(moves) and moves[-1].to == REVOKED
 
 
-def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
+def run_one(k: int, base: Path, timeout: float, action: str = "revoke") -> dict[str, Any]:
+    """One run: ``action`` ``revoke`` (B, with the last drone out of reach from just before the
+    revision for ``OUT_OF_REACH_S``) or ``rotate`` (A's keys)."""
     from ..fleet.files import init_fleet, scale_nodes
-    from ..fleet.revise import revoke
+    from ..fleet.revise import revoke, rotate
     from ..net.revisions import publish
     from ..sil.procs import spawn
     from .scale import SPEEDUP, _free_ports, _wait_line, hold_limit
 
-    d = base / f"k{k}"
+    d = base / f"{action}-k{k}"
     d.mkdir(parents=True, exist_ok=True)
     fleet = d / "fleet"
     init_fleet(fleet, nodes_spec=scale_nodes(k, STATIONS))
@@ -79,7 +100,8 @@ def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
     logs = {n: open(d / f"{n}.log", "w") for n in ("router", "drones", "stations")}
     procs: dict[str, subprocess.Popen] = {}
     common = ["--fleet", str(fleet), "--out", str(d), "--router", router]
-    result: dict[str, Any] = {"k": k, "g": STATIONS, "runs": str(d)}
+    jammed = f"d{k}" if action == "revoke" and k > 1 else None
+    result: dict[str, Any] = {"k": k, "g": STATIONS, "action": action, "runs": str(d), "jammed": jammed}
     t_pub: float | None = None
     held: list[str] = []
     try:
@@ -89,12 +111,13 @@ def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
             raise RuntimeError(f"the router did not start; see {d / 'router.log'}")
         procs["drones"] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(SPEEDUP),
                                       "--duration", str(timeout), "--hold", str(hold_limit(k)), "--drone-router", "spread",
-                                      *common], stdout=logs["drones"], stderr=subprocess.STDOUT)
+                                      *(["--jam", jammed] if jammed else []), *common],
+                                stdout=logs["drones"], stderr=subprocess.STDOUT)
         procs["stations"] = spawn(py + ["zdrone.bench.scale", "host-stations", "--stations", str(STATIONS), *common],
                                   stdout=logs["stations"], stderr=subprocess.STDOUT)
         if _wait_line(d / "drones.log", "take-off", 180 + hold_limit(k), procs["drones"]) is None:
             raise RuntimeError(f"the drones never took off; see {d / 'drones.log'}")
-        procs["stations"].send_signal(__import__("signal").SIGUSR1)
+        procs["stations"].send_signal(signal.SIGUSR1)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:  # B's first hand-over
             held = [n for n, recs in _records(d, k).items() if _held_by_b(recs)]
@@ -103,9 +126,21 @@ def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
             time.sleep(0.2)
         if not held:
             raise RuntimeError("B never held authority over a drone")
-        revoke(fleet, REVOKED, note="bench revoke")
+        if jammed:
+            procs["drones"].send_signal(signal.SIGUSR1)
+            if _wait_line(d / "drones.log", f"{jammed} out of reach", 10, procs["drones"]) is None:
+                raise RuntimeError(f"{jammed} was not cut off; see {d / 'drones.log'}")
+        if action == "rotate":
+            rotate(fleet, ROTATED, note="bench revoke: rotate")  # the stations host reads A's new secret here
+            via = "C"
+        else:
+            revoke(fleet, REVOKED, note="bench revoke")
+            via = "A"
         t_pub = time.time()
-        publish(fleet, "A", router, (fleet / "revision.json").read_bytes())
+        publish(fleet, via, router, (fleet / "revision.json").read_bytes())
+        if jammed:
+            time.sleep(OUT_OF_REACH_S)
+            procs["drones"].send_signal(signal.SIGUSR2)
         try:
             procs["drones"].wait(timeout + 60)
         except subprocess.TimeoutExpired:
@@ -126,37 +161,106 @@ def run_one(k: int, base: Path, timeout: float) -> dict[str, Any]:
             f.close()
     if t_pub is None:
         return result
+    result.update(_figures(d, fleet, k, t_pub, held, action, jammed))
+    return result
+
+
+def _back_in_reach(d: Path, drone: str) -> float | None:
+    """When the drones host mended ``drone``'s radio (wall clock), from its log."""
+    for line in (d / "drones.log").read_text(errors="replace").splitlines():
+        if f"{drone} back in reach at " in line:
+            return float(line.rsplit(" ", 1)[1])
+    return None
+
+
+def lost_commands(sent_epochs: dict[str, dict[str, dict[str, int]]], drones: dict[str, Any],
+                  not_gs: str | None) -> dict[str, Any]:
+    """Commands of the GSs (but ``not_gs``) sent and not forwarded, per (GS, drone, epoch the GS
+    believed it commanded in), split into ``after_it_left``: sent once the drone had left that GS,
+    to another GS (an epoch the drone left: the drone refused them ``not_authority``) or to its
+    failsafe (the GS's last epoch on a drone that refused commands in its failsafe, as many as it
+    refused): the GS's stream ran on until it heard the drone's status; and ``in_epoch``: the rest,
+    lost while the GS held authority (the figure that must be 0)."""
+    out: dict[str, Any] = {"in_epoch": 0, "after_it_left": 0, "where": []}
+    for gs, per_drone in sent_epochs.items():
+        if gs == not_gs:
+            continue
+        for drone, epochs in per_drone.items():
+            r = drones.get(drone)
+            if r is None:
+                continue
+            fwd = r.get("forwarded_epochs", {})
+            last_epoch = max((int(k.split(":", 1)[0]) for k in fwd), default=0)
+            in_failsafe = int(r.get("in_failsafe", 0))
+            for epoch, n in sorted(epochs.items(), key=lambda kv: int(kv[0])):
+                short = n - fwd.get(f"{epoch}:{gs}", 0)
+                if short <= 0:
+                    continue
+                if int(epoch) < last_epoch:
+                    left, how = short, "to another GS"
+                else:
+                    left, how = min(short, in_failsafe), "to its failsafe"
+                    in_failsafe -= left
+                out["after_it_left"] += left
+                out["in_epoch"] += short - left
+                out["where"].append(f"{gs}->{drone} epoch {epoch}: {short}" + (f" ({left} after it left {how})"
+                                                                                if left else " (while it held authority)"))
+    return out
+
+
+def _figures(d: Path, fleet: Path, k: int, t_pub: float, held: list[str], action: str,
+             jammed: str | None) -> dict[str, Any]:
     recs = _records(d, k)
-    applied = {n: next((e.t for e in only(r, RevisionApplied) if REVOKED in e.revoked), None) for n, r in recs.items()}
-    lat = sorted((t - t_pub) * 1000.0 for t in applied.values() if t is not None)
+    target = REVOKED if action == "revoke" else ROTATED
+    field = "revoked" if action == "revoke" else "rotated"
+    applied = {n: next((e.t for e in only(r, RevisionApplied) if target in getattr(e, field)), None)
+               for n, r in recs.items()}
+    in_reach = [n for n in recs if n != jammed]
+    lat = sorted((applied[n] - t_pub) * 1000.0 for n in in_reach if applied[n] is not None)
     after = {n: [e for e in only(r, AuthorityMoved) if e.t >= t_pub] for n, r in recs.items()}
     failsafes = {n: len(only(r, Failsafe)) for n, r in recs.items()}
-    covered = _failsafes_covered(fleet, recs)
-    lost_others = 0
+    covered = _failsafes_covered(fleet, {n: r for n, r in recs.items() if n != jammed})
+    out: dict[str, Any] = {}
     try:
         drones = json.loads((d / "drones.json").read_text())["results"]
-        sent = json.loads((d / "stations.json").read_text())["commands_sent"]
-        for n, r in drones.items():
-            for gs in sent:
-                if gs != REVOKED:
-                    lost_others += max(0, sent[gs].get(n, 0) - r["forwarded"].get(gs, 0))
+        sent_epochs = json.loads((d / "stations.json").read_text())["commands_sent_epochs"]
+        lost = lost_commands({g: {n: e for n, e in per.items() if n != jammed} for g, per in sent_epochs.items()},
+                             drones, REVOKED if action == "revoke" else None)
     except (OSError, ValueError, KeyError) as exc:
-        result["error"] = result.get("error") or f"no host results ({exc})"
-    b_after = sum(1 for moves in after.values() for e in moves if e.to == REVOKED)
-    result.update({
-        "applied": f"{len(lat)}/{k}",
+        out["error"] = f"no host results ({exc})"
+        lost = {"in_epoch": None, "after_it_left": None, "where": []}
+    out.update({
+        "applied": f"{len(lat)}/{len(in_reach)}",
         "applied_ms": {"p50": round(percentile(lat, 50), 1) if lat else None,
                        "p99": round(percentile(lat, 99), 1) if lat else None,
                        "max": round(lat[-1], 1) if lat else None},
-        "held_by_b": len(held),
-        "held_went_to": {n: (after[n][0].to, after[n][0].kind) if after[n] else "failsafe" if failsafes[n] else "-"
-                         for n in held},
-        "b_authority_after": b_after,
-        "other_commands_lost": lost_others,
-        "failsafes": sum(1 for v in failsafes.values() if v),
+        "failsafes": sum(1 for n in in_reach if failsafes[n]),
         "failsafes_where_a_gs_covered": covered,
+        "lost": lost,
     })
-    return result
+    if action == "revoke":
+        out.update({
+            "held_by_b": len(held),
+            "held_went_to": {n: (after[n][0].to, after[n][0].kind) if after[n] else "failsafe" if failsafes[n] else "-"
+                             for n in held},
+            # after the drone applied the revision (a hand-over to B that completes between the
+            # publication and its arrival is B's last)
+            "b_authority_after": sum(1 for n, moves in after.items() for e in moves
+                                     if e.to == REVOKED and (applied[n] is None or e.t >= applied[n])),
+        })
+    else:  # A's drones re-paired under its new key: authority never moved because of it
+        repaired = {n: next((e.t for e in only(r, LinkConfirmed) if e.gs == ROTATED and e.t >= (applied[n] or t_pub)),
+                            None) for n, r in recs.items()}
+        out["repaired"] = {n: round((t - t_pub) * 1000.0, 1) if t else None for n, t in repaired.items()}
+        out["emergencies_after"] = sum(1 for moves in after.values() for e in moves if e.kind == "emergency")
+    if jammed:
+        back = _back_in_reach(d, jammed)
+        got = applied.get(jammed)
+        out["out_of_reach"] = {
+            "drone": jammed, "seconds": OUT_OF_REACH_S,
+            "applied_before_back": got is not None and back is not None and got < back,
+            "back_to_applied_ms": round((got - back) * 1000.0, 1) if got is not None and back is not None else None}
+    return out
 
 
 def _failsafes_covered(fleet_dir: Path, recs: dict[str, list[Any]]) -> int:
@@ -176,25 +280,57 @@ def _failsafes_covered(fleet_dir: Path, recs: dict[str, list[Any]]) -> int:
     return n
 
 
-def run(quick: bool = False, k: int | None = None, timeout: float = 240.0) -> dict[str, Any]:
+def run(quick: bool = False, k: int | None = None, timeout: float = 240.0,
+        actions: Sequence[str] = ("revoke", "rotate")) -> dict[str, Any]:
     k = k or (QUICK_K if quick else FULL_K)
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-revoke-"))
-    return {"rows": [run_one(k, base, timeout)]}
+    return {"rows": [run_one(k, base, timeout, a) for a in actions]}
+
+
+def _lost(row: dict[str, Any]) -> str:
+    lost = row["lost"]
+    return f"{lost['in_epoch']} (+{lost['after_it_left']} after it left)"
 
 
 def render(r: dict[str, Any]) -> None:
+    revoke_rows = [row for row in r["rows"] if row.get("action", "revoke") == "revoke"]
+    rotate_rows = [row for row in r["rows"] if row.get("action") == "rotate"]
     print("revoke B in flight (revision signed, published through A; the GSs re-publish it every 10 s)")
     print(f"{'drones x GSs':>13} {'applied':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'B held':>7} "
-          f"{'B after':>8} {'others lost':>12} {'failsafes':>10} {'covered':>8}")
-    for row in r["rows"]:
+          f"{'B after':>8} {'others lost':>26} {'failsafes':>10} {'covered':>8}")
+    for row in revoke_rows:
         if "applied" not in row:
             print(f"{row['k']:>6} x {row['g']:<5} error: {row.get('error')}")
             continue
         a = row["applied_ms"]
         print(f"{row['k']:>6} x {row['g']:<5} {row['applied']:>8} {a['p50']!s:>8} {a['p99']!s:>8} {a['max']!s:>8} "
-              f"{row['held_by_b']:>7} {row['b_authority_after']:>8} {row['other_commands_lost']:>12} {row['failsafes']:>10} "
+              f"{row['held_by_b']:>7} {row['b_authority_after']:>8} {_lost(row):>26} {row['failsafes']:>10} "
               f"{row['failsafes_where_a_gs_covered']:>8}")
         print(f"  where B's drones went: {row['held_went_to']}" + (f"; error: {row['error']}" if row.get("error") else ""))
+        if row["lost"]["where"]:
+            print(f"  others' commands not forwarded: {'; '.join(row['lost']['where'])}")
+        oor = row.get("out_of_reach")
+        if oor:
+            print(f"  a drone out of reach for {oor['seconds']:.0f} s ({oor['drone']}, cut just before the revision; "
+                  f"not in the row above): back in reach -> applied {oor['back_to_applied_ms']} ms"
+                  + (" (applied BEFORE it was back: the radio cut leaked)" if oor["applied_before_back"] else ""))
+        print(f"  runs: {row['runs']}")
+    if rotate_rows:
+        print("rotate A in flight (new keys, revision published through C; A re-pairs its drones under the new key)")
+        print(f"{'drones x GSs':>13} {'applied':>8} {'p50 ms':>8} {'max ms':>8} {'re-paired':>10} {'emergency':>10} "
+              f"{'lost':>26} {'failsafes':>10}")
+    for row in rotate_rows:
+        if "applied" not in row:
+            print(f"{row['k']:>6} x {row['g']:<5} error: {row.get('error')}")
+            continue
+        a = row["applied_ms"]
+        rep = row["repaired"]
+        print(f"{row['k']:>6} x {row['g']:<5} {row['applied']:>8} {a['p50']!s:>8} {a['max']!s:>8} "
+              f"{sum(v is not None for v in rep.values()):>6}/{len(rep):<3} {row['emergencies_after']:>10} "
+              f"{_lost(row):>26} {row['failsafes']:>10}")
+        print(f"  revision -> A's new key proven, per drone (ms): {rep}" + (f"; error: {row['error']}" if row.get("error") else ""))
+        if row["lost"]["where"]:
+            print(f"  commands not forwarded: {'; '.join(row['lost']['where'])}")
         print(f"  runs: {row['runs']}")
 
 
@@ -203,8 +339,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true")
     p.add_argument("--drones", type=int)
     p.add_argument("--json", action="store_true")
+    p.add_argument("--only", default="revoke,rotate")
     a = p.parse_args(argv)
-    r = run(a.quick, a.drones)
+    r = run(a.quick, a.drones, actions=[x for x in a.only.split(",") if x])
     print(json.dumps(r, indent=2)) if a.json else render(r)
     return 0 if all("error" not in row for row in r["rows"]) else 1
 

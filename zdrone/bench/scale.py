@@ -132,6 +132,11 @@ def _host_drones(args: argparse.Namespace) -> int:
     print(f"drones host: {args.k} drones ready", flush=True)
     stop = [False]
     signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    mended: list[float | None] = [None]
+    jam: list[bool | None] = [None]  # --jam: SIGUSR1 cuts that drone's radio (every GS out of reach), SIGUSR2 mends it
+    if args.jam:
+        signal.signal(signal.SIGUSR1, lambda *_: jam.__setitem__(0, True))
+        signal.signal(signal.SIGUSR2, lambda *_: jam.__setitem__(0, False))
     armed_seen = [False] * len(nodes)
     worst_owner_silence = [0.0] * len(nodes)
     owner_lost = [0] * len(nodes)
@@ -153,6 +158,13 @@ def _host_drones(args: argparse.Namespace) -> int:
                 baseline = {d: c.snapshot() for d, c in deliveries.items()}
                 print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
             pass_start = time.monotonic()
+            if jam[0] is not None:
+                gate = next(n.gate for n in nodes if n.name == args.jam)
+                if gate.jammed != jam[0]:
+                    gate.jammed = jam[0]
+                    mended[0] = None if jam[0] else time.monotonic()
+                    print(f"drones host: {args.jam} {'out of' if jam[0] else 'back in'} reach at {time.time():.3f}",
+                          flush=True)
             for i, n in enumerate(nodes):
                 n.step(0.0)
                 m = n.machine
@@ -165,8 +177,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                         if link.tbm.state(now) is LinkState.LOST:
                             owner_lost[i] += 1
             loops += 1
-            if all(armed_seen) and all(not n.vehicle.armed for n in nodes):
-                break
+            if all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (not args.jam or mended[0] is not None
+                                                                                and time.monotonic() > mended[0] + 10.0):
+                break  # (--jam: not before the cut-off drone has been back in reach for 10 s)
             time.sleep(max(0.0005, PASS_S - (time.monotonic() - pass_start)))
         flight_s, cpu_s = time.monotonic() - t0, time.process_time() - cpu0
         results = {}
@@ -176,7 +189,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "handovers": max(0, m.epoch - 1),  # epoch 1 at pairing, +1 per hand-over
                 "owners": [o for _, o, _ in m.history], "state": m.state.value, "flew": armed_seen[i],
                 "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
-                "forwarded": dict(n.core.forwarded), "not_authority": m.drops[HaDrop.NOT_AUTHORITY],
+                "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
+                "not_authority": m.drops[HaDrop.NOT_AUTHORITY], "in_failsafe": m.drops[HaDrop.FAILSAFE],
                 "worst_owner_silence_s": round(worst_owner_silence[i], 3), "owner_lost_samples": owner_lost[i],
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()}}
         Path(args.out, "drones.json").write_text(json.dumps({
@@ -220,13 +234,16 @@ def _host_stations(args: argparse.Namespace) -> int:
     while not stop[0]:
         pause.wait(0.2)
     sent = {st.name: {d: st.commands_sent(d) for d in st.drones} for st in stations}
+    sent_epochs = {st.name: {d: {str(e): c for e, c in st.core.views[d].commands_sent.items()} for d in st.drones}
+                   for st in stations}  # per epoch the GS believed it commanded in (bench revoke's attribution)
     counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
     delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}
     for st in stations:
         st.stop()
     for t in threads:
         t.join(15)
-    Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "router_zid": router_zids,
+    Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
+                                                           "router_zid": router_zids,
                                                            "delivered": delivered, "counters": counters}))
     return 0
 
@@ -583,6 +600,7 @@ def main(argv: list[str] | None = None) -> int:
     hd.add_argument("--speedup", type=float, default=SPEEDUP)
     hd.add_argument("--duration", type=float, default=150.0, help="flight time limit, from take-off")
     hd.add_argument("--hold", type=float, default=60.0, help="longest pre-flight hold (key sharing), s")
+    hd.add_argument("--jam", metavar="DRONE", help="SIGUSR1 cuts this drone's radio, SIGUSR2 mends it (bench revoke)")
     hd.add_argument("--drone-router", choices=("spread", "all"), default="spread",
                     help="spread: drone i uses the (i mod N)-th router of --router; all: every drone gets the whole list")
     hs = sub.add_parser("host-stations")

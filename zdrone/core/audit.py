@@ -313,7 +313,7 @@ class ChainReport:
         return f"{self.node}: verified {self.signed_through + 1} of {self.entries} entries{tail}{wit}"
 
 
-def verify_chain(node: str, lines: Iterable[bytes | str], node_public: PublicKeys,
+def verify_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public: PublicKeys,
                  witnesses: Iterable[AuditWitness] = (), witness_keys: dict[str, Any] | None = None
                  ) -> ChainReport:
     """Check ``node``'s record (its entry and checkpoint lines, in file order) against its fleet
@@ -330,10 +330,13 @@ def verify_chain(node: str, lines: Iterable[bytes | str], node_public: PublicKey
         return ChainReport(node, len(hashes), checkpoints, signed, -1, 0, problem, kind, first)
 
     for i, raw in enumerate(lines):
-        try:
-            line = decode_line(raw)
-        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-            return bad("undecodable", len(hashes), f"line {i + 1} is no audit line ({str(exc)[:60]})")
+        if isinstance(raw, (bytes, str)):
+            try:
+                line = decode_line(raw)
+            except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+                return bad("undecodable", len(hashes), f"line {i + 1} is no audit line ({str(exc)[:60]})")
+        else:  # decoded already (``zdrone audit verify`` reads each file once)
+            line = raw
         if isinstance(line, AuditWitness):
             continue  # a witness line in a node's own file vouches for another node's record
         if line.node != node:

@@ -24,11 +24,14 @@ class CoverageGate:
         }
         self.position: GeoPoint | None = None
         self.blocked: Counter[str] = Counter()
+        self.jammed = False  # the radio cut whatever the position (``zdrone bench revoke``'s drone out of reach)
 
     def update(self, position: GeoPoint | None) -> None:
         self.position = position
 
     def reaches(self, gs: str) -> bool:
+        if self.jammed:
+            return False
         circle = self.circles.get(gs)
         if circle is None or self.position is None:
             return True  # nothing known yet: do not invent an outage
