@@ -116,22 +116,6 @@ def test_the_page_follows_a_flight_owner_staleness_failsafe_reconnect_and_no_out
         page.wait_for_selector("tr[data-drone=d1]", timeout=30_000)
         assert page.locator("#plan circle.cov").count() == 3  # A, B, X: the fleet's own geometry
 
-        # A, then B, then A: each within 0.5 s of the drone's own record of the change
-        wait_until(lambda: len(_records(out, ("authority", "handover_complete"))) >= 3, 90)
-        moved = _records(out, ("authority", "handover_complete"))[:3]
-        assert [m["to"] for m in moved] == ["A", "B", "A"]
-        wait_until(lambda: len(_seen(page, "data-owner")) >= 3, 5)
-        shown = [(t, v) for t, v in _seen(page, "data-owner") if v]
-        firsts: list[tuple[float, str]] = []
-        for t, v in shown:
-            if not firsts or firsts[-1][1] != v:
-                firsts.append((t, v))
-        assert [v for _, v in firsts[:3]] == ["A", "B", "A"], firsts
-        for (t_page, owner), rec in zip(firsts, moved):
-            assert 0.0 <= t_page - rec["t"] <= 0.5, (owner, t_page - rec["t"])
-        if os.environ.get("ZDRONE_VIEW_SCREENSHOT"):  # the README's picture (docs/view.png)
-            page.screenshot(path=os.environ["ZDRONE_VIEW_SCREENSHOT"], full_page=True)
-
         # a second view server under a second page, restarted: the stream reconnects, the page goes on
         def start_view2() -> subprocess.Popen:
             p = subprocess.Popen([ZDRONE, "view", "--fleet", str(out / "bundles" / "V"), "--router", router,
@@ -152,6 +136,22 @@ def test_the_page_follows_a_flight_owner_staleness_failsafe_reconnect_and_no_out
         page2.wait_for_selector("#conn[data-state=live]", timeout=10_000)
         page2.wait_for_selector("tr[data-drone=d1][data-stale=false]", timeout=10_000)
         page2.close()
+
+        # A, then B, then A: each within 0.5 s of the drone's own record of the change
+        wait_until(lambda: len(_records(out, ("authority", "handover_complete"))) >= 3, 90)
+        moved = _records(out, ("authority", "handover_complete"))[:3]
+        assert [m["to"] for m in moved] == ["A", "B", "A"]
+        wait_until(lambda: len(_seen(page, "data-owner")) >= 3, 5)
+        shown = [(t, v) for t, v in _seen(page, "data-owner") if v]
+        firsts: list[tuple[float, str]] = []
+        for t, v in shown:
+            if not firsts or firsts[-1][1] != v:
+                firsts.append((t, v))
+        assert [v for _, v in firsts[:3]] == ["A", "B", "A"], firsts
+        for (t_page, owner), rec in zip(firsts, moved):
+            assert 0.0 <= t_page - rec["t"] <= 0.5, (owner, t_page - rec["t"])
+        if os.environ.get("ZDRONE_VIEW_SCREENSHOT"):  # the README's picture (docs/view.png)
+            page.screenshot(path=os.environ["ZDRONE_VIEW_SCREENSHOT"], full_page=True)
 
         # the GSs stop: d1 shown stale within 2 s
         gss = [_pid_of(out, "A"), _pid_of(out, "B")]
