@@ -86,10 +86,15 @@ def test_the_viewer_may_only_read_the_pictures():
     assert rules["A-ops-own"]["key_exprs"] == ["zdrone-ops/A"] and rules["A-ops-own"]["flows"] == ["ingress"]
 
 
-def test_the_view_serves_loopback_unless_an_address_and_a_token_are_given(capsys):
-    from zdrone.cli import main
+def test_the_view_serves_loopback_unless_an_address_and_a_token_are_given():
+    import pytest
 
-    assert main(["view", "--listen", "0.0.0.0", "--fleet", "nowhere"]) == 2
-    assert "needs --token" in capsys.readouterr().err
-    assert main(["view", "--listen", "10.0.0.1", "--token", "short", "--fleet", "nowhere"]) == 2
-    assert "at least 16" in capsys.readouterr().err
+    from zdrone.core.errors import UsageError
+    from zdrone.view.server import check_exposure
+
+    assert check_exposure(None, None) == "127.0.0.1"
+    with pytest.raises(UsageError, match="needs --token"):
+        check_exposure("0.0.0.0", None)
+    with pytest.raises(UsageError, match="at least 16"):
+        check_exposure("10.0.0.1", "short")
+    assert check_exposure("10.0.0.1", "x" * 32) == "10.0.0.1"
