@@ -22,6 +22,9 @@ link goes on: an exchange started while ``rekey_pending`` is one (``PairProven.f
 answers it as holding no key of ours, which says nothing of a restart), and the core tries again
 every ``retry`` until one is proven.
 
+Both exchanges are hybrid (ML-KEM-768 next to X25519) while the fleet in force says ``pairing_pq``:
+``ctx.fleet`` is read at each new exchange, so a revision turning it on applies to the next one.
+
 Key-sharing phases, per other authorized GS (``SharePhase``): ``NONE`` (nothing asked: the drone may
 hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link" refusal asks again
 after ``LIVE_LINK_RETRY_S``, a query with no answer again after its deadline), ``GRANTING`` (the
@@ -251,7 +254,8 @@ class Linking:
         c = self.ctx
         self.last_pair_try = ev.now
         c.counters["pair_sent"] += 1
-        self.pairing = PairingInitiator(c.identity, c.gs, c.drone, c.fleet.nodes[c.drone].public_bytes, stamp=ev.stamp)
+        self.pairing = PairingInitiator(c.identity, c.gs, c.drone, c.fleet.nodes[c.drone].public_bytes, stamp=ev.stamp,
+                                        hybrid=c.fleet.pairing_pq)
         self._rekey_exchange = self.rekey_pending
         self.pairing_deadline = ev.now + ev.timeout
         self._set_state(None, PairPhase.ASKING, "message 1")
@@ -345,7 +349,8 @@ class Linking:
             return []
         s.ask_again = None
         self.last_share_try = ev.now
-        s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall)
+        s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall,
+                            hybrid=c.fleet.pairing_pq)
         self._set_state(g, SharePhase.ASKED, "asked")
         return [Ask(AskKind.LINKKEY, c.drone, g, kx.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
 
@@ -430,12 +435,24 @@ class KeyOwner:
     """Key sharing as the owner of our links: answering other GSs' queries (one per GS)."""
 
     def __init__(self, identity: Identity, gs: str, fleet: Fleet, counters: Counter[str]) -> None:
-        self.gs, self.fleet, self.counters = gs, fleet, counters
+        self.gs, self._fleet, self.counters = gs, fleet, counters
         self.adopt(identity)
+
+    @property
+    def fleet(self) -> Fleet:
+        return self._fleet
+
+    @fleet.setter
+    def fleet(self, fleet: Fleet) -> None:
+        """A fleet revision took effect: the next query is answered by it (``pairing_pq`` on: a
+        classical query is refused as a downgrade)."""
+        self._fleet = fleet
+        self.responder.require_hybrid = fleet.pairing_pq
 
     def adopt(self, identity: Identity) -> None:
         """Answer under ``identity`` from now on (our static key was rotated)."""
-        self.responder = KeyShareResponder(identity, self.gs, LINKKEY_RATE, LINKKEY_BURST)
+        self.responder = KeyShareResponder(identity, self.gs, LINKKEY_RATE, LINKKEY_BURST,
+                                           require_hybrid=self._fleet.pairing_pq)
 
     def refused(self, logs: list[Action], reason: ShareRefusal, drone: str, asker: str, detail: str = "") -> QueryAnswer:
         key = f"linkkey_refused:{reason.value}"
