@@ -316,11 +316,17 @@ class StationCore:
                           cipher=self.opts.cipher)
 
     def send_frame(self, drone: "str | DroneView", frame: bytes) -> list[Action]:
-        """Seal one MAVLink frame for the drone (nothing without a link)."""
+        """Seal one MAVLink frame for the drone (nothing without a link). A frame that commands the
+        vehicle goes out only while we command the drone (``holds_authority``): from the moment a
+        release of ours went out, or we learned that we no longer own it, it is not sent (counted as
+        ``command_not_sent``), whichever part of the GS made it; each one sent is counted per epoch."""
         view = self._view(drone)
         if view.link is None:
             return []
         if read_header(frame).commanding:
+            if not self.holds_authority(view):
+                self.counters["command_not_sent"] += 1
+                return []
             view.commands_sent[view.epoch] += 1  # every commanding frame, to check none is lost
         return [Put(view.name, view.link.seal(frame))]
 
@@ -347,12 +353,15 @@ class StationCore:
     def _silent_authority(self, view: DroneView, now: float) -> bool:
         """We hold authority, yet the drone has said nothing for ``SILENT_REPAIR_S``."""
         return (view.link is not None and view.owner == self.name and view.ha_state is not HaState.FAILSAFE
-                and view.link.tbm.since_last(now) > SILENT_REPAIR_S)
+                and view.link.tbm.since_last(now) > SILENT_REPAIR_S and self.fleet.is_authorized(view.name, self.name))
 
     def holds_authority(self, drone: "str | DroneView") -> bool:
-        """We command the drone: we own it (``gs.ownership.owns``) and no release of ours stands in its epoch."""
+        """We command the drone: we own it (``gs.ownership.owns``), no release of ours stands in its
+        epoch, and the fleet in force still authorizes us for it (a revision that revoked us takes
+        the drone away: the drone drops our link at once)."""
         view = self._view(drone)
-        return owns(view, self.name) and not view.handover.released_in(view.epoch)
+        return (owns(view, self.name) and not view.handover.released_in(view.epoch)
+                and self.fleet.is_authorized(view.name, self.name))
 
     def _mark_stale(self, view: DroneView, now: float) -> None:
         """The drone was silent for ``STALE_VIEW_S`` (once heard): whatever we think of the authority
