@@ -32,7 +32,9 @@ Per drone:
   fleet and the asker's rate limit before any crypto; an authentic one gets a fresh secret that
   becomes a *candidate* of our own link (the live link is never touched) until the drone speaks under it.
 * **Hand-over**: while it holds authority and the vehicle is inside its and another authorized GS's
-  coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``); if the
+  coverage, nearer to the other's centre, the GS releases authority (``HANDOVER_RELEASE``), judged
+  from a position reported after the status that made the drone ours (one heard before it may be as
+  old as the standby stream's interval: a new owner would hand the drone straight back); if the
   drone reports the release timed out, the GS commands RTL. Where the release stands in the drone's
   epoch (released, confirmed, failed) is the sub-machine ``gs.handover.Handover``, a table. A
   release toward a GS whose key the drone does not hold yet waits for it: while the key is known to
@@ -180,6 +182,8 @@ class DroneView:
     mission: Mission = field(default_factory=lambda: Mission("", "", 0, None))  # set by StationCore
     linking: "Linking | None" = None  # set by StationCore
     switching: bool = False  # our rotated key's pairing made a new key live: the drone has not spoken under it yet
+    position_input: int = 0  # the core's input number of the newest position report (``StationCore._inputs``)
+    ours_from_input: int = 0  # ... of the status that made the drone ours (a position before it does not count)
 
     @property
     def position(self) -> GeoPoint | None:
@@ -188,8 +192,10 @@ class DroneView:
 
     @position.setter
     def position(self, value: GeoPoint | None) -> None:
+        """A new report of the vehicle's position (heard after whatever came before it)."""
         self.fix = PositionFix()
         self.fix.reported = value
+        self.position_input = max(self.position_input, self.ours_from_input) + 1
 
 
 #: A deadline is looked at this long after it: a rule "past T" holds just after T, and a sum of floats
@@ -248,6 +254,7 @@ class StationCore:
         self._hb_due = 0.0
         self._due = 0.0  # the earliest deadline of the drones' sub-machines (``_deadlines``)
         self._input_at: float | None = None  # an input came at this time since ``handle_timer`` last ran
+        self._inputs = 0  # envelopes taken so far: orders a position report against an authority change
 
     @property
     def fleet(self) -> Fleet:
@@ -550,6 +557,7 @@ class StationCore:
             self.counters["no_link"] += 1
             return []
         self._mark_stale(view, now)  # before the frame counts: a long silence ends here
+        self._inputs += 1
         if view.switching and view.slot.previous is not None:
             view.slot.previous_until = max(view.slot.previous_until, now + PREVIOUS_GRACE)
         res, promoted = view.slot.open(data, now)
@@ -572,6 +580,8 @@ class StationCore:
             return out
         t = msg.get_type()
         view.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT: the position
+        if t == "GLOBAL_POSITION_INT":
+            view.position_input = self._inputs
         if t == "HEARTBEAT" and msg.get_srcComponent() == 1:
             armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
             if view.armed and not armed:
@@ -608,6 +618,8 @@ class StationCore:
             state = msg.state  # an enum on the wire: an unknown state does not even decode
             changed = (msg.owner, msg.epoch, state, msg.pending_to) != (view.owner, view.epoch, view.ha_state, view.pending_to)
             was_mine = view.owner == self.name and not view.stale
+            if msg.owner == self.name and (not was_mine or msg.epoch != view.epoch):
+                view.ours_from_input = self._inputs  # a position heard before this does not decide a release
             view.owner, view.epoch, view.ha_state, view.pending_to = msg.owner, msg.epoch, state, msg.pending_to
             view.stale = False  # the drone's own word: our view is current again
             _linking(view).drone_links = set(msg.linked)
@@ -726,6 +738,9 @@ class StationCore:
     def _coordinate(self, view: DroneView, now: float) -> list[Action]:
         """Release authority toward the GS whose coverage the drone is flying into."""
         if view.owner != self.name or view.stale or view.position is None or self.coverage is None:
+            return []
+        if view.position_input <= view.ours_from_input:
+            self.counters["release_waits_position"] += 1  # the position predates our authority: it may be old
             return []
         ho = self._ho(view)
         if ho.retry_waits(now, HANDOVER_RETRY_S):
