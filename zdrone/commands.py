@@ -91,7 +91,9 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
 def _router(args: argparse.Namespace) -> int:
     from .net.router import run_router
 
-    return run_router(args.config, args.listen, args.tap, args.connect)
+    if args.take_over is not None and not 0 < args.take_over <= 600:
+        raise UsageError(f"--take-over {args.take_over:g}: must be more than 0 and at most 600 seconds")
+    return run_router(args.config, args.listen, args.tap, args.connect, args.take_over)
 
 
 def add_router(sub: argparse._SubParsersAction) -> None:
@@ -102,6 +104,10 @@ def add_router(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", metavar="ENDPOINT", action="append",
                    help="connect to these routers instead of the config's (other sites reached another way; repeatable)")
     p.add_argument("--tap", metavar="FILE", help="count packets and bytes per key expression into FILE (JSON, every second)")
+    p.add_argument("--take-over", metavar="SECONDS", type=float, nargs="?", const=10.0,
+                   help="replace a running router on the same endpoints: get ready, print 'taking over', then wait "
+                        "up to SECONDS (default 10) for the port; stop the old router (SIGTERM) once that line is "
+                        "out: this one listens within one retry (50 ms) of its going (a rolling restart, docs/deploy.md)")
     p.set_defaults(func=_router)
 
 

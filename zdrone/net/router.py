@@ -1,4 +1,16 @@
-"""``zdrone router``: a Zenoh router in Python (the same config file works with ``zenohd -c``)."""
+"""``zdrone router``: a Zenoh router in Python (the same config file works with ``zenohd -c``).
+
+Taking over from a running router (``--take-over SECONDS``, a rolling restart that costs the clients
+well under a second): the new process starts while the old one still holds the port, loads its
+config and files, says ``taking over`` and then waits inside Zenoh's own listen retry (every
+``TAKE_OVER_RETRY_MS``) for the listening endpoints to be free. The operator (or the testbed) then
+ends the old router with SIGTERM: it closes its sessions (its clients start reconnecting at once,
+``zdrone.net.session``) and its port, and the new one binds within one retry period and says
+``listening``. Two routers never share a port (Zenoh does not set ``SO_REUSEPORT``): the new one
+holds nothing until the old one has let go. A router that cannot listen within SECONDS (the old
+one never stopped, a bad endpoint or certificate) fails with one line, exit code 2; SIGTERM while
+it waits ends it at once (it holds nothing yet).
+"""
 
 from __future__ import annotations
 
@@ -17,6 +29,12 @@ from .session import load_router_config
 from .shutdown import route_signals
 
 log = logging.getLogger(__name__)
+
+#: how often a router taking over tries its listening endpoints again (the clients' reconnect is
+#: 100-400 ms: the port is back before their next try)
+TAKE_OVER_RETRY_MS = 50
+#: the line a router taking over prints once everything but the port is ready (then end the old one)
+TAKE_OVER_LINE = "taking over"
 
 
 class TrafficTap:
@@ -48,24 +66,52 @@ class TrafficTap:
         tmp.replace(self.path)
 
 
+def take_over_config(cfg: zenoh.Config, seconds: float) -> None:
+    """Make ``cfg``'s session open wait up to ``seconds`` for its listening endpoints (trying again
+    every ``TAKE_OVER_RETRY_MS``), then fail, instead of failing at once when one is taken."""
+    cfg.insert_json5("listen/timeout_ms", json.dumps(max(1, round(seconds * 1000))))
+    cfg.insert_json5("listen/exit_on_failure", "true")
+    cfg.insert_json5("listen/retry", json.dumps({"period_init_ms": TAKE_OVER_RETRY_MS,
+                                                 "period_max_ms": TAKE_OVER_RETRY_MS,
+                                                 "period_increase_factor": 1.0}))
+
+
 def run_router(config_path: str | Path, listen: list[str] | None = None, tap: str | None = None,
-               connect: list[str] | None = None) -> int:
-    """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints. With ``RUST_LOG``
-    set, Zenoh logs to stderr at that level."""
+               connect: list[str] | None = None, take_over: float | None = None) -> int:
+    """Run until SIGTERM/SIGINT; print one ready line with the listening endpoints. With
+    ``take_over`` (seconds), wait that long for endpoints another router still holds (module
+    docstring). With ``RUST_LOG`` set, Zenoh logs to stderr at that level."""
     cfg = load_router_config(config_path, listen, connect)
+    if take_over is not None:
+        take_over_config(cfg, take_over)
     if os.environ.get("RUST_LOG"):  # Zenoh's own log on stderr, e.g. every put the downsampling drops:
         # RUST_LOG=zenoh::net::routing::interceptor::downsampling=trace
         zenoh.init_log_from_env_or("error")
     stop = threading.Event()
+    opened = threading.Event()
+
+    def on_stop() -> None:
+        stop.set()
+        if take_over is not None and not opened.is_set():  # still waiting for the port: holds nothing
+            print("zdrone router: stopped before it took over", flush=True)
+            os._exit(0)
+
     # taken on a thread of their own (the command line blocked them before any thread started): a
     # handler setting ``stop`` inside ``stop.wait`` can deadlock the main thread (zdrone.net.shutdown)
-    route_signals({signal.SIGTERM: stop.set, signal.SIGINT: stop.set})
+    route_signals({signal.SIGTERM: on_stop, signal.SIGINT: on_stop})
+    eps = ", ".join(listen) if listen else "(endpoints from config)"
+    if take_over is not None:
+        print(f"zdrone router: {TAKE_OVER_LINE} {eps} (waiting up to {take_over:g} s for the port)", flush=True)
     try:
         session = zenoh.open(cfg)
     except zenoh.ZError as exc:
-        raise ConfigError(f"{config_path}: router did not start: {str(exc).splitlines()[0]}") from None
+        detail = str(exc).splitlines()[0]
+        if take_over is not None:
+            raise ConfigError(f"{config_path}: router did not start: could not listen on {eps} within {take_over:g} s "
+                              f"(another router still there, or a bad endpoint or certificate): {detail}") from None
+        raise ConfigError(f"{config_path}: router did not start: {detail}") from None
+    opened.set()
     try:
-        eps = ", ".join(listen) if listen else "(endpoints from config)"
         counter = TrafficTap(tap) if tap else None
         sub = session.declare_subscriber("zdrone/**", counter) if counter else None
         print(f"zdrone router: listening on {eps}, zid {session.info.zid()}", flush=True)
