@@ -233,6 +233,21 @@ def _bench_sweep(args: argparse.Namespace) -> int:
     return 0 if result["failed"] == 0 and result["cells"] > 0 else 1
 
 
+def _bench_view(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .bench import view
+
+    if args.crossings is not None and not 1 <= args.crossings <= 500:
+        raise UsageError(f"--crossings {args.crossings}: must be 1..500")
+    if args.drones is not None and not 1 <= args.drones <= 300:
+        raise UsageError(f"--drones {args.drones}: must be 1..300")
+    result = view.run(quick=args.quick, crossings=args.crossings, drones=args.drones, progress=not args.json,
+                      out=Path(args.out) if args.out else None)
+    _emit(args, result, view.render)
+    return 0 if "error" not in result["fleet"] and "latency" in result else 1
+
+
 def _bench_attack(args: argparse.Namespace) -> int:
     from .bench import attack
     from .sil.launcher import ATTACK_SCENARIOS
@@ -420,6 +435,16 @@ def build_parser() -> argparse.ArgumentParser:
     bv.add_argument("--only", metavar="A,A", help="the runs: revoke (B, a drone out of reach 30 s), rotate (A's keys); "
                     "default both")
     bv.set_defaults(func=_bench_revoke)
+    bvw = bsub.add_parser("view", help="the live web view in headless chromium: drone record -> page DOM latency "
+                                       "(p50/p95), one page following the scale fleet, the server's memory over a flight")
+    bvw.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bvw.add_argument("--quick", action="store_true", help="2 crossings, and 25 drones for 10 s once the page shows them all "
+                                                         "(default: 60 crossings, about 10 minutes, and 300 drones for "
+                                                         "120 s from take-off)")
+    bvw.add_argument("--crossings", type=int, metavar="N", help="crossings of the shuttle flight (latency, memory)")
+    bvw.add_argument("--drones", type=int, metavar="K", help="drones of the scale fleet the page follows (1..300)")
+    bvw.add_argument("--out", metavar="DIR", help="keep the runs here")
+    bvw.set_defaults(func=_bench_view)
     bw = bsub.add_parser("sweep", help="every scenario at speed-ups 1, 2, 4 and each fault at every moment of the flight")
     bw.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bw.add_argument("--quick", action="store_true", help="3 cells (~80 s, 2 at a time): the CI subset")

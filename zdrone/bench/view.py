@@ -1,0 +1,452 @@
+"""``zdrone bench view``: the operations picture (``zdrone view``) measured in a real browser.
+
+The page is opened in headless Chromium (Debian's ``/usr/bin/chromium``, through Playwright, launched
+as ``tests/integration/test_view.py`` launches it: its own profile, no outside request). Three
+measurements, every clock this host's wall clock:
+
+**Latency** (over one shuttle flight, ``zdrone demo --view``): for every authority change the drone
+records (``drone.jsonl``: ``authority``, ``handover_complete``) after the page is up, the time until
+the page's DOM shows the new owner (a MutationObserver on the drone's row stamps ``data-owner``
+changes with ``Date.now()``). p50/p95/max; goal p95 <= ``GOAL_P95_MS``. A change the page never shows
+is listed as missed.
+
+**Memory** (the same flight): the view server's resident memory sampled every ``interval`` seconds
+from ``/proc``: start, max, end and the growth per hour (least-squares slope after a warm-up). The
+full form flies ``FULL_CROSSINGS`` crossings at speed-up 4 (about 10 minutes) under a 20 Hz command
+stream (the soak's flight).
+
+**Fleet** (the scale bench's fleet, its hosts driven directly: one router, a process hosting K drone
+nodes, one hosting 3 GSs, ``zdrone view`` beside them, the simulators at speed-up 1 so every drone
+reports at its normal rate): from take-off (``--quick``: from when the page shows every drone, paired on
+the ground), once a second, what the page shows: how many drone rows,
+how many stale, each drone's report age as shown plus the time since that picture arrived (the age
+of its newest report as the operator sees it); for every picture event, how long after the server
+took its snapshot the page had rendered it (the stream's lag); the server's unsent stream bytes
+(``Send-Q`` of its sockets to the page, ``ss``), its CPU and RSS. The page *kept up* if every drone
+was shown in every sample, none stale, the lag's p95 under ``KEPT_UP_LAG_S`` and at most one picture left
+unsent in the socket at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import ConfigError
+from .revoke import percentile
+from .soak import _slope_per_h, sample
+from .table import ProgressLine
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--no-first-run", "--disable-sync"]
+GOAL_P95_MS = 250.0
+SPEEDUP = 4.0
+QUICK_CROSSINGS = 2
+#: About 10 minutes of flight at speed-up 4 (a crossing is about 40 simulated seconds).
+FULL_CROSSINGS = 60
+QUICK_DRONES = 25
+FULL_DRONES = 300
+STATIONS = 3
+#: Seconds the fleet is followed: the full form from take-off, ``--quick`` from when the page shows every
+#: drone (paired, on the ground: the same reports, without the minute of key sharing before take-off).
+QUICK_WINDOW_S = 10.0
+FULL_WINDOW_S = 120.0
+KEPT_UP_LAG_S = 1.0
+#: Unsent stream bytes at the end that still count as no backlog (one picture on its way).
+BACKLOG_SLACK_B = 1024
+
+#: Every data-owner change of a drone row, with the browser's wall clock (as the view's test).
+OWNER_OBSERVER = """
+window.__seen = [];
+new MutationObserver((muts) => {
+  for (const m of muts) {
+    const tr = m.target;
+    if (tr.tagName !== 'TR' || !tr.dataset || !tr.dataset.drone) continue;
+    window.__seen.push([Date.now() / 1000, tr.dataset.drone, tr.getAttribute('data-owner')]);
+  }
+}).observe(document, {subtree: true, attributes: true, attributeFilter: ['data-owner']});
+"""
+#: Every picture event: when it arrived, when the page had rendered it (the next task after every
+#: listener ran), the server's time of its snapshot, its size.
+STREAM_PROBE = """
+window.__pictures = [];
+(() => {
+  const Original = window.EventSource;
+  window.EventSource = class extends Original {
+    constructor(url, init) {
+      super(url, init);
+      this.addEventListener('picture', (ev) => {
+        const got = Date.now() / 1000;
+        const at = ev.data.lastIndexOf('"server_time":');
+        const server = at < 0 ? null : parseFloat(ev.data.slice(at + 14));
+        const size = ev.data.length;
+        setTimeout(() => window.__pictures.push([got, Date.now() / 1000, server, size]), 0);
+      });
+    }
+  };
+})();
+"""
+#: What the page shows of every drone row now.
+READ_ROWS = """() => {
+  const rows = document.querySelectorAll('#rows tr[data-drone]');
+  const ages = [];
+  let stale = 0;
+  for (const tr of rows) {
+    const m = tr.querySelector('td.age').textContent.match(/([0-9.]+) s/);
+    ages.push(m ? parseFloat(m[1]) : null);
+    if (tr.dataset.stale === 'true') stale++;
+  }
+  const p = window.__pictures;
+  return {t: Date.now() / 1000, rows: rows.length, ages: ages, stale: stale,
+          conn: document.getElementById('conn').dataset.state,
+          server_time: p.length ? p[p.length - 1][2] : null, pictures: p.length};
+}"""
+
+
+def _stats(values: list[float], scale: float = 1.0, digits: int = 1) -> dict[str, float | None]:
+    s = sorted(values)
+    if not s:
+        return {"p50": None, "p95": None, "max": None}
+    return {"p50": round(percentile(s, 50) * scale, digits), "p95": round(percentile(s, 95) * scale, digits),
+            "max": round(s[-1] * scale, digits)}
+
+
+class Browser:
+    """Headless Debian Chromium through Playwright, as the view's test launches it."""
+
+    def __init__(self, profile: Path) -> None:
+        try:
+            from playwright.sync_api import sync_playwright
+        except ImportError:
+            raise ConfigError("bench view: Playwright is not installed (make venv)") from None
+        if not os.path.exists(CHROMIUM):
+            raise ConfigError(f"bench view: {CHROMIUM} not found (make venv installs Debian's chromium)")
+        self._pw = sync_playwright().start()
+        self.context = self._pw.chromium.launch_persistent_context(
+            str(profile), executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True,
+            viewport={"width": 1400, "height": 1000})
+        self.outside: list[str] = []
+
+    def open(self, base: str, init_script: str) -> Any:
+        """A page on ``base`` (every request elsewhere refused and counted) with ``init_script``."""
+        def gate(route: Any) -> None:
+            if route.request.url.startswith(base + "/"):
+                route.continue_()
+            else:
+                self.outside.append(route.request.url)
+                route.abort()
+
+        page = self.context.new_page()
+        page.route("**/*", gate)
+        page.add_init_script(init_script)
+        page.goto(base + "/")
+        page.wait_for_selector("#conn[data-state=live]", timeout=30_000)
+        return page
+
+    def close(self) -> None:
+        try:
+            self.context.close()
+        finally:
+            self._pw.stop()
+
+
+# ------------------------------------------------------------------ latency and memory over a flight
+def owner_changes(seen: list[list[Any]], drone: str) -> list[tuple[float, str]]:
+    """The page's owner of ``drone`` each time it changed (the first shown value included)."""
+    out: list[tuple[float, str]] = []
+    for t, d, owner in seen:
+        if d == drone and (not out or out[-1][1] != (owner or "")):
+            out.append((t, owner or ""))
+    return out
+
+
+def match_changes(records: list[tuple[float, str]], shown: list[tuple[float, str]]) -> list[float | None]:
+    """For each (time, new owner) the drone recorded, in order, the delay (s) until the page next
+    changed to that owner after the previous match (None: never shown)."""
+    delays: list[float | None] = []
+    j = 0
+    for t, to in records:
+        k = next((i for i in range(j, len(shown)) if shown[i][1] == to), None)
+        if k is None:
+            delays.append(None)
+            continue
+        delays.append(shown[k][0] - t)
+        j = k + 1
+    return delays
+
+
+def _flight(browser: Browser, base: Path, crossings: int, interval: float, status: ProgressLine) -> dict[str, Any]:
+    from ..core.records import AuthorityMoved, only
+    from ..net.eventlog import read_records
+    from ..sil.launcher import Demo, DemoOptions
+    from ..sil.ports import free_port
+    from .soak import CROSSING_SIM_S
+
+    out = base / "flight"
+    out.mkdir(parents=True, exist_ok=True)
+    port = free_port()
+    timeout = 120.0 + 2.0 * (crossings + 2) * CROSSING_SIM_S / SPEEDUP
+    demo = Demo(DemoOptions(out=out, speedup=SPEEDUP, quiet=True, live=False, command_rate=20.0, report=False,
+                            mission=f"shuttle:{crossings}", timeout=timeout, view=port), out.resolve())
+    result: dict[str, Any] = {}
+    failure: list[BaseException] = []
+
+    def fly() -> None:
+        try:
+            result.update(demo.run())
+        except BaseException as exc:  # noqa: BLE001 - carried to the main thread
+            failure.append(exc)
+
+    t_start = time.monotonic()
+    flight = threading.Thread(target=fly, name="view-flight", daemon=True)  # it owns the run's processes
+    flight.start()
+    page = None
+    rss: list[tuple[float, float]] = []
+    ticks = 0
+    try:
+        while flight.is_alive():
+            view = demo.children.get("view")
+            if view is not None and view.proc.poll() is None and (out / "view.log").exists() \
+                    and "zdrone view:" in (out / "view.log").read_text(errors="replace"):
+                if page is None:
+                    page = browser.open(f"http://127.0.0.1:{port}", OWNER_OBSERVER)
+                    t_page = time.time()
+                ticks += 1
+                s = sample(view.proc.pid)
+                if s is not None:
+                    rss.append((time.monotonic(), s["rss_mb"]))
+            st = demo.progress.get("status") or {}
+            status.say(f"view: {crossings} crossings at speed-up {SPEEDUP:g}, {time.monotonic() - t_start:.0f} s, "
+                       f"authority {st.get('owner')} epoch {st.get('epoch')}, server RSS "
+                       f"{rss[-1][1] if rss else 0:.0f} MB")
+            flight.join(interval)
+    finally:
+        seen = page.evaluate("window.__seen") if page is not None else []
+        if page is not None:
+            page.close()
+    if failure:
+        raise failure[0]
+    if page is None:
+        return {"error": f"the view never served; see {out / 'view.log'}"}
+    moved = only(read_records(out / "drone.jsonl").records, AuthorityMoved)
+    before = [m for m in moved if m.t < t_page]
+    after = [m for m in moved if m.t >= t_page]
+    delays = match_changes([(m.t, m.to) for m in after], owner_changes(seen, "d1"))
+    rows = [{"t": round(m.t, 3), "to": m.to, "epoch": m.epoch, "kind": m.kind,
+             "page_ms": None if d is None else round(1000.0 * d, 1)} for m, d in zip(after, delays)]
+    shown = [d for d in delays if d is not None]
+    lat = _stats(shown, 1000.0)
+    growth_from = rss[0][0] + min(30.0, 0.2 * (rss[-1][0] - rss[0][0])) if rss else 0.0
+    memory = {"interval_s": interval, "samples": len(rss), "ticks": ticks,
+              "rss_start_mb": round(rss[0][1], 1) if rss else None,
+              "rss_max_mb": round(max(v for _, v in rss), 1) if rss else None,
+              "rss_end_mb": round(rss[-1][1], 1) if rss else None,
+              "span_s": round(rss[-1][0] - rss[0][0], 1) if rss else 0.0,
+              "growth_mb_per_h": round(_slope_per_h([p for p in rss if p[0] >= growth_from]), 2)}
+    why_not = (["timed out"] if result.get("timed_out") else []) + (  # a shuttle: no delivery, home, no failsafe
+        [f"failsafe: {result['failsafe']}"] if result.get("failsafe") else [])
+    latency = {"crossings": crossings, "speedup": SPEEDUP, "changes": len(after), "before_page": len(before),
+               "shown": len(shown), "missed": [r for r in rows if r["page_ms"] is None], "rows": rows,
+               "ms": lat, "goal_p95_ms": GOAL_P95_MS,
+               "within_goal": bool(shown) and len(shown) == len(after) and (lat["p95"] or 0.0) <= GOAL_P95_MS,
+               "flight_ok": not why_not, "why_not_ok": why_not,
+               "handovers": len(result.get("handovers", [])), "wall_s": round(time.monotonic() - t_start, 1)}
+    return {"latency": latency, "memory": memory}
+
+
+# ------------------------------------------------------------------ one page following the scale fleet
+def _send_queue(port: int) -> int | None:
+    """Bytes the server at ``port`` has not yet sent on its established sockets (sum of Send-Q)."""
+    if shutil.which("ss") is None:
+        return None
+    try:
+        text = subprocess.run(["ss", "-tnH", "state", "established", f"( sport = :{port} )"], capture_output=True,
+                              text=True, timeout=5).stdout
+    except (OSError, subprocess.SubprocessError):
+        return None
+    total = 0
+    for line in text.splitlines():
+        parts = line.split()
+        if len(parts) >= 2 and parts[1].isdigit():
+            total += int(parts[1])
+    return total
+
+
+def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: bool,
+           status: ProgressLine) -> dict[str, Any]:
+    from playwright.sync_api import Error as PlaywrightError
+
+    from ..fleet.files import init_fleet, scale_nodes
+    from ..sil.ports import free_port
+    from ..sil.procs import spawn
+    from .scale import READY_TIMEOUT_S, _cpu_seconds, _wait_line, hold_limit
+
+    d = base / f"fleet-{k}"
+    d.mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    port = free_port()
+    init_fleet(d / "fleet", nodes_spec=scale_nodes(k, STATIONS))
+    py = [sys.executable, "-m"]
+    common = ["--fleet", str(d / "fleet"), "--out", str(d)]
+    cmds = {"router": py + ["zdrone", "router", "-c", str(d / "fleet/router/router.json5"), "--listen", endpoint],
+            "view": py + ["zdrone", "view", "--fleet", str(d / "fleet"), "--router", endpoint, "--port", str(port)],
+            "drones": py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", "1",
+                            "--duration", str(window + 60.0), "--hold", str(hold_limit(k)), "--router", endpoint,
+                            *common],
+            "stations": py + ["zdrone.bench.scale", "host-stations", "--stations", str(STATIONS), "--router", endpoint,
+                              *common]}
+    ready = {"router": "listening", "view": "zdrone view:"}
+    logs = {n: open(d / f"{n}.log", "w") for n in cmds}
+    procs: dict[str, subprocess.Popen] = {}
+    samples: list[dict[str, Any]] = []
+    send_q: list[int] = []
+    page = None
+    out: dict[str, Any] = {"k": k, "g": STATIONS, "window_s": window, "runs": str(d)}
+    try:
+        for name, cmd in cmds.items():
+            procs[name] = spawn(cmd, stdout=logs[name], stderr=subprocess.STDOUT)
+            if name in ready and _wait_line(d / f"{name}.log", ready[name], 30, procs[name]) is None:
+                raise RuntimeError(f"{name} did not start; see {d / f'{name}.log'}")
+        page = browser.open(f"http://127.0.0.1:{port}", STREAM_PROBE)
+        status.say(f"view: {k} drones x {STATIONS} GSs on the ground, pairing and sharing keys…")
+        if _wait_line(d / "drones.log", "drones ready", READY_TIMEOUT_S, procs["drones"]) is None:
+            raise RuntimeError(f"the drones host did not start; see {d / 'drones.log'}")
+        if from_take_off:
+            if _wait_line(d / "drones.log", "take-off", hold_limit(k) + 30, procs["drones"]) is None:
+                raise RuntimeError(f"the drones did not take off; see {d / 'drones.log'}")
+        else:
+            page.wait_for_function(f"document.querySelectorAll('#rows tr[data-drone]').length >= {k}",
+                                   timeout=60_000)
+        out["from"] = "take-off" if from_take_off else "every drone shown"
+        view_pid = procs["view"].pid
+        t0, cpu0, mem0 = time.monotonic(), _cpu_seconds(view_pid), sample(view_pid)
+        rss = [mem0["rss_mb"]] if mem0 else []
+        n_pictures0 = page.evaluate("window.__pictures.length")
+        while time.monotonic() - t0 < window:
+            time.sleep(max(0.0, 1.0 - (time.monotonic() - t0) % 1.0))
+            got = page.evaluate(READ_ROWS)
+            samples.append(got)
+            q = _send_queue(port)
+            if q is not None:
+                send_q.append(q)
+            m = sample(view_pid)
+            if m is not None:
+                rss.append(m["rss_mb"])
+            status.say(f"view: {k} drones, {time.monotonic() - t0:.0f}/{window:.0f} s, "
+                       f"{got['rows']} rows, {got['stale']} stale")
+        span = time.monotonic() - t0
+        cpu1 = _cpu_seconds(view_pid)
+        pictures = page.evaluate("window.__pictures")[n_pictures0:]
+        lags = [done - server for _, done, server, _ in pictures if server is not None]
+        ages = []
+        for s in samples:  # each drone's shown age, plus the time since that picture was the latest
+            since = s["t"] - s["server_time"] if s["server_time"] is not None else 0.0
+            ages += [a + since for a in s["ages"] if a is not None]
+        out.update({
+            "samples": len(samples), "expected_samples": int(window),
+            "rows_shown": {"min": min((s["rows"] for s in samples), default=0),
+                           "max": max((s["rows"] for s in samples), default=0)},
+            "stale": {"samples_with_stale": sum(1 for s in samples if s["stale"]),
+                      "max": max((s["stale"] for s in samples), default=0)},
+            "disconnected_samples": sum(1 for s in samples if s["conn"] != "live"),
+            "age_s": _stats(ages, digits=2), "lag_s": _stats(lags, digits=3),
+            "lag_first_last_s": [round(lags[0], 3), round(lags[-1], 3)] if lags else None,
+            "pictures": len(pictures), "pictures_per_s": round(len(pictures) / span, 1),
+            "picture_kb": round(sum(p[3] for p in pictures) / max(1, len(pictures)) / 1024, 1),
+            "send_q_bytes": {"max": max(send_q), "last": send_q[-1]} if send_q else None,
+            "server_cpu_pct": round(100.0 * (cpu1 - cpu0) / span, 1) if cpu0 is not None and cpu1 is not None else None,
+            "server_rss_mb": {"start": round(rss[0], 1), "max": round(max(rss), 1), "end": round(rss[-1], 1)}
+            if rss else None})
+        out["kept_up"] = (out["samples"] >= out["expected_samples"] and out["rows_shown"]["min"] == k
+                          and out["stale"]["max"] == 0 and out["disconnected_samples"] == 0
+                          and out["lag_s"]["p95"] is not None and out["lag_s"]["p95"] <= KEPT_UP_LAG_S
+                          and (not send_q or send_q[-1] <= max(BACKLOG_SLACK_B, 1024 * out["picture_kb"])))
+    except (RuntimeError, PlaywrightError) as exc:
+        out["error"] = str(exc)
+    finally:
+        if page is not None:
+            page.close()
+        for name in ("view", "stations", "drones", "router"):
+            p = procs.get(name)
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+                try:
+                    p.wait(20)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait(5)
+        for f in logs.values():
+            f.close()
+    return out
+
+
+def run(quick: bool = False, crossings: int | None = None, drones: int | None = None, progress: bool = True,
+        out: Path | None = None) -> dict[str, Any]:
+    crossings = crossings or (QUICK_CROSSINGS if quick else FULL_CROSSINGS)
+    drones = drones or (QUICK_DRONES if quick else FULL_DRONES)
+    window = QUICK_WINDOW_S if quick else FULL_WINDOW_S
+    interval = 2.0 if quick else 5.0
+    base = out or Path(tempfile.mkdtemp(prefix="zdrone-bench-view-"))
+    base.mkdir(parents=True, exist_ok=True)
+    status = ProgressLine(progress)
+    browser = Browser(base / "profile")
+    t0 = time.monotonic()
+    try:
+        flight = _flight(browser, base, crossings, interval, status)
+        fleet = _fleet(browser, base, drones, window, not quick, status)
+    finally:
+        browser.close()
+        status.close()
+    result = {**flight, "fleet": fleet, "outside_requests": browser.outside, "wall_s": round(time.monotonic() - t0, 1),
+              "runs": str(base), "browser": CHROMIUM}
+    (base / "result.json").write_text(json.dumps(result, indent=2))
+    return result
+
+
+def render(r: dict[str, Any]) -> None:
+    from .table import print_table
+
+    if "latency" in r:
+        lat, mem = r["latency"], r["memory"]
+        ms = lat["ms"]
+        print_table(f"Drone record -> page DOM: {lat['shown']} of {lat['changes']} authority changes shown "
+                    f"({lat['crossings']} crossings at speed-up {lat['speedup']:g})",
+                    ["p50 ms", "p95 ms", "max ms", "goal p95 ms", "within goal", "missed"],
+                    [[ms["p50"], ms["p95"], ms["max"], lat["goal_p95_ms"], "yes" if lat["within_goal"] else "no",
+                      len(lat["missed"])]],
+                    caption=f"the drone's drone.jsonl record to the MutationObserver's stamp, both this host's wall "
+                            f"clock; {lat['before_page']} change(s) before the page opened not counted")
+        print_table(f"View server memory over the flight ({mem['span_s']:.0f} s, a sample every {mem['interval_s']:g} s)",
+                    ["samples", "RSS start MB", "RSS max MB", "RSS end MB", "growth MB/h"],
+                    [[mem["samples"], mem["rss_start_mb"], mem["rss_max_mb"], mem["rss_end_mb"], mem["growth_mb_per_h"]]])
+    else:
+        print(f"flight: {r.get('error')}")
+    f = r["fleet"]
+    if "error" in f:
+        print(f"fleet: {f['error']}")
+        return
+    age, lag, q, mem = f["age_s"], f["lag_s"], f["send_q_bytes"] or {}, f["server_rss_mb"] or {}
+    print_table(f"One page following {f['k']} drones x {f['g']} GSs ({f['window_s']:g} s from {f['from']}, "
+                f"{f['samples']} samples)",
+                ["rows shown", "stale max", "age p50 s", "age p95 s", "age max s", "lag p50 s", "lag p95 s",
+                 "lag max s", "pictures /s", "picture KB", "Send-Q max B", "server CPU %", "server RSS MB",
+                 "kept up"],
+                [[f"{f['rows_shown']['min']}..{f['rows_shown']['max']}", f["stale"]["max"], age["p50"], age["p95"],
+                  age["max"], lag["p50"], lag["p95"], lag["max"], f["pictures_per_s"], f["picture_kb"],
+                  q.get("max", "-"), f["server_cpu_pct"], f"{mem.get('start')} / {mem.get('max')} / {mem.get('end')}",
+                  "yes" if f["kept_up"] else "no"]],
+                caption="age: each drone's newest report as the page shows it (the picture's age plus the time since "
+                        "it arrived); lag: server snapshot -> page rendered; Send-Q: stream bytes the server could "
+                        f"not send yet; RSS start / max / end; kept up: every drone shown, none stale, lag p95 <= "
+                        f"{KEPT_UP_LAG_S:g} s, at most one picture unsent at the end")
