@@ -29,7 +29,8 @@ def test_bench_view_quick_takes_every_sample(tmp_path):
     assert lat["flight_ok"], lat["why_not_ok"]
     assert lat["changes"] >= lat["crossings"] >= 2  # a hand-over per crossing, each after the page opened
     assert lat["missed"] == [] and lat["shown"] == lat["changes"] == len(lat["rows"])
-    assert [row["to"] for row in lat["rows"]][:2] == ["B", "A"]
+    owners = [row["to"] for row in lat["rows"]]
+    assert set(owners) <= {"A", "B"} and all(x != y for x, y in zip(owners, owners[1:]))  # back and forth
     assert all(isinstance(row["page_ms"], float) for row in lat["rows"])
     assert set(lat["ms"]) == {"p50", "p95", "max"} and lat["ms"]["p50"] <= lat["ms"]["p95"] <= lat["ms"]["max"]
 

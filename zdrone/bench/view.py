@@ -4,11 +4,11 @@ The page is opened in headless Chromium (Debian's ``/usr/bin/chromium``, through
 as ``tests/integration/test_view.py`` launches it: its own profile, no outside request). Three
 measurements, every clock this host's wall clock:
 
-**Latency** (over one shuttle flight, ``zdrone demo --view``): for every authority change the drone
-records (``drone.jsonl``: ``authority``, ``handover_complete``) after the page is up, the time until
+**Latency** (over one shuttle flight, ``zdrone demo --view``): for every hand-over the drone records
+(``drone.jsonl``: ``authority``, ``handover_complete``; not the first pairing) after the page is up, the time until
 the page's DOM shows the new owner (a MutationObserver on the drone's row stamps ``data-owner``
-changes with ``Date.now()``). p50/p95/max; goal p95 <= ``GOAL_P95_MS``. A change the page never shows
-is listed as missed.
+changes with ``Date.now()``). p50/p95/max; goal p95 <= ``GOAL_P95_MS``. A hand-over the page never
+shows is listed as missed.
 
 **Memory** (the same flight): the view server's resident memory sampled every ``interval`` seconds
 from ``/proc``: start, max, end and the growth per hour (least-squares slope after a warm-up). The
@@ -23,8 +23,10 @@ how many stale, each drone's report age as shown plus the time since that pictur
 of its newest report as the operator sees it); for every picture event, how long after the server
 took its snapshot the page had rendered it (the stream's lag); the server's unsent stream bytes
 (``Send-Q`` of its sockets to the page, ``ss``), its CPU and RSS. The page *kept up* if every drone
-was shown in every sample, none stale, the lag's p95 under ``KEPT_UP_LAG_S`` and at most one picture left
-unsent in the socket at the end.
+was shown in every sample over a live stream, the lag's p95 under ``KEPT_UP_LAG_S`` and at most one
+picture left unsent in the socket at the end. Drones shown stale are counted apart: the page shows
+what the server's picture says, and a drone is stale there when no GS's word of it is fresher than
+1 s (the fleet's lateness, not the page's).
 """
 
 from __future__ import annotations
@@ -240,6 +242,7 @@ def _flight(browser: Browser, base: Path, crossings: int, interval: float, statu
     if page is None:
         return {"error": f"the view never served; see {out / 'view.log'}"}
     moved = only(read_records(out / "drone.jsonl").records, AuthorityMoved)
+    moved = [m for m in moved if m.kind != "paired"]  # the hand-overs (the first pairing is no hand-over)
     before = [m for m in moved if m.t < t_page]
     after = [m for m in moved if m.t >= t_page]
     delays = match_changes([(m.t, m.to) for m in after], owner_changes(seen, "d1"))
@@ -358,7 +361,8 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
             "rows_shown": {"min": min((s["rows"] for s in samples), default=0),
                            "max": max((s["rows"] for s in samples), default=0)},
             "stale": {"samples_with_stale": sum(1 for s in samples if s["stale"]),
-                      "max": max((s["stale"] for s in samples), default=0)},
+                      "max": max((s["stale"] for s in samples), default=0),
+                      "per_sample": [s["stale"] for s in samples]},
             "disconnected_samples": sum(1 for s in samples if s["conn"] != "live"),
             "age_s": _stats(ages, digits=2), "lag_s": _stats(lags, digits=3),
             "lag_first_last_s": [round(lags[0], 3), round(lags[-1], 3)] if lags else None,
@@ -369,7 +373,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
             "server_rss_mb": {"start": round(rss[0], 1), "max": round(max(rss), 1), "end": round(rss[-1], 1)}
             if rss else None})
         out["kept_up"] = (out["samples"] >= out["expected_samples"] and out["rows_shown"]["min"] == k
-                          and out["stale"]["max"] == 0 and out["disconnected_samples"] == 0
+                          and out["disconnected_samples"] == 0
                           and out["lag_s"]["p95"] is not None and out["lag_s"]["p95"] <= KEPT_UP_LAG_S
                           and (not send_q or send_q[-1] <= max(BACKLOG_SLACK_B, 1024 * out["picture_kb"])))
     except (RuntimeError, PlaywrightError) as exc:
@@ -420,13 +424,13 @@ def render(r: dict[str, Any]) -> None:
     if "latency" in r:
         lat, mem = r["latency"], r["memory"]
         ms = lat["ms"]
-        print_table(f"Drone record -> page DOM: {lat['shown']} of {lat['changes']} authority changes shown "
+        print_table(f"Drone record -> page DOM: {lat['shown']} of {lat['changes']} hand-overs shown "
                     f"({lat['crossings']} crossings at speed-up {lat['speedup']:g})",
                     ["p50 ms", "p95 ms", "max ms", "goal p95 ms", "within goal", "missed"],
                     [[ms["p50"], ms["p95"], ms["max"], lat["goal_p95_ms"], "yes" if lat["within_goal"] else "no",
                       len(lat["missed"])]],
                     caption=f"the drone's drone.jsonl record to the MutationObserver's stamp, both this host's wall "
-                            f"clock; {lat['before_page']} change(s) before the page opened not counted")
+                            f"clock; {lat['before_page']} before the page opened not counted")
         print_table(f"View server memory over the flight ({mem['span_s']:.0f} s, a sample every {mem['interval_s']:g} s)",
                     ["samples", "RSS start MB", "RSS max MB", "RSS end MB", "growth MB/h"],
                     [[mem["samples"], mem["rss_start_mb"], mem["rss_max_mb"], mem["rss_end_mb"], mem["growth_mb_per_h"]]])
@@ -448,5 +452,5 @@ def render(r: dict[str, Any]) -> None:
                   "yes" if f["kept_up"] else "no"]],
                 caption="age: each drone's newest report as the page shows it (the picture's age plus the time since "
                         "it arrived); lag: server snapshot -> page rendered; Send-Q: stream bytes the server could "
-                        f"not send yet; RSS start / max / end; kept up: every drone shown, none stale, lag p95 <= "
+                        f"not send yet; RSS start / max / end; stale: as the server's picture says (no GS's word fresher than 1 s); kept up: every drone shown, lag p95 <= "
                         f"{KEPT_UP_LAG_S:g} s, at most one picture unsent at the end")
