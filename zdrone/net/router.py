@@ -74,6 +74,9 @@ def take_over_config(cfg: zenoh.Config, seconds: float) -> None:
     cfg.insert_json5("listen/retry", json.dumps({"period_init_ms": TAKE_OVER_RETRY_MS,
                                                  "period_max_ms": TAKE_OVER_RETRY_MS,
                                                  "period_increase_factor": 1.0}))
+    # the session's open returns as soon as it listens (not 0.5 s later: a scouting delay, and there
+    # is nothing to scout, multicast and gossip being off): the ready line says when the port is back
+    cfg.insert_json5("scouting/delay", "0")
 
 
 def run_router(config_path: str | Path, listen: list[str] | None = None, tap: str | None = None,

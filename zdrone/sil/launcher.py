@@ -71,6 +71,9 @@ GCS_KEYS = "gcs-keys"
 #: The deadline of a flight with an autopilot already running (``--vehicle``) allows for its start-up.
 EXTERNAL_BOOT_S = 60.0
 
+#: How long a router started to take over from a running one waits for its port (``Demo.take_over``).
+TAKE_OVER_S = 10.0
+
 
 @dataclass
 class DemoOptions:
@@ -631,9 +634,46 @@ class Demo:
             cfg = "router" if site == "router" else site
             for f in (f"router/{cfg}.json5", "router/credentials.txt"):
                 shutil.copyfile(fleet / f, bundles / site / f)
-            self.restart(name, 0.3)
-            self._wait_restarted(20.0)
+            self.take_over(name)
         self.notes.append(f"routers restarted on the files without {node}: {', '.join(routers)}")
+
+    def take_over(self, name: str, timeout: float = 20.0) -> None:
+        """Restart router ``name`` as docs/deploy.md's rolling restart says: a new process started
+        beside the running one (``zdrone router --take-over``), the old one stopped (SIGTERM) once the
+        new one is ready, the new one listening within a retry of its going. Both write to the
+        router's log; ``children[name]`` is the new one from then on."""
+        from ..net.router import TAKE_OVER_LINE
+
+        old = self.children[name]
+        text = old.log.read_text(errors="replace")
+        counts = {needle: text.count(needle) for needle in (TAKE_OVER_LINE, "listening")}
+        args = old.args if "--take-over" in old.args else [*old.args, "--take-over", f"{TAKE_OVER_S:g}"]
+        new = self.start(name, args, append=True, ns=old.ns)
+        self._wait_more(new, TAKE_OVER_LINE, counts[TAKE_OVER_LINE], timeout)
+        t_stop = time.monotonic()
+        old.proc.terminate()
+        try:
+            old.proc.wait(10.0)
+        except subprocess.TimeoutExpired:
+            old.proc.kill()
+            old.proc.wait(5.0)
+            self.notes.append(f"{name}: the old router had to be killed")
+        procs.forget(old.proc)
+        t_gone = time.monotonic()
+        self._wait_more(new, "listening", counts["listening"], timeout)
+        self.notes.append(f"{name} taken over: the old one ended {1000 * (t_gone - t_stop):.0f} ms after SIGTERM, "
+                          f"the new one listening {1000 * (time.monotonic() - t_gone):.0f} ms after that (its ready line seen)")
+
+    def _wait_more(self, child: Child, needle: str, before: int, timeout: float) -> None:
+        """Wait until ``child``'s log holds ``needle`` more than ``before`` times (a log that an
+        earlier process of the same name began)."""
+        deadline = time.monotonic() + timeout
+        while child.log.read_text(errors="replace").count(needle) <= before:
+            if child.proc.poll() is not None:
+                raise RuntimeError(f"{child.name} exited ({child.proc.returncode}): {child.log.read_text()[-600:]}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"{child.name}: {needle!r} not seen again within {timeout:.0f} s")
+            time.sleep(0.02)
 
     def _send_go(self, live: "LiveView | None") -> None:
         """SIGUSR2 to each attacker whose moment came, once it has set up (its handler is in place)."""
