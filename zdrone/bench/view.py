@@ -329,8 +329,12 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
             if _wait_line(d / "drones.log", "take-off", hold_limit(k) + 30, procs["drones"]) is None:
                 raise RuntimeError(f"the drones did not take off; see {d / 'drones.log'}")
         else:
-            page.wait_for_function(f"document.querySelectorAll('#rows tr[data-stale=false]').length >= {k}",
-                                   timeout=60_000)
+            live = "() => document.querySelectorAll('#rows tr[data-stale=false]').length"
+            deadline = time.monotonic() + 60.0  # polled from here: the page's CSP forbids a predicate in it
+            while page.evaluate(live) < k:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the page never showed all {k} drones live; see {d}")
+                time.sleep(0.2)
         out["from"] = "take-off" if from_take_off else "every drone shown live"
         view_pid = procs["view"].pid
         t0, cpu0, mem0 = time.monotonic(), _cpu_seconds(view_pid), sample(view_pid)
