@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -454,8 +453,8 @@ def render(r: dict[str, Any]) -> None:
                         "it arrived); stale: as the server's picture says (no GS's word fresher than 1 s); kept up: "
                         f"every drone shown, lag p95 <= {KEPT_UP_LAG_S:g} s, at most one picture unsent at the end")
     print_table("Its stream", ["lag p50 s", "lag p95 s", "lag max s", "pictures /s", "picture KB", "Send-Q max B",
-                               "server CPU %", "server RSS MB start/max/end"],
+                               "server CPU %", "RSS max MB"],
                 [[lag["p50"], lag["p95"], lag["max"], f["pictures_per_s"], f["picture_kb"], q.get("max", "-"),
-                  f["server_cpu_pct"], f"{mem.get('start')}/{mem.get('max')}/{mem.get('end')}"]],
-                caption="lag: the server's snapshot -> the page has rendered it; Send-Q: stream bytes the server "
-                        "could not send yet (ss)")
+                  f["server_cpu_pct"], mem.get("max", "-")]],
+                caption="lag: the server's snapshot -> the page has rendered it; Send-Q: stream bytes the server could not "
+                        f"send yet (ss); the server's RSS from {mem.get('start')} to {mem.get('end')} MB")
