@@ -275,7 +275,8 @@ def _bench_attack(args: argparse.Namespace) -> int:
         if not all(2 <= x <= 1 << 20 for x in sizes):
             raise UsageError("--radio-sizes: each 2..1048576 bytes")
     result = attack.run(quick=args.quick, scenarios=names, trials=args.trials, rate=args.rate, progress=not args.json,
-                        junk_rate=args.junk_rate, junk_trials=args.junk_trials, radio_sizes=sizes)
+                        junk_rate=args.junk_rate, junk_trials=args.junk_trials, radio_sizes=sizes,
+                        sessions=tuple(args.sessions) if args.sessions is not None else None)
     _emit(args, result, attack.render)
     return 0 if result["all_ok"] else 1
 
@@ -400,6 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
     ba.add_argument("--junk-trials", type=int, metavar="N",
                     help="trials of A's link under junk on B's key (default 3; --quick: none)")
     ba.add_argument("--junk-rate", type=float, default=80_000.0, metavar="P", help="junk puts per second on up/B (80000)")
+    ba.add_argument("--sessions", type=int, nargs="*", metavar="K",
+                    help="parallel sessions per credential to flood with (default 1 4 16; --quick 1 4; none: skip)")
     ba.add_argument("--radio-sizes", metavar="B,B,…",
                     help="junk floods on up/B over a 4 Mbit/s shaped radio (root), bytes per envelope "
                          "(default 500,1000,60000; --quick: none; '' for none)")

@@ -56,6 +56,7 @@ from ..core.records import (AnyRecord, DroneStatus, Failsafe, LinkConfirmed, Lin
 from ..core.reference import HOME
 from ..net.eventlog import read_records
 from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec, free_port
+from ..fleet.routerconfig import UPLINK_MAX_HZ
 from .table import ProgressLine
 
 SPEEDUP = 4.0
@@ -365,6 +366,14 @@ def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD
     return row
 
 
+def _credential_ok(t: dict[str, Any]) -> bool:
+    """K sessions with one certificate and password get one budget; a password thief's sessions never
+    spend the real GS's (its frames arrive); no envelope over the size limit reaches the drone."""
+    budgets = 1 if t["tls"] else t["sessions"]
+    return (t["junk_reached"] <= budgets * 1.2 * UPLINK_MAX_HZ * t["seconds"] + 20 * budgets
+            and t["a_reached"] >= 0.9 * t["a_sent"] and t["big_reached"] == 0)
+
+
 def _b_heard(path: Path) -> bool:
     """B's key is proven on the drone and the drone listens to B's uplink."""
     if not path.exists():
@@ -388,7 +397,7 @@ def _stats(vals: list[float]) -> dict[str, float | None]:
 
 def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | None = None, rate: float = DEFAULT_RATE,
         progress: bool = True, junk_rate: float = JUNK_RATE, junk_trials: int | None = None,
-        radio_sizes: list[int] | None = None) -> dict[str, Any]:
+        radio_sizes: list[int] | None = None, sessions: tuple[int, ...] | None = None) -> dict[str, Any]:
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-attack-"))
     names = scenarios if scenarios is not None else (["pair-flood"] if quick else list(ATTACK_SCENARIOS))
     m = trials if trials is not None else (1 if quick else 3)
@@ -420,6 +429,9 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
     if radio and not quick and radio_sizes is None:
         status.say("the control: the same flood of 500-byte junk with the router's budgets taken out")
         radio.append(_shaped_radio_trial(base, 0, 500, budget=False))
+    from . import sessions as per_credential
+
+    cred = per_credential.run(sessions if sessions is not None else ((1, 4) if quick else (1, 4, 16)), status.say)
     status.close()
     late = [r["detect_to_command_ms"] for r in flood if r.get("detect_to_command_ms") is not None]
     per_q = [r["cpu_us_per_query"] for r in flood if r.get("cpu_us_per_query") is not None]
@@ -435,9 +447,11 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
                 "missing": m - len(late), "goal_ms": 100.0},
             "authority_link_under_junk_flood": {"target_rate_per_s": junk_rate, "flood_s": JUNK_SECONDS,
                                                 "goal_not_ok_s": JUNK_NOT_OK_GOAL_S, "trials": junk},
+            "sessions_per_credential": {"budget_per_s": UPLINK_MAX_HZ, "trials": cred},
             "shaped_radio_floods": {"radio_kbit": RADIO_KBIT, "flood_s": JUNK_SECONDS, "goal_a_lost": 0, "trials": radio},
             "all_ok": all(r["ok"] for r in rows) and len(late) == m and all(v <= 100.0 for v in late)
-            and all(t["ok"] for t in junk) and all(t["ok"] or t.get("skipped") for t in radio),
+            and all(t["ok"] for t in junk) and all(t["ok"] or t.get("skipped") for t in radio)
+            and all(_credential_ok(t) for t in cred),
             "wall_s": round(time.monotonic() - t0, 1), "runs": str(base)}
 
 
@@ -500,3 +514,13 @@ def render(r: dict[str, Any]) -> None:
                      "A worst", "A out of OK s", "authority", "failsafes", "result"], rows,
                     caption="goal: A loses 0 frames, no hand-over, no failsafe; the control (the router's budgets "
                             "taken out) must hurt A, or the radio shaped nothing")
+    c = r.get("sessions_per_credential")
+    if c and c["trials"]:
+        rows = [[("B's certificate and password (TLS)" if t["tls"] else "A's password alone, a thief"), t["sessions"],
+                 f"{t['sent']:,}", t["junk_reached"], t["junk_per_s"], t["big_reached"], f"{t['a_reached']}/{t['a_sent']}",
+                 "OK" if _credential_ok(t) else "FAILED"] for t in c["trials"]]
+        print_table(f"K parallel sessions with one credential flooding its uplink to the drone for 2 s "
+                    f"(budget {c['budget_per_s']:.0f} puts/s per uplink)",
+                    ["credential", "K", "junk sent", "junk at drone", "junk/s at drone", "1000-byte at drone",
+                     "A's frames at drone", "result"], rows,
+                    caption="with TLS: one budget whatever K; a password alone: a budget per session, never A's")
