@@ -52,22 +52,19 @@ class SwitchedLink(Protocol):
     def close(self) -> None: ...
 
 
-class RadioLink:
-    """One emulated link: a loopback TCP relay to ``target`` that can be brought up and down."""
+class _Relay:
+    """What both relays share: a name, a target, an up/down switch (thread-safe, counted), and the
+    loopback endpoint the node connects to instead of the target."""
 
-    def __init__(self, name: str, target: tuple[str, int], up: bool = True) -> None:
+    port: int
+
+    def __init__(self, name: str, target: tuple[str, int], up: bool) -> None:
         self.name = name
         self.target = target
         self._up = up
         self._lock = threading.Lock()
-        self._conns: set[socket.socket] = set()
         self.counters: Counter[str] = Counter()
-        self._listener = socket.create_server(("127.0.0.1", 0))
-        self._listener.settimeout(0.2)
-        self.port: int = self._listener.getsockname()[1]
         self._closed = threading.Event()
-        self._thread = threading.Thread(target=self._accept_loop, name=f"radio-{name}", daemon=True)
-        self._thread.start()
 
     @property
     def endpoint(self) -> str:
@@ -78,17 +75,38 @@ class RadioLink:
         return self._up
 
     def set_up(self, up: bool) -> bool:
-        """Bring the link up or down; True if that changed it. Down closes every connection at once."""
+        """Bring the link up or down; True if that changed it. Down cuts everything it carries at once."""
         with self._lock:
             if up == self._up:
                 return False
             self._up = up
-            doomed = list(self._conns) if not up else []
-            self._conns.difference_update(doomed)
+            doomed = self._cut() if not up else []
         for s in doomed:
             _hang_up(s)
         self.counters["up" if up else "down"] += 1
         return True
+
+    def _cut(self) -> list[socket.socket]:
+        """Under the lock: forget what the link carries; the sockets to close."""
+        raise NotImplementedError
+
+
+class RadioLink(_Relay):
+    """One emulated link: a loopback TCP relay to ``target`` that can be brought up and down."""
+
+    def __init__(self, name: str, target: tuple[str, int], up: bool = True) -> None:
+        super().__init__(name, target, up)
+        self._conns: set[socket.socket] = set()
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self._listener.settimeout(0.2)
+        self.port = self._listener.getsockname()[1]
+        self._thread = threading.Thread(target=self._accept_loop, name=f"radio-{name}", daemon=True)
+        self._thread.start()
+
+    def _cut(self) -> list[socket.socket]:
+        doomed = list(self._conns)
+        self._conns.clear()
+        return doomed
 
     def close(self) -> None:
         self._closed.set()
@@ -144,47 +162,25 @@ class RadioLink:
         _hang_up(dst)
 
 
-class DatagramLink:
+class DatagramLink(_Relay):
     """One emulated datagram link: a loopback UDP relay to ``target`` that can be brought up and
     down. Each client address gets its own socket toward the target (a flow); replies go back to
     the client it belongs to."""
 
     def __init__(self, name: str, target: tuple[str, int], up: bool = True) -> None:
-        self.name = name
-        self.target = target
-        self._up = up
-        self._lock = threading.Lock()
+        super().__init__(name, target, up)
         self._flows: dict[tuple[str, int], socket.socket] = {}
-        self.counters: Counter[str] = Counter()
         self._front = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._front.bind(("127.0.0.1", 0))
         self._front.settimeout(0.2)
-        self.port: int = self._front.getsockname()[1]
-        self._closed = threading.Event()
+        self.port = self._front.getsockname()[1]
         self._thread = threading.Thread(target=self._front_loop, name=f"radio-{name}", daemon=True)
         self._thread.start()
 
-    @property
-    def endpoint(self) -> str:
-        return f"127.0.0.1:{self.port}"
-
-    @property
-    def up(self) -> bool:
-        return self._up
-
-    def set_up(self, up: bool) -> bool:
-        """Bring the link up or down; True if that changed it. Down forgets every flow at once."""
-        with self._lock:
-            if up == self._up:
-                return False
-            self._up = up
-            doomed = list(self._flows.values()) if not up else []
-            if not up:
-                self._flows.clear()
-        for s in doomed:
-            s.close()
-        self.counters["up" if up else "down"] += 1
-        return True
+    def _cut(self) -> list[socket.socket]:
+        doomed = list(self._flows.values())
+        self._flows.clear()
+        return doomed
 
     def close(self) -> None:
         self._closed.set()
