@@ -88,7 +88,7 @@ def run_one(k: int, base: Path, timeout: float, action: str = "revoke") -> dict[
     from ..fleet.files import init_fleet, scale_nodes
     from ..fleet.revise import revoke, rotate
     from ..net.revisions import publish
-    from ..sil.procs import spawn
+    from ..sil.procs import spawn, stop_in_order
     from .scale import SPEEDUP, _free_ports, _wait_line, hold_limit
 
     d = base / f"{action}-k{k}"
@@ -148,15 +148,7 @@ def run_one(k: int, base: Path, timeout: float, action: str = "revoke") -> dict[
     except RuntimeError as exc:
         result["error"] = str(exc)
     finally:
-        for name in ("stations", "drones", "router"):
-            p = procs.get(name)
-            if p is not None and p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(20)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait(5)
+        stop_in_order(procs, ("stations", "drones", "router"))
         for f in logs.values():
             f.close()
     if t_pub is None:

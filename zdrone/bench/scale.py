@@ -340,7 +340,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
     from ..fleet.files import init_fleet, load_sites, scale_nodes
-    from ..sil.procs import spawn  # dies with the bench, however it ends
+    from ..sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
 
     layout = f"{sites} sites" if sites else ("1 router, TLS" if tls else "1 router")
     d = base / f"k{k}-{f'sites{sites}' if sites else 'one'}"
@@ -401,15 +401,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     except RuntimeError as exc:
         error = str(exc)
     finally:
-        for name in ("stations", *router_cmds, "drones"):
-            p = procs.get(name)
-            if p is not None and p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(20)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait(5)
+        stop_in_order(procs, ("stations", *router_cmds, "drones"))
         for f in logs.values():
             f.close()
     wall = time.monotonic() - t0

@@ -35,7 +35,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -298,7 +297,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
 
     from ..fleet.files import init_fleet, scale_nodes
     from ..sil.ports import free_port
-    from ..sil.procs import spawn
+    from ..sil.procs import spawn, stop_in_order
     from .scale import READY_TIMEOUT_S, _cpu_seconds, _wait_line, hold_limit
 
     d = base / f"fleet-{k}"
@@ -391,15 +390,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
     finally:
         if page is not None:
             page.close()
-        for name in ("view", "stations", "drones", "router"):
-            p = procs.get(name)
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(20)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait(5)
+        stop_in_order(procs, ("view", "stations", "drones", "router"))
         for f in logs.values():
             f.close()
     return out

@@ -146,3 +146,21 @@ def on_signals(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[None]:
         finally:
             for s, h in previous.items():
                 signal.signal(s, h)
+
+
+def stop_in_order(procs: "dict[str, subprocess.Popen]", order: Sequence[str], grace: float = 20.0) -> None:
+    """End the named children in ``order`` (those not running are skipped): SIGTERM, then SIGKILL
+    after ``grace`` seconds; each is reaped and forgotten. The benches' ordered shutdown: the nodes
+    before their routers, so that they close their sessions while the router is still there."""
+    for name in order:
+        p = procs.get(name)
+        if p is None:
+            continue
+        if p.poll() is None:
+            p.terminate()
+            try:
+                p.wait(grace)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(5)
+        forget(p)
