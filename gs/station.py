@@ -19,7 +19,7 @@ key-sharing queryable's ring is looked at on every wake, at least every ``MAX_SL
 that poll sockets (the GCS gateway) keep the loop at ``HOOK_POLL_S``. The adapter names drones and
 reads ``DroneSeen``es (``drone_status``) and ``commands_sent``: the core's ``DroneView``s are its own.
 If the fleet has a viewer, the station publishes its operations picture for it
-(``zdrone.view.publish.OpsPublisher``: ``StationCore.drone_ops`` and the authority events it logs).
+(``zdrone.net.opspublish.OpsPublisher``: ``StationCore.drone_ops`` and the authority events it logs).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from zdrone.core.outputs import Handlers, dispatch
 from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
 from .core import GCS_COMPID, CoreOptions, DroneSeen, StationCore, view_line
 from .planner import PlannedItem
-from zdrone.view.publish import OpsPublisher
+from zdrone.net.opspublish import OpsPublisher
 
 log = logging.getLogger(__name__)
 #: Key-sharing handshakes answered per loop turn at most (the rest wait in the bounded query queue).

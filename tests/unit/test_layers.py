@@ -1,7 +1,7 @@
 """Layers only point down, and no two packages import each other.
 
 core (and ``zdrone.crashes``) < fleet (fleet files, router config, key expressions) < net / vehicle < nodes (the drone node,
-the ``gs`` package) < sil / bench / report < cli (``zdrone.cli``, ``zdrone.commands``). A module may
+the ``gs`` package) < sil / bench / report / view (the web view's server) < cli (``zdrone.cli``, ``zdrone.commands``). A module may
 import its own layer or a lower one; within a layer, packages must not form a cycle. Imports are
 read with ``ast`` (top-level and inside functions alike), so a lazy import counts too.
 """
@@ -17,7 +17,7 @@ LAYERS: dict[str, int] = {
     "zdrone.fleet": 1,
     "zdrone.net": 2, "zdrone.vehicle": 2,
     "zdrone.nodes": 3, "gs": 3,
-    "zdrone.sil": 4, "zdrone.bench": 4, "zdrone.report": 4,
+    "zdrone.sil": 4, "zdrone.bench": 4, "zdrone.report": 4, "zdrone.view": 4,
     "zdrone.cli": 5, "zdrone.commands": 5, "zdrone.harness": 5, "zdrone.__main__": 5, "zdrone": 5,
 }
 

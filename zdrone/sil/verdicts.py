@@ -645,8 +645,10 @@ def check_fake_autopilot(o: Outcome) -> list[str]:
     final = next((e for e in reversed(o.drone) if isinstance(e, DroneState)), None)
     ep = ((final.vehicle_streams or {}).get("endpoint") or {}) if final else {}
     drops = ep.get("counters", {})
-    why += _need(drops.get("dropped:before_autopilot", 0) > 0 and drops.get("dropped:foreign_endpoint", 0) > 0,
-                 f"the fake's datagrams were not dropped by reason: {drops}")
+    # dropped by reason: before the autopilot was found (if a datagram of the fake came first: the race's
+    # winner is the machine's timing, the unit tests of the endpoint pin that rule) and from a foreign
+    # endpoint (the fake goes on in flight: always)
+    why += _need(drops.get("dropped:foreign_endpoint", 0) > 0, f"the fake's datagrams were not dropped by reason: {drops}")
     near_b = [e.position for e in only(o.drone, DroneStatus)
               if e.position and distance_m(GS_B, GeoPoint(e.position[0], e.position[1])) < COVERAGE_RADIUS_M]
     why += _need(not near_b, f"the drone believed it was in B's coverage {len(near_b)} times")
