@@ -27,6 +27,7 @@ Nothing here knows a protocol: what a node does with what arrives is its own.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 from typing import Any, Callable
 
@@ -60,6 +61,8 @@ LINK_PRIORITY = zenoh.Priority.INTERACTIVE_HIGH
 #: ``experiments/express_burst.py``). Not express, a burst shares batches (one 64 KiB batch holds
 #: hundreds of frames) and waits at most Zenoh's 1 ms batching limit, only under back-pressure.
 LINK_EXPRESS = False
+#: Subscriber callbacks run in Zenoh's receiving thread instead of a Python thread each (see ``subscribe``).
+DIRECT_CALLBACKS = os.environ.get("ZDRONE_INDIRECT_CALLBACKS") != "1"
 
 
 class NodeRuntime:
@@ -161,10 +164,14 @@ class NodeRuntime:
             else:
                 inbox.drop(f"{kind}:duplicate_path")
 
+        # run in Zenoh's own thread (``indirect=False``): a plain function would get a Python thread of its
+        # own per subscriber (4 600 threads in a host of 300 drones); ``on_sample`` only queues and never
+        # calls Zenoh, so it cannot wait on Zenoh from inside Zenoh
+        callback = zenoh.handlers.Callback(on_sample, indirect=False) if DIRECT_CALLBACKS else on_sample
         handle = _PathSubscriber()
         for s in self._open_sessions():
-            handle.per_path.append(s.declare_subscriber(keyexpr, on_sample))
-        self._subs.append((handle, keyexpr, on_sample))
+            handle.per_path.append(s.declare_subscriber(keyexpr, callback))
+        self._subs.append((handle, keyexpr, callback))
         self._declared.append(handle)
         return handle
 
