@@ -51,6 +51,10 @@ READY_TIMEOUT_S = 180.0
 #: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
 #: sleeps until its next deadline or input; stepping hundreds in turn, each pass costs them all).
 PASS_S = 0.01
+#: After the last vehicle has landed the drones host steps on this long: the GSs count the commands
+#: they sent when told it landed, and those still on their way arrive (a command sent to a drone whose
+#: host had stopped was counted lost).
+LANDED_DRAIN_S = 2.0
 #: The flight's time limit from take-off, in simulated seconds (150 wall seconds at speed-up 4).
 FLIGHT_SIM_S = 600.0
 #: Readiness of a held vehicle (simulated seconds after boot before it may arm): never, until released.
@@ -138,6 +142,7 @@ def _host_drones(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGUSR1, lambda *_: jam.__setitem__(0, True))
         signal.signal(signal.SIGUSR2, lambda *_: jam.__setitem__(0, False))
     armed_seen = [False] * len(nodes)
+    landed_at: float | None = None
     worst_owner_silence = [0.0] * len(nodes)
     owner_lost = [0] * len(nodes)
     t_ready = time.monotonic()
@@ -177,9 +182,13 @@ def _host_drones(args: argparse.Namespace) -> int:
                         if link.tbm.state(now) is LinkState.LOST:
                             owner_lost[i] += 1
             loops += 1
-            if all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (not args.jam or mended[0] is not None
-                                                                                and time.monotonic() > mended[0] + 10.0):
-                break  # (--jam: not before the cut-off drone has been back in reach for 10 s)
+            if landed_at is None and all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (
+                    not args.jam or mended[0] is not None and time.monotonic() > mended[0] + 10.0):
+                # (--jam: not before the cut-off drone has been back in reach for 10 s)
+                landed_at = time.monotonic()  # the GSs count what they sent now; what is on its way still arrives
+                print("drones host: all landed", flush=True)
+            if landed_at is not None and time.monotonic() - landed_at >= LANDED_DRAIN_S:
+                break
             time.sleep(max(0.0005, PASS_S - (time.monotonic() - pass_start)))
         flight_s, cpu_s = time.monotonic() - t0, time.process_time() - cpu0
         results = {}
@@ -229,13 +238,21 @@ def _host_stations(args: argparse.Namespace) -> int:
         t.start()
     # a plain flag: a handler setting an event the main thread is waiting on can deadlock it
     # (zdrone.net.shutdown); ``pause`` is never set
-    stop, pause = [False], threading.Event()
+    stop, pause, landed = [False], threading.Event(), [False]
     signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    signal.signal(signal.SIGUSR2, lambda *_: landed.__setitem__(0, True))  # every vehicle has landed
+
+    def count_sent() -> tuple[dict[str, Any], dict[str, Any]]:
+        return ({st.name: {d: st.commands_sent(d) for d in st.drones} for st in stations},
+                {st.name: {d: {str(e): c for e, c in st.core.views[d].commands_sent.items()} for d in st.drones}
+                 for st in stations})  # per epoch the GS believed it commanded in (bench revoke's attribution)
+
+    counted: tuple[dict[str, Any], dict[str, Any]] | None = None
     while not stop[0]:
         pause.wait(0.2)
-    sent = {st.name: {d: st.commands_sent(d) for d in st.drones} for st in stations}
-    sent_epochs = {st.name: {d: {str(e): c for e, c in st.core.views[d].commands_sent.items()} for d in st.drones}
-                   for st in stations}  # per epoch the GS believed it commanded in (bench revoke's attribution)
+        if landed[0] and counted is None:
+            counted = count_sent()  # what was sent while the drones were still there to forward it
+    sent, sent_epochs = counted or count_sent()
     counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
     delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}
     for st in stations:
@@ -391,6 +408,8 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             procs["stations"].send_signal(signal.SIGUSR1)
             window["t"], window["cpu"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
             window["socks"] = _tcp_sockets(router_pids)
+            if _wait_line(d / "drones.log", "all landed", timeout + 60, procs["drones"]) is not None:
+                procs["stations"].send_signal(signal.SIGUSR2)  # count the commands sent until now
             try:
                 procs["drones"].wait(timeout + 60)
             except subprocess.TimeoutExpired:
