@@ -33,7 +33,9 @@ def test_operator_consent_no_consent_moves_nothing_consent_and_takeover_move_con
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+# on ArduPilot: the same rules on PX4 are flown by the operator-consent test above and the in-memory
+# tests of gs/opcontrol.py (the suite's 10 minutes)
+@pytest.mark.parametrize("autopilot", ["ardupilot"])
 def test_consent_bound_goes_to_the_named_requester_in_its_epoch_and_a_decline_holds(tmp_path, autopilot):
     """``consent-bound``: three authorized GSs, an application on each gateway (``zdrone.sil.consent_ops``)."""
     s, out = run_demo(tmp_path, "consent-bound", autopilot=autopilot)
