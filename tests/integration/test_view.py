@@ -128,6 +128,8 @@ def test_the_page_follows_a_flight_owner_staleness_failsafe_reconnect_and_no_out
         page2 = browser.new_page()
         page2.goto(f"http://127.0.0.1:{port2}/")
         page2.wait_for_selector("#conn[data-state=live]", timeout=10_000)
+        # the new server's first picture of d1 (a GS publishes every 0.5 s): a stream up is not yet a drone
+        page2.wait_for_selector("tr[data-drone=d1][data-stale=false]", timeout=10_000)
         view2.send_signal(signal.SIGTERM)
         assert view2.wait(10) == 0
         page2.wait_for_selector("#conn[data-state=disconnected]", timeout=10_000)
