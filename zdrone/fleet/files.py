@@ -248,7 +248,17 @@ def load_revision(where: str | Path, base: Fleet | None = None) -> "Revision | N
 
     base = base if base is not None else load_base_fleet(where)
     best = None
-    for path in revision_paths(where):
+    for got in read_revisions(revision_paths(where), base):
+        if best is None or got.revision.number > best.number:
+            best = got.revision
+    return best
+
+
+def read_revisions(paths: "list[Path]", base: Fleet) -> "list[RevisionAccepted]":
+    """The revisions in ``paths`` (a missing file is skipped), each checked against ``base``;
+    ``ConfigError`` (one line) for one that cannot be read or is not a valid revision of this fleet."""
+    out = []
+    for path in paths:
         try:
             data = path.read_bytes()
         except FileNotFoundError:
@@ -258,9 +268,8 @@ def load_revision(where: str | Path, base: Fleet | None = None) -> "Revision | N
         got = check_revision(data, base, None)
         if not isinstance(got, RevisionAccepted):
             raise ConfigError(f"{path}: not a valid revision of this fleet ({got.reason.value})")
-        if best is None or got.revision.number > best.number:
-            best = got.revision
-    return best
+        out.append(got)
+    return out
 
 
 def load_fleet(where: str | Path) -> Fleet:

@@ -51,7 +51,8 @@ from ..core.revision import (Revision, RevisionAccepted, RevisionRefusal, Revisi
                              check_revision, encode_revision)
 from ..core.errors import ConfigError
 from . import keyexprs as kx
-from .files import REVISION_FILE, STATE_DIR_ENV, fleet_path, load_base_fleet, load_revision, write_durably
+from .files import (REVISION_FILE, STATE_DIR_ENV, fleet_path, load_base_fleet, load_revision, read_revisions,
+                    write_durably)
 from .routerconfig import REVISION_MAX_BYTES, REVISION_MAX_HZ, REVISION_QUERY_HZ
 
 log = logging.getLogger(__name__)
@@ -223,21 +224,10 @@ def signing_key_history(fleet_dir: str | Path) -> dict[str, tuple[bytes, ...]]:
     d = fleet_path(fleet_dir).parent
     base = load_base_fleet(d)
     history: dict[str, list[bytes]] = {n: [k] for n in base.nodes if (k := base.nodes[n].signing_public_bytes)}
-    found: dict[int, bytes] = {}
-    for path in [*sorted((d / "revisions").glob("*.json")), d / REVISION_FILE]:
-        try:
-            data = path.read_bytes()
-        except FileNotFoundError:
-            continue
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read: {exc.__class__.__name__}") from None
-        got = check_revision(data, base, None)
-        if not isinstance(got, RevisionAccepted):
-            raise ConfigError(f"{path}: not a valid revision of this fleet ({got.reason.value})")
-        found[got.revision.number] = data
+    found = {got.revision.number: got for got in read_revisions([*sorted((d / "revisions").glob("*.json")),
+                                                                 d / REVISION_FILE], base)}
     for number in sorted(found):
-        got = check_revision(found[number], base, None)
-        assert isinstance(got, RevisionAccepted)  # checked above
+        got = found[number]
         for name, node in got.fleet.nodes.items():
             key = node.signing_public_bytes
             if key is not None and history.setdefault(name, [])[-1:] != [key]:
