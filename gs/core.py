@@ -69,8 +69,9 @@ from zdrone.core.opspicture import DroneOps, OpsRequest
 from zdrone.core.tbm import LinkState
 from zdrone.fleet import keyexprs as kx
 
-from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
-from zdrone.vehicle.modes import MODE_ROLES, autopilot_name, mode_name, set_mode_params
+from zdrone.vehicle.fix import PositionFix
+from zdrone.vehicle.modes import MODE_ROLES, mode_name, set_mode_params
+from zdrone.vehicle.report import READ_MSGIDS, AutopilotHeard, PositionReported, TextHeard, VehicleReport
 
 from .actions import Action, Checkpoint, Emit, FrameUp, Put, QueryAnswer, ToOperator
 from .handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
@@ -84,14 +85,11 @@ from .planner import PlannedItem
 log = logging.getLogger(__name__)
 
 GCS_COMPID = mav.MAV_COMP_ID_MISSIONPLANNER
-USED_MSGIDS = frozenset({mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav.MAVLINK_MSG_ID_HEARTBEAT,
-                         mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, mav.MAVLINK_MSG_ID_MISSION_CURRENT,
-                         mav.MAVLINK_MSG_ID_STATUSTEXT, mav.MAVLINK_MSG_ID_COMMAND_ACK,
-                         mav.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mav.MAVLINK_MSG_ID_MISSION_REQUEST,
-                         mav.MAVLINK_MSG_ID_MISSION_ACK, mav.MAVLINK_MSG_ID_SYS_STATUS,
-                         mav.MAVLINK_MSG_ID_PARAM_VALUE, mav.MAVLINK_MSG_ID_GPS_RAW_INT, MSG_EKF_STATUS_REPORT,
-                         mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED})
-TEXTS_KEPT = 8
+#: the messages the station decodes: the vehicle's report (``VehicleReport``), the mission's and the acks
+USED_MSGIDS = READ_MSGIDS | {mav.MAVLINK_MSG_ID_MISSION_CURRENT, mav.MAVLINK_MSG_ID_COMMAND_ACK,
+                            mav.MAVLINK_MSG_ID_MISSION_REQUEST_INT, mav.MAVLINK_MSG_ID_MISSION_REQUEST,
+                            mav.MAVLINK_MSG_ID_MISSION_ACK, mav.MAVLINK_MSG_ID_PARAM_VALUE,
+                            mav.MAVLINK_MSG_ID_MISSION_ITEM_REACHED}
 #: An unconfirmed HANDOVER_RELEASE is sent again this often (a lossy radio must not make the
 #: drone leave the overlap before it hears one).
 RELEASE_RESEND_S = 0.25
@@ -149,19 +147,15 @@ class CoreOptions:
 
 
 @dataclass(slots=True)
-class DroneView:
-    """What this GS knows of one drone."""
+class DroneView(VehicleReport):
+    """What this GS knows of one drone: what its vehicle reports (the base, ``VehicleReport``:
+    position fix, armed, mode, autopilot, landed state, pre-arm health, texts) and the rest."""
 
     name: str
     sysid: int
     link: SecureLink | None = None  # the live link (``slot.live``)
     slot: LinkSlot = field(default_factory=LinkSlot)
     hold: KeyHold | None = None  # the vehicle held for a key (one per epoch, ``gs.keyhold``)
-    fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
-    armed: bool = False
-    disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
-    custom_mode: int = 0
-    landed_state: int = 0
     mission_seq: int | None = None
     owner: str | None = None
     epoch: int = 0
@@ -171,9 +165,6 @@ class DroneView:
     handover: Handover = field(default_factory=lambda: Handover(""))  # our release, in the current epoch
     stale: bool = False  # the drone was silent: our view of the authority waits for its status
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
-    autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
-    prearm_ok: bool | None = None  # SYS_STATUS pre-arm health (None: not reported)
-    texts: list[tuple[float, str]] = field(default_factory=list)  # the vehicle's recent STATUSTEXTs
     last_command: float | None = None
     last_take_control: float | None = None
     takeover: bool = False  # the owner allows takeover (the drone's AuthorityStatus)
@@ -579,32 +570,20 @@ class StationCore:
         if msg is None:
             return out
         t = msg.get_type()
-        view.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT: the position
-        if t == "GLOBAL_POSITION_INT":
-            view.position_input = self._inputs
-        if t == "HEARTBEAT" and msg.get_srcComponent() == 1:
-            armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
-            if view.armed and not armed:
-                view.disarmed_at = now
-            view.armed = armed
-            view.custom_mode = msg.custom_mode
-            if view.autopilot is None:
-                view.autopilot = autopilot_name(msg.autopilot) or "other"
-                out.append(Emit(rec.AutopilotFound(drone=drone, autopilot=view.autopilot, mav_type=msg.type)))
-        elif t == "SYS_STATUS":
-            if msg.onboard_control_sensors_present & mav.MAV_SYS_STATUS_PREARM_CHECK:
-                view.prearm_ok = bool(msg.onboard_control_sensors_health & mav.MAV_SYS_STATUS_PREARM_CHECK)
-        elif t == "PARAM_VALUE":
+        if t != "HEARTBEAT" or msg.get_srcComponent() == 1:  # the vehicle's heartbeat: its autopilot's
+            for change in view.on_message(msg, now):  # the vehicle's report (``VehicleReport``)
+                if isinstance(change, PositionReported):
+                    view.position_input = self._inputs
+                elif isinstance(change, AutopilotHeard):
+                    out.append(Emit(rec.AutopilotFound(drone=drone, autopilot=change.autopilot,
+                                                       mav_type=change.mav_type)))
+                elif isinstance(change, TextHeard):
+                    out.append(Emit(rec.VehicleText(drone=drone, text=change.text, severity=change.severity)))
+        if t == "PARAM_VALUE":
             name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
             out += self._flight(view, FlightParam(now, name, float(msg.param_value)))
-        elif t == "EXTENDED_SYS_STATE":
-            view.landed_state = msg.landed_state
         elif t in ("MISSION_CURRENT", "MISSION_ITEM_REACHED"):
             out += self._progress(view, msg.seq, t == "MISSION_ITEM_REACHED")
-        elif t == "STATUSTEXT":
-            text = str(msg.text).rstrip("\t\x00 ")  # PX4 ends its texts with a tab
-            view.texts = (view.texts + [(now, text)])[-TEXTS_KEPT:]
-            out.append(Emit(rec.VehicleText(drone=drone, text=text, severity=msg.severity)))
         out += view.mission.on_message(msg, now, self.sysid, lambda m: self.send_msg(view, m))
         if t == "COMMAND_ACK" and msg.target_system == self.sysid and msg.command == mav.MAV_CMD_DO_SET_MODE:
             self.on_mode_ack(view, msg.result == mav.MAV_RESULT_ACCEPTED, now)

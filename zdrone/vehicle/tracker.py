@@ -14,6 +14,11 @@ before the real autopilot (issue 29) is not adopted, not provisioned, not comman
 a gap of ``Timing.reboot_gap`` seconds, or a ``time_boot_ms`` of its messages goes back by more than
 ``Timing.boot_back_ms``. Both (re)start a round of stream requests.
 
+**Reports.** What the autopilot says of itself (armed, mode, landed state, texts, position) is
+decoded by ``report.VehicleReport`` (``vehicle``), as the GS decodes it; the tracker decides whose
+frames count: HEARTBEAT and the position of the autopilot's ids only, the landed state and texts of
+any component of its system.
+
 **Position.** A position is one only while the autopilot vouches for it (``fix.PositionFix``: a GPS
 fix, not lat = lon = 0, an absolute estimate); until then ``position`` is None and ``stats`` says why.
 And only while it is fresh (``position_at``): a GLOBAL_POSITION_INT not followed by another within
@@ -70,6 +75,7 @@ from pymavlink.dialects.v20 import common as mav
 from ..core.geometry import GeoPoint
 from .fix import MSG_EKF_STATUS_REPORT, PositionFix
 from .modes import autopilot_name, landed_from_heartbeat, mode_name
+from .report import PositionReported, TextHeard, VehicleReport
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +84,9 @@ AUTOPILOT_COMPID = mav.MAV_COMP_ID_AUTOPILOT1
 #: A STATUSTEXT this soon after a refused SET_MESSAGE_INTERVAL is its reason (ArduPilot says why after
 #: the ACK).
 REASON_AFTER_ACK_S = 0.5
+
+#: besides the autopilot's own, these messages count from any component of the drone's system
+_FROM_ANY_COMPONENT = frozenset({"EXTENDED_SYS_STATE", "STATUSTEXT"})
 
 _RESULT_NAMES = MappingProxyType({v: e.name.removeprefix("MAV_RESULT_") for v, e in mav.enums["MAV_RESULT"].items()})
 
@@ -224,25 +233,17 @@ class VehicleTracker:
         self._failsafe: _FailsafeWatch | None = None
         self._failsafe_out: list[FailsafeOutcome] = []
         self._position_signed = False  # the last GLOBAL_POSITION_INT came signed with the link's key
-        self._position_at: float | None = None  # when the last GLOBAL_POSITION_INT came
         #: the only ids that are the vehicle: the drone's fleet sysid (the companion's own) and the autopilot's component
         self.autopilot_ids = (companion_sysid, AUTOPILOT_COMPID)
         self.timing = timing
         self.wants = streams
         self.sysid: int | None = None
         self.compid: int | None = None
-        self.mav_autopilot: int | None = None
-        self.autopilot: str | None = None  # "px4", "ardupilot", None
-        self.fix = PositionFix()
-        self.armed = False
-        self.custom_mode = 0
-        self.system_status = mav.MAV_STATE_UNINIT
-        self.last_heartbeat: float | None = None
+        #: what the autopilot reports of itself (its frames only: ``autopilot_ids``)
+        self.vehicle = VehicleReport()
         self.connected_at: float | None = None
         self.connections = 0  # 1 after connect; each reboot (or link back after a gap) adds one
         self.counters: Counter[str] = Counter()
-        self._ext_landed: int | None = None
-        self._ext_at: float | None = None
         self._boot_ms: int | None = None
         self._streams = self._fresh_streams()
         self._pending: _Pending | None = None
@@ -251,6 +252,27 @@ class VehicleTracker:
         self._commands: list[_Command] = []
 
     # ------------------------------------------------------------------ state
+    @property
+    def fix(self) -> PositionFix:
+        return self.vehicle.fix
+
+    @property
+    def armed(self) -> bool:
+        return self.vehicle.armed
+
+    @property
+    def custom_mode(self) -> int:
+        return self.vehicle.custom_mode
+
+    @property
+    def autopilot(self) -> str | None:
+        """``"px4"``, ``"ardupilot"``, None (another autopilot, or none heard yet)."""
+        return autopilot_name(self.vehicle.mav_autopilot)
+
+    @property
+    def last_heartbeat(self) -> float | None:
+        return self.vehicle.heartbeat_at
+
     @property
     def position(self) -> GeoPoint | None:
         """The vehicle's position, None while the autopilot has none (no GPS fix, lat = lon = 0, or an
@@ -264,7 +286,8 @@ class VehicleTracker:
 
     def position_at(self, now: float) -> GeoPoint | None:
         """``position`` while it is fresh: reported within ``Timing.position_stale`` of ``now``, else None."""
-        if self._position_at is None or now - self._position_at > self.timing.position_stale:
+        at = self.vehicle.position_at
+        if at is None or now - at > self.timing.position_stale:
             return None
         return self.fix.position
 
@@ -274,10 +297,9 @@ class VehicleTracker:
 
     def position_unknown(self, now: float) -> str | None:
         """Why ``position_at(now)`` is None (None: there is one)."""
-        why = self.fix.unknown_because
-        if why is None and (self._position_at is None or now - self._position_at > self.timing.position_stale):
-            return (f"no position report for {now - self._position_at:.1f} s" if self._position_at is not None
-                    else "no position report")
+        why, at = self.fix.unknown_because, self.vehicle.position_at
+        if why is None and (at is None or now - at > self.timing.position_stale):
+            return f"no position report for {now - at:.1f} s" if at is not None else "no position report"
         return why
 
     @property
@@ -286,11 +308,12 @@ class VehicleTracker:
 
     def landed_state(self, now: float) -> int:
         """EXTENDED_SYS_STATE while it is fresh, else what HEARTBEAT says (``landed_from_heartbeat``)."""
-        if self._ext_landed is not None and self._ext_at is not None and now - self._ext_at <= self.timing.landed_stale:
-            return self._ext_landed
+        v = self.vehicle
+        if v.landed_at is not None and now - v.landed_at <= self.timing.landed_stale:
+            return v.landed_state
         if self.last_heartbeat is None:
             return mav.MAV_LANDED_STATE_UNDEFINED
-        return landed_from_heartbeat(self.autopilot, self.system_status, self.armed)
+        return landed_from_heartbeat(self.autopilot, v.system_status, v.armed)
 
     def stats(self, now: float | None = None) -> dict[str, Any]:
         """Per wanted stream: its state, how it came (unasked / interval / data_stream), asks and refusal;
@@ -298,8 +321,8 @@ class VehicleTracker:
         position = self.fix.describe()
         if now is not None:
             why = self.position_unknown(now)
-            position.update(known=why is None, why=why, age_s=None if self._position_at is None
-                            else round(now - self._position_at, 3))
+            at = self.vehicle.position_at
+            position.update(known=why is None, why=why, age_s=None if at is None else round(now - at, 3))
         return {"autopilot": self.autopilot, "connections": self.connections,
                 "streams": {s.want.name: {"state": s.state.value, "via": s.via, "interval_asks": s.interval_asks,
                                           "stream_asks": s.stream_asks, "lapses": s.lapses, "refusal": s.refusal}
@@ -325,16 +348,14 @@ class VehicleTracker:
         stream = self._streams.get(msg.get_msgId())
         if stream is not None:
             self._seen(stream, now)
-        if src[1] == self.compid:
-            self.fix.on_message(msg)  # GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT
-            if t == "GLOBAL_POSITION_INT":
-                self._position_signed, self._position_at = signed, now
-        if t == "EXTENDED_SYS_STATE":
-            self._ext_landed, self._ext_at = msg.landed_state, now
-        elif t == "COMMAND_ACK":
+        if src[1] == self.compid or t in _FROM_ANY_COMPONENT:
+            for change in self.vehicle.on_message(msg, now):
+                if isinstance(change, PositionReported):
+                    self._position_signed = signed
+                elif isinstance(change, TextHeard):
+                    self._on_text(change.text, now)
+        if t == "COMMAND_ACK":
             self._on_ack(msg, now)
-        elif t == "STATUSTEXT":
-            self._on_text(str(msg.text).rstrip("\x00\t "), now)
 
     def _on_text(self, text: str, now: float) -> None:
         """A STATUSTEXT: the reason of the SET_MESSAGE_INTERVAL in flight, or of the one just refused
@@ -356,18 +377,13 @@ class VehicleTracker:
                 log.warning("vehicle link: HEARTBEAT of an autopilot %d/%d ignored: the vehicle is %d/%d",
                             src[0], src[1], *self.autopilot_ids)
             return
-        if self.sysid is None:
-            self.sysid, self.compid = src
-            self.autopilot = autopilot_name(msg.autopilot)
+        first, last = self.sysid is None, self.last_heartbeat
+        self.sysid, self.compid = src
+        self.vehicle.on_message(msg, now)
+        if first:
             self._reconnect(now, "first heartbeat")
-        elif self.last_heartbeat is not None and now - self.last_heartbeat > self.timing.reboot_gap:
-            self._reconnect(now, f"heartbeats back after {now - self.last_heartbeat:.1f} s")
-        self.mav_autopilot = msg.autopilot
-        self.autopilot = autopilot_name(msg.autopilot)
-        self.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
-        self.custom_mode = msg.custom_mode
-        self.system_status = msg.system_status
-        self.last_heartbeat = now
+        elif last is not None and now - last > self.timing.reboot_gap:
+            self._reconnect(now, f"heartbeats back after {now - last:.1f} s")
 
     def _fresh_streams(self) -> dict[int, _Stream]:
         return {w.msgid: _Stream(w) for w in self.wants if w.wanted_of(self.autopilot)}
@@ -379,11 +395,10 @@ class VehicleTracker:
         self.connections += 1
         self.connected_at = now
         self._boot_ms = None
-        self._ext_landed = self._ext_at = None
         self._pending = self._refused = None
         self._groups.clear()
-        self.fix = PositionFix()  # a rebooted autopilot has no fix yet; a link back: the next report says
-        self._position_signed, self._position_at = False, None
+        self.vehicle.restart()  # a rebooted autopilot has no fix yet; a link back: the next report says
+        self._position_signed = False
         self._streams = self._fresh_streams()
         if self.connections > 1:
             self.counters["reconnects"] += 1
