@@ -50,6 +50,8 @@ def test_the_first_heartbeat_names_the_autopilot_once():
                                                           mav.MAV_TYPE_QUADROTOR)
     assert (r.custom_mode, r.system_status, r.heartbeat_at) == (4, mav.MAV_STATE_STANDBY, 1.0)
     assert r.on_message(_heartbeat(armed=False), 2.0) == () and r.heartbeat_at == 2.0
+    assert r.on_message(_heartbeat(False, autopilot=mav.MAV_AUTOPILOT_PX4), 3.0) == ()
+    assert r.autopilot == "ardupilot" and r.mav_autopilot == mav.MAV_AUTOPILOT_PX4  # named once; the field as sent
 
 
 def test_an_autopilot_without_a_name_is_other():

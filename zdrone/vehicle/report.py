@@ -2,15 +2,16 @@
 
 ``VehicleReport`` is given the autopilot's messages (``on_message(msg, now)``, a pymavlink message of
 any dialect; it reads no clock) and holds what they say: HEARTBEAT (armed, ``custom_mode``, which
-autopilot, MAV_TYPE, ``system_status``, when), SYS_STATUS (the pre-arm checks' health, when the
-autopilot reports them), EXTENDED_SYS_STATE (the landed state, when), STATUSTEXT (the last
-``TEXTS_KEPT`` texts, trailing NULs, tabs and blanks cut: PX4 ends its texts with a tab) and the
-position (``fix.PositionFix``: GLOBAL_POSITION_INT, GPS_RAW_INT, EKF_STATUS_REPORT; when the last
-GLOBAL_POSITION_INT came). What a message changed that a caller acts on comes back as small frozen
-values (``AutopilotHeard``, ``PositionReported``, ``TextHeard``); the rest is read from the state.
+autopilot, named from the first one, MAV_TYPE, ``system_status``, when), SYS_STATUS (the pre-arm
+checks' health, when the autopilot reports them), EXTENDED_SYS_STATE (the landed state, when),
+STATUSTEXT (the last ``TEXTS_KEPT`` texts, trailing NULs, tabs and blanks cut: PX4 ends its texts
+with a tab) and the position (``fix.PositionFix``: GLOBAL_POSITION_INT, GPS_RAW_INT,
+EKF_STATUS_REPORT; when the last GLOBAL_POSITION_INT came). What a message changed that a caller
+acts on comes back as small frozen values (``AutopilotHeard``, ``PositionReported``, ``TextHeard``);
+the rest is read from the state.
 
 Whose messages count is the caller's policy, not this class's: the companion's ``VehicleTracker``
-gives it only the frames of the drone's own autopilot (its fleet sysid, MAV_COMP_ID_AUTOPILOT1),
+gives it the frames of the drone's own system (HEARTBEAT and position of its autopilot's ids only),
 the ground station's ``StationCore`` the frames its drone relays (HEARTBEATs of component 1 only).
 """
 
@@ -71,7 +72,7 @@ class VehicleReport:
     fix: PositionFix = field(default_factory=PositionFix)  # the vehicle's own word on its position
     position_at: float | None = None  # when the last GLOBAL_POSITION_INT came
     mav_autopilot: int | None = None  # HEARTBEAT's MAV_AUTOPILOT_*; None: no HEARTBEAT yet
-    autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's HEARTBEAT
+    autopilot: str | None = None  # "px4" | "ardupilot" | "other", from the vehicle's first HEARTBEAT
     mav_type: int | None = None  # HEARTBEAT's MAV_TYPE_*
     armed: bool = False
     disarmed_at: float | None = None  # when a HEARTBEAT last reported armed -> disarmed
@@ -120,8 +121,9 @@ class VehicleReport:
         armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
         if self.armed and not armed:
             self.disarmed_at = now
-        first = self.autopilot is None
         self.armed, self.custom_mode, self.system_status = armed, msg.custom_mode, msg.system_status
         self.mav_autopilot, self.mav_type, self.heartbeat_at = msg.autopilot, msg.type, now
-        self.autopilot = autopilot_name(msg.autopilot) or "other"
-        return (AutopilotHeard(self.autopilot, msg.type),) if first else ()
+        if self.autopilot is not None:
+            return ()
+        self.autopilot = autopilot_name(msg.autopilot) or "other"  # which autopilot it is: said once
+        return (AutopilotHeard(self.autopilot, msg.type),)
