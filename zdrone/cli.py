@@ -387,8 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --sites: spread = drone i connects to site (i mod N)'s router (default); "
                          "all = every drone is given every site's endpoint and Zenoh picks one")
     bs.add_argument("--inbox-senders", type=int, metavar="N",
-                    help="what-if: set the GSs' inbox bound on (kind, sender) queues holding items at once "
-                         "(default 256; a drained queue is freed) to N in the GSs host; every row says so")
+                    help="what-if: raise the GSs' inbox bound on (kind, sender) queues holding items at once "
+                         "(default: 4 per fleet node, at least 256; a drained queue is freed) to at least N in "
+                         "the GSs host; every row says so")
     bs.set_defaults(func=_bench_scale)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "

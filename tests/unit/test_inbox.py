@@ -80,3 +80,28 @@ def test_a_drained_sender_frees_its_queue_so_many_senders_in_turn_are_served():
     for i in range(MAX_SENDERS + 1):  # all waiting at once: the bound holds
         box.put("down", f"d{i}", b"x")
     assert box.stats() == {"down:too_many_senders": 1}
+
+
+def test_the_sender_bound_grows_with_the_fleet_so_300_drones_with_a_backlog_are_all_queued():
+    """Issue 30: a fixed bound of 256 refused the frames of a GS's 257th drone with a backlog (300
+    drones: 18 000 frames lost in a flight). A node's bound is every peer of its fleet with every kind."""
+    from zdrone.net.inbox import KINDS_PER_PEER, MAX_SENDERS, senders_bound
+
+    bound = senders_bound(303)  # 300 drones + 3 GSs
+    assert bound == KINDS_PER_PEER * 303 and senders_bound(3) == MAX_SENDERS
+    box = Inbox(max_senders=bound)
+    for kind in ("down", "pair", "linkkey"):
+        for i in range(300):
+            box.put(kind, f"d{i}", b"x")
+    assert box.stats() == {}
+
+
+def test_the_bytes_waiting_in_all_queues_are_bounded():
+    box = Inbox(max_bytes=3000)
+    for i in range(4):
+        box.put("down", f"d{i}", b"x" * 1000)
+    assert box.stats() == {"down:inbox_bytes": 1}
+    got: list[bytes] = []
+    box.drain(0.0, lambda kind, peer, data, now: got.append(data))  # drained: room again
+    box.put("down", "d9", b"x" * 1000)
+    assert len(got) == 3 and box.stats() == {"down:inbox_bytes": 1}

@@ -41,6 +41,7 @@ import tempfile
 import threading
 import time
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -51,10 +52,15 @@ READY_TIMEOUT_S = 180.0
 #: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
 #: sleeps until its next deadline or input; stepping hundreds in turn, each pass costs them all).
 PASS_S = 0.01
-#: After the last vehicle has landed the drones host steps on this long: the GSs count the commands
-#: they sent when told it landed, and those still on their way arrive (a command sent to a drone whose
-#: host had stopped was counted lost).
+#: After the last vehicle has landed the GSs stop commanding and count what they sent (``COUNTED``
+#: file), and the drones host steps on this long after that, so what is still on its way arrives: a
+#: command sent to a drone whose host had stopped was counted lost, one sent after the GSs had counted
+#: but forwarded before the host stopped was "-1 lost" (7 drones of 300).
 LANDED_DRAIN_S = 2.0
+#: Written by the stations host once it stopped commanding and counted; the drones host waits for it
+#: this long at most after the landing.
+COUNTED = "stations.counted"
+COUNTED_WAIT_S = 30.0
 #: The flight's time limit from take-off, in simulated seconds (150 wall seconds at speed-up 4).
 FLIGHT_SIM_S = 600.0
 #: Readiness of a held vehicle (simulated seconds after boot before it may arm): never, until released.
@@ -143,6 +149,7 @@ def _host_drones(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGUSR2, lambda *_: jam.__setitem__(0, False))
     armed_seen = [False] * len(nodes)
     landed_at: float | None = None
+    counted_at: float | None = None  # the GSs stopped commanding and counted (``COUNTED``)
     worst_owner_silence = [0.0] * len(nodes)
     owner_lost = [0] * len(nodes)
     t_ready = time.monotonic()
@@ -187,8 +194,12 @@ def _host_drones(args: argparse.Namespace) -> int:
                 # (--jam: not before the cut-off drone has been back in reach for 10 s)
                 landed_at = time.monotonic()  # the GSs count what they sent now; what is on its way still arrives
                 print("drones host: all landed", flush=True)
-            if landed_at is not None and time.monotonic() - landed_at >= LANDED_DRAIN_S:
-                break
+            if landed_at is not None:
+                if counted_at is None and (Path(args.out, COUNTED).exists()
+                                           or time.monotonic() - landed_at >= COUNTED_WAIT_S):
+                    counted_at = time.monotonic()
+                if counted_at is not None and time.monotonic() - counted_at >= LANDED_DRAIN_S:
+                    break
             time.sleep(max(0.0005, PASS_S - (time.monotonic() - pass_start)))
         flight_s, cpu_s = time.monotonic() - t0, time.process_time() - cpu0
         results = {}
@@ -251,7 +262,11 @@ def _host_stations(args: argparse.Namespace) -> int:
     while not stop[0]:
         pause.wait(0.2)
         if landed[0] and counted is None:
+            for st in stations:  # no command after the count: every command counted is one the drones can forward
+                st.core.opts = replace(st.core.opts, command_rate=0.0)
+            pause.wait(0.3)  # a tick that began before the freeze has sent what it sends
             counted = count_sent()  # what was sent while the drones were still there to forward it
+            Path(args.out, COUNTED).touch()
     sent, sent_epochs = counted or count_sent()
     counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
     delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}

@@ -25,11 +25,17 @@ MAX_BATCH = 512
 MAX_PER_SENDER = 64
 #: Items waiting per (kind, sender) at most; beyond it, new ones are refused (``<kind>:inbox_full``).
 INBOX_SIZE = 1024
-#: (kind, sender) queues holding items at once, at most (senders are node names from key expressions,
+#: (kind, sender) queues holding items at once, at least (senders are node names from key expressions,
 #: which the router's ACL ties to the fleet). A queue is freed as soon as it is drained, so this bounds
-#: the senders with a backlog, not the senders a node ever hears from: a GS serving 100 drones has
-#: three kinds per drone (down, pair, linkkey) but only those with something waiting hold a queue.
+#: the senders with a backlog, not the senders a node ever hears from. A node's bound grows with its
+#: fleet (``senders_bound``): a fixed 256 refused the frames of a GS's 257th drone with a backlog, so a
+#: GS serving 300 drones lost 18 000 of their frames in a flight and 227 of them went wrong (issue 30).
 MAX_SENDERS = 256
+#: Kinds of queue one peer can hold at once (a GS's drone: down, pair, linkkey, query).
+KINDS_PER_PEER = 4
+#: Bytes waiting in all queues together, at most (``<kind>:inbox_bytes``): whatever the fleet's size,
+#: what every sender can make a node hold stays bounded (one queue alone: ``INBOX_SIZE`` items).
+MAX_BYTES = 64 * 1024 * 1024
 #: A sealed envelope carries one MAVLink frame (<= 280 bytes) or one small control message.
 MAX_ENVELOPE = 1024
 #: A pairing or key-sharing query or reply: a Noise message (classical <= 512 bytes, hybrid with
@@ -44,8 +50,9 @@ class Inbox:
     password) fills its own queue only, and the loop takes one item from each non-empty queue in
     turn, so the other senders' frames still get through at their own rate. Refusals are counted."""
 
-    def __init__(self, size: int = INBOX_SIZE) -> None:
-        self.size = size
+    def __init__(self, size: int = INBOX_SIZE, max_senders: int = MAX_SENDERS, max_bytes: int = MAX_BYTES) -> None:
+        self.size, self.max_senders, self.max_bytes = size, max_senders, max_bytes
+        self._bytes = 0  # bytes waiting, all queues
         self._queues: dict[tuple[str, str], deque[Any]] = {}
         self._order: deque[tuple[str, str]] = deque()  # keys with items, in turn
         self._cond = threading.Condition(threading.Lock())
@@ -61,13 +68,18 @@ class Inbox:
         with self._cond:
             q = self._queues.get(key)
             if q is None:
-                if len(self._queues) >= MAX_SENDERS:
+                if len(self._queues) >= self.max_senders:
                     self.dropped[f"{kind}:too_many_senders"] += 1
                     return
                 q = self._queues[key] = deque()
             if len(q) >= self.size:
                 self.dropped[f"{kind}:inbox_full"] += 1
                 return
+            size = len(data) if isinstance(data, (bytes, bytearray)) else 0
+            if self._bytes + size > self.max_bytes:
+                self.dropped[f"{kind}:inbox_bytes"] += 1
+                return
+            self._bytes += size
             if not q:
                 self._order.append(key)
             q.append(data)
@@ -93,7 +105,10 @@ class Inbox:
         while self._order and len(out) < n:
             key = self._order.popleft()
             q = self._queues[key]
-            out.append((key[0], key[1], q.popleft()))
+            item = q.popleft()
+            if isinstance(item, (bytes, bytearray)):
+                self._bytes -= len(item)
+            out.append((key[0], key[1], item))
             taken = rounds[key] = rounds.get(key, 0) + 1
             if not q:
                 del self._queues[key]  # drained: the sender holds no queue until it sends again
@@ -114,6 +129,12 @@ class Inbox:
         for kind, peer, data in batch:
             handle(kind, peer, data, time.monotonic())
         return len(batch)
+
+
+def senders_bound(fleet_nodes: int) -> int:
+    """A node's bound on (kind, sender) queues at once: every peer of its fleet with every kind it
+    can send (never below ``MAX_SENDERS``)."""
+    return max(MAX_SENDERS, KINDS_PER_PEER * fleet_nodes)
 
 
 def payload_bytes(payload: Any, limit: int = MAX_HANDSHAKE) -> bytes | None:

@@ -41,7 +41,7 @@ from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
 from ..fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
 from ..fleet.tls import node_files
 from .eventlog import EventLog
-from .inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes
+from .inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes, senders_bound
 from .pacing import Pacer
 from .paths import PathQueryable, RecentPayloads, SessionPath
 from .session import open_client, query_queue
@@ -80,7 +80,7 @@ class NodeRuntime:
         routers = [router] if isinstance(router, str) else list(router)
         self.router = " + ".join(routers)
         self.events = EventLog(events, name)
-        self.inbox = Inbox()
+        self.inbox = Inbox(max_senders=senders_bound(len(self.fleet.nodes)))
         self.pacer = Pacer(UPLINK_PACE_S, self.inbox.drop)
         self._lanes: dict[str, int] = {}  # uplink -> the lane its next frame goes on
         self.running = True
