@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .core.audit import AuditWitness, ChainReport, decode_line, verify_chain
+from .core.audit import AuditWitness, ChainReport, ReadLine, read_lines, verify_chain
 from .core.fleet import ConfigError, Fleet, parse_fleet
 from .core.geometry import GeoPoint, ne_of
 from .core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
@@ -91,24 +91,11 @@ def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[b
     """Each file's record verified (its node: the one its entries name), against every witness; with
     ``key_history`` (``zdrone.fleet.revisions.signing_key_history``), each checkpoint against the
     node's key in force when it was signed (a rotated node's earlier checkpoints under its earlier key)."""
-    contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
-    witnesses: list[AuditWitness] = []
-    owners: dict[Path, str | None] = {}
-    decoded: dict[Path, list[Any]] = {}  # each line decoded once; an undecodable one left as bytes for verify_chain
-    for f, lines in contents.items():
-        owners[f] = None
-        decoded[f] = []
-        for raw in lines:
-            try:
-                line = decode_line(raw)
-            except Exception:  # reported by verify_chain with its line number
-                decoded[f].append(raw)
-                continue
-            decoded[f].append(line)
-            if isinstance(line, AuditWitness):
-                witnesses.append(line)
-            elif owners[f] is None:
-                owners[f] = line.node
+    contents: dict[Path, list[ReadLine]] = {f: read_lines(f.read_bytes().splitlines()) for f in files}
+    witnesses = [r.line for lines in contents.values() for r in lines if isinstance(r.line, AuditWitness)]
+    owners: dict[Path, str | None] = {
+        f: next((r.line.node for r in lines if r.line is not None and not isinstance(r.line, AuditWitness)), None)
+        for f, lines in contents.items()}
     keys: dict[str, object] = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
     keys.update(key_history or {})
     out = []
@@ -118,7 +105,7 @@ def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[b
             if not lines:
                 out.append((f, ChainReport(f.stem, 0, 0, -1, -1, 0)))
             continue  # only witness lines: a ground station that took no decision of its own
-        out.append((f, verify_chain(node, decoded[f], keys.get(node), witnesses, keys)))
+        out.append((f, verify_chain(node, lines, keys.get(node), witnesses, keys)))
     return out
 
 

@@ -66,7 +66,7 @@ AUDITED = frozenset({
     "takeover_window_opened", "handover_release",
 })
 
-_HASH_DOMAIN = b"zdrone audit entry v1\0"
+_HASH_DOMAIN = b"zdrone audit entry v2\0"  # v2: over the line's bytes
 _CHECKPOINT_DOMAIN = b"zdrone audit checkpoint v1\0"
 _WITNESS_DOMAIN = b"zdrone audit witness v1\0"
 
@@ -112,7 +112,6 @@ AuditLine = AuditEntry | AuditCheckpoint | AuditWitness
 
 _line_decoder = msgspec.json.Decoder(AuditLine)
 _line_encoder = msgspec.json.Encoder()
-_canonical = msgspec.msgpack.Encoder(order="deterministic")
 
 
 def genesis(node: str) -> str:
@@ -121,7 +120,13 @@ def genesis(node: str) -> str:
 
 
 def entry_hash(e: AuditEntry) -> str:
-    return hashlib.sha256(_HASH_DOMAIN + _canonical.encode((e.node, e.seq, e.t, e.kind, e.fields, e.prev))).hexdigest()
+    """The hash of the entry's line as ``encode_line`` writes it."""
+    return line_hash(encode_line(e))
+
+
+def line_hash(raw: bytes) -> str:
+    """The hash of an entry from the bytes of its line (without the newline)."""
+    return hashlib.sha256(_HASH_DOMAIN + raw).hexdigest()
 
 
 def checkpoint_message(node: str, seq: int, head: str) -> bytes:
@@ -169,17 +174,18 @@ class AuditChain:
     @classmethod
     def resume(cls, node: str, key: SigningKey, lines: Iterable[bytes | str], **kw: Any) -> "AuditChain":
         """Continue the record whose lines are given (a restarted node): after its last entry."""
-        last: AuditEntry | None = None
+        last: tuple[AuditEntry, bytes] | None = None
         for raw in lines:
+            raw = raw.encode() if isinstance(raw, str) else raw
             try:
                 line = decode_line(raw)
             except (msgspec.DecodeError, msgspec.ValidationError):
                 continue
             if isinstance(line, AuditEntry) and line.node == node:
-                last = line
+                last = line, raw
         if last is None:
             return cls(node, key, **kw)
-        return cls(node, key, seq=last.seq + 1, head=entry_hash(last), **kw)
+        return cls(node, key, seq=last[0].seq + 1, head=line_hash(last[1].strip()), **kw)
 
     def append(self, kind: str, fields: dict[str, Any], now: float) -> list[AuditLine]:
         """The entry of one decision (and a checkpoint when ``every`` entries are unsigned)."""
@@ -313,7 +319,31 @@ class ChainReport:
         return f"{self.node}: verified {self.signed_through + 1} of {self.entries} entries{tail}{wit}"
 
 
-def verify_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public: PublicKeys,
+@dataclass(frozen=True, slots=True)
+class ReadLine:
+    """One line of a record file: its bytes (what an entry's hash is over) and what they decode to
+    (None: undecodable, ``error`` says why)."""
+
+    raw: bytes
+    line: AuditLine | None
+    error: str = ""
+
+
+def read_lines(raw_lines: Iterable[bytes]) -> list[ReadLine]:
+    """A record file's non-blank lines, each decoded once."""
+    out: list[ReadLine] = []
+    for raw in raw_lines:
+        raw = raw.strip()
+        if not raw:
+            continue
+        try:
+            out.append(ReadLine(raw, _line_decoder.decode(raw)))
+        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+            out.append(ReadLine(raw, None, str(exc)[:60]))
+    return out
+
+
+def verify_chain(node: str, lines: Iterable[bytes | str | ReadLine | AuditLine], node_public: PublicKeys,
                  witnesses: Iterable[AuditWitness] = (), witness_keys: dict[str, Any] | None = None
                  ) -> ChainReport:
     """Check ``node``'s record (its entry and checkpoint lines, in file order) against its fleet
@@ -329,14 +359,19 @@ def verify_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_publi
     def bad(kind: str, first: int, problem: str) -> ChainReport:
         return ChainReport(node, len(hashes), checkpoints, signed, -1, 0, problem, kind, first)
 
-    for i, raw in enumerate(lines):
-        if isinstance(raw, (bytes, str)):
+    for i, item in enumerate(lines):
+        if isinstance(item, ReadLine):  # decoded already (``zdrone audit verify`` reads each file once)
+            raw, line = item.raw, item.line
+            if line is None:
+                return bad("undecodable", len(hashes), f"line {i + 1} is no audit line ({item.error})")
+        elif isinstance(item, (bytes, str)):
+            raw = (item.encode() if isinstance(item, str) else item).strip()
             try:
                 line = decode_line(raw)
             except (msgspec.DecodeError, msgspec.ValidationError) as exc:
                 return bad("undecodable", len(hashes), f"line {i + 1} is no audit line ({str(exc)[:60]})")
-        else:  # decoded already (``zdrone audit verify`` reads each file once)
-            line = raw
+        else:  # a line made in memory: its bytes are encode_line's
+            line, raw = item, None
         if isinstance(line, AuditWitness):
             continue  # a witness line in a node's own file vouches for another node's record
         if line.node != node:
@@ -350,7 +385,7 @@ def verify_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_publi
                                               f"{expect - 1}): deleted or reordered")
             if line.prev != prev:
                 return bad("modified", expect - 1, f"entry {expect - 1} is not the one entry {expect} chains to")
-            prev = entry_hash(line)
+            prev = line_hash(raw) if raw is not None else entry_hash(line)
             hashes.append(prev)
         else:
             if line.seq >= len(hashes) or line.seq < 0:
