@@ -321,3 +321,18 @@ def test_against_the_ardupilot_personality_the_position_comes_only_once_its_ekf_
     assert t.position is None and t.stats()["position"]["why"] == "estimate not absolute (EKF not using GPS)"
     b.run(5.0)
     assert t.position is not None and distance_m(HOME, t.position) < 1.0 and t.stats()["position"]["known"]
+
+
+def test_only_the_autopilot_component_says_where_the_vehicle_is_or_whether_it_is_on_the_ground():
+    """A local process that takes the drone's system id with another component id (a camera, a
+    script beside the companion) is not the autopilot: its EXTENDED_SYS_STATE "on the ground" (what
+    confirms a failsafe) and its texts are not the vehicle's."""
+    b = Bench(PX4)
+    b.run(3.0)
+    assert b.tracker.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
+    other = FrameCodec(1, mav.MAV_COMP_ID_CAMERA)
+    for m in (mav.MAVLink_extended_sys_state_message(0, mav.MAV_LANDED_STATE_IN_AIR),
+              mav.MAVLink_statustext_message(mav.MAV_SEVERITY_CRITICAL, b"not the autopilot")):
+        b.tracker.on_message(b.decoder.decode(other.encode(m)), b.now)
+    assert b.tracker.landed_state(b.now) == mav.MAV_LANDED_STATE_ON_GROUND
+    assert all("not the autopilot" not in t for _, t in b.tracker.vehicle.texts)

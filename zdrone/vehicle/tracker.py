@@ -85,9 +85,6 @@ AUTOPILOT_COMPID = mav.MAV_COMP_ID_AUTOPILOT1
 #: the ACK).
 REASON_AFTER_ACK_S = 0.5
 
-#: besides the autopilot's own, these messages count from any component of the drone's system
-_FROM_ANY_COMPONENT = frozenset({"EXTENDED_SYS_STATE", "STATUSTEXT"})
-
 _RESULT_NAMES = MappingProxyType({v: e.name.removeprefix("MAV_RESULT_") for v, e in mav.enums["MAV_RESULT"].items()})
 
 
@@ -348,7 +345,8 @@ class VehicleTracker:
         stream = self._streams.get(msg.get_msgId())
         if stream is not None:
             self._seen(stream, now)
-        if src[1] == self.compid or t in _FROM_ANY_COMPONENT:
+        if src[1] == self.compid:  # only the autopilot's own word: another component of its system (a
+            # local process taking its system id) must not say "on the ground", which confirms a failsafe
             for change in self.vehicle.on_message(msg, now):
                 if isinstance(change, PositionReported):
                     self._position_signed = signed
