@@ -162,6 +162,7 @@ class DroneView(VehicleReport):
     ha_state: HaState | None = None
     pending_to: str | None = None
     fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
+    attest: wire.AuthorityAttestation | None = None  # the drone's newest signed word on its authority, as it came
     handover: Handover = field(default_factory=lambda: Handover(""))  # our release, in the current epoch
     stale: bool = False  # the drone was silent: our view of the authority waits for its status
     commands_sent: Counter = field(default_factory=Counter)  # per epoch
@@ -291,7 +292,8 @@ class StationCore:
             stage=v.mission.stage.value, fc_signed=v.fc_signed, failsafe=v.ha_state is HaState.FAILSAFE,
             holds=self.holds_authority(v), takeover=v.operator.shown_takeover(v, now),
             request=None if req is None else OpsRequest(req.requester, req.to, req.epoch, round(now - req.since, 2),
-                                                        req.timeout))
+                                                        req.timeout),
+            attest=v.attest)
 
     def commands_sent(self, drone: str) -> int:
         """Commanding frames sent to ``drone``, all epochs."""
@@ -615,6 +617,8 @@ class StationCore:
                                f"({roles['hold']}): resume its mission or bring it home"))
             if msg.audit is not None:
                 out.append(Checkpoint(view.name, msg.audit))
+            if msg.attest is not None:  # passed on to the fleet's viewer, which checks it (``drone_ops``)
+                view.attest = msg.attest
             if changed:
                 out.append(Emit(rec.AuthorityStatus(drone=view.name, owner=msg.owner, epoch=msg.epoch, state=msg.state,
                                                    pending_to=msg.pending_to)))

@@ -41,15 +41,17 @@ import enum
 import struct
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping, Sequence
 
 import msgspec
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
+from .attestation import AttestationCheck
 from .keys import Identity, hkdf, public_key
 from .ratelimit import TokenBucket
 from .replay import ReplayWindow
+from .wire import AuthorityAttestation
 
 #: The largest sealed part: far under the router's largest message (``routerconfig.MAX_MESSAGE_SIZE``)
 #: and its size limit on ``zdrone-ops/*`` (``OPS_MAX_BYTES`` there too).
@@ -114,6 +116,7 @@ class DroneOps(msgspec.Struct, frozen=True, array_like=True):
     holds: bool = False  # this GS commands it now
     request: OpsRequest | None = None
     takeover: bool = False
+    attest: AuthorityAttestation | None = None  # the drone's newest signed word on its authority, as it came
 
 
 class OpsEvent(msgspec.Struct, frozen=True, array_like=True):
@@ -271,6 +274,13 @@ class OpsOpener:
 class _Claim:
     ops: DroneOps
     received: float  # the viewer's monotonic time
+    proven: bool = False  # ``ops.attest`` is the drone's own (``AttestationCheck``)
+
+    @property
+    def backed(self) -> bool:
+        """The GS's claim (owner, epoch) is what the drone's own attestation it carries says."""
+        a = self.ops.attest
+        return self.proven and a is not None and (a.owner, a.epoch) == (self.ops.owner, self.ops.epoch)
 
 
 @dataclass
@@ -287,7 +297,10 @@ def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
 class FleetPicture:
     """Every GS's word merged into one picture of the fleet (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, drone_keys: Mapping[str, Sequence[bytes]] | None = None) -> None:
+        """``drone_keys``: each drone's public signing keys over time, oldest first (its attestations
+        are checked against them); a drone without keys has only unverified claims."""
+        self.check = AttestationCheck(drone_keys or {})
         self.claims: dict[str, dict[str, _Claim]] = {}  # drone -> GS -> its latest word
         self.heard: dict[str, float] = {}  # GS -> when its last part arrived
         self.feed: deque[dict[str, Any]] = deque(maxlen=FEED_LEN)  # newest last
@@ -297,7 +310,8 @@ class FleetPicture:
     def on_report(self, report: OpsReport, now: float) -> None:
         self.heard[report.gs] = now
         for d in report.drones:
-            self.claims.setdefault(d.drone, {})[report.gs] = _Claim(d, now)
+            proven = self.check.valid(report.gs, d.drone, d.attest, now)
+            self.claims.setdefault(d.drone, {})[report.gs] = _Claim(d, now, proven)
         for ev in report.events:
             self.feed.append({"t": ev.t, "gs": report.gs, "drone": ev.drone, "kind": ev.kind, "text": ev.text})
         for drone in {d.drone for d in report.drones}:
@@ -329,30 +343,53 @@ class FleetPicture:
         aged = [(self._age(c, now), gs, c) for gs, c in claims.items()]
         live = sorted(((a, gs, c) for a, gs, c in aged if a is not None), key=lambda x: x[0])
         age = live[0][0] if live else None
-        heard = [c for c in claims.values() if c.ops.state != "unknown"]
-        top = max(heard, key=lambda c: (c.ops.epoch, c.received)) if heard else None
-        owner = top.ops.owner if top else None
+        auth = self._authority(claims)
+        owner = auth["owner"]
         # the vehicle's fields from the owner's word while it is fresh (a GS in standby hears the drone's
         # status, but its telemetry only now and then), else from the freshest
         mine = [c for a, gs, c in live if gs == owner and a <= STALE_S]
         best = mine[0].ops if mine else (live[0][2].ops if live else (next(iter(claims.values())).ops if claims else None))
-        epoch = top.ops.epoch if top else 0
-        disputed = sorted({c.ops.owner or "-" for c in heard if c.ops.epoch == epoch}) if top else []
         links = {gs: {"link": c.ops.link, "age": None if a is None else round(a, 2), "holds": c.ops.holds,
                       "says": c.ops.owner, "epoch": c.ops.epoch, "silent": now - self.heard.get(gs, now) > GS_SILENT_S}
                  for a, gs, c in sorted(aged, key=lambda x: x[1])}
         requests = [{"at": gs, **msgspec.structs.asdict(c.ops.request)} for gs, c in claims.items() if c.ops.request]
         stale = age is None or age > STALE_S
-        return {"drone": name, "owner": owner, "epoch": epoch, "state": top.ops.state if top else "unknown",
-                "pending_to": top.ops.pending_to if top else None,
-                "disputed": disputed if len(disputed) > 1 else [],
-                "failsafe": bool(top and (top.ops.failsafe or top.ops.state == "failsafe")),
+        return {"drone": name, **auth,
                 "stale": stale, "age": None if age is None else round(age, 2),
                 "mode": best.mode if best else "", "armed": best.armed if best else False,
                 "position": list(best.position) if best and best.position else None,
                 "mission_seq": best.mission_seq if best else None, "stage": best.stage if best else "",
                 "fc_signed": best.fc_signed if best else None, "links": links, "requests": requests,
                 "takeover": any(c.ops.takeover for c in claims.values())}
+
+    @staticmethod
+    def _authority(claims: dict[str, _Claim]) -> dict[str, Any]:
+        """Who commands the drone: the drone's own attestation with the highest (epoch, time) that any
+        GS carries, ``verified``; the GSs' claims it does not back (a higher epoch, or another owner in
+        its epoch) listed apart as ``unverified``, never shown as the owner. Without any valid
+        attestation: the GSs' claim of the highest epoch, not ``verified``."""
+        heard = [c for c in claims.values() if c.ops.state != "unknown"]
+        proofs = [c for c in claims.values() if c.proven and c.ops.attest is not None]
+        if proofs:
+            best = max(proofs, key=lambda c: (c.ops.attest.epoch, c.ops.attest.at, c.received))  # type: ignore[union-attr]
+            att = best.ops.attest
+            assert att is not None
+            owner, epoch, state, pending_to = att.owner, att.epoch, att.state.value, att.pending_to
+            owners = {c.ops.attest.owner or "-" for c in proofs if c.ops.attest is not None and c.ops.attest.epoch == epoch}
+            unverified = [{"gs": gs, "owner": c.ops.owner, "epoch": c.ops.epoch} for gs, c in sorted(claims.items())
+                          if c.ops.state != "unknown" and not c.backed and (c.ops.epoch, c.ops.owner) != (epoch, owner)
+                          and c.ops.epoch >= epoch]
+        else:
+            top = max(heard, key=lambda c: (c.ops.epoch, c.received)) if heard else None
+            owner, epoch = (top.ops.owner, top.ops.epoch) if top else (None, 0)
+            state, pending_to = (top.ops.state, top.ops.pending_to) if top else ("unknown", None)
+            owners = {c.ops.owner or "-" for c in heard if c.ops.epoch == epoch}
+            unverified = []
+        # a failsafe a GS of this epoch heard of shows at once (an alarm errs on the safe side)
+        failsafe = state == "failsafe" or any(c.ops.failsafe for c in heard if c.ops.epoch == epoch)
+        return {"owner": owner, "epoch": epoch, "state": state, "pending_to": pending_to,
+                "verified": bool(proofs), "unverified": unverified,
+                "disputed": sorted(owners) if len(owners) > 1 else [], "failsafe": failsafe}
 
     def snapshot(self, now: float) -> dict[str, Any]:
         """The whole picture at ``now``: drones (sorted by name), GSs heard, the feed newest first."""

@@ -81,6 +81,20 @@ class AuditHead(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sig: bytes
 
 
+class AuthorityAttestation(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The drone's own word on its authority (``zdrone.core.attestation``): ``owner`` holds it in
+    ``epoch``, in ``state`` (handing it to ``pending_to``), since the drone's time of day ``at``,
+    signed (``sig``) with the drone's fleet signing key once per change; a GS passes it on to the
+    fleet's viewer as it came."""
+
+    owner: str | None
+    epoch: int
+    state: AuthorityState
+    pending_to: str | None
+    at: float
+    sig: bytes
+
+
 class AuthorityStatus(Control, frozen=True, tag="authority"):
     """Drone -> every linked GS: who holds authority, in which epoch, in which state."""
 
@@ -93,6 +107,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     takeover_to: str | None = None  # ... for this GS only (a consent's window); None: for any
     fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
     audit: AuditHead | None = None  # the drone's newest authority-record checkpoint (None: none yet)
+    attest: AuthorityAttestation | None = None  # the drone's signed word on (owner, epoch, state) (None: no key)
 
 
 class Reject(Control, frozen=True, tag="reject"):

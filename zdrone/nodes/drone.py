@@ -165,7 +165,8 @@ class DroneNode:
         self.core = DroneCore(self.fleet, self.name, self.secret.identity,
                               DroneCoreOptions(opts.thresholds, opts.failsafe, opts.handover_timeout, opts.cipher,
                                                revision_lease=opts.revision_lease),
-                              started_wall=time.time())
+                              started_wall=time.time(), signing=self.secret.signing)
+        self.core.wall_offset = time.time() - time.monotonic()  # the time of day its attestations name
         if self.secret.signing is not None:  # the signed authority record beside the event log (zdrone.core.audit)
             self.events.start_audit(self.secret.signing, on_checkpoint=lambda cp: self.core.on_audit_checkpoint(*cp.raw()))
         self.store = AuthorityStore(opts.fleet, opts.drone)

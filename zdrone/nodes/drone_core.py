@@ -40,10 +40,11 @@ import msgspec
 from zdrone.core import authority as ha
 from zdrone.core import records as rec
 from zdrone.core import wire
+from zdrone.core.attestation import Attester
 from zdrone.core.envelope import Dropped, Opened, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint
-from zdrone.core.keys import Identity, LinkKey
+from zdrone.core.keys import Identity, LinkKey, SigningKey
 from zdrone.core.linkslot import LinkSlot, Promoted
 from zdrone.core.mavlink import FrameError, read_header
 from zdrone.core.standby import STREAMED, StandbyStream
@@ -128,9 +129,11 @@ class DroneCore:
     """The companion of drone ``name``: feed it inputs, carry out what they return."""
 
     def __init__(self, fleet: Fleet, name: str, identity: Identity, opts: DroneCoreOptions = DroneCoreOptions(),
-                 started_wall: float | None = None) -> None:
+                 started_wall: float | None = None, signing: SigningKey | None = None) -> None:
         """``started_wall``: the time of day the companion started (pairing message 1s stamped
-        before it are stale: a restarted companion has forgotten its answers)."""
+        before it are stale: a restarted companion has forgotten its answers); ``signing``: the
+        drone's fleet signing key (its authority status then carries its signed word on who commands
+        it, ``zdrone.core.attestation``)."""
         node = fleet.nodes[name]
         self.fleet, self.name, self.opts = fleet, name, opts
         self.uplink = node.uplink
@@ -157,6 +160,8 @@ class DroneCore:
         self.on_ground = True
         self.fc_signed: bool | None = None  # the adapter's word: the autopilot link is MAVLink-signed (None: unknown)
         self.audit_head: wire.AuditHead | None = None  # the authority record's newest checkpoint (the adapter's)
+        self.attester = Attester(name, signing) if signing is not None else None
+        self.wall_offset = 0.0  # the time of day minus ``now`` (the adapter's clocks): when an attestation is signed
         self._listening: frozenset[str] = frozenset()
         self._persisted: tuple[str | None, int, str] | None = None
         self._next_beacon = 0.0
@@ -389,7 +394,7 @@ class DroneCore:
             out += self._apply(self.machine.handle_timer(now), now)
         if now >= self._next_beacon:
             self._next_beacon = now + self.opts.status_beacon
-            st = self._stamped(self.machine.status())
+            st = self._stamped(self.machine.status(), now)
             out += [Put(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
         return out + self._effects(now)
 
@@ -429,22 +434,28 @@ class DroneCore:
             peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds, cipher=self.opts.cipher,
             authorize=lambda g: self.fleet.is_authorized(self.name, g))
 
-    def _control(self, gs: str, msg: wire.Control) -> list[Out]:
+    def _control(self, gs: str, msg: wire.Control, now: float) -> list[Out]:
         link = self.links.get(gs)
-        return [] if link is None else [Put(gs, link.seal_control(self._stamped(msg)))]
+        return [] if link is None else [Put(gs, link.seal_control(self._stamped(msg, now)))]
 
     def on_audit_checkpoint(self, seq: int, head: bytes, sig: bytes) -> None:
         """The authority record signed its head (the adapter's log): shown to every GS in the status,
         which countersigns it (``zdrone.core.audit``)."""
         self.audit_head = wire.AuditHead(seq, head, sig)
 
-    def _stamped(self, msg: wire.Control) -> wire.Control:
-        """An authority status tells each GS whether the drone's autopilot link is signed, and the
-        authority record's newest checkpoint."""
+    def _stamped(self, msg: wire.Control, now: float) -> wire.Control:
+        """An authority status tells each GS whether the drone's autopilot link is signed, the
+        authority record's newest checkpoint, and the drone's signed word on its authority (signed
+        once per change of what the status says of it, ``zdrone.core.attestation``)."""
         if isinstance(msg, wire.AuthorityStatus) and self.fc_signed is not None:
             msg = msgspec.structs.replace(msg, fc_signed=self.fc_signed)
         if isinstance(msg, wire.AuthorityStatus) and self.audit_head is not None:
             msg = msgspec.structs.replace(msg, audit=self.audit_head)
+        if isinstance(msg, wire.AuthorityStatus) and self.attester is not None:
+            signed = self.attester.signed
+            msg = msgspec.structs.replace(msg, attest=self.attester.attest(msg.owner, msg.epoch, msg.state, msg.pending_to,
+                                                                           now + self.wall_offset))
+            self.counters["attestations_signed"] += self.attester.signed - signed
         return msg
 
     def _handle(self, event: ha.Event, now: float, frame: bytes | None = None) -> list[Out]:
@@ -466,7 +477,7 @@ class DroneCore:
             elif isinstance(a, ha.DropFrame):
                 self.counters[f"ha_drop:{a.reason.value}"] += 1
             elif isinstance(a, ha.SendControl):
-                out += self._control(a.gs, a.msg)
+                out += self._control(a.gs, a.msg, now)
             elif isinstance(a, ha.FailsafeCommand):
                 latency = self.failsafe_latency_ms(now)
                 out.append(CommandVehicle(a.command, a.reason, latency))
@@ -505,19 +516,19 @@ class DroneCore:
         bad = ha.check_grant(msg, self.gs_sysids)
         if bad is not None:
             self.counters["bad_grant"] += 1
-            return self._control(sender, wire.Reject("key_grant", bad.detail))
+            return self._control(sender, wire.Reject("key_grant", bad.detail), now)
         key = LinkKey.from_secret(self.name, msg.gs, msg.secret)
         slot = self.slots.get(msg.gs)
         known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
         if any(link.key.same_as(key) for link in known):
-            return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id))  # a repeated grant
+            return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)  # a repeated grant
         result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         out: list[Out] = []
         if isinstance(result, ha.GrantAccepted):
             out += self._install(result.gs, key, now)
         out += self._apply(actions, now)  # a rejection's Reject is among them
         if isinstance(result, ha.GrantAccepted):
-            out += self._control(sender, KeyGrantAck(msg.gs, msg.grant_id))
+            out += self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)
         return out
 
     def _install(self, gs: str, key: LinkKey, now: float) -> list[Out]:
@@ -529,7 +540,7 @@ class DroneCore:
         if slot.live is None:
             slot.install(link, now)
             self.links[gs] = link
-            return [Emit(rec.LinkInstalled(gs=gs, how="grant")), *self._control(gs, self.machine.status())]
+            return [Emit(rec.LinkInstalled(gs=gs, how="grant")), *self._control(gs, self.machine.status(), now)]
         slot.offer(link, now, "grant")
         return [Emit(rec.LinkCandidate(gs=gs, how="grant"))]
 

@@ -6,7 +6,8 @@ Theory of operation
 whose router ACL lets it subscribe ``zdrone-ops/*`` and nothing else (no put, no query, no key that
 commands). Each GS seals its operations picture for it (``zdrone.core.opspicture``); a part that does
 not open, replays, or is an old start of a GS is dropped and counted (shown on the page). One thread
-(``Follower``) drains the inbox and merges the parts into a ``FleetPicture`` under a lock.
+(``Follower``) drains the inbox and merges the parts into a ``FleetPicture`` under a lock, which checks
+each drone's signed word on who commands it against the drone's signing keys over time.
 
 **Serving.** Starlette on uvicorn: ``/`` the page, ``/static/*`` its own JS and CSS (shipped in the
 package, no CDN, no map tiles: the plan is drawn from the fleet's own geometry), ``/api/stream`` the
@@ -109,7 +110,11 @@ class Follower:
         self.opener = OpsOpener(self.rt.secret.identity, names[0],
                                 {g: self.fleet.nodes[g].public_bytes for g in self.fleet.ground_stations()
                                  if not self.fleet.is_revoked(g)})
-        self.picture = FleetPicture()
+        from ..fleet.revisions import signing_key_history
+
+        # each drone's signing keys over time: its attestations of who commands it are checked against them
+        history = signing_key_history(opts.fleet)
+        self.picture = FleetPicture({d: history[d] for d in self.fleet.drones() if d in history})
         self.lock = threading.Lock()
         self.stopping = threading.Event()  # the server is ending: the streams end (the page reconnects)
         self.rt.subscribe(kx.ops_all(), "ops", kx.gs_of, limit=OPS_MAX_BYTES)

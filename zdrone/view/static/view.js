@@ -111,11 +111,16 @@
     r.tr.classList.toggle("failsafe", !!d.failsafe);
     r.tr.dataset.owner = d.owner || "";
     r.tr.dataset.epoch = String(d.epoch);
+    r.tr.dataset.verified = String(!!d.verified);
     r.tr.dataset.stale = String(stale);
     r.tr.dataset.failsafe = String(!!d.failsafe);
     put(r, "drone", d.drone);
     const o = r.cells.owner;
-    const ownerText = (d.owner || "nobody") + (d.disputed.length ? " (disputed: " + d.disputed.join(" vs ") + ")" : "");
+    // the owner as the drone itself signed it (✓), else as a GS says it (unverified); claims the drone's
+    // word does not back are listed apart and never shown as the owner
+    const claims = (d.unverified || []).map((c) => c.gs + " says " + (c.owner || "nobody") + " @" + c.epoch).join(", ");
+    const ownerText = (d.owner || "nobody") + (d.verified ? " ✓" : " (unverified)")
+      + (d.disputed.length ? " (disputed: " + d.disputed.join(" vs ") + ")" : "") + (claims ? " · unverified: " + claims : "");
     if (r.text.owner !== ownerText) {
       r.text.owner = ownerText;
       o.replaceChildren();
@@ -123,7 +128,11 @@
       sw.className = "swatch";
       sw.style.background = colour(d.owner);
       o.appendChild(sw);
-      o.appendChild(document.createTextNode(ownerText));
+      o.appendChild(document.createTextNode((d.owner || "nobody") + (d.verified ? " ✓" : "")));
+      if (!d.verified) o.appendChild(Object.assign(document.createElement("span"), { className: "unverified", textContent: " (unverified)", title: "no valid signature of the drone: a GS's word only" }));
+      if (d.disputed.length) o.appendChild(document.createTextNode(" (disputed: " + d.disputed.join(" vs ") + ")"));
+      if (claims) o.appendChild(Object.assign(document.createElement("span"), { className: "unverified claims", textContent: " · unverified: " + claims, title: "claims the drone's signed word does not back" }));
+      o.title = d.verified ? "signed by the drone" : "";
       o.classList.toggle("disputed", d.disputed.length > 0);
     }
     put(r, "epoch", String(d.epoch));
