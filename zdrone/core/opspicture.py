@@ -4,9 +4,9 @@ the viewer merges from every GS's word. Pure: time comes in as ``now``, randomne
 Theory of operation
 -------------------
 Each GS publishes, on its own key ``zdrone-ops/<gs>``, an ``OpsReport``: per drone it serves what it
-knows (owner and epoch as the drone told it, its own TBM link state to the drone, mode, altitude,
-armed, mission progress, fc_signed, the pending operator-control request, failsafe, the age of its
-last report) and the authority events it logged since its last report. A report is cut into parts
+knows (owner and epoch as the drone told it, with the drone's own signed word on them as it came,
+``zdrone.core.attestation``; its own TBM link state to the drone, mode, altitude, armed, mission
+progress, fc_signed, the pending operator-control request, failsafe, the age of its last report) and the authority events it logged since its last report. A report is cut into parts
 under ``OPS_MAX_BYTES`` each (``report_parts``), msgspec-encoded, each part sealed on its own.
 
 **Sealed for the viewer, by the GS** (``OpsSealer`` / ``OpsOpener``). Router passwords leak and the
@@ -26,9 +26,16 @@ Why not HPKE base mode: it authenticates nobody (anyone holding the viewer's pub
 whole fleet, could seal a report "from A"); auth mode would do, at a DH per message.
 
 **The fleet picture** (``FleetPicture``). A GS may be silent (stopped, cut off) and one authorized GS
-may be hostile: every field is shown as *who said it*. Per drone, the authority shown is the claim
-with the highest epoch among the GSs that report it (``disputed`` when two GSs name different owners
-at that epoch); the vehicle's fields come from the owner's claim while it is fresh (a GS in standby
+may be hostile: every field is shown as *who said it*. Per drone, the authority shown (owner, epoch,
+state, pending recipient) is the drone's own: of the attestations the GSs carry, those that check
+against the drone's signing keys over time (``AttestationCheck``: once per new attestation, then
+remembered), the one with the highest (epoch, drone's time) gives it, ``verified``. A GS's claim that
+no valid attestation backs (a higher epoch, another owner in that epoch, a forgery, another drone's
+word replayed) is listed apart as ``unverified`` and never shown as the owner; an honest GS that lags
+(a lower epoch) is not listed. Only when no GS carries a valid attestation (a drone without a signing
+key) is the claim of the highest epoch shown, not ``verified`` (``disputed`` when two GSs name
+different owners at that epoch). A failsafe that a GS of the shown epoch heard of shows at once (an
+alarm errs on the safe side). The vehicle's fields come from the owner's claim while it is fresh (a GS in standby
 hears the drone's status, its telemetry only now and then), else from the freshest claim. The age of the drone's last
 report is, per GS, the GS's own age (at its sending) plus the time since the viewer received it:
 a silent GS ages like a silent drone. A drone whose freshest word is older than ``STALE_S`` is

@@ -2,8 +2,9 @@
 
 The station calls ``on_record`` with every record its core logs and ``publish(now, wall)`` once per
 loop pass (and wakes by ``next_due``). The picture (``StationCore.drone_ops`` of every drone it
-serves, and the authority events logged since the last one) goes out every ``OPS_PERIOD_S``, and at
-once (at most every ``OPS_MIN_GAP_S``) after an authority event, so the viewer shows a hand-over
+serves, the drone's signed word on its authority among them, and the authority events logged since
+the last one) goes out every ``OPS_PERIOD_S``, and at once (at most every ``OPS_MIN_GAP_S``) after an
+authority event, so the viewer shows a hand-over
 within a few tens of milliseconds of the GS hearing it. It is cut into parts under
 ``OPS_MAX_BYTES`` and each is sealed for the viewer (``zdrone.core.opspicture``), on ``zdrone-ops/<gs>``
 (the only key the router lets this GS put its picture on; only the viewer receives it).
