@@ -81,7 +81,7 @@ class AuditHead(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sig: bytes
 
 
-class AuthorityAttestation(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+class AuthorityAttestation(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):
     """The drone's own word on its authority (``zdrone.core.attestation``): ``owner`` holds it in
     ``epoch``, in ``state`` (handing it to ``pending_to``), since the drone's time of day ``at``,
     signed (``sig``) with the drone's fleet signing key once per change; a GS passes it on to the
