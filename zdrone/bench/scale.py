@@ -150,6 +150,9 @@ def _host_drones(args: argparse.Namespace) -> int:
     armed_seen = [False] * len(nodes)
     landed_at: float | None = None
     counted_at: float | None = None  # the GSs stopped commanding and counted (``COUNTED``)
+    # where the host's time goes when a pass is slow: a pass over every drone, one drone's step, its
+    # uplink subscriptions (declared when a GS's coverage is entered: Zenoh calls in the loop)
+    slow: dict[str, Any] = {"worst_pass_s": 0.0, "passes_over_0_5s": 0, "worst_step_s": 0.0, "worst_step_node": None}
     worst_owner_silence = [0.0] * len(nodes)
     owner_lost = [0] * len(nodes)
     t_ready = time.monotonic()
@@ -178,7 +181,11 @@ def _host_drones(args: argparse.Namespace) -> int:
                     print(f"drones host: {args.jam} {'out of' if jam[0] else 'back in'} reach at {time.time():.3f}",
                           flush=True)
             for i, n in enumerate(nodes):
+                step_start = time.monotonic()
                 n.step(0.0)
+                step_s = time.monotonic() - step_start
+                if step_s > slow["worst_step_s"]:
+                    slow["worst_step_s"], slow["worst_step_node"] = round(step_s, 3), n.name
                 m = n.machine
                 if n.vehicle.armed:
                     armed_seen[i] = True
@@ -189,6 +196,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                         if link.tbm.state(now) is LinkState.LOST:
                             owner_lost[i] += 1
             loops += 1
+            pass_s = time.monotonic() - pass_start
+            slow["worst_pass_s"] = max(slow["worst_pass_s"], round(pass_s, 3))
+            slow["passes_over_0_5s"] += pass_s > 0.5
             if landed_at is None and all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (
                     not args.jam or mended[0] is not None and time.monotonic() > mended[0] + 10.0):
                 # (--jam: not before the cut-off drone has been back in reach for 10 s)
@@ -215,7 +225,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()}}
         Path(args.out, "drones.json").write_text(json.dumps({
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
-            "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
+            "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
+            "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
+                     "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2)}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
         for n in nodes:
             n.close()
@@ -500,7 +512,7 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
             across += n if site_of.get(sender) != site_of.get(receiver) else 0
     memory = {**window.get("memory", {}), "drones host": drones.get("memory_mb")}
     out: dict[str, Any] = {
-        "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory,
+        "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory, "drones_host_slow": drones.get("slow"),
         "drones_per_site": dict(Counter(site_of[n] for n in drones["router_zid"])),
         "samples_per_s": round(delivered / span, 1)}
     before, after = window.get("socks"), window.get("socks_end")

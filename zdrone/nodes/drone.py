@@ -175,6 +175,7 @@ class DroneNode:
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
         self._late_seq = 0
         self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink
+        self.listen_total_s = self.listen_worst_s = 0.0  # time spent declaring and undeclaring them
         self._next_status = 0.0
         self._last_pass = 0.0  # the ``now`` of the loop's last pass
         self.vehicle: Vehicle = vehicle if vehicle is not None else VehicleLink(
@@ -214,6 +215,13 @@ class DroneNode:
         self.events.write_record(record)
 
     def _listen(self, gss: frozenset[str]) -> None:
+        started = time.monotonic()
+        self._listen_to(gss)
+        took = time.monotonic() - started  # Zenoh declarations in the loop: what a pass waits for (bench scale)
+        self.listen_total_s += took
+        self.listen_worst_s = max(self.listen_worst_s, took)
+
+    def _listen_to(self, gss: frozenset[str]) -> None:
         for gs in sorted(gss - set(self.subs)):
             # the router's size limit, held here too
             self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
