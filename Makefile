@@ -18,10 +18,11 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/zdrone demo $(ARGS)
 
-# The process flights wait on the wall clock (5-6 s of CPU in a 40-50 s flight): several at once, in workers
+# The process flights wait on the wall clock (5-6 s of CPU in a 40-50 s flight; the suite uses 0.9 of 2 cores
+# at 4 workers): several at once, in workers
 # that take the next test when idle; tests sharing one flight get it from tests/procs.py once_per_run
 # (and carry the same xdist_group, which keeps them on one worker where pytest-xdist honours it).
-TEST_WORKERS ?= 4
+TEST_WORKERS ?= 5
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=25 $(ARGS)
