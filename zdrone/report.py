@@ -19,7 +19,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .core.audit import AuditWitness, ChainReport, ReadLine, read_lines, verify_chain
+import msgspec
+
+from .core.audit import AuditWitness, ChainReport, decode_line, verify_chain
 from .core.fleet import ConfigError, Fleet, parse_fleet
 from .core.geometry import GeoPoint, ne_of
 from .core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
@@ -86,16 +88,31 @@ def run_fleet(targets: list[str | Path], fleet_dir: str | Path | None) -> Fleet:
     return load_fleet(run_fleet_dir(targets, fleet_dir))
 
 
+#: What every witness line holds (its tag); a line without it is no witness and is not decoded twice.
+_WITNESS_TAG = b'"audit":"witness"'
+
+
 def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[bytes, ...]] | None = None
                  ) -> list[tuple[Path, ChainReport]]:
     """Each file's record verified (its node: the one its entries name), against every witness; with
     ``key_history`` (``zdrone.fleet.revisions.signing_key_history``), each checkpoint against the
     node's key in force when it was signed (a rotated node's earlier checkpoints under its earlier key)."""
-    contents: dict[Path, list[ReadLine]] = {f: read_lines(f.read_bytes().splitlines()) for f in files}
-    witnesses = [r.line for lines in contents.values() for r in lines if isinstance(r.line, AuditWitness)]
-    owners: dict[Path, str | None] = {
-        f: next((r.line.node for r in lines if r.line is not None and not isinstance(r.line, AuditWitness)), None)
-        for f, lines in contents.items()}
+    contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
+    witnesses: list[AuditWitness] = []
+    owners: dict[Path, str | None] = {}
+    for f, lines in contents.items():
+        owners[f] = None
+        for raw in lines:
+            if owners[f] is not None and _WITNESS_TAG not in raw:
+                continue  # only witness lines are read here (verify_chain reads every line once, fast)
+            try:
+                line = decode_line(raw)
+            except (msgspec.DecodeError, msgspec.ValidationError):
+                continue  # reported by verify_chain with its line number
+            if isinstance(line, AuditWitness):
+                witnesses.append(line)
+            elif owners[f] is None:
+                owners[f] = line.node
     keys: dict[str, object] = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
     keys.update(key_history or {})
     out = []

@@ -319,31 +319,7 @@ class ChainReport:
         return f"{self.node}: verified {self.signed_through + 1} of {self.entries} entries{tail}{wit}"
 
 
-@dataclass(frozen=True, slots=True)
-class ReadLine:
-    """One line of a record file: its bytes (what an entry's hash is over) and what they decode to
-    (None: undecodable, ``error`` says why)."""
-
-    raw: bytes
-    line: AuditLine | None
-    error: str = ""
-
-
-def read_lines(raw_lines: Iterable[bytes]) -> list[ReadLine]:
-    """A record file's non-blank lines, each decoded once."""
-    out: list[ReadLine] = []
-    for raw in raw_lines:
-        raw = raw.strip()
-        if not raw:
-            continue
-        try:
-            out.append(ReadLine(raw, _line_decoder.decode(raw)))
-        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-            out.append(ReadLine(raw, None, str(exc)[:60]))
-    return out
-
-
-def verify_chain(node: str, lines: Iterable[bytes | str | ReadLine | AuditLine], node_public: PublicKeys,
+def verify_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public: PublicKeys,
                  witnesses: Iterable[AuditWitness] = (), witness_keys: dict[str, Any] | None = None
                  ) -> ChainReport:
     """Check ``node``'s record (its entry and checkpoint lines, in file order) against its fleet
@@ -360,11 +336,7 @@ def verify_chain(node: str, lines: Iterable[bytes | str | ReadLine | AuditLine],
         return ChainReport(node, len(hashes), checkpoints, signed, -1, 0, problem, kind, first)
 
     for i, item in enumerate(lines):
-        if isinstance(item, ReadLine):  # decoded already (``zdrone audit verify`` reads each file once)
-            raw, line = item.raw, item.line
-            if line is None:
-                return bad("undecodable", len(hashes), f"line {i + 1} is no audit line ({item.error})")
-        elif isinstance(item, (bytes, str)):
+        if isinstance(item, (bytes, str)):
             raw = (item.encode() if isinstance(item, str) else item).strip()
             try:
                 line = decode_line(raw)
