@@ -16,12 +16,12 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 from ..sil.launcher import Demo, DemoOptions
+from .background import BackgroundFlight
 from .table import ProgressLine
 
 #: processes sampled (the launcher is this process)
@@ -85,21 +85,12 @@ def run(crossings: int = 500, speedup: float = 4.0, quick: bool = False, interva
     timeout = 120.0 + 2.0 * (crossings + 2) * CROSSING_SIM_S / speedup
     demo = Demo(DemoOptions(out=base, speedup=speedup, quiet=True, live=False, command_rate=20.0, report=False,
                             mission=f"shuttle:{crossings}", timeout=timeout), base.resolve())
-    result: dict[str, Any] = {}
-    failure: list[BaseException] = []
-
-    def fly() -> None:
-        try:
-            result.update(demo.run())
-        except BaseException as exc:  # noqa: BLE001 - carried to the main thread
-            failure.append(exc)
 
     series: dict[str, list[tuple[float, dict[str, float]]]] = {n: [] for n in PROCESSES}
     log = open(base / "soak-samples.jsonl", "a", buffering=1)  # as they come: a cut-short soak keeps its figures
     status = ProgressLine(progress)
     t_start = time.monotonic()
-    flight = threading.Thread(target=fly, name="soak-flight", daemon=True)  # it owns the run's processes
-    flight.start()
+    flight = BackgroundFlight(demo, "soak-flight").start()
     try:
         while flight.is_alive():
             now = time.monotonic()
@@ -117,8 +108,7 @@ def run(crossings: int = 500, speedup: float = 4.0, quick: bool = False, interva
     finally:
         status.close()
         log.close()
-    if failure:
-        raise failure[0]
+    result = flight.result()
     c = result["commands"]
     home = result["distance_from_home_m"]
     why_not = ["timed out"] if result["timed_out"] else []  # a shuttle has no delivery: home, no failsafe

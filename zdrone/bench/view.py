@@ -38,13 +38,13 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 from ..core.errors import ConfigError
 from .revoke import percentile
+from .background import BackgroundFlight
 from .soak import _slope_per_h, sample
 from .table import ProgressLine
 
@@ -202,18 +202,9 @@ def _flight(browser: Browser, base: Path, crossings: int, interval: float, statu
     timeout = 120.0 + 2.0 * (crossings + 2) * CROSSING_SIM_S / SPEEDUP
     demo = Demo(DemoOptions(out=out, speedup=SPEEDUP, quiet=True, live=False, command_rate=20.0, report=False,
                             mission=f"shuttle:{crossings}", timeout=timeout, view=port), out.resolve())
-    result: dict[str, Any] = {}
-    failure: list[BaseException] = []
-
-    def fly() -> None:
-        try:
-            result.update(demo.run())
-        except BaseException as exc:  # noqa: BLE001 - carried to the main thread
-            failure.append(exc)
 
     t_start = time.monotonic()
-    flight = threading.Thread(target=fly, name="view-flight", daemon=True)  # it owns the run's processes
-    flight.start()
+    flight = BackgroundFlight(demo, "view-flight").start()
     page = None
     page_error: str | None = None
     rss: list[tuple[float, float]] = []
@@ -242,8 +233,7 @@ def _flight(browser: Browser, base: Path, crossings: int, interval: float, statu
         seen = page.evaluate("window.__seen") if page is not None else []
         if page is not None:
             page.close()
-    if failure:
-        raise failure[0]
+    result = flight.result()
     if page is None:
         return {"error": page_error or f"the view never served; see {out / 'view.log'}"}
     moved = only(read_records(out / "drone.jsonl").records, AuthorityMoved)
