@@ -1,10 +1,11 @@
 """``zdrone bench revoke``: K drones x 3 ground stations in flight, GS B revoked by a signed fleet
-revision published through A while B holds authority over some of them.
+revision published through A while B holds authority over a third of them.
 
 Layout: the layout of ``zdrone bench scale`` (one router; the K drone nodes in one process, the
 GSs in another: ``python -m zdrone.bench.scale host-drones | host-stations``), on a fleet of K
 drones and GSs A, B, C 500 m apart, every drone flying the shuttle A -> C -> A. Once B holds
-authority over at least one drone (its first hand-over A -> B in the drones' logs), the bench signs
+authority over a third of the drones (hand-overs A -> B in the drones' logs; or as many as it gets
+within ``HELD_WAIT_S`` of its last), the bench signs
 the revision revoking B on the fleet directory (``zdrone.fleet.revise.revoke``) and publishes it on
 A's revision key (``zdrone.net.revisions.publish``); the GSs re-publish it every 10 s.
 
@@ -24,7 +25,9 @@ Figures, from the drones' event logs and the hosts' results:
   in reach to its ``revision_applied`` (it asks at once on coming back: ``RevisionChannel``). Its
   own failsafe (out of every GS's reach for 30 s) and commands are not in the row's figures;
 * **commands lost**, per (GS, drone, epoch the GS believed it commanded in) against what the drone
-  forwarded in that epoch: ``in_epoch`` lost while the GS held authority (should be 0), ``after it
+  forwarded in that epoch: ``in_epoch`` lost while the GS held authority (should be 0), ``out of
+  reach``: the GS's last commands to a drone that had flown out of its radio's reach (the testbed's
+  coverage gate stopped them) with no heir, ``after it
   left``: sent in an epoch the drone had already left (the GS's stream ran on after a hand-over it
   had not heard of yet; the drone refuses them ``not_authority``): not commands lost, a GS's view
   that lags its drone by up to one status.
@@ -57,6 +60,10 @@ FULL_K = 100
 STATIONS = 3
 REVOKED = "B"
 ROTATED = "A"
+#: B is revoked once it holds 1/HELD_SHARE of the drones, or no more for HELD_WAIT_S after its last
+#: hand-over (the drones fly the same shuttle a few seconds apart).
+HELD_SHARE = 3
+HELD_WAIT_S = 5.0
 #: The last drone's radio is cut just before the revocation, for this long (every GS out of reach).
 OUT_OF_REACH_S = 30.0
 
@@ -119,9 +126,12 @@ def run_one(k: int, base: Path, timeout: float, action: str = "revoke") -> dict[
             raise RuntimeError(f"the drones never took off; see {d / 'drones.log'}")
         procs["stations"].send_signal(signal.SIGUSR1)
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:  # B's first hand-over
-            held = [n for n, recs in _records(d, k).items() if _held_by_b(recs)]
-            if held:
+        grew_at = time.monotonic()
+        while time.monotonic() < deadline:  # B holds a third of the drones (or as many as it will)
+            now_held = [n for n, recs in _records(d, k).items() if _held_by_b(recs)]
+            if len(now_held) > len(held):
+                held, grew_at = now_held, time.monotonic()
+            if len(held) >= max(1, k // HELD_SHARE) or held and time.monotonic() - grew_at > HELD_WAIT_S:
                 break
             time.sleep(0.2)
         if not held:
@@ -171,9 +181,12 @@ def lost_commands(sent_epochs: dict[str, dict[str, dict[str, int]]], drones: dic
     believed it commanded in), split into ``after_it_left``: sent once the drone had left that GS,
     to another GS (an epoch the drone left: the drone refused them ``not_authority``) or to its
     failsafe (the GS's last epoch on a drone that refused commands in its failsafe, as many as it
-    refused): the GS's stream ran on until it heard the drone's status; and ``in_epoch``: the rest,
-    lost while the GS held authority (the figure that must be 0)."""
-    out: dict[str, Any] = {"in_epoch": 0, "after_it_left": 0, "where": []}
+    refused): the GS's stream ran on until it heard the drone's status; ``out_of_reach``: in the
+    GS's last epoch on a drone whose radio (the testbed's coverage gate) stopped that GS's frames, as
+    many as it stopped: the drone flew out of the GS's reach with no heir (B revoked) and the last
+    commands went into the air; and ``in_epoch``: the rest, lost while the GS held authority and
+    reached the drone (the figure that must be 0)."""
+    out: dict[str, Any] = {"in_epoch": 0, "after_it_left": 0, "out_of_reach": 0, "where": []}
     for gs, per_drone in sent_epochs.items():
         if gs == not_gs:
             continue
@@ -184,6 +197,7 @@ def lost_commands(sent_epochs: dict[str, dict[str, dict[str, int]]], drones: dic
             fwd = r.get("forwarded_epochs", {})
             last_epoch = max((int(k.split(":", 1)[0]) for k in fwd), default=0)
             in_failsafe = int(r.get("in_failsafe", 0))
+            blocked = int(r.get("radio_blocked", {}).get(f"up:{gs}", 0))
             for epoch, n in sorted(epochs.items(), key=lambda kv: int(kv[0])):
                 short = n - fwd.get(f"{epoch}:{gs}", 0)
                 if short <= 0:
@@ -193,10 +207,16 @@ def lost_commands(sent_epochs: dict[str, dict[str, dict[str, int]]], drones: dic
                 else:
                     left, how = min(short, in_failsafe), "to its failsafe"
                     in_failsafe -= left
+                gone = min(short - left, blocked) if int(epoch) == last_epoch else 0
+                blocked -= gone
                 out["after_it_left"] += left
-                out["in_epoch"] += short - left
-                out["where"].append(f"{gs}->{drone} epoch {epoch}: {short}" + (f" ({left} after it left {how})"
-                                                                                if left else " (while it held authority)"))
+                out["out_of_reach"] += gone
+                out["in_epoch"] += short - left - gone
+                why = [f"{left} after it left {how}"] if left else []
+                why += [f"{gone} out of its reach"] if gone else []
+                why += [f"{short - left - gone} while it held authority"] if why and short - left - gone else []
+                out["where"].append(f"{gs}->{drone} epoch {epoch}: {short}" + (f" ({', '.join(why)})" if why
+                                                                                else " (while it held authority)"))
     return out
 
 
@@ -220,7 +240,7 @@ def _figures(d: Path, fleet: Path, k: int, t_pub: float, held: list[str], action
                              drones, REVOKED if action == "revoke" else None)
     except (OSError, ValueError, KeyError) as exc:
         out["error"] = f"no host results ({exc})"
-        lost = {"in_epoch": None, "after_it_left": None, "where": []}
+        lost = {"in_epoch": None, "after_it_left": None, "out_of_reach": None, "where": []}
     out.update({
         "applied": f"{len(lat)}/{len(in_reach)}",
         "applied_ms": {"p50": round(percentile(lat, 50), 1) if lat else None,
@@ -281,7 +301,7 @@ def run(quick: bool = False, k: int | None = None, timeout: float = 240.0,
 
 def _lost(row: dict[str, Any]) -> str:
     lost = row["lost"]
-    return f"{lost['in_epoch']} (+{lost['after_it_left']} after it left)"
+    return f"{lost['in_epoch']} (+{lost['after_it_left']} after it left, +{lost.get('out_of_reach', 0)} out of reach)"
 
 
 def render(r: dict[str, Any]) -> None:
@@ -289,14 +309,14 @@ def render(r: dict[str, Any]) -> None:
     rotate_rows = [row for row in r["rows"] if row.get("action") == "rotate"]
     print("revoke B in flight (revision signed, published through A; the GSs re-publish it every 10 s)")
     print(f"{'drones x GSs':>13} {'applied':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'B held':>7} "
-          f"{'B after':>8} {'others lost':>26} {'failsafes':>10} {'covered':>8}")
+          f"{'B after':>8} {'others lost':>40} {'failsafes':>10} {'covered':>8}")
     for row in revoke_rows:
         if "applied" not in row:
             print(f"{row['k']:>6} x {row['g']:<5} error: {row.get('error')}")
             continue
         a = row["applied_ms"]
         print(f"{row['k']:>6} x {row['g']:<5} {row['applied']:>8} {a['p50']!s:>8} {a['p99']!s:>8} {a['max']!s:>8} "
-              f"{row['held_by_b']:>7} {row['b_authority_after']:>8} {_lost(row):>26} {row['failsafes']:>10} "
+              f"{row['held_by_b']:>7} {row['b_authority_after']:>8} {_lost(row):>40} {row['failsafes']:>10} "
               f"{row['failsafes_where_a_gs_covered']:>8}")
         print(f"  where B's drones went: {row['held_went_to']}" + (f"; error: {row['error']}" if row.get("error") else ""))
         if row["lost"]["where"]:
@@ -319,7 +339,7 @@ def render(r: dict[str, Any]) -> None:
         rep = row["repaired"]
         print(f"{row['k']:>6} x {row['g']:<5} {row['applied']:>8} {a['p50']!s:>8} {a['max']!s:>8} "
               f"{sum(v is not None for v in rep.values()):>6}/{len(rep):<3} {row['emergencies_after']:>10} "
-              f"{_lost(row):>26} {row['failsafes']:>10}")
+              f"{_lost(row):>40} {row['failsafes']:>10}")
         print(f"  revision -> A's new key proven, per drone (ms): {rep}" + (f"; error: {row['error']}" if row.get("error") else ""))
         if row["lost"]["where"]:
             print(f"  commands not forwarded: {'; '.join(row['lost']['where'])}")

@@ -222,7 +222,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
                 "not_authority": m.drops[HaDrop.NOT_AUTHORITY], "in_failsafe": m.drops[HaDrop.FAILSAFE],
                 "worst_owner_silence_s": round(worst_owner_silence[i], 3), "owner_lost_samples": owner_lost[i],
-                "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()}}
+                "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
+                # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
+                "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
         Path(args.out, "drones.json").write_text(json.dumps({
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
