@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import ardupilotmega, common as mav
 from zdrone.core import fcsign
 from zdrone.core.mavlink import FrameCodec, encode_raw, read_header
 from zdrone.core.reference import HOME
+from zdrone.sil.ports import free_port
 from zdrone.vehicle.fcsigning import FcKeyStore, FcSigning, FcSigningError, FcState
 from zdrone.vehicle.link import VehicleLink
 from zdrone.vehicle.personality import ARDUPILOT, PX4
@@ -165,15 +166,11 @@ def _sim_server(personality=PX4, signing: bool = True, storage: Path | None = No
 
 
 def _free_udp() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)  # below the ephemeral range: no outgoing socket takes it meanwhile
 
 
 def _free_tcp() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_STREAM)
 
 
 @contextmanager

@@ -10,13 +10,12 @@ import socket
 import pytest
 
 from zdrone.core.fleet import ConfigError
+from zdrone.sil.ports import free_port
 from zdrone.vehicle.transport import MavTransport, bind_udp
 
 
 def _free_udp() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)  # below the ephemeral range: no outgoing socket takes it meanwhile
 
 
 def test_a_udp_listener_port_cannot_be_bound_a_second_time():

@@ -18,6 +18,7 @@ from zdrone.core import fcsign
 from zdrone.core.geometry import distance_m
 from zdrone.core.mavlink import FrameCodec
 from zdrone.core.reference import GS_B, HOME
+from zdrone.sil.ports import free_port
 from zdrone.vehicle.endpoint import AutopilotEndpoint, autopilot_heartbeat
 from zdrone.vehicle.fcsigning import FcKeyStore, FcSigning, FcState, StoredKey
 from zdrone.vehicle.link import VehicleLink
@@ -203,9 +204,7 @@ def test_a_stored_key_is_not_sent_over_a_learned_endpoint():
 
 # ------------------------------------------------------------------------------ the link on loopback
 def _free_udp() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)  # below the ephemeral range: no outgoing socket takes it meanwhile
 
 
 @contextmanager
