@@ -55,6 +55,7 @@ from typing import Any, Iterator
 
 from pymavlink.dialects.v20 import common as mav
 
+from zdrone.core import bundle
 from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.authority import State as HaState
@@ -539,6 +540,19 @@ class StationCore:
         return _linking(view).on_share_reply(gs, ok, err, now)
 
     # ----------------------------------------------------------------- receiving
+    def on_bundle(self, drone: str, data: bytes, now: float) -> list[Action]:
+        """One publication on our ``down`` key of ``drone``: a bundle of sealed envelopes
+        (``zdrone.core.bundle``), each opened on its own; one that does not parse is dropped whole,
+        counted (``down:bad_bundle``)."""
+        items = bundle.unpack(data)
+        if items is None:
+            self.counters["down:bad_bundle"] += 1
+            return []
+        out: list[Action] = []
+        for envelope in items:
+            out += self.on_envelope(drone, envelope, now)
+        return out
+
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
         """One sealed envelope from ``drone``."""
         self._input(now)

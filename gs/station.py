@@ -35,6 +35,7 @@ import zenoh
 from zdrone.core import records as rec
 from zdrone.core.audit import Witnessing
 from zdrone.core import wire
+from zdrone.core.bundle import MAX_BUNDLE
 from zdrone.core.errors import ConfigError
 from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.fleet import keyexprs as kx
@@ -111,7 +112,7 @@ class GroundStation:
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
         self.status_sources: dict[str, Callable[[], dict[str, Any]]] = {}  # e.g. the gateway's stats
         self.session = self.rt.session
-        self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of)
+        self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of, limit=MAX_BUNDLE)
         self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True)
         # the operations picture for the fleet's viewer (``zdrone view``), if the fleet has one
@@ -194,7 +195,7 @@ class GroundStation:
         if kind in revisions.KINDS:
             self._on_revision(kind, data, now)
         elif kind == "down":
-            self._do(self.core.on_envelope(drone, data, now))
+            self._do(self.core.on_bundle(drone, data, now))
         elif kind == "pair":
             self._do(self.core.on_pair_reply(drone, data[0], data[1], now))
         elif kind == "linkkey":

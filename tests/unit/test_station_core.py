@@ -714,3 +714,27 @@ def _heartbeat_msg():
     from pymavlink.dialects.v20 import common as mav
 
     return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
+
+
+def test_a_bundle_opens_every_envelope_in_it_and_a_malformed_one_is_counted(fleet_dir):
+    """The drone publishes a pass's envelopes as one bundle (``zdrone.core.bundle``): the GS opens
+    each on its own (one forged among them is dropped by its key, the rest count); bytes that are
+    not a bundle are dropped whole and counted, never raised."""
+    from zdrone.core import wire
+    from zdrone.core.bundle import pack
+    from zdrone.core.envelope import SecureLink
+    from zdrone.core.keys import LinkKey
+
+    a = paired_a(fleet_dir)
+    view = a.views["d1"]
+    drone = SecureLink(key=view.slot.candidates[0].link.key if view.link is None else view.link.key, role="drone",
+                       tx_keyexpr="zdrone/d1/down/A", rx_keyexpr="zdrone/d1/up/A", peer_sysid=None, now=0.0)
+    forged = SecureLink(key=LinkKey.from_secret("d1", "A", bytes(32)), role="drone",
+                        tx_keyexpr="zdrone/d1/down/A", rx_keyexpr="zdrone/d1/up/A", peer_sysid=None, now=0.0)
+    items = [drone.seal_control(wire.SmHeartbeat(1)), forged.seal_control(wire.SmHeartbeat(2)),
+             drone.seal_control(wire.SmHeartbeat(3))]
+    a.on_bundle("d1", pack(items), 0.2)
+    link = view.link if view.link is not None else view.slot.live
+    assert link is not None and link.opened == 2
+    a.on_bundle("d1", b"\x00\x09short", 0.3)
+    assert a.counters["down:bad_bundle"] == 1 and link.opened == 2

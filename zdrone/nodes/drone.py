@@ -47,6 +47,7 @@ from ..net.runtime import NodeRuntime
 from ..fleet import revisions
 from ..core.revision import RevisionAccepted, RevisionRefusal, RevisionRefused
 from ..core.outputs import Emit, Handlers, Put, dispatch
+from ..core.bundle import BundleWriter
 from ..core.pairing import query_answer
 from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
 
@@ -174,6 +175,7 @@ class DroneNode:
         self.radio = opts.radio
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
         self._late_seq = 0
+        self.bundles = BundleWriter()  # the envelopes of this pass per GS, published at its end (``flush_down``)
         self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink
         self.listen_total_s = self.listen_worst_s = 0.0  # time spent declaring and undeclaring them
         self._next_status = 0.0
@@ -235,7 +237,13 @@ class DroneNode:
             return
         if self.radio is not None and not self._through_radio("down", gs, payload):
             return
-        self.rt.put(kx.down(self.name, gs), payload)
+        self.bundles.add(gs, payload)
+
+    def flush_down(self) -> None:
+        """Publish the pass's envelopes: one bundle per GS (``zdrone.core.bundle``)."""
+        if self.bundles.pending():
+            for gs, bundle in self.bundles.take():
+                self.rt.put(kx.down(self.name, gs), bundle)
 
     # -------------------------------------------------- the testbed's radio
     def _through_radio(self, direction: str, gs: str, data: bytes) -> bool:
@@ -254,7 +262,7 @@ class DroneNode:
         while self._late and self._late[0][0] <= now:
             _, _, direction, gs, data = heapq.heappop(self._late)
             if direction == "down":
-                self.rt.put(kx.down(self.name, gs), data)
+                self.bundles.add(gs, data)
             else:
                 self._do(self.core.on_envelope(gs, data, now), now)
 
@@ -439,9 +447,11 @@ class DroneNode:
         if now >= self._next_status:
             self._next_status = now + self.opts.status_period
             self.events.write_as(rec.DroneStatus, self.status(now))
+        self.flush_down()
 
     def close(self) -> None:
         now = time.monotonic()  # the saved authority stays, on the ground too: the epoch goes on after a restart
+        self.flush_down()
         self.rt.close(self.status(now), rec.DroneStop, extra_steps=(self.vehicle.close,))
 
 

@@ -30,11 +30,12 @@ from __future__ import annotations
 import queue
 import time
 from collections import Counter
-from typing import Any
+from typing import Any, Callable
 
 import zenoh
 from pymavlink.dialects.v20 import common as mav
 
+from ...core.bundle import pack, unpack
 from ...core.envelope import Opened, SecureLink
 from ...core.fleet import ConfigError
 from ...core.keys import LinkKey
@@ -49,12 +50,20 @@ from ...net.session import open_client
 from .common import ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, gcs_heartbeat, next_up, session_as
 
 
+
+def _envelopes_to(q: "queue.SimpleQueue[bytes]") -> Callable[[Any], None]:
+    """A subscriber callback putting each envelope of a drone's bundle on ``q`` (as a GS reads them)."""
+    def on_sample(smp: Any) -> None:
+        for envelope in unpack(smp.payload.to_bytes()) or ():
+            q.put(envelope)
+    return on_sample
+
 def uplink_sealed(c: Ctx) -> None:
     fleet, drone = c.fleet, c.drone
     me = load_secret(c.fleet_dir, "B", fleet)
     s = open_client(c.router, "B", me.router_password)
     down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    sub = s.declare_subscriber(kx.down(drone, "B"), lambda smp: down.put(smp.payload.to_bytes()))
+    sub = s.declare_subscriber(kx.down(drone, "B"), _envelopes_to(down))
     codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
     target = fleet.nodes[drone].sysid
     try:
@@ -134,7 +143,7 @@ def insider_heir(c: Ctx) -> None:
     me = load_secret(c.fleet_dir, "B", fleet)  # B's own static key: the drone cannot tell it from B
     s = session_as(c, "B")
     down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    sub = s.declare_subscriber(kx.down(drone, "B"), lambda smp: down.put(smp.payload.to_bytes()))
+    sub = s.declare_subscriber(kx.down(drone, "B"), _envelopes_to(down))
     codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
     target = fleet.nodes[drone].sysid
     rtl = mav.MAVLink_command_long_message(target, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0)
@@ -270,7 +279,7 @@ def key_escrow(c: Ctx) -> None:
                               peer_sysid=fleet.nodes[drone].sysid, now=now)
             for _ in range(3):
                 seq += 1
-                s_d.put(kx.down(drone, "A"), as_drone.seal_control(wire.SmHeartbeat(seq)))  # to A, as the drone
+                s_d.put(kx.down(drone, "A"), pack([as_drone.seal_control(wire.SmHeartbeat(seq))]))  # to A, as the drone
                 s_a.put(next_up(drone, "A"), as_a.seal(FrameCodec(fleet.nodes["A"].sysid, ROGUE_COMPID).encode(gcs_heartbeat())))
                 sent["injected_down"] += 1
                 sent["injected_up"] += 1
