@@ -43,7 +43,7 @@ from zdrone.core import wire
 from zdrone.core.attestation import Attester
 from zdrone.core.envelope import Dropped, Opened, SecureLink
 from zdrone.core.fleet import Fleet
-from zdrone.core.geometry import GeoPoint
+from zdrone.core.geometry import Circle, GeoPoint
 from zdrone.core.keys import Identity, LinkKey, SigningKey
 from zdrone.core.linkslot import LinkSlot, Promoted
 from zdrone.core.mavlink import FrameError, read_header
@@ -146,6 +146,7 @@ class DroneCore:
         self.gs_sysids = {n: fleet.nodes[n].sysid for n in fleet.ground_stations()}
         self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
                          if fleet.nodes[n].coverage is not None}
+        self._inside_of: tuple[tuple[float, float] | None, dict[str, Circle], frozenset[str]] | None = None  # ``_inside``'s last answer
         self.slots: dict[str, LinkSlot] = {}
         self.links: dict[str, SecureLink] = {}  # the live link of each slot
         self.probation: dict[str, float] = {}  # GS -> until when we listen for its proof of a new pairing key
@@ -237,14 +238,26 @@ class DroneCore:
         position only (one that came signed by the autopilot, or the operator opted in for an unsigned
         link): an untrusted one is inside no coverage (no heir, no pairing that needs coverage)."""
         self.position, self.on_ground, self.position_trusted = position, on_ground, trusted
-        inside = frozenset() if position is None or not trusted else frozenset(
-            g for g, circle in self.coverage.items() if circle.contains(GeoPoint(position[0], position[1])))
+        inside = self._inside(position if trusted else None)
         out: list[Out] = []
         if inside != self.machine.inside:
             out += self._handle(ha.RegionChanged(now, inside), now)
         if on_ground != self.machine.on_ground:  # no link-loss failsafe on the ground (``AuthorityMachine``)
             out += self._handle(ha.GroundChanged(now, on_ground), now)
         return out + self._effects(now)
+
+    def _inside(self, position: Position | None) -> frozenset[str]:
+        """The GSs whose coverage circle holds ``position`` (none without one), computed again only
+        when the position or the circles changed (the loop asks every pass; a vehicle reports a few
+        times a second)."""
+        where = None if position is None else (position[0], position[1])
+        last = self._inside_of
+        if last is not None and last[0] == where and last[1] is self.coverage:
+            return last[2]
+        inside = frozenset() if where is None else frozenset(
+            g for g, circle in self.coverage.items() if circle.contains(GeoPoint(where[0], where[1])))
+        self._inside_of = (where, self.coverage, inside)
+        return inside
 
     def on_telemetry(self, frame: bytes, now: float) -> list[Out]:
         """A vehicle frame: sealed to every GS the drone talks to; to a standby GS (not the owner, no

@@ -23,19 +23,24 @@ class CoverageGate:
             name: node.coverage.circle() for name, node in fleet.nodes.items() if node.role == "gs" and node.coverage
         }
         self.position: GeoPoint | None = None
+        self._reach: dict[str, bool] = {}  # GS -> in reach of ``position``
         self.blocked: Counter[str] = Counter()
         self.jammed = False  # the radio cut whatever the position (``zdrone bench revoke``'s drone out of reach)
 
     def update(self, position: GeoPoint | None) -> None:
-        self.position = position
+        if position != self.position:
+            self.position = position
+            self._reach.clear()  # each GS's answer computed again on first use
 
     def reaches(self, gs: str) -> bool:
         if self.jammed:
             return False
-        circle = self.circles.get(gs)
-        if circle is None or self.position is None:
-            return True  # nothing known yet: do not invent an outage
-        return circle.contains(self.position)
+        got = self._reach.get(gs)
+        if got is None:
+            circle = self.circles.get(gs)
+            # nothing known yet: do not invent an outage
+            got = self._reach[gs] = circle is None or self.position is None or circle.contains(self.position)
+        return got
 
     def allow(self, gs: str, direction: str) -> bool:
         if self.reaches(gs):
