@@ -2,8 +2,10 @@
 site (``--sites N``), on this machine.
 
 Layout: the router (or one router per site, meshed over QUIC with mutual TLS: site n connects to sites
-1..n-1); one process hosting the K drone nodes, each with its own Zenoh session, authority machine,
-security module and an in-process simulator (no sockets; all stepped by one loop); one process
+1..n-1); the drones hosts, each hosting its share of the K drone nodes (one host per site, each
+with that site's drones; through one router one host per 50 drones, at most 3: ``drone_hosts``),
+each drone with its own Zenoh session, authority machine, security module and an in-process
+simulator (no sockets; a host's drones all stepped by its one loop); one process
 hosting the G ground stations, each with its own session, serving all K drones. GSs stand 500 m
 apart eastwards (A, B, C, …); with sites, GS i belongs to site i (``router/sites.json``) and
 connects to its site's router, and drone i to site (i mod N)'s router (``spread``) or to the list of
@@ -17,7 +19,7 @@ had an authority gap, lost no command, never entered failsafe, and its authority
 healthy (TBM never LOST).
 
 Load, over the flight (take-off -> drones host done): CPU of every process (100 % = one
-core, from ``/proc/<pid>/stat``; the drones host measures its own); samples delivered to the nodes
+core, from ``/proc/<pid>/stat``; each drones host measures its own, summed); samples delivered to the nodes
 per second, and those whose sender is on another site's router (each crossed one mesh link),
 counted per (receiver, sender) in the hosts and placed by each session's router; the routers' TCP
 client links (data segments, from ``ss -ti``). The mesh runs over QUIC (UDP): no per-link byte
@@ -115,6 +117,42 @@ def _router_zid(session: Any) -> str | None:
         return None
 
 
+def drone_hosts(k: int, sites: int) -> int:
+    """Processes the fleet's drones are stepped in: one per site (drone i is spread to site i mod N,
+    so each host's drones share a site router), through one router one per 50 drones up to 3. One
+    process stepping 300 drones took up to 2.4 s for a pass, and a drone not stepped hears nothing
+    meanwhile: the worst authority silence of the fleet was the host's, not the link's."""
+    return sites if sites else max(1, min(3, k // 50))
+
+
+def drones_file(part: int, parts: int) -> str:
+    """The results of one drones host (``drones.json`` when it is the only one)."""
+    return "drones.json" if parts == 1 else f"drones-{part}.json"
+
+
+def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """The drones hosts' results as one: every drone's, the slowest pass and step of any host, CPU and
+    memory summed (``cpu_percent``: each host's CPU over its own flight, added)."""
+    if len(parts) == 1:
+        return parts[0]
+    slow = [p["slow"] for p in parts]
+    worst_step = max(slow, key=lambda x: x["worst_step_s"])
+    return {
+        "results": {n: r for p in parts for n, r in p["results"].items()}, "loops": min(p["loops"] for p in parts),
+        "timed_out": any(p["timed_out"] for p in parts), "flight_s": max(p["flight_s"] for p in parts),
+        "cpu_s": sum(p["cpu_s"] for p in parts),
+        "cpu_percent": round(sum(100.0 * p["cpu_s"] / max(1e-6, p["flight_s"]) for p in parts), 1),
+        "memory_mb": round(sum(p["memory_mb"] or 0.0 for p in parts), 1),
+        "ground_s": max(p["ground_s"] for p in parts),
+        "released": "keys" if all(p["released"] == "keys" for p in parts) else "hold timeout",
+        "router_zid": {n: z for p in parts for n, z in p["router_zid"].items()},
+        "slow": {"hosts": len(parts), "worst_pass_s": max(x["worst_pass_s"] for x in slow),
+                 "passes_over_0_5s": sum(x["passes_over_0_5s"] for x in slow),
+                 "worst_step_s": worst_step["worst_step_s"], "worst_step_node": worst_step["worst_step_node"],
+                 "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2)},
+        "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
+
+
 def _host_drones(args: argparse.Namespace) -> int:
     from ..core.reference import HOME
     from ..core.authority import HaDrop
@@ -127,7 +165,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     routers = args.router.split(",")
     fleet = load_fleet(args.fleet)
     nodes = []
-    for i in range(args.k):
+    for i in range(args.part, args.k, args.parts):  # this host's share of the fleet (the i-th drone spread as in one host)
         name = f"d{i + 1}"
         router = routers[i % len(routers)] if args.drone_router == "spread" else args.router
         opts = DroneOptions(drone=name, fleet=args.fleet, router=router, vehicle="inproc", gate=CoverageGate(fleet),
@@ -139,7 +177,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
     for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
         n.vehicle.sim.ready_after = HOLD_READY_AFTER
-    print(f"drones host: {args.k} drones ready", flush=True)
+    print(f"drones host: {len(nodes)} drones ready", flush=True)
     stop = [False]
     signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
     mended: list[float | None] = [None]
@@ -205,8 +243,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                 landed_at = time.monotonic()  # the GSs count what they sent now; what is on its way still arrives
                 print("drones host: all landed", flush=True)
             if landed_at is not None:
-                if counted_at is None and (Path(args.out, COUNTED).exists()
-                                           or time.monotonic() - landed_at >= COUNTED_WAIT_S):
+                # (several hosts: the GSs count once every host has landed, so wait for them as long as a flight)
+                if counted_at is None and (Path(args.out, COUNTED).exists() or time.monotonic() - landed_at
+                                           >= (COUNTED_WAIT_S if args.parts == 1 else max(COUNTED_WAIT_S, args.duration))):
                     counted_at = time.monotonic()
                 if counted_at is not None and time.monotonic() - counted_at >= LANDED_DRAIN_S:
                     break
@@ -225,7 +264,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
                 # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
                 "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
-        Path(args.out, "drones.json").write_text(json.dumps({
+        Path(args.out, drones_file(args.part, args.parts)).write_text(json.dumps({
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
             "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
@@ -404,7 +443,8 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     else:
         router_cmds = {"router": ["zdrone", "router", "-c", str(d / "fleet/router/router.json5"), "--listen", endpoints[0]]}
         gs_routers = endpoints[:1]
-    logs = {n: open(d / f"{n}.log", "w") for n in (*router_cmds, "drones", "stations")}
+    hosts = ["drones"] if drone_hosts(k, sites) == 1 else [f"drones-{i}" for i in range(drone_hosts(k, sites))]
+    logs = {n: open(d / f"{n}.log", "w") for n in (*router_cmds, *hosts, "stations")}
     procs: dict[str, subprocess.Popen] = {}
     t0 = time.monotonic()
     error = ""
@@ -422,25 +462,29 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             zid_site[zid.group(1) if zid else name] = name
         router_pids = {procs[n].pid for n in router_cmds}
         common = ["--fleet", str(d / "fleet"), "--out", str(d)]
-        procs["drones"] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
-                                                 "--duration", str(timeout), "--hold", str(hold_limit(k)),
-                                                 "--router", ",".join(endpoints),
-                                                 "--drone-router", drone_router, *common],
-                                           stdout=logs["drones"], stderr=subprocess.STDOUT)
+        for part, host in enumerate(hosts):
+            procs[host] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
+                                      "--duration", str(timeout), "--hold", str(hold_limit(k)),
+                                      "--router", ",".join(endpoints), "--part", str(part), "--parts", str(len(hosts)),
+                                      "--drone-router", drone_router, *common],
+                                stdout=logs[host], stderr=subprocess.STDOUT)
         procs["stations"] = spawn(py + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
                                                    "--router", ",".join(gs_routers), *common,
                                                    *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
                                              stdout=logs["stations"], stderr=subprocess.STDOUT)
         others = {**{f"router {n}" if sites else "router": procs[n].pid for n in router_cmds}, "stations host": procs["stations"].pid}
-        if (_wait_line(d / "drones.log", "drones ready", READY_TIMEOUT_S, procs["drones"]) is not None
-                and _wait_line(d / "drones.log", "take-off", hold_limit(k) + 30, procs["drones"]) is not None):
+        def every_host(line: str, within: float) -> bool:
+            return all(_wait_line(d / f"{h}.log", line, within, procs[h]) is not None for h in hosts)
+
+        if every_host("drones ready", READY_TIMEOUT_S) and every_host("take-off", hold_limit(k) + 30):
             procs["stations"].send_signal(signal.SIGUSR1)
             window["t"], window["cpu"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
             window["socks"] = _tcp_sockets(router_pids)
-            if _wait_line(d / "drones.log", "all landed", timeout + 60, procs["drones"]) is not None:
+            if every_host("all landed", timeout + 60):
                 procs["stations"].send_signal(signal.SIGUSR2)  # count the commands sent until now
             try:
-                procs["drones"].wait(timeout + 60)
+                for h in hosts:
+                    procs[h].wait(timeout + 60)
             except subprocess.TimeoutExpired:
                 error = "drones host did not finish"
             window["t_end"], window["cpu_end"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
@@ -449,12 +493,12 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     except RuntimeError as exc:
         error = str(exc)
     finally:
-        stop_in_order(procs, ("stations", *router_cmds, "drones"))
+        stop_in_order(procs, ("stations", *router_cmds, *hosts))
         for f in logs.values():
             f.close()
     wall = time.monotonic() - t0
     try:
-        drones = json.loads((d / "drones.json").read_text())
+        drones = merge_drone_hosts([json.loads((d / drones_file(i, len(hosts))).read_text()) for i in range(len(hosts))])
         stations = json.loads((d / "stations.json").read_text())
     except (OSError, ValueError) as exc:
         return {"layout": layout, "k": k, "g": g, "error": error or f"no results ({exc}); see {d}"}
@@ -482,7 +526,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         "layout": layout, "sites": sites or 1, "tls": bool(tls or sites), "drone_router": drone_router if sites else None,
         "gs_inbox_senders": inbox_senders, "gs_inbox_drops": {g: {k: v for k, v in c.items() if k.startswith("inbox:")}
                                                               for g, c in stations.get("counters", {}).items()},
-        "k": k, "g": g, "correct": ok,
+        "k": k, "g": g, "drone_hosts": len(hosts), "correct": ok,
         "all_correct": ok == k and not drones["timed_out"] and not error and drones.get("released") == "keys",
         "wall_s": round(wall, 1), "ground_s": drones.get("ground_s"), "released": drones.get("released"),
         "worst_owner_silence_s": max(v["worst_owner_silence_s"] for v in per.values()),
@@ -504,7 +548,7 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
     span = max(1e-6, window["t_end"] - window["t"])
     cpu = {n: round(100.0 * (window["cpu_end"][n] - c) / span, 1) if c is not None and window["cpu_end"][n] is not None else None
            for n, c in window["cpu"].items()}
-    cpu["drones host"] = round(100.0 * drones["cpu_s"] / max(1e-6, drones["flight_s"]), 1)
+    cpu["drones host"] = drones.get("cpu_percent", round(100.0 * drones["cpu_s"] / max(1e-6, drones["flight_s"]), 1))
     zids = {**drones["router_zid"], **stations["router_zid"]}
     site_of = {node: zid_site.get(z or "", "?") for node, z in zids.items()}
     delivered = across = 0
@@ -641,6 +685,8 @@ def main(argv: list[str] | None = None) -> int:
     hd.add_argument("--duration", type=float, default=150.0, help="flight time limit, from take-off")
     hd.add_argument("--hold", type=float, default=60.0, help="longest pre-flight hold (key sharing), s")
     hd.add_argument("--jam", metavar="DRONE", help="SIGUSR1 cuts this drone's radio, SIGUSR2 mends it (bench revoke)")
+    hd.add_argument("--part", type=int, default=0, help="with --parts P: host the drones d(i+1) with i mod P == this")
+    hd.add_argument("--parts", type=int, default=1, help="drones hosts sharing the fleet (one process each)")
     hd.add_argument("--drone-router", choices=("spread", "all"), default="spread",
                     help="spread: drone i uses the (i mod N)-th router of --router; all: every drone gets the whole list")
     hs = sub.add_parser("host-stations")

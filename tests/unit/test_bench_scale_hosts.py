@@ -1,0 +1,29 @@
+"""``zdrone bench scale``'s drones hosts: how many, and their results merged as one."""
+
+from __future__ import annotations
+
+from zdrone.bench.scale import drone_hosts, drones_file, merge_drone_hosts
+
+
+def _part(names: list[str], cpu_s: float, flight_s: float, worst_pass: float, released: str = "keys") -> dict:
+    return {"results": {n: {"handovers": 4} for n in names}, "loops": 100, "timed_out": False, "flight_s": flight_s,
+            "cpu_s": cpu_s, "memory_mb": 50.0, "ground_s": 40.0, "released": released,
+            "router_zid": {n: "z" for n in names}, "delivered": {n: {"A": 1} for n in names},
+            "slow": {"worst_pass_s": worst_pass, "passes_over_0_5s": 1, "worst_step_s": worst_pass / 10,
+                     "worst_step_node": names[0], "listen_worst_s": 0.01, "listen_total_s": 0.5}}
+
+
+def test_one_host_per_site_and_per_50_drones_through_one_router() -> None:
+    assert [drone_hosts(k, 0) for k in (3, 25, 50, 100, 150, 300)] == [1, 1, 1, 2, 3, 3]
+    assert drone_hosts(25, 3) == 3 and drone_hosts(300, 3) == 3
+    assert drones_file(0, 1) == "drones.json" and drones_file(2, 3) == "drones-2.json"
+
+
+def test_merged_results_hold_every_drone_the_worst_pass_and_the_summed_cpu() -> None:
+    a, b = _part(["d1", "d3"], 50.0, 100.0, 0.4), _part(["d2"], 30.0, 60.0, 0.9, released="hold timeout")
+    m = merge_drone_hosts([a, b])
+    assert set(m["results"]) == {"d1", "d2", "d3"} and set(m["delivered"]) == {"d1", "d2", "d3"}
+    assert m["cpu_percent"] == 100.0 and m["memory_mb"] == 100.0  # 50 % + 50 %
+    assert m["slow"]["worst_pass_s"] == 0.9 and m["slow"]["worst_step_node"] == "d2" and m["slow"]["hosts"] == 2
+    assert m["released"] == "hold timeout"  # one host held to its limit: the whole fleet did
+    assert merge_drone_hosts([a]) is a
