@@ -7,7 +7,7 @@ from zdrone.bench.scale import drone_hosts, drones_file, merge_drone_hosts
 
 def _part(names: list[str], cpu_s: float, flight_s: float, worst_pass: float, released: str = "keys") -> dict:
     return {"results": {n: {"handovers": 4} for n in names}, "loops": 100, "timed_out": False, "flight_s": flight_s,
-            "cpu_s": cpu_s, "memory_mb": 50.0, "ground_s": 40.0, "released": released,
+            "cpu_s": cpu_s, "memory_mb": {"rss": 50.0, "peak": 60.0}, "ground_s": 40.0, "released": released,
             "router_zid": {n: "z" for n in names}, "delivered": {n: {"A": 1} for n in names},
             "slow": {"worst_pass_s": worst_pass, "passes_over_0_5s": 1, "worst_step_s": worst_pass / 10,
                      "worst_step_node": names[0], "listen_worst_s": 0.01, "listen_total_s": 0.5}}
@@ -23,7 +23,7 @@ def test_merged_results_hold_every_drone_the_worst_pass_and_the_summed_cpu() -> 
     a, b = _part(["d1", "d3"], 50.0, 100.0, 0.4), _part(["d2"], 30.0, 60.0, 0.9, released="hold timeout")
     m = merge_drone_hosts([a, b])
     assert set(m["results"]) == {"d1", "d2", "d3"} and set(m["delivered"]) == {"d1", "d2", "d3"}
-    assert m["cpu_percent"] == 100.0 and m["memory_mb"] == 100.0  # 50 % + 50 %
+    assert m["cpu_percent"] == 100.0 and m["memory_mb"] == {"rss": 100.0, "peak": 120.0}  # 50 % + 50 %
     assert m["slow"]["worst_pass_s"] == 0.9 and m["slow"]["worst_step_node"] == "d2" and m["slow"]["hosts"] == 2
     assert m["released"] == "hold timeout"  # one host held to its limit: the whole fleet did
     assert merge_drone_hosts([a]) is a

@@ -142,7 +142,7 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
         "timed_out": any(p["timed_out"] for p in parts), "flight_s": max(p["flight_s"] for p in parts),
         "cpu_s": sum(p["cpu_s"] for p in parts),
         "cpu_percent": round(sum(100.0 * p["cpu_s"] / max(1e-6, p["flight_s"]) for p in parts), 1),
-        "memory_mb": round(sum(p["memory_mb"] or 0.0 for p in parts), 1),
+        "memory_mb": {k: round(sum((p["memory_mb"] or {}).get(k, 0.0) for p in parts), 1) for k in ("rss", "peak")},
         "ground_s": max(p["ground_s"] for p in parts),
         "released": "keys" if all(p["released"] == "keys" for p in parts) else "hold timeout",
         "router_zid": {n: z for p in parts for n, z in p["router_zid"].items()},
@@ -671,7 +671,7 @@ def render(r: dict[str, Any]) -> None:
     if load:
         print_table("Load over the flight (CPU: 100 % = one core)", ["layout", "K x G", "CPU % routers", "RSS MB routers (peak)", "CPU % drones",
                     "CPU % GSs", "samples /s", "mesh samples /s"], load,
-                    caption="CPU: each router, the drones host, the GSs host; RSS: each router's resident memory at the end of the flight (its peak); samples: pub/sub samples delivered to the "
+                    caption="CPU: each router, the drones hosts (summed), the GSs host; RSS: each router's resident memory at the end of the flight (its peak); samples: pub/sub samples delivered to the "
                             "nodes; mesh samples: those from a node on another site's router (each crossed one "
                             "router-to-router link, QUIC with mutual TLS; --json: every router's TCP client sockets)")
 
