@@ -149,9 +149,11 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError(f"--inbox-senders {args.inbox_senders}: must be 64..100000")
     if not 0.5 <= args.speedup <= 8.0:
         raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
+    if not 1 <= args.drone_hosts <= 8:
+        raise UsageError(f"--drone-hosts {args.drone_hosts}: must be 1..8")
     result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
                        drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
-                       speedup=args.speedup)
+                       speedup=args.speedup, drone_hosts=args.drone_hosts)
     _emit(args, result, scale.render)
     return 0
 
@@ -390,6 +392,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="what-if: raise the GSs' inbox bound on (kind, sender) queues holding items at once "
                          "(default: 4 per fleet node, at least 256; a drained queue is freed) to at least N in "
                          "the GSs host; every row says so")
+    bs.add_argument("--drone-hosts", type=int, default=1, metavar="H",
+                    help="what-if: step the drones in H processes, the i-th drone in host i mod H (default 1; "
+                         "with --sites spread over N sites, H = N gives each site's drones a host)")
     bs.set_defaults(func=_bench_scale)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from zdrone.bench.scale import drone_hosts, drones_file, merge_drone_hosts
+from zdrone.bench.scale import drones_file, merge_drone_hosts
 
 
 def _part(names: list[str], cpu_s: float, flight_s: float, worst_pass: float, released: str = "keys") -> dict:
@@ -13,9 +13,7 @@ def _part(names: list[str], cpu_s: float, flight_s: float, worst_pass: float, re
                      "worst_step_node": names[0], "listen_worst_s": 0.01, "listen_total_s": 0.5}}
 
 
-def test_one_host_per_site_and_per_50_drones_through_one_router() -> None:
-    assert [drone_hosts(k, 0) for k in (3, 25, 50, 100, 150, 300)] == [1, 1, 1, 2, 3, 3]
-    assert drone_hosts(25, 3) == 3 and drone_hosts(300, 3) == 3
+def test_one_host_writes_drones_json_and_several_one_file_each() -> None:
     assert drones_file(0, 1) == "drones.json" and drones_file(2, 3) == "drones-2.json"
 
 

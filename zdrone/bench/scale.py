@@ -2,10 +2,10 @@
 site (``--sites N``), on this machine.
 
 Layout: the router (or one router per site, meshed over QUIC with mutual TLS: site n connects to sites
-1..n-1); the drones hosts, each hosting its share of the K drone nodes (one host per site, each
-with that site's drones; through one router one host per 50 drones, at most 3: ``drone_hosts``),
-each drone with its own Zenoh session, authority machine, security module and an in-process
-simulator (no sockets; a host's drones all stepped by its one loop); one process
+1..n-1); one process hosting the K drone nodes (``--drone-hosts H``: H processes, the i-th drone in
+host i mod H: with the default spread over sites, one host per site's drones), each drone with its
+own Zenoh session, authority machine, security module and an in-process simulator (no sockets; a
+host's drones all stepped by its one loop); one process
 hosting the G ground stations, each with its own session, serving all K drones. GSs stand 500 m
 apart eastwards (A, B, C, …); with sites, GS i belongs to site i (``router/sites.json``) and
 connects to its site's router, and drone i to site (i mod N)'s router (``spread``) or to the list of
@@ -115,14 +115,6 @@ def _router_zid(session: Any) -> str | None:
     except Exception as exc:  # a closed session: nothing to report
         log.warning("router zid: %s", exc)
         return None
-
-
-def drone_hosts(k: int, sites: int) -> int:
-    """Processes the fleet's drones are stepped in: one per site (drone i is spread to site i mod N,
-    so each host's drones share a site router), through one router one per 50 drones up to 3. One
-    process stepping 300 drones took up to 2.4 s for a pass, and a drone not stepped hears nothing
-    meanwhile: the worst authority silence of the fleet was the host's, not the link's."""
-    return sites if sites else max(1, min(3, k // 50))
 
 
 def drones_file(part: int, parts: int) -> str:
@@ -422,7 +414,8 @@ def _free_ports(n: int) -> list[int]:
 
 
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
-         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP) -> dict[str, Any]:
+         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
+         drone_hosts: int = 1) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
     from ..fleet.files import init_fleet, load_sites, scale_nodes
     from ..sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
@@ -443,7 +436,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     else:
         router_cmds = {"router": ["zdrone", "router", "-c", str(d / "fleet/router/router.json5"), "--listen", endpoints[0]]}
         gs_routers = endpoints[:1]
-    hosts = ["drones"] if drone_hosts(k, sites) == 1 else [f"drones-{i}" for i in range(drone_hosts(k, sites))]
+    hosts = ["drones"] if drone_hosts == 1 else [f"drones-{i}" for i in range(drone_hosts)]
     logs = {n: open(d / f"{n}.log", "w") for n in (*router_cmds, *hosts, "stations")}
     procs: dict[str, subprocess.Popen] = {}
     t0 = time.monotonic()
@@ -571,10 +564,13 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 
 
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
-        drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP) -> dict[str, Any]:
+        drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
+        drone_hosts: int = 1) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick``) through one
     TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
-    ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it)."""
+    ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it).
+    ``drone_hosts``: processes the drones are stepped in (a what-if, reported: on 2 cores, three hosts of
+    100 drones made slower passes than one host of 300)."""
     ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
     flight_s = FLIGHT_SIM_S / speedup
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
@@ -587,14 +583,15 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
             if sites:
                 status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {speedup:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
-                                 inbox_senders=inbox_senders, speedup=speedup))
+                                 inbox_senders=inbox_senders, speedup=speedup, drone_hosts=drone_hosts))
                 if not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
                     rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
-                                     speedup=speedup))
+                                     speedup=speedup, drone_hosts=drone_hosts))
             else:
                 status.say(f"{k} drones x {stations} GSs flying…")
-                rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=speedup))
+                rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=speedup,
+                                 drone_hosts=drone_hosts))
     finally:
         status.close()
 
@@ -604,7 +601,7 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
 
     main_rows = [r for r in rows if r.get("sites", 1) == (sites or 1)]
     result: dict[str, Any] = {"rows": rows, "largest_k_all_correct": largest(main_rows), "stations": stations,
-                              "gs_inbox_senders": inbox_senders, "speedup": speedup}
+                              "gs_inbox_senders": inbox_senders, "speedup": speedup, "drone_hosts": drone_hosts}
     if sites:
         result.update({"sites": sites, "drone_router": drone_router,
                        "largest_k_all_correct_one_router": largest([r for r in rows if r.get("sites") == 1]),
@@ -650,6 +647,8 @@ def render(r: dict[str, Any]) -> None:
         caption += "; every link mutual TLS"
     if r.get("gs_inbox_senders"):
         caption += f"; what-if: GS inbox bound set to {r['gs_inbox_senders']} (kind, sender) queues with items"
+    if r.get("drone_hosts", 1) > 1:
+        caption += f"; what-if: the drones stepped in {r['drone_hosts']} processes"
     print_table(f"Scale: drones x ground stations {where}", ["layout", "K x G", "correct", "all correct",
                 "worst authority silence s", "ground s", "wall s", "failures"], rows,
                 caption=caption + "; ground: key sharing before take-off")
