@@ -738,3 +738,18 @@ def test_a_bundle_opens_every_envelope_in_it_and_a_malformed_one_is_counted(flee
     assert link is not None and link.opened == 2
     a.on_bundle("d1", b"\x00\x09short", 0.3)
     assert a.counters["down:bad_bundle"] == 1 and link.opened == 2
+
+
+def test_heartbeats_keep_their_rhythm_when_the_loop_runs_late(fleet_dir):
+    """A loop late by d sends the next heartbeat a period after the last was *due* (a late loop
+    does not stretch the period); one late by more than a period starts again from now (no burst)."""
+    a = paired_a(fleet_dir)
+    period = 1.0 / a.opts.heartbeat_hz
+    a.handle_timer(1.0)
+    due = a._hb_due
+    assert due == 1.0 + period
+    a.handle_timer(due + 0.2)  # late by 0.2 s
+    assert a._hb_due == due + period
+    late = a._hb_due + 3 * period  # late by three periods
+    a.handle_timer(late)
+    assert a._hb_due == late + period

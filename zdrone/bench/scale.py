@@ -184,6 +184,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     # uplink subscriptions (declared when a GS's coverage is entered: Zenoh calls in the loop)
     slow: dict[str, Any] = {"worst_pass_s": 0.0, "passes_over_0_5s": 0, "worst_step_s": 0.0, "worst_step_node": None}
     worst_owner_silence = [0.0] * len(nodes)
+    worst_at: list[dict[str, Any] | None] = [None] * len(nodes)
     owner_lost = [0] * len(nodes)
     t_ready = time.monotonic()
     t0, cpu0 = t_ready, time.process_time()
@@ -222,7 +223,11 @@ def _host_drones(args: argparse.Namespace) -> int:
                     link = n.core.links.get(m.owner or "")
                     if link is not None:
                         now = time.monotonic()
-                        worst_owner_silence[i] = max(worst_owner_silence[i], link.tbm.since_last(now))
+                        silence = link.tbm.since_last(now)
+                        if silence > worst_owner_silence[i]:  # when, and under which epoch (a hand-over's?)
+                            worst_owner_silence[i] = silence
+                            worst_at[i] = {"after_takeoff_s": round(now - t0, 2), "owner": m.owner, "epoch": m.epoch,
+                                           "state": m.state.value}
                         if link.tbm.state(now) is LinkState.LOST:
                             owner_lost[i] += 1
             loops += 1
@@ -252,7 +257,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
                 "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
                 "not_authority": m.drops[HaDrop.NOT_AUTHORITY], "in_failsafe": m.drops[HaDrop.FAILSAFE],
-                "worst_owner_silence_s": round(worst_owner_silence[i], 3), "owner_lost_samples": owner_lost[i],
+                "worst_owner_silence_s": round(worst_owner_silence[i], 3), "worst_owner_silence_at": worst_at[i],
+                "owner_lost_samples": owner_lost[i],
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
                 # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
                 "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
@@ -512,7 +518,8 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             why.append(f"{s - f} commands lost")
         if not r["landed"]:
             why.append("not landed")
-        per[name] = {"ok": not why, "why": why, "worst_owner_silence_s": r["worst_owner_silence_s"]}
+        per[name] = {"ok": not why, "why": why, "worst_owner_silence_s": r["worst_owner_silence_s"],
+                     "at": r.get("worst_owner_silence_at")}
     ok = sum(1 for v in per.values() if v["ok"])
     handovers = [r["handovers"] for r in drones["results"].values()]
     row: dict[str, Any] = {
@@ -523,6 +530,10 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         "all_correct": ok == k and not drones["timed_out"] and not error and drones.get("released") == "keys",
         "wall_s": round(wall, 1), "ground_s": drones.get("ground_s"), "released": drones.get("released"),
         "worst_owner_silence_s": max(v["worst_owner_silence_s"] for v in per.values()),
+        "owner_silence_p50_p90_s": _p50_p90([v["worst_owner_silence_s"] for v in per.values()]),
+        # the five worst drones' silences: when (after take-off), under which owner and epoch
+        "worst_owner_silences": sorted(({"drone": n, "s": v["worst_owner_silence_s"], **(v["at"] or {})}
+                                        for n, v in per.items()), key=lambda x: -x["s"])[:5],
         "handovers": {"expected_each": expected, "min": min(handovers), "max": max(handovers), "total": sum(handovers)},
         "failures": {n: v["why"] for n, v in per.items() if not v["ok"]}, "runs": str(d)}
     if error:
@@ -531,6 +542,12 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
     row.update(_load(drones, stations, window, zid_site, sites))
     return row
+
+
+def _p50_p90(xs: list[float]) -> list[float]:
+    """The median and 90th percentile of the drones' worst silences (nearest rank)."""
+    ys = sorted(xs)
+    return [ys[(len(ys) - 1) // 2], ys[min(len(ys) - 1, int(0.9 * len(ys)))]] if ys else []
 
 
 def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, Any], zid_site: dict[str, str],
