@@ -40,6 +40,7 @@ from ..fleet import keyexprs as kx
 from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
 from ..fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
 from ..fleet.tls import node_files
+from .declarations import DECLARATIONS
 from .eventlog import EventLog
 from .inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes, senders_bound
 from .pacing import Pacer
@@ -86,6 +87,7 @@ class NodeRuntime:
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
         self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
+        self._decl_lock = threading.RLock()  # subscriptions are declared from the loop and ``in_background``
         self._queryables: list[PathQueryable] = []
         self.multipath = len(routers) > 1
         sites = (fleet_path(fleet_dir).parent / "router" / "sites.json").exists()
@@ -128,8 +130,9 @@ class NodeRuntime:
 
     def _declare_on(self, p: SessionPath) -> None:
         assert p.session is not None
-        for handle, keyexpr, cb in self._subs:
-            handle.per_path.append(p.session.declare_subscriber(keyexpr, cb))
+        with self._decl_lock:
+            for handle, keyexpr, cb in self._subs:
+                handle.per_path.append(p.session.declare_subscriber(keyexpr, cb))
         for q in self._queryables:
             q.per_path.append(p.session.declare_queryable(q.keyexpr, query_queue()))
 
@@ -169,18 +172,25 @@ class NodeRuntime:
         # calls Zenoh, so it cannot wait on Zenoh from inside Zenoh
         callback = zenoh.handlers.Callback(on_sample, indirect=False) if DIRECT_CALLBACKS else on_sample
         handle = _PathSubscriber()
-        for s in self._open_sessions():
-            handle.per_path.append(s.declare_subscriber(keyexpr, callback))
-        self._subs.append((handle, keyexpr, callback))
-        self._declared.append(handle)
+        with self._decl_lock:
+            for s in self._open_sessions():
+                handle.per_path.append(s.declare_subscriber(keyexpr, callback))
+            self._subs.append((handle, keyexpr, callback))
+            self._declared.append(handle)
         return handle
 
     def undeclare(self, entity: Any) -> None:
-        if entity in self._declared:
-            self._declared.remove(entity)
-        self._subs = [e for e in self._subs if e[0] is not entity]
-        self._queryables = [q for q in self._queryables if q is not entity]
-        entity.undeclare()
+        with self._decl_lock:
+            if entity in self._declared:
+                self._declared.remove(entity)
+            self._subs = [e for e in self._subs if e[0] is not entity]
+            self._queryables = [q for q in self._queryables if q is not entity]
+            entity.undeclare()
+
+    def in_background(self, call: Callable[[], None]) -> None:
+        """Run ``call`` (declarations: ``subscribe``, ``undeclare``) in the process's declaration
+        thread, in order, so that the loop never waits on Zenoh for it (``DeclarationThread``)."""
+        DECLARATIONS.submit(call)
 
     # ------------------------------------------------------------------- send
     def _out(self) -> list[Any]:
@@ -253,7 +263,10 @@ class NodeRuntime:
         """Write ``stop`` (a record of class ``stop``) with the final status, undeclare everything,
         close the session."""
         self.events.write_as(stop, final)
-        steps: list[Callable[[], None]] = [e.undeclare for e in reversed(self._declared)]
+        if not DECLARATIONS.settle(5.0):  # what the loop asked for is declared before everything goes
+            log.warning("close: declarations still running after 5 s")
+        with self._decl_lock:
+            steps: list[Callable[[], None]] = [e.undeclare for e in reversed(self._declared)]
         steps += [p.close for p in self.paths] + list(extra_steps)
         self._declared.clear()
         for step in steps:  # each on its own: a session the signal thread closed must not stop the rest

@@ -176,7 +176,8 @@ class DroneNode:
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
         self._late_seq = 0
         self.bundles = BundleWriter()  # the envelopes of this pass per GS, published at its end (``flush_down``)
-        self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink
+        self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink (declaration thread)
+        self._listening: set[str] = set()  # the GSs whose uplinks the loop asked to hear
         self.listen_total_s = self.listen_worst_s = 0.0  # time spent declaring and undeclaring them
         self._next_status = 0.0
         self._last_pass = 0.0  # the ``now`` of the loop's last pass
@@ -217,20 +218,32 @@ class DroneNode:
         self.events.write_record(record)
 
     def _listen(self, gss: frozenset[str]) -> None:
-        started = time.monotonic()
-        self._listen_to(gss)
-        took = time.monotonic() - started  # Zenoh declarations in the loop: what a pass waits for (bench scale)
-        self.listen_total_s += took
-        self.listen_worst_s = max(self.listen_worst_s, took)
+        """Listen to exactly ``gss``'s uplinks: the subscriptions are declared and undeclared in the
+        process's declaration thread, in order (``NodeRuntime.in_background``): a declaration waits on
+        Zenoh, up to 0.67 s on a busy router, and the loop must not."""
+        for gs in sorted(gss - self._listening):
+            self._listening.add(gs)
+            self.rt.in_background(functools.partial(self._declare_uplink, gs))
+        for gs in sorted(self._listening - gss):
+            self._listening.discard(gs)
+            self.rt.in_background(functools.partial(self._undeclare_uplink, gs))
 
-    def _listen_to(self, gss: frozenset[str]) -> None:
-        for gs in sorted(gss - set(self.subs)):
-            # the router's size limit, held here too
+    def _declare_uplink(self, gs: str) -> None:  # the declaration thread
+        started = time.monotonic()
+        if gs not in self.subs:  # the router's size limit, held here too
             self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
                              for lane in kx.up_lanes(self.name, gs)]
-        for gs in sorted(set(self.subs) - gss):
-            for handle in self.subs.pop(gs):
-                self.rt.undeclare(handle)
+        self._declared_in(time.monotonic() - started)
+
+    def _undeclare_uplink(self, gs: str) -> None:  # the declaration thread
+        started = time.monotonic()
+        for handle in self.subs.pop(gs, []):
+            self.rt.undeclare(handle)
+        self._declared_in(time.monotonic() - started)
+
+    def _declared_in(self, took: float) -> None:
+        self.listen_total_s += took  # Zenoh declarations, now off the loop (bench scale reports them)
+        self.listen_worst_s = max(self.listen_worst_s, took)
 
     def _publish(self, gs: str, payload: bytes) -> None:
         if self.gate is not None and not self.gate.allow(gs, "down"):
