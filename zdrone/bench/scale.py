@@ -141,7 +141,8 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
         "slow": {"hosts": len(parts), "worst_pass_s": max(x["worst_pass_s"] for x in slow),
                  "passes_over_0_5s": sum(x["passes_over_0_5s"] for x in slow),
                  "worst_step_s": worst_step["worst_step_s"], "worst_step_node": worst_step["worst_step_node"],
-                 "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2)},
+                 "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2),
+                 "flush_deferred": sum(x.get("flush_deferred", 0) for x in slow)},
         "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
 
 
@@ -266,7 +267,8 @@ def _host_drones(args: argparse.Namespace) -> int:
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
             "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
-                     "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2)}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
+                     "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2),
+                     "flush_deferred": sum(n.flush_deferred for n in nodes)}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
         for n in nodes:
             n.close()

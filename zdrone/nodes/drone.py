@@ -178,6 +178,8 @@ class DroneNode:
         self.bundles = BundleWriter()  # the envelopes of this pass per GS, published at its end (``flush_down``)
         self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink (declaration thread)
         self._listening: set[str] = set()  # the GSs whose uplinks the loop asked to hear
+        self.declaring = False  # the declaration thread works on this drone's session now
+        self.flush_deferred = 0  # passes whose envelopes waited for a declaration
         self.listen_total_s = self.listen_worst_s = 0.0  # time spent declaring and undeclaring them
         self._next_status = 0.0
         self._last_pass = 0.0  # the ``now`` of the loop's last pass
@@ -230,16 +232,24 @@ class DroneNode:
 
     def _declare_uplink(self, gs: str) -> None:  # the declaration thread
         started = time.monotonic()
-        if gs not in self.subs:  # the router's size limit, held here too
-            self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
-                             for lane in kx.up_lanes(self.name, gs)]
-        self._declared_in(time.monotonic() - started)
+        self.declaring = True
+        try:
+            if gs not in self.subs:  # the router's size limit, held here too
+                self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
+                                 for lane in kx.up_lanes(self.name, gs)]
+        finally:
+            self.declaring = False
+            self._declared_in(time.monotonic() - started)
 
     def _undeclare_uplink(self, gs: str) -> None:  # the declaration thread
         started = time.monotonic()
-        for handle in self.subs.pop(gs, []):
-            self.rt.undeclare(handle)
-        self._declared_in(time.monotonic() - started)
+        self.declaring = True
+        try:
+            for handle in self.subs.pop(gs, []):
+                self.rt.undeclare(handle)
+        finally:
+            self.declaring = False
+            self._declared_in(time.monotonic() - started)
 
     def _declared_in(self, took: float) -> None:
         self.listen_total_s += took  # Zenoh declarations, now off the loop (bench scale reports them)
@@ -252,8 +262,14 @@ class DroneNode:
             return
         self.bundles.add(gs, payload)
 
-    def flush_down(self) -> None:
-        """Publish the pass's envelopes: one bundle per GS (``zdrone.core.bundle``)."""
+    def flush_down(self, force: bool = False) -> None:
+        """Publish the pass's envelopes: one bundle per GS (``zdrone.core.bundle``). While the
+        declaration thread declares on this drone's session they wait for the next pass (``force``:
+        at close, they go now): under load a ``put`` on the session waited for the declaration, up to
+        0.67 s, and with it the loop (and a host's every other drone)."""
+        if self.declaring and not force:
+            self.flush_deferred += 1
+            return
         if self.bundles.pending():
             for gs, bundle in self.bundles.take():
                 self.rt.put(kx.down(self.name, gs), bundle)
@@ -464,7 +480,7 @@ class DroneNode:
 
     def close(self) -> None:
         now = time.monotonic()  # the saved authority stays, on the ground too: the epoch goes on after a restart
-        self.flush_down()
+        self.flush_down(force=True)
         self.rt.close(self.status(now), rec.DroneStop, extra_steps=(self.vehicle.close,))
 
 
