@@ -11,7 +11,8 @@ security layer:
 All three send the GCS HEARTBEAT at 2 Hz (the drone's authority needs the liveness either way).
 Packets and bytes are counted at the Zenoh layer by a tap in each router process (every sample on
 ``zdrone/**``; bytes are sample payload bytes, without Zenoh/TCP framing), per direction:
-``up`` = GS -> drone, ``down`` = drone -> GS.
+``up`` = GS -> drone, ``down`` = drone -> GS. A drone's publication is a bundle of a pass's envelopes
+(``zdrone.core.bundle``): the tap counts the frames in it, and the bytes added are per frame.
 
 The downlink is the autopilot's own stream: PX4 streams its default set unasked (the paper's figures
 were taken with PX4's real stream); ArduPilot streams nothing until asked, so its downlink is what
@@ -38,15 +39,18 @@ PAPER = {"without": {"packets_per_min": 161, "mean_packet_bytes": 433.2},
 def _rates(tap: dict[str, Any]) -> dict[str, Any]:
     window = max(1e-6, (tap.get("last") or 0) - (tap.get("first") or 0))
     out: dict[str, Any] = {"window_s": round(window, 2)}
-    tot_n = tot_b = 0
+    tot_n = tot_b = tot_f = 0
     for direction in ("up", "down"):
         n = sum(v[0] for k, v in tap["keys"].items() if f"/{direction}/" in k)
         b = sum(v[1] for k, v in tap["keys"].items() if f"/{direction}/" in k)
+        f = sum(v[2] if len(v) > 2 else v[0] for k, v in tap["keys"].items() if f"/{direction}/" in k)
         out[direction] = {"packets_per_min": round(n / window * 60, 1), "mean_packet_bytes": round(b / n, 1) if n else 0.0,
-                          "packets": n, "bytes": b}
-        tot_n, tot_b = tot_n + n, tot_b + b
+                          "packets": n, "bytes": b, "frames": f}
+        tot_n, tot_b, tot_f = tot_n + n, tot_b + b, tot_f + f
     out["packets_per_min"] = round(tot_n / window * 60, 1)
     out["mean_packet_bytes"] = round(tot_b / tot_n, 1) if tot_n else 0.0
+    # a drone sends a pass's envelopes as one bundle: the security layer's cost is per frame
+    out["mean_frame_bytes"] = round(tot_b / tot_f, 1) if tot_f else 0.0
     return out
 
 
@@ -95,7 +99,7 @@ def run(quick: bool = False, out: Path | None = None, progress: bool = True, aut
         if plain and "error" not in r:
             r["change_vs_plain"] = {
                 "packets_pct": round((r["packets_per_min"] / plain["packets_per_min"] - 1) * 100, 2),
-                "mean_bytes_added": round(r["mean_packet_bytes"] - plain["mean_packet_bytes"], 1)}
+                "mean_bytes_added": round(r["mean_frame_bytes"] - plain["mean_frame_bytes"], 1)}
     return {"autopilot": autopilot, "rows": rows, "paper_table1": PAPER, "quick": quick,
             "measured_at": "router tap, Zenoh sample payload bytes",
             "targets": {"packets_pct_max": 5.0, "mean_bytes_added_max": 24.0}, "runs": str(base)}

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import zenoh
 
+from ..core.bundle import unpack
+
 from ..core.fleet import ConfigError
 from .session import load_router_config
 from .shutdown import route_signals
@@ -50,11 +52,16 @@ class TrafficTap:
 
     def __call__(self, sample: zenoh.Sample) -> None:
         n = len(sample.payload)
+        key = str(sample.key_expr)
+        frames = 1
+        if "/down/" in key:  # a drone's bundle: the envelopes in it (``zdrone.core.bundle``)
+            frames = len(unpack(sample.payload.to_bytes()) or [b""])
         now = time.time()
         with self.lock:
-            c = self.counts.setdefault(str(sample.key_expr), [0, 0])
+            c = self.counts.setdefault(key, [0, 0, 0])  # samples, bytes, frames
             c[0] += 1
             c[1] += n
+            c[2] += frames
             self.first = self.first or now
             self.last = now
 
