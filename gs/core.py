@@ -456,9 +456,7 @@ class StationCore:
                 out += self.request_control(view, now)
             out += self._command_stream(view, now)
         if now >= self._hb_due:
-            # on the heartbeat's own rhythm: a loop late by d sends the next one a period after the
-            # last was due, not after now (``now + period`` made every late pass stretch the period,
-            # and a drone heard its owner up to 1.1 s apart at 2 Hz in a fleet of 300)
+            # the next a period after this one was due (after ``now``, a late pass stretched the period)
             period = 1.0 / self.opts.heartbeat_hz
             nxt = self._hb_due + period
             self._hb_due = nxt if nxt > now else now + period
