@@ -47,6 +47,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from .stallwatch import StallWatch
+
 CROSSINGS = 2
 SPEEDUP = 4.0
 #: How long the drones host may take to open its K sessions before the run counts as failed.
@@ -142,7 +144,9 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
                  "passes_over_0_5s": sum(x["passes_over_0_5s"] for x in slow),
                  "worst_step_s": worst_step["worst_step_s"], "worst_step_node": worst_step["worst_step_node"],
                  "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2),
-                 "flush_deferred": sum(x.get("flush_deferred", 0) for x in slow)},
+                 "flush_deferred": sum(x.get("flush_deferred", 0) for x in slow),
+                 "stalls": [s for x in slow for s in x.get("stalls", [])], "stalls_seen": sum(x.get("stalls_seen", 0) for x in slow),
+                 "watch_late_worst_s": max(x.get("watch_late_worst_s", 0.0) for x in slow)},
         "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
 
 
@@ -184,6 +188,8 @@ def _host_drones(args: argparse.Namespace) -> int:
     # where the host's time goes when a pass is slow: a pass over every drone, one drone's step, its
     # uplink subscriptions (declared when a GS's coverage is entered: Zenoh calls in the loop)
     slow: dict[str, Any] = {"worst_pass_s": 0.0, "passes_over_0_5s": 0, "worst_step_s": 0.0, "worst_step_node": None}
+    # which call a slow step waits in (``ZDRONE_STALL_NATIVE=dir``: with py-spy's native stacks there)
+    watch = StallWatch(native_dir=os.environ.get("ZDRONE_STALL_NATIVE"))
     worst_owner_silence = [0.0] * len(nodes)
     worst_at: list[dict[str, Any] | None] = [None] * len(nodes)
     owner_lost = [0] * len(nodes)
@@ -214,7 +220,9 @@ def _host_drones(args: argparse.Namespace) -> int:
                           flush=True)
             for i, n in enumerate(nodes):
                 step_start = time.monotonic()
+                watch.begin(n.name)
                 n.step(0.0)
+                watch.end()
                 step_s = time.monotonic() - step_start
                 if step_s > slow["worst_step_s"]:
                     slow["worst_step_s"], slow["worst_step_node"] = round(step_s, 3), n.name
@@ -268,8 +276,9 @@ def _host_drones(args: argparse.Namespace) -> int:
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
             "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
                      "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2),
-                     "flush_deferred": sum(n.flush_deferred for n in nodes)}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
+                     "flush_deferred": sum(n.flush_deferred for n in nodes), **watch.report()}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
+        watch.close()
         for n in nodes:
             n.close()
     return 0

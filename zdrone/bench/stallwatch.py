@@ -1,0 +1,79 @@
+"""Where a host's loop waits: a watch on the drones host's steps (testbed).
+
+A thread looks at the loop every ``period`` seconds; when one drone's step has run longer than
+``threshold``, it takes the loop thread's Python stack once for that step (the innermost frames: the
+call that waits), and, with ``native``, a ``py-spy dump --native`` of the process (the threads' native
+stacks: what the Zenoh call waits on). A watch that is itself late by much more than its period says
+the waiting call held the GIL. Reported in ``zdrone bench scale``'s ``drones_host_slow.stalls``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+MAX_STALLS = 8  # stalls kept (the first ones; every later one is counted)
+
+
+class StallWatch:
+    """Watches ``begin``/``end`` of the loop's steps from a thread of its own."""
+
+    def __init__(self, threshold: float = 0.2, period: float = 0.02, native_dir: str | None = None) -> None:
+        self.threshold, self.period = threshold, period
+        self.pyspy = shutil.which("py-spy") or shutil.which("py-spy", path=str(Path(sys.executable).parent))
+        self.native_dir = native_dir if native_dir and self.pyspy else None
+        self._loop_ident = threading.get_ident()
+        self._step: tuple[str, float, int] | None = None  # (node, started, serial)
+        self._serial = 0
+        self._taken = -1  # the serial of the step last taken
+        self.stalls: list[dict[str, Any]] = []
+        self.count = 0
+        self.worst_watch_late_s = 0.0  # the watch's own worst lateness (long: the GIL was held)
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name="zdrone-stallwatch", daemon=True)
+        self._thread.start()
+
+    def begin(self, node: str) -> None:
+        self._serial += 1
+        self._step = (node, time.monotonic(), self._serial)
+
+    def end(self) -> None:
+        self._step = None
+
+    def close(self) -> None:
+        self._running = False
+
+    def _run(self) -> None:
+        last = time.monotonic()
+        while self._running:
+            time.sleep(self.period)
+            now = time.monotonic()
+            self.worst_watch_late_s = max(self.worst_watch_late_s, now - last - self.period)
+            last = now
+            step = self._step
+            if step is None or step[2] == self._taken or now - step[1] < self.threshold:
+                continue
+            self._taken = step[2]
+            self.count += 1
+            if len(self.stalls) >= MAX_STALLS:
+                continue
+            frame = sys._current_frames().get(self._loop_ident)
+            frames = [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in traceback.extract_stack(frame)[-8:]] if frame else []
+            stall: dict[str, Any] = {"node": step[0], "seen_after_s": round(now - step[1], 3), "frames": frames}
+            if self.native_dir is not None:
+                out = Path(self.native_dir, f"stall-{self.count}.txt")
+                with open(out, "w") as f:
+                    subprocess.run([str(self.pyspy), "dump", "--native", "--pid", str(os.getpid())], stdout=f,
+                                   stderr=subprocess.STDOUT, timeout=20, check=False)
+                stall["native"] = str(out)
+            self.stalls.append(stall)
+
+    def report(self) -> dict[str, Any]:
+        return {"stalls": self.stalls, "stalls_seen": self.count, "watch_late_worst_s": round(self.worst_watch_late_s, 3)}
