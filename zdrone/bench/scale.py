@@ -47,7 +47,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .stallwatch import StallWatch
+from .stallwatch import PassClock, StallWatch
 
 CROSSINGS = 2
 SPEEDUP = 4.0
@@ -146,7 +146,8 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
                  "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2),
                  "flush_deferred": sum(x.get("flush_deferred", 0) for x in slow),
                  "stalls": [s for x in slow for s in x.get("stalls", [])], "stalls_seen": sum(x.get("stalls_seen", 0) for x in slow),
-                 "watch_late_worst_s": max(x.get("watch_late_worst_s", 0.0) for x in slow)},
+                 "watch_late_worst_s": max(x.get("watch_late_worst_s", 0.0) for x in slow),
+                 "slow_passes": [s for x in slow for s in x.get("slow_passes", [])]},
         "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
 
 
@@ -190,6 +191,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     slow: dict[str, Any] = {"worst_pass_s": 0.0, "passes_over_0_5s": 0, "worst_step_s": 0.0, "worst_step_node": None}
     # which call a slow step waits in (``ZDRONE_STALL_NATIVE=dir``: with py-spy's native stacks there)
     watch = StallWatch(native_dir=os.environ.get("ZDRONE_STALL_NATIVE"))
+    clock = PassClock()  # a slow pass: the loop on a CPU, waiting for one, or asleep
     worst_owner_silence = [0.0] * len(nodes)
     worst_at: list[dict[str, Any] | None] = [None] * len(nodes)
     owner_lost = [0] * len(nodes)
@@ -211,6 +213,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 baseline = {d: c.snapshot() for d, c in deliveries.items()}
                 print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
             pass_start = time.monotonic()
+            clock.begin()
             if jam[0] is not None:
                 gate = next(n.gate for n in nodes if n.name == args.jam)
                 if gate.jammed != jam[0]:
@@ -241,6 +244,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                             owner_lost[i] += 1
             loops += 1
             pass_s = time.monotonic() - pass_start
+            clock.end(pass_start - t0)
             slow["worst_pass_s"] = max(slow["worst_pass_s"], round(pass_s, 3))
             slow["passes_over_0_5s"] += pass_s > 0.5
             if landed_at is None and all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (
@@ -276,7 +280,7 @@ def _host_drones(args: argparse.Namespace) -> int:
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
             "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
                      "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2),
-                     "flush_deferred": sum(n.flush_deferred for n in nodes), **watch.report()}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
+                     "flush_deferred": sum(n.flush_deferred for n in nodes), **watch.report(), "slow_passes": clock.slow}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
         watch.close()
         for n in nodes:

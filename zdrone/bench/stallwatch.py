@@ -77,3 +77,46 @@ class StallWatch:
 
     def report(self) -> dict[str, Any]:
         return {"stalls": self.stalls, "stalls_seen": self.count, "watch_late_worst_s": round(self.worst_watch_late_s, 3)}
+
+
+def _schedstat() -> tuple[float, float]:
+    """The calling thread's time on a CPU and waiting on a run queue, in seconds (0, 0 if unknown)."""
+    try:
+        on_cpu, runq, _ = open("/proc/thread-self/schedstat").read().split()
+        return int(on_cpu) / 1e9, int(runq) / 1e9
+    except (OSError, ValueError):
+        return 0.0, 0.0
+
+
+def _steal() -> float:
+    """The machine's stolen time so far (a virtual CPU the hypervisor did not run), in CPU-seconds."""
+    try:
+        fields = open("/proc/stat").readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+class PassClock:
+    """Where a slow pass's wall time went: the loop thread on a CPU, waiting for one (run queue), the
+    machine's stolen time, the whole process's CPU. Neither on a CPU nor queued: the thread slept
+    (a lock, a futex). Kept for the ``MAX_STALLS`` slowest passes over ``threshold``."""
+
+    def __init__(self, threshold: float = 0.5) -> None:
+        self.threshold = threshold
+        self.slow: list[dict[str, float]] = []
+        self._start = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def begin(self) -> None:
+        self._start = (time.monotonic(), *_schedstat(), _steal(), time.process_time())
+
+    def end(self, after_takeoff_s: float) -> None:
+        wall = time.monotonic() - self._start[0]
+        if wall < self.threshold:
+            return
+        cpu, runq = _schedstat()
+        self.slow.append({"after_takeoff_s": round(after_takeoff_s, 2), "wall_s": round(wall, 3),
+                          "loop_on_cpu_s": round(cpu - self._start[1], 3), "loop_run_queue_s": round(runq - self._start[2], 3),
+                          "steal_s": round(_steal() - self._start[3], 2),
+                          "process_cpu_s": round(time.process_time() - self._start[4], 3)})
+        self.slow = sorted(self.slow, key=lambda x: -x["wall_s"])[:MAX_STALLS]
