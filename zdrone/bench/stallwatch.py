@@ -9,6 +9,7 @@ the waiting call held the GIL. Reported in ``zdrone bench scale``'s ``drones_hos
 
 from __future__ import annotations
 
+import gc
 import os
 import shutil
 import subprocess
@@ -36,6 +37,10 @@ class StallWatch:
         self.stalls: list[dict[str, Any]] = []
         self.count = 0
         self.worst_watch_late_s = 0.0  # the watch's own worst lateness (long: the GIL was held)
+        self.gc_worst_s = [0.0, 0.0, 0.0]  # the longest collection of each generation (it holds the GIL)
+        self.gc_total_s = 0.0
+        self._gc_start = 0.0
+        gc.callbacks.append(self._on_gc)
         self._running = True
         self._thread = threading.Thread(target=self._run, name="zdrone-stallwatch", daemon=True)
         self._thread.start()
@@ -49,6 +54,17 @@ class StallWatch:
 
     def close(self) -> None:
         self._running = False
+        if self._on_gc in gc.callbacks:
+            gc.callbacks.remove(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._gc_start = time.monotonic()
+            return
+        took = time.monotonic() - self._gc_start
+        self.gc_total_s += took
+        g = info.get("generation", 0)
+        self.gc_worst_s[g] = max(self.gc_worst_s[g], took)
 
     def _run(self) -> None:
         last = time.monotonic()
@@ -76,7 +92,8 @@ class StallWatch:
             self.stalls.append(stall)
 
     def report(self) -> dict[str, Any]:
-        return {"stalls": self.stalls, "stalls_seen": self.count, "watch_late_worst_s": round(self.worst_watch_late_s, 3)}
+        return {"stalls": self.stalls, "stalls_seen": self.count, "watch_late_worst_s": round(self.worst_watch_late_s, 3),
+                "gc_worst_s": [round(x, 3) for x in self.gc_worst_s], "gc_total_s": round(self.gc_total_s, 2)}
 
 
 def _schedstat() -> tuple[float, float]:
