@@ -58,6 +58,7 @@ from pymavlink.dialects.v20 import common as mav
 from zdrone.core import bundle
 from zdrone.core import records as rec
 from zdrone.core import wire
+from zdrone.core.authority import RELEASE_NOT_AUTHORITY, RELEASE_STALE_EPOCH
 from zdrone.core.authority import State as HaState
 from zdrone.core.envelope import Dropped, SecureLink
 from zdrone.core.fleet import Fleet
@@ -651,7 +652,13 @@ class StationCore:
             log.warning("drone %s rejected %s: %s", view.name, msg.what, msg.reason)
             out.append(Emit(rec.Rejected(drone=view.name, what=msg.what, reason=msg.reason)))
             if msg.what == "release" and view.owner == self.name and self._ho(view).released:
-                out += self._handover_failed(view, f"release refused: {msg.reason}", now)
+                if msg.reason.startswith((RELEASE_NOT_AUTHORITY, RELEASE_STALE_EPOCH)):
+                    # the drone holds another GS its authority now (our release's recipient took it): no
+                    # failure to retry, and no command of ours until its status says who holds it
+                    view.stale = True
+                    self.counters["release_after_authority_moved"] += 1
+                else:
+                    out += self._handover_failed(view, f"release refused: {msg.reason}", now)
         elif isinstance(msg, wire.OperatorRequest):
             out += self._operator(view, view.operator.on_request(view, msg, now))
         elif isinstance(msg, wire.FailsafeNotice):

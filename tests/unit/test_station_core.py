@@ -753,3 +753,31 @@ def test_heartbeats_keep_their_rhythm_when_the_loop_runs_late(fleet_dir):
     late = a._hb_due + 3 * period  # late by three periods
     a.handle_timer(late)
     assert a._hb_due == late + period
+
+
+def test_a_release_refused_because_authority_moved_on_stops_our_commands_until_the_drone_says(fleet_dir):
+    """A released d1 to B; the drone completed the hand-over and refused A's repeated release (``not the
+    authority``) before A heard its new status. That is no failed hand-over: A commands nothing, and
+    retries nothing, until the drone's status says who holds it (a command of A's then would be
+    dropped by the drone: one command lost per such race at 300 drones over sites)."""
+    from zdrone.core.authority import RELEASE_NOT_AUTHORITY, RELEASE_STALE_EPOCH
+    from zdrone.core.authority import State as HaState
+
+    for reason in (RELEASE_NOT_AUTHORITY, f"{RELEASE_STALE_EPOCH}: 1 != 2"):
+        a = paired_a(fleet_dir)
+        view = a.views["d1"]
+        _in_overlap_nearer_b(a, {"A", "B"})
+        a.opts = CoreOptions(pair=True, command_rate=5.0)
+        view.armed = True
+        out = a.handle_timer(10.0)
+        assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["B"]
+        a._on_control(view, wire.AuthorityStatus("A", 1, HaState.HANDOVER_PENDING, "B", ["A", "B"]), 10.1)
+        out = a._on_control(view, wire.Reject("release", reason), 10.2)
+        assert not [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
+        assert not a.holds_authority(view) and a.counters["release_after_authority_moved"] == 1
+        for t in (10.3, 10.6, 11.0):  # the command stream and the retries wait
+            out = a.handle_timer(t)
+            assert not [x for x in out if isinstance(x, Emit) and x.kind in ("handover_release", "handover_failed")]
+            assert not [x for x in out if isinstance(x, Put) and len(x.payload) > 60]  # heartbeats only
+        a._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 11.2)
+        assert view.owner == "B" and not a.holds_authority(view)

@@ -116,6 +116,11 @@ DEFAULT_HANDOVER_TIMEOUT = 5.0
 #: and a GS clock a little behind the drone's, while a vehicle whose owner is gone waits only seconds
 #: before another GS covering it may pair.
 FIRST_CLAIM_S = 5.0
+#: The reasons a release is refused with when authority has moved on from its sender (it is no longer
+#: the authority, or the epoch it released is over): the GS that sent it must not command on as if
+#: its hand-over had merely failed (``gs.core``: it waits for the drone's status instead).
+RELEASE_NOT_AUTHORITY = "not the authority"
+RELEASE_STALE_EPOCH = "stale epoch"
 
 
 State = AuthorityState  # one enum: the machine's states are what the drone reports on the wire
@@ -684,9 +689,9 @@ class AuthorityMachine:
 
     def _on_release(self, ev: Release) -> tuple[State, list[Action]]:
         if ev.sender != self.owner:
-            return self.state, self._reject(ev.sender, "release", "not the authority")
+            return self.state, self._reject(ev.sender, "release", RELEASE_NOT_AUTHORITY)
         if ev.epoch != self.epoch:
-            return self.state, self._reject(ev.sender, "release", f"stale epoch: {ev.epoch} != {self.epoch}")
+            return self.state, self._reject(ev.sender, "release", f"{RELEASE_STALE_EPOCH}: {ev.epoch} != {self.epoch}")
         if ev.to == self.owner or not self.is_authorized(ev.to):
             return self.state, self._reject(ev.sender, "release", f"unauthorized: cannot hand over to {ev.to}")
         if ev.to not in self.links:
