@@ -37,10 +37,7 @@ class StallWatch:
         self.stalls: list[dict[str, Any]] = []
         self.count = 0
         self.worst_watch_late_s = 0.0  # the watch's own worst lateness (long: the GIL was held)
-        self.gc_worst_s = [0.0, 0.0, 0.0]  # the longest collection of each generation (it holds the GIL)
-        self.gc_total_s = 0.0
-        self._gc_start = 0.0
-        gc.callbacks.append(self._on_gc)
+        self.gc = GcClock()
         self._running = True
         self._thread = threading.Thread(target=self._run, name="zdrone-stallwatch", daemon=True)
         self._thread.start()
@@ -54,17 +51,7 @@ class StallWatch:
 
     def close(self) -> None:
         self._running = False
-        if self._on_gc in gc.callbacks:
-            gc.callbacks.remove(self._on_gc)
-
-    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
-        if phase == "start":
-            self._gc_start = time.monotonic()
-            return
-        took = time.monotonic() - self._gc_start
-        self.gc_total_s += took
-        g = info.get("generation", 0)
-        self.gc_worst_s[g] = max(self.gc_worst_s[g], took)
+        self.gc.close()
 
     def _run(self) -> None:
         last = time.monotonic()
@@ -93,7 +80,34 @@ class StallWatch:
 
     def report(self) -> dict[str, Any]:
         return {"stalls": self.stalls, "stalls_seen": self.count, "watch_late_worst_s": round(self.worst_watch_late_s, 3),
-                "gc_worst_s": [round(x, 3) for x in self.gc_worst_s], "gc_total_s": round(self.gc_total_s, 2)}
+                **self.gc.report()}
+
+
+class GcClock:
+    """The process's garbage collections: the longest of each generation and their total (a
+    collection holds the GIL: every thread of the process waits for it)."""
+
+    def __init__(self) -> None:
+        self.worst_s = [0.0, 0.0, 0.0]
+        self.total_s = 0.0
+        self._start = 0.0
+        gc.callbacks.append(self._on_gc)
+
+    def close(self) -> None:
+        if self._on_gc in gc.callbacks:
+            gc.callbacks.remove(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._start = time.monotonic()
+            return
+        took = time.monotonic() - self._start
+        self.total_s += took
+        g = info.get("generation", 0)
+        self.worst_s[g] = max(self.worst_s[g], took)
+
+    def report(self) -> dict[str, Any]:
+        return {"gc_worst_s": [round(x, 3) for x in self.worst_s], "gc_total_s": round(self.total_s, 2)}
 
 
 def _schedstat() -> tuple[float, float]:
