@@ -145,7 +145,6 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
                  "passes_over_0_5s": sum(x["passes_over_0_5s"] for x in slow),
                  "worst_step_s": worst_step["worst_step_s"], "worst_step_node": worst_step["worst_step_node"],
                  "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2),
-                 "flush_deferred": sum(x.get("flush_deferred", 0) for x in slow),
                  "stalls": [s for x in slow for s in x.get("stalls", [])], "stalls_seen": sum(x.get("stalls_seen", 0) for x in slow),
                  "watch_late_worst_s": max(x.get("watch_late_worst_s", 0.0) for x in slow),
                  "slow_passes": [s for x in slow for s in x.get("slow_passes", [])]},
@@ -282,7 +281,7 @@ def _host_drones(args: argparse.Namespace) -> int:
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
             "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
                      "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2),
-                     "flush_deferred": sum(n.flush_deferred for n in nodes), **watch.report(), "slow_passes": clock.slow}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
+                     **watch.report(), "slow_passes": clock.slow}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
     finally:
         watch.close()
         for n in nodes:
