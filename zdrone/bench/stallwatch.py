@@ -64,19 +64,22 @@ class StallWatch:
             if step is None or step[2] == self._taken or now - step[1] < self.threshold:
                 continue
             self._taken = step[2]
-            self.count += 1
-            if len(self.stalls) >= MAX_STALLS:
-                continue
-            frame = sys._current_frames().get(self._loop_ident)
-            frames = [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in traceback.extract_stack(frame)[-8:]] if frame else []
-            stall: dict[str, Any] = {"node": step[0], "seen_after_s": round(now - step[1], 3), "frames": frames}
-            if self.native_dir is not None:
-                out = Path(self.native_dir, f"stall-{self.count}.txt")
-                with open(out, "w") as f:
-                    subprocess.run([str(self.pyspy), "dump", "--native", "--pid", str(os.getpid())], stdout=f,
-                                   stderr=subprocess.STDOUT, timeout=20, check=False)
-                stall["native"] = str(out)
-            self.stalls.append(stall)
+            if len(self.stalls) < MAX_STALLS:
+                self.stalls.append(self._take(step, now))
+            self.count += 1  # after the stall is kept: whoever sees the count sees the stall
+
+    def _take(self, step: tuple[str, float, int], now: float) -> dict[str, Any]:
+        """The loop thread's innermost frames now (and, with ``native_dir``, py-spy's dump)."""
+        frame = sys._current_frames().get(self._loop_ident)
+        frames = [f"{Path(f.filename).name}:{f.lineno} {f.name}" for f in traceback.extract_stack(frame)[-8:]] if frame else []
+        stall: dict[str, Any] = {"node": step[0], "seen_after_s": round(now - step[1], 3), "frames": frames}
+        if self.native_dir is not None:
+            out = Path(self.native_dir, f"stall-{self.count + 1}.txt")
+            with open(out, "w") as f:
+                subprocess.run([str(self.pyspy), "dump", "--native", "--pid", str(os.getpid())], stdout=f,
+                               stderr=subprocess.STDOUT, timeout=20, check=False)
+            stall["native"] = str(out)
+        return stall
 
     def report(self) -> dict[str, Any]:
         return {"stalls": self.stalls, "stalls_seen": self.count, "watch_late_worst_s": round(self.worst_watch_late_s, 3),

@@ -1,0 +1,64 @@
+"""The scale bench's stall watch: where a slow step waits, where a slow pass's time went, collections."""
+
+from __future__ import annotations
+
+import gc
+import threading
+import time
+
+from zdrone.bench.stallwatch import GcClock, PassClock, StallWatch
+
+
+def _waits_in_here(seen: threading.Event) -> None:
+    assert seen.wait(10.0), "the watch never saw the slow step"
+
+
+def test_a_slow_step_is_seen_once_with_the_call_it_waits_in():
+    watch = StallWatch(threshold=0.05, period=0.01)
+    try:
+        seen = threading.Event()
+        threading.Thread(target=lambda: (_until(lambda: watch.count > 0), seen.set()), daemon=True).start()
+        watch.begin("d7")
+        _waits_in_here(seen)
+        watch.end()
+        watch.begin("d8")  # a fast step: nothing
+        watch.end()
+        report = watch.report()
+        assert report["stalls_seen"] == 1
+        (stall,) = report["stalls"]
+        assert stall["node"] == "d7" and stall["seen_after_s"] >= 0.05
+        assert any("_waits_in_here" in f for f in stall["frames"])  # the loop's innermost frames
+    finally:
+        watch.close()
+
+
+def _until(cond, timeout: float = 10.0) -> None:
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.005)
+
+
+def test_a_slow_pass_says_how_long_the_loop_slept_and_a_fast_one_is_not_kept():
+    clock = PassClock(threshold=0.05)
+    clock.begin()
+    clock.end(1.0)
+    assert clock.slow == []
+    clock.begin()
+    time.sleep(0.1)  # asleep: neither on a CPU nor queued for one
+    clock.end(2.0)
+    (p,) = clock.slow
+    assert p["after_takeoff_s"] == 2.0 and p["wall_s"] >= 0.1
+    assert p["loop_on_cpu_s"] < p["wall_s"] and p["process_cpu_s"] < p["wall_s"]
+
+
+def test_the_collections_are_timed_per_generation():
+    clock = GcClock()
+    try:
+        keep = [[i] for i in range(50_000)]
+        gc.collect()
+        report = clock.report()
+        assert report["gc_worst_s"][2] > 0.0 and report["gc_total_s"] >= report["gc_worst_s"][2] - 0.005
+        del keep
+    finally:
+        clock.close()
+    assert clock._on_gc not in gc.callbacks
