@@ -25,12 +25,6 @@ def up_lanes(drone: str, gs: str) -> list[str]:
     return [lane_of(up(drone, gs), lane) for lane in range(UP_LANES)]
 
 
-def up_any_lane(drone: str, gs: str) -> str:
-    """One key expression for every key under link (drone, gs)'s uplink (``drone`` or ``gs`` may be
-    ``*``): what a drone subscribes, once per GS (the router delivers only the lanes: ``up_lanes``)."""
-    return f"{up(drone, gs)}/*"
-
-
 def lane_of(uplink: str, lane: int) -> str:
     """The key of lane ``lane`` of the uplink named ``uplink`` (``up(drone, gs)``)."""
     if not 0 <= lane < UP_LANES:

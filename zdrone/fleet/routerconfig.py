@@ -160,11 +160,8 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             continue
         if node.role == "drone":
             add("pub-down", ["put"], ["ingress"], [f"zdrone/{name}/down/*"])
-            # one subscription per GS's uplink (a declaration is allowed only under a rule that includes
-            # it: eight lane subscriptions per GS made 2 300 declarations in the second 290 drones
-            # entered an overlap, and the mesh paused a GS's frames 1 s); what reaches the drone is
-            # exactly the lanes: a key under an uplink that is not one (unlimited: no rule) never does
-            add("sub-up", ["declare_subscriber"], ["ingress"], [kx.up_any_lane(name, "*")])
+            # exactly the lanes: a key under an uplink that is not one (unlimited: no rule) never reaches it
+            add("sub-up", ["declare_subscriber"], ["ingress"], kx.up_lanes(name, "*"))
             add("recv-up", ["put"], ["egress"], kx.up_lanes(name, "*"))
             add("pair", ["declare_queryable", "reply"], ["ingress"], [kx.pair_all(name)])
             add("pair-q", ["query"], ["egress"], [kx.pair_all(name)])

@@ -176,7 +176,7 @@ class DroneNode:
         self._late: list[tuple[float, int, str, str, bytes]] = []  # (due, seq, direction, gs, bytes): radio delay
         self._late_seq = 0
         self.bundles = BundleWriter()  # the envelopes of this pass per GS, published at its end (``flush_down``)
-        self.subs: dict[str, Any] = {}  # GS -> the subscriber of its uplink's lanes (declaration thread)
+        self.subs: dict[str, list[Any]] = {}  # GS -> a subscriber per lane of its uplink (declaration thread)
         self._listening: set[str] = set()  # the GSs whose uplinks the loop asked to hear
         self.listen_total_s = self.listen_worst_s = 0.0  # time spent declaring and undeclaring them
         self._next_status = 0.0
@@ -231,17 +231,16 @@ class DroneNode:
     def _declare_uplink(self, gs: str) -> None:  # the declaration thread
         started = time.monotonic()
         try:
-            if gs not in self.subs:  # one for all its lanes; the router's size limit, held here too
-                self.subs[gs] = self.rt.subscribe(kx.up_any_lane(self.name, gs), "up", kx.gs_of_uplink,
-                                                  limit=UPLINK_MAX_BYTES)
+            if gs not in self.subs:  # the router's size limit, held here too
+                self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
+                                 for lane in kx.up_lanes(self.name, gs)]
         finally:
             self._declared_in(time.monotonic() - started)
 
     def _undeclare_uplink(self, gs: str) -> None:  # the declaration thread
         started = time.monotonic()
         try:
-            handle = self.subs.pop(gs, None)
-            if handle is not None:
+            for handle in self.subs.pop(gs, []):
                 self.rt.undeclare(handle)
         finally:
             self._declared_in(time.monotonic() - started)
