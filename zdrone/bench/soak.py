@@ -34,12 +34,16 @@ TARGET_MB_PER_H = 5.0
 
 
 def sample(pid: int) -> dict[str, float] | None:
-    """RSS (MB), open descriptors, threads and CPU seconds of ``pid`` (None once it is gone)."""
+    """RSS (MB), open descriptors, threads and CPU seconds of ``pid`` (None once it is gone, or going:
+    a process that is exiting has released its memory while /proc still shows it, RSS 0, and that
+    sample would read as its end figure)."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
         rss_pages = int(Path(f"/proc/{pid}/statm").read_text().split()[1])
         fds = len(os.listdir(f"/proc/{pid}/fd"))
     except (OSError, IndexError, ValueError):
+        return None
+    if rss_pages == 0 or stat[0] in ("Z", "X"):
         return None
     return {"rss_mb": rss_pages * _PAGE / 1e6, "fds": fds, "threads": int(stat[17]),
             "cpu_s": (int(stat[11]) + int(stat[12])) / _CLK}
