@@ -41,3 +41,17 @@ def test_settle_times_out_while_a_call_is_stuck() -> None:
     assert not d.settle(0.05)
     gate.set()
     assert d.settle(5.0)
+
+
+def test_paced_calls_run_a_steady_interval_apart_and_settle_is_not_paced() -> None:
+    import time
+
+    d = DeclarationThread(max_per_s=100.0)
+    at: list[float] = []
+    started = time.monotonic()
+    for _ in range(11):
+        d.submit(lambda: at.append(time.monotonic()))
+    assert d.settle(5.0)
+    assert len(at) == 11 and at[-1] - started >= 0.095  # ten intervals of 10 ms at least
+    t = time.monotonic()
+    assert d.settle(5.0) and time.monotonic() - t < 1.0  # a settle alone waits for nothing
