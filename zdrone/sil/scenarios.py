@@ -331,7 +331,7 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "failsafe LAND reaches the real autopilot, which shows it",
              check_fake_autopilot,
              rogues=(RogueSpec("fake-autopilot", BEFORE_DRONE, go=AIRBORNE, sim_s=60.0, min_wall=15.0),),
-             faults=(Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)", after=1.0),),
+             faults=(Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)"),),
              vehicle_udpin=True, fixed_moment=True),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}

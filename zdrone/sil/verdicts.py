@@ -627,6 +627,11 @@ def check_fc_rogue_radio(o: Outcome) -> list[str]:
     return why + flight_unaffected(o)
 
 
+#: ``fake-autopilot``: a position the drone reports this close to B's centre (where the attacker puts it) is
+#: the forged one; the real flight never comes within 300 m of it.
+FORGED_NEAR_M = 100.0
+
+
 def check_fake_autopilot(o: Outcome) -> list[str]:
     """``fake-autopilot``: a local process writes into the companion's UDP vehicle link: a fake autopilot
     (sysid 7) from before the drone starts, then in flight the autopilot's own ids with positions at B's
@@ -649,9 +654,13 @@ def check_fake_autopilot(o: Outcome) -> list[str]:
     # winner is the machine's timing, the unit tests of the endpoint pin that rule) and from a foreign
     # endpoint (the fake goes on in flight: always)
     why += _need(drops.get("dropped:foreign_endpoint", 0) > 0, f"the fake's datagrams were not dropped by reason: {drops}")
-    near_b = [e.position for e in only(o.drone, DroneStatus)
-              if e.position and distance_m(GS_B, GeoPoint(e.position[0], e.position[1])) < COVERAGE_RADIUS_M]
-    why += _need(not near_b, f"the drone believed it was in B's coverage {len(near_b)} times")
+    # the forged positions are B's centre; the real flight lands far from it (its failsafe comes 3 s after A
+    # stops, at the top of the climb), though at speed-up 4 it may drift into the edge of B's coverage while
+    # it brakes: a position near the forged point is the forged one
+    forged = [e.position for e in only(o.drone, DroneStatus)
+              if e.position and distance_m(GS_B, GeoPoint(e.position[0], e.position[1])) < FORGED_NEAR_M]
+    why += _need(not forged, f"the drone took the forged position (within {FORGED_NEAR_M:g} m of B's centre) "
+                             f"{len(forged)} times")
     to_b = [h for h in s["handovers"] if h["to"] == "B"]
     why += _need(not to_b, f"authority followed the forged position: {to_b}")
     why += _need(s["failsafe"] is not None and s["failsafe"]["action"] == "LAND", f"no failsafe LAND: {s['failsafe']}")
