@@ -6,7 +6,7 @@ import gc
 import threading
 import time
 
-from zdrone.bench.stallwatch import GcClock, PassClock, StallWatch
+from zdrone.bench.stallwatch import GcClock, LoopTimer, PassClock, StallWatch
 
 
 def _waits_in_here(seen: threading.Event) -> None:
@@ -62,3 +62,45 @@ def test_the_collections_are_timed_per_generation():
     finally:
         clock.close()
     assert clock._on_gc not in gc.callbacks
+
+
+class _Station:
+    """What the loop timer wraps: a ground station's loop methods."""
+
+    name = "A"
+
+    def __init__(self) -> None:
+        self.slow_step = 0.0
+
+    def drain(self, timeout: float) -> None:
+        time.sleep(timeout)
+
+    def step(self, now: float) -> None:
+        time.sleep(self.slow_step)
+
+    def print_view(self, now: float) -> None:
+        pass
+
+    def status(self) -> dict:
+        return {}
+
+    def run_pass(self) -> None:
+        self.drain(0.0)
+        self.step(0.0)
+        self.status()
+
+
+def test_a_slow_station_pass_is_kept_with_what_it_spent_its_time_in_and_fast_ones_are_not():
+    loops, st = LoopTimer(threshold=0.05), _Station()
+    loops.watch(st)
+    loops.mark()
+    for _ in range(3):
+        st.run_pass()
+    st.slow_step = 0.08
+    st.run_pass()
+    st.slow_step = 0.0
+    st.run_pass()  # its drain closes the slow pass
+    report = loops.report()
+    (p,) = report["slow_passes"]
+    assert p["gs"] == "A" and p["work_s"] >= 0.08 and p["step"] >= 0.08 and report["slow_passes_seen"] == 1
+    assert report["worst"]["A.step"]["s"] >= 0.08 and report["worst"]["A.step"]["after_takeoff_s"] >= 0.0

@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from ..net.runtime import freeze_start_up
-from .stallwatch import GcClock, PassClock, StallWatch
+from .stallwatch import GcClock, LoopTimer, PassClock, StallWatch
 
 CROSSINGS = 2
 SPEEDUP = 4.0
@@ -296,7 +296,13 @@ def _host_stations(args: argparse.Namespace) -> int:
     deliveries: dict[str, DeliveryCounter] = {}
     baseline: dict[str, dict[str, int]] = {}
     # the drones took off (from the bench, at once): count deliveries from now on
-    signal.signal(signal.SIGUSR1, lambda *_: baseline.update({g: c.snapshot() for g, c in deliveries.items()}))
+    loops = LoopTimer()  # where a GS's slow pass went (its heartbeats to every drone wait for it)
+
+    def took_off(*_: Any) -> None:
+        baseline.update({g: c.snapshot() for g, c in deliveries.items()})
+        loops.mark()
+
+    signal.signal(signal.SIGUSR1, took_off)
     if args.inbox_senders:  # testbed what-if: the GS inbox's bound on (kind, sender) queues
         from ..net import inbox
 
@@ -311,6 +317,8 @@ def _host_stations(args: argparse.Namespace) -> int:
     router_zids = {st.name: _router_zid(st.rt.session) for st in stations}
     freeze_start_up()  # as every node does (``NodeRuntime.serve``)
     gcs = GcClock()
+    for st in stations:
+        loops.watch(st)
     print(f"stations host: {len(stations)} stations ready", flush=True)
     # one thread per station: a GS's blocking backhaul query must not wait on another GS's loop
     threads = [threading.Thread(target=st.run, daemon=True) for st in stations]
@@ -346,7 +354,7 @@ def _host_stations(args: argparse.Namespace) -> int:
     Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
                                                            "router_zid": router_zids,
                                                            "delivered": delivered, "counters": counters,
-                                                           "gc": gcs.report()}))
+                                                           "gc": gcs.report(), "loops": loops.report()}))
     return 0
 
 
@@ -589,6 +597,7 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
     out: dict[str, Any] = {
         "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory, "drones_host_slow": drones.get("slow"),
         "stations_host_gc": stations.get("gc"),
+        "stations_host_loops": stations.get("loops"),
         "drones_per_site": dict(Counter(site_of[n] for n in drones["router_zid"])),
         "samples_per_s": round(delivered / span, 1)}
     before, after = window.get("socks"), window.get("socks_end")

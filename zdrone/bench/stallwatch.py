@@ -154,3 +154,74 @@ class PassClock:
                           "steal_s": round(_steal() - self._start[3], 2),
                           "process_cpu_s": round(time.process_time() - self._start[4], 3)})
         self.slow = sorted(self.slow, key=lambda x: -x["wall_s"])[:MAX_STALLS]
+
+
+class LoopTimer:
+    """Where a ground station's loop spends a slow pass (testbed: the stations host runs three GSs in
+    threads of one process). ``watch(station)`` wraps the station's own methods on the instance: the
+    time between one wait for input (``drain``) and the next is the pass's work; ``step`` (timers:
+    heartbeats, commands), ``print_view`` and ``status`` are timed on their own. Keeps, per method, the
+    longest call and when (seconds after ``mark``), and the ``MAX_STALLS`` slowest passes over
+    ``threshold`` with what they spent their time in."""
+
+    TIMED = ("step", "print_view", "status", "drain")
+
+    def __init__(self, threshold: float = 0.2) -> None:
+        self.threshold = threshold
+        self.t0: float | None = None
+        self.worst: dict[str, dict[str, Any]] = {}
+        self.slow: list[dict[str, Any]] = []
+        self.passes_over = 0
+        self._lock = threading.Lock()
+
+    def mark(self) -> None:
+        """Take-off: times are given after it (before it: negative)."""
+        self.t0 = time.monotonic()
+
+    def _after(self, t: float) -> float:
+        return round(t - (self.t0 if self.t0 is not None else t), 2)
+
+    def watch(self, station: Any) -> None:
+        name = station.name
+        parts: dict[str, float] = {}
+        last_drain_end = [0.0]
+
+        def timed(method: str, fn: Any) -> Any:
+            def call(*args: Any, **kw: Any) -> Any:
+                start = time.monotonic()
+                if method == "drain" and last_drain_end[0]:
+                    self._pass(name, start - last_drain_end[0], parts)
+                    parts.clear()
+                try:
+                    return fn(*args, **kw)
+                finally:
+                    end = time.monotonic()
+                    took = end - start
+                    if method == "drain":
+                        last_drain_end[0] = end
+                    else:
+                        parts[method] = parts.get(method, 0.0) + took
+                    key = f"{name}.{method}"
+                    with self._lock:
+                        if took > self.worst.get(key, {}).get("s", 0.0):
+                            self.worst[key] = {"s": round(took, 3), "after_takeoff_s": self._after(start)}
+            return call
+
+        for method in self.TIMED:
+            setattr(station, method, timed(method, getattr(station, method)))
+
+    def _pass(self, name: str, work: float, parts: dict[str, float]) -> None:
+        if work < self.threshold:
+            return
+        with self._lock:
+            self.passes_over += 1
+            entry = {"gs": name, "after_takeoff_s": self._after(time.monotonic()), "work_s": round(work, 3),
+                     **{k: round(v, 3) for k, v in parts.items()}}
+            self.slow.append(entry)
+            self.slow.sort(key=lambda e: -e["work_s"])
+            del self.slow[MAX_STALLS:]
+
+    def report(self) -> dict[str, Any]:
+        with self._lock:
+            return {"worst": dict(sorted(self.worst.items())), "threshold_s": self.threshold, "slow_passes_seen": self.passes_over,
+                    "slow_passes": list(self.slow)}
