@@ -293,3 +293,42 @@ def test_an_untrusted_position_grants_no_first_pairing(fleet_dir):
     net.add_gs("A", pair=True)
     net.run(3.0)
     assert net.drone.machine.owner is None and net.drone.counters["pair_refused:outside_coverage"] >= 1
+
+
+def test_a_late_companion_loop_judges_its_links_after_what_waited_in_its_queue(fleet_dir):
+    """The companion's loop stood still 3.5 s in the air (a stall, the machine starved) while A and B
+    went on sending: what they sent waits in the adapter's queue. Handling the queue in turn (the
+    vehicle's input first), the drone judges no link by one input while a frame of that link still
+    waits: no DEGRADED or LOST, no failsafe, A still commands. (Judged after each input, A's link was
+    LOST at the vehicle's input and the drone landed.) A silence is judged by the timer, after the queue."""
+    from zdrone.bench.fleetnet import WALL0
+    from zdrone.core.tbm import LinkState
+
+    net = linked(fleet_dir)
+    net.on_ground = False
+    net.run(1.0)
+    queued: list[tuple[str, bytes]] = []
+    net._put_up = lambda gs, a: queued.append((gs, a.payload))  # the companion's loop stands still:
+    net._ask = lambda gs, a: None  # it answers no query either
+    for _ in range(35):
+        net.now = round(net.now + 0.1, 6)
+        for name, core in net.gss.items():
+            if net.now >= core.get_timer():
+                net.gs_outs(name, core.handle_timer(net.now, WALL0 + net.now))
+    del net._put_up, net._ask
+    assert {gs for gs, _ in queued} == {"A", "B"}
+    d, before = net.drone, len(net.records)
+    pos = net.centre("A")
+    net.drone_outs(d.on_vehicle((pos.lat, pos.lon, 30.0), False, net.now))  # the first input it takes
+    for gs, payload in queued:
+        net.drone_outs(d.on_envelope(gs, payload, net.now))
+    timer = d.get_timer()
+    if timer is not None and net.now >= timer:
+        net.drone_outs(d.handle_timer(net.now))
+    judged = [(r.gs, r.state) for r in net.records[before:] if isinstance(r, rec.LinkStateChanged)]
+    assert all(state is LinkState.OK for _, state in judged), judged
+    assert not net.commands and d.machine.state is State.LINKED and d.machine.owner == "A"
+    # and with nothing queued, the silence is judged by the timer alone: LOST 3 s after A's last frame
+    net.hung.add("A")
+    net.run(3.2, dt=0.01)
+    assert [c.command for c in net.commands] == ["LAND"]

@@ -29,7 +29,7 @@ def test_the_state_holds_until_the_next_change_and_differs_after_it(degraded, ex
     tbm = TimeBetweenMessages(0.0, TbmThresholds(degraded=degraded, lost=degraded + extra))
     tbm.observe(seen)
     now = seen + since
-    tbm.poll(now)  # what the core does after every input and timer
+    tbm.poll(now)  # what the core does after a timer (after an input: only a better state)
     state, due = tbm.state(now), tbm.next_change()
     if due is None:
         assert state is LinkState.LOST

@@ -43,3 +43,18 @@ def test_statistics(gaps):
     assert snap.frames == len(gaps) + 1
     assert snap.mean_gap == pytest.approx(sum(gaps) / len(gaps))
     assert snap.max_gap == pytest.approx(max(gaps))
+
+
+def test_after_an_input_only_a_better_state_is_reported_a_silence_waits_for_the_timer():
+    m = TimeBetweenMessages(0.0)
+    m.observe(0.0)
+    assert m.poll(0.0) is LinkState.OK
+    assert m.poll(3.5, worsen=False) is None  # another input: this link's frame may still be queued
+    m.observe(3.5)
+    assert m.poll(3.5, worsen=False) is None  # it was: nothing changed
+    assert m.poll(4.6, worsen=False) is None
+    assert m.poll(4.6) is LinkState.DEGRADED  # the timer judges the silence
+    assert m.poll(7.0) is LinkState.LOST
+    m.observe(7.1)
+    assert m.poll(7.1, worsen=False) is LinkState.OK  # better: reported after any input
+    assert m.next_change() == 8.1

@@ -3,7 +3,9 @@
 Theory of operation: every authentic frame on a link calls ``observe(now)``; ``state(now)`` maps
 the time since the last authentic frame to OK / DEGRADED / LOST with two thresholds (defaults
 1 s / 3 s). Before the first frame the silence is counted from the moment the monitor was made.
-``poll(now)`` reports a state only when it changed, so an adapter can turn it into one event.
+``poll(now)`` reports a state only when it changed, so an adapter can turn it into one event;
+``poll(now, worsen=False)`` reports only a better one (after an input: a silence is judged by the
+timer, once every input already queued was handled, never while a frame of the link still waits).
 Zenoh's own lease (10 s) is far too slow for this; this is the application-level detector.
 """
 
@@ -18,6 +20,9 @@ class LinkState(enum.Enum):
     OK = "ok"
     DEGRADED = "degraded"
     LOST = "lost"
+
+
+_SEVERITY = {LinkState.OK: 0, LinkState.DEGRADED: 1, LinkState.LOST: 2}
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,10 +107,13 @@ class TimeBetweenMessages:
             return self.last_seen + self.thresholds.lost
         return None
 
-    def poll(self, now: float) -> LinkState | None:
-        """Return the current state if it differs from the last one polled, else None."""
+    def poll(self, now: float, worsen: bool = True) -> LinkState | None:
+        """Return the current state if it differs from the last one polled, else None. With
+        ``worsen=False`` only a better state is reported (OK after DEGRADED or LOST, DEGRADED after
+        LOST): after one input, while others may still wait in the adapter's queue, a silence is not
+        judged yet (the timer judges it once everything queued was handled)."""
         st = self.state(now)
-        if st is self._reported:
+        if st is self._reported or (not worsen and _SEVERITY[st] > _SEVERITY[self._reported]):
             return None
         self._reported = st
         return st

@@ -399,7 +399,7 @@ class DroneCore:
 
     def handle_timer(self, now: float) -> list[Out]:
         """What is due at ``now``: the machine's deadlines, the probations' ends, the status beacon
-        (link-state thresholds are looked at after every input, this one included)."""
+        and the links' silences (after an input only a link that got better is reported)."""
         out: list[Out] = []
         timer = self.machine.get_timer()
         if timer is not None and now >= timer:  # a hand-over's or a re-pairing's deadline
@@ -409,7 +409,7 @@ class DroneCore:
             self._next_beacon = now + self.opts.status_beacon
             st = self._stamped(self.machine.status(), now)
             out += [Put(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
-        return out + self._effects(now)
+        return out + self._effects(now, timer=True)
 
     # -------------------------------------------------------------- reports
     def report(self, now: float) -> dict[str, Any]:
@@ -581,20 +581,25 @@ class DroneCore:
         self.counters[key] += 1
         return [Emit(rec.PairRefused(gs=gs, reason=refusal.text))] if self.counters[key] <= LOGGED_PER_REASON else []
 
-    def _poll_links(self, now: float) -> list[Out]:
+    def _poll_links(self, now: float, worsen: bool) -> list[Out]:
+        """The links' state changes. After an input (``worsen`` False) only a link that got better:
+        a frame of a link that looks silent may still wait in the adapter's queue behind this input
+        (a companion whose loop was late finds all that arrived meanwhile), so silences are judged
+        by ``handle_timer``, which the adapter calls once what was queued is handled."""
         out: list[Out] = []
         for gs, link in list(self.links.items()):
-            st = link.tbm.poll(now)
+            st = link.tbm.poll(now, worsen)
             if st is not None:
                 out.append(Emit(rec.LinkStateChanged(gs=gs, state=st)))
                 out += self._handle(ha.LinkChanged(now, gs, st), now)
         return out
 
-    def _effects(self, now: float) -> list[Out]:
-        """What follows from the state after an input: link-state changes, the machine's expired
-        deadlines, the uplinks to listen to (the machine's plus every GS whose new pairing key waits
-        for its proof), and what to persist."""
-        out = self._poll_links(now) + self._lease(now)
+    def _effects(self, now: float, timer: bool = False) -> list[Out]:
+        """What follows from the state after an input (``timer``: after ``handle_timer``): link-state
+        changes (silences only from the timer: ``_poll_links``), the machine's expired deadlines, the
+        uplinks to listen to (the machine's plus every GS whose new pairing key waits for its proof),
+        and what to persist."""
+        out = self._poll_links(now, worsen=timer) + self._lease(now)
         timer = self.machine.get_timer()
         if timer is not None and now >= timer:
             self._timer_handled = timer
