@@ -62,6 +62,8 @@ PASS_S = 0.01
 #: command sent to a drone whose host had stopped was counted lost, one sent after the GSs had counted
 #: but forwarded before the host stopped was "-1 lost" (7 drones of 300).
 LANDED_DRAIN_S = 2.0
+#: The fleet target's worst authority-link silence (a drone's link is DEGRADED after 1 s).
+SILENCE_TARGET_S = 1.0
 #: Written by the stations host once it stopped commanding and counted; the drones host waits for it
 #: this long at most after the landing.
 COUNTED = "stations.counted"
@@ -196,6 +198,8 @@ def _host_drones(args: argparse.Namespace) -> int:
     worst_owner_silence = [0.0] * len(nodes)
     worst_at: list[dict[str, Any] | None] = [None] * len(nodes)
     owner_lost = [0] * len(nodes)
+    # the drone's own judgement: its owner's link reported DEGRADED or LOST in flight (times it went so)
+    owner_judged_silent, owner_silent_now = [0] * len(nodes), [False] * len(nodes)
     t_ready = time.monotonic()
     t0, cpu0 = t_ready, time.process_time()
     deadline = t_ready + args.hold + args.duration
@@ -243,6 +247,10 @@ def _host_drones(args: argparse.Namespace) -> int:
                                            "state": m.state.value}
                         if link.tbm.state(now) is LinkState.LOST:
                             owner_lost[i] += 1
+                    judged = m.links.get(m.owner or "")
+                    silent = judged is not None and judged.state is not LinkState.OK
+                    owner_judged_silent[i] += silent and not owner_silent_now[i]
+                    owner_silent_now[i] = silent
             loops += 1
             pass_s = time.monotonic() - pass_start
             clock.end(pass_start - t0)
@@ -272,7 +280,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
                 "not_authority": m.drops[HaDrop.NOT_AUTHORITY], "in_failsafe": m.drops[HaDrop.FAILSAFE],
                 "worst_owner_silence_s": round(worst_owner_silence[i], 3), "worst_owner_silence_at": worst_at[i],
-                "owner_lost_samples": owner_lost[i],
+                "owner_lost_samples": owner_lost[i], "owner_judged_silent": owner_judged_silent[i],
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
                 # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
                 "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
@@ -558,6 +566,10 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         "wall_s": round(wall, 1), "ground_s": drones.get("ground_s"), "released": drones.get("released"),
         "worst_owner_silence_s": max(v["worst_owner_silence_s"] for v in per.values()),
         "owner_silence_p50_p90_s": _p50_p90([v["worst_owner_silence_s"] for v in per.values()]),
+        # the target (worst silence <= 1 s) per drone, and the drones' own judgement of it: how many
+        # reported their owner's link DEGRADED (or LOST) in flight at least once
+        "within_silence_target": sum(1 for v in per.values() if v["worst_owner_silence_s"] <= SILENCE_TARGET_S),
+        "owner_judged_silent_drones": sum(1 for r in drones["results"].values() if r.get("owner_judged_silent")),
         # the five worst drones' silences: when (after take-off), under which owner and epoch
         "worst_owner_silences": sorted(({"drone": n, "s": v["worst_owner_silence_s"], **(v["at"] or {})}
                                         for n, v in per.items()), key=lambda x: -x["s"])[:5],
