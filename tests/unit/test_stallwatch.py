@@ -6,7 +6,7 @@ import gc
 import threading
 import time
 
-from zdrone.bench.stallwatch import GcClock, LoopTimer, PassClock, StallWatch
+from zdrone.bench.stallwatch import CpuSampler, GcClock, LoopTimer, PassClock, StallWatch
 
 
 def _waits_in_here(seen: threading.Event) -> None:
@@ -104,3 +104,20 @@ def test_a_slow_station_pass_is_kept_with_what_it_spent_its_time_in_and_fast_one
     (p,) = report["slow_passes"]
     assert p["gs"] == "A" and p["work_s"] >= 0.08 and p["step"] >= 0.08 and report["slow_passes_seen"] == 1
     assert report["worst"]["A.step"]["s"] >= 0.08 and report["worst"]["A.step"]["after_takeoff_s"] >= 0.0
+
+
+def test_the_cpu_sampler_finds_the_busy_half_second_of_a_process():
+    import os
+
+    sampler = CpuSampler({"me": os.getpid()}, period=0.02, window=0.2)
+    t0 = time.monotonic()
+    time.sleep(0.3)  # idle
+    end = time.monotonic() + 0.4
+    while time.monotonic() < end:  # busy: one core
+        pass
+    time.sleep(0.1)
+    sampler.close()
+    report = sampler.report(t0)["me"]
+    best = report["busiest"][0]  # (the suite's load may give the busy loop less than a core: no share asserted)
+    assert best["core_share"] > 0.1 and 0.1 <= best["after_takeoff_s"] <= 0.7, report
+    assert report["over_90_percent_s"] >= 0.0 and len(report["busiest"]) >= 1

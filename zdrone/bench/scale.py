@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from ..net.runtime import freeze_start_up
-from .stallwatch import GcClock, LoopTimer, PassClock, StallWatch
+from .stallwatch import CpuSampler, GcClock, LoopTimer, PassClock, StallWatch
 
 CROSSINGS = 2
 SPEEDUP = 4.0
@@ -485,6 +485,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     window: dict[str, Any] = {}
     zid_site: dict[str, str] = {}
     router_pids: set[int] = set()
+    sampler: CpuSampler | None = None
     try:
         for name, cmd in router_cmds.items():
             procs[name] = spawn(py + cmd, stdout=logs[name], stderr=subprocess.STDOUT)
@@ -514,6 +515,8 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             procs["stations"].send_signal(signal.SIGUSR1)
             window["t"], window["cpu"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
             window["socks"] = _tcp_sockets(router_pids)
+            # each process's busiest half-seconds (a mesh pause with the routers short of a CPU, or not)
+            sampler = CpuSampler({**others, **{f"{h} host" if h == "drones" else h: procs[h].pid for h in hosts}})
             if every_host("all landed", timeout + 60):
                 procs["stations"].send_signal(signal.SIGUSR2)  # count the commands sent until now
             try:
@@ -524,9 +527,14 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             window["t_end"], window["cpu_end"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
             window["memory"] = {n: _memory_mb(p) for n, p in others.items()}
             window["socks_end"] = _tcp_sockets(router_pids)
+            sampler.close()
+            window["cpu_busiest"] = sampler.report(window["t"])
+            sampler = None
     except RuntimeError as exc:
         error = str(exc)
     finally:
+        if sampler is not None:
+            sampler.close()
         stop_in_order(procs, ("stations", *router_cmds, *hosts))
         for f in logs.values():
             f.close()
@@ -607,7 +615,8 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
             across += n if site_of.get(sender) != site_of.get(receiver) else 0
     memory = {**window.get("memory", {}), "drones host": drones.get("memory_mb")}
     out: dict[str, Any] = {
-        "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory, "drones_host_slow": drones.get("slow"),
+        "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory, "cpu_busiest": window.get("cpu_busiest"),
+        "drones_host_slow": drones.get("slow"),
         "stations_host_gc": stations.get("gc"),
         "stations_host_loops": stations.get("loops"),
         "drones_per_site": dict(Counter(site_of[n] for n in drones["router_zid"])),

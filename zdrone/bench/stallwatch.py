@@ -225,3 +225,59 @@ class LoopTimer:
         with self._lock:
             return {"worst": dict(sorted(self.worst.items())), "threshold_s": self.threshold, "slow_passes_seen": self.passes_over,
                     "slow_passes": list(self.slow)}
+
+
+class CpuSampler:
+    """The processes' CPU over time (testbed): every ``period`` s, from ``/proc/<pid>/stat``, until
+    ``close``. Reported per process: its busiest ``window``-second stretches (the share of one core, and
+    when, in seconds after ``t0``) and how long it ran above 90 % of a core: a router pausing its
+    forwarding for lack of a CPU shows here, a pause with the routers idle does not."""
+
+    def __init__(self, pids: dict[str, int], period: float = 0.1, window: float = 0.5) -> None:
+        self.pids, self.period, self.window = dict(pids), period, window
+        self.samples: dict[str, list[tuple[float, float]]] = {n: [] for n in pids}  # (monotonic, cpu seconds)
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name="zdrone-cpusampler", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        tick = os.sysconf("SC_CLK_TCK")
+        while self._running:
+            now = time.monotonic()
+            for name, pid in self.pids.items():
+                try:
+                    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+                    self.samples[name].append((now, (int(fields[11]) + int(fields[12])) / tick))
+                except (OSError, IndexError, ValueError):
+                    pass
+            time.sleep(self.period)
+
+    def close(self) -> None:
+        self._running = False
+        self._thread.join(2.0)
+
+    def report(self, t0: float, top: int = 5) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for name, xs in self.samples.items():
+            windows: list[tuple[float, float]] = []  # (share of a core, start after t0)
+            busy_s = 0.0
+            j = 0
+            for i in range(len(xs)):
+                while j < len(xs) and xs[j][0] - xs[i][0] < self.window:
+                    j += 1
+                if j >= len(xs):
+                    break
+                span = xs[j][0] - xs[i][0]
+                windows.append(((xs[j][1] - xs[i][1]) / span, xs[i][0] - t0))
+            for (ta, ca), (tb, cb) in zip(xs, xs[1:]):
+                if tb > ta and (cb - ca) / (tb - ta) > 0.9:
+                    busy_s += tb - ta
+            picked: list[tuple[float, float]] = []
+            for share, at in sorted(windows, reverse=True):  # the busiest, not overlapping each other
+                if all(abs(at - p) >= self.window for _, p in picked):
+                    picked.append((share, at))
+                if len(picked) == top:
+                    break
+            out[name] = {"busiest": [{"core_share": round(s, 2), "after_takeoff_s": round(a, 2)} for s, a in picked],
+                         "over_90_percent_s": round(busy_s, 1)}
+        return out
