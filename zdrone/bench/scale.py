@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from ..net.runtime import freeze_start_up
-from .stallwatch import CpuSampler, GcClock, LoopTimer, PassClock, StallWatch
+from .stallwatch import CpuSampler, GcClock, LoopTimer, PassClock, StallWatch, cpu_seconds
 
 CROSSINGS = 2
 SPEEDUP = 4.0
@@ -367,15 +367,6 @@ def _host_stations(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------ measuring the processes
-def _cpu_seconds(pid: int) -> float | None:
-    """User + system CPU time of a live process (all its threads), from ``/proc/<pid>/stat``."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except (OSError, IndexError):
-        return None
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
-
-
 def _memory_mb(pid: int | str) -> dict[str, float] | None:
     """Resident memory of a live process now and at its peak (VmRSS, VmHWM), MB."""
     try:
@@ -513,7 +504,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
 
         if every_host("drones ready", READY_TIMEOUT_S) and every_host("take-off", hold_limit(k) + 30):
             procs["stations"].send_signal(signal.SIGUSR1)
-            window["t"], window["cpu"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
+            window["t"], window["cpu"] = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
             window["socks"] = _tcp_sockets(router_pids)
             # each process's busiest half-seconds (a mesh pause with the routers short of a CPU, or not)
             sampler = CpuSampler({**others, **{f"{h} host" if h == "drones" else h: procs[h].pid for h in hosts}})
@@ -524,7 +515,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
                     procs[h].wait(timeout + 60)
             except subprocess.TimeoutExpired:
                 error = "drones host did not finish"
-            window["t_end"], window["cpu_end"] = time.monotonic(), {n: _cpu_seconds(p) for n, p in others.items()}
+            window["t_end"], window["cpu_end"] = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
             window["memory"] = {n: _memory_mb(p) for n, p in others.items()}
             window["socks_end"] = _tcp_sockets(router_pids)
             sampler.close()

@@ -227,6 +227,15 @@ class LoopTimer:
                     "slow_passes": list(self.slow)}
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a live process (all its threads), from ``/proc/<pid>/stat``."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 class CpuSampler:
     """The processes' CPU over time (testbed): every ``period`` s, from ``/proc/<pid>/stat``, until
     ``close``. Reported per process: its busiest ``window``-second stretches (the share of one core, and
@@ -241,15 +250,11 @@ class CpuSampler:
         self._thread.start()
 
     def _run(self) -> None:
-        tick = os.sysconf("SC_CLK_TCK")
         while self._running:
             now = time.monotonic()
             for name, pid in self.pids.items():
-                try:
-                    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-                    self.samples[name].append((now, (int(fields[11]) + int(fields[12])) / tick))
-                except (OSError, IndexError, ValueError):
-                    pass
+                if (cpu := cpu_seconds(pid)) is not None:
+                    self.samples[name].append((now, cpu))
             time.sleep(self.period)
 
     def close(self) -> None:
