@@ -298,9 +298,10 @@ def test_an_untrusted_position_grants_no_first_pairing(fleet_dir):
 def test_a_late_companion_loop_judges_its_links_after_what_waited_in_its_queue(fleet_dir):
     """The companion's loop stood still 3.5 s in the air (a stall, the machine starved) while A and B
     went on sending: what they sent waits in the adapter's queue. Handling the queue in turn (the
-    vehicle's input first), the drone judges no link by one input while a frame of that link still
-    waits: no DEGRADED or LOST, no failsafe, A still commands. (Judged after each input, A's link was
-    LOST at the vehicle's input and the drone landed.) A silence is judged by the timer, after the queue."""
+    vehicle's input first), the drone does not judge its authority's link by one input while a frame of
+    it still waits: A never DEGRADED or LOST, no failsafe, A still commands. (Judged after each input,
+    A's link was LOST at the vehicle's input and the drone landed.) Its silence is judged by the
+    timer, after the queue."""
     from zdrone.bench.fleetnet import WALL0
     from zdrone.core.tbm import LinkState
 
@@ -326,9 +327,45 @@ def test_a_late_companion_loop_judges_its_links_after_what_waited_in_its_queue(f
     if timer is not None and net.now >= timer:
         net.drone_outs(d.handle_timer(net.now))
     judged = [(r.gs, r.state) for r in net.records[before:] if isinstance(r, rec.LinkStateChanged)]
-    assert all(state is LinkState.OK for _, state in judged), judged
+    assert all(state is LinkState.OK for gs, state in judged if gs == "A"), judged  # B's may be judged early:
+    assert judged[-1:] != [("B", LinkState.LOST)], judged  # then its queued frames prove it again
     assert not net.commands and d.machine.state is State.LINKED and d.machine.owner == "A"
     # and with nothing queued, the silence is judged by the timer alone: LOST 3 s after A's last frame
     net.hung.add("A")
     net.run(3.2, dt=0.01)
     assert [c.command for c in net.commands] == ["LAND"]
+
+
+def test_a_late_loop_never_hands_over_to_a_gs_that_really_went_silent_meanwhile(fleet_dir):
+    """In the overlap, B goes silent and the companion's loop stands still 3.5 s; A's release to B waits
+    in the queue. B's silence is judged at the first input (only the authority's own link waits for the
+    timer), so the release finds B unproven: no hand-over to a GS that is gone, A keeps authority, no
+    failsafe."""
+    from zdrone.bench.fleetnet import WALL0
+    from zdrone.core import wire
+
+    net = linked(fleet_dir)
+    net.on_ground = False
+    mid = net.between(net.centre("A"), net.centre("B"), 0.5)
+    net.position = mid
+    net.run(3.0)
+    d, m = net.drone, net.drone.machine
+    assert m.owner == "A" and m.proven_in_cover("B")
+    a_link = net.gss["A"].views["d1"].link
+    net.hung.add("B")
+    queued: list[tuple[str, bytes]] = []
+    net._put_up = lambda gs, a: queued.append((gs, a.payload))
+    net._ask = lambda gs, a: None
+    for _ in range(35):
+        net.now = round(net.now + 0.1, 6)
+        if net.now >= net.gss["A"].get_timer():
+            net.gs_outs("A", net.gss["A"].handle_timer(net.now, WALL0 + net.now))
+    del net._put_up, net._ask
+    queued.append(("A", a_link.seal_control(wire.HandoverRelease("B", m.epoch))))
+    net.drone_outs(d.on_vehicle((mid.lat, mid.lon, 30.0), False, net.now))
+    for gs, payload in queued:
+        net.drone_outs(d.on_envelope(gs, payload, net.now))
+    if net.now >= d.get_timer():
+        net.drone_outs(d.handle_timer(net.now))
+    assert m.owner == "A" and m.epoch == 1 and m.state in (State.LINKED, State.HANDOVER_PENDING), m.state
+    assert not [r for r in net.records if isinstance(r, rec.HandoverComplete)] and not net.commands

@@ -398,8 +398,9 @@ class DroneCore:
         return min(due)
 
     def handle_timer(self, now: float) -> list[Out]:
-        """What is due at ``now``: the machine's deadlines, the probations' ends, the status beacon
-        and the links' silences (after an input only a link that got better is reported)."""
+        """What is due at ``now``: the machine's deadlines, the probations' ends, the status beacon, the
+        revision lease and the authority's link's silence (``_poll_links``): what time alone decides,
+        judged after what was queued (the adapter calls this after its inbox)."""
         out: list[Out] = []
         timer = self.machine.get_timer()
         if timer is not None and now >= timer:  # a hand-over's or a re-pairing's deadline
@@ -581,29 +582,36 @@ class DroneCore:
         self.counters[key] += 1
         return [Emit(rec.PairRefused(gs=gs, reason=refusal.text))] if self.counters[key] <= LOGGED_PER_REASON else []
 
-    def _poll_links(self, now: float, worsen: bool) -> list[Out]:
-        """The links' state changes. After an input (``worsen`` False) only a link that got better:
-        a frame of a link that looks silent may still wait in the adapter's queue behind this input
-        (a companion whose loop was late finds all that arrived meanwhile), so silences are judged
-        by ``handle_timer``, which the adapter calls once what was queued is handled."""
+    def _poll_links(self, now: float, timer: bool) -> list[Out]:
+        """The links' state changes, the authority's own link last (an heir is chosen among links
+        judged at the same instant). After an input (``timer`` False) the authority's link is reported
+        only if it got better: its frames may still wait in the adapter's queue behind this input (a
+        companion whose loop was late finds all that arrived meanwhile), so its silence, which lands
+        the drone or moves authority, is judged by ``handle_timer``, which the adapter calls once what
+        was queued is handled. Every other link is judged at once, silences too: a silence judged early
+        only holds back a hand-over or an heir until that GS's next frame proves it again."""
         out: list[Out] = []
-        for gs, link in list(self.links.items()):
-            st = link.tbm.poll(now, worsen)
+        owner = self.machine.owner
+        for gs, link in sorted(self.links.items(), key=lambda item: item[0] == owner):
+            st = link.tbm.poll(now, worsen=timer or gs != owner)
             if st is not None:
                 out.append(Emit(rec.LinkStateChanged(gs=gs, state=st)))
                 out += self._handle(ha.LinkChanged(now, gs, st), now)
         return out
 
     def _effects(self, now: float, timer: bool = False) -> list[Out]:
-        """What follows from the state after an input (``timer``: after ``handle_timer``): link-state
-        changes (silences only from the timer: ``_poll_links``), the machine's expired deadlines, the
-        uplinks to listen to (the machine's plus every GS whose new pairing key waits for its proof),
-        and what to persist."""
-        out = self._poll_links(now, worsen=timer) + self._lease(now)
-        timer = self.machine.get_timer()
-        if timer is not None and now >= timer:
-            self._timer_handled = timer
-            out += self._apply(self.machine.handle_timer(now), now)
+        """What follows from the state after an input, or with ``timer`` after ``handle_timer``:
+        link-state changes (``_poll_links``); with ``timer`` only, what time alone decides, after
+        what was queued: the machine's expired deadlines and the revision lease; then the uplinks to
+        listen to (the machine's plus every GS whose new pairing key waits for its proof) and what to
+        persist."""
+        out = self._poll_links(now, timer)
+        if timer:
+            out += self._lease(now)
+            due = self.machine.get_timer()
+            if due is not None and now >= due:
+                self._timer_handled = due
+                out += self._apply(self.machine.handle_timer(now), now)
         self.probation = {gs: t for gs, t in self.probation.items() if t > now}
         want = frozenset(self.machine.subscribed) | frozenset(self.probation)
         if want != self._listening:
