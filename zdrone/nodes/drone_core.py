@@ -402,10 +402,6 @@ class DroneCore:
         revision lease and the authority's link's silence (``_poll_links``): what time alone decides,
         judged after what was queued (the adapter calls this after its inbox)."""
         out: list[Out] = []
-        timer = self.machine.get_timer()
-        if timer is not None and now >= timer:  # a hand-over's or a re-pairing's deadline
-            self._timer_handled = timer
-            out += self._apply(self.machine.handle_timer(now), now)
         if now >= self._next_beacon:
             self._next_beacon = now + self.opts.status_beacon
             st = self._stamped(self.machine.status(), now)
@@ -609,7 +605,7 @@ class DroneCore:
         if timer:
             out += self._lease(now)
             due = self.machine.get_timer()
-            if due is not None and now >= due:
+            if due is not None and now >= due:  # a hand-over's or a re-pairing's deadline
                 self._timer_handled = due
                 out += self._apply(self.machine.handle_timer(now), now)
         self.probation = {gs: t for gs, t in self.probation.items() if t > now}
