@@ -121,3 +121,30 @@ def test_the_cpu_sampler_finds_the_busy_half_second_of_a_process():
     best = report["busiest"][0]  # (the suite's load may give the busy loop less than a core: no share asserted)
     assert best["core_share"] > 0.1 and 0.1 <= best["after_takeoff_s"] <= 0.7, report
     assert report["over_90_percent_s"] >= 0.0 and len(report["busiest"]) >= 1
+
+
+def test_the_cpu_sampler_sees_a_process_wait_for_a_cpu_it_shares():
+    """Two busy processes on one CPU: each runs about half the time and waits the other half."""
+    import os
+    import subprocess
+    import sys
+
+    cpu = min(os.sched_getaffinity(0))
+    spin = "import os, time\nos.sched_setaffinity(0, {%d})\nend = time.monotonic() + 1.2\nwhile time.monotonic() < end: pass\n" % cpu
+    procs = [subprocess.Popen([sys.executable, "-c", spin]) for _ in range(2)]
+    try:
+        sampler = CpuSampler({"one": procs[0].pid, "two": procs[1].pid}, period=0.05, window=0.3)
+        t0 = time.monotonic()
+        for p in procs:
+            p.wait(10)
+        sampler.close()
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    report = sampler.report(t0)
+    waited = [report[n]["waited_most"][0]["waited"] for n in ("one", "two")]
+    assert max(waited) >= 0.2, report  # one core for two: someone waited
+    during = sampler.around(t0, 0.8, before=0.6)
+    assert set(during) <= {"one", "two"} and all(v["core_share"] <= 1.05 for v in during.values()), during

@@ -520,7 +520,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             window["socks_end"] = _tcp_sockets(router_pids)
             sampler.close()
             window["cpu_busiest"] = sampler.report(window["t"])
-            sampler = None
+            window["sampler"], sampler = sampler, None
     except RuntimeError as exc:
         error = str(exc)
     finally:
@@ -579,6 +579,10 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in row["gs_inbox_drops"].items()}
     row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
     row.update(_load(drones, stations, window, zid_site, sites))
+    if (sampled := window.get("sampler")) is not None:  # each process's CPU and wait for one during them
+        row["machine_during_worst_silences"] = {
+            str(w["after_takeoff_s"]): sampled.around(window["t"], w["after_takeoff_s"], before=w["s"])
+            for w in row["worst_owner_silences"] if "after_takeoff_s" in w}
     return row
 
 
@@ -623,9 +627,9 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
-        drone_hosts: int = 1) -> dict[str, Any]:
-    """Fly each K; with ``sites``, each K through the site routers and (unless ``quick``) through one
-    TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
+        drone_hosts: int = 1, compare: bool = True) -> dict[str, Any]:
+    """Fly each K; with ``sites``, each K through the site routers and (unless ``quick`` or not
+    ``compare``) through one TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
     ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it).
     ``drone_hosts``: processes the drones are stepped in (a what-if, reported: on 2 cores, three hosts of
     100 drones made slower passes than one host of 300)."""
@@ -642,7 +646,7 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
                 status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {speedup:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
                                  inbox_senders=inbox_senders, speedup=speedup, drone_hosts=drone_hosts))
-                if not quick:
+                if compare and not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
                     rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
                                      speedup=speedup, drone_hosts=drone_hosts))

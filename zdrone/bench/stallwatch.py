@@ -236,15 +236,35 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
+def run_queue_seconds(pid: int) -> float | None:
+    """How long a live process's threads have waited, all together, for a CPU while runnable (the
+    second field of each ``/proc/<pid>/task/<tid>/schedstat``): a process starved by others shows here,
+    one idle or blocked on a lock does not."""
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return None
+    total = 0
+    for tid in tasks:
+        try:
+            total += int(Path(f"/proc/{pid}/task/{tid}/schedstat").read_text().split()[1])
+        except (OSError, IndexError, ValueError):
+            continue  # a thread that ended meanwhile
+    return total / 1e9
+
+
 class CpuSampler:
-    """The processes' CPU over time (testbed): every ``period`` s, from ``/proc/<pid>/stat``, until
-    ``close``. Reported per process: its busiest ``window``-second stretches (the share of one core, and
-    when, in seconds after ``t0``) and how long it ran above 90 % of a core: a router pausing its
-    forwarding for lack of a CPU shows here, a pause with the routers idle does not."""
+    """The processes' CPU over time (testbed): every ``period`` s, from ``/proc/<pid>/stat`` and each
+    thread's ``schedstat``, until ``close``. Reported per process: its busiest ``window``-second
+    stretches (the share of one core, and when, in seconds after ``t0``), how long it ran above 90 % of a
+    core, and its stretches of the longest wait for a CPU (``waited``: thread-seconds waited per second,
+    the run queue's share): a router that pauses its forwarding for lack of a CPU waits there, one that
+    pauses while idle (a lock, its own work) does not."""
 
     def __init__(self, pids: dict[str, int], period: float = 0.1, window: float = 0.5) -> None:
         self.pids, self.period, self.window = dict(pids), period, window
-        self.samples: dict[str, list[tuple[float, float]]] = {n: [] for n in pids}  # (monotonic, cpu seconds)
+        # (monotonic, cpu seconds, run-queue seconds)
+        self.samples: dict[str, list[tuple[float, float, float]]] = {n: [] for n in pids}
         self._running = True
         self._thread = threading.Thread(target=self._run, name="zdrone-cpusampler", daemon=True)
         self._thread.start()
@@ -254,17 +274,27 @@ class CpuSampler:
             now = time.monotonic()
             for name, pid in self.pids.items():
                 if (cpu := cpu_seconds(pid)) is not None:
-                    self.samples[name].append((now, cpu))
+                    self.samples[name].append((now, cpu, run_queue_seconds(pid) or 0.0))
             time.sleep(self.period)
 
     def close(self) -> None:
         self._running = False
         self._thread.join(2.0)
 
+    def _top(self, windows: list[tuple[float, float]], top: int) -> list[tuple[float, float]]:
+        picked: list[tuple[float, float]] = []
+        for share, at in sorted(windows, reverse=True):  # the largest, not overlapping each other
+            if all(abs(at - p) >= self.window for _, p in picked):
+                picked.append((share, at))
+            if len(picked) == top:
+                break
+        return picked
+
     def report(self, t0: float, top: int = 5) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for name, xs in self.samples.items():
-            windows: list[tuple[float, float]] = []  # (share of a core, start after t0)
+            cpu_w: list[tuple[float, float]] = []  # (share of a core, start after t0)
+            wait_w: list[tuple[float, float]] = []  # (thread-seconds waited per second, start after t0)
             busy_s = 0.0
             j = 0
             for i in range(len(xs)):
@@ -273,16 +303,27 @@ class CpuSampler:
                 if j >= len(xs):
                     break
                 span = xs[j][0] - xs[i][0]
-                windows.append(((xs[j][1] - xs[i][1]) / span, xs[i][0] - t0))
-            for (ta, ca), (tb, cb) in zip(xs, xs[1:]):
+                cpu_w.append(((xs[j][1] - xs[i][1]) / span, xs[i][0] - t0))
+                wait_w.append(((xs[j][2] - xs[i][2]) / span, xs[i][0] - t0))
+            for (ta, ca, _), (tb, cb, _) in zip(xs, xs[1:]):
                 if tb > ta and (cb - ca) / (tb - ta) > 0.9:
                     busy_s += tb - ta
-            picked: list[tuple[float, float]] = []
-            for share, at in sorted(windows, reverse=True):  # the busiest, not overlapping each other
-                if all(abs(at - p) >= self.window for _, p in picked):
-                    picked.append((share, at))
-                if len(picked) == top:
-                    break
-            out[name] = {"busiest": [{"core_share": round(s, 2), "after_takeoff_s": round(a, 2)} for s, a in picked],
-                         "over_90_percent_s": round(busy_s, 1)}
+            waited = (xs[-1][2] - xs[0][2]) / (xs[-1][0] - xs[0][0]) if len(xs) > 1 and xs[-1][0] > xs[0][0] else 0.0
+            out[name] = {"busiest": [{"core_share": round(s, 2), "after_takeoff_s": round(a, 2)} for s, a in self._top(cpu_w, top)],
+                         "over_90_percent_s": round(busy_s, 1),
+                         "waited_mean": round(waited, 2),
+                         "waited_most": [{"waited": round(s, 2), "after_takeoff_s": round(a, 2)} for s, a in self._top(wait_w, top)]}
+        return out
+
+    def around(self, t0: float, at: float, before: float = 2.0) -> dict[str, Any]:
+        """Each process's CPU share and wait for a CPU over the ``before`` seconds up to ``at`` (seconds
+        after ``t0``): what the machine did during a silence that ended then."""
+        out: dict[str, Any] = {}
+        for name, xs in self.samples.items():
+            inside = [x for x in xs if t0 + at - before <= x[0] <= t0 + at]
+            if len(inside) < 2 or inside[-1][0] <= inside[0][0]:
+                continue
+            span = inside[-1][0] - inside[0][0]
+            out[name] = {"core_share": round((inside[-1][1] - inside[0][1]) / span, 2),
+                         "waited": round((inside[-1][2] - inside[0][2]) / span, 2)}
         return out
