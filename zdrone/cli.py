@@ -145,6 +145,8 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError(f"--sites {args.sites}: must be 2..{args.stations} (a site per ground station at most)")
     if args.drone_router is not None and args.sites is None:
         raise UsageError("--drone-router: only with --sites")
+    if args.hosts_nice is not None and not 0 <= args.hosts_nice <= 19:
+        raise UsageError(f"--hosts-nice {args.hosts_nice}: must be 0..19")
     if args.sites_only and args.sites is None:
         raise UsageError("--sites-only: only with --sites")
     if args.inbox_senders is not None and not 64 <= args.inbox_senders <= 100_000:
@@ -155,7 +157,8 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError(f"--drone-hosts {args.drone_hosts}: must be 1..8")
     result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
                        drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
-                       speedup=args.speedup, drone_hosts=args.drone_hosts, compare=not args.sites_only)
+                       speedup=args.speedup, drone_hosts=args.drone_hosts, compare=not args.sites_only,
+                       hosts_nice=scale.HOSTS_NICE if args.hosts_nice is None else args.hosts_nice)
     _emit(args, result, scale.render)
     return 0
 
@@ -397,6 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--drone-hosts", type=int, default=1, metavar="H",
                     help="what-if: step the drones in H processes, the i-th drone in host i mod H (default 1; "
                          "with --sites spread over N sites, H = N gives each site's drones a host)")
+    bs.add_argument("--hosts-nice", type=int, default=None, metavar="N",
+                    help="the niceness of the drones and GSs hosts (default 10: they stand in for other machines "
+                         "and give way to the routers; 0: all equal)")
     bs.add_argument("--sites-only", action="store_true",
                     help="with --sites: fly the site routers only, not also through one TLS router")
     bs.set_defaults(func=_bench_scale)

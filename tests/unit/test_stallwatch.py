@@ -6,7 +6,7 @@ import gc
 import threading
 import time
 
-from zdrone.bench.stallwatch import CpuSampler, GcClock, LoopTimer, PassClock, StallWatch
+from zdrone.bench.stallwatch import CpuSampler, FrameGaps, GcClock, LoopTimer, PassClock, StallWatch
 
 
 def _waits_in_here(seen: threading.Event) -> None:
@@ -148,3 +148,13 @@ def test_the_cpu_sampler_sees_a_process_wait_for_a_cpu_it_shares():
     assert max(waited) >= 0.2, report  # one core for two: someone waited
     during = sampler.around(t0, 0.8, before=0.6)
     assert set(during) <= {"one", "two"} and all(v["core_share"] <= 1.05 for v in during.values()), during
+
+
+def test_frame_gaps_keep_each_senders_long_gaps_to_each_receiver_with_their_end():
+    gaps = FrameGaps(threshold=0.7, cap=2)
+    for sender, receiver, t in [("B", "d1", 10.0), ("B", "d1", 10.5), ("B", "d2", 10.6), ("B", "d1", 11.3),
+                                ("A", "d1", 11.4), ("B", "d2", 12.0), ("B", "d1", 13.0)]:
+        gaps.note(sender, receiver, t)
+    report = gaps.report()
+    # B -> d1: 0.5 (short), 0.8 (kept, ended at 11.3); B -> d2: 1.4 (kept); B -> d1 1.7: over the cap, counted
+    assert report["gaps"] == [("B", "d1", 0.8, 11.3), ("B", "d2", 1.4, 12.0)] and report["over_cap"] == 1

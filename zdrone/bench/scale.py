@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from ..net.runtime import freeze_start_up
-from .stallwatch import CpuSampler, GcClock, LoopTimer, PassClock, StallWatch, cpu_seconds
+from .stallwatch import CpuSampler, FrameGaps, GcClock, LoopTimer, PassClock, StallWatch, cpu_seconds
 
 CROSSINGS = 2
 SPEEDUP = 4.0
@@ -68,6 +68,14 @@ SILENCE_TARGET_S = 1.0
 #: this long at most after the landing.
 COUNTED = "stations.counted"
 COUNTED_WAIT_S = 30.0
+#: The niceness the drones and GSs hosts run at (``nice -n``; the routers at the machine's own, 0).
+#: The hosts stand in for 300 companion computers and three GS machines on two cores and keep them
+#: about 1.4 cores busy, in bursts a full core each: a site router then waited for a CPU behind them
+#: (``cpu_busiest``: its threads waiting 1.6-2.9 thread-seconds a second during a silence while it
+#: ran 0.12-0.19 of a core). On a site of its own a router has its CPU; here the hosts give way to it.
+#: It makes no node faster: the hosts' own loops, and with them the drones' and GSs' code measured,
+#: only wait longer when a router needs the CPU.
+HOSTS_NICE = 10
 #: The flight's time limit from take-off, in simulated seconds (150 wall seconds at speed-up 4).
 FLIGHT_SIM_S = 600.0
 #: Readiness of a held vehicle (simulated seconds after boot before it may arm): never, until released.
@@ -90,7 +98,7 @@ class DeliveryCounter:
 
     DATA_KINDS = frozenset({"up", "down"})
 
-    def __init__(self, inbox: Any) -> None:
+    def __init__(self, inbox: Any, gaps: FrameGaps | None = None, node: str = "") -> None:
         self.lock = threading.Lock()
         self.by_sender: Counter[str] = Counter()
         original = inbox.put
@@ -99,6 +107,8 @@ class DeliveryCounter:
             if kind in self.DATA_KINDS:
                 with self.lock:
                     self.by_sender[peer] += 1
+                if gaps is not None and kind == "up":  # a GS's frame reached this drone's callback
+                    gaps.note(peer, node, time.monotonic())
             original(kind, peer, data)
 
         inbox.put = counted
@@ -172,7 +182,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                             events=str(Path(args.out) / f"{name}.jsonl"), handover_timeout=max(1.5, 5.0 / args.speedup),
                             status_period=2.0)
         nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)))
-    deliveries = {n.name: DeliveryCounter(n.rt.inbox) for n in nodes}
+    arrivals = FrameGaps()  # a GS's frames at each drone's Zenoh callback (where a silence begins)
+    deliveries = {n.name: DeliveryCounter(n.rt.inbox, arrivals, n.name) for n in nodes}
     router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
     gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
     for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
@@ -284,6 +295,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
                 # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
                 "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
+        Path(args.out, f"gaps-{drones_file(args.part, args.parts)}").write_text(
+            json.dumps({"t0": t0, **arrivals.report()}))
         Path(args.out, drones_file(args.part, args.parts)).write_text(json.dumps({
             "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
             "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
@@ -322,6 +335,15 @@ def _host_stations(args: argparse.Namespace) -> int:
                                              mission=mission if g == "A" else None, command_rate=1.0,
                                              events=None)) for i, g in enumerate(names)]
     deliveries.update({st.name: DeliveryCounter(st.rt.inbox) for st in stations})
+    puts = FrameGaps()  # each GS's frames to each drone as it puts them (where a silence begins)
+    for st in stations:
+        put_on_lane = st.rt._put_on_lane
+
+        def noted(uplink: str, payload: bytes, gs: str = st.name, put_on_lane: Any = put_on_lane) -> None:
+            puts.note(gs, uplink.split("/")[1], time.monotonic())  # kx.up: zdrone/<drone>/up/<gs>
+            put_on_lane(uplink, payload)
+
+        st.rt._put_on_lane = noted
     router_zids = {st.name: _router_zid(st.rt.session) for st in stations}
     freeze_start_up()  # as every node does (``NodeRuntime.serve``)
     gcs = GcClock()
@@ -359,6 +381,7 @@ def _host_stations(args: argparse.Namespace) -> int:
         st.stop()
     for t in threads:
         t.join(15)
+    Path(args.out, "gaps-stations.json").write_text(json.dumps(puts.report()))
     Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
                                                            "router_zid": router_zids,
                                                            "delivered": delivered, "counters": counters,
@@ -447,7 +470,7 @@ def _free_ports(n: int) -> list[int]:
 
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
-         drone_hosts: int = 1) -> dict[str, Any]:
+         drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
     from ..fleet.files import init_fleet, load_sites, scale_nodes
     from ..sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
@@ -461,6 +484,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     init_fleet(d / "fleet", nodes_spec=scale_nodes(k, g), tls=tls, sites=endpoints if sites else None)
     gs_names = [chr(ord("A") + i) for i in range(g)]
     py = [sys.executable, "-m"]
+    hpy = (["nice", "-n", str(hosts_nice)] if hosts_nice else []) + py  # the hosts behind the routers
     if sites:
         site_map = load_sites(d / "fleet")
         router_cmds = {site: ["zdrone", "router", "-c", str(d / "fleet" / "router" / f"{site}.json5")] for site in site_map}
@@ -489,12 +513,12 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         router_pids = {procs[n].pid for n in router_cmds}
         common = ["--fleet", str(d / "fleet"), "--out", str(d)]
         for part, host in enumerate(hosts):
-            procs[host] = spawn(py + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
+            procs[host] = spawn(hpy + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
                                       "--duration", str(timeout), "--hold", str(hold_limit(k)),
                                       "--router", ",".join(endpoints), "--part", str(part), "--parts", str(len(hosts)),
                                       "--drone-router", drone_router, *common],
                                 stdout=logs[host], stderr=subprocess.STDOUT)
-        procs["stations"] = spawn(py + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
+        procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
                                                    "--router", ",".join(gs_routers), *common,
                                                    *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
                                              stdout=logs["stations"], stderr=subprocess.STDOUT)
@@ -579,11 +603,37 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in row["gs_inbox_drops"].items()}
     row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
     row.update(_load(drones, stations, window, zid_site, sites))
+    row["worst_silences_seen_before"] = _gaps_before(d, len(hosts), row["worst_owner_silences"])
     if (sampled := window.get("sampler")) is not None:  # each process's CPU and wait for one during them
         row["machine_during_worst_silences"] = {
             str(w["after_takeoff_s"]): sampled.around(window["t"], w["after_takeoff_s"], before=w["s"])
             for w in row["worst_owner_silences"] if "after_takeoff_s" in w}
     return row
+
+
+def _gaps_before(d: Path, parts: int, worst: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """For each of the worst owner silences (a drone's loop saw it), the same GS's gap to that drone
+    at the drone's Zenoh callback and at the GS's put, if one ended within a second of it
+    (``FrameGaps``): where the silence began."""
+    try:
+        drones = [json.loads((d / f"gaps-{drones_file(i, parts)}").read_text()) for i in range(parts)]
+        puts = json.loads((d / "gaps-stations.json").read_text())["gaps"]
+    except (OSError, ValueError, KeyError):
+        return []
+    t0 = drones[0]["t0"]
+    arrived = [g for x in drones for g in x["gaps"]]
+    out = []
+    for w in worst:
+        if "after_takeoff_s" not in w:
+            continue
+        end = t0 + w["after_takeoff_s"]
+
+        def near(gaps: list[list[Any]]) -> float | None:
+            found = [g[2] for g in gaps if g[0] == w["owner"] and g[1] == w["drone"] and abs(g[3] - end) <= 1.0]
+            return max(found) if found else None
+
+        out.append({"drone": w["drone"], "s": w["s"], "at_callback_s": near(arrived), "at_put_s": near(puts)})
+    return out
 
 
 def _p50_p90(xs: list[float]) -> list[float]:
@@ -627,12 +677,13 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
-        drone_hosts: int = 1, compare: bool = True) -> dict[str, Any]:
+        drone_hosts: int = 1, compare: bool = True, hosts_nice: int = HOSTS_NICE) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick`` or not
     ``compare``) through one TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
     ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it).
     ``drone_hosts``: processes the drones are stepped in (a what-if, reported: on 2 cores, three hosts of
-    100 drones made slower passes than one host of 300)."""
+    100 drones made slower passes than one host of 300). ``hosts_nice``: the niceness of the drones and
+    GSs hosts (``HOSTS_NICE``)."""
     ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
     flight_s = FLIGHT_SIM_S / speedup
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
@@ -645,15 +696,15 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
             if sites:
                 status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {speedup:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
-                                 inbox_senders=inbox_senders, speedup=speedup, drone_hosts=drone_hosts))
+                                 inbox_senders=inbox_senders, speedup=speedup, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
                 if compare and not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
                     rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
-                                     speedup=speedup, drone_hosts=drone_hosts))
+                                     speedup=speedup, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
             else:
                 status.say(f"{k} drones x {stations} GSs flying…")
                 rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=speedup,
-                                 drone_hosts=drone_hosts))
+                                 drone_hosts=drone_hosts, hosts_nice=hosts_nice))
     finally:
         status.close()
 
@@ -663,7 +714,8 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
 
     main_rows = [r for r in rows if r.get("sites", 1) == (sites or 1)]
     result: dict[str, Any] = {"rows": rows, "largest_k_all_correct": largest(main_rows), "stations": stations,
-                              "gs_inbox_senders": inbox_senders, "speedup": speedup, "drone_hosts": drone_hosts}
+                              "gs_inbox_senders": inbox_senders, "speedup": speedup, "drone_hosts": drone_hosts,
+                              "hosts_nice": hosts_nice}
     if sites:
         result.update({"sites": sites, "drone_router": drone_router,
                        "largest_k_all_correct_one_router": largest([r for r in rows if r.get("sites") == 1]),
@@ -711,6 +763,7 @@ def render(r: dict[str, Any]) -> None:
         caption += f"; what-if: GS inbox bound set to {r['gs_inbox_senders']} (kind, sender) queues with items"
     if r.get("drone_hosts", 1) > 1:
         caption += f"; what-if: the drones stepped in {r['drone_hosts']} processes"
+    caption += f"; drones and GSs hosts at nice {r.get('hosts_nice', 0)}"
     print_table(f"Scale: drones x ground stations {where}", ["layout", "K x G", "correct", "all correct",
                 "worst authority silence s", "ground s", "wall s", "failures"], rows,
                 caption=caption + "; ground: key sharing before take-off")

@@ -327,3 +327,34 @@ class CpuSampler:
             out[name] = {"core_share": round((inside[-1][1] - inside[0][1]) / span, 2),
                          "waited": round((inside[-1][2] - inside[0][2]) / span, 2)}
         return out
+
+
+class FrameGaps:
+    """Where a silence begins (testbed): the gaps of ``threshold`` s or more between one sender's
+    consecutive frames to one receiver, noted at one point of their way (a GS's put, a drone's
+    Zenoh callback), with the moment each gap ended (``time.monotonic``, the same clock in every
+    process of the machine). A silence a drone's loop sees but its callback did not began after Zenoh
+    delivered; one the callback saw and the GS's puts did not, between the two processes (the GSs
+    host's Zenoh, the routers, the drones host's Zenoh); one at the puts, in the GS."""
+
+    def __init__(self, threshold: float = 0.7, cap: int = 20_000) -> None:
+        self.threshold, self.cap = threshold, cap
+        self._last: dict[tuple[str, str], float] = {}
+        self._lock = threading.Lock()
+        self.gaps: list[tuple[str, str, float, float]] = []  # (sender, receiver, gap s, ended at)
+        self.over_cap = 0
+
+    def note(self, sender: str, receiver: str, now: float) -> None:
+        key = (sender, receiver)
+        with self._lock:
+            last = self._last.get(key)
+            self._last[key] = now
+            if last is not None and now - last >= self.threshold:
+                if len(self.gaps) < self.cap:
+                    self.gaps.append((sender, receiver, round(now - last, 3), round(now, 3)))
+                else:
+                    self.over_cap += 1
+
+    def report(self) -> dict[str, Any]:
+        with self._lock:
+            return {"threshold_s": self.threshold, "gaps": list(self.gaps), "over_cap": self.over_cap}
