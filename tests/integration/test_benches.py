@@ -73,7 +73,8 @@ def test_bench_chaos_a_schedule_holds_the_invariants():
 
 
 def test_bench_scale_bad_sites_are_one_line():
-    for args in (["--sites", "4"], ["--sites", "1"], ["--drone-router", "all"], ["--sites", "3", "--drone-router", "near"]):
+    for args in (["--sites", "4"], ["--sites", "1"], ["--drone-router", "all"], ["--sites", "3", "--drone-router", "near"],
+                 ["--hosts-nice", "20"], ["--hosts-nice", "-1"], ["--sites-only"]):
         out = subprocess.run([ZDRONE, "bench", "scale", *args], capture_output=True, text=True)
         assert out.returncode == 2 and out.stderr.count("\n") == 1 and "Traceback" not in out.stderr, (args, out.stderr)
 

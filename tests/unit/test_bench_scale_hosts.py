@@ -25,3 +25,23 @@ def test_merged_results_hold_every_drone_the_worst_pass_and_the_summed_cpu() -> 
     assert m["slow"]["worst_pass_s"] == 0.9 and m["slow"]["worst_step_node"] == "d2" and m["slow"]["hosts"] == 2
     assert m["released"] == "hold timeout"  # one host held to its limit: the whole fleet did
     assert merge_drone_hosts([a]) is a
+
+
+def test_a_host_gives_way_to_the_routers_by_its_session_when_the_kernel_groups_sessions():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from zdrone.bench.scale import give_way
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
+    try:
+        assert give_way(child.pid, 0) == "no"
+        how = give_way(child.pid, 7)
+        if Path("/proc/self/autogroup").exists():
+            assert how == "autogroup" and Path(f"/proc/{child.pid}/autogroup").read_text().split()[-1] == "7"
+        else:
+            assert how == "threads only"
+    finally:
+        child.kill()
+        child.wait()
