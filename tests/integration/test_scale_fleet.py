@@ -21,12 +21,14 @@ K = 25
 
 @pytest.mark.slow
 def test_25_drones_x_3_gss_over_three_sites_every_hand_over_and_no_command_lost():
-    out = subprocess.run([ZDRONE, "bench", "scale", "--quick", "--sites", "3", "--drones", str(K), "--json"],
-                         capture_output=True, text=True, timeout=480)
+    # --hosts-nice 0: in the suite every test's processes share the machine; hosts that gave way to all
+    # of them (not only to their routers) would wait behind the other tests
+    out = subprocess.run([ZDRONE, "bench", "scale", "--quick", "--sites", "3", "--drones", str(K), "--hosts-nice", "0",
+                          "--json"], capture_output=True, text=True, timeout=480)
     assert out.returncode == 0, f"exit {exit_text(out.returncode)}; stderr ends:\n{out.stderr[-4000:]}"
     (row,) = json.loads(out.stdout)["rows"]
     assert "error" not in row, row
-    assert row["k"] == K and row["g"] == 3
+    assert row["k"] == K and row["g"] == 3 and row["hosts_given_way"] == {"drones": "no", "stations": "no"}
     assert row["released"] == "keys", f"keys not all shared in the hold ({row['ground_s']} s)"
     assert row["failures"] == {} and row["correct"] == K and row["all_correct"], row["failures"]
     assert row["handovers"] == {"expected_each": 4, "min": 4, "max": 4, "total": 4 * K}  # A->B->C->B->A, each drone
