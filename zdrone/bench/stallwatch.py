@@ -290,9 +290,23 @@ class CpuSampler:
                 break
         return picked
 
+    @staticmethod
+    def _monotone(xs: list[tuple[float, float, float]]) -> list[tuple[float, float, float]]:
+        """The samples with the run-queue time made cumulative over the process's life: a thread that
+        ended takes its wait out of the sum of the live ones (a drop is counted as no wait)."""
+        out: list[tuple[float, float, float]] = []
+        for t, cpu, wait in xs:
+            if not out:
+                out.append((t, cpu, 0.0))
+            else:
+                out.append((t, cpu, out[-1][2] + max(0.0, wait - prev)))
+            prev = wait
+        return out
+
     def report(self, t0: float, top: int = 5) -> dict[str, Any]:
         out: dict[str, Any] = {}
-        for name, xs in self.samples.items():
+        for name, raw in self.samples.items():
+            xs = self._monotone(raw)
             cpu_w: list[tuple[float, float]] = []  # (share of a core, start after t0)
             wait_w: list[tuple[float, float]] = []  # (thread-seconds waited per second, start after t0)
             busy_s = 0.0
@@ -319,8 +333,8 @@ class CpuSampler:
         """Each process's CPU share and wait for a CPU over the ``before`` seconds up to ``at`` (seconds
         after ``t0``): what the machine did during a silence that ended then."""
         out: dict[str, Any] = {}
-        for name, xs in self.samples.items():
-            inside = [x for x in xs if t0 + at - before <= x[0] <= t0 + at]
+        for name, raw in self.samples.items():
+            inside = self._monotone([x for x in raw if t0 + at - before <= x[0] <= t0 + at])
             if len(inside) < 2 or inside[-1][0] <= inside[0][0]:
                 continue
             span = inside[-1][0] - inside[0][0]
