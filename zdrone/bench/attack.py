@@ -37,7 +37,6 @@ count), A's worst TBM state, the owners (no hand-over) and failsafes. Goal: A lo
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import statistics
@@ -57,6 +56,7 @@ from ..core.reference import HOME
 from ..net.eventlog import read_records
 from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec, free_port
 from ..fleet.routerconfig import UPLINK_MAX_HZ
+from .stallwatch import cpu_seconds
 from .table import ProgressLine
 
 SPEEDUP = 4.0
@@ -105,8 +105,11 @@ def _scenario(base: Path, name: str) -> dict[str, Any]:
 
 # --------------------------------------------------------- part 2: failsafe under a flood
 def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime (fields 14, 15)
+    """The drone's CPU time (``stallwatch.cpu_seconds``); it is alive while measured."""
+    cpu = cpu_seconds(pid)
+    if cpu is None:
+        raise RuntimeError(f"process {pid} ended while its CPU was measured")
+    return cpu
 
 
 def _pairing_queries(events: list[AnyRecord], until: float) -> int:

@@ -46,6 +46,7 @@ from ..core.errors import ConfigError
 from .revoke import percentile
 from .background import BackgroundFlight
 from .soak import _slope_per_h, sample
+from .stallwatch import cpu_seconds
 from .table import ProgressLine
 
 CHROMIUM = "/usr/bin/chromium"
@@ -290,7 +291,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
     from ..fleet.files import init_fleet, scale_nodes
     from ..sil.ports import free_port
     from ..sil.procs import spawn, stop_in_order
-    from .scale import READY_TIMEOUT_S, _cpu_seconds, _wait_line, hold_limit
+    from .scale import READY_TIMEOUT_S, _wait_line, hold_limit
 
     d = base / f"fleet-{k}"
     d.mkdir(parents=True, exist_ok=True)
@@ -334,7 +335,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
                 time.sleep(0.2)
         out["from"] = "take-off" if from_take_off else "every drone shown live"
         view_pid = procs["view"].pid
-        t0, cpu0, mem0 = time.monotonic(), _cpu_seconds(view_pid), sample(view_pid)
+        t0, cpu0, mem0 = time.monotonic(), cpu_seconds(view_pid), sample(view_pid)
         rss = [mem0["rss_mb"]] if mem0 else []
         n_pictures0 = page.evaluate("window.__pictures.length")
         while time.monotonic() - t0 < window:
@@ -350,7 +351,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
             status.say(f"view: {k} drones, {time.monotonic() - t0:.0f}/{window:.0f} s, "
                        f"{got['rows']} rows, {got['stale']} stale")
         span = time.monotonic() - t0
-        cpu1 = _cpu_seconds(view_pid)
+        cpu1 = cpu_seconds(view_pid)
         pictures = page.evaluate("window.__pictures")[n_pictures0:]
         lags = [done - server for _, done, server, _ in pictures if server is not None]
         ages = []
