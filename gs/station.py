@@ -114,7 +114,8 @@ class GroundStation:
         self.session = self.rt.session
         self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of, limit=MAX_BUNDLE)
         self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
-        self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True)
+        self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True,
+                                                  signing=lambda: self.secret.signing, wall=time.time)
         # the operations picture for the fleet's viewer (``zdrone view``), if the fleet has one
         self.ops = OpsPublisher.for_station(self.name, self.fleet, self.secret.identity, self.core, self.rt.put)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask, Emit: self._emit,

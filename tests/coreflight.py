@@ -28,6 +28,8 @@ from zdrone.core import records as rec
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
 from zdrone.core.reference import HOME
+from zdrone.core.revision import make_push, split_push
+from zdrone.fleet.revisions import PUSH_PERIOD_S
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
@@ -66,6 +68,9 @@ class CoreFlight:
         self.drone_down_until: float | None = None  # the companion is restarting until then
         self.restarts: list[float] = []
         self.gs: dict[str, Station] = {}
+        # each GS's signed revision stamp every push period (zdrone.fleet.revisions): the owner's lease
+        self._signing = {g: load_secret(fleet_dir, g, fleet).signing for g in ("A", "B")}
+        self._next_stamp = 0.0
         for name, opts in (("A", CoreOptions(pair=True, mission=reference_plan(), command_rate=command_rate)),
                            ("B", CoreOptions(command_rate=command_rate))):
             self.gs[name] = Station(StationCore(name, fleet, load_secret(fleet_dir, name, fleet).identity, (DRONE,), opts))
@@ -199,6 +204,12 @@ class CoreFlight:
         for msg in self.tracker.poll(self.now):
             self._to_vehicle(msg)
         self.handle(self.drone.on_vehicle(self._pos(), self._on_ground(), self.now))
+        if self.now >= self._next_stamp:
+            self._next_stamp = self.now + PUSH_PERIOD_S
+            for name, st in self.gs.items():
+                if not st.down:
+                    stamp, _ = split_push(make_push(name, self.fleet.revision, self.now, self._signing[name], None))
+                    self.handle(self.drone.on_revision_stamp(stamp, self.now))
         timer = self.drone.get_timer()
         if timer is not None and self.now >= timer:
             self.handle(self.drone.handle_timer(self.now))

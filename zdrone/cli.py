@@ -22,7 +22,9 @@ def _fleet_init(args: argparse.Namespace) -> int:
     from .fleet.files import init_fleet
 
     sites = [s for s in args.sites.split(",") if s] if args.sites else None
-    fleet = init_fleet(args.dir, force=args.force, tls=args.tls, sites=sites)
+    if args.revision_lease < 0:
+        raise UsageError(f"fleet init: --revision-lease {args.revision_lease:g}: must be 0 (none) or more")
+    fleet = init_fleet(args.dir, force=args.force, tls=args.tls, sites=sites, revision_lease=args.revision_lease)
     print(f"wrote {args.dir}/fleet.json5 with nodes: " + ", ".join(
         f"{n} ({v.role}, sysid {v.sysid})" for n, v in fleet.nodes.items()))
     print(f"secrets in {args.dir}/secrets/ (mode 0600), router credentials in {args.dir}/router/")
@@ -315,6 +317,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "tcp/127.0.0.1:7447,tcp/127.0.0.1:7448); writes router/site-N.json5 and router/sites.json")
     fi.add_argument("--tls", action="store_true",
                     help="also a fleet CA and a certificate per node and router; the router then requires them (mutual TLS)")
+    from .fleet.files import DEFAULT_REVISION_LEASE_S
+
+    fi.add_argument("--revision-lease", type=float, default=DEFAULT_REVISION_LEASE_S, metavar="S",
+                    help="the owners' lease: from its first pairing, a drone's owner keeps authority only while the "
+                         "drone hears a signed revision stamp from another GS within S seconds (default %(default)g; 0: none)")
     fi.set_defaults(func=_fleet_init)
     fs = fsub.add_parser("show", help="validate and list a fleet")
     fs.add_argument("--dir", default="fleet", help="fleet directory or fleet.json5 path")

@@ -13,7 +13,7 @@ from zdrone.core import authority as ha
 from zdrone.core import records as rec
 from zdrone.core.authority import State
 from zdrone.core.revision import Changes, apply_revision, make_revision, with_revoked
-from zdrone.fleet.files import load_base_fleet, load_fleet_signing_key
+from zdrone.fleet.files import DEFAULT_REVISION_LEASE_S, load_base_fleet, load_fleet_signing_key
 
 
 @pytest.fixture(scope="module")
@@ -91,20 +91,86 @@ def test_revoking_a_gs_that_holds_no_authority_costs_the_owner_nothing(fleet_dir
     assert not net.drone.responder.authorized & {"B"}
 
 
-def test_the_revision_lease_lapses_without_a_revision_heard_and_is_renewed_by_one(fleet_dir):
-    import dataclasses
+def _lease(net: FleetNet) -> float:
+    assert net.drone.lease_s == net.drone.fleet.revision_lease == DEFAULT_REVISION_LEASE_S  # in the fleet
+    return net.drone.lease_s
 
+
+def test_the_lease_is_armed_from_the_first_pairing_without_any_revision_and_others_stamps_renew_it(fleet_dir):
+    net = linked(fleet_dir)  # A and B push stamps: B's renew A's lease
+    lease = _lease(net)
+    assert net.drone.fleet.revision == 0 and net.drone.lease_due() is not None
+    net.run(2 * lease)
+    assert net.drone.machine.owner == "A" and net.drone.machine.state is State.LINKED and not net.commands
+    assert net.drone.counters["stamp_renewed"] >= 50 and net.drone.counters["stamp_refused:owner"] >= 50
+
+
+@pytest.mark.parametrize("on_ground", [False, True])
+def test_an_owner_that_alone_reaches_the_drone_does_not_renew_its_own_lease(fleet_dir, on_ground):
+    """Only the owner's stamps are heard (the rest of the fleet is behind a partition): the lease
+    lapses, in the air and on the ground, and the owner's authority goes (B, an authorized heir, is
+    cut off too: the failsafe)."""
     net = linked(fleet_dir)
-    net.drone.opts = dataclasses.replace(net.drone.opts, revision_lease=5.0)
-    net.on_ground = False
-    apply(net, revoked(fleet_dir, "X"))  # revision 1: the lease runs from here
-    net.run(3.0)
-    net.drone.on_revision_sync(1, net.now)  # heard again: renewed
-    net.run(4.0)
-    assert net.drone.machine.state is State.LINKED and not net.commands
-    net.run(2.0)  # 6 s without a revision heard
+    net.on_ground = on_ground
+    lease = _lease(net)
+    net.cut.add("B")  # B's radio and its stamps are gone; A's stamps still come, every push period
+    t0 = net.drone.revision_synced
+    net.run(lease + 1.0)
     assert net.drone.counters["revision_lease_lapsed"] == 1
-    assert net.drone.machine.state is State.FAILSAFE and [c.command for c in net.commands] == ["LAND"]
+    assert net.drone.revision_synced == t0  # A's own stamps renewed nothing
+    assert net.drone.machine.state is State.FAILSAFE
+    assert "lease_lapsed" in [r.reason for r in net.records if isinstance(r, rec.Drop)]
+    if not on_ground:
+        assert [c.command for c in net.commands] == ["LAND"]
+    # another GS's stamp renews the lease; the lapsed owner's own stamps still buy nothing
+    net.cut.discard("B")
+    net.run(11.0)
+    assert net.drone.lease_due() is not None and net.drone.counters["revision_lease_lapsed"] == 1
+
+
+def test_a_replayed_old_stamp_of_another_gs_buys_nothing_past_its_own_time(fleet_dir):
+    net = linked(fleet_dir)
+    lease = _lease(net)
+    old = net.stamp("B")  # B's genuine stamp, captured now
+    net.cut.add("B")
+    for _ in range(int(lease) + 5):  # replayed every second by whoever holds it
+        net.run(1.0)
+        net.drone_outs(net.drone.on_revision_stamp(old, net.now))
+    assert net.drone.counters["revision_lease_lapsed"] == 1 and net.drone.machine.state is State.FAILSAFE
+
+
+def test_stamps_that_are_forged_revoked_from_the_future_or_of_an_older_revision_renew_nothing(fleet_dir):
+    net = linked(fleet_dir)
+    net.stamps = False
+    d = net.drone
+    b = net.stamp("B")
+    forged = b[:-1] + bytes([b[-1] ^ 1])
+    assert d.on_revision_stamp(forged, net.now) == [] and d.counters["stamp_refused:signature"] == 1
+    assert d.on_revision_stamp(net.stamp("B", wall=net.now + 60), net.now) == []
+    assert d.counters["stamp_refused:ahead"] == 1
+    apply(net, revoked(fleet_dir, "X"))
+    old_revision = b  # B's stamp names revision 0, the fleet is at 1 now
+    net.run(1.0)
+    assert d.on_revision_stamp(old_revision, net.now) == [] and d.counters["stamp_refused:stale_revision"] == 1
+    apply(net, revoked(fleet_dir, "X", "B", number=2))
+    assert d.on_revision_stamp(net.stamp("B"), net.now) == [] and d.counters["stamp_refused:signature"] == 2
+
+
+def test_the_lease_length_is_part_of_the_signed_revision(fleet_dir):
+    from zdrone.core.revision import with_lease
+
+    base = load_base_fleet(fleet_dir)
+    rev = make_revision(base, 1, with_lease(Changes(), 15.0), load_fleet_signing_key(fleet_dir, base))
+    fleet = apply_revision(base, rev)
+    assert fleet.revision_lease == 15.0
+    net = linked(fleet_dir)
+    apply(net, fleet)
+    net.cut.add("B")
+    net.run(20.0)
+    assert net.drone.counters["revision_lease_lapsed"] == 1
+    # a revision that leaves the lease alone signs as revisions did before the lease existed
+    plain = make_revision(base, 1, Changes(), load_fleet_signing_key(fleet_dir, base))
+    assert b"revision_lease" not in plain.signed_bytes() and apply_revision(base, plain).revision_lease == DEFAULT_REVISION_LEASE_S
 
 
 # ----------------------------------------------------------- the machine's table with revisions

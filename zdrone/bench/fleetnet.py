@@ -20,7 +20,10 @@ from gs.actions import Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
 from gs.core import CoreOptions, StationCore
 from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
+from zdrone.core.errors import ConfigError
+from zdrone.core.revision import make_push, split_push
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
+from zdrone.fleet.revisions import PUSH_PERIOD_S
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
 from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
@@ -54,6 +57,10 @@ class FleetNet:
     persisted: Persist | None = None
     captured_pairings: list[tuple[str, bytes]] = field(default_factory=list)  # (gs, message 1) seen on the wire
     captured_up: dict[str, bytes] = field(default_factory=dict)  # gs -> the last envelope it sent up (for replays)
+    #: each GS's signed revision stamp every push period, as its station pushes it (``zdrone.fleet.revisions``):
+    #: heard from every GS that is neither hung nor cut
+    stamps: bool = True
+    next_stamp: float = 0.0
 
     def __post_init__(self) -> None:
         self.fleet = load_fleet(self.fleet_dir)
@@ -140,9 +147,24 @@ class FleetNet:
                 int(self.now * 1000), int(self.position.lat * 1e7), int(self.position.lon * 1e7), 30000, 30000,
                 0, 0, 0, 0))
             self.drone_outs(self.drone.on_telemetry(frame, self.now))
+        if self.stamps and self.now >= self.next_stamp:
+            self.next_stamp = self.now + PUSH_PERIOD_S
+            for name in self.gss:
+                if name not in self.hung and name not in self.cut:
+                    self.drone_outs(self.drone.on_revision_stamp(self.stamp(name), self.now))
         timer = self.drone.get_timer()
         if timer is not None and self.now >= timer:
             self.drone_outs(self.drone.handle_timer(self.now))
+
+    def stamp(self, gs: str, wall: float | None = None) -> bytes:
+        """GS ``gs``'s signed revision stamp at time of day ``wall`` (default: now), under its key in force."""
+        try:
+            key = load_secret(self.fleet_dir, gs, self.drone.fleet).signing
+        except ConfigError:  # a rotated GS that has not adopted its new key signs with its old one
+            key = load_secret(self.fleet_dir, gs).signing
+        stamp, _ = split_push(make_push(gs, self.drone.fleet.revision, self.now if wall is None else wall, key, None))
+        assert stamp is not None
+        return stamp
 
     def run(self, seconds: float, dt: float = 0.1) -> None:
         for _ in range(int(round(seconds / dt))):

@@ -78,6 +78,10 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     #: pairing and key sharing add ML-KEM-768 to X25519 (``zdrone.core.kk``); once on, a classical
     #: pairing is refused (no downgrade)
     pairing_pq: bool = False
+    #: the owner's lease (s; 0: none): from its first pairing a drone's owner keeps authority only while
+    #: the drone hears, within this long, a signed revision stamp from a GS *other than the owner*
+    #: (``zdrone.core.revision.RevisionStamp``); a signed revision may change it
+    revision_lease: Annotated[float, msgspec.Meta(ge=0, le=86400)] = 0.0
     #: set by a fleet revision (``zdrone.core.revision.apply_revision``), never in fleet.json5: the
     #: revision in force (0: none) and the nodes it revoked
     revision: int = 0
@@ -225,6 +229,8 @@ def encode_fleet(fleet: Fleet) -> str:
             raw.pop(field, None)
     if not fleet.pairing_pq:
         raw.pop("pairing_pq", None)
+    if not fleet.revision_lease:
+        raw.pop("revision_lease", None)
     for name, node in fleet.nodes.items():
         if node.uplink.is_default:
             del raw["nodes"][name]["uplink"]

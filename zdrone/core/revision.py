@@ -17,7 +17,14 @@ The changes (``Changes``):
   (``unrevokes``);
 * ``keys``: a node's rotated public keys (X25519 static key, Ed25519 signing key);
 * ``authorized``: a drone's new authorized-GS list; ``coverage``: a GS's new coverage circle;
-* ``pairing_pq``: pairing must use the hybrid post-quantum handshake from now on.
+* ``pairing_pq``: pairing must use the hybrid post-quantum handshake from now on;
+* ``revision_lease``: the owner's lease (s) from now on (None: the base fleet's).
+
+A *revision stamp* (``RevisionStamp``) is a GS's signed word "I hold revision N at time T": every
+GS pushes one with its revision (``zdrone.fleet.revisions``). It renews a drone's owner lease only
+when it comes from a GS other than the owner, under that GS's key in force, and renews it to the
+stamp's own time, never later: a stamp replayed by the owner buys nothing past its time
+(``zdrone.nodes.drone_core.DroneCore.on_revision_stamp``).
 
 Checking (``check_revision``), in order, each refusal a ``RevisionRefused(reason)`` counted by the
 adapter: the bytes decode (``malformed``) -> the revision names the pinned fleet key
@@ -72,6 +79,7 @@ class Changes(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     authorized: dict[Name, list[Name]] = {}
     coverage: dict[Name, Coverage] = {}
     pairing_pq: bool = False
+    revision_lease: Annotated[float, msgspec.Meta(ge=0, le=86400)] | None = None
 
 
 class Revision(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -83,8 +91,16 @@ class Revision(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     note: str = ""  # what the operator said it is for (``zdrone fleet revoke B --note "host lost"``)
     signature: str = ""
 
+    def builtins(self) -> dict:
+        """The revision as JSON values; a lease left as it was is left out (such a revision encodes and
+        signs as revisions did before the lease existed)."""
+        raw = msgspec.to_builtins(self)
+        if raw["changes"].get("revision_lease") is None:
+            raw["changes"].pop("revision_lease", None)
+        return raw
+
     def signed_bytes(self) -> bytes:
-        return DOMAIN + msgspec.json.encode(msgspec.structs.replace(self, signature=""))
+        return DOMAIN + msgspec.json.encode(msgspec.structs.replace(self, signature="").builtins())
 
 
 class RevisionRefusal(enum.Enum):
@@ -116,7 +132,7 @@ _DECODER = msgspec.json.Decoder(Revision)  # built at import (``zdrone.core.flee
 
 def encode_revision(rev: Revision) -> bytes:
     """The wire and file form of a signed revision."""
-    return msgspec.json.format(msgspec.json.encode(rev), indent=2) + b"\n"
+    return msgspec.json.format(msgspec.json.encode(rev.builtins()), indent=2) + b"\n"
 
 
 def decode_revision(data: bytes) -> Revision:
@@ -130,7 +146,8 @@ def decode_revision(data: bytes) -> Revision:
 def _sorted_changes(c: Changes) -> Changes:
     return Changes(revoked=sorted(set(c.revoked)), keys=dict(sorted(c.keys.items())),
                    authorized={k: list(v) for k, v in sorted(c.authorized.items())},
-                   coverage=dict(sorted(c.coverage.items())), pairing_pq=c.pairing_pq)
+                   coverage=dict(sorted(c.coverage.items())), pairing_pq=c.pairing_pq,
+                   revision_lease=c.revision_lease)
 
 
 def make_revision(base: Fleet, number: int, changes: Changes, key: SigningKey, note: str = "") -> Revision:
@@ -174,8 +191,9 @@ def apply_revision(base: Fleet, rev: Revision) -> Fleet:
     for name, node in nodes.items():
         if node.role == "drone" and revoked & set(node.authorized_gs):
             nodes[name] = msgspec.structs.replace(node, authorized_gs=[g for g in node.authorized_gs if g not in revoked])
+    lease = base.revision_lease if c.revision_lease is None else c.revision_lease
     return msgspec.structs.replace(base, nodes=nodes, revision=rev.number, revoked=revoked,
-                                   pairing_pq=c.pairing_pq)
+                                   pairing_pq=c.pairing_pq, revision_lease=lease)
 
 
 def check_revision(data: bytes, base: Fleet, current: Revision | None) -> RevisionResult:
@@ -223,6 +241,66 @@ def with_authorized(c: Changes, drone: str, gss: list[str]) -> Changes:
     return msgspec.structs.replace(c, authorized={**c.authorized, drone: list(gss)})
 
 
+def with_lease(c: Changes, seconds: float) -> Changes:
+    return msgspec.structs.replace(c, revision_lease=seconds)
+
+
+# ------------------------------------------------------------------ revision stamps
+STAMP_DOMAIN = b"zdrone revision stamp v1\n"
+#: a push that carries a stamp starts with these bytes (a bare revision is JSON: it starts with "{")
+STAMP_MAGIC = b"ZDRS1"
+#: a stamp dated further ahead of the receiver's clock than this is refused (clocks disagree)
+STAMP_AHEAD_S = 5.0
+
+
+class RevisionStamp(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """GS ``gs`` says it holds revision ``number`` at time of day ``wall`` (s), signed with its key."""
+
+    gs: str
+    number: int
+    wall: float
+    signature: bytes = b""
+
+    def signed_bytes(self) -> bytes:
+        return STAMP_DOMAIN + msgspec.msgpack.encode(msgspec.structs.replace(self, signature=b""))
+
+
+_STAMP_DECODER = msgspec.msgpack.Decoder(RevisionStamp)
+
+
+def make_push(gs: str, number: int, wall: float, key: SigningKey, revision: bytes | None) -> bytes:
+    """A GS's push: its signed stamp, then the revision bytes it holds (if any)."""
+    stamp = RevisionStamp(gs, number, round(wall, 3))
+    body = msgspec.msgpack.encode(msgspec.structs.replace(stamp, signature=key.sign(stamp.signed_bytes())))
+    return STAMP_MAGIC + len(body).to_bytes(2, "big") + body + (revision or b"")
+
+
+def split_push(data: bytes) -> tuple[bytes | None, bytes | None]:
+    """(stamp bytes, revision bytes) of a push; a bare revision has no stamp; never raises."""
+    if not data.startswith(STAMP_MAGIC):
+        return None, data
+    n = len(STAMP_MAGIC)
+    size = int.from_bytes(data[n:n + 2], "big")
+    stamp, rest = data[n + 2:n + 2 + size], data[n + 2 + size:]
+    return (stamp if len(stamp) == size else None), (rest or None)
+
+
+def check_stamp(data: bytes, fleet: Fleet) -> RevisionStamp | None:
+    """The stamp if it decodes and is signed by its GS's key in force in ``fleet`` (a GS of the fleet,
+    not revoked); else None. Freshness and who may renew are the drone's (``DroneCore``)."""
+    try:
+        stamp = _STAMP_DECODER.decode(data)
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return None
+    node = fleet.nodes.get(stamp.gs)
+    if node is None or node.role != "gs" or fleet.is_revoked(stamp.gs):
+        return None
+    key = node.signing_public_bytes
+    if key is None or not verify_signature(key, stamp.signed_bytes(), stamp.signature):
+        return None
+    return stamp
+
+
 def with_coverage(c: Changes, gs: str, coverage: Coverage) -> Changes:
     return msgspec.structs.replace(c, coverage={**c.coverage, gs: coverage})
 
@@ -230,4 +308,5 @@ def with_coverage(c: Changes, gs: str, coverage: Coverage) -> Changes:
 __all__ = ["Changes", "NodeKeys", "Revision", "RevisionAccepted", "RevisionError", "RevisionRefusal",
            "RevisionRefused", "RevisionResult", "apply_revision", "check_revision", "decode_revision",
            "encode_revision", "make_revision", "next_changes", "with_authorized", "with_coverage",
-           "with_keys", "with_revoked"]
+           "with_keys", "with_lease", "with_revoked", "RevisionStamp", "STAMP_AHEAD_S", "check_stamp", "make_push",
+           "split_push"]

@@ -119,12 +119,21 @@ def scale_nodes(drones: int, stations: int) -> list[tuple]:
     return nodes + [("V", "viewer", 250, None, [])]  # the viewer (``zdrone view``, ``bench view``)
 
 
+#: A new fleet's owner lease (s): an owner that alone reaches its drone (the rest of the fleet crashed,
+#: or cut it off and revoked it) keeps it this long at most, then the drone takes a covered heir or its
+#: failsafe; long enough for an honest owner whose fleet crashed to bring the reference flight home at
+#: speed-up 1 (``gs-crash``). ``zdrone fleet init --revision-lease``, ``zdrone fleet revise --lease``.
+DEFAULT_REVISION_LEASE_S = 300.0
+
+
 def init_fleet(directory: str | Path, force: bool = False,
                nodes_spec: list[tuple] | None = None,
-               tls: bool = False, sites: list[str] | None = None) -> Fleet:
+               tls: bool = False, sites: list[str] | None = None,
+               revision_lease: float = DEFAULT_REVISION_LEASE_S) -> Fleet:
     """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials;
     with ``tls`` also a fleet CA and certificates, and a router config that requires them; with
-    ``sites`` (one router endpoint per site, two or more) also a router config per site."""
+    ``sites`` (one router endpoint per site, two or more) also a router config per site;
+    ``revision_lease``: the owners' lease (``Fleet.revision_lease``; 0: none)."""
     d = Path(directory)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"{d}: exists and is not a directory")
@@ -147,7 +156,8 @@ def init_fleet(directory: str | Path, force: bool = False,
     site_names = [f"site-{i + 1}" for i in range(len(sites or []))]
     site_passwords = {site: secrets.token_urlsafe(18) for site in site_names}  # for the router mesh
     creds += [f"router-{site}:{pw}" for site, pw in site_passwords.items()]
-    fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt), fleet_key=b64(fleet_signing.public))
+    fleet = Fleet(version=1, nodes=nodes, home=Home(HOME.lat, HOME.lon, HOME.alt), fleet_key=b64(fleet_signing.public),
+                  revision_lease=revision_lease)
     (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
     from .routerconfig import HEADER, render, router_config

@@ -34,7 +34,7 @@ from ..core.errors import ConfigError
 from ..core.fleet import Coverage, Fleet
 from ..core.keys import Identity, SigningKey
 from ..core.revision import (Changes, Revision, apply_revision, encode_revision, make_revision, next_changes,
-                             with_authorized, with_coverage, with_keys, with_revoked)
+                             with_authorized, with_coverage, with_keys, with_lease, with_revoked)
 from .files import (REVISION_FILE, NodeSecret, _write_private, _write_sites, fleet_path, load_base_fleet,
                     load_fleet_signing_key, load_revision, load_secret, write_secret)
 
@@ -126,15 +126,18 @@ def rotate(where: str | Path, node: str, out: str | Path | None = None, note: st
 
 
 def revise(where: str | Path, authorize: dict[str, list[str]] | None = None,
-           coverage: dict[str, Coverage] | None = None, pairing_pq: bool | None = None, note: str = "") -> Revised:
+           coverage: dict[str, Coverage] | None = None, pairing_pq: bool | None = None, note: str = "",
+           lease: float | None = None) -> Revised:
     d = _fleet_dir(where)
     base = load_base_fleet(d)
     for drone in authorize or {}:
         _node(base, drone, "drone")
     for gs in coverage or {}:
         _node(base, gs, "gs")
-    if not authorize and not coverage and pairing_pq is None:
-        raise ConfigError("zdrone fleet revise: nothing to change (--authorize, --coverage or --pairing-pq)")
+    if not authorize and not coverage and pairing_pq is None and lease is None:
+        raise ConfigError("zdrone fleet revise: nothing to change (--authorize, --coverage, --pairing-pq or --lease)")
+    if lease is not None and not 0 <= lease <= 86400:
+        raise ConfigError(f"zdrone fleet revise: --lease {lease:g}: seconds from 0 (none) to 86400")
 
     def change(c: Changes) -> Changes:
         for drone, gss in (authorize or {}).items():
@@ -145,6 +148,8 @@ def revise(where: str | Path, authorize: dict[str, list[str]] | None = None,
             import msgspec
 
             c = msgspec.structs.replace(c, pairing_pq=pairing_pq)
+        if lease is not None:
+            c = with_lease(c, lease)
         return c
 
     return _next(d, change, note or "revise")
@@ -237,6 +242,8 @@ def add_parsers(fsub, publish_command: Callable[[Any], int]) -> None:
     rs.add_argument("--coverage", action="append", default=[], metavar="GS=LAT,LON,RADIUS_M",
                     help="the GS's new coverage circle (repeatable)")
     rs.add_argument("--pairing-pq", choices=["on", "off"], help="hybrid post-quantum pairing required (on) or not")
+    rs.add_argument("--lease", type=float, metavar="S",
+                    help="the owners' lease from now on (s; 0: none): renewed only by another GS's signed stamp")
     rs.add_argument("--note", default="")
     rs.set_defaults(func=_cli_revise)
     pb = fsub.add_parser("publish", help="put the latest revision on a GS's revision key through a router")
@@ -269,4 +276,5 @@ def _cli_rotate(args) -> int:
 
 def _cli_revise(args) -> int:
     pq = None if args.pairing_pq is None else args.pairing_pq == "on"
-    return _said(revise(args.dir, parse_authorize(args.authorize), parse_coverage(args.coverage), pq, args.note))
+    return _said(revise(args.dir, parse_authorize(args.authorize), parse_coverage(args.coverage), pq, args.note,
+                        args.lease))

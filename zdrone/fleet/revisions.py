@@ -33,8 +33,13 @@ number above the one in force, no revocation undone); the bytes of the revision 
 are ``replayed`` without checking the signature again (they were checked when taken); a refusal is
 counted by reason and never raised; an acceptance is written durably (``revision.json`` in the
 state directory if the node runs under ``zdrone service``, else in its bundle folder) before the
-node applies the new effective fleet. A revision heard again (``replayed``) renews the drone's
-revision lease (``DroneCore.on_revision_sync``): the GSs' pushes renew it every ``PUSH_PERIOD_S``.
+node applies the new effective fleet.
+
+A GS's push starts with its signed **revision stamp** ("GS g holds revision N at time T",
+``zdrone.core.revision.make_push``), pushed every ``PUSH_PERIOD_S`` with or without a revision to
+carry. A revision's bytes renew nothing (anyone may replay them); a drone's owner lease is renewed
+only by a stamp from a GS other than the owner (``DroneCore.on_revision_stamp``). The channel hands
+the last stamp it heard to its node (``take_stamp``); the node's core checks it.
 """
 
 from __future__ import annotations
@@ -48,7 +53,8 @@ from typing import Any, Callable
 from ..core import records as rec
 from ..core.fleet import Fleet
 from ..core.revision import (Revision, RevisionAccepted, RevisionRefusal, RevisionRefused, RevisionResult,
-                             check_revision, encode_revision)
+                             check_revision, encode_revision, make_push, split_push)
+from ..core.keys import SigningKey
 from ..core.errors import ConfigError
 from . import keyexprs as kx
 from .files import (REVISION_FILE, STATE_DIR_ENV, fleet_path, load_base_fleet, load_revision, read_revisions,
@@ -137,8 +143,13 @@ class RevisionChannel:
     node hear any GS now?) joins the paths' connectivity in telling when the node came back in reach."""
 
     def __init__(self, rt: Any, fleet_dir: str | Path, publisher: bool, write_applied: bool = False,
-                 in_reach: Callable[[], bool] | None = None) -> None:
+                 in_reach: Callable[[], bool] | None = None, signing: Callable[[], SigningKey | None] | None = None,
+                 wall: Callable[[], float] | None = None) -> None:
+        """``signing``: the GS's signing key in force (its pushes carry a stamp signed with it);
+        ``wall``: the time of day (the stamp's)."""
         self.rt = rt
+        self.signing, self.wall = signing, wall
+        self.stamp: bytes | None = None  # the stamp of the last push heard (``take_stamp``)
         self.keeper = RevisionKeeper(fleet_dir, rt.name)
         self.write_applied = write_applied  # the drone's core writes its own record
         self.in_reach = in_reach
@@ -158,6 +169,10 @@ class RevisionChannel:
                 self.keeper.counters["reply_error"] += 1
                 return RevisionRefused(RevisionRefusal.MALFORMED)
             data = ok
+        if data is not None:
+            self.stamp, data = split_push(data)
+            if data is None:  # a stamp alone (a GS that holds no revision)
+                return RevisionRefused(RevisionRefusal.REPLAYED, self.keeper.number)
         got = self.keeper.offer(data)
         if isinstance(got, RevisionRefused):
             key = f"refused:{got.reason.value}"
@@ -186,11 +201,20 @@ class RevisionChannel:
             self._last_ask, self._next_ask = now, now + ASK_PERIOD_S
             self.keeper.counters["asked"] += 1
             self.rt.ask(kx.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
-        if (self.own is not None and self.keeper.data is not None
+        key = self.signing() if self.signing is not None else None
+        if (self.own is not None and (self.keeper.data is not None or key is not None)
                 and now >= max(self._next_push, self._last_push + PUSH_GAP_S)):
             self._last_push, self._next_push = now, now + PUSH_PERIOD_S
             self.keeper.counters["pushed"] += 1
-            self.rt.put(self.own, self.keeper.data)
+            data = self.keeper.data
+            if key is not None and self.wall is not None:
+                data = make_push(self.rt.name, self.keeper.number, self.wall(), key, data)
+            self.rt.put(self.own, data)
+
+    def take_stamp(self) -> bytes | None:
+        """The stamp of the push last handed to ``on_inbox`` (once)."""
+        stamp, self.stamp = self.stamp, None
+        return stamp
 
     def _answer(self) -> None:
         assert self.queries is not None and self.own is not None

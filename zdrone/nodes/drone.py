@@ -45,7 +45,7 @@ from ..net.authstore import AuthorityStore, SavedAuthority
 from ..net.inbox import payload_bytes
 from ..net.runtime import NodeRuntime
 from ..fleet import revisions
-from ..core.revision import RevisionAccepted, RevisionRefusal, RevisionRefused
+from ..core.revision import RevisionAccepted
 from ..core.outputs import Emit, Handlers, Put, dispatch
 from ..core.bundle import BundleWriter
 from ..core.pairing import query_answer
@@ -311,7 +311,7 @@ class DroneNode:
 
     def _on_revision(self, kind: str, data: Any, now: float) -> None:
         """A fleet revision heard (published, or a query's reply): applied live if it is the next one;
-        the one in force heard again renews the revision lease. TESTBED: out of every GS's radio
+        a GS's signed stamp may renew the owner's lease (``DroneCore.on_revision_stamp``). TESTBED: out of every GS's radio
         (the coverage gate), the drone hears none."""
         if not self._hears_a_gs():
             return
@@ -319,8 +319,8 @@ class DroneNode:
         if isinstance(got, RevisionAccepted):
             self.fleet = got.fleet
             self._do(self.core.on_revision(got.fleet, now), now)
-        elif isinstance(got, RevisionRefused) and got.reason is RevisionRefusal.REPLAYED and got.number is not None:
-            self._do(self.core.on_revision_sync(got.number, now), now)
+        if (stamp := self.revision.take_stamp()) is not None:  # checked by the core against the fleet in force
+            self._do(self.core.on_revision_stamp(stamp, now), now)
 
     def _hears_a_gs(self) -> bool:
         """TESTBED: whether the coverage gate lets any GS's traffic through now (True without one)."""

@@ -50,6 +50,7 @@ from zdrone.core.mavlink import FrameError, read_header
 from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.outputs import Emit, Put
 from zdrone.core.kk import check_message1
+from zdrone.core.revision import STAMP_AHEAD_S, check_stamp
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
                                  _prologue as pairing_prologue)
 from zdrone.core.tbm import LinkState, TbmThresholds
@@ -119,9 +120,10 @@ class DroneCoreOptions:
     status_beacon: float = STATUS_BEACON_S
     pairing_ttl: float = PAIRING_TTL
     first_claim: float = ha.FIRST_CLAIM_S  # after a restart on the ground: the last owner pairs back first this long
-    #: the revision lease (s; 0: off): once the fleet has a signed revision, authority stands only while
-    #: the drone has heard a valid revision (its own number or newer) within this long; else the
-    #: owner's authority lapses as if its link were LOST (an heir, else the failsafe)
+    #: the owner's lease (s) where the fleet sets none (``Fleet.revision_lease`` wins; 0: off): from the
+    #: first pairing, authority stands only while the drone has heard, within this long, a signed
+    #: revision stamp from a GS other than the owner; else the owner's authority lapses as if its link
+    #: were LOST (a covered authorized heir, else the failsafe), on the ground and in the air
     revision_lease: float = 0.0
 
 
@@ -167,9 +169,11 @@ class DroneCore:
         self._persisted: tuple[str | None, int, str] | None = None
         self._next_beacon = 0.0
         self._timer_handled = float("-inf")
-        self.revision_synced: float | None = None  # when a valid revision (>= ours) was last heard
+        self.revision_synced: float | None = None  # the time of the newest stamp that renewed the lease
         self.rekey: set[str] = set()  # rotated GSs whose live key predates their new static key
         self._lease_lapsed = False
+        self._lease_armed: float | None = None  # the first pairing: the lease runs from here
+        self._lapsed_owner: str | None = None  # whose lease lapsed (it renews nothing, it regains nothing)
 
     # ---------------------------------------------------------------- inputs
     def on_envelope(self, gs: str, data: bytes, now: float) -> list[Out]:
@@ -342,42 +346,71 @@ class DroneCore:
                          if fleet.nodes[n].coverage is not None}
         rotated = sorted(n for n, v in fleet.nodes.items() if n in old.nodes and v.public_key != old.nodes[n].public_key)
         self.rekey = (self.rekey | {g for g in rotated if g in self.links}) & authorized
-        self.revision_synced, self._lease_lapsed = now, False
+        if self._lease_lapsed:  # a revision is no renewal (whoever relayed it): the lapsed owner stays out
+            authorized -= {self._lapsed_owner}
         out: list[Out] = [Emit(rec.RevisionApplied(number=fleet.revision, revoked=tuple(sorted(fleet.revoked)), rotated=tuple(rotated),
                                                    pairing_pq=fleet.pairing_pq))]
         out += self._handle(ha.Revised(now, authorized, fleet.revision), now)
         return out + self._effects(now)
 
-    def on_revision_sync(self, number: int, now: float) -> list[Out]:
-        """A valid revision numbered ``number`` was heard (the adapter checked it; it may be the one in
-        force, heard again): the revision lease is renewed if it is not older than ours (after a
-        lapse, the authorized list is whole again: the GSs may take control back by the usual rules)."""
-        if number < self.fleet.revision:
+    @property
+    def lease_s(self) -> float:
+        """The owner's lease (s; 0: none): the fleet's signed value, else the node's option."""
+        return self.fleet.revision_lease or self.opts.revision_lease
+
+    def on_revision_stamp(self, data: bytes, now: float) -> list[Out]:
+        """A GS's revision stamp (``zdrone.core.revision.RevisionStamp``) heard. It renews the owner's
+        lease only if it is signed by a GS of the fleet under its key in force, is not revoked, is
+        not the owner (nor the owner whose lease lapsed), names the revision in force or a newer one,
+        and is not dated ahead of our clock; the lease then runs from the stamp's own time (a replayed
+        old stamp buys nothing past its time). After a lapse, the authorized list is whole again (the
+        lapsed owner excepted until a stamp renews): the GSs take control back by the usual rules."""
+        stamp = check_stamp(data, self.fleet)
+        if stamp is None:
+            self.counters["stamp_refused:signature"] += 1
             return []
-        self.revision_synced = now
-        if not self._lease_lapsed:
+        if stamp.number < self.fleet.revision:
+            self.counters["stamp_refused:stale_revision"] += 1
             return []
-        self._lease_lapsed = False
+        if stamp.gs in (self.machine.owner, self._lapsed_owner):
+            self.counters["stamp_refused:owner"] += 1
+            return []
+        wall = now + self.wall_offset
+        if stamp.wall > wall + STAMP_AHEAD_S:
+            self.counters["stamp_refused:ahead"] += 1
+            return []
+        at = min(now, stamp.wall - self.wall_offset)
+        if self.revision_synced is not None and at <= self.revision_synced:
+            return []
+        self.revision_synced = at
+        self.counters["stamp_renewed"] += 1
+        if not self._lease_lapsed or now >= at + self.lease_s:
+            return []
+        log.warning("revision stamp from %s: the lease is renewed", stamp.gs)
+        self._lease_lapsed, self._lapsed_owner = False, None
         node = self.fleet.nodes[self.name]
         authorized = frozenset() if self.fleet.is_revoked(self.name) else frozenset(node.authorized_gs)
         return self._handle(ha.Revised(now, authorized, self.fleet.revision), now) + self._effects(now)
 
     def lease_due(self) -> float | None:
-        """When the revision lease lapses if no revision is heard (None: no lease)."""
-        if self.opts.revision_lease <= 0 or self.fleet.revision == 0 or self._lease_lapsed:
+        """When the owner's lease lapses if no stamp renews it (None: no lease, or not armed yet)."""
+        if self.lease_s <= 0 or self._lease_lapsed:
             return None
-        return (self.revision_synced or 0.0) + self.opts.revision_lease
+        since = [t for t in (self.revision_synced, self._lease_armed) if t is not None]
+        return max(since) + self.lease_s if since and self._lease_armed is not None else None
 
     def _lease(self, now: float) -> list[Out]:
         due = self.lease_due()
-        if due is None or now < due or self.machine.owner is None or self.on_ground:
+        if due is None or now < due or self.machine.owner is None:
             return []
-        self._lease_lapsed = True
+        self._lease_lapsed, self._lapsed_owner = True, self.machine.owner
         self.counters["revision_lease_lapsed"] += 1
-        log.warning("no fleet revision heard for %.0f s: the authority of %s lapses", self.opts.revision_lease,
-                    self.machine.owner)
+        log.warning("no revision stamp from a GS other than %s for %.0f s: its authority lapses",
+                    self.machine.owner, self.lease_s)
+        out: list[Out] = [Emit(rec.Drop(gs=self.machine.owner, reason="lease_lapsed",
+                                        detail=f"no stamp from another GS for {self.lease_s:.0f} s"))]
         authorized = frozenset(self.machine.config.authorized) - {self.machine.owner}
-        return self._handle(ha.Revised(now, authorized, self.fleet.revision), now)
+        return out + self._handle(ha.Revised(now, authorized, self.fleet.revision), now)
 
     def ready(self, wall: float) -> None:
         """The companion is ready (its vehicle heard, its saved authority restored) at time of day
@@ -602,6 +635,8 @@ class DroneCore:
         listen to (the machine's plus every GS whose new pairing key waits for its proof) and what to
         persist."""
         out = self._poll_links(now, timer)
+        if self._lease_armed is None and self.machine.owner is not None:
+            self._lease_armed = now  # the first pairing arms the lease
         if timer:
             out += self._lease(now)
             due = self.machine.get_timer()
