@@ -131,6 +131,10 @@ RESTART_EVIDENCE_S = 30.0
 #: centre than when we released, by at least this much (else it is flying into our coverage and
 #: needs nothing but the retry).
 LEAVING_M = 5.0
+#: The first mission uploads, and the first take-offs, of a GS's drones are spread over this much time
+#: per drone beyond the first (300 drones: 15 s and 6 s), each drone's moment drawn (``gs.mission``).
+UPLOAD_SPREAD_PER_DRONE_S = 0.05
+TAKEOFF_SPREAD_PER_DRONE_S = 0.02
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,6 +150,7 @@ class CoreOptions:
     paper_heartbeat: bool = False
     take_control: bool = False  # after a failsafe, ask for control as soon as our link is proven
     allow_takeover: bool = False  # the operator's standing "allow takeover" (MAVLink operator control)
+    seed: bytes = b""  # fresh randomness from the adapter: the jitter of retries and spreads (``gs.mission.jitter``)
 
 
 @dataclass(slots=True)
@@ -235,11 +240,14 @@ class StationCore:
         node = fleet.node(name)
         self.sysid = node.sysid
         self.coverage: Circle | None = node.coverage.circle() if node.coverage else None
+        self.counters: Counter[str] = Counter()
+        extra = max(len(drones) - 1, 0)
+        spread = {"upload_spread_s": UPLOAD_SPREAD_PER_DRONE_S * extra, "takeoff_spread_s": TAKEOFF_SPREAD_PER_DRONE_S * extra}
         self.views = {d: DroneView(d, fleet.nodes[d].sysid, handover=Handover(d),
                                    operator=OperatorControl(name, allow_takeover=opts.allow_takeover),
-                                   mission=Mission(name, d, fleet.nodes[d].sysid, opts.mission)) for d in drones}
+                                   mission=Mission(name, d, fleet.nodes[d].sysid, opts.mission, seed=opts.seed,
+                                                   counters=self.counters, **spread)) for d in drones}
         self.codec = FrameCodec(self.sysid, GCS_COMPID)
-        self.counters: Counter[str] = Counter()
         self.key_owner = KeyOwner(identity, name, fleet, self.counters)
         grant_ids = itertools.count(1)
         for d, view in self.views.items():

@@ -71,7 +71,8 @@ from zenoh import ZError
 from zdrone.core import fcsign
 from zdrone.core import records as rec
 from zdrone.core.authority import State as HaState
-from zdrone.core.mavcontrol import (FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
+import msgspec
+from zdrone.core.mavcontrol import (OperatorControlRequest, FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
                                     MAV_RESULT_NOT_IN_CONTROL, MSG_ID_CONTROL_STATUS, ControlStatus,
                                     encode_control_status, parse_operator_request)
 from zdrone.core.mavlink import MESSAGE_CLASSES, FrameCodec, FrameError, read_header, rewrite_source
@@ -132,6 +133,7 @@ class App:
     refused: int = 0
     last_text: float = -1e9  # when the last refusal STATUSTEXT went to it (at most one a second)
     signer: str | None = None  # the name of the key its frames are signed with (None: unsigned)
+    shown: tuple[int, int] | None = None  # (seq, epoch) of the other GS's request last presented to it
     decoder: FrameCodec = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -567,6 +569,8 @@ class GcsGateway:
         or consents (``gs.opcontrol``); answered at once, and again when an IN_PROGRESS one ends."""
         req = parse_operator_request(msg.param1, msg.param2, msg.param3, msg.param4)
         who = self.identity(app)
+        if req is not None:
+            req = self._bind_to_shown(app, req, now)
         if req is None:
             self.counters["operator_request_bad"] += 1
             result = mav.MAV_RESULT_DENIED
@@ -584,6 +588,20 @@ class GcsGateway:
         log.info("gateway: %s (sysid %d): MAV_CMD_REQUEST_OPERATOR_CONTROL p1=%g p2=%g p3=%g p4=%g -> result %d", who,
                  app.sysid, msg.param1, msg.param2, msg.param3, msg.param4, result)
         self._ack(app, msg.command, result)
+
+    def _bind_to_shown(self, app: App, req: OperatorControlRequest, now: float) -> OperatorControlRequest:
+        """A consent (p1 = 0, or p1 = 1 with p2 = 1) whose p4 is 0 or the application's own sysid (as
+        QGroundControl sends) names the requester of the one pending request presented to *this*
+        application, in this epoch: p4 becomes that requester's sysid as the application was shown it.
+        Anything else is left as it came (a p4 naming another GS is refused by ``gs.opcontrol``)."""
+        if req.sysid not in (0, app.sysid) or (req.request and not req.takeover):
+            return req
+        status = self.status(now)
+        pending = status.request if status.owned else None
+        if pending is None or app.shown != (pending.seq, pending.epoch) or pending.epoch != status.epoch:
+            return req  # nothing shown to it is pending: a setting / let-go, or refused as naming nobody
+        self.counters["operator_consent_bound"] += 1
+        return msgspec.structs.replace(req, sysid=_not_the_apps(self._sysid_of(pending.requester), app.sysid))
 
     def _ack(self, app: App, command: int, result: int) -> None:
         codec = self._vehicle_codec(self.vehicle_sysid, 1)
@@ -607,6 +625,7 @@ class GcsGateway:
             requester = self._sysid_of(req.requester)
             codec = self._vehicle_codec(self.vehicle_sysid, 1)
             for app in self.apps:
+                app.shown = (req.seq, req.epoch)
                 p4 = _not_the_apps(requester, app.sysid)
                 self._reply(app, codec, mav.MAVLink_command_long_message(
                     app.sysid, app.compid, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, req.timeout, p4, 0, 0, 0))

@@ -11,7 +11,8 @@ view of the drone), and MAVLink messages go out through ``send``, which seals th
 States (``Stage``): ``IDLE`` (waiting to know the autopilot) -> ``PREPARING`` (ArduPilot: "continue
 after land" set and confirmed) -> ``UPLOADING`` -> ``WAITING_READY`` (pre-arm checks, a position
 estimate, or the next try after a refusal) -> ``ARMING`` -> ``STARTING`` -> ``TAKING_OFF`` ->
-``FLYING``; ``REFUSED`` (an ARM or MISSION_START refused: its reasons are gathered a moment, then
+``FLYING``; ``UPLOAD_WAIT`` (an upload that failed for a reason a new try may fix waits its
+backoff with jitter, then ``UPLOADING`` again, until ``UPLOAD_DEADLINE_S``); ``REFUSED`` (an ARM or MISSION_START refused: its reasons are gathered a moment, then
 back to ``WAITING_READY`` or, for a refusal waiting cannot fix, ``FAILED``).
 
 Events (frozen): ``FlightTick`` (time passes: the stage's deadlines and what the vehicle reports),
@@ -20,6 +21,10 @@ event type) to (handler, the stages it may move to); a pair not in the table doe
 definition, and a handler moving anywhere else is a programming error (``_set_state`` raises).
 Every move is logged ``old -> new`` by ``_set_state``.
 
+The first upload and the first arming of each drone wait a draw of ``upload_spread_s`` /
+``takeoff_spread_s`` (the GS's fleet spread over time); the draws come from ``seed``, randomness the
+adapter gave (``jitter``), so the machine stays pure and a test or a checker replays it.
+
 Timer: ``deadline()`` is when a ``FlightTick`` next matters if no input comes (a retry, a stage's
 timeout, a refusal's classification, an upload's re-send); None while only an input can move it.
 """
@@ -27,7 +32,9 @@ timeout, a refusal's classification, an upload's re-send); None while only an in
 from __future__ import annotations
 
 import enum
+import hashlib
 import logging
+from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable, Protocol
 
@@ -77,6 +84,29 @@ TAKEOFF_CONFIRM_S = 5.0
 ARMED_REPORT_S = 2.5
 #: No answer to ARM / MISSION_START within this long: tried again once ready.
 STAGE_TIMEOUT = 3.0
+#: A mission upload that ends in one of these (the vehicle cancelled it: its GCS fell silent between
+#: items; an error; an exchange out of step; or no answer at all, ``MissionUploader.timed_out``) is
+#: tried again after ``backoff``, until ``UPLOAD_DEADLINE_S`` after the first try; any other result
+#: (an item or a size the vehicle refuses) fails at once: the same mission would be refused again.
+UPLOAD_RETRYABLE = frozenset({mav.MAV_MISSION_ERROR, mav.MAV_MISSION_INVALID_SEQUENCE, mav.MAV_MISSION_DENIED,
+                              mav.MAV_MISSION_OPERATION_CANCELLED})
+UPLOAD_BACKOFF_S = 2.0
+UPLOAD_BACKOFF_MAX_S = 30.0
+UPLOAD_DEADLINE_S = 180.0
+
+
+def jitter(seed: bytes, *what: object) -> float:
+    """A draw in [0, 1) for ``what`` from ``seed`` (fresh randomness the adapter gave the core): the same
+    draw for the same seed and ``what``, unrelated draws otherwise; no state to copy or to order."""
+    h = hashlib.blake2b(repr(what).encode(), key=seed[:64], digest_size=8).digest()
+    return int.from_bytes(h, "big") / 2.0**64
+
+
+def backoff(tries: int, u: float, base: float = UPLOAD_BACKOFF_S, cap: float = UPLOAD_BACKOFF_MAX_S) -> float:
+    """The wait before try ``tries + 1``: doubling from ``base`` up to ``cap``, half of it fixed and half
+    drawn (``u`` in [0, 1)): drones that failed together do not try again together."""
+    d = min(cap, base * 2.0 ** min(max(tries - 1, 0), 30))
+    return d / 2 + u * d / 2
 
 
 class Stage(enum.Enum):
@@ -85,6 +115,7 @@ class Stage(enum.Enum):
     IDLE = "idle"  # waiting to know the autopilot (its HEARTBEAT)
     PREPARING = "preparing"  # ArduPilot: MIS_OPTIONS "continue after land" set and confirmed
     UPLOADING = "uploading"
+    UPLOAD_WAIT = "upload_wait"  # a failed upload waits its backoff before the next try
     WAITING_READY = "waiting_ready"  # pre-arm checks, position estimate, or the next try after a refusal
     ARMING = "arming"
     STARTING = "starting"
@@ -152,8 +183,17 @@ class IllegalStage(AssertionError):
 class Mission:
     """Where this GS stands in flying its mission with one drone (see the module docstring)."""
 
-    def __init__(self, gs: str, drone: str, sysid: int, plan: list[PlannedItem] | None) -> None:
+    def __init__(self, gs: str, drone: str, sysid: int, plan: list[PlannedItem] | None, *, seed: bytes = b"",
+                 upload_spread_s: float = 0.0, takeoff_spread_s: float = 0.0,
+                 counters: "Counter[str] | None" = None) -> None:
         self.gs, self.drone, self.sysid, self.plan = gs, drone, sysid, plan
+        self.seed = seed  # the adapter's randomness (``jitter``)
+        self.upload_spread_s, self.takeoff_spread_s = upload_spread_s, takeoff_spread_s
+        self.counters: Counter[str] = Counter() if counters is None else counters
+        self.start_at: float | None = None  # the first upload's moment, spread over the GS's drones
+        self.arm_at: float | None = None  # the first arming's moment, spread likewise
+        self.upload_tries = 0  # failed uploads so far
+        self.upload_first: float | None = None  # when the first upload began
         self.stage = Stage.IDLE
         self.stage_time = 0.0
         self.uploader: MissionUploader | None = None
@@ -190,12 +230,14 @@ class Mission:
             return None
         s, t = self.stage, self.stage_time
         due: tuple[float, ...] = ()
-        if s is Stage.PREPARING:
+        if s is Stage.IDLE and self.start_at is not None:
+            due = (self.start_at,)
+        elif s in (Stage.PREPARING, Stage.UPLOAD_WAIT):
             due = (self.next_try,)
         elif s is Stage.UPLOADING and self.uploader is not None:
             due = (self.uploader.last_activity + self.uploader.retry_s,)
         elif s is Stage.WAITING_READY:
-            due = (self.next_try, t + READY_WAIT_S)
+            due = (self.next_try, t + READY_WAIT_S, self.arm_at or 0.0)
         elif s in (Stage.ARMING, Stage.STARTING):
             due = (t + STAGE_TIMEOUT,)
         elif s is Stage.REFUSED and self.refusal is not None:
@@ -226,6 +268,7 @@ class Mission:
     def _give_up(self, v: VehicleFacts, send: Send, now: float, reason: str) -> list[Action]:
         """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
         self._set_state(Stage.FAILED, now)
+        self.counters["mission_failed"] += 1
         out: list[Action] = [Emit(rec.MissionFailed(drone=self.drone, reason=reason)),
                              ToOperator(f"zdrone gs {self.gs}: mission for {self.drone} failed: {reason}")]
         if v.armed and v.landed_state != mav.MAV_LANDED_STATE_IN_AIR:
@@ -235,6 +278,10 @@ class Mission:
     def _identify(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
         """Wait for the autopilot's HEARTBEAT; ArduPilot first gets "continue after land"."""
         if v.autopilot is None:
+            return []
+        if self.start_at is None:  # not every drone of the GS at once
+            self.start_at = ev.now + self.upload_spread_s * jitter(self.seed, self.drone, "upload")
+        if ev.now < self.start_at:
             return []
         self.tries = 0
         if v.autopilot == "ardupilot":
@@ -264,6 +311,8 @@ class Mission:
     def _start_upload(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
         items = encode_mission(self.plan, v.autopilot if v.autopilot in AUTOPILOTS else "px4")
         self.uploader = MissionUploader(items, target=(self.sysid, 1))
+        if self.upload_first is None:
+            self.upload_first = ev.now
         out: list[Action] = []
         for m in self.uploader.start(ev.now):
             out += send(m)
@@ -280,8 +329,43 @@ class Mission:
                 self.tries, self.next_try = 0, 0.0
                 self._set_state(Stage.WAITING_READY, ev.now)
             else:
-                out += self._give_up(v, send, ev.now, f"mission upload refused (MISSION_ACK {self.uploader.result})")
+                out += self._upload_failed(v, send, ev.now)
         return out
+
+    def _upload_failed(self, v: VehicleFacts, send: Send, now: float) -> list[Action]:
+        """The upload ended without the vehicle accepting it: tried again after ``backoff`` if a new try
+        may succeed and ``UPLOAD_DEADLINE_S`` allows, else given up (said, logged, counted)."""
+        up = self.uploader
+        assert up is not None and up.result is not None
+        result = up.result
+        try:
+            name = mav.enums["MAV_MISSION_RESULT"][result].name.removeprefix("MAV_MISSION_")
+        except KeyError:
+            name = "unknown"
+        what = "no answer from the vehicle" if up.timed_out else f"MISSION_ACK {result} {name}"
+        if result not in UPLOAD_RETRYABLE:
+            self.counters["mission_upload_failed"] += 1
+            return self._give_up(v, send, now, f"mission upload refused ({what})")
+        self.upload_tries += 1
+        wait = backoff(self.upload_tries, jitter(self.seed, self.drone, "upload", self.upload_tries))
+        first = now if self.upload_first is None else self.upload_first
+        if now + wait - first > UPLOAD_DEADLINE_S:
+            self.counters["mission_upload_failed"] += 1
+            return self._give_up(v, send, now, f"mission upload failed {self.upload_tries} times in "
+                                                f"{now - first:.0f} s (last: {what})")
+        self.uploader, self.next_try = None, now + wait
+        self._set_state(Stage.UPLOAD_WAIT, now)
+        self.counters["mission_upload_retry"] += 1
+        return [Emit(rec.MissionRetry(drone=self.drone, what="upload", result=None if up.timed_out else result,
+                                      try_=self.upload_tries, after=round(wait, 3))),
+                ToOperator(f"zdrone gs {self.gs}: mission upload to {self.drone} failed ({what}); "
+                           f"trying again in {wait:.1f} s")]
+
+    def _upload_wait_tick(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
+        """A failed upload's backoff is over: the next try."""
+        if ev.now < self.next_try:
+            return []
+        return self._start_upload(ev, v, send)
 
     # ------------------------------------------------------- ready, arm, start
     def not_ready(self, v: VehicleFacts, now: float) -> str | None:
@@ -335,6 +419,10 @@ class Mission:
             return []
         out = self._show_waiting(self.not_ready(v, ev.now))
         if self.waiting is not None:
+            return out
+        if self.arm_at is None:  # the first arming: not every drone of the GS at once
+            self.arm_at = ev.now + self.takeoff_spread_s * jitter(self.seed, self.drone, "arm")
+        if ev.now < self.arm_at:
             return out
         if v.armed:  # armed already (e.g. a start refused while armed): go on with the start
             self._set_state(Stage.STARTING, ev.now)
@@ -438,7 +526,8 @@ TABLE: dict[tuple[Stage, type], tuple[Handler, frozenset[Stage]]] = {
     (S.IDLE, FlightTick): (Mission._identify, frozenset({S.PREPARING, S.UPLOADING})),
     (S.PREPARING, FlightTick): (Mission._preparing_tick, frozenset({S.FAILED})),
     (S.PREPARING, FlightParam): (Mission._preparing_param, frozenset({S.UPLOADING})),
-    (S.UPLOADING, FlightTick): (Mission._upload_tick, frozenset({S.WAITING_READY, S.FAILED})),
+    (S.UPLOADING, FlightTick): (Mission._upload_tick, frozenset({S.WAITING_READY, S.UPLOAD_WAIT, S.FAILED})),
+    (S.UPLOAD_WAIT, FlightTick): (Mission._upload_wait_tick, frozenset({S.UPLOADING})),
     (S.WAITING_READY, FlightTick): (Mission._ready_tick, frozenset({S.FLYING, S.STARTING, S.ARMING})),
     (S.ARMING, FlightTick): (Mission._stage_timeout, frozenset({S.WAITING_READY})),
     (S.STARTING, FlightTick): (Mission._stage_timeout, frozenset({S.FLYING, S.WAITING_READY})),

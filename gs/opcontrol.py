@@ -13,8 +13,10 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
   GCS gateway presents it to its applications with p4 = the requester's fleet sysid). Another GS's
   request while one is pending is not shown (``operator_request_busy``): its GS asks again every
   second and is shown once the pending one is decided. A consent is bound to what the operator saw:
-  it must name the pending requester in p4 (else ``operator_consent_refused``, answered DENIED), it
-  holds in the owner's epoch only and ends at any authority change.
+  it must name the pending requester in p4 (else ``operator_consent_refused``, answered DENIED; the
+  gateway turns a p4 of 0 or the application's own sysid, as QGroundControl sends it, into the
+  requester of the request it showed that application), it holds in the owner's epoch only and ends
+  at any authority change.
 
   - p1 = 0 naming the requester: release to it now (the ordinary ``HandoverRelease``, make-before-break);
   - p1 = 1, p2 = 1 naming the requester: takeover allowed *for that requester* for ``GRANT_WINDOW_S``

@@ -191,6 +191,7 @@ class MissionUploader:
         self.last_activity = 0.0
         self.retries = 0
         self.started = False
+        self.timed_out = False  # the vehicle never answered: the CANCELLED result is ours, not its
 
     @property
     def done(self) -> bool:
@@ -220,6 +221,6 @@ class MissionUploader:
             return []
         self.retries += 1
         if self.retries > self.max_retries:
-            self.result = mav.MAV_MISSION_OPERATION_CANCELLED
+            self.result, self.timed_out = mav.MAV_MISSION_OPERATION_CANCELLED, True
             return []
         return self.start(now)

@@ -102,7 +102,7 @@ class GroundStation:
         self.core = StationCore(self.name, self.fleet, self.secret.identity, tuple(drones), CoreOptions(
             pair=opts.pair, mission=opts.mission, heartbeat_hz=opts.heartbeat_hz, command_rate=opts.command_rate,
             hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
-            take_control=opts.take_control, allow_takeover=opts.allow_takeover))
+            take_control=opts.take_control, allow_takeover=opts.allow_takeover, seed=os.urandom(32)))
         self.witnessing: Witnessing | None = None
         if self.secret.signing is not None:  # its own authority record; it countersigns the drones' checkpoints
             self.events.start_audit(self.secret.signing)

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import sys
 import threading
@@ -48,11 +49,12 @@ from zdrone.vehicle.fcsigning import FcKeyStore, FcSigning  # noqa: E402
 from zdrone.vehicle.link import VehicleLink  # noqa: E402
 
 
-def _attacker(fleet: Path, port: int, events: Path, duration: float = 3.0):
-    """The attacker as its own process: races from its start, forges with the autopilot's ids after."""
+def _attacker(fleet: Path, port: int, events: Path, duration: float = 3.0, wait_go: bool = False):
+    """The attacker as its own process: races from its start, forges with the autopilot's ids after
+    (half of ``duration`` each; ``wait_go``: races until SIGUSR2, then forges for ``duration``)."""
     return spawn(sys.executable, "-m", "zdrone.sil.rogue", "--mode", "fake-autopilot", "--fleet", str(fleet),
                  "--router", "tcp/127.0.0.1:1", "--vehicle-port", str(port), "--duration", str(duration),
-                 "--events", str(events))
+                 "--events", str(events), *(["--wait-go"] if wait_go else []))
 
 
 def _done(events: Path) -> dict:
@@ -86,10 +88,13 @@ def test_a_fake_autopilot_racing_the_start_wins_a_naive_link(fleet, tmp_path):
 
 
 def test_the_vehicle_link_never_adopts_the_fake_sends_it_nothing_and_counts_its_datagrams(fleet, tmp_path):
-    """Behaviour 5 tried again: the attacker starts first and keeps racing; the vehicle link listens
-    where the simulator sends (PX4's onboard link) and adopts system 1 only."""
+    """Behaviour 5 tried again: the attacker starts first and races (sysid 7) until the link has chosen;
+    the vehicle link listens where the simulator sends (PX4's onboard link) and adopts system 1 only.
+    Only then, the autopilot signing, is the attacker told to forge with the autopilot's own ids (a
+    process claiming them before the choice is the next test's: refused, ``ConfigError``); before, the
+    switch came after a fixed 5 s and a slow simulator start let it land before the choice."""
     port = free_port(socket.SOCK_DGRAM)
-    with _attacker(fleet, port, tmp_path / "rogue.jsonl", duration=10.0) as attacker:  # races 5 s
+    with _attacker(fleet, port, tmp_path / "rogue.jsonl", duration=3.0, wait_go=True) as attacker:
         attacker.wait_line("rogue: ready", 20)
         link = VehicleLink(f"udpin:127.0.0.1:{port}",
                            signing=FcSigning(FcKeyStore(tmp_path / "d1.fc-signing.json"), "prefer", confirm_timeout=30.0))
@@ -98,6 +103,9 @@ def test_the_vehicle_link_never_adopts_the_fake_sends_it_nothing_and_counts_its_
                 sim.wait_line("zdrone sim:", 20)
                 assert link.wait_vehicle(20)
                 assert link.sysid == 1 and link.signing_status()["signed"]
+                assert link.endpoint.how == "signed" and not link.endpoint.claimants, link.endpoint.status()
+                attacker.p.send_signal(signal.SIGUSR2)  # now forge with the autopilot's own ids
+                attacker.wait_line("rogue: forging with the autopilot's own ids", 20)
                 assert wait_until(lambda: (link.heartbeat(), link.recv(0.05), link.position_signed)[2], 10)
                 assert attacker.p.wait(30) == 0
                 link.recv(0.2)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import time
@@ -22,7 +23,9 @@ from tests.procs import ZDRONE, free_port, wait_until
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("view")]
 
-CHROMIUM = "/usr/bin/chromium"
+#: Debian's chromium (``make browser`` installs it; ``make test`` does as root)
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+REPO = Path(__file__).resolve().parents[2]
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
         "--no-first-run", "--disable-sync"]
 #: Records each drone row's owner / stale / failsafe as the DOM shows them, with the browser's wall clock.
@@ -78,7 +81,7 @@ def _seen(page: Any, attr: str) -> list[tuple[float, str]]:
 def browser(tmp_path: Path) -> Any:
     sync_api = pytest.importorskip("playwright.sync_api")
     if not os.path.exists(CHROMIUM):
-        pytest.skip("Debian's chromium is not installed (make venv installs it)")
+        pytest.skip(f"no chromium (the browser test); to run it: sudo make -C {REPO} browser")
     with sync_api.sync_playwright() as pw:
         ctx = pw.chromium.launch_persistent_context(str(tmp_path / "profile"), executable_path=CHROMIUM, args=ARGS,
                                                     headless=True, viewport={"width": 1400, "height": 1000})

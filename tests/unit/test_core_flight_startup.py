@@ -66,3 +66,40 @@ def test_a_vehicle_that_disarms_on_the_ground_after_the_start_is_armed_and_start
     assert restart["restarts"] == 1
     assert [x["restarts"] for _, x in f.gs_logs("A", "takeoff_confirmed")] == [1]
     assert _delivered(f, autopilot) and f.of(rec.Failsafe) == []
+
+
+@pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
+def test_a_cancelled_mission_upload_is_tried_again_and_flown(fleet_dir, autopilot, monkeypatch):
+    """300 drones at scale: GS A stalled in the middle of uploads, the vehicles asked for the next item
+    five times, cancelled the upload (MISSION_ACK 15, OPERATION_CANCELLED) and the GS gave the mission
+    up: the drones sat disarmed. Here the GS's items of the first upload never reach the vehicle; it
+    cancels for real (``MissionProtocol.retry_upload``), the GS tries again after a backoff, and the
+    drone takes off with the mission the second upload stored."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.mission import UPLOAD_BACKOFF_S
+    from zdrone.core.mavlink import read_header
+
+    f = CoreFlight(fleet_dir, personality(autopilot))
+    view = f.gs["A"].core.views[DRONE]
+    receive = f.sim.receive
+
+    def items_lost_until_cancelled(frame: bytes, now: float, link: int = 0) -> None:
+        if (not f.sim.counters["mission_operation_cancelled"]
+                and read_header(frame).msgid == mav.MAVLINK_MSG_ID_MISSION_ITEM_INT):
+            return  # as from a GS that stalled between items
+        receive(frame, now, link)
+
+    monkeypatch.setattr(f.sim, "receive", items_lost_until_cancelled)
+    assert f.run_until(lambda: view.mission.stage is Stage.UPLOAD_WAIT, 60), view.mission.stage
+    assert f.sim.counters["mission_operation_cancelled"] == 1
+    [(t_failed, retry)] = f.gs_logs("A", "mission_retry")
+    assert retry["what"] == "upload" and retry["result"] == mav.MAV_MISSION_OPERATION_CANCELLED and retry["try"] == 1
+    assert UPLOAD_BACKOFF_S / 2 <= retry["after"] <= UPLOAD_BACKOFF_S  # first backoff: half fixed, half drawn
+    assert f.gs["A"].core.counters["mission_upload_retry"] == 1
+    assert f.run_until(lambda: bool(f.gs_logs("A", "takeoff_confirmed")), 120), view.mission.stage
+    uploads = [t for t, _ in f.gs_logs("A", "mission_upload")]
+    assert len(uploads) == 2 and uploads[1] >= t_failed + retry["after"]  # not before its backoff
+    assert f.sim.armed and not f.gs_logs("A", "mission_failed") and f.gs["A"].core.counters["mission_failed"] == 0
+    assert f.run_until(f.flown, 400), f"not flown: stage {view.mission.stage}"
+    assert _delivered(f, autopilot) and f.of(rec.Failsafe) == []

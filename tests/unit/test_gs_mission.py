@@ -94,3 +94,52 @@ def test_no_plan_no_mission():
 
 def test_every_stage_but_the_last_two_has_a_row():
     assert {s for s, _ in TABLE} == set(Stage) - {Stage.FLYING, Stage.FAILED}
+
+
+def _upload_ends(m: Mission, now: float, result: int, v: Vehicle) -> list:
+    """The vehicle answers ``m``'s upload with MISSION_ACK ``result`` at ``now``; the next tick reads it."""
+    assert m.stage is Stage.UPLOADING and m.uploader is not None
+    ack = mav.MAVLink_mission_ack_message(255, 190, result, 0)
+    ack._header = mav.MAVLink_header(ack.id, srcSystem=1, srcComponent=1)
+    m.on_message(ack, now, 255, _send)
+    return m.handle(FlightTick(now), v, _send)
+
+
+def test_a_cancelled_upload_is_retried_with_backoff_and_jitter_until_its_deadline():
+    from collections import Counter
+
+    from gs.mission import UPLOAD_BACKOFF_MAX_S, UPLOAD_DEADLINE_S, backoff, jitter
+
+    # jitter: the adapter's seed decides it, the same seed replays it, drones differ
+    assert jitter(b"s", "d1", "upload", 1) == jitter(b"s", "d1", "upload", 1)
+    draws = {jitter(b"s", f"d{i}", "upload", 1) for i in range(300)}
+    assert len(draws) == 300 and all(0 <= u < 1 for u in draws) and min(draws) < 0.1 and max(draws) > 0.9
+    assert [backoff(n, 0.0) for n in (1, 2, 3, 6)] == [1.0, 2.0, 4.0, UPLOAD_BACKOFF_MAX_S / 2]
+    assert backoff(1, 0.999) < 2.0 and backoff(40, 0.5) <= UPLOAD_BACKOFF_MAX_S
+
+    counters: Counter[str] = Counter()
+    v = Vehicle(autopilot="px4")
+    m = Mission("A", "d1", 1, reference_plan(), seed=b"seed", counters=counters)
+    m.handle(FlightTick(0.0), v, _send)
+    out = _upload_ends(m, 1.0, mav.MAV_MISSION_OPERATION_CANCELLED, v)
+    assert m.stage is Stage.UPLOAD_WAIT and m.uploader is None and counters["mission_upload_retry"] == 1
+    [retry] = [x.record for x in out if isinstance(x, Emit)]
+    assert retry.result == 15 and retry.try_ == 1 and 1.0 <= retry.after < 2.0
+    assert m.deadline(1.0, v) == m.next_try and abs(m.next_try - (1.0 + retry.after)) < 1e-3
+    assert m.handle(FlightTick(m.next_try - 0.01), v, _send) == []  # its backoff first
+    out = m.handle(FlightTick(m.next_try), v, _send)
+    assert m.stage is Stage.UPLOADING and isinstance(out[0], mav.MAVLink_mission_count_message)
+    # a refusal a new try cannot fix fails at once, said and counted
+    m2 = Mission("A", "d2", 2, reference_plan(), seed=b"seed", counters=counters)
+    m2.handle(FlightTick(0.0), v, _send)
+    out = _upload_ends(m2, 1.0, mav.MAV_MISSION_INVALID_PARAM7, v)
+    assert m2.stage is Stage.FAILED and counters["mission_upload_failed"] == 1 and counters["mission_failed"] == 1
+    # cancelled again and again: tried until the deadline, then given up with why
+    now = 1.0
+    while m.stage is not Stage.FAILED:
+        assert now < UPLOAD_DEADLINE_S + UPLOAD_BACKOFF_MAX_S
+        out = _upload_ends(m, now, mav.MAV_MISSION_OPERATION_CANCELLED, v)
+        now = m.next_try
+        m.handle(FlightTick(now), v, _send)
+    [failed] = [x.record for x in out if isinstance(x, Emit) and x.kind == "mission_failed"]
+    assert "OPERATION_CANCELLED" in failed.reason and counters["mission_failed"] == 2

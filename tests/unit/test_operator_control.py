@@ -387,7 +387,7 @@ def test_through_the_gateways_a_request_is_presented_refused_then_consented(flee
     b.request(1, 0, 10)
     net.run(net.now + 0.5)
     assert len(a.presented()) == 2  # expired unanswered: B may ask again at once
-    a.request(0)  # p4 = 255 names no GS: refused, nothing moves
+    a.request(0, 0, 5, 7)  # p4 = X's sysid (another fleet GS, not the one shown): refused, nothing moves
     assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)
     a.request(0, 0, 5, 3)  # A's operator releases to the requester it was shown (p4 = B's sysid)
     assert a.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)

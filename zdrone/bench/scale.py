@@ -52,6 +52,16 @@ from .stallwatch import CpuSampler, FrameGaps, GcClock, LoopTimer, PassClock, St
 
 CROSSINGS = 2
 SPEEDUP = 4.0
+#: Without ``--speedup`` a run of K drones flies at ``SPEEDUP`` up to this K, at 1 above it: the
+#: vehicles' telemetry grows with K x speed-up (docs/results.md: 100 x 3 flew 100 of 100 at 4; 300 x 3
+#: flies 300 of 300 at 1 and 0 of 300 at 4).
+FAST_MAX_K = 100
+
+
+def speedup_for(k: int) -> float:
+    """The simulators' speed-up for K drones when none is given (``FAST_MAX_K``)."""
+    return SPEEDUP if k <= FAST_MAX_K else 1.0
+
 #: How long the drones host may take to open its K sessions before the run counts as failed.
 READY_TIMEOUT_S = 180.0
 #: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
@@ -695,16 +705,16 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 
 
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
-        drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
+        drone_router: str = "spread", inbox_senders: int | None = None, speedup: float | None = None,
         drone_hosts: int = 1, compare: bool = True, hosts_nice: int = HOSTS_NICE) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick`` or not
     ``compare``) through one TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
-    ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it).
+    ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it);
+    None: by K (``speedup_for``), each row saying its own.
     ``drone_hosts``: processes the drones are stepped in (a what-if, reported: on 2 cores, three hosts of
     100 drones made slower passes than one host of 300). ``hosts_nice``: the niceness of the drones and
     GSs hosts (``HOSTS_NICE``)."""
     ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
-    flight_s = FLIGHT_SIM_S / speedup
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
     rows = []
     from .table import ProgressLine
@@ -712,18 +722,23 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
     status = ProgressLine(progress)
     try:
         for k in ks:
+            sp = speedup if speedup is not None else speedup_for(k)
+            flight_s = FLIGHT_SIM_S / sp
+            at = len(rows)
             if sites:
-                status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {speedup:g})…")
+                status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {sp:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
-                                 inbox_senders=inbox_senders, speedup=speedup, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
+                                 inbox_senders=inbox_senders, speedup=sp, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
                 if compare and not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
                     rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
-                                     speedup=speedup, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
+                                     speedup=sp, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
             else:
-                status.say(f"{k} drones x {stations} GSs flying…")
-                rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=speedup,
+                status.say(f"{k} drones x {stations} GSs flying (speed-up {sp:g})…")
+                rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=sp,
                                  drone_hosts=drone_hosts, hosts_nice=hosts_nice))
+            for row in rows[at:]:
+                row["speedup"] = sp
     finally:
         status.close()
 
@@ -733,7 +748,8 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
 
     main_rows = [r for r in rows if r.get("sites", 1) == (sites or 1)]
     result: dict[str, Any] = {"rows": rows, "largest_k_all_correct": largest(main_rows), "stations": stations,
-                              "gs_inbox_senders": inbox_senders, "speedup": speedup, "drone_hosts": drone_hosts,
+                              "gs_inbox_senders": inbox_senders, "speedup": speedup,
+                              "speedup_by_k": speedup is None, "drone_hosts": drone_hosts,
                               "hosts_nice": hosts_nice}
     if sites:
         result.update({"sites": sites, "drone_router": drone_router,
@@ -773,7 +789,9 @@ def render(r: dict[str, Any]) -> None:
     target = r["target"]
     where = f"over {r['sites']} site routers" if r.get("sites") else "through one router"
     caption = (f"largest K with all hand-overs correct and TBM healthy: {r['largest_k_all_correct']} "
-               f"(target {target['k']} x {target['g']}); simulators at speed-up {r.get('speedup', SPEEDUP):g}")
+               f"(target {target['k']} x {target['g']}); simulators at speed-up "
+               + "/".join(sorted({f"{x.get('speedup', r.get('speedup') or SPEEDUP):g}" for x in r["rows"]}, key=float))
+               + (f" (by K: {SPEEDUP:g} up to {FAST_MAX_K} drones, 1 above)" if r.get("speedup_by_k") else ""))
     if r.get("sites"):
         if any(x.get("sites") == 1 for x in r["rows"]):
             caption += f"; through one router: {r['largest_k_all_correct_one_router']}"

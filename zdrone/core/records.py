@@ -608,6 +608,17 @@ class MissionFailed(Record, frozen=True, tag="mission_failed"):
     reason: str
 
 
+class MissionRetry(Record, frozen=True, tag="mission_retry"):
+    """A mission step (``what``: ``upload``) failed with ``result`` (None: no answer) and is tried again
+    ``after`` seconds (backoff with jitter); ``try_``: failures so far."""
+
+    drone: str
+    what: str
+    result: int | None
+    try_: int = msgspec.field(name="try")
+    after: float
+
+
 class VehicleParam(Record, frozen=True, tag="vehicle_param"):
     """A vehicle parameter the mission needs was confirmed."""
 
@@ -884,7 +895,7 @@ GS_RECORDS: tuple[type[Record], ...] = (
     GsStart, GsStatus, GsStop, Closed, Suppressed, PathOpen, PathState, ControlRequested, GsPairRefused, PairFailed,
     PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, FcSigningHeard, KeyGranted, Rejected, FailsafeNoticed,
-    HandoverFailed, VehicleRefused, MissionFailed, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
+    HandoverFailed, VehicleRefused, MissionFailed, MissionRetry, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
     VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, HandoverHold, HandoverResume, GcsApp, GcsAppGone, OperatorControlRequested,
     *OPERATOR_CONTROL_RECORDS, RevisionApplied, RevisionRefused,
 )

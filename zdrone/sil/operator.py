@@ -42,7 +42,7 @@ from ..vehicle.px4modes import FlightMode
 
 APP_SYSID = 255
 #: the fleet sysids of GS A and GS B (the reference fleet)
-A_SYSID, B_SYSID = (next(n[2] for n in DEFAULT_NODES if n[0] == g) for g in ("A", "B"))
+A_SYSID, B_SYSID, X_SYSID = (next(n[2] for n in DEFAULT_NODES if n[0] == g) for g in ("A", "B", "X"))
 #: custom-mode params 2 and 3 of DO_SET_MODE, per autopilot: hold where it is, and fly the mission
 MODES = {mav.MAV_AUTOPILOT_PX4: {"hold": FlightMode.HOLD.value, "mission": FlightMode.MISSION.value},
          mav.MAV_AUTOPILOT_ARDUPILOTMEGA: {"hold": (5, 0), "mission": (3, 0)}}  # LOITER, AUTO
@@ -158,8 +158,8 @@ class Script:
         print(f"operator: {name} {fields}", flush=True)
 
     def ask(self, app: OperatorApp, p1: float, p2: float = 0.0, p3: float = 5.0, p4: float = APP_SYSID) -> float:
-        """MAV_CMD_REQUEST_OPERATOR_CONTROL; p4 is the application's own sysid, or, answering a request
-        it was shown, the requester's (a consent names the requester)."""
+        """MAV_CMD_REQUEST_OPERATOR_CONTROL; p4 is the application's own sysid (as QGroundControl sends
+        it, a consent included: the gateway binds it to the request it showed this application)."""
         since = time.monotonic()
         app.command(MAV_CMD_REQUEST_OPERATOR_CONTROL, p1, p2, p3, p4)
         return since
@@ -210,10 +210,10 @@ class Script:
         answer = self.first_ack(b, since)
         self.wait("A's application shown B's second request", lambda: bool(a.requests_shown(since)), 3.0)
         shown = a.requests_shown(since)[0]
-        unnamed = self.first_ack(a, self.ask(a, 1, 1, 10))  # p4: its own sysid, not the requester
+        unnamed = self.first_ack(a, self.ask(a, 1, 1, 10, X_SYSID))  # p4 names another GS of the fleet: refused
         if unnamed != mav.MAV_RESULT_DENIED:
-            raise StepFailed(f"a consent naming nobody answered {unnamed}, not DENIED")
-        consent = self.ask(a, 1, 1, 10, shown.param4)
+            raise StepFailed(f"a consent naming another GS answered {unnamed}, not DENIED")
+        consent = self.ask(a, 1, 1, 10)  # as QGroundControl: p4 = its own sysid, bound to the request it was shown
         consent_answer = self.first_ack(a, consent)
         self.wait("B in control after A's consent", lambda: b.in_control() == APP_SYSID, 10.0)
         took = time.monotonic() - consent
