@@ -64,6 +64,7 @@ from zdrone.core.envelope import Dropped, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
+from zdrone.core.kk import is_hybrid
 from zdrone.core.linkslot import PREVIOUS_GRACE, LinkSlot
 from zdrone.core.mavcontrol import OperatorControlRequest, sysid_as_seen_by
 from zdrone.core.mavlink import FrameCodec, read_header
@@ -264,10 +265,16 @@ class StationCore:
 
     @fleet.setter
     def fleet(self, fleet: Fleet) -> None:
-        """A fleet revision took effect: every part reads the new fleet from now on."""
+        """A fleet revision took effect: every part reads the new fleet from now on. With the hybrid
+        pairing required, a link on a classical key is paired again (hybrid, make-before-break, as
+        after a rotation of our key): the drone takes key grants only over hybrid links."""
         self._fleet = self.key_owner.fleet = fleet
         for view in self.views.values():
-            _linking(view).ctx.fleet = fleet
+            linking = _linking(view)
+            linking.ctx.fleet = fleet
+            if fleet.pairing_pq and view.link is not None and not view.link.hybrid and not linking.rekey_pending:
+                linking.rekey(self.identity, linked=True, rotated=False)
+                self.counters["repair_hybrid"] += 1
 
     # --------------------------------------------------------------- by name
     @property
@@ -494,7 +501,8 @@ class StationCore:
         out, paired = _linking(view).on_pair(Reply(now, ok, err))
         if paired is None:
             return out
-        again = view.link is not None and not paired.fresh  # a rotated key's pairing is no restart
+        # a rotated key's pairing is no restart; a hybrid re-pairing is one only if the drone lost our key
+        again = view.link is not None and not (paired.fresh and (paired.rotated or paired.kept))
         if again and paired.kept:
             # the drone still holds our key: its silence was the radio (out of coverage), not a
             # restart; switching to a key it cannot confirm now would cut us off later
@@ -502,7 +510,9 @@ class StationCore:
             return [Emit(rec.PairNotNeeded(drone=drone))]
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
-        view.slot.install(self._new_link(view, paired.key, now), now)
+        link = self._new_link(view, paired.key, now)
+        link.hybrid = paired.hybrid
+        view.slot.install(link, now)
         view.link = view.slot.live
         view.switching = paired.fresh  # the old key stays readable until the drone speaks under the new one
         if again:  # the drone may have restarted with no key but ours: share the others' keys again
@@ -539,6 +549,7 @@ class StationCore:
         if asker is not None:
             assert view is not None
             candidate = self._new_link(view, LinkKey.from_secret(drone, self.name, secret), now)
+            candidate.hybrid = is_hybrid(payload)
             view.slot.offer(candidate, now, f"linkkey:{asker}", LINKKEY_CANDIDATE_TTL)
         return answer, logs
 

@@ -143,6 +143,8 @@ class PairProven:
     key: LinkKey
     kept: bool  # the drone still held our old key (its silence was the radio, not a restart)
     fresh: bool = False  # a pairing under our rotated static key (``Linking.rekey``): not a restart
+    hybrid: bool = False  # the exchange was hybrid (ML-KEM-768 next to X25519)
+    rotated: bool = True  # a fresh pairing for a rotated static key (False: to make a classical link hybrid)
 
 
 class IllegalPhase(AssertionError):
@@ -184,6 +186,8 @@ class Linking:
         self.lost_key_at: float | None = None  # our pairing found the companion had lost our key (it restarted)
         self.rekey_pending = False  # our static key was rotated: a pairing under the new one is due
         self._rekey_exchange = False  # the open exchange is such a pairing
+        self._exchange_hybrid = False  # the open exchange is hybrid
+        self._rekey_rotated = True  # the fresh pairing due is for a rotated key (else: a hybrid one)
         self.shares: dict[str, Share] = {}  # other GS -> where its key stands (made when first needed)
         self.drone_links: set[str] = set()  # GSs the drone already holds keys for (its status)
         self.last_share_try: float | None = None
@@ -257,6 +261,7 @@ class Linking:
         self.pairing = PairingInitiator(c.identity, c.gs, c.drone, c.fleet.nodes[c.drone].public_bytes, stamp=ev.stamp,
                                         hybrid=c.fleet.pairing_pq)
         self._rekey_exchange = self.rekey_pending
+        self._exchange_hybrid = c.fleet.pairing_pq
         self.pairing_deadline = ev.now + ev.timeout
         self._set_state(None, PairPhase.ASKING, "message 1")
         return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
@@ -285,9 +290,9 @@ class Linking:
         if fresh:
             self.rekey_pending = False
         self._set_state(None, PairPhase.IDLE, "paired")
-        return [], PairProven(key, kept=kept, fresh=fresh)
+        return [], PairProven(key, kept=kept, fresh=fresh, hybrid=self._exchange_hybrid, rotated=self._rekey_rotated)
 
-    def rekey(self, identity: Identity, linked: bool) -> None:
+    def rekey(self, identity: Identity, linked: bool, rotated: bool = True) -> None:
         """Our static key was rotated: pair under ``identity`` from now on. With a link (``linked``),
         an open exchange is forgotten (its reply could only give a key of the old one) and a fresh
         pairing is due; without one, the next pairing is under the new key anyway."""
@@ -295,7 +300,7 @@ class Linking:
         if not linked:
             return
         self.pairing = None
-        self.rekey_pending = True
+        self.rekey_pending, self._rekey_rotated = True, rotated
         self._allowed = frozenset({PairPhase.IDLE})
         self._set_state(None, PairPhase.IDLE, "abandoned")
 

@@ -113,3 +113,48 @@ def test_a_revision_turning_pairing_pq_on_in_flight_applies_to_the_next_exchange
     assert shares and all(is_hybrid(decode_query(a.payload).m1) for _, a in shares)
     assert net.drone.machine.owner == "A" and set(net.drone.links) == {"A", "B"}
     assert not b_core.counters["linkkey_refused:downgrade"]
+
+
+def test_with_pairing_pq_a_key_grant_over_a_classical_link_is_refused_and_the_owner_pairs_again_hybrid(fleet_dir):
+    """Paired classically, then the fleet requires the hybrid pairing: a key shared for B that A
+    would deliver under its classical link key is refused (it is only as strong as that key); A pairs
+    again, hybrid, make-before-break (no failsafe, authority kept), and B's key then reaches the
+    drone under the hybrid link."""
+    from zdrone.core import wire
+
+    net = FleetNet(fleet_dir)
+    a_core = net.add_gs("A", pair=True)
+    b_core = net.add_gs("B")
+    net.cut.add("B")  # B out of reach: no key shared for it yet
+    net.run(4.0)
+    assert net.drone.machine.owner == "A" and not net.drone.links["A"].hybrid
+    # the drone alone applies the revision first: A (still classical) hands it a grant for B
+    fleet = pq_fleet(fleet_dir)
+    net.drone_outs(net.drone.on_revision(fleet, net.now))
+    from zdrone.core.keys import LinkKey
+
+    secret = os.urandom(32)
+    grant = wire.KeyGrant(gs="B", sysid=net.fleet.nodes["B"].sysid, secret=secret, grant_id=1)
+    sealed = a_core.views["d1"].link.seal_control(grant)  # as A sends it: under its live (classical) link key
+    net.drone_outs(net.drone.on_envelope("A", sealed, net.now))
+    assert net.drone.counters["grant_refused:downgrade"] == 1
+    slot = net.drone.slots.get("B")
+    held = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
+    assert not any(link.key.same_as(LinkKey.from_secret("d1", "B", secret)) for link in held)
+    # A applies it too: it pairs again, hybrid, while its classical link goes on
+    epoch = net.drone.machine.epoch
+    for core in net.gss.values():
+        core.fleet = fleet
+    assert a_core.counters["repair_hybrid"] == 1
+    pairs = asks(net, AskKind.PAIR)
+    net.run(4.0)
+    assert pairs and all(is_hybrid(a.payload) for _, a in pairs)
+    assert net.drone.links["A"].hybrid and a_core.views["d1"].link.hybrid
+    assert a_core.views["d1"].link.key == net.drone.links["A"].key
+    assert (net.drone.machine.owner, net.drone.machine.epoch) == ("A", epoch) and not net.commands
+    # the same grant under A's hybrid link key is taken (a candidate of B's until B proves it)
+    sealed = a_core.views["d1"].link.seal_control(grant)
+    net.drone_outs(net.drone.on_envelope("A", sealed, net.now))
+    assert net.drone.counters["grant_refused:downgrade"] == 1
+    taken = [c.link for c in net.drone.slots["B"].candidates if c.link.key.same_as(LinkKey.from_secret("d1", "B", secret))]
+    assert taken and taken[0].hybrid

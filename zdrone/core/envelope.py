@@ -258,6 +258,9 @@ class SecureLink:
         self.opened = 0
         self.missing = 0  # authentic frames the peer sent that never came (counters skipped, not filled later)
         self.drops: Counter[DropReason] = Counter()
+        #: the key came from a hybrid (ML-KEM-768 + X25519) exchange, or was granted over such a link
+        #: (``zdrone.nodes.drone_core``: under the fleet's ``pairing_pq`` only such links carry grants)
+        self.hybrid = False
 
     # ------------------------------------------------------------------ sending
     def seal(self, plaintext: bytes) -> bytes:

@@ -49,7 +49,7 @@ from zdrone.core.linkslot import LinkSlot, Promoted
 from zdrone.core.mavlink import FrameError, read_header
 from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.outputs import Emit, Put
-from zdrone.core.kk import check_message1
+from zdrone.core.kk import check_message1, is_hybrid
 from zdrone.core.revision import STAMP_AHEAD_S, check_stamp
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
                                  _prologue as pairing_prologue)
@@ -218,8 +218,9 @@ class DroneCore:
                                                   holds_key=gs in self.links and gs not in self.rekey, wall=wall)
         if isinstance(ans, PairAccepted):
             # a candidate until the GS proves it (the newest pairing replaces an older one)
-            self.slots.setdefault(gs, LinkSlot()).offer(self._new_link(gs, ans.key, now), now, "pair",
-                                                        self.opts.pairing_ttl)
+            link = self._new_link(gs, ans.key, now)
+            link.hybrid = payload is not None and is_hybrid(payload)
+            self.slots.setdefault(gs, LinkSlot()).offer(link, now, "pair", self.opts.pairing_ttl)
             self.probation[gs] = now + self.opts.pairing_ttl
             self.counters["pair_answered"] += 1
             out.append(Emit(rec.PairAnswered(gs=gs)))
@@ -560,6 +561,12 @@ class DroneCore:
         if bad is not None:
             self.counters["bad_grant"] += 1
             return self._control(sender, wire.Reject("key_grant", bad.detail), now)
+        carrier = self.links.get(sender)
+        if self.fleet.pairing_pq and (carrier is None or not carrier.hybrid):
+            # the fleet requires hybrid keys: a key that crossed a classical link is only as strong as it
+            self.counters["grant_refused:downgrade"] += 1
+            return self._control(sender, wire.Reject("key_grant", "downgrade: the fleet requires hybrid keys and "
+                                                                  "this grant came over a classical link"), now)
         key = LinkKey.from_secret(self.name, msg.gs, msg.secret)
         slot = self.slots.get(msg.gs)
         known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
@@ -568,18 +575,19 @@ class DroneCore:
         result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         out: list[Out] = []
         if isinstance(result, ha.GrantAccepted):
-            out += self._install(result.gs, key, now)
+            out += self._install(result.gs, key, now, hybrid=carrier is not None and carrier.hybrid)
         out += self._apply(actions, now)  # a rejection's Reject is among them
         if isinstance(result, ha.GrantAccepted):
             out += self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)
         return out
 
-    def _install(self, gs: str, key: LinkKey, now: float) -> list[Out]:
+    def _install(self, gs: str, key: LinkKey, now: float, hybrid: bool = False) -> list[Out]:
         """A key granted by the authority: live at once if the link has none, else a candidate that
         GS ``gs`` must prove (and only once its live link is LOST: ``linkslot``). The drone then
         speaks under a new live key once, so the GS can confirm it too."""
         slot = self.slots.setdefault(gs, LinkSlot())
         link = self._new_link(gs, key, now)
+        link.hybrid = hybrid
         if slot.live is None:
             slot.install(link, now)
             self.links[gs] = link
