@@ -29,7 +29,7 @@ from zdrone.core.geometry import GeoPoint
 from zdrone.core.mavlink import FrameCodec
 from zdrone.core.reference import HOME
 from zdrone.core.revision import make_push, split_push
-from zdrone.fleet.revisions import PUSH_PERIOD_S
+from zdrone.fleet.revisions import STAMP_PERIOD_S
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
@@ -205,7 +205,7 @@ class CoreFlight:
             self._to_vehicle(msg)
         self.handle(self.drone.on_vehicle(self._pos(), self._on_ground(), self.now))
         if self.now >= self._next_stamp:
-            self._next_stamp = self.now + PUSH_PERIOD_S
+            self._next_stamp = self.now + STAMP_PERIOD_S
             for name, st in self.gs.items():
                 if not st.down:
                     stamp, _ = split_push(make_push(name, self.fleet.revision, self.now, self._signing[name], None))

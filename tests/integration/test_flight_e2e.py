@@ -347,3 +347,22 @@ def test_the_other_site_carries_the_link_when_the_authoritys_site_router_dies(tm
     kinds = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
     assert kinds == [("A", "B", "emergency"), ("B", "A", "handover")] and s["failsafe"] is None
     _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_a_revoked_owner_alone_with_the_drone_loses_it_when_its_lease_lapses(tmp_path):
+    """``revoked-alone``: the network splits at the delivery point (backhaul cut, site 1's radio gone),
+    B is revoked on A's side only. The revision never reaches the drone and B's own stamps renew
+    nothing: the lease lapses within the lease of the split, and the failsafe follows (no heir covers
+    the drone); no command of B forwarded after it."""
+    from zdrone.sil.scenarios import REVOKED_ALONE_LEASE_S
+
+    s, out = run_demo(tmp_path, "revoked-alone")
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    drone = read_events(out / "drone.jsonl")
+    lapse = [e for e in drone if e["type"] == "drop" and e.get("reason") == "lease_lapsed"]
+    cut = next(f for f in s["faults"] if f["target"] == "backhaul")
+    assert len(lapse) == 1 and lapse[0]["gs"] == "B" and 0 < lapse[0]["t"] - cut["t"] <= REVOKED_ALONE_LEASE_S + 6.0
+    assert not any(e["type"] == "revision_applied" for e in drone)
+    assert s["failsafe"] is not None and s["failsafe"]["reason"].startswith("authority of B lost: lease lapsed")
+    _clean_shutdown(s, out)

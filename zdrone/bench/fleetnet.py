@@ -23,7 +23,7 @@ from zdrone.core.mavlink import FrameCodec
 from zdrone.core.errors import ConfigError
 from zdrone.core.revision import make_push, split_push
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
-from zdrone.fleet.revisions import PUSH_PERIOD_S
+from zdrone.fleet.revisions import STAMP_PERIOD_S
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
 from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
@@ -148,7 +148,7 @@ class FleetNet:
                 0, 0, 0, 0))
             self.drone_outs(self.drone.on_telemetry(frame, self.now))
         if self.stamps and self.now >= self.next_stamp:
-            self.next_stamp = self.now + PUSH_PERIOD_S
+            self.next_stamp = self.now + STAMP_PERIOD_S
             for name in self.gss:
                 if name not in self.hung and name not in self.cut:
                     self.drone_outs(self.drone.on_revision_stamp(self.stamp(name), self.now))

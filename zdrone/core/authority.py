@@ -216,6 +216,7 @@ class Revised(Event):
 
     authorized: frozenset[str]
     revision: int = 0
+    why: str = ""  # not a revision: why the list shrank (the owner's lease lapsed)
 
 
 @dataclass(frozen=True, slots=True)
@@ -774,17 +775,18 @@ class AuthorityMachine:
                                      f"ground: no failsafe; authority stays with {ev.gs} until it is back")]
         return self._owner_lost(ev.now)
 
-    def _owner_lost(self, now: float) -> tuple[State, list[Action]]:
-        """The owner's link is LOST with the vehicle in the air: an heir (in coverage, proven there)
-        takes over, else failsafe."""
+    def _owner_lost(self, now: float, why: str = "") -> tuple[State, list[Action]]:
+        """The owner's link is LOST with the vehicle in the air (or ``why`` it lost authority
+        otherwise): an heir (in coverage, proven there) takes over, else failsafe."""
         ev = LinkChanged(now, self.owner or "", LinkState.LOST)
         heirs = self.heirs()
+        lost = f"authority of {ev.gs} lost: {why}" if why else f"authority link to {ev.gs} lost"
         if heirs:
-            acts = [Note("authority_link_lost", f"{ev.gs}: authority to {heirs[0]}")]
+            acts = [Note("authority_link_lost", f"{ev.gs}: authority to {heirs[0]}{f' ({why})' if why else ''}")]
             return State.LINKED, acts + self._switch(heirs[0], ev.now, "emergency")
         action = self.config.failsafe_action
         self.pending_to = self.pending_deadline = None
-        notice = FailsafeNotice(action, f"authority link to {ev.gs} lost")
+        notice = FailsafeNotice(action, lost)
         acts = [FailsafeCommand(action, notice.reason), Note("failsafe_entered", notice.reason)]
         acts += [SendControl(g, notice) for g in sorted(self.links)]
         return State.FAILSAFE, acts
@@ -819,7 +821,8 @@ class AuthorityMachine:
         for gs in gone:
             self.links.pop(gs, None)
             self.subscribed.discard(gs)
-            acts.append(Note("revoked", f"{gs}: off the authorized list (revision {ev.revision}): link dropped"))
+            acts.append(Note("revoked", f"{gs}: {ev.why}: link dropped" if ev.why else
+                             f"{gs}: off the authorized list (revision {ev.revision}): link dropped"))
         if self.takeover_to in gone:
             self.takeover_to = None
         if self.first_claim in gone:
@@ -832,7 +835,7 @@ class AuthorityMachine:
         if self.state in (State.LINKED, State.HANDOVER_PENDING) and self.owner in gone:
             self.repair_deadline = None
             self.pending_to = self.pending_deadline = None
-            next_state, more = self._owner_lost(ev.now)
+            next_state, more = self._owner_lost(ev.now, ev.why or f"revoked (revision {ev.revision})")
             return next_state, acts + more
         return self.state, acts
 

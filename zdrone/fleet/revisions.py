@@ -36,8 +36,8 @@ state directory if the node runs under ``zdrone service``, else in its bundle fo
 node applies the new effective fleet.
 
 A GS's push starts with its signed **revision stamp** ("GS g holds revision N at time T",
-``zdrone.core.revision.make_push``), pushed every ``PUSH_PERIOD_S`` with or without a revision to
-carry. A revision's bytes renew nothing (anyone may replay them); a drone's owner lease is renewed
+``zdrone.core.revision.make_push``), pushed every ``STAMP_PERIOD_S`` (alone, or with the revision
+every ``PUSH_PERIOD_S``). A revision's bytes renew nothing (anyone may replay them); a drone's owner lease is renewed
 only by a stamp from a GS other than the owner (``DroneCore.on_revision_stamp``). The channel hands
 the last stamp it heard to its node (``take_stamp``); the node's core checks it.
 """
@@ -71,6 +71,9 @@ ASK_GAP_S = 2.0 / REVISION_QUERY_HZ
 ASK_TIMEOUT_S = 1.0
 #: A GS re-publishes the revision it holds this often (and at once when it takes a new one).
 PUSH_PERIOD_S = 10.0
+#: A GS pushes its signed stamp this often (with the revision when that is due, else alone: ~100 B):
+#: a drone's owner lease is renewed by the stamps of the other GSs (``Fleet.revision_lease``)
+STAMP_PERIOD_S = 5.0
 #: A GS's revision puts are this far apart at least: two of the router's intervals on its key
 #: (``REVISION_MAX_HZ``), so that a router that stalls and processes two back to back drops neither.
 PUSH_GAP_S = 2.0 / REVISION_MAX_HZ
@@ -158,6 +161,7 @@ class RevisionChannel:
         self.queries = rt.queryable(self.own) if self.own is not None else None
         self._next_ask, self._last_ask = 0.0, float("-inf")
         self._next_push, self._last_push = 0.0, float("-inf")
+        self._next_stamp = 0.0
         self._next_look, self._reach = 0.0, 0
 
     def on_inbox(self, kind: str, data: Any) -> RevisionResult:
@@ -201,15 +205,23 @@ class RevisionChannel:
             self._last_ask, self._next_ask = now, now + ASK_PERIOD_S
             self.keeper.counters["asked"] += 1
             self.rt.ask(kx.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
+        if self.own is None or now < self._last_push + PUSH_GAP_S:
+            return
         key = self.signing() if self.signing is not None else None
-        if (self.own is not None and (self.keeper.data is not None or key is not None)
-                and now >= max(self._next_push, self._last_push + PUSH_GAP_S)):
-            self._last_push, self._next_push = now, now + PUSH_PERIOD_S
-            self.keeper.counters["pushed"] += 1
-            data = self.keeper.data
-            if key is not None and self.wall is not None:
+        stamping = key is not None and self.wall is not None
+        full = self.keeper.data is not None and now >= self._next_push
+        if full or (stamping and now >= self._next_stamp):
+            self._last_push, self._next_stamp = now, now + STAMP_PERIOD_S
+            data = self.keeper.data if full else None
+            if full:
+                self._next_push = now + PUSH_PERIOD_S
+                self.keeper.counters["pushed"] += 1
+            if stamping:
+                assert key is not None and self.wall is not None
                 data = make_push(self.rt.name, self.keeper.number, self.wall(), key, data)
-            self.rt.put(self.own, data)
+                self.keeper.counters["stamped"] += 1
+            if data is not None:
+                self.rt.put(self.own, data)
 
     def take_stamp(self) -> bytes | None:
         """The stamp of the push last handed to ``on_inbox`` (once)."""
@@ -260,4 +272,5 @@ def signing_key_history(fleet_dir: str | Path) -> dict[str, tuple[bytes, ...]]:
 
 
 __all__ = ["ASK_GAP_S", "ASK_PERIOD_S", "ASK_TIMEOUT_S", "KINDS", "MAX_REVISION_BYTES", "PUSH_GAP_S", "PUSH_PERIOD_S",
+           "STAMP_PERIOD_S",
            "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper", "signing_key_history"]

@@ -411,7 +411,8 @@ class DroneCore:
         out: list[Out] = [Emit(rec.Drop(gs=self.machine.owner, reason="lease_lapsed",
                                         detail=f"no stamp from another GS for {self.lease_s:.0f} s"))]
         authorized = frozenset(self.machine.config.authorized) - {self.machine.owner}
-        return out + self._handle(ha.Revised(now, authorized, self.fleet.revision), now)
+        why = f"lease lapsed (no revision stamp from another GS for {self.lease_s:g} s)"
+        return out + self._handle(ha.Revised(now, authorized, self.fleet.revision, why), now)
 
     def ready(self, wall: float) -> None:
         """The companion is ready (its vehicle heard, its saved authority restored) at time of day
@@ -524,6 +525,8 @@ class DroneCore:
                 out += self._control(a.gs, a.msg, now)
             elif isinstance(a, ha.FailsafeCommand):
                 latency = self.failsafe_latency_ms(now)
+                if latency is not None and latency < 0:
+                    latency = None  # before the loss threshold: not a link loss (a revocation, a lapsed lease)
                 out.append(CommandVehicle(a.command, a.reason, latency))
                 out.append(Emit(rec.Failsafe(action=a.command, reason=a.reason, detect_to_command_ms=latency,
                                              position=self.position)))

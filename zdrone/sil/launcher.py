@@ -42,7 +42,7 @@ from .netns import NetnsTopology
 from .ports import free_port
 from ..fleet.routerconfig import mesh_endpoint
 from .radiolink import DatagramLink, RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
-from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, ROTATE, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
+from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, REVOKE_BEHIND_CUT, ROTATE, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
                         SCENARIO_TLS, SCENARIOS, Fault, RogueSpec, Scenario, scenario_help)
 from .summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart, summarize, watch,
                       watch_state)
@@ -257,7 +257,7 @@ class Demo:
             tls = o.tls or self.spec.tls
             if tls:
                 self.router = f"tls/127.0.0.1:{rport}"
-            init_fleet(self.out / "fleet", tls=tls, nodes_spec=self._nodes_spec())
+            init_fleet(self.out / "fleet", tls=tls, nodes_spec=self._nodes_spec(), **self._lease())
             self._export_bundles(["router"])
             r = self.start("router", self._z() + ["router", "-c", "bundles/router/router/router.json5", "--listen", self.router]
                            + (["--tap", "tap.json"] if o.tap else []))
@@ -321,7 +321,7 @@ class Demo:
             return
         site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
         self.router = site_eps[0]
-        fleet = init_fleet(self.out / "fleet", sites=site_eps, nodes_spec=self._nodes_spec())
+        fleet = init_fleet(self.out / "fleet", sites=site_eps, nodes_spec=self._nodes_spec(), **self._lease())
         self.sites = load_sites(self.out / "fleet")
         self._export_bundles(list(self.sites))
         names = list(self.sites)
@@ -348,7 +348,7 @@ class Demo:
         topo.create()
         port = 7447  # each router alone in its namespace
         fleet = init_fleet(self.out / "fleet", sites=[f"tls/{topo.radio_ip[site]}:{port}" for site in names],
-                           nodes_spec=self._nodes_spec())
+                           nodes_spec=self._nodes_spec(), **self._lease())
         self.sites = load_sites(self.out / "fleet")
         self._export_bundles(list(self.sites))
         self.router = f"tls/127.0.0.1:{port}"  # inside site 1's namespace (the attackers run there)
@@ -590,8 +590,8 @@ class Demo:
                 self.fault_log.append(entry)
             if fault.sig in (LINK_DOWN, LINK_UP):
                 self.link_fault(fault.target, fault.sig == LINK_UP)
-            elif fault.sig in (REVOKE, ROTATE):
-                self.revise(fault.target, rotate=fault.sig == ROTATE)
+            elif fault.sig in (REVOKE, ROTATE, REVOKE_BEHIND_CUT):
+                self.revise(fault.target, rotate=fault.sig == ROTATE, behind_cut=fault.sig == REVOKE_BEHIND_CUT)
                 entry["ends"] = time.time()
             elif fault.sig == RESTART:
                 self.restart(fault.target, fault.down)
@@ -603,12 +603,18 @@ class Demo:
                 self.signal(fault.target, fault.sig)
                 self.children[fault.target].stopped = fault.sig != signal.SIGCONT
 
-    def revise(self, node: str, rotate: bool) -> None:
+    def _lease(self) -> dict[str, float]:
+        """The fleet's owner lease where the scenario sets one (``Scenario.revision_lease``)."""
+        return {} if self.spec.revision_lease is None else {"revision_lease": self.spec.revision_lease}
+
+    def revise(self, node: str, rotate: bool, behind_cut: bool = False) -> None:
         """The operator's revocation (or rotation) of ``node`` in flight, as docs/deploy.md says: the next
         signed revision made on the fleet machine (the run's fleet directory), published through a GS
         that is not ``node``; a rotated node's new secret dropped into its bundle before (its station
         adopts it when the revision arrives); after a revocation, each router restarted in turn on the
-        regenerated files (the revoked node's password and certificate refused from then on)."""
+        regenerated files (the revoked node's password and certificate refused from then on). With
+        ``behind_cut`` the backhaul is cut: only the routers on the publishing GS's side of it (site 1)
+        get the new files; ``node``'s site knows nothing of the revision."""
         import shutil
 
         from ..fleet import revise as rv
@@ -630,6 +636,8 @@ class Demo:
         if rotate:
             return
         routers = sorted(n for n in self.children if n.startswith("router"))
+        if behind_cut:
+            routers = routers[:1]
         for name, site in zip(routers, list(self.sites) if self.sites else ["router"]):
             cfg = "router" if site == "router" else site
             for f in (f"router/{cfg}.json5", "router/credentials.txt"):

@@ -23,7 +23,7 @@ from .verdicts import (check_backhaul_cut_early, check_big_flood, check_companio
                        check_gs_crash, check_gs_hang, check_insider_heir, check_key_escrow, check_key_injection,
                        check_link_loss, check_linkkey_knockout, check_local_app, check_lossy_radio, check_no_cert,
                        check_no_key, check_operator_consent, check_pair_flood, check_pair_replay, check_revoke_in_flight,
-                       check_revoke_uncovered,
+                       check_revoke_uncovered, check_revoked_alone,
                        check_rotate_in_flight, check_router_restart,
                        check_site_router_down, check_site_router_down_alone, check_stale_pairing, check_unauthorized,
                        check_uplink_policy, fault_over_check, flight_unaffected)
@@ -83,6 +83,7 @@ class Scenario:
     plain_router: bool = False  # its attacker holds router passwords only: no --tls, no --sites (no certificate)
     app_signing: bool = False  # GS A's gateway requires signed applications (a key file the launcher writes); B has one
     vehicle_udpin: bool = False  # the companion listens for its autopilot on UDP (PX4's onboard link): the simulator sends to it
+    revision_lease: float | None = None  # the fleet's owner lease (s; None: ``fleet init``'s default)
 
     def own_moment(self) -> str | None:
         """The moment (of ``MOMENTS``) its first fault lands at, None if none matches (or no fault)."""
@@ -123,6 +124,9 @@ LINK_DOWN, LINK_UP = -2, -3  # a testbed link (``backhaul``) cut or mended
 #: on the fleet machine, published through another GS; a revocation restarts the routers on the
 #: regenerated files one at a time; a rotation drops the new secret into the node's bundle)
 REVOKE, ROTATE = -4, -5
+#: the operator revokes the target on the far side of a cut backhaul: published at site 1, only site 1's
+#: router restarted on the new files; the target's site (and the drone there) never hears of it
+REVOKE_BEHIND_CUT = -6
 _HANG_A = Fault(REGION_ENTERED, "gsA", signal.SIGSTOP, "GS A hangs (SIGSTOP) in the overlap", after=0.5)
 _WAKE_A = Fault(REGION_ENTERED, "gsA", signal.SIGCONT, "GS A wakes up (SIGCONT) 5 s later", after=5.5)
 _RESTART_DRONE = Fault(AIRBORNE, "drone", RESTART, "the companion is killed (SIGKILL) and started again", down=0.3,
@@ -138,6 +142,14 @@ _REVOKE_B = Fault(RETURNING, "B", REVOKE, "the operator revokes GS B (its host i
                   after=1.2)
 _REVOKE_B_UNCOVERED = Fault(AT_DELIVERY, "B", REVOKE, "the operator revokes GS B while B holds authority at the "
                             "delivery point, outside A's coverage", after=0.5)
+_CUT_AT_DELIVERY = Fault(AT_DELIVERY, "backhaul", LINK_DOWN, "the backhaul between the sites is cut while B holds "
+                         "authority at the delivery point (only site 2's radio reaches the drone)")
+_JAM_SITE1_AT_DELIVERY = Fault(AT_DELIVERY, "site-1", LINK_DOWN, "site 1's radio cannot reach the drone from then on "
+                               "(the partition: wherever it flies, only site 2 hears it)")
+_REVOKE_B_BEHIND_CUT = Fault(AT_DELIVERY, "B", REVOKE_BEHIND_CUT, "the operator revokes GS B on A's side of the cut "
+                             "(site 1 only)", after=0.5)
+#: ``revoked-alone``'s lease: three of a GS's stamp periods (``zdrone.fleet.revisions.STAMP_PERIOD_S``) and more
+REVOKED_ALONE_LEASE_S = 16.0
 _ROTATE_A = Fault(AIRBORNE, "A", ROTATE, "the operator rotates GS A's key while A holds authority", after=1.0)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 
@@ -176,6 +188,14 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the drone drops B's link and keys; no heir proven in its coverage: its failsafe at once, nobody holds "
              "authority after it, no command of B after the revision; routers restarted on the new files",
              check_revoke_uncovered, faults=(_REVOKE_B_UNCOVERED,), fixed_moment=True),
+    Scenario("revoked-alone",
+             "two sites; at the delivery point (B holds authority) the network splits: the backhaul is cut, site 1's "
+             "radio no longer reaches the drone, and B is revoked on A's side; the fleet's owner lease is "
+             f"{REVOKED_ALONE_LEASE_S:g} s",
+             "the revision never reaches the drone, and B's own stamps renew nothing: the lease lapses within "
+             "the lease of the cut, no heir covers the drone: its failsafe; no command of B forwarded after it",
+             check_revoked_alone, faults=(_CUT_AT_DELIVERY, _JAM_SITE1_AT_DELIVERY, _REVOKE_B_BEHIND_CUT), sites=True, fixed_moment=True,
+             revision_lease=REVOKED_ALONE_LEASE_S),
     Scenario("rotate-in-flight",
              "GS A's static key is rotated by a signed fleet revision while A holds authority",
              "A re-pairs under its new key make-before-break: no failsafe, no emergency hand-over, both hand-overs",

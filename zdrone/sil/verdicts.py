@@ -21,7 +21,7 @@ from gs.planner import AUTOPILOTS, reference_mission
 from ..core.geometry import GeoPoint, distance_m
 from ..core.pairing import PAIR_BURST, PAIR_RATE
 from ..core.records import (AnyRecord, OperatorConsentRefused, OperatorRequestDeclined, OwnerLinkLostOnGround,
-                            AuthorityMoved, AuthorityStatus, ControlRequested, DroneState, DroneStatus, Failsafe,
+                            AuthorityMoved, AuthorityStatus, ControlRequested, DroneState, DroneStatus, Drop, Failsafe,
                             GsState, HandoverComplete, HandoverFailed, GsLinkConfirmed, LinkConfirmed, LinkInstalled,
                             LinkkeyReceived, LinkStateChanged, MissionProgress, Paired, R, Restarted, RevisionApplied,
                             Start, logged, only, record_type)
@@ -754,6 +754,36 @@ def check_revoke_uncovered(o: Outcome) -> list[str]:
     if fs is not None:  # in FAILSAFE nobody commands (the revoked owner stays only as the epoch's name)
         why += _need(_forwarded_after(o, "A", fs.t) == 0, "a command of A was forwarded in the failsafe")
     return why + _need(any("routers restarted" in n for n in s["notes"]), "the routers were not restarted on the new files")
+
+
+def check_revoked_alone(o: Outcome) -> list[str]:
+    """``revoked-alone``: B holds authority at the delivery point, the backhaul is cut and B revoked on
+    A's side only: the drone never hears the revision, and B's own stamps renew nothing, so the owner
+    lease lapses within the lease (and one stamp period) of the cut; no authorized GS covers the drone:
+    its failsafe (in the air or on the ground), and no command of B forwarded after the lapse."""
+    from ..fleet.revisions import STAMP_PERIOD_S
+    from .scenarios import REVOKED_ALONE_LEASE_S
+
+    s = o.summary
+    why = safety_invariants(o)
+    cut = next((f for f in s["faults"] if f["target"] == "backhaul"), None)
+    why += _need(cut is not None, "the backhaul was never cut")
+    why += _need(_revision_applied(o, revoked=("B",)) is None, "the revision reached the drone across the cut")
+    why += _need(any("revoking B" in n for n in s["notes"]), "B was not revoked on A's side")
+    lapse = next((e for e in only(o.drone, Drop) if e.reason == "lease_lapsed" and e.gs == "B"), None)
+    why += _need(lapse is not None, "B's lease never lapsed: B kept the drone")
+    if cut is None or lapse is None:
+        return why
+    within = REVOKED_ALONE_LEASE_S + STAMP_PERIOD_S + 1.0
+    why += _need(lapse.t - cut["t"] <= within, f"B's lease lapsed {lapse.t - cut['t']:.1f} s after the cut "
+                                                f"(lease {REVOKED_ALONE_LEASE_S:g} s: at most {within:g} s)")
+    why += _need(_forwarded_after(o, "B", lapse.t + 0.5) == 0, "a command of B was forwarded after its lease lapsed")
+    after = [e for e in only(o.drone, DroneStatus) if e.t >= lapse.t + 1.0]
+    why += _need(bool(after) and all(e.state.value == "failsafe" or e.owner != "B" for e in after),
+                 f"after the lapse: {sorted({(e.owner, e.state) for e in after})}")
+    why += _need(not any(isinstance(e, AuthorityMoved) and e.to == "B" and e.t > lapse.t for e in o.drone),
+                 "B held authority again after its lease lapsed")
+    return why
 
 
 def check_rotate_in_flight(o: Outcome) -> list[str]:
