@@ -37,9 +37,12 @@ from zdrone.core.audit import Witnessing
 from zdrone.core import wire
 from zdrone.core.bundle import MAX_BUNDLE
 from zdrone.core.errors import ConfigError
+from zdrone.core.fleet import Fleet
+from zdrone.core.keys import SigningKey
 from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.fleet import keyexprs as kx
 from zdrone.fleet import revisions
+from zdrone.net.eventlog import EventLog
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
 
@@ -61,7 +64,8 @@ MAX_SLEEP_S = 0.05
 #: The loop's period while a hook polls sockets of its own (the GCS gateway's endpoints).
 HOOK_POLL_S = 0.005
 
-__all__ = ["GCS_COMPID", "DroneSeen", "GroundStation", "StationOptions", "run_station", "view_line"]
+__all__ = ["GCS_COMPID", "DroneSeen", "GroundStation", "StationOptions", "audit_on_revision", "run_station",
+           "view_line"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,6 +90,27 @@ class StationOptions:
     gcs_keys: str | None = None  # the gateway's application key file (``gs.appkeys``)
 
 
+def audit_on_revision(events: EventLog, witnessing: Witnessing | None, fleet: Fleet, own: str,
+                      old_signing: bytes | None, signing: SigningKey | None) -> bool:
+    """A fleet revision applied at GS ``own`` (``fleet``: the new effective fleet): the drones it
+    witnesses are countersigned under their keys in force now (a revoked drone's under none); if
+    ``own``'s signing key in the fleet is not ``old_signing`` (the public key its record is signed
+    under until now, None: none), its authority record and its countersignatures go on under
+    ``signing`` if that is the key in force, else under none (unsigned, never under a retired key).
+    Returns whether its own key changed."""
+    if witnessing is not None:
+        witnessing.set_node_keys({d: None if d not in fleet.nodes or fleet.is_revoked(d) else fleet.signing_public(d)
+                                  for d in witnessing.node_keys})
+    new = fleet.nodes[own].signing_public_bytes if own in fleet.nodes else None
+    if new == old_signing:
+        return False
+    key = signing if signing is not None and signing.public == new else None
+    events.rekey_audit(key)
+    if witnessing is not None:
+        witnessing.rekey(key)
+    return True
+
+
 class GroundStation:
     """One ground station node."""
 
@@ -104,9 +129,11 @@ class GroundStation:
             hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
             take_control=opts.take_control, allow_takeover=opts.allow_takeover, seed=os.urandom(32)))
         self.witnessing: Witnessing | None = None
+        self.audit_key: bytes | None = None  # the public half of the key its record is signed under now
         if self.secret.signing is not None:  # its own authority record; it countersigns the drones' checkpoints
             self.events.start_audit(self.secret.signing)
             self.witnessing = Witnessing(self.name, self.secret.signing, {d: self.fleet.signing_public(d) for d in drones})
+            self.audit_key = self.secret.signing.public
         self.counters = self.core.counters
         self.frame_listeners: list[Callable[[str, bytes], None]] = []  # e.g. the GCS gateway
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
@@ -205,26 +232,42 @@ class GroundStation:
 
     def _on_revision(self, kind: str, data: Any, now: float) -> None:
         """A fleet revision heard: the next one is applied live (the core reads the new fleet: revoked
-        nodes are on no authorized list); if it rotated this GS's own key, the new secret is taken
-        from the bundle and every linked drone re-paired under it (``StationCore.adopt_identity``)."""
+        nodes are on no authorized list); the drones' checkpoints are countersigned under their keys
+        in force from now on (``audit_on_revision``). If this GS's keys in the fleet are not those of
+        the secret it holds (a rotation, or one whose new secret was not on this host yet), the new
+        secret is taken from the bundle: its record, its countersignatures and its revision stamps go on
+        under the new signing key, and if its identity changed every linked drone is re-paired under
+        it (``StationCore.adopt_identity``)."""
         got = self.revision.on_inbox(kind, data)
         if isinstance(got, revisions.RevisionAccepted):
             self.fleet = self.core.fleet = got.fleet
-            if self.name in got.revision.changes.keys:
+            mine, held = got.fleet.nodes[self.name], self.secret
+            if (mine.public_bytes, mine.signing_public_bytes) != (
+                    held.identity.public, held.signing.public if held.signing is not None else None):
                 self._adopt_own_key(now)
+            else:
+                audit_on_revision(self.events, self.witnessing, self.fleet, self.name, self.audit_key, None)
 
     def _adopt_own_key(self, now: float) -> None:
         from zdrone.fleet.files import load_secret
 
         try:
             secret = load_secret(self.opts.fleet, self.name, self.fleet)
-        except ConfigError as exc:  # the new bundle is not on this host yet: the old key goes on
+        except ConfigError as exc:  # the new bundle is not on this host yet: nothing more signed with a retired key
             log.warning("own key rotated by the fleet, but the bundle does not hold the new one: %s", exc)
             self.counters["rotation_pending"] += 1
+            audit_on_revision(self.events, self.witnessing, self.fleet, self.name, self.audit_key, None)
+            self.audit_key = None
             return
-        log.warning("own key rotated by the fleet: re-pairing every linked drone under the new key")
-        self.counters["rotated"] += 1
-        self._do(self.core.adopt_identity(secret.identity, now, time.time()))
+        audit_on_revision(self.events, self.witnessing, self.fleet, self.name, self.audit_key, secret.signing)
+        self.audit_key = secret.signing.public if secret.signing is not None else None
+        renewed = secret.identity.public != self.secret.identity.public
+        self.secret = secret  # the revision stamps (``RevisionChannel``'s ``signing``) follow
+        if renewed:  # the operations picture is sealed under the new identity from now on
+            self.ops = OpsPublisher.for_station(self.name, self.fleet, secret.identity, self.core, self.rt.put)
+            log.warning("own key rotated by the fleet: re-pairing every linked drone under the new key")
+            self.counters["rotated"] += 1
+            self._do(self.core.adopt_identity(secret.identity, now, time.time()))
 
     def _serve_linkkeys(self, now: float) -> None:
         """Answer key-sharing queries: refusals cost no crypto; ``LINKKEY_PER_TURN`` handshakes at most."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import math
+from pathlib import Path
 from typing import Any, Callable
 
 from .core.errors import UsageError
@@ -418,33 +419,42 @@ def add_report(sub: argparse._SubParsersAction) -> None:
 
 
 def _audit_verify(args: argparse.Namespace) -> int:
-    from .fleet.revisions import signing_key_history
-    from .report import audit_files, run_fleet, run_fleet_dir, verify_audit
+    from .fleet.revisions import signing_key_epochs
+    from .report import audit_files, run_expected, run_fleet, run_fleet_dir, verify_audit
 
     files = audit_files(args.targets)
-    results = verify_audit(files, run_fleet(args.targets, args.fleet),
-                           signing_key_history(run_fleet_dir(args.targets, args.fleet)))
+    fleet = run_fleet(args.targets, args.fleet)
+    runs = [Path(t) for t in args.targets if Path(t).is_dir()]
+    results = verify_audit(files, fleet, signing_key_epochs(run_fleet_dir(args.targets, args.fleet)),
+                           expect=run_expected(args.targets, fleet), where=runs[0] if runs else None)
     if args.json:
         import json
 
         print(json.dumps([{"file": str(f), "node": r.node, "ok": r.ok, "entries": r.entries,
                            "signed_through": r.signed_through, "witnessed_through": r.witnessed_through,
-                           "kind": r.kind, "first_bad": r.first_bad, "problem": r.problem} for f, r in results],
-                         indent=2))
+                           "unwitnessed": r.unwitnessed, "kind": r.kind, "first_bad": r.first_bad,
+                           "problem": r.problem} for f, r in results], indent=2))
     else:
         for f, r in results:
             print(f"{'ok ' if r.ok else 'BAD'} {f}: {r.summary()}")
-    return 0 if all(r.ok for _, r in results) else 1
+    bad = not all(r.ok for _, r in results)
+    return 1 if bad or (args.require_witnessed and any(r.unwitnessed for _, r in results)) else 0
 
 
 def add_audit(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("audit", help="the signed, hash-chained record of every authority decision")
     asub = p.add_subparsers(dest="audit_command", required=True)
-    v = asub.add_parser("verify", help="check authority records offline against the fleet's public keys; names "
-                                       "the first bad entry (modified, deleted, reordered, truncated); exit 1 if any")
+    v = asub.add_parser("verify", help="check authority records offline against the fleet's public keys and each "
+                                       "other's countersignatures; names the first bad entry (modified, deleted, "
+                                       "reordered, truncated) or a record missing from a run; exit 1 if any")
     v.add_argument("targets", nargs="+", metavar="RUN_DIR|FILE",
-                   help="a run folder (its *.audit.jsonl) or authority record files")
-    v.add_argument("--fleet", help="the fleet folder (its public fleet.json5 and its revisions: a rotated node's earlier checkpoints are checked against its earlier key); default: RUN_DIR/fleet")
+                   help="a run folder (its *.audit.jsonl; every drone of its fleet/ and every node with an event log "
+                        "there must have its record) or authority record files")
+    v.add_argument("--fleet", help="the fleet folder (its public fleet.json5 and its revisions: each checkpoint and "
+                                   "countersignature is checked against the key in force at its time); default: "
+                                   "RUN_DIR/fleet")
+    v.add_argument("--require-witnessed", action="store_true",
+                   help="exit 1 also if a drone's record has entries after the last one a GS countersigned")
     v.add_argument("--json", action="store_true", help="one object per record instead of lines")
     v.set_defaults(func=_audit_verify)
 

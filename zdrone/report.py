@@ -6,8 +6,8 @@ Output: ``report.html`` and ``track.png`` (the ground track alone, for a README)
 The page shows each node's authority record (``zdrone.core.audit``): verified, or its first bad entry.
 
 ``verify_audit`` is ``zdrone audit verify``: every ``*.audit.jsonl`` of a run folder (or the files
-given) checked offline against the fleet's public signing keys, and against every witness line found
-in any of them.
+given) checked offline against the fleet's public signing keys over time, and against every
+countersignature chained in any of them; for a run folder, a record missing is named too.
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ import html
 import io
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import msgspec
 
-from .core.audit import AuditWitness, ChainReport, decode_line, verify_chain
+from .core.audit import AuditWitness, ChainReport, CheckedChain, PublicKeys, Verified, check_chain, decode_line
 from .core.fleet import ConfigError, Fleet, parse_fleet
 from .core.geometry import GeoPoint, ne_of
 from .core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
@@ -88,41 +88,101 @@ def run_fleet(targets: list[str | Path], fleet_dir: str | Path | None) -> Fleet:
     return load_fleet(run_fleet_dir(targets, fleet_dir))
 
 
-#: What every witness line holds (its tag); a line without it is no witness and is not decoded twice.
+#: What every free witness line holds (its tag).
 _WITNESS_TAG = b'"audit":"witness"'
 
 
-def verify_audit(files: list[Path], fleet: Fleet, key_history: dict[str, tuple[bytes, ...]] | None = None
-                 ) -> list[tuple[Path, ChainReport]]:
-    """Each file's record verified (its node: the one its entries name), against every witness; with
-    ``key_history`` (``zdrone.fleet.revisions.signing_key_history``), each checkpoint against the
-    node's key in force when it was signed (a rotated node's earlier checkpoints under its earlier key)."""
+def _record_owner(lines: list[bytes]) -> str | None:
+    """The node whose record these lines are: the one its first entry or checkpoint names."""
+    for raw in lines:
+        try:
+            line = decode_line(raw)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            continue  # check_chain names it, with its line number
+        if not isinstance(line, AuditWitness):
+            return line.node
+    return None
+
+
+def _log_node(log: Path) -> str | None:
+    """The node an event log is of: the one its first line names (None if it names none)."""
+    try:
+        with open(log, "rb") as fh:
+            first = fh.readline(1 << 16)
+        node = json.loads(first).get("node")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return node if isinstance(node, str) else None
+
+
+def _empty_record_owner(f: Path) -> str:
+    """The node of a record with no line of its own: the one its event log beside it names
+    (``drone.audit.jsonl`` -> ``drone.jsonl``), else the file's name."""
+    stem = f.name[:-len(".audit.jsonl")] if f.name.endswith(".audit.jsonl") else f.stem
+    return _log_node(f.with_name(f"{stem}.jsonl")) or stem
+
+
+def run_expected(targets: list[str | Path], fleet: Fleet) -> dict[str, str] | None:
+    """The records a run folder must hold (node -> why), None if no target is a run folder (with
+    its ``fleet/fleet.json5``): every drone of the fleet not revoked that has a signing key, and every
+    drone or GS whose event log is in the folder."""
+    runs = [Path(t) for t in targets if Path(t).is_dir() and (Path(t) / "fleet" / "fleet.json5").is_file()]
+    if not runs:
+        return None
+
+    def keeps(n: str | None) -> bool:
+        v = fleet.nodes.get(n or "")
+        return v is not None and v.role in ("drone", "gs") and v.signing_public_bytes is not None
+
+    out = {d: f"the fleet names drone {d}" for d in fleet.drones() if not fleet.is_revoked(d) and keeps(d)}
+    for run in runs:
+        for log in sorted(run.glob("*.jsonl")):
+            if not log.name.endswith(".audit.jsonl") and keeps(node := _log_node(log)):
+                out.setdefault(str(node), f"its event log {log.name} is in the run")
+    return out
+
+
+def verify_audit(files: list[Path], fleet: Fleet, key_history: Mapping[str, PublicKeys] | None = None,
+                 expect: dict[str, str] | None = None, where: Path | None = None) -> list[tuple[Path, ChainReport]]:
+    """Each file's record verified (its node: the one its entries name) against its keys over time
+    (``key_history``: ``zdrone.fleet.revisions.signing_key_epochs``; else the fleet's keys in force),
+    then against every countersignature chained in any of the records (a drone's record: its entries
+    after the last witnessed one counted). With ``expect`` (node -> why: ``run_expected``) the records
+    are meant to be the whole run: a node expected, or countersigned by a record given, whose record
+    is not among them is reported ``record_missing`` (its path: ``where``)."""
     contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
-    witnesses: list[AuditWitness] = []
-    owners: dict[Path, str | None] = {}
-    for f, lines in contents.items():
-        owners[f] = None
-        for raw in lines:
-            if owners[f] is not None and _WITNESS_TAG not in raw:
-                continue  # only witness lines are read here (verify_chain reads every line once, fast)
-            try:
-                line = decode_line(raw)
-            except (msgspec.DecodeError, msgspec.ValidationError):
-                continue  # reported by verify_chain with its line number
-            if isinstance(line, AuditWitness):
-                witnesses.append(line)
-            elif owners[f] is None:
-                owners[f] = line.node
-    keys: dict[str, object] = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
+    keys: dict[str, PublicKeys] = {n: fleet.nodes[n].signing_public_bytes for n in fleet.nodes}
     keys.update(key_history or {})
-    out = []
-    for f, lines in contents.items():
-        node = owners[f]
-        if node is None:
-            if not lines:
-                out.append((f, ChainReport(f.stem, 0, 0, -1, -1, 0)))
-            continue  # only witness lines: a ground station that took no decision of its own
-        out.append((f, verify_chain(node, lines, keys.get(node), witnesses, keys)))
+    drones = set(fleet.drones())
+    owners = {f: _record_owner(lines) for f, lines in contents.items()}
+    seen: Verified = set()  # a drone's checkpoint checked once: in its record (first), then in its witnesses'
+    chains: dict[Path, tuple[str, CheckedChain]] = {}
+    for f in sorted(contents, key=lambda f: owners[f] not in drones):
+        node, lines = owners[f], contents[f]
+        free = sum(1 for raw in lines if _WITNESS_TAG in raw) if node is None else 0
+        if node is None and free == len(lines):  # no line of its own: empty, or free witness lines (an older format)
+            chains[f] = _empty_record_owner(f), CheckedChain(_empty_record_owner(f), [], 0, -1, [], free)
+        else:  # (no owner: no line decodes; check_chain names the first)
+            node = node or _empty_record_owner(f)
+            chains[f] = node, check_chain(node, lines, keys.get(node), keys, seen)
+    checked = [(f, *chains[f]) for f in contents]
+    countersigned = [w for _, _, c in checked for w in c.countersigned]
+    out: list[tuple[Path, ChainReport]] = []
+    for f, node, c in checked:
+        witnessed = node in fleet.nodes and fleet.nodes[node].role == "drone"
+        out.append((f, c.report(countersigned, witnessed=witnessed)))
+    if expect is not None:
+        present = {node for _, node, _ in checked}
+        seen: dict[str, list[AuditWitness]] = {}
+        for w in countersigned:
+            seen.setdefault(w.node, []).append(w)
+        for node in sorted((set(seen) | set(expect)) - present):
+            ws = seen.get(node, [])
+            top = max((w.seq for w in ws), default=-1)
+            why = (f"{', '.join(sorted({w.witness for w in ws}))} countersigned its entries up to {top}" if ws
+                   else expect[node])
+            out.append((where or Path("."), ChainReport(node, 0, 0, -1, top, len(ws), f"record missing: {why}",
+                                                        "record_missing", 0)))
     return out
 
 
@@ -131,10 +191,12 @@ def _audit_section(run: Path) -> str:
     files = sorted(run.glob("*.audit.jsonl"))
     if not files:
         return "<h2>Authority record</h2><p>none in this run</p>"
-    from .fleet.revisions import signing_key_history
+    from .fleet.revisions import signing_key_epochs
 
     try:
-        results = verify_audit(files, run_fleet([run], None), signing_key_history(run_fleet_dir([run], None)))
+        fleet = run_fleet([run], None)
+        results = verify_audit(files, fleet, signing_key_epochs(run_fleet_dir([run], None)),
+                               expect=run_expected([run], fleet), where=run)
     except ConfigError as exc:
         return f"<h2>Authority record</h2><p>not verified: {html.escape(str(exc))}</p>"
     rows = "".join(f"<tr><td>{html.escape(f.name)}</td><td>{'verified' if r.ok else '<b>BAD</b>'}</td>"

@@ -256,3 +256,103 @@ def test_a_witness_of_an_earlier_checkpoint_holds_after_the_rotation():
     assert w is not None
     r = verify_chain("d1", lines, (DRONE_KEY.public, OTHER_KEY.public), [w], KEYS)
     assert r.ok and r.witnesses == 1 and r.witnessed_through == first.seq
+
+
+# ---------------------------------------------------------------- countersignatures chained, keys in force
+
+GS_NEW_KEY = SigningKey(bytes([10]) * 32)
+
+
+def _gs_record(*entries: tuple[str, dict], key: SigningKey = GS_KEY) -> list[bytes]:
+    """GS B's record: the entries given (kind, fields), then a checkpoint."""
+    gs = AuditChain("B", key, every=100)
+    lines = [encode_line(x) for i, (kind, fields) in enumerate(entries) for x in gs.append(kind, fields, 200.0 + i)]
+    return lines + [encode_line(gs.checkpoint(300.0))]
+
+
+def _revision(number: int, rotated: tuple[str, ...]) -> tuple[str, dict]:
+    return "revision_applied", {"number": number, "revoked": [], "rotated": list(rotated), "pairing_pq": False}
+
+
+def test_a_countersignature_is_an_entry_of_the_witness_s_chain_and_deleting_it_breaks_that_chain():
+    from zdrone.core.audit import WITNESS_KIND, check_chain, witness_fields
+
+    lines, chain = _record()
+    b = _gs_record((WITNESS_KIND, witness_fields(_witness(chain))), ("operator_request_granted", {"drone": "d1"}))
+    witness = check_chain("B", b, GS_KEY.public, {"d1": DRONE_KEY.public})
+    assert witness.problem is None and [(w.witness, w.seq) for w in witness.countersigned] == [("B", 19)]
+    cut = lines[:_entries(lines)[12]]
+    r = check_chain("d1", cut, DRONE_KEY.public).report(witness.countersigned, witnessed=True)
+    assert (r.kind, r.first_bad) == ("truncated", 12)
+    r = check_chain("d1", lines, DRONE_KEY.public).report(witness.countersigned, witnessed=True)
+    assert r.ok and r.witnessed_through == 19 and r.unwitnessed == 0
+    # the countersignature deleted from B's record: B's record is missing that entry
+    gone = check_chain("B", b[1:], GS_KEY.public, {"d1": DRONE_KEY.public})
+    assert (gone.kind, gone.first_bad) == ("missing", 0) and gone.countersigned == []
+    # a witness line outside any chain (the format before) vouches for nothing
+    free = check_chain("B", [encode_line(_witness(chain))], GS_KEY.public, {"d1": DRONE_KEY.public})
+    assert free.countersigned == [] and free.unchained == 1
+    r = check_chain("d1", cut, DRONE_KEY.public).report(free.countersigned, witnessed=True)
+    assert r.ok and r.witnesses == 0 and r.unwitnessed == 12 and "no witness of its 12 entries" in r.summary()
+
+
+def test_a_checkpoint_under_the_key_a_revision_the_node_applied_retired_is_refused():
+    """d1 applied revision 3, which rotated it: whoever holds its old key signs nothing after that entry."""
+    keys = ((0, DRONE_KEY.public), (3, OTHER_KEY.public))
+
+    def up_to_the_revision() -> tuple[AuditChain, list[bytes]]:
+        chain = AuditChain("d1", DRONE_KEY, every=100)
+        lines = [encode_line(x) for i in range(3) for x in chain.append("paired", {"gs": "A"}, float(i))]
+        return chain, lines + [encode_line(x) for x in chain.append(*_revision(3, ("d1",)), 3.0)]
+
+    chain, lines = up_to_the_revision()
+    lines += [encode_line(x) for x in chain.append("failsafe", {"action": "LAND"}, 4.0)]
+    lines.append(encode_line(chain.checkpoint(5.0)))  # the retired key signs past the revision
+    r = verify_chain("d1", lines, keys)
+    assert (r.kind, r.first_bad) == ("bad_signature", 0) and "d1's key retired by revision 3" in (r.problem or "")
+    # the node itself: the entries up to the revision under the old key, the rest under the new
+    chain, honest = up_to_the_revision()
+    honest += [encode_line(x) for x in chain.rekey(OTHER_KEY, 3.5)]
+    honest += [encode_line(x) for x in chain.append("failsafe", {"action": "LAND"}, 4.0)]
+    honest.append(encode_line(chain.checkpoint(5.0)))
+    r = verify_chain("d1", honest, keys)
+    assert r.ok and r.signed_through == 4 and r.checkpoints == 2, r.summary()
+
+
+def test_a_countersignature_under_keys_retired_by_a_revision_the_witness_applied_is_a_bad_witness():
+    from zdrone.core.audit import WITNESS_KIND, check_chain, witness_fields
+
+    _, chain = _record()
+    b_keys = ((0, GS_KEY.public), (2, GS_NEW_KEY.public))
+    old = (WITNESS_KIND, witness_fields(_witness(chain)))  # countersigned with B's first key
+    keys = {"d1": DRONE_KEY.public}
+    assert check_chain("B", _gs_record(old), b_keys, keys).problem is None  # before B's rotation: its key then
+    c = check_chain("B", _gs_record(_revision(2, ("B",)), old), b_keys, keys)
+    assert (c.kind, c.first_bad) == ("bad_witness", 1) and "revision 2" in (c.problem or "")
+    cp = chain.last
+    assert cp is not None
+    new = countersign("B", GS_NEW_KEY, "d1", DRONE_KEY.public, cp.seq, bytes.fromhex(cp.head),
+                      base64.b64decode(cp.sig), 200.0)
+    assert new is not None
+    renewed = _gs_record(_revision(2, ("B",)), (WITNESS_KIND, witness_fields(new)), key=GS_NEW_KEY)
+    assert check_chain("B", renewed, b_keys, keys).problem is None
+    # the drone's checkpoint under the drone's key that revision retired: B vouches for no retired key
+    c = check_chain("B", renewed, b_keys, {"d1": ((0, DRONE_KEY.public), (2, OTHER_KEY.public))})
+    assert (c.kind, c.first_bad) == ("bad_witness", 1)
+
+
+def test_a_witness_follows_the_fleet_s_keys():
+    from zdrone.core.audit import Witnessing
+
+    _, chain = _record()
+    seq, head, sig = chain.last.raw()
+    w = Witnessing("B", GS_KEY, {"d1": DRONE_KEY.public})
+    w.set_node_keys({"d1": OTHER_KEY.public})  # d1 rotated: its old key's checkpoint is refused
+    assert w.on_head("d1", seq, head, sig, 1.0) is None and w.refused == 1
+    w.set_node_keys({"d1": DRONE_KEY.public})
+    w.rekey(None)  # B rotated, its new key not here yet: it countersigns nothing
+    assert w.on_head("d1", seq, head, sig, 2.0) is None and w.refused == 1
+    w.rekey(GS_NEW_KEY)
+    got = w.on_head("d1", seq, head, sig, 3.0)
+    assert got is not None and verify_chain("d1", _record()[0], DRONE_KEY.public, [got],
+                                            {"B": GS_NEW_KEY.public}).witnessed_through == seq

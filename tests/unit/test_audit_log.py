@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -69,11 +70,13 @@ def test_decisions_are_recorded_signed_and_witnessed(tmp_path, fleet_dir, capsys
     kinds = [json.loads(x).get("kind") for x in lines if json.loads(x)["audit"] == "entry"]
     assert kinds == ["authority", "handover_complete", "failsafe"]
     b_entries = [json.loads(x) for x in audit_path(tmp_path / "B.jsonl").read_text().splitlines()]
-    consent = [e for e in b_entries if e["audit"] == "entry"]
-    assert consent[0]["kind"] == "operator_request_granted" and consent[0]["fields"]["app"] == "qgc"
+    b_kinds = [e["kind"] for e in b_entries if e["audit"] == "entry"]
+    assert b_kinds == ["witness", "witness", "witness", "operator_request_granted"]  # countersignatures: B's entries
+    consent = b_entries[[e.get("kind") for e in b_entries].index("operator_request_granted")]
+    assert consent["fields"]["app"] == "qgc"
     assert main(["audit", "verify", str(tmp_path), "--fleet", str(fleet_dir)]) == 0
     out = capsys.readouterr().out
-    assert "d1: verified 3 of 3 entries, witnessed through seq 2" in out and "B: verified 1 of 1" in out
+    assert "d1: verified 3 of 3 entries, witnessed through seq 2" in out and "B: verified 4 of 4" in out
 
 
 @pytest.mark.parametrize("tamper, kind, first_bad", [
@@ -167,3 +170,281 @@ def test_after_a_key_rotation_earlier_checkpoints_verify_against_the_key_in_forc
     # a tampered revision file is named, not trusted
     (fleet_dir / "revisions" / "0001.json").write_bytes(b"{}")
     assert main(["audit", "verify", str(run), "--fleet", str(fleet_dir)]) == 2
+
+
+# ---------------------------------------------------------------- a run's records under every cut
+
+def _run(run: Path, fleet_dir: Path, decisions: int = 3, witnessed: int | None = None) -> dict[str, EventLog]:
+    """A run folder as ``zdrone demo`` leaves it: its fleet in ``fleet/``, the drone's log and record,
+    A's and B's, each GS countersigning the drone's checkpoints (``Witnessing``, as ``zdrone gs`` does)
+    of the first ``witnessed`` decisions (default all), then its operator's consent."""
+    import shutil
+
+    from zdrone.core.audit import Witnessing
+
+    if not (run / "fleet").exists():
+        shutil.copytree(fleet_dir, run / "fleet")
+    fleet = load_fleet(run / "fleet")
+    clock = Clock()
+    seen: list[AuditCheckpoint] = []
+    drone = EventLog(run / "drone.jsonl", "d1", clock=clock)
+    drone.start_audit(load_secret(run / "fleet", "d1", fleet).signing, on_checkpoint=seen.append)
+    gss = {}
+    for g in ("A", "B"):
+        gss[g] = EventLog(run / f"{g}.jsonl", g, clock=clock)
+        key = load_secret(run / "fleet", g, fleet).signing
+        gss[g].start_audit(key)
+        gss[g].witnessing = Witnessing(g, key, {"d1": fleet.signing_public("d1")})  # type: ignore[attr-defined]
+    for i in range(decisions):
+        drone.write_record(rec.Paired(gs="A"))
+        clock.t += 2.0
+        drone.write("link_state", gs="A", state="ok")  # a tick: the decision signed
+        if witnessed is None or i < witnessed:
+            for g, log in gss.items():
+                w = log.witnessing.on_head("d1", *seen[-1].raw(), clock.t)  # type: ignore[attr-defined]
+                assert w is not None
+                log.write_witness(w)
+    for g, log in gss.items():
+        log.write_record(rec.OperatorRequestGranted(drone="d1", requester=g, to=g, why="consent", epoch=9, app="qgc"))
+    return {"d1": drone, **gss}
+
+
+def _close(logs: dict[str, EventLog]) -> None:
+    for log in logs.values():
+        log.close()
+
+
+def _verify_run(run: Path, capsys, *extra: str) -> tuple[int, dict[str, dict]]:
+    code = main(["audit", "verify", str(run), "--json", *extra])
+    return code, {r["node"]: r for r in json.loads(capsys.readouterr().out)}
+
+
+def _lines(path: Path) -> list[str]:
+    return path.read_text().splitlines()
+
+
+def _write(path: Path, lines: list[str]) -> None:
+    path.write_text("".join(x + "\n" for x in lines))
+
+
+def test_an_untouched_run_verifies_witnessed_to_its_end(tmp_path, fleet_dir, capsys):
+    _close(_run(tmp_path, fleet_dir))
+    code, got = _verify_run(tmp_path, capsys, "--require-witnessed")
+    assert code == 0 and set(got) == {"d1", "A", "B"}
+    assert (got["d1"]["witnessed_through"], got["d1"]["unwitnessed"]) == (2, 0)
+
+
+def test_cut_1_countersignatures_deleted_from_the_gs_records_break_them(tmp_path, fleet_dir, capsys):
+    """The witnesses of the last checkpoint deleted from A's and B's records, the drone's record cut
+    below it: A's and B's records miss an entry each."""
+    _close(_run(tmp_path, fleet_dir))
+    for g in ("A", "B"):
+        path = audit_path(tmp_path / f"{g}.jsonl")
+        _write(path, [x for x in _lines(path) if not ('"kind":"witness"' in x and '"seq":2,' in x)])
+    path = audit_path(tmp_path / "drone.jsonl")
+    lines = _lines(path)
+    _write(path, lines[:[json.loads(x).get("seq") for x in lines].index(2)])  # entry 2 and what follows gone
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1
+    assert (got["A"]["kind"], got["A"]["first_bad"]) == ("missing", 2)
+    assert (got["B"]["kind"], got["B"]["first_bad"]) == ("missing", 2)
+
+
+def test_cut_2_a_deleted_drone_record_is_named_missing(tmp_path, fleet_dir, capsys):
+    _close(_run(tmp_path, fleet_dir))
+    audit_path(tmp_path / "drone.jsonl").unlink()
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and got["d1"]["kind"] == "record_missing"
+    assert "A, B countersigned its entries up to 2" in got["d1"]["problem"]
+    # no GS countersigned it: the fleet still names the drone
+    for g in ("A", "B"):
+        audit_path(tmp_path / f"{g}.jsonl").write_text("")
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and got["d1"]["problem"] == "record missing: the fleet names drone d1"
+    # and a GS whose event log is in the run has its record too
+    audit_path(tmp_path / "A.jsonl").unlink()
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and got["A"]["problem"] == "record missing: its event log A.jsonl is in the run"
+
+
+def _rotated_run(run: Path, node: str) -> tuple[dict[str, EventLog], Any]:
+    """A run whose fleet rotates ``node`` (``zdrone fleet rotate``) after the run's three decisions,
+    the node applying the revision in its record: its retired key, and the run's logs still open."""
+    from zdrone.fleet.revise import rotate
+
+    fleet_dir = run / "fleet"
+    init_fleet(fleet_dir)
+    logs = _run(run, fleet_dir)
+    old = load_secret(fleet_dir, node, load_fleet(fleet_dir)).signing
+    revised = rotate(fleet_dir, node)
+    logs[node].write_record(rec.RevisionApplied(number=revised.revision.number, revoked=(), rotated=(node,)))
+    return logs, old
+
+
+def test_cut_3_entries_past_the_drone_s_rotation_signed_with_its_retired_key_are_refused(tmp_path, capsys):
+    """The drone applied the revision that rotated it; entries appended after it with a checkpoint
+    under its retired key (whoever kept that key) are refused, naming the revision."""
+    logs, _ = _rotated_run(tmp_path, "d1")
+    logs["d1"].write_record(rec.Failsafe(action="LAND", reason="forged", detect_to_command_ms=1.0, position=None))
+    _close(logs)  # the record's last checkpoint: under the retired key
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and (got["d1"]["kind"], got["d1"]["first_bad"]) == ("bad_signature", 3)
+    assert "d1's key retired by revision 1" in got["d1"]["problem"]
+
+
+def test_cut_4_a_countersignature_under_a_gs_s_retired_key_is_a_bad_witness(tmp_path, capsys):
+    logs, old = _rotated_run(tmp_path, "A")
+    a = logs["A"]
+    logs["d1"].write_record(rec.Paired(gs="B"))
+    a._clock.t += 2.0  # type: ignore[attr-defined]
+    logs["d1"].write("link_state", gs="A", state="ok")  # a tick: the drone's checkpoint of entry 3
+    cp = logs["d1"].audit.last
+    assert old is not None and cp is not None and cp.seq == 3
+    a.write_witness(countersign("A", old, "d1", load_fleet(tmp_path / "fleet").signing_public("d1"), *cp.raw(), 0.0))
+    _close(logs)
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and (got["A"]["kind"], got["A"]["first_bad"]) == ("bad_witness", 5)
+    assert got["d1"]["ok"] and got["d1"]["witnessed_through"] == 2  # B's countersignatures stand, A's forged one not
+
+
+def test_cut_5_a_gs_s_entries_past_its_rotation_under_its_retired_key_are_refused(tmp_path, capsys):
+    logs, _ = _rotated_run(tmp_path, "A")
+    logs["A"].write_record(rec.OperatorRequestGranted(drone="d1", requester="X", to="X", why="forged", epoch=10,
+                                                      app="qgc"))
+    _close(logs)
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and got["A"]["kind"] == "bad_signature" and "A's key retired by revision 1" in got["A"]["problem"]
+
+
+def test_require_witnessed_refuses_an_unwitnessed_tail(tmp_path, fleet_dir, capsys):
+    _close(_run(tmp_path, fleet_dir, decisions=3, witnessed=2))
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 0 and got["d1"]["ok"] and (got["d1"]["witnessed_through"], got["d1"]["unwitnessed"]) == (1, 1)
+    code, got = _verify_run(tmp_path, capsys, "--require-witnessed")
+    assert code == 1
+    assert main(["audit", "verify", str(tmp_path)]) == 0
+    assert "1 entries after the last witnessed one" in capsys.readouterr().out
+
+
+def test_a_gs_follows_the_revisions_in_its_record_and_its_countersignatures(tmp_path, capsys):
+    """``audit_on_revision`` (what ``zdrone gs`` does on each revision it applies): the drones' keys
+    refreshed (a rotated drone's retired key countersigned no more), its own record and
+    countersignatures moved to its new key, or to none while it does not hold it."""
+    from gs.station import audit_on_revision
+    from zdrone.core.audit import AuditChain
+    from zdrone.fleet.revise import rotate
+
+    fleet_dir = tmp_path / "fleet"
+    init_fleet(fleet_dir)
+    logs = _run(tmp_path, fleet_dir, decisions=1)
+    a, witnessing = logs["A"], logs["A"].witnessing  # type: ignore[attr-defined]
+    a_old = load_secret(fleet_dir, "A", load_fleet(fleet_dir)).signing
+    d1_old = load_secret(fleet_dir, "d1", load_fleet(fleet_dir)).signing
+    assert a_old is not None and d1_old is not None
+    r1 = rotate(fleet_dir, "d1")
+    a.write_record(rec.RevisionApplied(number=1, revoked=(), rotated=("d1",)))  # as its RevisionChannel writes it
+    assert audit_on_revision(a, witnessing, r1.fleet, "A", a_old.public, None) is False
+    assert witnessing.node_keys["d1"] == r1.fleet.signing_public("d1") and a.audit.key.public == a_old.public
+    forged = AuditChain("d1", d1_old, seq=5)  # past what A countersigned
+    forged.append("paired", {"gs": "A"}, 0.0)
+    assert witnessing.on_head("d1", *forged.checkpoint(0.0).raw(), 0.0) is None and witnessing.refused == 1
+    r2 = rotate(fleet_dir, "A")
+    a.write_record(rec.RevisionApplied(number=2, revoked=(), rotated=("A",)))
+    assert audit_on_revision(a, witnessing, r2.fleet, "A", a_old.public, None) is True  # new key not here yet
+    assert a.audit.key is None and witnessing.key is None
+    a_new = load_secret(fleet_dir, "A", r2.fleet).signing
+    assert audit_on_revision(a, witnessing, r2.fleet, "A", None, a_new) is True
+    assert a.audit.key is a_new and witnessing.key is a_new
+    a.write_record(rec.OperatorRequestGranted(drone="d1", requester="B", to="A", why="consent", epoch=11, app="qgc"))
+    _close(logs)
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 0 and got["A"]["signed_through"] == got["A"]["entries"] - 1, got["A"]
+
+
+def test_a_drone_moves_its_record_to_its_new_key_when_it_applies_its_rotation(tmp_path, capsys):
+    """``DroneNode._rekey_audit``, before the core writes the revision's entry: the entries up to it
+    signed under the old key, the revision's entry and the rest under the new; without the new key in
+    its bundle, under none (counted)."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    from zdrone.fleet.revise import rotate
+    from zdrone.nodes.drone import DroneNode
+
+    fleet_dir = tmp_path / "fleet"
+    init_fleet(fleet_dir)
+    logs = _run(tmp_path, fleet_dir, decisions=1)
+    drone = logs["d1"]
+    node = SimpleNamespace(events=drone, name="d1", opts=SimpleNamespace(fleet=str(fleet_dir)),
+                           core=SimpleNamespace(counters=Counter()))
+    secret = fleet_dir / "secrets" / "d1.json"
+    kept = secret.read_bytes()
+    r1 = rotate(fleet_dir, "d1")
+    new = secret.read_bytes()
+    secret.write_bytes(kept)  # the bundle on the drone still holds the old key
+    DroneNode._rekey_audit(node, r1.fleet)  # type: ignore[arg-type]
+    assert drone.audit.key is None and node.core.counters["audit_rotation_pending"] == 1
+    secret.write_bytes(new)
+    DroneNode._rekey_audit(node, r1.fleet)  # type: ignore[arg-type]
+    assert drone.audit.key is not None and drone.audit.key.public == r1.fleet.signing_public("d1")
+    drone.write_record(rec.RevisionApplied(number=1, revoked=(), rotated=("d1",)))
+    _close(logs)
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 0 and got["d1"]["signed_through"] == 1, got["d1"]
+
+
+def test_a_gs_s_own_rotation_moves_its_signing_once_and_waits_for_a_key_it_does_not_hold(tmp_path, capsys):
+    """``GroundStation._on_revision`` (on a stand-in for the station): its own rotation moves its
+    record, its countersignatures and its revision stamps (``secret``) to the new key and re-pairs once;
+    a later revision that leaves its keys alone changes nothing; a rotation whose secret is not here
+    leaves it signing nothing until a revision finds the secret there."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    from gs.station import GroundStation
+    from zdrone.core.audit import Witnessing
+    from zdrone.fleet import revisions
+    from zdrone.fleet.revise import revise, rotate
+
+    fleet_dir = tmp_path / "fleet"
+    init_fleet(fleet_dir)
+    logs = _run(tmp_path, fleet_dir, decisions=1)
+    fleet = load_fleet(fleet_dir)
+    secret = load_secret(fleet_dir, "A", fleet)
+    a = logs["A"]
+    adopted: list[Any] = []
+    gs = SimpleNamespace(name="A", fleet=fleet, secret=secret, events=a, counters=Counter(),
+                         witnessing=Witnessing("A", secret.signing, {"d1": fleet.signing_public("d1")}),
+                         audit_key=secret.signing.public, opts=SimpleNamespace(fleet=str(fleet_dir)),
+                         core=SimpleNamespace(fleet=fleet, adopt_identity=lambda *args: adopted.append(args) or []),
+                         _do=lambda actions: None)
+    gs._adopt_own_key = lambda now: GroundStation._adopt_own_key(gs, now)  # type: ignore[arg-type]
+
+    def apply(r: Any) -> None:
+        def on_inbox(kind: str, data: Any) -> Any:  # as the station's RevisionChannel: its record first
+            a.write_record(rec.RevisionApplied(number=r.revision.number, revoked=(), rotated=tuple(r.revision.changes.keys)))
+            return revisions.RevisionAccepted(r.revision, r.fleet)
+        gs.revision = SimpleNamespace(on_inbox=on_inbox)
+        GroundStation._on_revision(gs, "revision", b"", 0.0)  # type: ignore[arg-type]
+
+    r1 = rotate(fleet_dir, "A")
+    apply(r1)
+    new = r1.fleet.signing_public("A")
+    assert a.audit.key.public == new and gs.witnessing.key.public == new and gs.secret.signing.public == new
+    assert len(adopted) == 1 and gs.counters["rotated"] == 1
+    apply(revise(fleet_dir, pairing_pq=True))  # the revisions are cumulative: A's keys in it are the same
+    assert len(adopted) == 1 and gs.counters["rotated"] == 1
+    kept = (fleet_dir / "secrets" / "A.json").read_bytes()
+    r3 = rotate(fleet_dir, "A")
+    newer = (fleet_dir / "secrets" / "A.json").read_bytes()
+    (fleet_dir / "secrets" / "A.json").write_bytes(kept)  # A's host does not have the new bundle yet
+    apply(r3)
+    assert gs.counters["rotation_pending"] == 1 and a.audit.key is None and gs.witnessing.key is None
+    a.write_record(rec.OperatorRequestGranted(drone="d1", requester="B", to="A", why="consent", epoch=12, app="qgc"))
+    (fleet_dir / "secrets" / "A.json").write_bytes(newer)
+    r4 = revise(fleet_dir, pairing_pq=False)
+    apply(r4)  # the next revision finds it
+    assert a.audit.key.public == r4.fleet.signing_public("A") and len(adopted) == 2
+    _close(logs)
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 0 and got["A"]["signed_through"] == got["A"]["entries"] - 1, got["A"]

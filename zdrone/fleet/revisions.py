@@ -251,26 +251,33 @@ class RevisionChannel:
         return sum(1 for p in self.rt.path_status().values() if p["connected"])
 
 
-def signing_key_history(fleet_dir: str | Path) -> dict[str, tuple[bytes, ...]]:
-    """Each node's Ed25519 signing keys over time, oldest first: the base fleet's, then each one a
-    revision gave it, from the fleet machine's numbered revisions (``revisions/NNNN.json``, each
-    checked against the pinned fleet key) and the latest kept beside ``fleet.json5``. What ``zdrone
-    audit verify`` checks a rotated node's earlier checkpoints against (``zdrone.core.audit``).
-    ``ConfigError`` (one line) for a revision file that is not a valid revision of this fleet."""
+def signing_key_epochs(fleet_dir: str | Path) -> dict[str, tuple[tuple[int, bytes], ...]]:
+    """Each node's Ed25519 signing keys over time, oldest first, each with the number of the revision
+    that gave it (the base fleet's at 0): from the fleet machine's numbered revisions
+    (``revisions/NNNN.json``, each checked against the pinned fleet key) and the latest kept beside
+    ``fleet.json5``. What ``zdrone audit verify`` checks a node's checkpoints and countersignatures
+    against, each under the key in force at its time (``zdrone.core.audit``). ``ConfigError`` (one
+    line) for a revision file that is not a valid revision of this fleet."""
     d = fleet_path(fleet_dir).parent
     base = load_base_fleet(d)
-    history: dict[str, list[bytes]] = {n: [k] for n in base.nodes if (k := base.nodes[n].signing_public_bytes)}
+    epochs: dict[str, list[tuple[int, bytes]]] = {
+        n: [(0, k)] for n in base.nodes if (k := base.nodes[n].signing_public_bytes)}
     found = {got.revision.number: got for got in read_revisions([*sorted((d / "revisions").glob("*.json")),
                                                                  d / REVISION_FILE], base)}
     for number in sorted(found):
-        got = found[number]
-        for name, node in got.fleet.nodes.items():
+        for name, node in found[number].fleet.nodes.items():
             key = node.signing_public_bytes
-            if key is not None and history.setdefault(name, [])[-1:] != [key]:
-                history[name].append(key)
-    return {n: tuple(keys) for n, keys in history.items()}
+            if key is not None and [k for _, k in epochs.setdefault(name, [])[-1:]] != [key]:
+                epochs[name].append((number, key))
+    return {n: tuple(e) for n, e in epochs.items()}
+
+
+def signing_key_history(fleet_dir: str | Path) -> dict[str, tuple[bytes, ...]]:
+    """Each node's Ed25519 signing keys over time, oldest first (``signing_key_epochs`` without the
+    revision numbers)."""
+    return {n: tuple(k for _, k in e) for n, e in signing_key_epochs(fleet_dir).items()}
 
 
 __all__ = ["ASK_GAP_S", "ASK_PERIOD_S", "ASK_TIMEOUT_S", "KINDS", "MAX_REVISION_BYTES", "PUSH_GAP_S", "PUSH_PERIOD_S",
-           "STAMP_PERIOD_S",
-           "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper", "signing_key_history"]
+           "STAMP_PERIOD_S", "REACH_LOOK_S", "RevisionAccepted", "RevisionChannel", "RevisionKeeper",
+           "signing_key_epochs", "signing_key_history"]

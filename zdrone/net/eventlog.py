@@ -27,8 +27,9 @@ option of its own.
 never rotated: decisions are few). Every event of an ``audit.AUDITED`` type is appended to it as
 well, whatever the rate limit left out of the log, and every write is a tick of its clock
 (a checkpoint a second after an unsigned entry at the latest; ``on_checkpoint`` hears each one: the
-drone shows its newest to its ground stations). A ground station writes the checkpoints it
-countersigned there too (``write_witness``). A restarted node continues its chain.
+drone shows its newest to its ground stations). A ground station appends the checkpoints it
+countersigned to its own chain (``write_witness``). A restarted node continues its chain; a rotated
+one goes on under its new key (``rekey_audit``).
 """
 
 from __future__ import annotations
@@ -209,18 +210,24 @@ class EventLog:
         self._audit_fh = open(path, "a", buffering=1, encoding="utf-8")
         self._on_checkpoint = on_checkpoint
 
-    def rekey_audit(self, key: SigningKey) -> None:
+    def rekey_audit(self, key: SigningKey | None) -> None:
         """This node's signing key was rotated (a fleet revision): the record goes on under ``key``,
-        its unsigned entries signed under the old one first (``AuditChain.rekey``)."""
+        its unsigned entries signed under the old one first (``AuditChain.rekey``); None: the node
+        does not hold its new key yet, so it signs nothing more (an unsigned tail, never a retired key's
+        signature)."""
         if self.audit is None:
             return
         with self._lock:
             self._audit_lines(self.audit.rekey(key, self._clock()))
 
     def write_witness(self, witness: audit.AuditWitness) -> None:
-        """A checkpoint of another node this node countersigned."""
+        """A checkpoint of another node this node countersigned: an entry of its own chain."""
+        if self.audit is None:
+            return
+        now = self._clock()
         with self._lock:
-            self._audit_lines([witness])
+            lines = self.audit.append(audit.WITNESS_KIND, audit.witness_fields(witness), now)
+            self._audit_lines(lines + self.audit.tick(now))
 
     def _audit(self, type_: str, what: Any, now: float) -> None:
         """Append a decision to the chain (``what``: a record or its fields), then tick the chain."""
@@ -323,7 +330,7 @@ class EventLog:
 
     def close(self) -> None:
         with self._lock:
-            if self.audit is not None and self.audit.pending:
+            if self.audit is not None and self.audit.pending and self.audit.key is not None:
                 self._audit_lines([self.audit.checkpoint(self._clock())])  # nothing left unsigned
             if self._audit_fh is not None:
                 self._audit_fh.close()

@@ -35,7 +35,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from ..core import authority as ha
 from ..core import records as rec
-from ..core.fleet import ConfigError
+from ..core.fleet import ConfigError, Fleet
 from ..core.tbm import TbmThresholds
 from ..vehicle.fcsigning import FcKeyStore, FcSigning
 from ..vehicle.link import VehicleLink, VehicleState
@@ -318,9 +318,28 @@ class DroneNode:
         got = self.revision.on_inbox(kind, data)
         if isinstance(got, RevisionAccepted):
             self.fleet = got.fleet
+            self._rekey_audit(got.fleet)  # before the revision's own entry: that one is signed under the new key
             self._do(self.core.on_revision(got.fleet, now), now)
         if (stamp := self.revision.take_stamp()) is not None:  # checked by the core against the fleet in force
             self._do(self.core.on_revision_stamp(stamp, now), now)
+
+    def _rekey_audit(self, fleet: Fleet) -> None:
+        """A revision that changed this drone's signing key: its authority record goes on under the new
+        key from its bundle (``EventLog.rekey_audit``), or, if the bundle does not hold it yet, under
+        none (counted: ``audit_rotation_pending``); never under the retired key."""
+        audit = self.events.audit
+        new = fleet.nodes[self.name].signing_public_bytes if self.name in fleet.nodes else None
+        if audit is None or (audit.key.public if audit.key is not None else None) == new:
+            return
+        from ..fleet.files import load_secret
+
+        try:
+            key = load_secret(self.opts.fleet, self.name, fleet).signing
+        except ConfigError as exc:
+            log.warning("own signing key rotated by the fleet, but the bundle does not hold the new one: %s", exc)
+            self.core.counters["audit_rotation_pending"] += 1
+            key = None
+        self.events.rekey_audit(key)
 
     def _hears_a_gs(self) -> bool:
         """TESTBED: whether the coverage gate lets any GS's traffic through now (True without one)."""
