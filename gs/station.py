@@ -237,7 +237,8 @@ class GroundStation:
         the secret it holds (a rotation, or one whose new secret was not on this host yet), the new
         secret is taken from the bundle: its record, its countersignatures and its revision stamps go on
         under the new signing key, and if its identity changed every linked drone is re-paired under
-        it (``StationCore.adopt_identity``)."""
+        it (``StationCore.adopt_identity``); if it rotated ours or the viewer's, the operations picture
+        is sealed under the new keys."""
         got = self.revision.on_inbox(kind, data)
         if isinstance(got, revisions.RevisionAccepted):
             self.fleet = self.core.fleet = got.fleet
@@ -247,6 +248,8 @@ class GroundStation:
                 self._adopt_own_key(now)
             else:
                 audit_on_revision(self.events, self.witnessing, self.fleet, self.name, self.audit_key, None)
+            if self.ops is not None and self.ops.reseal(got.fleet, self.core.identity):
+                log.warning("operations picture sealed anew (a key rotated: ours or the viewer's)")
 
     def _adopt_own_key(self, now: float) -> None:
         from zdrone.fleet.files import load_secret
@@ -263,8 +266,7 @@ class GroundStation:
         self.audit_key = secret.signing.public if secret.signing is not None else None
         renewed = secret.identity.public != self.secret.identity.public
         self.secret = secret  # the revision stamps (``RevisionChannel``'s ``signing``) follow
-        if renewed:  # the operations picture is sealed under the new identity from now on
-            self.ops = OpsPublisher.for_station(self.name, self.fleet, secret.identity, self.core, self.rt.put)
+        if renewed:
             log.warning("own key rotated by the fleet: re-pairing every linked drone under the new key")
             self.counters["rotated"] += 1
             self._do(self.core.adopt_identity(secret.identity, now, time.time()))

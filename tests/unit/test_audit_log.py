@@ -413,7 +413,7 @@ def test_a_gs_s_own_rotation_moves_its_signing_once_and_waits_for_a_key_it_does_
     secret = load_secret(fleet_dir, "A", fleet)
     a = logs["A"]
     adopted: list[Any] = []
-    gs = SimpleNamespace(name="A", fleet=fleet, secret=secret, events=a, counters=Counter(),
+    gs = SimpleNamespace(name="A", fleet=fleet, secret=secret, events=a, counters=Counter(), ops=None,
                          witnessing=Witnessing("A", secret.signing, {"d1": fleet.signing_public("d1")}),
                          audit_key=secret.signing.public, opts=SimpleNamespace(fleet=str(fleet_dir)),
                          core=SimpleNamespace(fleet=fleet, adopt_identity=lambda *args: adopted.append(args) or []),

@@ -26,20 +26,35 @@ Why not HPKE base mode: it authenticates nobody (anyone holding the viewer's pub
 whole fleet, could seal a report "from A"); auth mode would do, at a DH per message.
 
 **The fleet picture** (``FleetPicture``). A GS may be silent (stopped, cut off) and one authorized GS
-may be hostile: every field is shown as *who said it*. Per drone, the authority shown (owner, epoch,
-state, pending recipient) is the drone's own: of the attestations the GSs carry, those that check
-against the drone's signing keys over time (``AttestationCheck``: once per new attestation, then
-remembered), the one with the highest (epoch, drone's time) gives it, ``verified``. A GS's claim that
-no valid attestation backs (a higher epoch, another owner in that epoch, a forgery, another drone's
-word replayed) is listed apart as ``unverified`` and never shown as the owner; an honest GS that lags
-(a lower epoch) is not listed. Only when no GS carries a valid attestation (a drone without a signing
-key) is the claim of the highest epoch shown, not ``verified`` (``disputed`` when two GSs name
-different owners at that epoch). A failsafe that a GS of the shown epoch heard of shows at once (an
-alarm errs on the safe side). The vehicle's fields come from the owner's claim while it is fresh (a GS in standby
-hears the drone's status, its telemetry only now and then), else from the freshest claim. The age of the drone's last
-report is, per GS, the GS's own age (at its sending) plus the time since the viewer received it:
-a silent GS ages like a silent drone. A drone whose freshest word is older than ``STALE_S`` is
-**stale**: shown as such (its last values, and how old they are), never as live.
+may be hostile: every field is shown as *who said it*, and what a GS says is taken only where the
+fleet lets it speak. A GS's word on a drone it is not authorized for, on a name outside the fleet, or
+beyond its rate (``REPORT_RATE_PER_DRONE`` per drone it serves) is dropped and counted; a request
+naming a GS outside the fleet loses that request. A GS's word counts for ``REPORT_TTL_S`` after it
+arrived (its link, the request its operator was asked, the failsafe it saw, the position it heard),
+then it is shown silent and counts for nothing; it is forgotten after ``CLAIM_KEEP_S``.
+
+**The drone's word** decides who commands it. Every drone signs its authority (owner, epoch, state,
+pending recipient, takeover and its window) at every status beacon and every change
+(``zdrone.core.attestation``); per drone the picture holds the newest valid one by the drone's own
+(time, counter): one no newer is not even checked (an old word replayed loses, whoever carries it),
+one dated beyond ``MAX_SKEW_S`` ahead of the viewer's clock is refused, one under a retired key is
+refused (``AttestationCheck``), and one under a newer key than the word held replaces it (a
+rotation). The owner, epoch, state, pending recipient, takeover window and failsafe shown are that
+word's; it is ``verified``, and the drone **live**, only while the word is recent
+(``ATTEST_LIVE_S``: two beacons and a GS's period) *and* an authorized GS heard the drone within
+``STALE_S``. How recent: the older of its time at the viewer since it first arrived and its own time
+against the viewer's clock, less the drone's clock offset (the least seen over ``OFFSET_WINDOW_S``,
+within ``OFFSET_MAX_S``), so a word a GS held back and let go later is old on arrival. A drone whose
+clock stepped back shows stale until its time passes the newest word's (a restart with a corrected
+clock), one whose clock is more than ``OFFSET_MAX_S`` behind the viewer's shows stale. Else the drone is **stale**, shown with
+its age (its last values, never as live). A GS's claim the word does not back (a higher epoch,
+another owner in its epoch) is listed apart as ``unverified``; an honest GS that lags (a lower epoch)
+is not listed; a GS that says it saw a failsafe is listed (``reports_failsafe``), the alarm itself is
+the drone's word. Only a drone the fleet gave no signing key is shown from its GSs' claims (the
+highest epoch, not ``verified``, ``disputed`` when two GSs name different owners at that epoch).
+The vehicle's fields come from the owner's fresh word, else from the freshest authorized one
+(``position_from`` names the GS). The age of a GS's word is the GS's own age (at its sending) plus the
+time since the viewer received it: a silent GS ages like a silent drone.
 """
 
 from __future__ import annotations
@@ -54,7 +69,8 @@ import msgspec
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
-from .attestation import AttestationCheck
+from .attestation import BEACON_S, AttestationCheck
+from .fleet import Fleet
 from .keys import Identity, hkdf, public_key
 from .ratelimit import TokenBucket
 from .replay import ReplayWindow
@@ -188,6 +204,7 @@ class OpsSealer:
         shared = identity.private_key().exchange(public_key(viewer_public))
         self._aead = ChaCha20Poly1305(_key(shared, gs, viewer, salt))
         self.gs, self.viewer, self.keyexpr, self.salt = gs, viewer, keyexpr, salt
+        self.viewer_public, self.public = viewer_public, identity.public
         self.counter = 0
 
     def seal(self, part: bytes) -> bytes:
@@ -231,6 +248,14 @@ class OpsOpener:
     def _drop(self, reason: OpsDrop) -> OpsDrop:
         self.drops[reason.value] += 1
         return reason
+
+    def set_senders(self, senders: Mapping[str, bytes]) -> None:
+        """The GSs in force (a fleet revision taken live): a revoked GS is no sender any more; a GS
+        whose key was rotated must start anew under its new key (its start under the old key is
+        forgotten; the newest time taken from it is kept, so an old start is still refused)."""
+        for gs in [g for g in self._starts if senders.get(g) != self.senders.get(g)]:
+            del self._starts[gs]
+        self.senders = dict(senders)
 
     def open(self, gs: str, keyexpr: str, data: bytes, now: float, wall: float) -> OpsReport | OpsDrop:
         """One part heard on ``keyexpr`` (whose last chunk names ``gs``), at monotonic ``now`` and wall ``wall``."""
@@ -277,17 +302,61 @@ class OpsOpener:
 
 
 # ------------------------------------------------------------------ the fleet picture
+#: A GS's word on a drone counts this long after it arrived (its link, requests, failsafe, position,
+#: the drone's liveness); after it the GS is shown silent for that drone and its word counts for nothing.
+REPORT_TTL_S = GS_SILENT_S
+#: A GS's word on a drone is kept (shown as silent) this long after it arrived, then forgotten.
+CLAIM_KEEP_S = 60.0
+#: The drone's own signed word counts as recent this long: two beacons (one lost on the way), a GS's
+#: period, and slack for the way. Older, the drone is stale and its owner no longer ``verified``.
+ATTEST_LIVE_S = 2 * BEACON_S + OPS_PERIOD_S + 0.5
+#: Each drone's clock against the viewer's is learnt as the least (arrival - signed at) seen over this
+#: long (the drone's clock offset plus the quickest way here; a word held back arrives late and looks old) ...
+OFFSET_WINDOW_S = 120.0
+#: ... within this much either way: the drone's and the viewer's clocks (GPS, NTP) are assumed this
+#: close; a word older than this on arrival is old whatever the offset (an old word replayed to a
+#: viewer that has heard nothing newer yet), a drone whose clock is further off shows stale.
+OFFSET_MAX_S = 5.0
+#: Drone records and events taken per GS per second: this many per drone the GS is authorized for,
+#: and a base (an honest GS sends at most 1 / ``OPS_MIN_GAP_S`` = 10 pictures a second); bursts of
+#: ``REPORT_BURST`` seconds' worth. The rest are counted (``rate_limited``), not taken.
+REPORT_RATE_PER_DRONE = 12.0
+REPORT_RATE_BASE = 12.0
+REPORT_BURST_S = 3.0
+#: Forgotten words are looked for this often.
+EXPIRE_EVERY_S = 5.0
+
+
 @dataclass
 class _Claim:
     ops: DroneOps
     received: float  # the viewer's monotonic time
-    proven: bool = False  # ``ops.attest`` is the drone's own (``AttestationCheck``)
 
-    @property
-    def backed(self) -> bool:
-        """The GS's claim (owner, epoch) is what the drone's own attestation it carries says."""
-        a = self.ops.attest
-        return self.proven and a is not None and (a.owner, a.epoch) == (self.ops.owner, self.ops.epoch)
+
+@dataclass
+class _Attested:
+    att: AuthorityAttestation
+    key: int  # the index of the drone's key it verified under
+    first_seen: float  # the viewer's monotonic time it first arrived
+    gs: str  # the GS that first carried it
+
+
+class _Offset:
+    """The least (arrival, by the viewer's time of day, minus the drone's ``at``) seen over the last
+    ``OFFSET_WINDOW_S``: a monotonic queue (oldest first, values rising), bounded."""
+
+    def __init__(self) -> None:
+        self.q: deque[tuple[float, float]] = deque(maxlen=256)
+
+    def add(self, wall: float, sample: float) -> None:
+        while self.q and self.q[-1][1] >= sample:
+            self.q.pop()
+        self.q.append((wall, sample))
+
+    def least(self, wall: float) -> float:
+        while self.q and self.q[0][0] < wall - OFFSET_WINDOW_S:
+            self.q.popleft()
+        return self.q[0][1] if self.q else 0.0
 
 
 @dataclass
@@ -304,29 +373,132 @@ def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
 class FleetPicture:
     """Every GS's word merged into one picture of the fleet (see the module docstring)."""
 
-    def __init__(self, drone_keys: Mapping[str, Sequence[bytes]] | None = None) -> None:
-        """``drone_keys``: each drone's public signing keys over time, oldest first (its attestations
-        are checked against them); a drone without keys has only unverified claims."""
+    def __init__(self, authorized: Mapping[str, Iterable[str]],
+                 drone_keys: Mapping[str, Sequence[bytes]] | None = None, stations: Iterable[str] | None = None) -> None:
+        """``authorized``: each drone of the fleet and the GSs authorized for it (revoked ones left
+        out); ``drone_keys``: each drone's public signing keys over time, oldest first (its
+        attestations are checked against them); a drone without keys has only unverified claims;
+        ``stations``: the fleet's GSs (revoked ones left out; default: those authorized for a drone)."""
         self.check = AttestationCheck(drone_keys or {})
         self.claims: dict[str, dict[str, _Claim]] = {}  # drone -> GS -> its latest word
+        self.attested: dict[str, _Attested] = {}  # drone -> its newest valid word under a key in force
+        self._offsets: dict[str, _Offset] = {}
         self.heard: dict[str, float] = {}  # GS -> when its last part arrived
         self.feed: deque[dict[str, Any]] = deque(maxlen=FEED_LEN)  # newest last
         self.tracks: dict[str, _Track] = {}
+        self.drops: Counter[str] = Counter()  # what was not taken, by reason
+        self.older = 0  # the drone's words carried after a newer one (a GS that lags, or replays): not news
+        self._buckets: dict[str, TokenBucket] = {}
+        self._next_expiry = float("-inf")
         self.version = 0  # moves on with every report taken
+        self.set_fleet(authorized, stations)
 
-    def on_report(self, report: OpsReport, now: float) -> None:
-        self.heard[report.gs] = now
-        for d in report.drones:
-            proven = self.check.valid(report.gs, d.drone, d.attest, now)
-            self.claims.setdefault(d.drone, {})[report.gs] = _Claim(d, now, proven)
-        for ev in report.events:
-            self.feed.append({"t": ev.t, "gs": report.gs, "drone": ev.drone, "kind": ev.kind, "text": ev.text})
-        for drone in {d.drone for d in report.drones}:
-            self._track(drone, now)
+    def set_fleet(self, authorized: Mapping[str, Iterable[str]], stations: Iterable[str] | None = None) -> None:
+        """The fleet as now in force (a revision taken live): words of drones no longer in it and of
+        GSs no longer authorized for a drone (revoked ones) are forgotten."""
+        self.authorized = {d: frozenset(g) for d, g in authorized.items()}
+        self.stations = frozenset(g for gss in self.authorized.values() for g in gss) | frozenset(stations or ())
+        self._per_gs = Counter(g for gss in self.authorized.values() for g in gss)
+        for drone in list(self.claims):
+            allowed = self.authorized.get(drone, frozenset())
+            kept = {g: c for g, c in self.claims[drone].items() if g in allowed}
+            if kept:
+                self.claims[drone] = kept
+            else:
+                del self.claims[drone]
+        for table in (self.attested, self._offsets, self.tracks):
+            for drone in [d for d in table if d not in self.authorized]:
+                del table[drone]
+        self.heard = {g: t for g, t in self.heard.items() if g in self.stations}
+        self._buckets.clear()
         self.version += 1
 
-    def _track(self, drone: str, now: float) -> None:
-        row = self.drone(drone, now)
+    def _bucket(self, gs: str, now: float) -> TokenBucket:
+        b = self._buckets.get(gs)
+        if b is None:
+            rate = REPORT_RATE_PER_DRONE * self._per_gs[gs] + REPORT_RATE_BASE
+            b = self._buckets[gs] = TokenBucket.full(rate, rate * REPORT_BURST_S, now)
+        return b
+
+    def on_report(self, report: OpsReport, now: float, wall: float) -> None:
+        """One part from GS ``report.gs`` (opened: it is that GS's), at monotonic ``now`` and the
+        viewer's time of day ``wall``. What the GS says of a drone it is not authorized for, of a name
+        outside the fleet, or beyond its rate, is dropped and counted."""
+        gs = report.gs
+        if gs not in self.stations:
+            self.drops["unknown_gs"] += 1
+            return
+        self.heard[gs] = now
+        bucket = self._bucket(gs, now)
+        touched: list[str] = []
+        for d in report.drones:
+            allowed = self.authorized.get(d.drone)
+            if allowed is None:
+                self.drops["unknown_drone"] += 1
+                continue
+            if gs not in allowed:
+                self.drops["not_authorized"] += 1
+                continue
+            if not bucket.take(now):
+                self.drops["rate_limited"] += 1
+                continue
+            if d.request is not None and not (d.request.requester in self.stations and d.request.to in self.stations):
+                self.drops["request_unknown_gs"] += 1
+                d = msgspec.structs.replace(d, request=None)
+            self.claims.setdefault(d.drone, {})[gs] = _Claim(d, now)
+            if d.attest is not None:
+                self._attestation(gs, d.drone, d.attest, now, wall)
+            touched.append(d.drone)
+        for ev in report.events:
+            if ev.drone and gs not in self.authorized.get(ev.drone, frozenset()):
+                self.drops["event_not_authorized"] += 1
+                continue
+            if not bucket.take(now):
+                self.drops["rate_limited"] += 1
+                continue
+            self.feed.append({"t": ev.t, "gs": gs, "drone": ev.drone, "kind": ev.kind, "text": ev.text})
+        for drone in dict.fromkeys(touched):
+            self._track(drone, now, wall)
+        if now >= self._next_expiry:
+            self._expire(now)
+        self.version += 1
+
+    def _attestation(self, gs: str, drone: str, att: AuthorityAttestation, now: float, wall: float) -> None:
+        """The drone's word as ``gs`` carried it: taken if it is newer than the one held (by the
+        drone's (time, counter)) and valid under a key in force, or under a newer key than the one
+        held (a rotation: the word under the retired key goes, whatever time it names)."""
+        cur = self.attested.get(drone)
+        if cur is not None and cur.att == att:
+            return
+        older = cur is not None and (att.at, att.seq) <= (cur.att.at, cur.att.seq)
+        if older and cur is not None and cur.key == self.check.newest_key(drone):
+            self.older += 1
+            return
+        if att.at > wall + MAX_SKEW_S:
+            self.drops["attest_future"] += 1  # a word that would shadow the drone's true ones
+            return
+        key = self.check.key_of(gs, drone, att, now)
+        if key is None:
+            return
+        if older and cur is not None and key <= cur.key:
+            self.older += 1
+            return
+        if cur is not None and key > cur.key:
+            self._offsets.pop(drone, None)  # what the retired key's words taught of the drone's clock goes too
+        self.attested[drone] = _Attested(att, key, now, gs)
+        self._offsets.setdefault(drone, _Offset()).add(wall, min(max(wall - att.at, -OFFSET_MAX_S), OFFSET_MAX_S))
+
+    def _expire(self, now: float) -> None:
+        self._next_expiry = now + EXPIRE_EVERY_S
+        for drone in list(self.claims):
+            kept = {g: c for g, c in self.claims[drone].items() if now - c.received <= CLAIM_KEEP_S}
+            if kept:
+                self.claims[drone] = kept
+            else:
+                del self.claims[drone]
+
+    def _track(self, drone: str, now: float, wall: float) -> None:
+        row = self.drone(drone, now, wall)
         pos = row["position"]
         if pos is None:
             return
@@ -340,67 +512,86 @@ class FleetPicture:
 
     @staticmethod
     def _age(c: _Claim, now: float) -> float | None:
+        """How old the GS's last authentic frame from the drone is now (None: it has no link)."""
         if not c.ops.linked or c.ops.since_last is None:
             return None
-        return c.ops.since_last + max(0.0, now - c.received)
+        return max(0.0, c.ops.since_last) + max(0.0, now - c.received)
 
-    def drone(self, name: str, now: float) -> dict[str, Any]:
-        """One drone's row: the merged authority, the freshest vehicle fields, each GS's link."""
+    def attest_age(self, drone: str, now: float, wall: float) -> float | None:
+        """How old the drone's newest valid word is: by the viewer's clock since it first arrived, and
+        by the drone's own time in it against the viewer's clock (less the drone's offset learnt:
+        ``OFFSET_WINDOW_S``), whichever is older. None: no valid word."""
+        a = self.attested.get(drone)
+        if a is None:
+            return None
+        base = self._offsets[drone].least(wall) if drone in self._offsets else 0.0
+        return max(0.0, now - a.first_seen, wall - a.att.at - base)
+
+    def drone(self, name: str, now: float, wall: float) -> dict[str, Any]:
+        """One drone's row: the authority the drone signed (else its GSs' claims, unverified), live
+        only while that word is recent and an authorized GS heard the drone lately; each GS's link."""
         claims = self.claims.get(name, {})
-        aged = [(self._age(c, now), gs, c) for gs, c in claims.items()]
-        live = sorted(((a, gs, c) for a, gs, c in aged if a is not None), key=lambda x: x[0])
-        age = live[0][0] if live else None
-        auth = self._authority(claims)
-        owner = auth["owner"]
-        # the vehicle's fields from the owner's word while it is fresh (a GS in standby hears the drone's
-        # status, but its telemetry only now and then), else from the freshest
-        mine = [c for a, gs, c in live if gs == owner and a <= STALE_S]
-        best = mine[0].ops if mine else (live[0][2].ops if live else (next(iter(claims.values())).ops if claims else None))
-        links = {gs: {"link": c.ops.link, "age": None if a is None else round(a, 2), "holds": c.ops.holds,
-                      "says": c.ops.owner, "epoch": c.ops.epoch, "silent": now - self.heard.get(gs, now) > GS_SILENT_S}
-                 for a, gs, c in sorted(aged, key=lambda x: x[1])}
-        requests = [{"at": gs, **msgspec.structs.asdict(c.ops.request)} for gs, c in claims.items() if c.ops.request]
-        stale = age is None or age > STALE_S
-        return {"drone": name, **auth,
-                "stale": stale, "age": None if age is None else round(age, 2),
-                "mode": best.mode if best else "", "armed": best.armed if best else False,
-                "position": list(best.position) if best and best.position else None,
-                "mission_seq": best.mission_seq if best else None, "stage": best.stage if best else "",
-                "fc_signed": best.fc_signed if best else None, "links": links, "requests": requests,
-                "takeover": any(c.ops.takeover for c in claims.values())}
-
-    @staticmethod
-    def _authority(claims: dict[str, _Claim]) -> dict[str, Any]:
-        """Who commands the drone: the drone's own attestation with the highest (epoch, time) that any
-        GS carries, ``verified``; the GSs' claims it does not back (a higher epoch, or another owner in
-        its epoch) listed apart as ``unverified``, never shown as the owner. Without any valid
-        attestation: the GSs' claim of the highest epoch, not ``verified``."""
-        heard = [c for c in claims.values() if c.ops.state != "unknown"]
-        proofs = [c for c in claims.values() if c.proven and c.ops.attest is not None]
-        if proofs:
-            best = max(proofs, key=lambda c: (c.ops.attest.epoch, c.ops.attest.at, c.received))  # type: ignore[union-attr]
-            att = best.ops.attest
-            assert att is not None
-            owner, epoch, state, pending_to = att.owner, att.epoch, att.state.value, att.pending_to
-            owners = {c.ops.attest.owner or "-" for c in proofs if c.ops.attest is not None and c.ops.attest.epoch == epoch}
-            unverified = [{"gs": gs, "owner": c.ops.owner, "epoch": c.ops.epoch} for gs, c in sorted(claims.items())
-                          if c.ops.state != "unknown" and not c.backed and (c.ops.epoch, c.ops.owner) != (epoch, owner)
-                          and c.ops.epoch >= epoch]
+        fresh = {gs: c for gs, c in claims.items() if now - c.received <= REPORT_TTL_S}
+        ages = {gs: a for gs, c in claims.items() if (a := self._age(c, now)) is not None}
+        fresh_ages = sorted((a, gs) for gs, a in ages.items() if gs in fresh)
+        link_age = fresh_ages[0][0] if fresh_ages else None
+        att = self.attested.get(name)
+        att_age = self.attest_age(name, now, wall)
+        heard = {gs: c for gs, c in fresh.items() if c.ops.state != "unknown"}
+        if att is not None:
+            a = att.att
+            owner, epoch, state, pending_to = a.owner, a.epoch, a.state.value, a.pending_to
+            takeover, takeover_to = a.takeover, a.takeover_to
+            recent = att_age is not None and att_age <= ATTEST_LIVE_S
+            disputed: list[str] = []
+            failsafe = state == "failsafe"
         else:
-            top = max(heard, key=lambda c: (c.ops.epoch, c.received)) if heard else None
+            top = max(heard.values(), key=lambda c: (c.ops.epoch, c.received)) if heard else None
             owner, epoch = (top.ops.owner, top.ops.epoch) if top else (None, 0)
             state, pending_to = (top.ops.state, top.ops.pending_to) if top else ("unknown", None)
-            owners = {c.ops.owner or "-" for c in heard if c.ops.epoch == epoch}
-            unverified = []
-        # a failsafe a GS of this epoch heard of shows at once (an alarm errs on the safe side)
-        failsafe = state == "failsafe" or any(c.ops.failsafe for c in heard if c.ops.epoch == epoch)
-        return {"owner": owner, "epoch": epoch, "state": state, "pending_to": pending_to,
-                "verified": bool(proofs), "unverified": unverified,
-                "disputed": sorted(owners) if len(owners) > 1 else [], "failsafe": failsafe}
+            takeover, takeover_to = any(c.ops.takeover for c in fresh.values()), None
+            owners = {c.ops.owner or "-" for c in heard.values() if c.ops.epoch == epoch}
+            disputed = sorted(owners) if len(owners) > 1 else []
+            # a drone that signs nothing (no key in the fleet) has only its GSs' word; one that has a
+            # key is never live on it
+            recent = name not in self.check.keys
+            failsafe = state == "failsafe" or any(c.ops.failsafe for c in heard.values() if c.ops.epoch == epoch)
+        # GSs' claims the drone's word does not back (a higher epoch, another owner in its epoch),
+        # listed apart, never the owner; an honest GS that lags (a lower epoch) is not listed
+        unverified = [{"gs": gs, "owner": c.ops.owner, "epoch": c.ops.epoch} for gs, c in sorted(heard.items())
+                      if att is not None and (c.ops.owner, c.ops.epoch) != (owner, epoch) and c.ops.epoch >= epoch]
+        live = recent and link_age is not None and link_age <= STALE_S
+        if live:
+            age = link_age
+        else:
+            known = [x for x in (att_age, min(ages.values()) if ages else None) if x is not None]
+            age = max(known) if known else None
+        # the vehicle's fields from the owner's word while it is fresh (a GS in standby hears the
+        # drone's status, its telemetry only now and then), else from the freshest authorized word
+        by_age = sorted(fresh, key=lambda g: (ages.get(g, float("inf")), g))
+        mine = [g for g in by_age if g == owner and ages.get(g, float("inf")) <= STALE_S]
+        source = mine[0] if mine else (by_age[0] if by_age else None)
+        best = fresh[source].ops if source is not None else None
+        links = {gs: {"link": c.ops.link, "age": None if gs not in ages else round(ages[gs], 2), "holds": c.ops.holds,
+                      "says": c.ops.owner, "epoch": c.ops.epoch, "silent": gs not in fresh}
+                 for gs, c in sorted(claims.items())}
+        requests = [{"at": gs, **msgspec.structs.asdict(c.ops.request)} for gs, c in sorted(fresh.items()) if c.ops.request]
+        return {"drone": name, "owner": owner, "epoch": epoch, "state": state, "pending_to": pending_to,
+                "verified": att is not None and recent, "attested_age": None if att_age is None else round(att_age, 2),
+                "unverified": unverified, "disputed": disputed, "failsafe": failsafe,
+                "reports_failsafe": sorted(gs for gs, c in fresh.items() if c.ops.failsafe),
+                "stale": not live, "age": None if age is None else round(age, 2),
+                "mode": best.mode if best else "", "armed": best.armed if best else False,
+                "position": list(best.position) if best and best.position else None,
+                "position_from": source if best and best.position else None,
+                "mission_seq": best.mission_seq if best else None, "stage": best.stage if best else "",
+                "fc_signed": best.fc_signed if best else None, "links": links, "requests": requests,
+                "takeover": takeover, "takeover_to": takeover_to}
 
-    def snapshot(self, now: float) -> dict[str, Any]:
+    def snapshot(self, now: float, wall: float) -> dict[str, Any]:
         """The whole picture at ``now``: drones (sorted by name), GSs heard, the feed newest first."""
-        return {"drones": [self.drone(d, now) for d in sorted(self.claims, key=_natural)],
+        names = sorted({*self.claims, *self.attested}, key=_natural)
+        return {"drones": [self.drone(d, now, wall) for d in names],
                 "stations": {gs: {"age": round(now - t, 2), "silent": now - t > GS_SILENT_S}
                              for gs, t in sorted(self.heard.items())},
                 "feed": list(reversed(self.feed))}
@@ -409,7 +600,20 @@ class FleetPicture:
         return {d: list(t.points) for d, t in self.tracks.items()}
 
 
-def _natural(name: str) -> tuple[str, int]:
+def fleet_senders(fleet: Fleet) -> dict[str, bytes]:
+    """The GSs whose pictures a viewer opens: every GS of ``fleet`` not revoked, with its public key."""
+    return {g: fleet.nodes[g].public_bytes for g in fleet.ground_stations() if not fleet.is_revoked(g)}
+
+
+def fleet_authorized(fleet: Fleet) -> dict[str, frozenset[str]]:
+    """Each drone of ``fleet`` not revoked and the GSs authorized for it (``FleetPicture``'s ``authorized``)."""
+    return {d: frozenset(g for g in fleet.ground_stations() if fleet.is_authorized(d, g))
+            for d in fleet.drones() if not fleet.is_revoked(d)}
+
+
+def _natural(name: str) -> tuple[str, int, str, str]:
+    """The sort key of a name: its text, then the number it ends with (compared as digits, never
+    converted: a name may end in thousands of them), then the name itself."""
     head = name.rstrip("0123456789")
-    tail = name[len(head):]
-    return head, int(tail) if tail else -1
+    digits = name[len(head):].lstrip("0")
+    return head, len(digits), digits, name

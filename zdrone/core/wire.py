@@ -83,15 +83,19 @@ class AuditHead(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
 class AuthorityAttestation(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):
     """The drone's own word on its authority (``zdrone.core.attestation``): ``owner`` holds it in
-    ``epoch``, in ``state`` (handing it to ``pending_to``), since the drone's time of day ``at``,
-    signed (``sig``) with the drone's fleet signing key once per change; a GS passes it on to the
-    fleet's viewer as it came."""
+    ``epoch``, in ``state`` (handing it to ``pending_to``), allowing takeover (``takeover``, for
+    ``takeover_to`` only, or any GS when None), said at the drone's time of day ``at``, its ``seq``-th
+    signature since it started, signed (``sig``) with the drone's fleet signing key at every status
+    beacon and at every change; a GS passes it on to the fleet's viewer as it came."""
 
     owner: str | None
     epoch: int
     state: AuthorityState
     pending_to: str | None
+    takeover: bool
+    takeover_to: str | None
     at: float
+    seq: int
     sig: bytes
 
 
@@ -107,7 +111,7 @@ class AuthorityStatus(Control, frozen=True, tag="authority"):
     takeover_to: str | None = None  # ... for this GS only (a consent's window); None: for any
     fc_signed: bool | None = None  # the drone's link to its autopilot is MAVLink-signed (None: not said)
     audit: AuditHead | None = None  # the drone's newest authority-record checkpoint (None: none yet)
-    attest: AuthorityAttestation | None = None  # the drone's signed word on (owner, epoch, state) (None: no key)
+    attest: AuthorityAttestation | None = None  # the drone's signed word on this status (None: no key)
 
 
 class Reject(Control, frozen=True, tag="reject"):

@@ -44,8 +44,9 @@ cannot make the GSs answer without end. These rules grow with the GSs, like the 
 
 Operations pictures (``zdrone.core.opspicture``, sealed end to end for the viewer) travel on one key per
 GS, ``zdrone-ops/<g>``: only GS ``g`` may put there; only a viewer (role ``viewer``) may subscribe
-``zdrone-ops/*`` and receive them, and it may do nothing else: no put, no query, no queryable, not even
-the fleet revisions' keys. A part is at most ``OPS_MAX_BYTES`` (low-pass on ingress); a GS publishes at
+``zdrone-ops/*`` and receive them, and hear and ask for the fleet revisions like every node (so it
+follows revocations and rotations live); it may do nothing else: no put, no queryable, no key that
+commands. A part is at most ``OPS_MAX_BYTES`` (low-pass on ingress); a GS publishes at
 most a few a second, so no downsampling (several parts go back to back on one key).
 
 Zenoh's limit is a minimum interval between puts on a key, measured when the router processes them,
@@ -153,9 +154,11 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             rules.append(_rule(rid, messages, flows, keys))
             ids.append(rid)
 
-        if node.role == "viewer":  # reads the GSs' pictures sealed for it, and nothing else
+        if node.role == "viewer":  # reads the GSs' pictures sealed for it and the fleet's revisions, nothing else
             add("ops-sub", ["declare_subscriber"], ["ingress"], [kx.ops_all()])
             add("ops-recv", ["put"], ["egress"], [kx.ops_all()])
+            add("revision", ["declare_subscriber", "query"], ["ingress"], [kx.revision_all()])
+            add("revision-recv", ["put", "reply"], ["egress"], [kx.revision_all()])
             enrol(name, ids)
             continue
         if node.role == "drone":

@@ -60,15 +60,33 @@ class OpsPublisher:
         self.last: float | None = None
         self.parts_sent = 0
 
-    @classmethod
-    def for_station(cls, gs: str, fleet: Fleet, identity: Identity, source: PictureSource,
-                    put: Callable[[str, bytes], None]) -> "OpsPublisher | None":
+    @staticmethod
+    def sealer_for(gs: str, fleet: Fleet, identity: Identity) -> OpsSealer | None:
+        """A fresh start's sealer (a new salt) for the fleet's viewer, None: the fleet has none."""
         viewers = fleet.viewers()
         if not viewers:
             return None
         viewer = viewers[0]
-        sealer = OpsSealer(identity, gs, viewer, fleet.nodes[viewer].public_bytes, kx.ops(gs), os.urandom(SALT_LEN))
-        return cls(gs, source, sealer, put)
+        return OpsSealer(identity, gs, viewer, fleet.nodes[viewer].public_bytes, kx.ops(gs), os.urandom(SALT_LEN))
+
+    @classmethod
+    def for_station(cls, gs: str, fleet: Fleet, identity: Identity, source: PictureSource,
+                    put: Callable[[str, bytes], None]) -> "OpsPublisher | None":
+        sealer = cls.sealer_for(gs, fleet, identity)
+        return None if sealer is None else cls(gs, source, sealer, put)
+
+    def reseal(self, fleet: Fleet, identity: Identity) -> bool:
+        """A fleet revision in force: if it rotated this GS's key or the viewer's (or gave the fleet
+        another viewer), the picture is sealed anew from now on (a new start); True if it was. A
+        fleet left without a viewer keeps the last sealer (the router lets nobody read it)."""
+        sealer = self.sealer_for(self.gs, fleet, identity)
+        if sealer is None:
+            return False
+        old = self.sealer
+        if (sealer.viewer, sealer.viewer_public, sealer.public) == (old.viewer, old.viewer_public, old.public):
+            return False
+        self.sealer = sealer
+        return True
 
     def on_record(self, record: AnyRecord, wall: float) -> None:
         """A record the GS logged: an authority event goes in the next picture, which goes soon."""

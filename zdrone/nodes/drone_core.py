@@ -40,7 +40,7 @@ import msgspec
 from zdrone.core import authority as ha
 from zdrone.core import records as rec
 from zdrone.core import wire
-from zdrone.core.attestation import Attester
+from zdrone.core.attestation import BEACON_S, Attester
 from zdrone.core.envelope import Dropped, Opened, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint
@@ -63,8 +63,10 @@ log = logging.getLogger(__name__)
 #: A pairing candidate must be proven by the GS within this time (the drone listens to it meanwhile).
 PAIRING_TTL = 10.0
 #: The authority status goes to every linked GS at least this often (besides every change), so a
-#: GS that was hung or missed a change learns who holds authority within a second.
-STATUS_BEACON_S = 1.0
+#: GS that was hung or missed a change learns who holds authority within a second; each beacon
+#: carries a new signature of the drone's (``zdrone.core.attestation``: the viewer's proof that the
+#: drone's word is recent).
+STATUS_BEACON_S = BEACON_S
 #: The first few of each drop or refusal reason go to the event log; all of them to the counters.
 LOGGED_PER_REASON = 5
 
@@ -439,7 +441,7 @@ class DroneCore:
         out: list[Out] = []
         if now >= self._next_beacon:
             self._next_beacon = now + self.opts.status_beacon
-            st = self._stamped(self.machine.status(), now)
+            st = self._stamped(self.machine.status(), now, renew=True)  # one signature for every GS
             out += [Put(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
         return out + self._effects(now, timer=True)
 
@@ -488,18 +490,18 @@ class DroneCore:
         which countersigns it (``zdrone.core.audit``)."""
         self.audit_head = wire.AuditHead(seq, head, sig)
 
-    def _stamped(self, msg: wire.Control, now: float) -> wire.Control:
+    def _stamped(self, msg: wire.Control, now: float, renew: bool = False) -> wire.Control:
         """An authority status tells each GS whether the drone's autopilot link is signed, the
         authority record's newest checkpoint, and the drone's signed word on its authority (signed
-        once per change of what the status says of it, ``zdrone.core.attestation``)."""
+        anew at every beacon, ``renew``, and at every change of what the status says of it, else
+        reused: ``zdrone.core.attestation``)."""
         if isinstance(msg, wire.AuthorityStatus) and self.fc_signed is not None:
             msg = msgspec.structs.replace(msg, fc_signed=self.fc_signed)
         if isinstance(msg, wire.AuthorityStatus) and self.audit_head is not None:
             msg = msgspec.structs.replace(msg, audit=self.audit_head)
         if isinstance(msg, wire.AuthorityStatus) and self.attester is not None:
             signed = self.attester.signed
-            msg = msgspec.structs.replace(msg, attest=self.attester.attest(msg.owner, msg.epoch, msg.state, msg.pending_to,
-                                                                           now + self.wall_offset))
+            msg = msgspec.structs.replace(msg, attest=self.attester.attest(msg, now + self.wall_offset, renew))
             self.counters["attestations_signed"] += self.attester.signed - signed
         return msg
 
