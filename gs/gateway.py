@@ -46,10 +46,20 @@ With ``require`` or ``prefer``, an application that has signed is not heard unsi
 (``signing_dropped:unsigned_after_signed``), and no application's SETUP_SIGNING goes to the vehicle
 (MAVProxy's ``signing setup`` sends one; keys are provisioned in the key file, never over the link).
 
+The replay state (each stream's last timestamp, ``gs.appkeys``) outlives the gateway: read when it
+starts, written durably (``state_path``: beside the key file or in ``$ZDRONE_STATE_DIR``) at most once a
+second while it changes and when the gateway closes, so a signed frame captured before a restart is a
+replay after it. A state file that cannot be read is not trusted: no stream stamped before this start is
+taken then (``signing_dropped:before_start``; an application whose clock lags the GS's waits that long).
+
 Whatever arrives on an endpoint, the station keeps flying. At most ``max_apps`` applications (16 by
 default) hold a component id at once; one silent for ``app_expiry`` seconds (30) or whose TCP
-connection closed is forgotten and its id freed for reuse. While the table is full, a new
-application's frames are dropped. A frame that cannot be handled is dropped, never raised, and
+connection closed is forgotten and its id freed for reuse. A validly signed application always gets
+in: when the table is full, the unsigned application seen least recently is evicted for it
+(``app_evicted``; only a table of signed applications alone refuses one). An unsigned newcomer finds
+no room in a full table (``app_table_full``), and one peer address (UDP ip:port, or a TCP connection)
+holds at most ``max_unsigned_per_peer`` unsigned applications (4; ``app_peer_full``), so one socket
+announcing many ids cannot take the table. A frame that cannot be handled is dropped, never raised, and
 counted by reason in ``counters`` (``stats()`` reports them with the application count).
 """
 
@@ -63,6 +73,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Iterator
 
 from pymavlink.dialects.v20 import common as mav
@@ -71,6 +82,7 @@ from zenoh import ZError
 from zdrone.core import fcsign
 from zdrone.core import records as rec
 from zdrone.core.authority import State as HaState
+from zdrone.core.fleet import ConfigError
 import msgspec
 from zdrone.core.mavcontrol import (OperatorControlRequest, FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED, MAV_CMD_REQUEST_OPERATOR_CONTROL,
                                     MAV_RESULT_NOT_IN_CONTROL, MSG_ID_CONTROL_STATUS, ControlStatus,
@@ -78,7 +90,7 @@ from zdrone.core.mavcontrol import (OperatorControlRequest, FLAG_SYSTEM_MANAGER,
 from zdrone.core.mavlink import MESSAGE_CLASSES, FrameCodec, FrameError, read_header, rewrite_source
 from zdrone.vehicle.transport import MavTransport
 
-from .appkeys import AppSigning, SigningKey, parse_mode
+from .appkeys import STATE_DIR_ENV, AppSigning, SigningKey, parse_mode, read_signing_state, write_signing_state
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +105,10 @@ MAX_APPS = 16
 MAX_APPS_LIMIT = STATION_COMPID - FIRST_APP_COMPID
 #: an application silent this long (seconds) is forgotten and its component id freed
 APP_EXPIRY_S = 30.0
+#: unsigned applications one peer address (UDP ip:port, a TCP connection) may hold at once
+MAX_UNSIGNED_PER_PEER = 4
+#: the replay state is written at most this often (seconds) while it changes (and when the gateway closes)
+SIGNING_STATE_PERIOD_S = 1.0
 #: at most one warning per this many seconds for a repeated drop reason
 WARN_PERIOD_S = 5.0
 COMMAND_MSGIDS = (mav.MAVLINK_MSG_ID_COMMAND_LONG, mav.MAVLINK_MSG_ID_COMMAND_INT)
@@ -164,17 +180,26 @@ class AppTable:
     Pure bookkeeping: no sockets and no clock (time is the caller's ``now``). Component ids are
     ``first_compid`` .. ``first_compid + max_apps - 1``; a freed id goes to the back of the queue, so
     the id of a forgotten application is reused as late as possible. A new application that finds
-    the table full (none expired) is refused: ``None``, counted under ``app_table_full``.
+    the table full (none expired) is refused: ``None``, counted under ``app_table_full``; unless it is
+    signed (``add(..., signed=True)``): then the unsigned application seen least recently is evicted
+    for it (``app_evicted``). A peer address holds at most ``max_unsigned_per_peer`` unsigned
+    applications (``app_peer_full``). Applications the table let go of while adding (expired,
+    evicted) are kept for the caller in ``take_gone()``.
     """
 
     def __init__(self, max_apps: int = MAX_APPS, expiry: float = APP_EXPIRY_S, first_compid: int = FIRST_APP_COMPID,
-                 counters: Counter[str] | None = None) -> None:
+                 counters: Counter[str] | None = None, max_unsigned_per_peer: int = MAX_UNSIGNED_PER_PEER) -> None:
         if not 1 <= first_compid <= 255 or not 1 <= max_apps <= 256 - first_compid:
             raise ValueError(f"{max_apps} applications from component id {first_compid} do not fit in 1..255")
         if not expiry > 0:
             raise ValueError(f"application expiry must be positive, not {expiry}")
+        if max_unsigned_per_peer < 1:
+            raise ValueError(f"unsigned applications per peer must be at least 1, not {max_unsigned_per_peer}")
         self.max_apps = max_apps
         self.expiry = expiry
+        self.max_unsigned_per_peer = max_unsigned_per_peer
+        self._gone: list[tuple[App, str]] = []  # let go of while adding, for the caller (take_gone)
+        self._peer_warning = RateLimit()
         self.counters: Counter[str] = counters if counters is not None else Counter()
         self._apps: dict[AppKey, App] = {}
         self._by_compid: dict[int, App] = {}
@@ -198,10 +223,25 @@ class AppTable:
     def by_compid(self, gs_compid: int) -> App | None:
         return self._by_compid.get(gs_compid)
 
-    def add(self, key: AppKey, now: float) -> App | None:
-        """A new application, or ``None`` (counted) if the table is full and none has expired."""
+    def add(self, key: AppKey, now: float, signed: bool = False) -> App | None:
+        """A new application, or ``None`` (counted) if the table is full and none has expired (and, for
+        a ``signed`` one, none is unsigned), or if an unsigned one's peer holds its share already."""
+        if not signed:
+            held = sum(1 for a in self._apps.values() if a.peer == key.peer and a.signer is None)
+            if held >= self.max_unsigned_per_peer:
+                self.counters["app_peer_full"] += 1
+                if self._peer_warning.ready(now):
+                    log.warning("gateway: %s holds %d unsigned applications already: sysid %d compid %d dropped "
+                                "(%d so far)", key.peer, held, key.sysid, key.compid, self.counters["app_peer_full"])
+                return None
         if not self._free:
-            self.expire(now)
+            self._gone.extend((a, "expired") for a in self.expire(now))
+        if not self._free and signed:
+            victim = min((a for a in self._apps.values() if a.signer is None), key=lambda a: a.last_seen, default=None)
+            if victim is not None:  # a signed application always gets in: the stalest unsigned one makes room
+                self.remove(victim.key)
+                self.counters["app_evicted"] += 1
+                self._gone.append((victim, "evicted"))
         if not self._free:
             self.counters["app_table_full"] += 1
             self._full_drops += 1
@@ -216,10 +256,15 @@ class AppTable:
         self._by_compid[app.gs_compid] = app
         return app
 
-    def lookup_or_add(self, key: AppKey, now: float) -> App | None:
+    def lookup_or_add(self, key: AppKey, now: float, signed: bool = False) -> App | None:
         """The application ``key`` (seen at ``now``), added if new; ``None`` if the table is full."""
         app = self.get(key, now)
-        return app if app is not None else self.add(key, now)
+        return app if app is not None else self.add(key, now, signed)
+
+    def take_gone(self) -> list[tuple[App, str]]:
+        """The applications let go of while adding (expired, evicted) since the last call, and why."""
+        gone, self._gone = self._gone, []
+        return gone
 
     def remove(self, key: AppKey) -> App | None:
         """Forget one application and free its component id."""
@@ -247,12 +292,16 @@ class GcsGateway:
 
     def __init__(self, station: Any, endpoints: list[str], drone: str | None = None, max_apps: int = MAX_APPS,
                  app_expiry: float = APP_EXPIRY_S, signing: str = "prefer", keys: Iterable[SigningKey] = (),
-                 clock: Callable[[], float] = time.time) -> None:
+                 clock: Callable[[], float] = time.time, state_path: str | Path | None = None) -> None:
         if not 1 <= max_apps <= MAX_APPS_LIMIT:
             raise ValueError(f"max_apps must be 1..{MAX_APPS_LIMIT}, not {max_apps}")
         self.signing_mode = parse_mode(signing)
         self.signing = AppSigning(keys)
         self._clock = clock  # the wall clock: signing timestamps are 10 us units since 2015
+        self.state_path = Path(state_path) if state_path is not None else None
+        self._saved_changes = -1  # ``signing.changes`` as last written (-1: never)
+        self._next_save = -math.inf
+        self._save_log = RateLimit()
         self._signed_peers: dict[int, dict[Any, str]] | None = None  # endpoint -> peer -> key name (None: stale)
         self._drop_logs: dict[str, RateLimit] = {}
         self.station = station
@@ -261,10 +310,12 @@ class GcsGateway:
             raise ValueError(f"the station does not serve {self.drone}")
         self.vehicle_sysid = station.drone_status(self.drone, 0.0).sysid
         self.counters: Counter[str] = Counter()
+        self._now = 0.0  # the latest ``now`` of the station's loop
+        if self.state_path is not None and self.signing_mode != "off" and len(self.signing):
+            self._restore_signing_state(self.state_path)  # before any socket: a ConfigError leaves none open
         self.apps = AppTable(max_apps, app_expiry, FIRST_APP_COMPID, self.counters)
         self.transports = [MavTransport(e) for e in endpoints]
         self.codecs: dict[tuple[int, int], FrameCodec] = {}
-        self._now = 0.0  # the latest ``now`` of the station's loop
         self._next_status = 0.0
         self._last_control: tuple[Any, ...] | None = None
         self._awaiting: dict[AppKey, float] = {}  # applications told IN_PROGRESS: their request's deadline
@@ -278,6 +329,47 @@ class GcsGateway:
     def status(self, now: float) -> Any:
         """The drone as the station sees it (``gs.core.DroneSeen``)."""
         return self.station.drone_status(self.drone, now)
+
+    def _restore_signing_state(self, path: Path) -> None:
+        """The replay state of before this start; then written once, so an unwritable place is a
+        configuration error now rather than a replay window later."""
+        try:
+            state = read_signing_state(path)
+            restored = self.signing.restore(state) if state is not None else 0
+        except ValueError as exc:
+            self.signing.not_before = self._units()
+            self.counters["signing_state_unreadable"] += 1
+            log.warning("gateway: %s: replay state unreadable (%s), not trusted: no signed stream stamped before "
+                        "now is taken", path, exc)
+        else:
+            log.info("gateway: replay state %s: %d stream(s) of before this start", path, restored)
+        try:
+            write_signing_state(path, self.signing)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot write the GCS signing replay state ({exc.__class__.__name__}); "
+                              f"set {STATE_DIR_ENV} to a writable directory") from None
+        self._saved_changes = self.signing.changes
+
+    def save_signing_state(self, now: float | None = None) -> bool:
+        """Write the replay state if it changed (at most once per ``SIGNING_STATE_PERIOD_S`` of ``now``;
+        ``now`` None: at once). A failure is counted and logged, never raised."""
+        if self.state_path is None or self._saved_changes < 0 or self.signing.changes == self._saved_changes:
+            return False
+        if now is not None and now < self._next_save:
+            return False
+        if now is not None:
+            self._next_save = now + SIGNING_STATE_PERIOD_S
+        changes = self.signing.changes
+        try:
+            write_signing_state(self.state_path, self.signing)
+        except OSError as exc:
+            self.counters["signing_state_write_failed"] += 1
+            if self._save_log.ready(self._now):
+                log.warning("gateway: writing the replay state %s: %s (%d failure(s))", self.state_path, exc,
+                            self.counters["signing_state_write_failed"])
+            return False
+        self._saved_changes = changes
+        return True
 
     def endpoints(self) -> list[str]:
         return [f"{t.endpoint.kind}:{t.endpoint.host}:{t.port}" for t in self.transports]
@@ -339,11 +431,14 @@ class GcsGateway:
             return frame
 
     # ------------------------------------------------------------- applications
-    def _app(self, ti: int, peer: Any, sysid: int, compid: int, now: float) -> App | None:
+    def _app(self, ti: int, peer: Any, sysid: int, compid: int, now: float, signed: bool = False) -> App | None:
         key = AppKey(ti, peer, sysid, compid)
         app = self.apps.get(key, now)
         if app is None:
-            app = self.apps.add(key, now)
+            app = self.apps.add(key, now, signed)
+            gone = self.apps.take_gone()
+            if gone:
+                self._gone(gone)
             if app is None:
                 return None
             log.info("gateway: application sysid %d compid %d on %s is GS component %d", sysid, compid,
@@ -361,8 +456,13 @@ class GcsGateway:
                 self.counters["app_disconnected"] += 1
                 gone.append((app, "disconnected"))
         if gone:
-            self._signed_peers = None
+            self._gone(gone)
+
+    def _gone(self, gone: list[tuple[App, str]]) -> None:
+        """Applications no longer in the table (expired, disconnected, evicted): logged and recorded."""
+        self._signed_peers = None
         for app, why in gone:
+            self._awaiting.pop(app.key, None)
             log.info("gateway: application sysid %d compid %d (GS component %d) %s", app.sysid, app.compid,
                      app.gs_compid, why)
             self.station.events.write_record(rec.GcsAppGone(sysid=app.sysid, compid=app.compid, gs_compid=app.gs_compid, reason=why))
@@ -443,6 +543,7 @@ class GcsGateway:
                 self.on_app_frame(ti, peer, frame, now)
         self._forget_apps(now)
         self._operator_poll(now)
+        self.save_signing_state(now)
 
     def on_app_frame(self, ti: int, peer: Any, frame: bytes, now: float) -> None:
         """One frame from an application. Never raises: a frame that cannot be handled is counted."""
@@ -472,9 +573,9 @@ class GcsGateway:
             except FrameError:
                 self.counters["malformed"] += 1
                 return
-        app = self._app(ti, peer, hdr.sysid, hdr.compid, now)
+        app = self._app(ti, peer, hdr.sysid, hdr.compid, now, signed=signer is not None)
         if app is None:
-            return  # counted by the table (app_table_full)
+            return  # counted by the table (app_table_full, app_peer_full)
         if signer is not None and app.signer != signer.name:
             log.info("gateway: application sysid %d compid %d from %s (GS component %d) signs with key %s", app.sysid,
                      app.compid, peer, app.gs_compid, signer.name)
@@ -708,6 +809,7 @@ class GcsGateway:
             self.counters["for_other_gs"] += 1
 
     def close(self) -> None:
+        self.save_signing_state()
         for t in self.transports:
             t.close()
 

@@ -378,12 +378,13 @@ def run_station(opts: StationOptions) -> int:
     if opts.gcs:
         from .gateway import GcsGateway
 
-        from .appkeys import load_keys
+        from .appkeys import load_gs_keys, signing_state_path
 
         try:
-            keys = load_keys(opts.gcs_keys) if opts.gcs_keys else ()
+            keys = load_gs_keys(opts.gcs_keys, station.name, others=station.fleet.ground_stations()) if opts.gcs_keys else ()
             mode = opts.gcs_signing or ("require" if opts.gcs_keys else "prefer")
-            gateway = GcsGateway(station, list(opts.gcs), signing=mode, keys=keys)
+            state = signing_state_path(opts.gcs_keys, station.name) if opts.gcs_keys else None
+            gateway = GcsGateway(station, list(opts.gcs), signing=mode, keys=keys, state_path=state)
         except ConfigError:
             station.close()
             raise

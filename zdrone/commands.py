@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import logging
 import math
 from pathlib import Path
 from typing import Any, Callable
 
 from .core.errors import UsageError
 from .core.geometry import GeoPoint
+
+log = logging.getLogger(__name__)
 
 
 def parse_home(text: str) -> GeoPoint:
@@ -237,9 +240,11 @@ def _gs(args: argparse.Namespace) -> int:
     if args.gcs_keys and not args.gcs:
         raise UsageError("--gcs-keys: no --gcs endpoint to use them on")
     if args.gcs_keys:
-        from gs.appkeys import load_keys
+        from gs.appkeys import load_gs_keys, weak_key_warning, weak_keys
 
-        load_keys(args.gcs_keys)  # a bad or exposed key file is an error before anything connects
+        # a bad or exposed key file, or a key another GS of the fleet also holds, is an error before anything connects
+        for weak in weak_keys(load_gs_keys(args.gcs_keys, args.id, args.fleet)):
+            log.warning("%s", weak_key_warning(weak, args.gcs_keys))
     _event_limits(args)
     mission = None
     if args.mission == "reference":

@@ -10,6 +10,7 @@ B links on the ground and its request for control reaches A's operator without a
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -24,7 +25,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from gs.appkeys import passphrase_key
 from tests.mavproxy import MavProxy
-from tests.procs import ZDRONE, free_port, spawn
+from tests.procs import ZDRONE, free_port, spawn, wait_until
 from zdrone.core import fcsign
 from zdrone.core.geometry import offset
 from zdrone.core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL, MAV_RESULT_NOT_IN_CONTROL, decode_control_status
@@ -258,3 +259,81 @@ def test_local_app_scenario_nothing_the_unsigned_application_sends_moves_authori
     a_log = (out / "gsA.log").read_text()
     assert "GCS signing require, 1 application key(s)" in a_log and "signs with key opsA" in a_log
     assert "unsigned:127.0.0.1:" in a_log  # the refusals name the application
+
+
+@pytest.mark.slow
+def test_a_flood_keeps_no_signed_application_out_and_a_frame_captured_before_a_restart_is_a_replay_after(tmp_path):
+    """GS A as a process (router, no drone: the gateway's checks come before any link): an unsigned local
+    process holds every place of the table from 16 sockets, and A's signed application, started then,
+    still gets in, each of 3 times. Its last request for control is captured; A is killed (no clean
+    stop) once its replay state holds it, and started again; the capture, replayed well within the
+    minute a new stream is given, is a replay (it was taken after a restart before)."""
+    tmp = tmp_path
+    init_fleet(tmp / "fleet")
+    keys = tmp / "gcs-keys"
+    keys.write_text(f"pyapp hex:{PYAPP_KEY.hex()}\n")
+    os.chmod(keys, 0o600)
+    state = tmp / "gcs-keys.signing-state.json"
+    rport, pa = free_port(socket.SOCK_STREAM), free_port()
+    router = f"tcp/127.0.0.1:{rport}"
+    gs_args = ["gs", "--id", "A", "--fleet", str(tmp / "fleet"), "--router", router, "--gcs", f"udpin:127.0.0.1:{pa}",
+               "--gcs-keys", str(keys)]
+    hb = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+    flood = [App(pa, 100 + i) for i in range(16)]
+    replayer = App(pa, 42)
+
+    def request(app: App) -> bytes:
+        return bytes(mav.MAVLink_command_long_message(1, 1, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, 10, 0, 0, 0,
+                                                      0).pack(app.enc))
+
+    def answered(app: App, frame: bytes) -> None:
+        since = time.monotonic()
+        app.sock.send(frame)
+        app.wait("the signed application answered", lambda: app.acks(MAV_CMD_REQUEST_OPERATOR_CONTROL, since), 10)
+
+    def stream_saved(sig: Any) -> bool:
+        try:
+            saved = json.loads(state.read_text())["keys"]
+        except (OSError, ValueError, KeyError):
+            return False
+        return any(s[:3] == [sig.link_id, sig.sysid, sig.compid] and s[3] >= sig.timestamp
+                   for k in saved.values() for s in k["streams"])
+
+    try:
+        with spawn(ZDRONE, "router", "-c", str(tmp / "fleet/router/router.json5"), "--listen", router) as r:
+            r.wait_line("listening", 20)
+            with spawn(ZDRONE, *gs_args, "--events", str(tmp / "A1.jsonl")) as a:
+                a.wait_line("GCS signing require, 1 application key(s)", 30)
+                for attempt in range(3):
+                    for _ in range(2):  # a second of the flood: 32 frames from the 16 sockets
+                        for f in flood:
+                            f.send(hb)
+                    app = App(pa, 250, PYAPP_KEY)
+                    app.enc.signing.link_id = attempt  # started anew: a stream of its own
+                    captured = request(app)
+                    answered(app, captured)
+                    app.close()
+                made = time.monotonic()
+                assert wait_until(lambda: stream_saved(fcsign.read_signature(captured)), 10)
+                a.p.kill()  # a crash: no clean stop
+                a.p.wait(10)
+            with spawn(ZDRONE, *gs_args, "--events", str(tmp / "A2.jsonl")) as a:
+                a.wait_line("GCS signing require", 30)
+                since = time.monotonic()
+                replayer.sock.send(captured)
+                app = App(pa, 250, PYAPP_KEY)
+                app.enc.signing.link_id = 3
+                answered(app, request(app))  # served after the replay: the replay has been judged
+                app.close()
+                replayer.pump(0.2)
+                assert replayer.acks(MAV_CMD_REQUEST_OPERATOR_CONTROL, since) == []
+                assert time.monotonic() - made < 0.5 * fcsign.NEW_STREAM_WINDOW / fcsign.UNITS_PER_S
+    finally:
+        for f in (*flood, replayer):
+            f.close()
+    first = read_events(tmp / "A1.jsonl")
+    assert len([e for e in first if e["type"] == "operator_control_requested"]) == 3
+    assert len([e for e in first if e["type"] == "gcs_app_gone" and e["reason"] == "evicted"]) == 3
+    second = read_events(tmp / "A2.jsonl")
+    assert len([e for e in second if e["type"] == "operator_control_requested"]) == 1  # the new stream's only
+    assert _gateway_status(second)["counters"].get("signing_dropped:replay") == 1

@@ -23,8 +23,8 @@ from pymavlink.dialects.v20 import ardupilotmega as apm, common as mav
 from zenoh import ZError
 
 import gs.gateway as gateway_mod
-from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, STATION_COMPID, AppKey, AppTable,
-                        GcsGateway)
+from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, MAX_UNSIGNED_PER_PEER,
+                        STATION_COMPID, AppKey, AppTable, GcsGateway)
 from gs.core import DroneSeen
 from gs.opcontrol import OperatorControl
 from zdrone.core import wire
@@ -221,6 +221,36 @@ def test_the_table_full_warning_is_rate_limited(caplog):
         table.lookup_or_add(key(999), 7.0)
     assert len(caplog.records) == 2 and "dropped" in caplog.records[1].getMessage()
     assert table.counters["app_table_full"] == 500
+
+
+def test_a_signed_application_evicts_the_unsigned_one_seen_least_recently_from_a_full_table():
+    """Found from outside: an unsigned local process holding all 16 places kept the operator's signed
+    application out (refused 10 of 10 times)."""
+    table = AppTable()
+    unsigned = [table.lookup_or_add(key(i), float(i)) for i in range(MAX_APPS)]
+    assert table.lookup_or_add(key(100), 20.0) is None  # another unsigned one: no room
+    signed = table.lookup_or_add(key(101), 20.0, signed=True)
+    assert signed is not None and signed.gs_compid == unsigned[0].gs_compid  # key(0): seen least recently
+    signed.signer = "opsA"
+    assert table.get(key(0), 20.0) is None and table.take_gone() == [(unsigned[0], "evicted")]
+    assert table.take_gone() == [] and table.counters["app_evicted"] == 1
+    for i in range(MAX_APPS - 1):  # each signed newcomer takes the place of an unsigned one
+        app = table.lookup_or_add(key(200 + i), 21.0, signed=True)
+        assert app is not None
+        app.signer = f"k{i}"
+    assert table.lookup_or_add(key(300), 22.0, signed=True) is None  # signed ones only: none is evicted for another
+    assert table.counters["app_evicted"] == MAX_APPS and table.counters["app_table_full"] == 2
+
+
+def test_one_peer_address_holds_at_most_four_unsigned_applications():
+    table = AppTable()
+    peer = ("127.0.0.1", 14550)
+    got = [table.lookup_or_add(AppKey(0, peer, 1 + i, 190), 0.0) for i in range(10)]
+    assert sum(a is not None for a in got) == MAX_UNSIGNED_PER_PEER == 4
+    assert table.counters["app_peer_full"] == 6 and len(table) == 4
+    assert table.lookup_or_add(AppKey(0, peer, 2, 190), 1.0) is got[1]  # a known one is still served
+    assert table.lookup_or_add(AppKey(0, peer, 50, 190), 1.0, signed=True) is not None  # a signed one is not capped
+    assert table.lookup_or_add(AppKey(0, ("127.0.0.1", 14551), 50, 190), 1.0) is not None  # another peer has its own
 
 
 def test_id_ranges_are_checked():

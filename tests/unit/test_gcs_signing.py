@@ -8,15 +8,20 @@ stale frame gets (nothing, counted), and that replies to a signed application ve
 
 from __future__ import annotations
 
+import json
+import logging
+import math
 import os
+import re
 import time
 from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from gs.appkeys import (MAX_KEYS, AppSigning, SigningKey, load_keys, parse_keys, passphrase_key,
-                        qgc_passphrase_key)
+from gs.appkeys import (MAX_KEYS, STRONG_BITS, AppSigning, SigningKey, load_gs_keys, load_keys, parse_key_file,
+                        parse_keys, passphrase_bits, passphrase_key, qgc_passphrase_key, signing_state_path,
+                        weak_key_warning, weak_keys)
 from gs.gateway import GcsGateway
 from tests.unit.test_gateway_apps import GS_SYSID, VEHICLE_SYSID, MemTransport, StubStation
 from zdrone.core import fcsign
@@ -362,3 +367,245 @@ def test_a_request_for_control_not_addressed_to_the_vehicle_is_dropped():
     pump(gw, t, signed(app, mav.MAVLink_command_long_message(255, 190, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, 10,
                                                               3, 0, 0, 0)), SIGNED_PEER)
     assert station.operator_calls == [] and gw.counters["operator_request_not_for_vehicle"] == 1
+
+
+# ------------------------------------------------------------------ a full table (issue: the unsigned flood)
+def test_an_unsigned_flood_of_every_place_never_keeps_the_operators_signed_application_out():
+    """Found from outside: an unsigned local process sending 32 frames/s from 16 sockets held all 16
+    places; the operator's signed application, started then, was refused 10 of 10 times."""
+    gw, station, t = make("require")
+    flooders = [("127.0.0.1", 45000 + i) for i in range(16)]
+    now, n = 0.0, 0
+    for attempt in range(10):
+        for _ in range(32):  # a second of the flood
+            gw.on_app_frame(0, flooders[n % 16], unsigned(heartbeat(), sysid=42 + n % 16), now)
+            n, now = n + 1, now + 1 / 32
+        assert len(gw.apps) == 16
+        peer = ("127.0.0.1", 41000 + attempt)  # the operator's application, started anew (a new stream)
+        t.out.clear()
+        gw.on_app_frame(0, peer, signed(signer(OPS_A.key, link=attempt), consent()), now)
+        assert acks(replies(t, peer, OPS_A.key)) == [(MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)]
+    assert [name for _, name, _ in station.operator_calls] == ["key:opsA"] * 10
+    assert gw.counters["app_evicted"] == 10 and gw.counters["app_table_full"] > 0
+    assert [e["reason"] for e in station.events.of("gcs_app_gone")] == ["evicted"] * 10
+
+
+# ------------------------------------------------------------------ the replay state across restarts
+class Wall:
+    """The wall clock the gateway signs and checks by, moved by hand."""
+
+    def __init__(self) -> None:
+        self.t = time.time()
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def start(state: Any, wall: Wall, keys: tuple[SigningKey, ...] = (OPS_A, OPS_B)) -> tuple[GcsGateway, NamingStation, PeerTransport]:
+    station = NamingStation()
+    gw = GcsGateway(station, [], signing="require", keys=keys, clock=wall, state_path=state)
+    t = PeerTransport()
+    gw.transports = [t]
+    return gw, station, t
+
+
+@pytest.mark.parametrize("how", ["stopped", "crashed a second later"])
+def test_a_signed_frame_replayed_after_the_gs_restarts_is_still_a_replay(tmp_path, how):
+    """Found from outside: a signed frame of an application that then went silent, replayed 5-10 s after
+    it was made, was taken after the GS restarted (3 of 3): the replay state lived in memory only."""
+    state, wall = tmp_path / "gcs-keys.A.signing-state.json", Wall()
+    gw, station, t = start(state, wall)
+    app = signer(OPS_A.key, ts=fcsign.units(wall.t))
+    gw.on_app_frame(0, SIGNED_PEER, signed(app, heartbeat()), 0.0)
+    gw.poll(0.1)
+
+    def saved() -> list[int]:
+        return [st[3] for k in json.loads(state.read_text())["keys"].values() for st in k["streams"]]
+
+    first = saved()
+    captured = signed(app, consent())
+    gw.on_app_frame(0, SIGNED_PEER, captured, 0.2)
+    gw.poll(0.3)
+    assert len(station.operator_calls) == 1 and saved() == first  # written at most once a second
+    if how == "stopped":
+        gw.close()
+    else:
+        gw.poll(1.1)  # the next write; then the process dies
+    assert saved() == [fcsign.read_signature(captured).timestamp] != first
+    wall.t += 7.0
+    gw, station, t = start(state, wall)
+    for peer in (SIGNED_PEER, UNSIGNED_PEER):
+        gw.on_app_frame(0, peer, captured, 0.0)
+    assert station.operator_calls == [] and gw.counters["signing_dropped:replay"] == 2 and len(gw.apps) == 0
+    gw.on_app_frame(0, SIGNED_PEER, signed(app, consent()), 0.1)  # the application itself goes on
+    assert [name for _, name, _ in station.operator_calls] == ["key:opsA"]
+    assert state.stat().st_mode & 0o077 == 0
+
+
+def test_a_replay_state_that_cannot_be_read_is_not_trusted(tmp_path, caplog):
+    state, wall = tmp_path / "state.json", Wall()
+    state.write_text('{"version": 1, "keys": {"x": ')
+    captured = signed(signer(OPS_A.key, ts=fcsign.units(wall.t - 5.0)), consent())  # made before the start
+    with caplog.at_level(logging.WARNING, logger="gs.gateway"):
+        gw, station, t = start(state, wall)
+    assert gw.counters["signing_state_unreadable"] == 1 and "not trusted" in caplog.text
+    gw.on_app_frame(0, SIGNED_PEER, captured, 0.0)
+    assert station.operator_calls == [] and gw.counters["signing_dropped:before_start"] == 1
+    gw.on_app_frame(0, SIGNED_PEER, signed(signer(OPS_A.key, link=1, ts=fcsign.units(wall.t)), consent()), 0.1)
+    assert len(station.operator_calls) == 1
+    assert json.loads(state.read_text())["version"] == 1  # written anew at the start
+
+
+def test_a_replay_state_that_cannot_be_written_stops_the_gs_at_start(tmp_path):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ConfigError, match="cannot write the GCS signing replay state.*ZDRONE_STATE_DIR"):
+        start(tmp_path / "file" / "state.json", Wall())
+
+
+def test_the_replay_state_keeps_only_listed_keys_and_goes_to_the_state_directory(tmp_path, monkeypatch):
+    s = AppSigning([OPS_A, OPS_B])
+    now = fcsign.units(time.time())
+    assert s.verify(signed(signer(OPS_A.key, ts=now), heartbeat()), now)[0] == OPS_A
+    snap = json.loads(json.dumps(s.snapshot()))
+    assert list(snap["keys"]) == [OPS_A.fingerprint] and OPS_A.key.hex() not in json.dumps(snap)
+    other = AppSigning([OPS_B, SigningKey("renamed", OPS_A.key)])  # a key is known by its bytes, not its name
+    assert other.restore(snap) == 1
+    assert other.verify(signed(signer(OPS_A.key, ts=now), heartbeat()), now) == (None, "replay")
+    for bad in ({"version": 2, "keys": {}}, {"version": 1, "keys": {OPS_B.fingerprint: {"streams": [[0, 1, 2, -1]]}}},
+                {"version": 1, "keys": {OPS_B.fingerprint: {"own": [[0, 300, 1]]}}}, []):
+        with pytest.raises(ValueError):
+            AppSigning([OPS_B]).restore(bad)
+    assert signing_state_path(tmp_path / "gcs-keys.A", "A") == tmp_path / "gcs-keys.A.signing-state.json"
+    monkeypatch.setenv("ZDRONE_STATE_DIR", str(tmp_path / "state"))
+    assert signing_state_path(tmp_path / "gcs-keys.A", "A") == tmp_path / "state" / "A.gcs-signing.json"
+
+
+# ------------------------------------------------------------------ one key, one GS
+def key_file(path: Any, text: str) -> Any:
+    path.write_text(text)
+    os.chmod(path, 0o600)
+    return path
+
+
+def test_a_key_another_gs_of_the_fleet_also_holds_is_refused(tmp_path):
+    """Found from outside: the same application key in A's and B's key files: a PARAM_SET B refused,
+    replayed to A, was applied (8.0 -> 9.0, 3 of 3). A signed frame names no receiver, so a GS refuses
+    a key another GS's key file beside its own also holds."""
+    a = key_file(tmp_path / "gcs-keys.A", "gs: A\nmavproxy opsA-10f283b85121951b4fad2d49\n")
+    key_file(tmp_path / "gcs-keys.B", "ops opsA-10f283b85121951b4fad2d49\n")
+    with pytest.raises(ConfigError, match=r"application mavproxy's key is also GS B's \(ops in .*gcs-keys.B\)") as exc:
+        load_gs_keys(a, "A", others=["A", "B", "X"])
+    assert "\n" not in str(exc.value)
+    key_file(tmp_path / "gcs-keys.B", f"ops hex:{'5a' * 32}\n")
+    assert [k.name for k in load_gs_keys(a, "A", others=["A", "B", "X"])] == ["mavproxy"]
+    with pytest.raises(ConfigError, match="key file is for GS A .*not B"):
+        load_gs_keys(a, "B", others=["A", "B"])  # the whole file copied to B
+    plain = key_file(tmp_path / "gcs-keys", f"opsB hex:{'5a' * 32}\n")  # no GS suffix: gcs-keys.<other> beside it
+    with pytest.raises(ConfigError, match="also GS B's"):
+        load_gs_keys(plain, "A", others=["B"])
+
+
+def test_zdrone_gs_refuses_a_key_another_gs_holds_in_one_line_before_connecting(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from zdrone.fleet.files import init_fleet
+
+    init_fleet(tmp_path / "fleet")
+    a = key_file(tmp_path / "fleet" / "gcs-keys.A", f"qgc hex:{'c3' * 32}\n")
+    key_file(tmp_path / "fleet" / "gcs-keys.B", f"qgc-b hex:{'c3' * 32}\n")
+    zdrone = str(Path(sys.executable).parent / "zdrone")
+    out = subprocess.run([zdrone, "gs", "--id", "A", "--fleet", str(tmp_path / "fleet"), "--router", "tcp/127.0.0.1:1",
+                          "--gcs", "udpin:127.0.0.1:1", "--gcs-keys", str(a)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "also GS B's" in out.stderr and out.stderr.strip().count("\n") == 0, out.stderr
+
+
+# ------------------------------------------------------------------ whose file it is
+def test_a_key_file_through_a_symlink_or_of_another_user_is_refused(tmp_path, monkeypatch):
+    """Found from outside: a 0600 key file owned by another user, or a symlink to one, was taken by a GS
+    running as root."""
+    real = key_file(tmp_path / "real", "opsA opsA-pass-1\n")
+    link = tmp_path / "gcs-keys"
+    link.symlink_to(real)
+    with pytest.raises(ConfigError, match="symbolic link"):
+        load_keys(link)
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo, 0o600)
+    with pytest.raises(ConfigError, match="not a regular file"):
+        load_keys(fifo)
+    if os.geteuid() == 0:
+        os.chown(real, 65534, 65534)  # another user's file, the GS running as root
+    else:
+        monkeypatch.setattr(os, "geteuid", lambda: real.stat().st_uid + 1)  # the GS running as another user
+    with pytest.raises(ConfigError, match=r"owned by uid \d+, not by the GS's user \(uid \d+\) or root") as exc:
+        load_keys(real)
+    assert "\n" not in str(exc.value)
+    if os.geteuid() == 0:  # a root-owned file is any GS's (root could read it anyway)
+        os.chown(real, 0, 0)
+        monkeypatch.setattr(os, "geteuid", lambda: 1000)
+        assert load_keys(real) == (OPS_A,)
+
+
+# ------------------------------------------------------------------ the README's example; passphrase strength
+def readme_key_file() -> list[str]:
+    from pathlib import Path
+
+    blocks: list[list[str]] = []
+    inside = False
+    for line in (Path(__file__).resolve().parents[2] / "README.md").read_text().splitlines():
+        if line.startswith("```"):
+            inside = not inside
+            if inside:
+                blocks.append([])
+        elif inside:
+            blocks[-1].append(line)
+    block, = [b for b in blocks if b and b[0].startswith("# fleet/gcs-keys.A")]
+    return block
+
+
+def test_the_readmes_key_file_example_works_as_it_stands(tmp_path):
+    """Found from outside: the README's example failed: its trailing '#' comments became part of the
+    passphrase (the MAVProxy line made another key) and its hex line was refused at start."""
+    import hashlib
+    from pathlib import Path
+
+    lines = readme_key_file()
+    kf = parse_key_file(lines, "README")
+    assert kf.gs == "A" and [k.name for k in kf.keys] == ["mavproxy", "qgc", "qgc-pass", "script"]
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    mavproxy_pass, = set(re.findall(r'--cmd="signing key (\S+)"', readme))
+    assert kf.keys[0].key == passphrase_key(mavproxy_pass) == hashlib.sha256(mavproxy_pass.encode()).digest()
+    assert kf.keys[2].key == qgc_passphrase_key("harbor-4e1d-lantern-9b2c-ribbon-07fa")
+    assert weak_keys(kf.keys) == []  # the example is what the GS asks for
+    path = key_file(tmp_path / "gcs-keys.A", "\n".join(lines) + "\n")
+    assert load_gs_keys(path, "A", others=["A", "B"]) == kf.keys
+
+
+def test_a_comment_after_a_blank_is_not_part_of_the_key():
+    keys = parse_keys(["m   pass-x   # MAVProxy", "h hex:" + "ab" * 32 + "  # raw", "q qgc:two words # note",
+                       "w pass#word"])
+    assert keys[0].key == passphrase_key("pass-x") and keys[1].key == bytes([0xAB] * 32)
+    assert keys[2].key == qgc_passphrase_key("two words") and keys[3].key == passphrase_key("pass#word")
+
+
+def test_a_weak_passphrase_is_reported_with_the_strength_wanted(tmp_path, caplog):
+    """Found from outside: a passphrase of ~40 random bits was taken without a word, though one captured
+    frame allows an offline search (one SHA-256 a guess)."""
+    assert passphrase_bits("5f1c9e27b1") == 40 and passphrase_bits("opsA-5f1c9e27b1") < STRONG_BITS
+    assert passphrase_bits("10f283b85121951b4fad2d49") == 96 and passphrase_bits("correct horse battery staple") < 60
+    keys = parse_keys(["weak opsA-5f1c9e27b1", "strong opsA-10f283b85121951b4fad2d49", f"raw hex:{'ab' * 32}",
+                       "qweak qgc:short-words-only"])
+    assert [k.name for k in weak_keys(keys)] == ["weak", "qweak"] and keys[2].bits is None
+    assert keys[3].bits == pytest.approx(passphrase_bits("short-words-only") + math.log2(600_000))
+    msg = weak_key_warning(keys[0], "gcs-keys.A")
+    assert "about 49 bits" in msg and "80" in msg and "openssl rand -hex 16" in msg and "opsA-5f1c" not in msg
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = key_file(tmp_path / "gcs-keys", "weak opsA-5f1c9e27b1\n")
+    zdrone = str(Path(sys.executable).parent / "zdrone")
+    out = subprocess.run([zdrone, "gs", "--id", "A", "--fleet", str(tmp_path / "none"), "--gcs", "udpin:127.0.0.1:1",
+                          "--gcs-keys", str(path)], capture_output=True, text=True, timeout=60)
+    assert "application weak: passphrase of about 49 bits" in out.stderr, out.stderr
