@@ -295,7 +295,7 @@ def _bench_attack(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from .bench import check
+    from .check import run as check
 
     if args.depth < 1 or args.faults < 0:
         raise UsageError("check: --depth must be >= 1 and --faults >= 0")

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from zdrone.bench import check
+from zdrone.check import run as check
 
 
 def test_the_shipped_rules_hold_over_every_interleaving_at_the_ci_bound():

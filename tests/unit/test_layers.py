@@ -17,7 +17,7 @@ LAYERS: dict[str, int] = {
     "zdrone.fleet": 1,
     "zdrone.net": 2, "zdrone.vehicle": 2,
     "zdrone.nodes": 3, "gs": 3,
-    "zdrone.sil": 4, "zdrone.bench": 4, "zdrone.report": 4, "zdrone.view": 4,
+    "zdrone.sil": 4, "zdrone.bench": 4, "zdrone.check": 4, "zdrone.report": 4, "zdrone.view": 4,
     "zdrone.cli": 5, "zdrone.commands": 5, "zdrone.harness": 5, "zdrone.__main__": 5, "zdrone": 5,
 }
 
@@ -94,6 +94,49 @@ def test_no_package_cycles():
                     seen.add(x)
                     stack += edges.get(x, ())
     assert not cycles, "package cycles:\n" + "\n".join(sorted(cycles))
+
+
+def _module_cycles() -> list[list[str]]:
+    """Every strongly connected set of two or more modules in the import graph (Tarjan's algorithm);
+    a package's import of one of its own modules (``from . import x`` in ``__init__``) counts as any other."""
+    graph = {m: {t.rsplit(".", 1)[0] if t not in _modules() else t for t in ts} for m, ts in _graph().items()}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                out.append(sorted(group))
+
+    for m in sorted(graph):
+        if m not in index:
+            visit(m)
+    return out
+
+
+def test_no_module_cycles():
+    """No two modules import each other, however far round (lazy imports inside functions count)."""
+    cycles = _module_cycles()
+    assert not cycles, "module cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
 
 
 def test_every_import_of_the_project_names_one_of_its_modules():

@@ -23,7 +23,7 @@ from .verdicts import (check_backhaul_cut_early, check_big_flood, check_companio
                        check_gs_crash, check_gs_hang, check_insider_heir, check_key_escrow, check_key_injection,
                        check_link_loss, check_linkkey_knockout, check_local_app, check_lossy_radio, check_no_cert,
                        check_no_key, check_operator_consent, check_pair_flood, check_pair_replay, check_revoke_in_flight,
-                       check_revoke_uncovered, check_revoked_alone,
+                       check_revoke_uncovered, check_revoked_alone, REVOKED_ALONE_LEASE_S,
                        check_rotate_in_flight, check_router_restart,
                        check_site_router_down, check_site_router_down_alone, check_stale_pairing, check_unauthorized,
                        check_uplink_policy, fault_over_check, flight_unaffected)
@@ -148,8 +148,6 @@ _JAM_SITE1_AT_DELIVERY = Fault(AT_DELIVERY, "site-1", LINK_DOWN, "site 1's radio
                                "(the partition: wherever it flies, only site 2 hears it)")
 _REVOKE_B_BEHIND_CUT = Fault(AT_DELIVERY, "B", REVOKE_BEHIND_CUT, "the operator revokes GS B on A's side of the cut "
                              "(site 1 only)", after=0.5)
-#: ``revoked-alone``'s lease: three of a GS's stamp periods (``zdrone.fleet.revisions.STAMP_PERIOD_S``) and more
-REVOKED_ALONE_LEASE_S = 16.0
 _ROTATE_A = Fault(AIRBORNE, "A", ROTATE, "the operator rotates GS A's key while A holds authority", after=1.0)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
 

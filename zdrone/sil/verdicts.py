@@ -756,13 +756,16 @@ def check_revoke_uncovered(o: Outcome) -> list[str]:
     return why + _need(any("routers restarted" in n for n in s["notes"]), "the routers were not restarted on the new files")
 
 
+#: ``revoked-alone``'s lease: three of a GS's stamp periods (``zdrone.fleet.revisions.STAMP_PERIOD_S``) and more
+REVOKED_ALONE_LEASE_S = 16.0
+
+
 def check_revoked_alone(o: Outcome) -> list[str]:
     """``revoked-alone``: B holds authority at the delivery point, the backhaul is cut and B revoked on
     A's side only: the drone never hears the revision, and B's own stamps renew nothing, so the owner
     lease lapses within the lease (and one stamp period) of the cut; no authorized GS covers the drone:
     its failsafe (in the air or on the ground), and no command of B forwarded after the lapse."""
     from ..fleet.revisions import STAMP_PERIOD_S
-    from .scenarios import REVOKED_ALONE_LEASE_S
 
     s = o.summary
     why = safety_invariants(o)

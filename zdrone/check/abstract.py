@@ -58,7 +58,6 @@ from __future__ import annotations
 import copy
 import logging
 import time
-from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator
 
@@ -67,6 +66,7 @@ from ..core.authority import AuthorityMachine, Config, State
 from ..core.linkslot import replaces_live
 from ..core.tbm import LinkState
 from ..core.uplink import UplinkClass
+from .search import Violation, _Broken, breadth_first  # noqa: F401  (the explorer runs on them)
 
 AUTHORIZED = ("A", "B")
 ROGUE = "X"
@@ -158,13 +158,6 @@ class World:
     def hears(self, gs: str) -> bool:
         """Frames of ``gs`` open on the drone (and the drone's on ``gs``): radio up, the same key both ends."""
         return self.up.get(gs, False) and self.drone_key.get(gs) == "own" and self.gs_key_ok.get(gs, False)
-
-
-@dataclass(frozen=True)
-class Violation:
-    invariant: str
-    detail: str
-    trace: tuple[str, ...]
 
 
 class Explorer:
@@ -438,95 +431,3 @@ class Explorer:
         if w.m.owner != "A" or w.m.epoch != 3:
             return Violation("liveness", f"the crossing back ended with {w.m.owner} (epoch {w.m.epoch})", tuple(trace))
         return None
-
-
-class _Broken(Exception):
-    def __init__(self, invariant: str, detail: str) -> None:
-        super().__init__(detail)
-        self.invariant, self.detail = invariant, detail
-
-
-def breadth_first(explorer: Any, start: Any, check: Callable[[Any, Any], None] | None = None) -> Violation | None:
-    """Every interleaving of ``explorer.moves`` from ``start``, breadth-first up to ``explorer.depth``
-    moves, states told apart by their ``key()``: the first violation (a move or ``check(after, before)``
-    raising ``_Broken``) with its trace, the shortest there is, or None. Counts states, transitions and
-    the depth reached on the explorer."""
-    seen = {start.key()}
-    frontier: deque[tuple[Any, tuple[str, ...]]] = deque([(start, ())])
-    while frontier:
-        w, trace = frontier.popleft()
-        if len(trace) >= explorer.depth:
-            continue
-        for label, move in explorer.moves(w):
-            nxt = w.clone()
-            explorer.transitions += 1
-            try:
-                move(nxt)
-                if check is not None:
-                    check(nxt, w)
-            except _Broken as b:
-                explorer.states = len(seen)
-                return Violation(b.invariant, b.detail, trace + (label,))
-            k = nxt.key()
-            if k in seen:
-                continue
-            seen.add(k)
-            explorer.max_depth_reached = max(explorer.max_depth_reached, len(trace) + 1)
-            frontier.append((nxt, trace + (label,)))
-            if explorer.max_states is not None and len(seen) >= explorer.max_states:
-                explorer.states = len(seen)
-                return None
-    explorer.states = len(seen)
-    return None
-
-
-def run(depth: int = 8, faults: int = 2, flaw: str | None = None, max_states: int | None = None,
-        cores: bool = False, consent: bool = False) -> dict[str, Any]:
-    """Explore; the result says whether every invariant held, with the figures and any violation's trace.
-    ``cores``: explore the shipped cores themselves (``check_cores``) instead of the abstract world;
-    ``consent`` (or a consent flaw): the operator-consent world (``check_consent``)."""
-    from .check_consent import FLAWS as CONSENT_FLAWS
-
-    if consent or flaw in CONSENT_FLAWS:
-        from .check_consent import ConsentExplorer
-
-        found, figures = ConsentExplorer(depth, flaw, max_states).run()
-        violation = None if found is None else Violation(*found)
-        figures = {**figures, "flaw": flaw, "world": "consent"}
-    elif cores:
-        from .check_cores import CoreExplorer
-
-        broken, trace, figures = CoreExplorer(depth, faults, max_states, flaw=flaw).run()
-        violation = None if broken is None else Violation(broken.invariant, broken.detail, trace)
-        figures = {**figures, "flaw": flaw, "world": "cores"}
-    else:
-        violation, figures = Explorer(depth, faults, flaw, max_states).run()
-        figures["world"] = "abstract"
-    out: dict[str, Any] = {"ok": violation is None, **figures}
-    if violation is not None:
-        out["violation"] = {"invariant": violation.invariant, "detail": violation.detail,
-                            "trace": list(violation.trace), "length": len(violation.trace)}
-    return out
-
-
-def render(r: dict[str, Any]) -> None:
-    """Print the result for people."""
-    what = f"planted flaw {r['flaw']}" if r["flaw"] else {
-        "cores": "the shipped cores: DroneCore, StationCores A and B",
-        "consent": "operator consent: OperatorControl at A, B and C, the drone's authority machine",
-    }.get(r.get("world", ""), "the shipped rules")
-    print(f"zdrone check ({what}): {r['states']} distinct states, {r['transitions']} transitions, depth "
-          f"{r['depth_reached']}/{r['depth']}, faults <= {r['faults']}, {r['seconds']} s ({r['states_per_s']} states/s)")
-    if r["ok"] and r.get("world") == "consent":
-        print("every invariant holds: consent goes to the GS it names, in its epoch")
-        return
-    if r["ok"]:
-        print("every invariant holds: one owner; commands only from the owner; no authority outside coverage "
-              "without consent; nobody replaces another's live link; failsafe on time; the owner re-pairs after a "
-              "restart; hand-overs complete; the epoch counts up; the last owner pairs first after a ground restart")
-        return
-    v = r["violation"]
-    print(f"VIOLATION of '{v['invariant']}': {v['detail']}")
-    print(f"shortest trace ({v['length']} steps):")
-    for i, step in enumerate(v["trace"], 1):
-        print(f"  {i:2}. {step}")

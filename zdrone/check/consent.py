@@ -45,7 +45,7 @@ from ..core.authority import AuthorityMachine, Config, State
 from ..core.mavcontrol import OperatorControlRequest
 from ..core.tbm import LinkState
 from ..core.uplink import UplinkClass
-from .check import _Broken, breadth_first
+from .search import _Broken, breadth_first
 
 GSS = ("A", "B", "C")
 FLAWS = ("consent-to-last-asker", "window-across-epochs")

@@ -2,7 +2,7 @@
 
 Theory of operation
 -------------------
-``zdrone.bench.check`` explores the drone's decision rules inside an abstract world. This module
+``zdrone.check.abstract`` explores the drone's decision rules inside an abstract world. This module
 explores the real thing at a smaller depth: the drone's ``DroneCore`` and the ground stations' A and B
 ``StationCore``s (``zdrone.bench.fleetnet``: real Noise KK pairing and key sharing, real sealed
 envelopes, explicit time), starting from A paired on the ground with B's key shared. Each move is
@@ -56,7 +56,7 @@ from ..core.kk import stamp_of
 from ..core.pairing import PairingInitiator
 from ..core.tbm import LinkState
 from ..fleet.files import load_secret
-from .fleetnet import WALL0, FleetNet, make_fleet
+from ..bench.fleetnet import WALL0, FleetNet, make_fleet
 
 # Stateless or immutable objects that deep copies of a fleet may share (they cannot be pickled).
 for _shared in (ChaCha20Poly1305, AESGCM, struct.Struct, logging.Logger):
