@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 import gs
 import zdrone
 from zdrone.core import records as rec
-from zdrone.sil import records as trec
+from zdrone.sil import testbed_records as trec
 from zdrone.core.tbm import LinkState
 from zdrone.core.wire import AuthorityState
 from zdrone.net.eventlog import STRICT_ENV, EventLog, EventShapeError, read_records
@@ -417,7 +417,7 @@ def test_testbed_records_live_in_the_testbed():
     product = set(rec.DRONE_RECORDS) | set(rec.GS_RECORDS)
     assert not product & (set(trec.TESTBED_RECORDS) - {rec.Closed, rec.Suppressed})
     assert rec.VOCABULARIES["testbed"] == trec.TESTBED_RECORDS
-    assert all(c.__module__ == "zdrone.sil.records" for c in set(trec.TESTBED_RECORDS) - {rec.Closed, rec.Suppressed})
+    assert all(c.__module__ == "zdrone.sil.testbed_records" for c in set(trec.TESTBED_RECORDS) - {rec.Closed, rec.Suppressed})
 
 
 def _returned_keys(path, name: str) -> set:

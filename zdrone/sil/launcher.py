@@ -30,7 +30,7 @@ from typing import Any
 
 from ..core.records import (AnyRecord, Drop, DroneStatus, LinkStateChanged, MissionFailed, MissionStarted, Subscribe,
                             Unsubscribe, fields_of)
-from .records import LinkFault, RadioLinkChanged
+from .testbed_records import LinkFault, RadioLinkChanged
 from ..core.reference import DEFAULT_NODES
 from ..fleet.files import init_fleet, load_sites
 from ..net.eventlog import EventLog, LogTail

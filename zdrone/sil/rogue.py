@@ -19,7 +19,7 @@ import sys
 
 from ..core.fleet import ConfigError
 from ..net.eventlog import EventLog
-from . import records as trec
+from . import testbed_records as trec
 from .attackers import ATTACKS, MODES, Ctx
 from .attackers.common import dangerous_messages
 from .attackers.companion_host import fake_autopilot_frames

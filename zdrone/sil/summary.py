@@ -22,7 +22,7 @@ from ..core.tbm import LinkState, TbmThresholds
 from ..crashes import exit_text
 from ..net.eventlog import read_records
 from .moments import AIRBORNE, AT_DELIVERY, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
-from .records import LinkFault, RadioLinkChanged
+from .testbed_records import LinkFault, RadioLinkChanged
 from .verdicts import DELIVERY_RADIUS_M, Outcome, delivered_at, flight_unaffected
 
 if TYPE_CHECKING:

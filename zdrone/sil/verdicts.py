@@ -25,7 +25,7 @@ from ..core.records import (AnyRecord, OperatorConsentRefused, OperatorRequestDe
                             GsState, HandoverComplete, HandoverFailed, GsLinkConfirmed, LinkConfirmed, LinkInstalled,
                             LinkkeyReceived, LinkStateChanged, MissionProgress, Paired, R, Restarted, RevisionApplied,
                             Start, logged, only, record_type)
-from .records import Captured, UnauthorizedAttempt
+from .testbed_records import Captured, UnauthorizedAttempt
 from ..core.reference import COVERAGE_RADIUS_M, DELIVERY, GS_B
 from ..core.tbm import LinkState
 from .moments import RETURNING

@@ -24,7 +24,7 @@ from ...fleet.files import load_fleet, load_secret
 from ...fleet import keyexprs as kx
 from ...fleet.routerconfig import UPLINK_MAX_HZ
 from ...net.eventlog import EventLog
-from .. import records as trec
+from .. import testbed_records as trec
 
 ROGUE_COMPID = 190
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.

@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import common as mav
 from ...core import fcsign
 from ...core.fleet import ConfigError
 from ...core.mavlink import FrameCodec
-from .. import records as trec
+from .. import testbed_records as trec
 from .common import ROGUE_COMPID, Ctx, gcs_heartbeat
 
 

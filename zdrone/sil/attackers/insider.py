@@ -45,7 +45,7 @@ from ...core.pairing import PairingInitiator
 from ...core import wire
 from ...fleet.files import load_secret
 from ...fleet import keyexprs as kx
-from .. import records as trec
+from .. import testbed_records as trec
 from ...net.session import open_client
 from .common import ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, gcs_heartbeat, next_up, session_as
 

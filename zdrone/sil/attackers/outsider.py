@@ -71,7 +71,7 @@ from ...core.pairing import PairingInitiator
 from ...fleet.files import load_secret
 from ...fleet import keyexprs as kx
 from ...fleet.tls import issue, make_ca, node_files
-from .. import records as trec
+from .. import testbed_records as trec
 from ...net.session import open_client
 from .common import GO_TIMEOUT, ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, land_frame, next_up, Replies
 

@@ -14,7 +14,7 @@ from ...core.keyshare import KeyShareAsk
 from ...core.pairing import PairingInitiator
 from ...fleet.files import load_secret
 from ...fleet import keyexprs as kx
-from .. import records as trec
+from .. import testbed_records as trec
 from ...net.session import open_client
 from .common import Ctx, land_frame, next_up
 
