@@ -60,7 +60,8 @@ from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.authority import RELEASE_NOT_AUTHORITY, RELEASE_STALE_EPOCH
 from zdrone.core.authority import State as HaState
-from zdrone.core.envelope import Dropped, SecureLink
+from zdrone.core.envelope import Dropped, Opened, SecureLink
+from zdrone.core.linktraffic import LinkTraffic
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
@@ -242,6 +243,7 @@ class StationCore:
         self.sysid = node.sysid
         self.coverage: Circle | None = node.coverage.circle() if node.coverage else None
         self.counters: Counter[str] = Counter()
+        self.traffic = LinkTraffic()  # what the drones' envelopes carried, by kind (bench traffic)
         extra = max(len(drones) - 1, 0)
         spread = {"upload_spread_s": UPLOAD_SPREAD_PER_DRONE_S * extra, "takeoff_spread_s": TAKEOFF_SPREAD_PER_DRONE_S * extra}
         self.views = {d: DroneView(d, fleet.nodes[d].sysid, handover=Handover(d),
@@ -577,7 +579,8 @@ class StationCore:
         return out
 
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
-        """One sealed envelope from ``drone``."""
+        """One sealed envelope from ``drone``: one message, or a batch of the drone's pass (each
+        message taken in order, as if it had come on its own)."""
         self._input(now)
         view = self.views.get(drone)
         if view is None:
@@ -587,7 +590,6 @@ class StationCore:
             self.counters["no_link"] += 1
             return []
         self._mark_stale(view, now)  # before the frame counts: a long silence ends here
-        self._inputs += 1
         if view.switching and view.slot.previous is not None:
             view.slot.previous_until = max(view.slot.previous_until, now + PREVIOUS_GRACE)
         res, promoted = view.slot.open(data, now)
@@ -595,14 +597,23 @@ class StationCore:
             view.switching = False  # the drone speaks under our new key: the old one's grace runs out
         if isinstance(res, Dropped):
             return []
+        self.traffic.heard(data, res)
         out: list[Action] = []
         if promoted is not None:
             view.link = view.slot.live
             out.append(Emit(rec.GsLinkConfirmed(drone=drone, how=promoted.origin, replaced=promoted.replaced)))
             log.info("link to %s: key confirmed by the drone (%s)", drone, promoted.origin)
+        for item in res.items():
+            out += self._on_message(view, item, now)
+        return out
+
+    def _on_message(self, view: DroneView, res: Opened, now: float) -> list[Action]:
+        """One authentic message of the drone: a control message, or a MAVLink frame."""
+        self._inputs += 1
+        drone = view.name
         if res.control is not None:
-            return out + self._on_control(view, res.control, now)
-        out.append(FrameUp(drone, res.plaintext))
+            return self._on_control(view, res.control, now)
+        out: list[Action] = [FrameUp(drone, res.plaintext)]
         if res.header is None or res.header.msgid not in USED_MSGIDS:
             return out  # a full decode costs ~19 µs: only for what the station uses
         msg = self.codec.decode(res.plaintext)
@@ -906,7 +917,7 @@ class StationCore:
                       "key_candidates": len(v.slot.candidates),
                       "dropped_unlinked": {r.value: c for r, c in v.slot.unlinked.items() if c},
                       "fc_signed": v.fc_signed}
-        return {"drones": out, "counters": dict(self.counters)}
+        return {"drones": out, "counters": dict(self.counters), "traffic": self.traffic.report()}
 
 
 def view_line(gs: str, drone: str, v: DroneView, now: float) -> str:

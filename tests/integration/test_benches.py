@@ -26,9 +26,20 @@ def test_bench_traffic_quick():
         assert "error" not in row, row
         assert row["packets_per_min"] > 0 and row["mean_packet_bytes"] > 0
         assert row["up"]["packets"] > 0 and row["down"]["packets"] > 0
-    # wire-format facts, not speed: our envelope adds 24 bytes to every frame; the paper's far more
-    assert 20.0 <= rows["zdrone"]["change_vs_plain"]["mean_bytes_added"] <= 28.0
+    # wire-format facts, not speed: our envelope adds 24 bytes to every envelope, and a drone's pass to a
+    # GS is one envelope (one per packet down, several messages in it); the paper's Fernet, one per frame
+    for name, per_envelope in (("plain", 0), ("zdrone", 24)):
+        for direction in ("up", "down"):
+            env = rows[name][direction]["kinds"]["envelope"]
+            assert env["messages"] > 0 and env["bytes"] == per_envelope * env["messages"], (name, direction, env)
+        assert rows[name]["down"]["envelopes"] <= 1.05 * rows[name]["down"]["packets"]
+        assert rows[name]["down"]["frames"] > rows[name]["down"]["envelopes"]  # batches: messages per envelope
+    assert rows["paper"]["down"]["envelopes"] > rows["paper"]["down"]["packets"]
+    assert 0.0 < rows["zdrone"]["change_vs_plain"]["mean_bytes_added"] < 24.0
     assert rows["paper"]["change_vs_plain"]["mean_bytes_added"] > 60.0
+    assert rows["zdrone"]["change_vs_plain"]["bytes_pct"] < rows["paper"]["change_vs_plain"]["bytes_pct"]
+    kinds = rows["zdrone"]["down"]["kinds"]
+    assert kinds["status"]["messages"] == kinds["attestation"]["messages"] > 0  # an attestation in every status
     assert rows["paper"]["up"]["packets_per_min"] > rows["zdrone"]["up"]["packets_per_min"]  # separate heartbeats
     assert r["paper_table1"]["with"]["packets_per_min"] == 196
 

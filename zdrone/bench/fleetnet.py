@@ -61,6 +61,9 @@ class FleetNet:
     #: heard from every GS that is neither hung nor cut
     stamps: bool = True
     next_stamp: float = 0.0
+    #: the drone seals each step's messages to a GS as one envelope, put at the step's end (as its node
+    #: does per pass: ``DroneCoreOptions.batch``)
+    batch: bool = False
 
     def __post_init__(self) -> None:
         self.fleet = load_fleet(self.fleet_dir)
@@ -72,7 +75,7 @@ class FleetNet:
 
     def new_drone(self) -> DroneCore:
         ident = load_secret(self.fleet_dir, "d1", self.fleet).identity
-        return DroneCore(self.fleet, "d1", ident, DroneCoreOptions(), started_wall=WALL0 + self.now)
+        return DroneCore(self.fleet, "d1", ident, DroneCoreOptions(batch=self.batch), started_wall=WALL0 + self.now)
 
     def add_gs(self, name: str, **opts) -> StationCore:
         fleet = self.fleet
@@ -155,6 +158,7 @@ class FleetNet:
         timer = self.drone.get_timer()
         if timer is not None and self.now >= timer:
             self.drone_outs(self.drone.handle_timer(self.now))
+        self.drone_outs(self.drone.flush())  # the pass's batches (``batch``; nothing otherwise)
 
     def stamp(self, gs: str, wall: float | None = None) -> bytes:
         """GS ``gs``'s signed revision stamp at time of day ``wall`` (default: now), under its key in force."""

@@ -1,6 +1,7 @@
 """The sealed envelope and the secure link: seal, open, replay protection, per-link stats.
 
-Wire format of our envelope (24 bytes added to each frame)::
+Wire format of our envelope (24 bytes added to each plaintext: one frame, or a drone's batch of a
+pass's frames to one GS, ``seal_batch``)::
 
     +-------+----------------------+---------------------------+----------+
     | epoch | counter (56 bit, BE) | ciphertext (= plaintext)  | tag (16) |
@@ -15,7 +16,9 @@ frame moved to another key expression, link or epoch fails to open.
 Checks on open, in order; the first failure is returned as ``Dropped(reason)`` and counted, never
 raised: envelope well-formed -> known key epoch -> AEAD opens -> not a replay -> inner MAVLink frame
 parses and its sysid is the sender's fleet sysid (or the inner control message decodes) -> sender
-authorized.
+authorized. A batch (drone -> GS only; ``wire.BATCH_PREFIX``) is authentic or not as a whole (one
+AEAD, one counter, one replay check, one TBM observation); its items are then checked one by one as
+above, a bad item dropped and counted on its own, the rest delivered in order (``Opened.batch``).
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from cryptography.exceptions import InvalidTag
 from cryptography.fernet import Fernet, InvalidToken
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
-from . import wire
+from . import bundle, wire
 from .errors import ProtocolError
 from .keys import DOWN, UP, KeyChain, LinkKey
 from .mavlink import FrameError, FrameHeader, read_header
@@ -79,6 +82,12 @@ class Opened(msgspec.Struct, frozen=True):
     epoch: int
     counter: int
     gap: float | None  # seconds since the previous authentic frame on this link (TBM)
+    #: a batch's items, each opened and checked on its own, in order (``plaintext`` is then the batch's)
+    batch: tuple["Opened", ...] = ()
+
+    def items(self) -> tuple["Opened", ...]:
+        """What the envelope carried, one message each: the batch's items, or itself."""
+        return self.batch or (self,)
 
 
 def associated_data(keyexpr: str, sender: str, receiver: str) -> bytes:
@@ -280,6 +289,17 @@ class SecureLink:
     def seal_control(self, msg: wire.Control) -> bytes:
         return self.seal(wire.encode_control(msg))
 
+    def seal_batch(self, plaintexts: list[bytes]) -> bytes:
+        """Seal a drone's plaintexts for the GS (a pass's frames and controls, in order) as one
+        envelope: one header and tag for all (``wire.BATCH_PREFIX``); a single one is sealed as itself."""
+        if self.role != "drone":
+            raise ValueError("only a drone seals batches")
+        if len(plaintexts) == 1:
+            return self.seal(plaintexts[0])
+        out = self.seal(wire.BATCH_PREFIX + bundle.pack(plaintexts))
+        self.sent += len(plaintexts) - 1  # ``sent`` counts messages
+        return out
+
     # ---------------------------------------------------------------- receiving
     def _drop(self, reason: DropReason, detail: str = "", count: bool = True) -> Dropped:
         if not count:
@@ -347,8 +367,31 @@ class SecureLink:
             self._rx_chain.advance()
             self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None
             log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
-        header: FrameHeader | None = None
-        control: wire.Control | None = None
+        if plaintext[:1] == wire.BATCH_PREFIX and self.role == "gs":  # a drone's batch: its items one by one
+            items = bundle.unpack(plaintext[1:])
+            if items is None or len(items) < 2:
+                return self._drop(DropReason.BAD_INNER, "batch")
+            inner = [self._inner(item) for item in items]
+            good = [i for i in inner if not isinstance(i, Dropped)]
+            if not good:
+                return inner[0]  # type: ignore[return-value]  # each counted by ``_inner``
+        else:
+            one = self._inner(plaintext)
+            if isinstance(one, Dropped):
+                return one
+            good = [one]
+        if self.authorize is not None and not self.authorize(self.peer):
+            return self._drop(DropReason.UNAUTHORIZED, self.peer)
+        gap = self.tbm.observe(now)
+        self.opened += len(good)
+        opened = [Opened(p, h, c, rx.epoch, counter or 0, gap) for p, h, c in good]  # type: ignore[misc]
+        if len(opened) == 1 and plaintext[:1] != wire.BATCH_PREFIX:
+            return opened[0]
+        return Opened(plaintext, None, None, rx.epoch, counter or 0, gap, tuple(opened))
+
+    def _inner(self, plaintext: bytes) -> tuple[bytes, FrameHeader | None, wire.Control | None] | Dropped:
+        """One message of an authentic envelope checked: a MAVLink frame of the peer's sysid, or a
+        control message that decodes (a failure counted)."""
         if plaintext[:1] in (b"\xfd", b"\xfe"):
             try:
                 header = read_header(plaintext)
@@ -356,16 +399,11 @@ class SecureLink:
                 return self._drop(DropReason.BAD_INNER, str(exc))
             if self.peer_sysid is not None and header.sysid != self.peer_sysid:
                 return self._drop(DropReason.SYSID_MISMATCH, f"sysid {header.sysid} != {self.peer_sysid}")
-        else:
-            try:
-                control = wire.decode_control(plaintext)
-            except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
-                return self._drop(DropReason.BAD_INNER, f"control: {exc}")
-        if self.authorize is not None and not self.authorize(self.peer):
-            return self._drop(DropReason.UNAUTHORIZED, self.peer)
-        gap = self.tbm.observe(now)
-        self.opened += 1
-        return Opened(plaintext, header, control, rx.epoch, counter or 0, gap)
+            return plaintext, header, None
+        try:
+            return plaintext, None, wire.decode_control(plaintext)
+        except (msgspec.DecodeError, msgspec.ValidationError, ValueError) as exc:
+            return self._drop(DropReason.BAD_INNER, f"control: {exc}")
 
     def stats(self, now: float) -> LinkStats:
         return LinkStats(

@@ -1,7 +1,11 @@
 """Control messages carried inside the sealed envelope next to MAVLink frames.
 
 A sealed plaintext is either one MAVLink frame (first byte 0xFD or 0xFE) or ``CONTROL_PREFIX``
-followed by one msgpack-encoded control message below (a msgspec tagged union, field ``t``).
+followed by one msgpack-encoded control message below (a msgspec tagged union, field ``t``), or, from
+a drone to a GS only, a *batch*: ``BATCH_PREFIX`` followed by two or more such plaintexts in the
+bundle format (``zdrone.core.bundle``: a 2-byte length before each), the messages of one pass of the
+drone to that GS under one envelope (``SecureLink.seal_batch``): one header and tag per radio packet,
+not per frame.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ import enum
 import msgspec
 
 CONTROL_PREFIX = b"\x01"
+BATCH_PREFIX = b"\x02"
 
 
 class AuthorityState(enum.Enum):

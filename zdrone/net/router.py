@@ -39,9 +39,16 @@ TAKE_OVER_RETRY_MS = 50
 TAKE_OVER_LINE = "taking over"
 
 
+#: What the tap counts: the links, and the revision pushes every node hears (queries and their replies
+#: are not samples: not counted)
+TAP_KEYS = ("zdrone/**", "zdrone-fleet/**")
+
+
 class TrafficTap:
     """Counts every sample that crosses the router, per key expression (the router's own session
-    sees them all; the ACL filters remote sessions only)."""
+    sees them all; the ACL filters remote sessions only): the links (``zdrone/**``) and the fleet's
+    revision pushes (``TAP_KEYS``). A drone's publication is a bundle: its envelopes are counted too
+    (an envelope holds one message, or a batch of the drone's pass)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -58,12 +65,13 @@ class TrafficTap:
             frames = len(unpack(sample.payload.to_bytes()) or [b""])
         now = time.time()
         with self.lock:
-            c = self.counts.setdefault(key, [0, 0, 0])  # samples, bytes, frames
+            c = self.counts.setdefault(key, [0, 0, 0])  # samples, bytes, envelopes
             c[0] += 1
             c[1] += n
             c[2] += frames
-            self.first = self.first or now
-            self.last = now
+            if key.startswith("zdrone/"):  # the window: the links' first and last sample
+                self.first = self.first or now
+                self.last = now
 
     def dump(self) -> None:
         with self.lock:
@@ -123,12 +131,12 @@ def run_router(config_path: str | Path, listen: list[str] | None = None, tap: st
     opened.set()
     try:
         counter = TrafficTap(tap) if tap else None
-        sub = session.declare_subscriber("zdrone/**", counter) if counter else None
+        subs = [session.declare_subscriber(k, counter) for k in TAP_KEYS] if counter else []
         print(f"zdrone router: listening on {eps}, zid {session.info.zid()}", flush=True)
         while not stop.wait(1.0):
             if counter:
                 counter.dump()
-        if sub is not None:
+        for sub in subs:
             sub.undeclare()
         if counter:
             counter.dump()

@@ -41,11 +41,13 @@ from zdrone.core import authority as ha
 from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.attestation import BEACON_S, Attester
+from zdrone.core.bundle import MAX_BUNDLE
 from zdrone.core.envelope import Dropped, Opened, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint
 from zdrone.core.keys import Identity, LinkKey, SigningKey
 from zdrone.core.linkslot import LinkSlot, Promoted
+from zdrone.core.linktraffic import LinkTraffic
 from zdrone.core.mavlink import FrameError, read_header
 from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.outputs import Emit, Put
@@ -127,6 +129,25 @@ class DroneCoreOptions:
     #: revision stamp from a GS other than the owner; else the owner's authority lapses as if its link
     #: were LOST (a covered authorized heir, else the failsafe), on the ground and in the air
     revision_lease: float = 0.0
+    #: seal what the drone says to one GS between two ``flush`` calls (the adapter's pass) as one
+    #: envelope (``SecureLink.seal_batch``): one header and tag per radio packet instead of per frame;
+    #: off, each message is sealed and put on its own at once (the in-memory fleets; the paper's Fernet)
+    batch: bool = False
+
+
+#: A batch's plaintext at most: with the envelope and the bundle's length it fits one bundle.
+BATCH_MAX = MAX_BUNDLE - 64
+
+
+class _Batch:
+    """Plaintexts waiting for one envelope to a GS under ``link``."""
+
+    __slots__ = ("link", "items", "size")
+
+    def __init__(self, link: SecureLink) -> None:
+        self.link = link
+        self.items: list[bytes] = []
+        self.size = 1  # the batch's prefix, then each item and its length
 
 
 class DroneCore:
@@ -155,6 +176,7 @@ class DroneCore:
         self.links: dict[str, SecureLink] = {}  # the live link of each slot
         self.probation: dict[str, float] = {}  # GS -> until when we listen for its proof of a new pairing key
         self.counters: Counter[str] = Counter()
+        self.traffic = LinkTraffic()  # what the GSs' envelopes carried, by kind (bench traffic)
         self.forwarded: Counter[str] = Counter()  # commanding frames forwarded, per GS
         self.forwarded_epochs: Counter[str] = Counter()  # the same per "epoch:gs" (one GS per epoch, always)
         self.standby = StandbyStream()  # what a GS that does not command the drone is sent of its stream
@@ -176,6 +198,7 @@ class DroneCore:
         self._lease_lapsed = False
         self._lease_armed: float | None = None  # the first pairing: the lease runs from here
         self._lapsed_owner: str | None = None  # whose lease lapsed (it renews nothing, it regains nothing)
+        self._queued: dict[str, list[_Batch]] = {}  # GS -> the envelopes of this pass (``batch``)
 
     # ---------------------------------------------------------------- inputs
     def on_envelope(self, gs: str, data: bytes, now: float) -> list[Out]:
@@ -192,6 +215,7 @@ class DroneCore:
                 out.append(Emit(rec.Drop(gs=gs, reason=res.reason.value, detail=res.detail)))
             return out + self._effects(now)
         assert isinstance(res, Opened)
+        self.traffic.heard(data, res)
         if promoted is not None:
             out += self._on_promoted(gs, promoted, now)
         if res.header is not None:
@@ -280,7 +304,7 @@ class DroneCore:
             link = self.links.get(gs)
             if link is None or (gs not in self._full_stream and not self.standby.allow(gs, msgid, now)):
                 continue
-            out.append(Put(gs, link.seal(frame)))
+            out += self._send(gs, link, frame)
         if msgid in STREAMED:
             self._latest[msgid] = frame
         return out
@@ -294,7 +318,8 @@ class DroneCore:
         for gs in sorted(full - self._full_stream):
             link = self.links.get(gs)
             if link is not None:
-                out += [Put(gs, link.seal(f)) for f in self._latest.values()]
+                for f in self._latest.values():
+                    out += self._send(gs, link, f)
             self.standby.forget(gs)
         self._full_stream = full
         return out
@@ -442,7 +467,9 @@ class DroneCore:
         if now >= self._next_beacon:
             self._next_beacon = now + self.opts.status_beacon
             st = self._stamped(self.machine.status(), now, renew=True)  # one signature for every GS
-            out += [Put(gs, link.seal_control(st)) for gs, link in sorted(self.links.items())]
+            plaintext = wire.encode_control(st)
+            for gs, link in sorted(self.links.items()):
+                out += self._send(gs, link, plaintext)
         return out + self._effects(now, timer=True)
 
     # -------------------------------------------------------------- reports
@@ -464,7 +491,7 @@ class DroneCore:
                      for gs, slot in self.slots.items()},
             "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
             "counters": dict(self.counters) | ({"standby_held": self.standby.held} if self.standby.held else {}), "forwarded_commands": dict(self.forwarded),
-            "forwarded_epochs": dict(self.forwarded_epochs),
+            "forwarded_epochs": dict(self.forwarded_epochs), "traffic": self.traffic.report(),
         }
 
     def failsafe_latency_ms(self, now: float) -> float | None:
@@ -483,7 +510,28 @@ class DroneCore:
 
     def _control(self, gs: str, msg: wire.Control, now: float) -> list[Out]:
         link = self.links.get(gs)
-        return [] if link is None else [Put(gs, link.seal_control(self._stamped(msg, now)))]
+        return [] if link is None else self._send(gs, link, wire.encode_control(self._stamped(msg, now)))
+
+    def _send(self, gs: str, link: SecureLink, plaintext: bytes) -> list[Out]:
+        """Seal ``plaintext`` for ``gs`` now, or (``batch``) queue it for the pass's envelope (``flush``)."""
+        if not self.opts.batch:
+            return [Put(gs, link.seal(plaintext))]
+        batches = self._queued.setdefault(gs, [])
+        last = batches[-1] if batches else None
+        if last is None or last.link is not link or last.size + len(plaintext) + 2 > BATCH_MAX:
+            last = _Batch(link)  # a key replaced within the pass, or a full batch: the next envelope
+            batches.append(last)
+        last.items.append(plaintext)
+        last.size += len(plaintext) + 2
+        return []
+
+    def flush(self) -> list[Out]:
+        """The end of the adapter's pass (``batch``): what was queued for each GS, sealed as one
+        envelope per GS (under the link it was queued for, in order)."""
+        if not self._queued:
+            return []
+        queued, self._queued = self._queued, {}
+        return [Put(gs, b.link.seal_batch(b.items)) for gs, batches in queued.items() for b in batches]
 
     def on_audit_checkpoint(self, seq: int, head: bytes, sig: bytes) -> None:
         """The authority record signed its head (the adapter's log): shown to every GS in the status,

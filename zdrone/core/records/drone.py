@@ -67,6 +67,7 @@ class DroneState(Record, frozen=True, kw_only=True):
     paths: dict[str, dict[str, Any]] = {}  # with a router per site: each path (open, connected)
     fc_signing: dict[str, Any] = {}  # MAVLink signing of the autopilot's link (``FcSigning.status``)
     revision: dict[str, Any] = {}  # the fleet revision in force and the ones refused (``RevisionKeeper.stats``)
+    traffic: dict[str, tuple[int, int]] = {}  # what the GSs' envelopes carried: kind -> [messages, bytes] (``LinkTraffic``)
 
 
 class DroneStatus(DroneState, frozen=True, tag="status"):

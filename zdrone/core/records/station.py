@@ -50,6 +50,7 @@ class GsState(Record, frozen=True, kw_only=True):
     counters: dict[str, int]
     inbox_dropped: dict[str, int] = {}
     gateway: dict[str, Any] | None = None  # the GCS gateway's stats, when it runs one
+    traffic: dict[str, tuple[int, int]] = {}  # what the drones' envelopes carried: kind -> [messages, bytes] (``LinkTraffic``)
 
 
 class GsStatus(GsState, frozen=True, tag="status"):

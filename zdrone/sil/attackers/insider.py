@@ -104,7 +104,8 @@ def uplink_sealed(c: Ctx) -> None:
                 data = down.get_nowait()
             except queue.Empty:
                 break
-            opened += isinstance(link.open(data, time.monotonic()), Opened)
+            res = link.open(data, time.monotonic())
+            opened += len(res.items()) if isinstance(res, Opened) else 0  # a batch: each frame in it
         c.events.write("attack_done", sealed=dict(sent), total=sum(sent.values()), drone_frames_opened=opened)
     finally:
         sub.undeclare()
@@ -213,22 +214,23 @@ def insider_heir(c: Ctx) -> None:
                 except queue.Empty:
                     break
                 for link in reversed(links):
-                    res = link.open(data, now)
-                    if not isinstance(res, Opened):
+                    opened = link.open(data, now)
+                    if not isinstance(opened, Opened):
                         continue
-                    if isinstance(res.control, wire.AuthorityStatus):
-                        epoch = res.control.epoch
-                        if res.control.owner == "B" and owner_at is None:
-                            owner_at = time.time()
-                        if res.control.state is wire.AuthorityState.FAILSAFE and failsafe_at is None:
+                    for res in opened.items():  # a batch of the drone's pass: each message
+                        if isinstance(res.control, wire.AuthorityStatus):
+                            epoch = res.control.epoch
+                            if res.control.owner == "B" and owner_at is None:
+                                owner_at = time.time()
+                            if res.control.state is wire.AuthorityState.FAILSAFE and failsafe_at is None:
+                                failsafe_at = time.time()
+                        elif isinstance(res.control, wire.FailsafeNotice) and failsafe_at is None:
                             failsafe_at = time.time()
-                    elif isinstance(res.control, wire.FailsafeNotice) and failsafe_at is None:
-                        failsafe_at = time.time()
-                    elif res.header is not None and res.header.msgid == mav.MAVLINK_MSG_ID_COMMAND_ACK:
-                        ack = codec.decode(res.plaintext)
-                        if ack is not None and ack.command in names:
-                            result = "accepted" if ack.result == mav.MAV_RESULT_ACCEPTED else f"result_{ack.result}"
-                            acks[f"{names[ack.command]}:{result}"] += 1
+                        elif res.header is not None and res.header.msgid == mav.MAVLINK_MSG_ID_COMMAND_ACK:
+                            ack = codec.decode(res.plaintext)
+                            if ack is not None and ack.command in names:
+                                result = "accepted" if ack.result == mav.MAV_RESULT_ACCEPTED else f"result_{ack.result}"
+                                acks[f"{names[ack.command]}:{result}"] += 1
                     break
             c.stop.wait(0.02)
         c.events.write("attack_done", **sent, refusals=dict(refusals), owner_at=owner_at, failsafe_at=failsafe_at,
