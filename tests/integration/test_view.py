@@ -161,7 +161,7 @@ def test_the_page_follows_a_flight_owner_staleness_failsafe_reconnect_and_no_out
         assert [v for _, v in firsts[:3]] == ["A", "B", "A"], firsts
         for (t_page, owner), rec in zip(firsts, moved):
             assert 0.0 <= t_page - rec["t"] <= 0.5, (owner, t_page - rec["t"])
-        if os.environ.get("ZDRONE_VIEW_SCREENSHOT"):  # the README's picture (docs/view.png)
+        if os.environ.get("ZDRONE_VIEW_SCREENSHOT"):  # the view's picture (docs/view.png, in docs/view.md)
             page.screenshot(path=os.environ["ZDRONE_VIEW_SCREENSHOT"], full_page=True)
 
         # the GSs stop: d1 shown stale within 2 s

@@ -547,13 +547,18 @@ def test_a_key_file_through_a_symlink_or_of_another_user_is_refused(tmp_path, mo
         assert load_keys(real) == (OPS_A,)
 
 
-# ------------------------------------------------------------------ the README's example; passphrase strength
-def readme_key_file() -> list[str]:
+# ------------------------------------------------------------------ the documented example; passphrase strength
+def _gcs_doc():
+    """The page that documents signed applications (it was the README's until the docs moved)."""
     from pathlib import Path
 
+    return Path(__file__).resolve().parents[2] / "docs" / "gcs.md"
+
+
+def documented_key_file() -> list[str]:
     blocks: list[list[str]] = []
     inside = False
-    for line in (Path(__file__).resolve().parents[2] / "README.md").read_text().splitlines():
+    for line in _gcs_doc().read_text().splitlines():
         if line.startswith("```"):
             inside = not inside
             if inside:
@@ -564,17 +569,16 @@ def readme_key_file() -> list[str]:
     return block
 
 
-def test_the_readmes_key_file_example_works_as_it_stands(tmp_path):
-    """Found from outside: the README's example failed: its trailing '#' comments became part of the
-    passphrase (the MAVProxy line made another key) and its hex line was refused at start."""
+def test_the_documented_key_file_example_works_as_it_stands(tmp_path):
+    """Found from outside: the README's example (now in docs/gcs.md) failed: its trailing '#' comments
+    became part of the passphrase (the MAVProxy line made another key) and its hex line was refused at start."""
     import hashlib
-    from pathlib import Path
 
-    lines = readme_key_file()
-    kf = parse_key_file(lines, "README")
+    lines = documented_key_file()
+    kf = parse_key_file(lines, "docs/gcs.md")
     assert kf.gs == "A" and [k.name for k in kf.keys] == ["mavproxy", "qgc", "qgc-pass", "script"]
-    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    mavproxy_pass, = set(re.findall(r'--cmd="signing key (\S+)"', readme))
+    doc = _gcs_doc().read_text()
+    mavproxy_pass, = set(re.findall(r'--cmd="signing key (\S+)"', doc))
     assert kf.keys[0].key == passphrase_key(mavproxy_pass) == hashlib.sha256(mavproxy_pass.encode()).digest()
     assert kf.keys[2].key == qgc_passphrase_key("harbor-4e1d-lantern-9b2c-ribbon-07fa")
     assert weak_keys(kf.keys) == []  # the example is what the GS asks for
