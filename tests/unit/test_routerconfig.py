@@ -116,11 +116,13 @@ def test_lanes_are_keys_of_their_uplink_and_name_its_gs():
 
 def test_every_site_router_limits_its_clients_and_meshes_over_quic():
     """A site router's clients meet the same budgets; its mesh links are QUIC on the same ports."""
-    from zdrone.fleet.routerconfig import mesh_endpoint, revision_downsampling, site_router_config, uplink_downsampling
+    from zdrone.fleet.routerconfig import (mesh_endpoint, ops_downsampling, revision_downsampling, site_router_config,
+                                           uplink_downsampling)
 
     cfg = site_router_config(default_fleet(), "c.txt", "site-2", "tls/127.0.0.1:7448", ["tls/127.0.0.1:7447"],
                              ("router-site-1",), "pw")
-    assert cfg["downsampling"] == uplink_downsampling(default_fleet()) + revision_downsampling(default_fleet())
+    assert cfg["downsampling"] == (uplink_downsampling(default_fleet()) + revision_downsampling(default_fleet())
+                                   + ops_downsampling(default_fleet()))
     assert uplink_downsampling(default_fleet()) != [] != revision_downsampling(default_fleet())
     assert cfg["downsampling"][0]["flows"] == ["egress"]  # mutual TLS: per credential
     assert cfg["listen"]["endpoints"] == ["tls/127.0.0.1:7448", "quic/127.0.0.1:7448"]

@@ -112,7 +112,17 @@ def test_the_viewer_may_only_read_the_pictures_and_the_revisions():
     assert rules["V-revision-recv"]["flows"] == ["egress"] and rules["V-revision"]["key_exprs"] == ["zdrone-fleet/revision/*"]
     assert not any(m in r["messages"] for r in mine if "ingress" in r["flows"]
                    for m in ("put", "declare_queryable", "reply"))
-    assert rules["A-ops-own"]["key_exprs"] == ["zdrone-ops/A"] and rules["A-ops-own"]["flows"] == ["ingress"]
+    assert rules["A-ops-own"]["key_exprs"] == [f"zdrone-ops/A/{i}" for i in range(8)]  # its lanes, nothing else
+    assert rules["A-ops-own"]["flows"] == ["ingress"] and rules["V-ops-sub"]["key_exprs"] == ["zdrone-ops/*/*"]
+    # every (GS, lane) has a budget at the viewer's egress: one credential's parts a second are bounded
+    from zdrone.fleet.routerconfig import OPS_LANE_HZ
+
+    from zdrone.fleet.routerconfig import router_config
+
+    (ops,) = [d for d in router_config(default_fleet(), "c.txt")["downsampling"] if d["id"] == "ops-rate"]
+    assert ops["flows"] == ["egress"] and {r["key_expr"] for r in ops["rules"]} == {
+        f"zdrone-ops/{g}/{i}" for g in ("A", "B", "X") for i in range(8)}
+    assert {r["freq"] for r in ops["rules"]} == {OPS_LANE_HZ}
 
 
 # ------------------------------------------------- the drone's signed word on who commands it

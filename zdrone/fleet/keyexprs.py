@@ -84,12 +84,32 @@ def revision_all() -> str:
     return "zdrone-fleet/revision/*"
 
 
+#: Lanes of a GS's operations picture: part ``i`` of a picture goes on lane ``i`` (the last lane takes
+#: the rest), each lane with its own router budget (``OPS_LANE_HZ``), so one GS's parts per second are
+#: bounded at the router (a picture of 300 drones is about 6 parts).
+OPS_LANES = 8
+
+
 def ops(gs: str) -> str:
-    """GS ``gs``'s operations picture, sealed for the fleet's viewer (``zdrone.core.opspicture``):
-    only ``gs`` may put there, only a viewer subscribes."""
+    """GS ``gs``'s operations picture, sealed for the fleet's viewer (``zdrone.core.opspicture``): the
+    name its parts are sealed under; they travel on its lanes (``ops_lane``)."""
     return f"zdrone-ops/{gs}"
 
 
+def ops_lane(gs: str, lane: int) -> str:
+    """Lane ``lane`` of GS ``gs``'s picture: only ``gs`` may put there, only a viewer subscribes."""
+    return f"zdrone-ops/{gs}/{lane}"
+
+
+def ops_lanes(gs: str) -> list[str]:
+    return [ops_lane(gs, i) for i in range(OPS_LANES)]
+
+
+def gs_of_ops(keyexpr: str) -> str:
+    """The GS of an operations picture's lane ``zdrone-ops/<gs>/<lane>``."""
+    return str(keyexpr).split("/")[1]
+
+
 def ops_all() -> str:
-    """Every GS's operations picture: what a viewer subscribes to."""
-    return "zdrone-ops/*"
+    """Every GS's operations picture, every lane: what a viewer subscribes to."""
+    return "zdrone-ops/*/*"

@@ -42,12 +42,15 @@ budget only: the other GSs' revisions (the one revoking it included) still reach
 session asks at most ``REVISION_QUERY_HZ`` times per second (on ingress): a drone's leaked password
 cannot make the GSs answer without end. These rules grow with the GSs, like the uplinks'.
 
-Operations pictures (``zdrone.core.opspicture``, sealed end to end for the viewer) travel on one key per
-GS, ``zdrone-ops/<g>``: only GS ``g`` may put there; only a viewer (role ``viewer``) may subscribe
-``zdrone-ops/*`` and receive them, and hear and ask for the fleet revisions like every node (so it
-follows revocations and rotations live); it may do nothing else: no put, no queryable, no key that
-commands. A part is at most ``OPS_MAX_BYTES`` (low-pass on ingress); a GS publishes at
-most a few a second, so no downsampling (several parts go back to back on one key).
+Operations pictures (``zdrone.core.opspicture``, sealed end to end for the viewer) travel on
+``OPS_LANES`` keys per GS, ``zdrone-ops/<g>/<lane>`` (part ``i`` of a picture on lane ``i``): only GS
+``g`` may put there; only a viewer (role ``viewer``) may subscribe ``zdrone-ops/*/*`` and receive
+them, and hear and ask for the fleet revisions like every node (so it follows revocations and
+rotations live); it may do nothing else: no put, no queryable, no key that commands. A part is at
+most ``OPS_MAX_BYTES`` (low-pass on ingress), and each (GS, lane) has a budget of ``OPS_LANE_HZ`` puts a
+second on egress to the viewer (an honest GS publishes at most ``1 / OPS_MIN_GAP_S`` pictures a
+second; the parts of one picture are on different lanes): whatever one GS's credential sends, the
+viewer receives at most ``OPS_LANES * OPS_LANE_HZ`` of its parts a second.
 
 Zenoh's limit is a minimum interval between puts on a key, measured when the router processes them,
 with no burst allowance: a router that stalls (scheduling, load) processes the frames that waited back
@@ -156,7 +159,7 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
 
         if node.role == "viewer":  # reads the GSs' pictures sealed for it and the fleet's revisions, nothing else
             add("ops-sub", ["declare_subscriber"], ["ingress"], [kx.ops_all()])
-            add("ops-recv", ["put"], ["egress"], [kx.ops_all()])
+            add("ops-recv", ["put"], ["egress"], [kx.ops_all()])  # bounded per (GS, lane): ops_downsampling
             add("revision", ["declare_subscriber", "query"], ["ingress"], [kx.revision_all()])
             add("revision-recv", ["put", "reply"], ["egress"], [kx.revision_all()])
             enrol(name, ids)
@@ -176,7 +179,7 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             add("linkkey-own", ["declare_queryable", "reply"], ["ingress"], [kx.linkkey_all(name)])
             add("linkkey-own-q", ["query"], ["egress"], [kx.linkkey_all(name)])
             if fleet.viewers():  # its operations picture, sealed for the viewer
-                add("ops-own", ["put"], ["ingress"], [kx.ops(name)])
+                add("ops-own", ["put"], ["ingress"], kx.ops_lanes(name))
             if drones:  # pairing and key sharing only for the drones this GS is authorized for
                 add("pair", ["query"], ["ingress"], [kx.pair(d, name) for d in drones])
                 add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
@@ -236,6 +239,21 @@ def revision_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
              "rules": [{"key_expr": kx.revision_all(), "freq": REVISION_QUERY_HZ}]}]
 
 
+#: Puts a second on each lane of a GS's operations picture, at the viewer's egress (an honest GS: at
+#: most 10 pictures a second, one part of each on a lane)
+OPS_LANE_HZ = 12.0
+
+
+def ops_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
+    """Zenoh downsampling of the GSs' operations pictures: one rule per (GS, lane) on egress of client
+    transports, so one budget per (viewer session, GS, lane) shared by every session sending as that GS."""
+    gss = [g for g in fleet.ground_stations() if not fleet.is_revoked(g)]
+    if not gss or not fleet.viewers():
+        return []
+    return [{"id": "ops-rate", "flows": ["egress"], "messages": ["put"], "link_protocols": CLIENT_LINKS,
+             "rules": [{"key_expr": k, "freq": OPS_LANE_HZ} for g in gss for k in kx.ops_lanes(g)]}]
+
+
 def size_limits(fleet: Fleet) -> list[dict[str, Any]]:
     """Zenoh's low-pass filter on ingress: the largest uplink put and pairing query (bytes of payload
     and attachment); a bigger one is dropped where it enters the router."""
@@ -278,7 +296,8 @@ def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None
                       # the size limit (and zdrone's messages are small): off
                       "shared_memory": {"enabled": False}},
         "access_control": access_control(fleet, tls),
-        "downsampling": uplink_downsampling(fleet, per_credential=tls) + revision_downsampling(fleet),
+        "downsampling": uplink_downsampling(fleet, per_credential=tls) + revision_downsampling(fleet)
+        + ops_downsampling(fleet),
         "low_pass_filter": size_limits(fleet) + revision_size_limits() + ops_size_limits(fleet),
     }
 

@@ -6,7 +6,7 @@ serves, the drone's signed word on its authority among them, and the authority e
 the last one) goes out every ``OPS_PERIOD_S``, and at once (at most every ``OPS_MIN_GAP_S``) after an
 authority event, so the viewer shows a hand-over
 within a few tens of milliseconds of the GS hearing it. It is cut into parts under
-``OPS_MAX_BYTES`` and each is sealed for the viewer (``zdrone.core.opspicture``), on ``zdrone-ops/<gs>``
+``OPS_MAX_BYTES`` and each is sealed for the viewer (``zdrone.core.opspicture``), on ``zdrone-ops/<gs>/<lane>``
 (the only key the router lets this GS put its picture on; only the viewer receives it).
 
 One viewer per fleet (the first of ``Fleet.viewers``): a fleet without one publishes nothing.
@@ -59,6 +59,7 @@ class OpsPublisher:
         self.urgent = False
         self.last: float | None = None
         self.parts_sent = 0
+        self.lane_overflow = 0  # parts beyond the lanes (on the last lane: the router may drop them)
 
     @staticmethod
     def sealer_for(gs: str, fleet: Fleet, identity: Identity) -> OpsSealer | None:
@@ -110,10 +111,12 @@ class OpsPublisher:
         if now < self.next_due():
             return
         drones = [self.source.drone_ops(d, now) for d in self.source.drones]
-        for part in report_parts(self.gs, round(wall, 3), drones, self.events):
-            self._put(kx.ops(self.gs), self.sealer.seal(part))
+        for i, part in enumerate(report_parts(self.gs, round(wall, 3), drones, self.events)):
+            # part i on lane i (the router's budget per lane); more parts than lanes share the last one
+            self._put(kx.ops_lane(self.gs, min(i, kx.OPS_LANES - 1)), self.sealer.seal(part))
             self.parts_sent += 1
+            self.lane_overflow += i >= kx.OPS_LANES
         self.events, self.urgent, self.last = [], False, now
 
     def stats(self) -> dict[str, Any]:
-        return {"parts_sent": self.parts_sent, "events_dropped": self.events_dropped}
+        return {"parts_sent": self.parts_sent, "events_dropped": self.events_dropped, "lane_overflow": self.lane_overflow}

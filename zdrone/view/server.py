@@ -3,7 +3,7 @@
 Theory of operation
 -------------------
 **Reading.** The view is the fleet's viewer node (role ``viewer``, from its bundle): a Zenoh client
-whose router ACL lets it subscribe ``zdrone-ops/*`` and hear and ask for the fleet's revisions, and
+whose router ACL lets it subscribe ``zdrone-ops/*/*`` and hear and ask for the fleet's revisions, and
 nothing else (no put, no queryable, no key that commands). Each GS seals its operations picture for
 it (``zdrone.core.opspicture``); a part that does not open, replays, or is an old start of a GS is
 dropped and counted (shown on the page). One thread (``Follower``) drains the inbox and merges the
@@ -206,7 +206,7 @@ class Follower:
                                     fleet_senders(self.fleet))
         self.lock = threading.Lock()
         self.stopping = threading.Event()  # the server is ending: the streams end (the page reconnects)
-        self.rt.subscribe(kx.ops_all(), "ops", kx.gs_of, limit=OPS_MAX_BYTES)
+        self.rt.subscribe(kx.ops_all(), "ops", kx.gs_of_ops, limit=OPS_MAX_BYTES)
         # the fleet's revisions, as every node hears them (the router lets the viewer subscribe and ask,
         # never publish): a revoked GS drops out, a rotated key is taken, without a restart
         self.revisions = RevisionChannel(self.rt, opts.fleet, publisher=False)
