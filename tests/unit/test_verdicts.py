@@ -131,3 +131,35 @@ def test_revoke_uncovered_wants_the_failsafe_at_once_and_authority_moved_nowhere
                             position=None)
     why = check(Outcome(summary, [rev, moved], {"A": [], "B": []}, []))
     assert any("authority moved after the revision" in w for w in why) and any("no failsafe" in w for w in why)
+
+
+
+def test_view_truth_wants_both_lies_told_and_the_old_word_replayed_and_excuses_a_failsafe_the_stop_made_late(tmp_path):
+    """``view-truth``'s flight side: the companion stopped 5 s wakes to silent links: a failsafe it
+    commands as it wakes is as late as the stop made it (excused); one late on its own is not. The
+    insider's replayed word must be of B's epoch and older than the hand-back."""
+    from zdrone.core.records import RevisionApplied
+    from zdrone.net.eventlog import read_records
+
+    check = SCENARIO_BY_NAME["view-truth"].check
+    logs = _flight()
+    stop = {"t": T0 + 150.0, "target": "drone", "text": "the companion stops (SIGSTOP)", "ends": T0 + 155.0}
+
+    def failsafe(t: float):
+        return Failsafe(t=t, node="d1", action="LAND", reason="authority link to A lost", detect_to_command_ms=2100.0,
+                        position=_at(HOME, 30.0))
+
+    def outcome(fs_t: float, replayed_at: float) -> Outcome:
+        drone = [*logs.drone[:-2], RevisionApplied(t=T0 + 20, node="d1", number=1, revoked=(), rotated=("A",)),
+                 failsafe(fs_t), *logs.drone[-2:]]
+        done = [{"t": T0 + 160, "node": "rogue-ops-unauthorized", "type": "attack_done", "parts": 200, "bursts": 3},
+                {"t": T0 + 160, "node": "rogue-ops-insider", "type": "attack_done", "parts": 40,
+                 "replayed": {"owner": "B", "epoch": 2, "state": "linked", "at": replayed_at, "seq": 12}}]
+        (tmp_path / "rogue.jsonl").write_text("".join(json.dumps(d) + "\n" for d in done))
+        summary = {"handovers": [{"from": "A", "to": "B", "kind": "handover"}, {"from": "B", "to": "A", "kind": "handover"}],
+                   "faults": [stop]}
+        return Outcome(summary, drone, logs.gs, read_records(tmp_path / "rogue.jsonl").records)
+
+    assert check(outcome(T0 + 155.05, T0 + 61.0)) == []
+    assert check(outcome(T0 + 170.0, T0 + 61.0)) == ["failsafe 2100 ms after the threshold"]
+    assert check(outcome(T0 + 155.05, T0 + 141.0)) == ["the replayed word is not older than the hand-back"]

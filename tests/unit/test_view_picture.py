@@ -288,6 +288,18 @@ def test_an_unauthorized_gs_says_nothing_of_a_drone_and_an_authorized_ones_word_
     assert "A" not in _row(pic, 20.0 + CLAIM_KEEP_S + EXPIRE_EVERY_S)["links"]
 
 
+def test_an_event_naming_no_drone_is_nobodys_word_in_the_feed():
+    """Found (view-truth, a real flight): GS X, authorized for no drone, put lines in the page's
+    authority feed ("d1: owner X, epoch 99, failsafe") by naming no drone in its events."""
+    pic = _picture()
+    for gs in ("X", "H", "A"):  # an unauthorized GS, a hostile authorized one, an honest one: the same rule
+        _on(pic, gs, 10.0, events=[OpsEvent(WALL, "", "authority_status", "d1: owner X, epoch 99, failsafe"),
+                                   OpsEvent(WALL, "d9", "failsafe_notice", "outside the fleet")])
+    assert not pic.feed and pic.drops["event_not_authorized"] == 6
+    _on(pic, "A", 11.0, events=[OpsEvent(WALL, "d1", "authority_status", "owner A, epoch 1")])
+    assert [e["gs"] for e in pic.feed] == ["A"]
+
+
 def test_a_gs_saying_link_ok_does_not_keep_a_stopped_drone_live_at_its_position():
     """Found: X saying "since_last 0, link ok" every 0.25 s kept a stopped drone live at X's position."""
     pic = _picture()

@@ -27,8 +27,8 @@ whole fleet, could seal a report "from A"); auth mode would do, at a DH per mess
 
 **The fleet picture** (``FleetPicture``). A GS may be silent (stopped, cut off) and one authorized GS
 may be hostile: every field is shown as *who said it*, and what a GS says is taken only where the
-fleet lets it speak. A GS's word on a drone it is not authorized for, on a name outside the fleet, or
-beyond its rate (``REPORT_RATE_PER_DRONE`` per drone it serves) is dropped and counted; a request
+fleet lets it speak. A GS's word on a drone it is not authorized for, on a name outside the fleet (an
+event naming no drone too), or beyond its rate (``REPORT_RATE_PER_DRONE`` per drone it serves) is dropped and counted; a request
 naming a GS outside the fleet loses that request. A GS's word counts for ``REPORT_TTL_S`` after it
 arrived (its link, the request its operator was asked, the failsafe it saw, the position it heard),
 then it is shown silent and counts for nothing; it is forgotten after ``CLAIM_KEEP_S``.
@@ -450,7 +450,9 @@ class FleetPicture:
                 self._attestation(gs, d.drone, d.attest, now, wall)
             touched.append(d.drone)
         for ev in report.events:
-            if ev.drone and gs not in self.authorized.get(ev.drone, frozenset()):
+            # every authority event names its drone: one naming none (or a drone outside the fleet)
+            # is no GS's word on a drone it serves, whoever sends it
+            if gs not in self.authorized.get(ev.drone, frozenset()):
                 self.drops["event_not_authorized"] += 1
                 continue
             if not bucket.take(now):

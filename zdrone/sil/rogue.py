@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gcs-port-b", type=int, help="UDP port of GS B's GCS gateway (local-app)")
     p.add_argument("--gcs-keys", help="GS A's GCS application key file (local-app: its operator's signed application)")
     p.add_argument("--wait-go", action="store_true", help="set up, then attack on SIGUSR2")
+    p.add_argument("--after-go", type=float, default=0.0, help="seconds to wait after SIGUSR2 before attacking (0)")
     p.add_argument("--replies", type=int, default=1, help="key-injection: forged replies of each kind per query (1)")
     p.add_argument("--recorded", type=int, default=8,
                    help="stale-pairing: message 1s of A recorded in earlier flights (8)")
@@ -65,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     events = EventLog(args.events, f"rogue-{args.mode}")
     ctx = Ctx(args.fleet, args.router, args.drone, events, args.duration, args.rate, args.gcs_port, args.wait_go,
               max(1, args.replies), max(0, args.recorded), fc_port=args.fc_port, vehicle_port=args.vehicle_port,
-              gcs_port_b=args.gcs_port_b, gcs_keys=args.gcs_keys, size=args.size)
+              gcs_port_b=args.gcs_port_b, gcs_keys=args.gcs_keys, size=args.size,
+              after_go=max(0.0, args.after_go))
     # on a thread of their own: a handler in the main thread setting an event the main thread waits on
     # can deadlock it (zdrone.net.shutdown); no thread runs yet (the sessions open in the attack)
     route_signals({signal.SIGTERM: ctx.stop.set, signal.SIGUSR2: ctx.go.set})

@@ -26,7 +26,7 @@ from .verdicts import (check_backhaul_cut_early, check_big_flood, check_companio
                        check_revoke_uncovered, check_revoked_alone, REVOKED_ALONE_LEASE_S,
                        check_rotate_in_flight, check_router_restart,
                        check_site_router_down, check_site_router_down_alone, check_stale_pairing, check_unauthorized,
-                       check_uplink_policy, fault_over_check, flight_unaffected)
+                       check_uplink_policy, check_view_truth, fault_over_check, flight_unaffected)
 
 if TYPE_CHECKING:
     from .verdicts import Outcome
@@ -150,6 +150,13 @@ _REVOKE_B_BEHIND_CUT = Fault(AT_DELIVERY, "B", REVOKE_BEHIND_CUT, "the operator 
                              "(site 1 only)", after=0.5)
 _ROTATE_A = Fault(AIRBORNE, "A", ROTATE, "the operator rotates GS A's key while A holds authority", after=1.0)
 _RESTART_ROUTER = Fault(AIRBORNE, "router", RESTART, "the router is killed and started again 0.8 s later", down=0.8)
+#: ``view-truth``: the companion stops this long after both hand-overs (the liars at work from 1 s after them) ...
+VIEW_STOP_AFTER_S = 2.0
+#: ... for this long
+VIEW_STOP_S = 5.0
+_STOP_DRONE = Fault(HANDOVERS_DONE, "drone", signal.SIGSTOP, "the companion stops (SIGSTOP)", after=VIEW_STOP_AFTER_S)
+_WAKE_DRONE = Fault(HANDOVERS_DONE, "drone", signal.SIGCONT, f"the companion goes on (SIGCONT) {VIEW_STOP_S:g} s later",
+                    after=VIEW_STOP_AFTER_S + VIEW_STOP_S)
 
 
 SCENARIO_TABLE: tuple[Scenario, ...] = (
@@ -351,6 +358,23 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              rogues=(RogueSpec("fake-autopilot", BEFORE_DRONE, go=AIRBORNE, sim_s=60.0, min_wall=15.0),),
              faults=(Fault(AIRBORNE, "gsA", signal.SIGSTOP, "GS A goes silent (SIGSTOP)"),),
              vehicle_udpin=True, fixed_moment=True),
+    Scenario("view-truth",
+             "the fleet's viewer lied to (run it with --view PORT to watch the page): GS A's key rotated in flight; "
+             "1 s after both hand-overs, X's key and password (authorized for no drone) and B's own key (with the "
+             "viewer's leaked router password) seal pictures for the viewer saying d1 is in its FAILSAFE, held by "
+             "them, takeover allowed, a request pending, elsewhere, its link ok and heard 0 s ago, X at 4/s with "
+             "bursts, B replaying the drone's signed word from when B held authority; then the companion stops "
+             f"(SIGSTOP) for {VIEW_STOP_S:g} s while they go on",
+             "the flight's own checks: the safety invariants, both hand-overs, A's rotation taken, X never holding "
+             "authority, both liars published, the drone's word captured early and replayed after authority moved; the page (tests/"
+             "integration/test_view_truth.py): the owner the drone signed or stale, never X, never B after the "
+             "hand-back, no FAILSAFE the drone did not enter, stale within 3.5 s of the stop",
+             check_view_truth,
+             rogues=(RogueSpec("ops-unauthorized", MISSION_STARTED, go=HANDOVERS_DONE, sim_s=0.0, min_wall=14.0, rate=4.0,
+                               args=("--after-go", "1")),
+                     RogueSpec("ops-insider", MISSION_STARTED, go=HANDOVERS_DONE, sim_s=0.0, min_wall=14.0, rate=4.0,
+                               args=("--after-go", "1"))),
+             faults=(_ROTATE_A, _STOP_DRONE, _WAKE_DRONE), fixed_moment=True),
 )
 SCENARIO_BY_NAME: dict[str, Scenario] = {s.name: s for s in SCENARIO_TABLE}
 #: Scenarios that need a router per site.

@@ -97,6 +97,17 @@ class TlsAttempt(Record, frozen=True, tag="tls_attempt"):
     result: str
 
 
+class WordCaptured(Record, frozen=True, tag="word_captured"):
+    """The attacker read one of the drone's signed words on its authority (``AuthorityAttestation``) on
+    its way to the viewer: the first it saw of this ``owner`` and ``epoch`` (the drone's ``at`` and ``seq``)."""
+
+    owner: str | None
+    epoch: int
+    state: str
+    at: float
+    seq: int
+
+
 # ----------------------------------------------------------------------------- the emulated radio
 class RadioLinkChanged(Record, frozen=True, tag="radio_link"):
     """The testbed brought site ``site``'s radio link up or down, from the vehicle's true ``position``."""
@@ -117,6 +128,6 @@ class LinkFault(Record, frozen=True, tag="link_fault"):
 TESTBED_RECORDS: tuple[type[Record], ...] = (
     Closed, Suppressed, RogueReady, RogueGo, RogueNoGo, RouterAcceptedWrongPassword, RouterRefused, PairAttempt,
     UnauthorizedAttempt, ForgedReply, NothingCaptured, Captured, FloodStart, RoguePairFailed, PairedAs,
-    TlsAttempt, RadioLinkChanged, LinkFault,
+    TlsAttempt, RadioLinkChanged, LinkFault, WordCaptured,
 )
 register_vocabulary("testbed", TESTBED_RECORDS)

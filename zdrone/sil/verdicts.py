@@ -167,7 +167,7 @@ FAILSAFE_LATE_MS = 100.0
 SILENT_AUTHORITY_S = 0.1
 
 
-def safety_invariants(o: Outcome) -> list[str]:
+def safety_invariants(o: Outcome, frozen: tuple[float, float] | None = None) -> list[str]:
     """The safety invariants of one run, whatever its faults; [] = safe:
 
     1. one commander per epoch: the commanding frames forwarded in each epoch all came from one GS,
@@ -175,7 +175,9 @@ def safety_invariants(o: Outcome) -> list[str]:
     2. the failsafe on time: commanded within threshold + ``FAILSAFE_LATE_MS``;
     3. no silent authority: whenever the authority's link was LOST, the drone handed over or entered
        its failsafe within ``SILENT_AUTHORITY_S`` (on the ground: recorded that the owner keeps it).
-    (Clean exits and the timeout are checked by the launcher for every run.)"""
+    (Clean exits and the timeout are checked by the launcher for every run.) ``frozen``: from when
+    to when the companion itself was stopped (SIGSTOP): a failsafe it commands then (as it wakes)
+    is as late as the stop made it, not late by its own doing."""
     why: list[str] = []
     owners = _owners_by_epoch(o.drone)
     last_by_run: list[dict[str, int]] = []
@@ -196,6 +198,8 @@ def safety_invariants(o: Outcome) -> list[str]:
         elif owners.get(epoch) not in senders:
             why.append(f"epoch {epoch}: commands from {sorted(senders)}, authority was {owners.get(epoch)}")
     for fs in only(o.drone, Failsafe):
+        if frozen is not None and frozen[0] <= fs.t <= frozen[1]:
+            continue
         if fs.detect_to_command_ms is not None and fs.detect_to_command_ms > FAILSAFE_LATE_MS:
             why.append(f"failsafe {fs.detect_to_command_ms:.0f} ms after the threshold")
     owner: str | None = None
@@ -798,4 +802,29 @@ def check_rotate_in_flight(o: Outcome) -> list[str]:
     why += _need(rev is not None, "the drone never applied the revision rotating A")
     if rev is not None:
         why += _need(any(e.t >= rev.t for e in o.confirmed("A", "pair")), "A never re-paired under its new key")
+    return why
+
+
+def check_view_truth(o: Outcome) -> list[str]:
+    """``view-truth``, its flight side (the page is checked by tests/integration/test_view_truth.py):
+    the safety invariants; both hand-overs before the companion stops, A's rotation taken; X never
+    linked nor holding authority; both liars published; the insider captured the drone's word of B's
+    epoch early and replayed it after authority moved on (the hand-back). The companion wakes to
+    links silent longer than its loss threshold: it may enter its failsafe then (at once, as it
+    wakes: whether its GSs' frames or its timer come first), or go on."""
+    stop = next((f for f in o.summary.get("faults", []) if f["target"] == "drone" and f["ends"] is not None), None)
+    why = safety_invariants(o, frozen=None if stop is None else (stop["t"], stop["ends"] + 1.0))
+    why += _need(stop is not None, "the companion never stopped and went on")
+    why += _need(o.pairs[:2] == [("A", "B"), ("B", "A")], f"hand-overs {o.pairs}, expected A->B, B->A first")
+    why += _need(_revision_applied(o, rotated=("A",)) is not None, "the drone never applied the revision rotating A")
+    owners = set(_owners_by_epoch(o.drone).values())
+    why += _need("X" not in owners, "X held authority")
+    x, b = o.rogue_done("ops-unauthorized"), o.rogue_done("ops-insider")
+    why += _need(x.get("parts", 0) > 0 and x.get("bursts", 0) > 0, f"X published no parts (or no burst): {x}")
+    why += _need(b.get("parts", 0) > 0, f"the insider published no parts: {b}")
+    replayed = b.get("replayed") or {}
+    why += _need(replayed.get("owner") == "B", f"the insider replayed no word of B's epoch: {replayed}")
+    back = [e.t for e in only(o.drone, AuthorityMoved) if e.to == "A" and e.epoch > replayed.get("epoch", 0)]
+    why += _need(bool(back) and replayed.get("at", float("inf")) < back[0],
+                 "the replayed word is not older than the hand-back")
     return why

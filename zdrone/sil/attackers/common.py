@@ -64,6 +64,7 @@ class Ctx:
     gcs_port_b: int | None = None  # local-app: GS B's gateway (B's operator asks for control there)
     gcs_keys: str | None = None  # local-app: A's application key file (its own operator's signed application)
     size: int = 40  # junk-flood: bytes per junk envelope
+    after_go: float = 0.0  # wall seconds it waits after its signal before it attacks
     stop: threading.Event = field(default_factory=threading.Event)
     go: threading.Event = field(default_factory=threading.Event)
     _fleet: Fleet | None = None
@@ -83,13 +84,15 @@ class Ctx:
         self.events.write_record(trec.RogueReady(wait_go=self.wait_go))
 
     def wait_for_go(self) -> bool:
-        """Block until SIGUSR2 (if ``--wait-go``); False if told to stop first."""
+        """Block until SIGUSR2 (if ``--wait-go``) and ``after_go`` seconds more; False if told to stop first."""
         if not self.wait_go:
             return not self.stop.is_set()
         deadline = time.monotonic() + GO_TIMEOUT
         while not self.stop.is_set() and time.monotonic() < deadline:
             if self.go.wait(0.05):
-                self.events.write_record(trec.RogueGo())
+                if self.stop.wait(self.after_go):
+                    break
+                self.events.write_record(trec.RogueGo())  # (after ``after_go``: when it attacks)
                 return True
         self.events.write_record(trec.RogueNoGo(stopped=self.stop.is_set()))
         return False
