@@ -114,3 +114,41 @@ def test_the_radio_cost_of_an_attestation_per_beacon():
     added = len(encode_control(msgspec.structs.replace(st, attest=att))) - len(encode_control(st))
     assert 100 <= added <= 150, added
     assert added * 60 / BEACON_S <= 9000
+
+
+def test_the_drone_signs_its_failsafe_to_every_gs_at_once_not_at_the_next_beacon(fleet_dir):
+    """Found: on its failsafe the drone sent its GSs an unsigned notice only; the viewer showed it "live,
+    no failsafe" until the next beacon (up to a second)."""
+    net = _signing_net(fleet_dir)
+    net.add_gs("A", pair=True)
+    net.add_gs("B")
+    net.run(4.0)
+    assert net.drone.machine.owner == "A" and "B" in net.drone.links
+    net.on_ground = False
+    net.cut.add("A")  # the owner's link goes silent; B covers nothing where the drone is: the failsafe
+    for _ in range(1000):
+        if net.drone.machine.state is AuthorityState.FAILSAFE:
+            break
+        net.step(0.01)
+    assert net.drone.machine.state is AuthorityState.FAILSAFE
+    att = net.gss["B"].drone_ops("d1", net.now).attest
+    assert att is not None and att.state is AuthorityState.FAILSAFE  # in the same step, signed
+
+
+def test_a_drone_whose_keys_the_fleet_rotated_signs_and_pairs_under_the_new_ones(fleet_dir):
+    from zdrone.core.attestation import attestation_message
+    from zdrone.core.keys import Identity, verify_signature
+
+    net = _signing_net(fleet_dir)
+    net.add_gs("A", pair=True)
+    net.add_gs("B")
+    net.run(4.0)
+    identity, signing = Identity.generate(), SigningKey.generate()
+    net.drone.adopt_own_keys(identity, signing)
+    net.run(2.0)
+    att = net.gss["A"].drone_ops("d1", net.now).attest
+    assert verify_signature(signing.public, attestation_message("d1", att), att.sig)
+    assert net.drone.responder.me is identity and net.drone.machine.owner == "A"  # live links go on
+    net.drone.adopt_own_keys(None, None)  # the bundle does not hold the new keys: no word signed at all
+    net.run(2.0)
+    assert net.drone.attester is None

@@ -375,8 +375,17 @@ def test_a_drone_moves_its_record_to_its_new_key_when_it_applies_its_rotation(tm
     init_fleet(fleet_dir)
     logs = _run(tmp_path, fleet_dir, decisions=1)
     drone = logs["d1"]
-    node = SimpleNamespace(events=drone, name="d1", opts=SimpleNamespace(fleet=str(fleet_dir)),
-                           core=SimpleNamespace(counters=Counter()))
+    held = load_secret(fleet_dir, "d1")
+    adopted: list[tuple] = []
+
+    def adopt(identity, signing):  # DroneCore.adopt_own_keys: pairing and attestations under the new keys
+        adopted.append((identity, signing))
+        core.responder.me = identity or core.responder.me
+        core.attester = None if signing is None else SimpleNamespace(key=signing)
+
+    core = SimpleNamespace(counters=Counter(), responder=SimpleNamespace(me=held.identity),
+                           attester=SimpleNamespace(key=held.signing), adopt_own_keys=adopt)
+    node = SimpleNamespace(events=drone, name="d1", opts=SimpleNamespace(fleet=str(fleet_dir)), core=core)
     secret = fleet_dir / "secrets" / "d1.json"
     kept = secret.read_bytes()
     r1 = rotate(fleet_dir, "d1")
@@ -387,6 +396,10 @@ def test_a_drone_moves_its_record_to_its_new_key_when_it_applies_its_rotation(tm
     secret.write_bytes(new)
     DroneNode._rekey_audit(node, r1.fleet)  # type: ignore[arg-type]
     assert drone.audit.key is not None and drone.audit.key.public == r1.fleet.signing_public("d1")
+    assert adopted[0] == (None, None)  # nothing signed while the new keys are not here, never the retired one
+    assert adopted[1][0].public == r1.fleet.nodes["d1"].public_bytes and adopted[1][1].public == r1.fleet.signing_public("d1")
+    DroneNode._rekey_audit(node, r1.fleet)  # type: ignore[arg-type]
+    assert len(adopted) == 2  # the keys it holds are the fleet's: nothing more to do
     drone.write_record(rec.RevisionApplied(number=1, revoked=(), rotated=("d1",)))
     _close(logs)
     code, got = _verify_run(tmp_path, capsys)

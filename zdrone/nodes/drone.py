@@ -329,22 +329,33 @@ class DroneNode:
             self._do(self.core.on_revision_stamp(stamp, now), now)
 
     def _rekey_audit(self, fleet: Fleet) -> None:
-        """A revision that changed this drone's signing key: its authority record goes on under the new
-        key from its bundle (``EventLog.rekey_audit``), or, if the bundle does not hold it yet, under
-        none (counted: ``audit_rotation_pending``); never under the retired key."""
-        audit = self.events.audit
-        new = fleet.nodes[self.name].signing_public_bytes if self.name in fleet.nodes else None
-        if audit is None or (audit.key.public if audit.key is not None else None) == new:
+        """A revision that changed this drone's own keys: its authority record goes on under the new
+        signing key from its bundle (``EventLog.rekey_audit``), its word on its authority is signed
+        with it and pairing answers under the new static key (``DroneCore.adopt_own_keys``); if the
+        bundle does not hold them yet, nothing is signed (counted: ``audit_rotation_pending``), never
+        under a retired key."""
+        node = fleet.nodes.get(self.name)
+        if node is None:
+            return
+        held = self.core.responder.me.public, (self.core.attester.key.public if self.core.attester else None)
+        if (node.public_bytes, node.signing_public_bytes) == held:
             return
         from ..fleet.files import load_secret
 
         try:
-            key = load_secret(self.opts.fleet, self.name, fleet).signing
+            secret = load_secret(self.opts.fleet, self.name, fleet)
         except ConfigError as exc:
-            log.warning("own signing key rotated by the fleet, but the bundle does not hold the new one: %s", exc)
+            log.warning("own keys rotated by the fleet, but the bundle does not hold the new ones: %s", exc)
             self.core.counters["audit_rotation_pending"] += 1
-            key = None
-        self.events.rekey_audit(key)
+            if self.events.audit is not None:
+                self.events.rekey_audit(None)
+            self.core.adopt_own_keys(None, None)
+            return
+        log.warning("own keys rotated by the fleet: pairing, attestations and the record under the new keys")
+        self.core.counters["own_keys_rotated"] += 1
+        if self.events.audit is not None:
+            self.events.rekey_audit(secret.signing)
+        self.core.adopt_own_keys(secret.identity, secret.signing)
 
     def _hears_a_gs(self) -> bool:
         """TESTBED: whether the coverage gate lets any GS's traffic through now (True without one)."""

@@ -441,6 +441,15 @@ class DroneCore:
         why = f"lease lapsed (no revision stamp from another GS for {self.lease_s:g} s)"
         return out + self._handle(ha.Revised(now, authorized, self.fleet.revision, why), now)
 
+    def adopt_own_keys(self, identity: Identity | None, signing: SigningKey | None) -> None:
+        """The fleet rotated this drone's keys (``identity``, ``signing``: the new ones from its bundle;
+        None where the bundle does not hold them yet): pairing answers under the new static key, and
+        the drone's word on its authority is signed with the new key, or not at all (never with a
+        retired key: the viewer shows the drone stale until the new key is here). Live links go on."""
+        if identity is not None:
+            self.responder.me = identity
+        self.attester = Attester(self.name, signing) if signing is not None else None
+
     def ready(self, wall: float) -> None:
         """The companion is ready (its vehicle heard, its saved authority restored) at time of day
         ``wall``: pairing message 1s made before it (less the clock skew allowed) are stale."""
@@ -565,6 +574,7 @@ class DroneCore:
 
     def _apply(self, actions: list[ha.Action], now: float, frame: bytes | None = None) -> list[Out]:
         out: list[Out] = self._catch_up()  # a new owner or heir: the newest position before the news
+        failsafe = False
         for a in actions:
             if isinstance(a, ha.Forward):
                 if frame is not None:
@@ -581,6 +591,7 @@ class DroneCore:
                 out.append(Emit(rec.Failsafe(action=a.command, reason=a.reason, detect_to_command_ms=latency,
                                              position=self.position)))
                 log.warning("FAILSAFE: %s (%s), %.1f ms after the threshold", a.command, a.reason, latency or -1)
+                failsafe = True
             elif isinstance(a, ha.AuthorityChanged):
                 cls = rec.HandoverComplete if a.kind in ("handover", "emergency") else rec.AuthorityChange
                 out.append(Emit(cls(from_=a.old, to=a.new, epoch=a.epoch, kind=a.kind, time=0.0,
@@ -592,6 +603,10 @@ class DroneCore:
                     out.append(Emit(note(detail=a.detail, position=self.position)))
                 log.info("%s: %s", a.kind, a.detail)
             # whom to listen to follows from the state (the machine's ``subscribed``, ``_effects``)
+        if failsafe:  # the drone's signed word on its failsafe, to every GS now (the notice is its GSs' alarm)
+            status = self.machine.status()
+            for gs in sorted(self.links):
+                out += self._control(gs, status, now)
         return out
 
     def _on_control(self, gs: str, msg: wire.Control | None, now: float) -> list[Out]:
