@@ -169,6 +169,24 @@ def _bench_scale(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_overhead(args: argparse.Namespace) -> int:
+    from .bench import overhead
+
+    try:
+        ks = overhead.parse_drones(args.drones, args.quick)
+        overhead.check_args(args.sites, args.stations, args.flight)
+    except overhead.OverheadArgsError as exc:
+        raise UsageError(str(exc)) from None
+    if args.speedup is not None and not 0.5 <= args.speedup <= 8.0:
+        raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
+    if args.hosts_nice is not None and not 0 <= args.hosts_nice <= 19:
+        raise UsageError(f"--hosts-nice {args.hosts_nice}: must be 0..19")
+    result = overhead.run(ks, stations=args.stations, sites=args.sites, flight=args.flight, quick=args.quick,
+                          speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice)
+    _emit(args, result, overhead.render)
+    return 0 if all(not r["errors"] for r in result["rows"]) else 1
+
+
 def _bench_soak(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -418,6 +436,23 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--sites-only", action="store_true",
                     help="with --sites: fly the site routers only, not also through one TLS router")
     bs.set_defaults(func=_bench_scale)
+
+    bo = bsub.add_parser("overhead", help="the same fleet flown as bare Zenoh and as zdrone: CPU, memory and latency "
+                                          "per process class, zdrone / bare")
+    bo.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    bo.add_argument("--quick", action="store_true", help="25 drones, 30 s of flight each")
+    bo.add_argument("--drones", metavar="K,K,…", help="drone counts (default 100,300; --quick 25)")
+    bo.add_argument("--sites", type=int, default=0, metavar="N",
+                    help="N site routers meshed (zdrone: mutual TLS; bare: plain TCP), GS i at site i, drone i at "
+                         "site i mod N (default 0: one router)")
+    bo.add_argument("--stations", type=int, default=3, metavar="G", help="ground stations (default 3)")
+    bo.add_argument("--flight", type=float, metavar="S",
+                    help="seconds of flight measured per half, from the take-off (default 120; --quick 30)")
+    bo.add_argument("--speedup", type=float, default=None, metavar="S",
+                    help="the simulators' speed-up (default by K, as bench scale: 4 up to 100 drones, 1 above)")
+    bo.add_argument("--hosts-nice", type=int, default=None, metavar="N",
+                    help="the niceness of the drones and GSs hosts in both halves (default 10, as bench scale)")
+    bo.set_defaults(func=_bench_overhead)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "
                                           "the authority's link under junk on another GS's key")

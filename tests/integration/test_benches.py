@@ -112,3 +112,25 @@ def test_bench_chaos_over_sites_a_site_router_down_at_the_hand_over_and_the_flig
     (row,) = r["schedules"]
     assert r["sites"] and row["faults"] == ["site-1 router down 2.68s at handover_started+0.1s"]
     assert row["violations"] == [] and row["delivered"] and row["final_owner"] == "A" and not row["failsafe"]
+
+
+@pytest.mark.slow
+def test_bench_overhead_flies_both_halves_and_compares_every_class():
+    """Three drones for 10 s each way (~30 s): both halves ran and every figure of the table is there
+    (the figures themselves are the bench's, not the test's)."""
+    r = bench("overhead", "--drones", "3", "--flight", "10", timeout=180)
+    (row,) = r["rows"]
+    assert row["errors"] == {} and row["bare"]["flew"] == 3, row["errors"]
+    for c in ("drones host", "GSs host", "routers"):
+        for half in ("bare", "zdrone"):
+            assert row["compare"]["classes"][c]["cpu_ms_per_s_per_drone"][half] is not None, (c, half)
+            assert row["compare"]["classes"][c]["rss_mb"][half] is not None, (c, half)
+    for way in ("gs_to_vehicle", "vehicle_to_gs"):
+        assert set(row["compare"]["latency_ms"][way]) == {"p50", "p99", "n"}
+
+
+def test_bench_overhead_bad_arguments_are_one_line():
+    for args in (["--sites", "1"], ["--sites", "4"], ["--drones", "0"], ["--drones", "x"], ["--flight", "5"],
+                 ["--stations", "1"], ["--hosts-nice", "20"]):
+        out = subprocess.run([ZDRONE, "bench", "overhead", *args], capture_output=True, text=True)
+        assert out.returncode == 2 and out.stderr.count("\n") == 1 and "Traceback" not in out.stderr, (args, out.stderr)

@@ -48,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from ..net.runtime import freeze_start_up
+from .latency import LatencyLog
 from .stallwatch import CpuSampler, FrameGaps, GcClock, LoopTimer, PassClock, StallWatch, cpu_seconds
 
 CROSSINGS = 2
@@ -190,6 +191,55 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
         "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
 
 
+def note_drone_latency(node: Any, latency: LatencyLog) -> None:
+    """``bench overhead``'s opt-in hook (``--latency``) on one drone node: the vehicle's frames as its
+    loop takes them (vehicle -> GS, sent), and each frame the core forwards to the vehicle, under the
+    CRC of the envelope it came in (GS -> vehicle, got). Wraps the node's own callables on the instance;
+    nothing changes without ``--latency``."""
+    from ..nodes.drone_core import ToVehicle
+
+    name, envelope = node.name, [b""]
+    on_envelope, recv = node.core.on_envelope, node.vehicle.recv
+
+    def opened(gs: str, data: bytes, now: float) -> Any:
+        envelope[0] = data
+        return on_envelope(gs, data, now)
+
+    def received(timeout: float = 0.0) -> list[bytes]:
+        frames = recv(timeout)
+        latency.note_many("down", "sent", name, frames, time.monotonic())
+        return frames
+
+    handlers = node._handlers  # the adapter's output handlers (built once, on first use)
+    to_vehicle = handlers[ToVehicle]
+
+    def forwarded(o: Any) -> None:
+        latency.note("up", "got", name, envelope[0], time.monotonic())
+        to_vehicle(o)
+
+    node.core.on_envelope, node.vehicle.recv, handlers[ToVehicle] = opened, received, forwarded
+
+
+def note_station_latency(station: Any, latency: LatencyLog) -> None:
+    """The same on a GS: each envelope its core hands the adapter to put (before the pacing) (GS ->
+    vehicle, sent), each vehicle frame out of an envelope (``FrameUp``) (vehicle -> GS, got)."""
+    from gs.actions import FrameUp
+    from ..core.outputs import Put
+
+    handlers = station._handlers
+    put, frame_up = handlers[Put], handlers[FrameUp]
+
+    def sent(a: Any) -> None:
+        latency.note("up", "sent", a.peer, a.payload, time.monotonic())
+        put(a)
+
+    def got(a: Any) -> None:
+        latency.note("down", "got", a.drone, a.frame, time.monotonic())
+        frame_up(a)
+
+    handlers[Put], handlers[FrameUp] = sent, got
+
+
 def _host_drones(args: argparse.Namespace) -> int:
     from ..core.reference import HOME
     from ..core.authority import HaDrop
@@ -211,6 +261,10 @@ def _host_drones(args: argparse.Namespace) -> int:
         nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)))
     arrivals = FrameGaps()  # a GS's frames at each drone's Zenoh callback (where a silence begins)
     deliveries = {n.name: DeliveryCounter(n.rt.inbox, arrivals, n.name) for n in nodes}
+    latency = LatencyLog() if args.latency else None  # ``bench overhead``: noted from the take-off on
+    if latency is not None:
+        for n in nodes:
+            note_drone_latency(n, latency)
     router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
     gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
     for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
@@ -254,6 +308,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 t0, cpu0 = time.monotonic(), time.process_time()
                 deadline = t0 + args.duration
                 baseline = {d: c.snapshot() for d, c in deliveries.items()}
+                if latency is not None:
+                    latency.start(t0)
                 print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
             pass_start = time.monotonic()
             clock.begin()
@@ -322,6 +378,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
                 # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
                 "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
+        if latency is not None:
+            latency.dump(Path(args.out, f"latency-{drones_file(args.part, args.parts)}"))
         Path(args.out, f"gaps-{drones_file(args.part, args.parts)}").write_text(
             json.dumps({"t0": t0, **arrivals.report()}))
         Path(args.out, drones_file(args.part, args.parts)).write_text(json.dumps({
@@ -346,9 +404,13 @@ def _host_stations(args: argparse.Namespace) -> int:
     # the drones took off (from the bench, at once): count deliveries from now on
     loops = LoopTimer()  # where a GS's slow pass went (its heartbeats to every drone wait for it)
 
+    latency = LatencyLog() if args.latency else None  # ``bench overhead``: noted from the take-off on
+
     def took_off(*_: Any) -> None:
         baseline.update({g: c.snapshot() for g, c in deliveries.items()})
         loops.mark()
+        if latency is not None:
+            latency.start(time.monotonic())
 
     signal.signal(signal.SIGUSR1, took_off)
     if args.inbox_senders:  # testbed what-if: the GS inbox's bound on (kind, sender) queues
@@ -371,6 +433,9 @@ def _host_stations(args: argparse.Namespace) -> int:
             put_on_lane(uplink, payload)
 
         st.rt._put_on_lane = noted
+    if latency is not None:
+        for st in stations:
+            note_station_latency(st, latency)
     router_zids = {st.name: _router_zid(st.rt.session) for st in stations}
     freeze_start_up()  # as every node does (``NodeRuntime.serve``)
     gcs = GcClock()
@@ -409,6 +474,8 @@ def _host_stations(args: argparse.Namespace) -> int:
     for t in threads:
         t.join(15)
     Path(args.out, "gaps-stations.json").write_text(json.dumps(puts.report()))
+    if latency is not None:
+        latency.dump(Path(args.out, "latency-stations.json"))
     Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
                                                            "router_zid": router_zids,
                                                            "delivered": delivered, "counters": counters,
@@ -497,8 +564,10 @@ def _free_ports(n: int) -> list[int]:
 
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
-         drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE) -> dict[str, Any]:
-    """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers."""
+         drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE, latency: bool = False) -> dict[str, Any]:
+    """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers;
+    ``latency``: the hosts note messages for ``zdrone.bench.latency`` (``latency-*.json`` in the run's
+    directory, ``runs``)."""
     from ..fleet.files import init_fleet, load_sites, scale_nodes
     from ..sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
 
@@ -539,7 +608,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             zid = re.search(r"zid (\w+)", line)
             zid_site[zid.group(1) if zid else name] = name
         router_pids = {procs[n].pid for n in router_cmds}
-        common = ["--fleet", str(d / "fleet"), "--out", str(d)]
+        common = ["--fleet", str(d / "fleet"), "--out", str(d)] + (["--latency"] if latency else [])
         for part, host in enumerate(hosts):
             procs[host] = spawn(hpy + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
                                       "--duration", str(timeout), "--hold", str(hold_limit(k)),
@@ -844,6 +913,8 @@ def main(argv: list[str] | None = None) -> int:
     hs.add_argument("--stations", type=int, required=True)
     hs.add_argument("--inbox-senders", type=int, help="lift the GS inbox's bound on (kind, sender) queues to this")
     for sp in (hd, hs):
+        sp.add_argument("--latency", action="store_true",
+                        help="note messages for one-way latency from the take-off on (bench overhead; zdrone.bench.latency)")
         sp.add_argument("--fleet", required=True)
         sp.add_argument("--router", required=True, help="router endpoint(s), comma-separated")
         sp.add_argument("--out", required=True)

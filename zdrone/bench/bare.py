@@ -1,0 +1,569 @@
+"""The bare half of ``zdrone bench overhead``: the same fleet on plain Zenoh, without zdrone.
+
+The same processes as ``bench scale``'s run (one router, or one router per site meshed site n to sites
+1..n-1; a process hosting the K drones, each with its own Zenoh session and an in-process simulator,
+all stepped by one loop every ``scale.PASS_S``; a process hosting the G GSs, each with its own session),
+the same keys, the same QoS and the same application traffic, and nothing else:
+
+* **routers**: plain TCP (the mesh too), no authentication, no access control, no downsampling, no
+  size filter (a Zenoh router in Python, as ``zdrone router`` is);
+* **a drone**: its vehicle's MAVLink frames, as they come (no envelope), in one bundle per GS and pass
+  (``zdrone.core.bundle``: the same framing and publication count as zdrone's) on
+  ``zdrone/<drone>/down/<gs>``, congestion control DROP; the full stream to the GS it is "with" (the
+  nearest GS whose coverage holds it; the last one while none does), each periodic stream message at
+  most once a second (``StandbyStream``) to the other GSs whose coverage holds it, as zdrone streams to a
+  standby GS; every frame that comes on ``zdrone/<drone>/up/*`` goes to the vehicle. No authority
+  machine, no pairing, no key sharing, no status beacon, no revision, no event log;
+* **a GS**: a MAVLink HEARTBEAT to every drone at 2 Hz, and to each drone it is "with" (the same rule,
+  on the positions it hears) and that is armed a command at 1 Hz (REQUEST_MESSAGE HOME_POSITION,
+  zdrone's command stream), each on ``zdrone/<drone>/up/<gs>`` at zdrone's link priority, not express,
+  DROP; its frames are handled in Zenoh's callback (only the position and the HEARTBEAT's armed bit are
+  read); and every ``revisions.STAMP_PERIOD_S`` one backhaul put of a revision stamp's size to the
+  other GSs (zdrone's GSs' own traffic to each other in flight);
+* **the flight**: the shuttle of ``bench scale``, uploaded into each simulator in-process before the
+  take-off (zdrone's GS A uploads it over the link on the ground), armed and started at take-off by a
+  command frame as from A, at the same speed-up; it ends ``LANDED_TAIL_S`` after the last vehicle has
+  landed, as zdrone's does, or at the time limit.
+
+CPU is measured as in ``bench scale``: the drones host's own over the flight, the others' from
+``/proc`` over the same window; latency as in ``zdrone.bench.latency``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import gc
+import json
+import logging
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from ..core.bundle import unpack
+from ..core.geometry import GeoPoint, distance_m
+from ..fleet import keyexprs as kx
+from ..net.runtime import LINK_EXPRESS, LINK_PRIORITY
+from .latency import LatencyLog
+
+log = logging.getLogger(__name__)
+
+#: The GSs' heartbeat and command rates (``gs.core``: ``heartbeat_hz`` 2; ``bench scale``: command_rate 1).
+HEARTBEAT_HZ = 2.0
+COMMAND_HZ = 1.0
+#: A revision stamp push's size (bytes): the GSs' backhaul in flight (``zdrone.core.revision``).
+STAMP_BYTES = 120
+#: A vehicle that has not armed after the take-off command is asked again this often (it may still be
+#: waiting for its GPS fix).
+ARM_RETRY_S = 1.0
+#: After the last vehicle has landed the flight ends this much later (zdrone's: the GSs count what they
+#: sent, ``scale.LANDED_DRAIN_S`` after that the drones host stops).
+LANDED_TAIL_S = 2.5
+#: How long the stations host and routers may take to start.
+START_TIMEOUT_S = 60.0
+#: The drones host's ready line.
+READY = "bare drones host: ready"
+
+
+def client_config(router: str) -> zenoh.Config:
+    """A client of ``router``: scouting off, no authentication, no TLS (``zdrone.net.session``
+    without them)."""
+    from ..fleet.routerconfig import MAX_MESSAGE_SIZE
+
+    cfg = {"mode": "client",
+           "connect": {"endpoints": [router], "timeout_ms": 5000, "exit_on_failure": True},
+           "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+           "transport": {"link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}, "shared_memory": {"enabled": False}}}
+    return zenoh.Config.from_json5(json.dumps(cfg))
+
+
+def router_config(listen: str, connect: list[str]) -> dict[str, Any]:
+    """A bare router: plain TCP, nothing checked or limited; ``connect``: the other sites' routers."""
+    from ..fleet.routerconfig import MAX_MESSAGE_SIZE
+
+    cfg: dict[str, Any] = {
+        "mode": "router", "listen": {"endpoints": [listen]},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+        "transport": {"link": {"rx": {"max_message_size": MAX_MESSAGE_SIZE}}, "shared_memory": {"enabled": False}}}
+    if connect:
+        cfg["connect"] = {"endpoints": connect,
+                          "retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 1.5}}
+    return cfg
+
+
+# ------------------------------------------------------------------ the application's rule
+def nearest_covering(pos: Any, circles: dict[str, Any], last: str | None) -> str | None:
+    """The GS a vehicle at ``pos`` is with: the nearest whose coverage holds it, else ``last``."""
+    best, best_d = None, float("inf")
+    for g, c in circles.items():
+        d = distance_m(c.centre, pos)
+        if d <= c.radius_m and d < best_d:
+            best, best_d = g, d
+    return best if best is not None else last
+
+
+def msgid_of(frame: bytes) -> int:
+    """The message id of a MAVLink frame (v2: three bytes at 7; v1: one at 5); -1 if too short."""
+    if len(frame) >= 10 and frame[0] == 0xFD:
+        return frame[7] | frame[8] << 8 | frame[9] << 16
+    return frame[5] if len(frame) >= 6 else -1
+
+
+# ------------------------------------------------------------------ routers
+def _router(args: argparse.Namespace) -> int:
+    stop = [False]
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    cfg = router_config(args.listen, [c for c in (args.connect or "").split(",") if c])
+    session = zenoh.open(zenoh.Config.from_json5(json.dumps(cfg)))
+    print(f"bare router: listening on {args.listen}, zid {session.info.zid()}", flush=True)
+    try:
+        while not stop[0]:
+            time.sleep(0.2)
+    finally:
+        session.close()
+    return 0
+
+
+# ------------------------------------------------------------------ drones
+class BareDrone:
+    """One drone: its session, its vehicle, what came up for it."""
+
+    def __init__(self, name: str, router: str, vehicle: Any, gss: list[str]) -> None:
+        from ..core.bundle import BundleWriter
+        from ..core.standby import StandbyStream
+
+        self.name, self.vehicle, self.gss = name, vehicle, gss
+        self.session = zenoh.open(client_config(router))
+        self.inq: collections.deque[tuple[str, bytes]] = collections.deque()
+        self.delivered = 0
+        self.bundles = BundleWriter()
+        self.standby = StandbyStream()
+        self.owner: str | None = None
+        self.armed_seen = False
+        self.pos_key: tuple[float, float] | None = None
+        self.inside: list[str] = []
+        inq = self.inq
+
+        def on_up(sample: zenoh.Sample) -> None:  # Zenoh's thread: hand over and return
+            inq.append((kx.gs_of(sample.key_expr), sample.payload.to_bytes()))
+            self.delivered += 1
+
+        self.sub = self.session.declare_subscriber(f"zdrone/{name}/up/*", zenoh.handlers.Callback(on_up, indirect=False))
+
+    def close(self) -> None:
+        try:
+            self.sub.undeclare()
+            self.session.close()
+        except Exception as exc:  # closing is best effort at the end of a run
+            log.warning("%s: close: %s", self.name, exc)
+
+
+def _upload(vehicle: Any, items: list[Any], codec: Any) -> bool:
+    """Upload ``items`` (``PlannedItem``) into the in-process simulator as a GCS does (what it says
+    meanwhile is dropped: before the flight). True if it accepted the mission."""
+    from pymavlink.dialects.v20 import common as mav
+
+    sim = vehicle.sim
+    sysid = vehicle.sysid
+    sim.drain()
+    sim.receive(codec.encode(mav.MAVLink_mission_count_message(sysid, 1, len(items), 0)), sim.t)
+    for _ in range(len(items) + 1):
+        for f in sim.drain():
+            msg = codec.decode(f)
+            if msg is None:
+                continue
+            if msg.get_type() == "MISSION_ACK":
+                return bool(msg.type == mav.MAV_MISSION_ACCEPTED)
+            if msg.get_type() == "MISSION_REQUEST_INT":
+                sim.receive(codec.encode(items[msg.seq].message(msg.seq, (sysid, 1))), sim.t)
+                break
+    return False
+
+
+def _take_off(vehicle: Any, codec: Any) -> None:
+    """ARM, then MISSION_START, as the GS that flies it sends them."""
+    from pymavlink.dialects.v20 import common as mav
+
+    for cmd, p1 in ((mav.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), (mav.MAV_CMD_MISSION_START, 0.0)):
+        vehicle.send(codec.encode(mav.MAVLink_command_long_message(vehicle.sysid, 1, cmd, 0, p1, 0, 0, 0, 0, 0, 0)))
+
+
+def _host_drones(args: argparse.Namespace) -> int:
+    from gs.planner import shuttle_mission
+
+    from ..core.mavlink import FrameCodec
+    from ..core.reference import HOME
+    from ..fleet.files import load_fleet
+    from ..net.runtime import freeze_start_up
+    from ..vehicle.inproc import InProcessVehicle
+    from .scale import CROSSINGS, PASS_S, _memory_mb
+
+    fleet = load_fleet(args.fleet)
+    gss = sorted(fleet.ground_stations())
+    circles = {g: fleet.nodes[g].coverage.circle() for g in gss}  # type: ignore[union-attr]
+    routers = args.router.split(",")
+    gcs = FrameCodec(fleet.nodes[gss[0]].sysid, 190)  # the GS that flies them (A), for the set-up frames
+    mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (len(gss) - 1) - 60.0)
+    lat = LatencyLog() if args.latency else None
+    drones = []
+    for i in range(args.k):
+        name = f"d{i + 1}"
+        vehicle = InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)
+        vehicle.sim.step(vehicle._sim_time())
+        if not _upload(vehicle, mission, gcs):
+            print(f"bare drones host: {name} refused the mission", file=sys.stderr, flush=True)
+            return 2
+        drones.append(BareDrone(name, routers[i % len(routers)], vehicle, gss))
+    freeze_start_up()
+    print(f"{READY}: {len(drones)} drones", flush=True)
+    stop, go = [False], [False]
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    signal.signal(signal.SIGUSR1, lambda *_: go.__setitem__(0, True))  # take-off
+    t0 = cpu0 = 0.0
+    deadline = float("inf")
+    baseline = 0
+    next_arm = 0.0
+    loops = 0
+    worst_pass = 0.0
+    landed_at: float | None = None
+    put_opts = {"congestion_control": zenoh.CongestionControl.DROP}
+    try:
+        while not stop[0] and time.monotonic() < deadline:
+            pass_start = time.monotonic()
+            if go[0] and t0 == 0.0:
+                t0, cpu0 = pass_start, time.process_time()
+                deadline = t0 + args.duration
+                baseline = sum(d.delivered for d in drones)
+                if lat is not None:
+                    lat.start(t0)
+                print("bare drones host: take-off", flush=True)
+            arm_now = t0 > 0.0 and pass_start >= next_arm
+            if arm_now:
+                next_arm = pass_start + ARM_RETRY_S
+            for d in drones:
+                now = time.monotonic()
+                inq, vehicle = d.inq, d.vehicle
+                while inq:
+                    gs, frame = inq.popleft()
+                    if lat is not None:
+                        lat.note("up", "got", d.name, frame, now)
+                    vehicle.send(frame)
+                if arm_now and not d.armed_seen:
+                    if vehicle.armed:
+                        d.armed_seen = True
+                    else:
+                        _take_off(vehicle, gcs)
+                frames = vehicle.recv(0.0)
+                if not frames:
+                    continue
+                if lat is not None:
+                    lat.note_many("down", "sent", d.name, frames, now)
+                p = vehicle.sim.position
+                key = (p.lat, p.lon)
+                if key != d.pos_key:
+                    d.pos_key = key
+                    d.inside = [g for g, c in circles.items() if c.contains(p)]
+                    d.owner = nearest_covering(p, circles, d.owner)
+                owner, bundles = d.owner, d.bundles
+                for f in frames:
+                    if owner is not None:
+                        bundles.add(owner, f)
+                    if len(d.inside) > 1 or owner not in d.inside:
+                        mid = msgid_of(f)
+                        for g in d.inside:
+                            if g != owner and d.standby.allow(g, mid, now):
+                                bundles.add(g, f)
+                for g, b in bundles.take():
+                    d.session.put(kx.down(d.name, g), b, **put_opts)
+            loops += 1
+            if landed_at is None and t0 and all(d.armed_seen for d in drones) and not any(d.vehicle.armed for d in drones):
+                landed_at = time.monotonic()
+                print("bare drones host: all landed", flush=True)
+            if landed_at is not None and time.monotonic() - landed_at >= LANDED_TAIL_S:
+                break
+            pass_s = time.monotonic() - pass_start
+            worst_pass = max(worst_pass, pass_s)
+            time.sleep(max(0.0005, PASS_S - pass_s))
+        flight_s = time.monotonic() - t0 if t0 else 0.0
+        cpu_s = time.process_time() - cpu0 if t0 else 0.0
+        out = Path(args.out)
+        if lat is not None:
+            lat.dump(out / "latency-drones.json")
+        (out / "drones.json").write_text(json.dumps({
+            "flight_s": flight_s, "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "loops": loops,
+            "worst_pass_s": round(worst_pass, 3), "flew": sum(d.armed_seen for d in drones), "landed": landed_at is not None,
+            "delivered": sum(d.delivered for d in drones) - baseline}))
+    finally:
+        for d in drones:
+            d.close()
+    return 0
+
+
+# ------------------------------------------------------------------ ground stations
+class BareStation:
+    """One GS: its session, what it knows of each drone (position, armed), its timer thread."""
+
+    def __init__(self, name: str, sysid: int, router: str, drones: dict[str, int], circles: dict[str, Any],
+                 lat: LatencyLog | None) -> None:
+        from ..core.mavlink import FrameCodec
+
+        self.name, self.drones, self.circles, self.lat = name, drones, circles, lat
+        self.codec = FrameCodec(sysid, 190)
+        self.seq: dict[str, int] = {d: 0 for d in drones}  # each link's MAVLink sequence number
+        self.pos: dict[str, Any] = {}
+        self.armed: dict[str, bool] = {}
+        self.owner: dict[str, str | None] = {}
+        self.delivered = 0
+        self.backhaul = 0
+        self.sent = collections.Counter[str]()
+        self.session = zenoh.open(client_config(router))
+        self.subs = [
+            self.session.declare_subscriber(kx.down("*", name), zenoh.handlers.Callback(self._on_down, indirect=False)),
+            self.session.declare_subscriber("backhaul/*/stamp", zenoh.handlers.Callback(self._on_backhaul, indirect=False))]
+        self.running = True
+        self.error: str | None = None
+
+    def _on_down(self, sample: zenoh.Sample) -> None:
+        self.delivered += 1
+        drone = kx.drone_of(sample.key_expr)
+        frames = unpack(sample.payload.to_bytes()) or []
+        now = time.monotonic()
+        if self.lat is not None:
+            self.lat.note_many("down", "got", drone, frames, now)
+        for f in frames:
+            mid = msgid_of(f)
+            if mid == 33 and len(f) >= 22:  # GLOBAL_POSITION_INT: time_boot_ms, lat, lon (int32 1e-7 deg)
+                la, lo = struct.unpack_from("<ii", f, 14)
+                p = GeoPoint(la / 1e7, lo / 1e7)
+                self.pos[drone] = p
+                self.owner[drone] = nearest_covering(p, self.circles, self.owner.get(drone))
+            elif mid == 0 and len(f) >= 17 and f[6] == 1:  # the autopilot's HEARTBEAT: base_mode
+                self.armed[drone] = bool(f[16] & 0x80)
+
+    def _on_backhaul(self, sample: zenoh.Sample) -> None:
+        if not str(sample.key_expr).startswith(f"backhaul/{self.name}/"):
+            self.backhaul += 1
+
+    def _put(self, drone: str, msg: Any) -> None:
+        codec = self.codec
+        codec.mav.seq = self.seq[drone]
+        frame = codec.encode(msg)
+        self.seq[drone] = codec.mav.seq
+        if self.lat is not None:
+            self.lat.note("up", "sent", drone, frame, time.monotonic())
+        self.session.put(kx.up(drone, self.name), frame, congestion_control=zenoh.CongestionControl.DROP,
+                         priority=LINK_PRIORITY, express=LINK_EXPRESS)
+
+    def run(self) -> None:
+        try:
+            self._run()
+        except Exception as exc:  # the host reports it (a GS that stopped sending makes the run worthless)
+            log.exception("GS %s", self.name)
+            self.error = f"GS {self.name}: {exc.__class__.__name__}: {exc}"
+
+    def _run(self) -> None:
+        from pymavlink.dialects.v20 import common as mav
+
+        from ..fleet.revisions import STAMP_PERIOD_S
+
+        hb = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
+        now = time.monotonic()
+        next_hb, next_cmd, next_stamp = now, now, now
+        while self.running:
+            now = time.monotonic()
+            if now >= next_hb:
+                next_hb = max(next_hb + 1.0 / HEARTBEAT_HZ, now)
+                for d in self.drones:
+                    self._put(d, hb)
+                self.sent["heartbeat"] += len(self.drones)
+            if now >= next_cmd:
+                next_cmd = max(next_cmd + 1.0 / COMMAND_HZ, now)
+                for d, sysid in self.drones.items():
+                    if self.armed.get(d) and self.owner.get(d) == self.name:
+                        self._put(d, mav.MAVLink_command_long_message(sysid, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                                      mav.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0))
+                        self.sent["command"] += 1
+            if now >= next_stamp:
+                next_stamp = max(next_stamp + STAMP_PERIOD_S, now)
+                self.session.put(f"backhaul/{self.name}/stamp", bytes(STAMP_BYTES),
+                                 congestion_control=zenoh.CongestionControl.DROP)
+                self.sent["backhaul"] += 1
+            time.sleep(max(0.0, min(next_hb, next_cmd, next_stamp) - time.monotonic()))
+
+    def close(self) -> None:
+        try:
+            for s in self.subs:
+                s.undeclare()
+            self.session.close()
+        except Exception as exc:
+            log.warning("GS %s: close: %s", self.name, exc)
+
+
+def _host_stations(args: argparse.Namespace) -> int:
+    from ..fleet.files import load_fleet
+    from ..net.runtime import freeze_start_up
+    from .scale import _memory_mb
+
+    fleet = load_fleet(args.fleet)
+    gss = sorted(fleet.ground_stations())[:args.stations]
+    circles = {g: fleet.nodes[g].coverage.circle() for g in gss}  # type: ignore[union-attr]
+    drones = {n: v.sysid for n, v in fleet.nodes.items() if v.role == "drone"}
+    routers = args.router.split(",")
+    lat = LatencyLog() if args.latency else None
+    stations = [BareStation(g, fleet.nodes[g].sysid, routers[i % len(routers)], drones, circles, lat)
+                for i, g in enumerate(gss)]
+    baseline = [0]
+
+    def took_off(*_: Any) -> None:
+        baseline[0] = sum(st.delivered for st in stations)
+        if lat is not None:
+            lat.start(time.monotonic())
+
+    signal.signal(signal.SIGUSR1, took_off)
+    stop = [False]
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
+    freeze_start_up()
+    threads = [threading.Thread(target=st.run, daemon=True) for st in stations]
+    for t in threads:
+        t.start()
+    print(f"bare stations host: {len(stations)} stations ready", flush=True)
+    while not stop[0]:
+        time.sleep(0.2)
+    for st in stations:
+        st.running = False
+    for t in threads:
+        t.join(5)
+    out = Path(args.out)
+    if lat is not None:
+        lat.dump(out / "latency-stations.json")
+    (out / "stations.json").write_text(json.dumps({
+        "delivered": sum(st.delivered for st in stations) - baseline[0], "memory_mb": _memory_mb("self"),
+        "sent": {st.name: dict(st.sent) for st in stations}, "backhaul_heard": {st.name: st.backhaul for st in stations},
+        "errors": [st.error for st in stations if st.error]}))
+    for st in stations:
+        st.close()
+    return 0
+
+
+# ------------------------------------------------------------------ one run
+def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: float = 4.0,
+        hosts_nice: int = 10, latency: bool = True) -> dict[str, Any]:
+    """One bare run: K drones x G GSs through one router, or ``sites`` meshed routers (GS i at site
+    i, drone i at site i mod N), flying ``flight_s`` seconds from the take-off. The row has what the
+    bench compares: CPU (100 % = one core) and RSS per process, samples delivered per second, latency."""
+    from ..fleet.files import init_fleet, scale_nodes
+    from ..sil.procs import spawn, stop_in_order
+    from . import latency as lat
+    from .scale import _free_ports, _memory_mb, _wait_line, give_way
+    from .stallwatch import cpu_seconds
+
+    n_routers = max(1, sites)
+    d = base / f"bare-k{k}-{f'sites{sites}' if sites else 'one'}"
+    d.mkdir(parents=True, exist_ok=True)
+    init_fleet(d / "fleet", nodes_spec=scale_nodes(k, g))  # the layout (coverage, sysids); no key is used
+    ports = _free_ports(n_routers)
+    endpoints = [f"tcp/127.0.0.1:{p}" for p in ports]
+    py = [sys.executable, "-m", "zdrone.bench.bare"]
+    hpy = (["nice", "-n", str(hosts_nice)] if hosts_nice else []) + py
+    routers = {("router" if not sites else f"router site-{i + 1}"): ["router", "--listen", ep, "--connect", ",".join(endpoints[:i])]
+               for i, ep in enumerate(endpoints)}
+    gs_routers = [endpoints[i % n_routers] for i in range(g)]
+    logs = {n: open(d / f"{n.replace(' ', '-')}.log", "w") for n in (*routers, "drones", "stations")}
+    procs: dict[str, subprocess.Popen] = {}
+    row: dict[str, Any] = {"k": k, "g": g, "sites": sites or 1, "speedup": speedup, "runs": str(d)}
+    t_start = time.monotonic()
+    try:
+        for name, cmd in routers.items():
+            procs[name] = spawn(py + cmd, stdout=logs[name], stderr=subprocess.STDOUT)
+        for name in routers:
+            if _wait_line(d / f"{name.replace(' ', '-')}.log", "listening", START_TIMEOUT_S, procs[name]) is None:
+                raise RuntimeError(f"bare {name} did not start; see {d}")
+        common = ["--fleet", str(d / "fleet"), "--out", str(d)] + (["--latency"] if latency else [])
+        procs["drones"] = spawn(hpy + ["host-drones", "--k", str(k), "--speedup", str(speedup), "--duration", str(flight_s),
+                                       "--router", ",".join(endpoints), *common], stdout=logs["drones"], stderr=subprocess.STDOUT)
+        procs["stations"] = spawn(hpy + ["host-stations", "--stations", str(g), "--router", ",".join(gs_routers), *common],
+                                  stdout=logs["stations"], stderr=subprocess.STDOUT)
+        row["hosts_given_way"] = {h: give_way(procs[h].pid, hosts_nice) for h in ("drones", "stations")}
+        from .scale import READY_TIMEOUT_S
+
+        if _wait_line(d / "drones.log", READY, READY_TIMEOUT_S, procs["drones"]) is None:
+            raise RuntimeError(f"bare drones host did not start; see {d / 'drones.log'}")
+        if _wait_line(d / "stations.log", "stations ready", START_TIMEOUT_S, procs["stations"]) is None:
+            raise RuntimeError(f"bare stations host did not start; see {d / 'stations.log'}")
+        row["ground_s"] = round(time.monotonic() - t_start, 1)
+        others = {**{n: procs[n].pid for n in routers}, "stations host": procs["stations"].pid}
+        t0, cpu0 = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
+        procs["stations"].send_signal(signal.SIGUSR1)
+        procs["drones"].send_signal(signal.SIGUSR1)
+        try:
+            procs["drones"].wait(flight_s + 60)
+        except subprocess.TimeoutExpired:
+            row["error"] = "bare drones host did not finish"
+        t1, cpu1 = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
+        memory = {n: _memory_mb(p) for n, p in others.items()}
+    except RuntimeError as exc:
+        row["error"] = str(exc)
+        return row
+    finally:
+        stop_in_order(procs, ("stations", "drones", *routers))
+        for f in logs.values():
+            f.close()
+    row["wall_s"] = round(time.monotonic() - t_start, 1)
+    try:
+        drones = json.loads((d / "drones.json").read_text())
+        stations = json.loads((d / "stations.json").read_text())
+    except (OSError, ValueError) as exc:
+        row["error"] = row.get("error") or f"no results ({exc}); see {d}"
+        return row
+    if stations.get("errors"):
+        row["error"] = "; ".join(stations["errors"])
+    span = max(1e-6, t1 - t0)
+    cpu = {n: round(100.0 * (cpu1[n] - c) / span, 1) if c is not None and cpu1[n] is not None else None
+           for n, c in cpu0.items()}
+    cpu["drones host"] = round(100.0 * drones["cpu_s"] / max(1e-6, drones["flight_s"]), 1)
+    row.update({"window_s": round(span, 1), "cpu_percent": cpu,
+                "memory_mb": {**memory, "drones host": drones["memory_mb"]},
+                "samples_per_s": round((drones["delivered"] + stations["delivered"]) / span, 1),
+                "flew": drones["flew"], "landed": drones["landed"], "worst_pass_s": drones["worst_pass_s"], "sent": stations["sent"],
+                "backhaul_heard": stations["backhaul_heard"]})
+    if latency:
+        files = [d / "latency-drones.json", d / "latency-stations.json"]
+        row["latency"], row["messages_per_s"] = lat.summary(lat.load(files)), lat.rates(files, span)
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    from ..crashes import stacks_on_crash
+
+    stacks_on_crash()
+    p = argparse.ArgumentParser(prog="python -m zdrone.bench.bare")
+    sub = p.add_subparsers(dest="role", required=True)
+    r = sub.add_parser("router")
+    r.add_argument("--listen", required=True)
+    r.add_argument("--connect", default="", help="other routers' endpoints, comma-separated")
+    hd = sub.add_parser("host-drones")
+    hd.add_argument("--k", type=int, required=True)
+    hd.add_argument("--speedup", type=float, required=True)
+    hd.add_argument("--duration", type=float, required=True, help="flight from the take-off (SIGUSR1), s")
+    hs = sub.add_parser("host-stations")
+    hs.add_argument("--stations", type=int, required=True)
+    for sp in (hd, hs):
+        sp.add_argument("--fleet", required=True)
+        sp.add_argument("--router", required=True, help="router endpoint(s), comma-separated")
+        sp.add_argument("--out", required=True)
+        sp.add_argument("--latency", action="store_true", help="note messages for the latency (zdrone.bench.latency)")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    gc.collect()
+    return {"router": _router, "host-drones": _host_drones, "host-stations": _host_stations}[args.role](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,155 @@
+"""One-way latency between the bench's processes (testbed): a message noted where it is sent and
+where it arrives, matched afterwards by its bytes.
+
+Every process of the machine reads the same clock (``time.monotonic``: CLOCK_MONOTONIC), so a
+sender notes ``(drone, crc32 of the bytes, t)`` and the receiver notes the same for what it got; the
+bench matches each arrival with the latest sending of the same bytes to the same drone no more than
+``WINDOW_S`` before it. Nothing goes into the messages: both halves of ``bench overhead`` carry the
+same bytes they would without the measurement. A sample of the messages only, chosen by their CRC
+(the same choice on both sides, no coordination): one in ``SAMPLE_UP`` uplink messages and one in
+``SAMPLE_DOWN`` vehicle frames (hundreds a second per drone at speed-up 4), so that the notes stay
+small next to what is measured (the hosts' memory is measured too).
+
+Which bytes: GS -> vehicle, the bytes the GS puts on the drone's uplink (zdrone: the sealed
+envelope, noted as the GS's core hands it to its adapter, before the pacing; the drone notes the
+envelope's CRC when the core forwards its frame to the vehicle, ``ToVehicle``); vehicle -> GS, the
+MAVLink frame as the vehicle gives it to the drone's loop and as the GS gets it back (zdrone: the
+GS's ``FrameUp``, the frame out of its envelope; bare: the frame out of the bundle in the GS's
+Zenoh callback).
+
+Pure but for ``dump``/``load``: ``LatencyLog`` is what a host keeps, ``match`` and ``summary`` what
+the bench computes.
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+import math
+import zlib
+from pathlib import Path
+from typing import Any, Iterable
+
+#: One uplink message in this many is noted (by its CRC): heartbeats and commands, a few a second per drone.
+SAMPLE_UP = 8
+#: One vehicle frame in this many is noted: the telemetry, tens to hundreds a second per drone.
+SAMPLE_DOWN = 64
+#: An arrival is matched to a sending of the same bytes at most this long before it (a MAVLink frame
+#: repeats its bytes only after its 8-bit sequence number wraps: 256 frames, more than a minute apart).
+WINDOW_S = 5.0
+#: The streams noted: "up" GS -> vehicle, "down" vehicle -> GS.
+DIRECTIONS = ("up", "down")
+_EVERY = {"up": SAMPLE_UP, "down": SAMPLE_DOWN}
+
+
+def crc(data: bytes) -> int:
+    return zlib.crc32(data)
+
+
+class LatencyLog:
+    """What one host notes: per direction, what it sent and what it got, from ``start()`` on (the
+    take-off: the window every figure of the bench is taken over)."""
+
+    def __init__(self) -> None:
+        self.on = False
+        self.t0 = 0.0
+        self.notes: dict[str, dict[str, list[tuple[str, int, float]]]] = {
+            d: {"sent": [], "got": []} for d in DIRECTIONS}
+        # every message (not only the sample), per second after ``start``: the rate each half carried
+        self.counts: dict[str, dict[str, dict[int, int]]] = {d: {"sent": {}, "got": {}} for d in DIRECTIONS}
+
+    def start(self, now: float) -> None:
+        self.on, self.t0 = True, now
+
+    def note(self, direction: str, side: str, drone: str, data: bytes, now: float) -> None:
+        """``side`` is "sent" or "got"; noted only if on, and kept if the bytes are in the sample."""
+        if self.on:
+            counts = self.counts[direction][side]
+            s = int(now - self.t0)
+            counts[s] = counts.get(s, 0) + 1
+            c = zlib.crc32(data)
+            if c % _EVERY[direction] == 0:
+                self.notes[direction][side].append((drone, c, now))
+
+    def note_many(self, direction: str, side: str, drone: str, frames: list[bytes], now: float) -> None:
+        if self.on and frames:
+            counts = self.counts[direction][side]
+            s = int(now - self.t0)
+            counts[s] = counts.get(s, 0) + len(frames)
+            every, notes = _EVERY[direction], self.notes[direction][side]
+            for f in frames:
+                c = zlib.crc32(f)
+                if c % every == 0:
+                    notes.append((drone, c, now))
+
+    def dump(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps({**self.notes, "counts": self.counts}))
+
+
+def rates(paths: Iterable[Path], window_s: float) -> dict[str, dict[str, float]]:
+    """Messages per second over the first ``window_s`` seconds after each host's ``start``, per
+    direction and side, summed over the hosts' files."""
+    total: dict[str, dict[str, int]] = {d: {"sent": 0, "got": 0} for d in DIRECTIONS}
+    for p in paths:
+        try:
+            counts = json.loads(Path(p).read_text()).get("counts", {})
+        except (OSError, ValueError):
+            continue
+        for d in DIRECTIONS:
+            for side in ("sent", "got"):
+                total[d][side] += sum(n for s, n in counts.get(d, {}).get(side, {}).items() if int(s) < window_s)
+    span = max(1.0, float(int(window_s)))  # whole seconds counted
+    return {d: {side: round(n / span, 1) for side, n in v.items()} for d, v in total.items()}
+
+
+def load(paths: Iterable[Path]) -> dict[str, dict[str, list[tuple[str, int, float]]]]:
+    """The notes of several hosts as one (a missing or unreadable file adds nothing)."""
+    out: dict[str, dict[str, list[tuple[str, int, float]]]] = {d: {"sent": [], "got": []} for d in DIRECTIONS}
+    for p in paths:
+        try:
+            data = json.loads(Path(p).read_text())
+        except (OSError, ValueError):
+            continue
+        for d in DIRECTIONS:
+            for side in ("sent", "got"):
+                out[d][side] += [tuple(x) for x in data.get(d, {}).get(side, [])]  # type: ignore[misc]
+    return out
+
+
+def match(sent: list[tuple[str, int, float]], got: list[tuple[str, int, float]],
+          window: float = WINDOW_S) -> list[float]:
+    """The latency (seconds) of every arrival that has a sending of the same bytes to the same drone
+    at most ``window`` before it (the latest such sending); the others are left out."""
+    times: dict[tuple[str, int], list[float]] = {}
+    for drone, c, t in sent:
+        times.setdefault((drone, c), []).append(t)
+    for ts in times.values():
+        ts.sort()
+    out = []
+    for drone, c, t in got:
+        ts = times.get((drone, c))
+        if not ts:
+            continue
+        i = bisect.bisect_right(ts, t) - 1
+        if i >= 0 and t - ts[i] <= window:
+            out.append(t - ts[i])
+    return out
+
+
+def percentile(xs: list[float], q: float) -> float | None:
+    """The ``q``-quantile (0..1) of ``xs``, nearest rank; None if empty."""
+    if not xs:
+        return None
+    ys = sorted(xs)
+    return ys[min(len(ys) - 1, max(0, math.ceil(q * len(ys) - 1e-9) - 1))]
+
+
+def summary(notes: dict[str, dict[str, list[tuple[str, int, float]]]]) -> dict[str, Any]:
+    """Per direction: messages matched, p50 and p99 in milliseconds."""
+    out: dict[str, Any] = {}
+    for d, name in (("up", "gs_to_vehicle"), ("down", "vehicle_to_gs")):
+        xs = match(notes[d]["sent"], notes[d]["got"])
+        p50, p99 = percentile(xs, 0.5), percentile(xs, 0.99)
+        out[name] = {"n": len(xs), "p50_ms": None if p50 is None else round(1000 * p50, 2),
+                     "p99_ms": None if p99 is None else round(1000 * p99, 2)}
+    return out

@@ -1,0 +1,255 @@
+"""``zdrone bench overhead``: what zdrone costs over bare Zenoh, the same fleet flown twice.
+
+For each K (and the layout: one router, or ``--sites N`` meshed site routers), one invocation flies:
+
+* **zdrone**: ``bench scale``'s run (``scale._one``): K drone nodes in one drones host, the G GSs in a
+  stations host, the router(s) with the fleet's ACL, authentication, downsampling and size filters
+  (mutual TLS over sites), every frame in an envelope, the authority machine, pairing and key sharing
+  on the ground, then the shuttle, until every vehicle has landed or ``flight`` seconds after the take-off;
+* **bare**: ``zdrone.bench.bare``: the same processes, layout, keys, QoS, vehicles, flight and
+  application traffic (telemetry down, heartbeats and commands up, the GSs' backhaul) on plain Zenoh
+  (plain TCP routers, nothing checked), until every vehicle has landed or ``flight`` seconds after the
+  take-off.
+
+Over a flight shorter than the shuttle (300 drones fly at speed-up 1: 120 s is the way out, past B to C)
+the hand-overs back are not in the window; the figures are per second either way.
+
+Per process class (drones host, GSs host, routers summed) over the flight: CPU in milliseconds per
+second per drone (100 % of a core = 1000 ms/s), and per vehicle frame carried (the in-process simulators
+stream at most one of each message per step: a host whose passes are slower carries fewer frames a
+second, so the per-drone figure alone flatters the slower half), resident memory at the end (MB); latency GS -> vehicle
+and vehicle -> GS, p50 and p99 (``zdrone.bench.latency``: a sample of the messages, matched by their
+bytes; the zdrone half's hosts note them through an opt-in hook, ``--latency``); samples delivered to
+the nodes per second (the traffic the two halves carried). The table prints zdrone / bare for each.
+
+Goals (measured, not asserted): zdrone <= 1.5 x bare Zenoh's CPU in every process class at 300 x 3 over
+sites; GS -> vehicle latency added <= 1 ms at p50 and <= 5 ms at p99.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+#: The goals (docs above): CPU ratio per class, latency added GS -> vehicle (ms).
+CPU_RATIO_GOAL = 1.5
+ADDED_P50_MS_GOAL = 1.0
+ADDED_P99_MS_GOAL = 5.0
+#: The flight measured per half (s from the take-off) by default, and with ``--quick``.
+FLIGHT_S = 120.0
+QUICK_FLIGHT_S = 30.0
+QUICK_K = 25
+#: The process classes, as the rows name them, and how the runs' process names map onto them.
+CLASSES = ("drones host", "GSs host", "routers")
+#: The messages each half carried per second (``latency.rates``): direction, side, the row's name.
+MESSAGES = (("down", "sent", "vehicle frames out of the vehicles"), ("down", "got", "vehicle frames into the GSs"),
+            ("up", "sent", "GS frames put"), ("up", "got", "GS frames into the vehicles"))
+
+
+class OverheadArgsError(ValueError):
+    """Bad arguments: one line for the command line."""
+
+
+def parse_drones(text: str | None, quick: bool) -> list[int]:
+    """``--drones 100,300`` as numbers (default: 100 and 300; ``--quick``: 25)."""
+    from ..fleet.files import MAX_SCALE_DRONES
+
+    if not text:
+        return [QUICK_K] if quick else [100, 300]
+    try:
+        ks = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise OverheadArgsError(f"--drones {text!r}: expected numbers like 100,300") from None
+    if not ks or not all(1 <= k <= MAX_SCALE_DRONES for k in ks):
+        raise OverheadArgsError(f"--drones {text}: each 1..{MAX_SCALE_DRONES}")
+    return ks
+
+
+def check_args(sites: int, stations: int, flight: float | None) -> None:
+    """``--sites`` 0 (one router) or 2..G; ``--stations`` 2..26; ``--flight`` 10..1200 s."""
+    if not 2 <= stations <= 26:
+        raise OverheadArgsError(f"--stations {stations}: must be 2..26")
+    if sites and not 2 <= sites <= stations:
+        raise OverheadArgsError(f"--sites {sites}: must be 2..{stations} (a site per ground station at most), or 0 for one router")
+    if flight is not None and not 10.0 <= flight <= 1200.0:
+        raise OverheadArgsError(f"--flight {flight:g}: must be 10..1200 seconds")
+
+
+# ------------------------------------------------------------------ the figures
+def by_class(row: dict[str, Any], field: str) -> dict[str, float | None]:
+    """A run's per-process ``field`` (``cpu_percent``, or ``memory_mb``'s RSS) summed per process class;
+    None where a process of the class was not measured."""
+    out: dict[str, float | None] = {}
+    for name, v in row.get(field, {}).items():
+        cls = "drones host" if name.startswith("drones") else "GSs host" if name.startswith("stations") else \
+            "routers" if name.startswith("router") else None
+        if cls is None:
+            continue
+        if isinstance(v, dict):
+            v = v.get("rss")
+        if v is None or out.get(cls, 0.0) is None:
+            out[cls] = None
+        else:
+            out[cls] = round((out.get(cls) or 0.0) + float(v), 1)
+    return out
+
+
+def ms_per_s_per_drone(cpu_percent: float | None, k: int) -> float | None:
+    """100 % of a core is 1000 ms of CPU per second; per drone of the K."""
+    return None if cpu_percent is None or k <= 0 else round(10.0 * cpu_percent / k, 3)
+
+
+def ratio(zdrone: float | None, bare: float | None) -> float | None:
+    """zdrone / bare, two decimals; None if either is missing or bare is 0."""
+    if zdrone is None or bare is None or bare <= 0:
+        return None
+    return round(zdrone / bare, 2)
+
+
+def added(zdrone: float | None, bare: float | None) -> float | None:
+    if zdrone is None or bare is None:
+        return None
+    return round(zdrone - bare, 2)
+
+
+def compare(k: int, zd: dict[str, Any], bare: dict[str, Any]) -> dict[str, Any]:
+    """The comparison of one K and layout: per class and per measure, bare, zdrone, ratio (and for the
+    latencies the milliseconds added)."""
+    cpu_z, cpu_b = by_class(zd, "cpu_percent"), by_class(bare, "cpu_percent")
+    mem_z, mem_b = by_class(zd, "memory_mb"), by_class(bare, "memory_mb")
+    cls: dict[str, Any] = {}
+    for c in CLASSES:
+        z, b = ms_per_s_per_drone(cpu_z.get(c), k), ms_per_s_per_drone(cpu_b.get(c), k)
+        cls[c] = {"cpu_ms_per_s_per_drone": {"bare": b, "zdrone": z, "ratio": ratio(z, b)},
+                  "rss_mb": {"bare": mem_b.get(c), "zdrone": mem_z.get(c), "ratio": ratio(mem_z.get(c), mem_b.get(c))}}
+    lat: dict[str, Any] = {}
+    for way in ("gs_to_vehicle", "vehicle_to_gs"):
+        lz, lb = zd.get("latency", {}).get(way, {}), bare.get("latency", {}).get(way, {})
+        lat[way] = {p: {"bare": lb.get(f"{p}_ms"), "zdrone": lz.get(f"{p}_ms"),
+                        "ratio": ratio(lz.get(f"{p}_ms"), lb.get(f"{p}_ms")), "added_ms": added(lz.get(f"{p}_ms"), lb.get(f"{p}_ms"))}
+                    for p in ("p50", "p99")}
+        lat[way]["n"] = {"bare": lb.get("n"), "zdrone": lz.get("n")}
+    # per vehicle frame carried: the simulators stream at most one of each message per step, so a host
+    # that steps its vehicles less often (more work per pass) carries fewer frames a second
+    frames_z = zd.get("messages_per_s", {}).get("down", {}).get("sent")
+    frames_b = bare.get("messages_per_s", {}).get("down", {}).get("sent")
+    for c in CLASSES:
+        z = None if cpu_z.get(c) is None or not frames_z else round(10_000.0 * cpu_z[c] / frames_z, 1)  # type: ignore[operator]
+        b = None if cpu_b.get(c) is None or not frames_b else round(10_000.0 * cpu_b[c] / frames_b, 1)  # type: ignore[operator]
+        cls[c]["cpu_us_per_vehicle_frame"] = {"bare": b, "zdrone": z, "ratio": ratio(z, b)}
+    samples = {"bare": bare.get("samples_per_s"), "zdrone": zd.get("samples_per_s"),
+               "ratio": ratio(zd.get("samples_per_s"), bare.get("samples_per_s"))}
+    messages: dict[str, Any] = {}
+    for way, side, name in MESSAGES:
+        mz = zd.get("messages_per_s", {}).get(way, {}).get(side)
+        mb = bare.get("messages_per_s", {}).get(way, {}).get(side)
+        messages[name] = {"bare": mb, "zdrone": mz, "ratio": ratio(mz, mb)}
+    ratios = [cls[c]["cpu_ms_per_s_per_drone"]["ratio"] for c in CLASSES]
+    up = lat["gs_to_vehicle"]
+    goals = {"cpu_ratio_max": max((r for r in ratios if r is not None), default=None),
+             "cpu_within": all(r is not None and r <= CPU_RATIO_GOAL for r in ratios),
+             "added_p50_within": up["p50"]["added_ms"] is not None and up["p50"]["added_ms"] <= ADDED_P50_MS_GOAL,
+             "added_p99_within": up["p99"]["added_ms"] is not None and up["p99"]["added_ms"] <= ADDED_P99_MS_GOAL}
+    return {"classes": cls, "latency_ms": lat, "samples_per_s": samples, "messages_per_s": messages, "goals": goals}
+
+
+# ------------------------------------------------------------------ running
+def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None = None, quick: bool = False,
+        speedup: float | None = None, progress: bool = True, hosts_nice: int | None = None) -> dict[str, Any]:
+    """Fly each K twice (zdrone, then bare) in the layout; the rows and their comparison. ``hosts_nice``:
+    the drones and GSs hosts' niceness in both halves (default ``scale.HOSTS_NICE``)."""
+    from . import bare as bare_mod
+    from . import scale
+    from .table import ProgressLine
+
+    nice = scale.HOSTS_NICE if hosts_nice is None else hosts_nice
+    flight_s = flight if flight is not None else (QUICK_FLIGHT_S if quick else FLIGHT_S)
+    base = Path(tempfile.mkdtemp(prefix="zdrone-bench-overhead-"))
+    where = f"{sites} sites" if sites else "1 router"
+    rows = []
+    status = ProgressLine(progress)
+    try:
+        for k in ks:
+            sp = speedup if speedup is not None else scale.speedup_for(k)
+            status.say(f"zdrone: {k} drones x {stations} GSs, {where}, {flight_s:g} s of flight (speed-up {sp:g})…")
+            zd = scale._one(k, stations, base, timeout=flight_s, sites=sites, speedup=sp, hosts_nice=nice, latency=True)
+            if "runs" in zd:
+                from . import latency as lat
+
+                files = sorted(Path(zd["runs"]).glob("latency-*.json"))
+                zd["latency"] = lat.summary(lat.load(files))
+                zd["messages_per_s"] = lat.rates(files, zd.get("window_s") or 0.0)
+            status.say(f"bare Zenoh: {k} drones x {stations} GSs, {where}, {flight_s:g} s of flight (speed-up {sp:g})…")
+            bz = bare_mod.one(k, stations, base, flight_s, sites=sites, speedup=sp, hosts_nice=nice)
+            rows.append({"k": k, "g": stations, "sites": sites or 1, "layout": where, "speedup": sp, "flight_s": flight_s,
+                         "zdrone": _slim(zd), "bare": bz, "compare": compare(k, zd, bz),
+                         "errors": {h: r["error"] for h, r in (("zdrone", zd), ("bare", bz)) if r.get("error")}})
+    finally:
+        status.close()
+    return {"rows": rows, "stations": stations, "sites": sites, "flight_s": flight_s, "runs": str(base), "hosts_nice": nice,
+            "goals": {"cpu_ratio": CPU_RATIO_GOAL, "added_gs_to_vehicle_p50_ms": ADDED_P50_MS_GOAL,
+                      "added_gs_to_vehicle_p99_ms": ADDED_P99_MS_GOAL, "at": {"k": 300, "g": 3, "sites": 3}}}
+
+
+def _slim(row: dict[str, Any]) -> dict[str, Any]:
+    """The zdrone run's row without what only ``bench scale`` reads (per-drone detail)."""
+    keep = ("layout", "k", "g", "sites", "tls", "correct", "all_correct", "wall_s", "ground_s", "released", "window_s",
+            "cpu_percent", "memory_mb", "samples_per_s", "latency", "handovers", "worst_owner_silence_s", "error", "runs",
+            "hosts_given_way", "mesh", "messages_per_s")
+    return {f: row[f] for f in keep if f in row}
+
+
+# ------------------------------------------------------------------ the table
+def _num(v: Any, digits: int = 2) -> str:
+    return "-" if v is None else f"{v:,.{digits}f}"
+
+
+def table_rows(cmp: dict[str, Any]) -> list[list[str]]:
+    """The rows of one K's table: measure, class, bare, zdrone, zdrone / bare, added."""
+    rows: list[list[str]] = []
+    for c in CLASSES:
+        x = cmp["classes"][c]["cpu_ms_per_s_per_drone"]
+        rows.append(["CPU ms/s per drone", c, _num(x["bare"], 3), _num(x["zdrone"], 3), _num(x["ratio"]), ""])
+    for c in CLASSES:
+        x = cmp["classes"][c].get("cpu_us_per_vehicle_frame")
+        if x is not None:
+            rows.append(["CPU µs per vehicle frame", c, _num(x["bare"], 1), _num(x["zdrone"], 1), _num(x["ratio"]), ""])
+    for c in CLASSES:
+        x = cmp["classes"][c]["rss_mb"]
+        rows.append(["RSS MB", c, _num(x["bare"], 1), _num(x["zdrone"], 1), _num(x["ratio"]), ""])
+    for way, label in (("gs_to_vehicle", "GS -> vehicle"), ("vehicle_to_gs", "vehicle -> GS")):
+        for p in ("p50", "p99"):
+            x = cmp["latency_ms"][way][p]
+            rows.append([f"latency {p} ms", label, _num(x["bare"]), _num(x["zdrone"]), _num(x["ratio"]),
+                         "-" if x["added_ms"] is None else f"{x['added_ms']:+.2f} ms"])
+    for name, x in cmp.get("messages_per_s", {}).items():
+        rows.append(["messages /s", name, _num(x["bare"], 0), _num(x["zdrone"], 0), _num(x["ratio"]), ""])
+    s = cmp["samples_per_s"]
+    rows.append(["Zenoh samples delivered /s", "all nodes", _num(s["bare"], 0), _num(s["zdrone"], 0), _num(s["ratio"]), ""])
+    return rows
+
+
+def render(r: dict[str, Any]) -> None:
+    from .table import print_table
+
+    for row in r["rows"]:
+        cmp, zd, bz = row["compare"], row["zdrone"], row["bare"]
+        g = cmp["goals"]
+        caption = (f"flight from the take-off until landed, {row['flight_s']:g} s at most: zdrone {zd.get('window_s', '-')} s, "
+                   f"bare {bz.get('window_s', '-')} s; speed-up {row['speedup']:g}; zdrone "
+                   f"{'mutual TLS, ' if zd.get('tls') else ''}ACL, auth, envelopes, authority; bare: plain TCP, nothing "
+                   f"checked; latency n = {cmp['latency_ms']['gs_to_vehicle']['n']['zdrone']}/"
+                   f"{cmp['latency_ms']['gs_to_vehicle']['n']['bare']} up, {cmp['latency_ms']['vehicle_to_gs']['n']['zdrone']}/"
+                   f"{cmp['latency_ms']['vehicle_to_gs']['n']['bare']} down (zdrone/bare); zdrone's ground (key sharing) "
+                   f"{zd.get('ground_s', '-')} s, bare vehicles flown {bz.get('flew', '-')}/{row['k']}. Goals (measured, not "
+                   f"asserted; at 300 x 3 over sites): CPU <= {r['goals']['cpu_ratio']:g} x per class: "
+                   f"{'met' if g['cpu_within'] else 'not met'} (worst {_num(g['cpu_ratio_max'])}); GS -> vehicle added <= "
+                   f"{r['goals']['added_gs_to_vehicle_p50_ms']:g} ms p50: {'met' if g['added_p50_within'] else 'not met'}, <= "
+                   f"{r['goals']['added_gs_to_vehicle_p99_ms']:g} ms p99: {'met' if g['added_p99_within'] else 'not met'}")
+        caption += f"; drones and GSs hosts at nice {r.get('hosts_nice', '-')}"
+        if row["errors"]:
+            caption += "; errors: " + "; ".join(f"{h}: {e}" for h, e in row["errors"].items())
+        print_table(f"Overhead: zdrone vs bare Zenoh, {row['k']} drones x {row['g']} GSs, {row['layout']}",
+                    ["measure", "process class", "bare Zenoh", "zdrone", "zdrone / bare", "added"], table_rows(cmp),
+                    caption=caption)
