@@ -3,6 +3,9 @@ through the gateway binds to the one pending request shown to *that* application
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import pytest
 from pymavlink.dialects.v20 import common as mav
 
 from gs.opcontrol import Answer
@@ -92,3 +95,169 @@ def test_a_consent_naming_itself_from_an_app_not_shown_the_request_is_refused(fl
     net.run(net.now + 1.5)
     assert net.owner == "B"
 
+
+
+# ------------------------------------------- the flow with clients mavgen builds from today's definitions
+#: Today's definitions of what an operator-control client speaks (development.xml and common.xml as of
+#: 2026: HEARTBEAT, COMMAND_LONG, COMMAND_ACK, CONTROL_STATUS with three fields, MAV_CMD 32100)
+TODAY_XML = """<?xml version="1.0"?>
+<mavlink>
+  <version>3</version>
+  <dialect>0</dialect>
+  <enums>
+    <enum name="MAV_CMD">
+      <entry value="32100" name="MAV_CMD_REQUEST_OPERATOR_CONTROL">
+        <param index="1">0: release control, 1: request control.</param>
+        <param index="2">Enable automatic granting of ownership on request (1: allow takeover).</param>
+        <param index="3">Timeout in seconds before a request to a GCS to allow takeover is assumed to be rejected.</param>
+        <param index="4">System ID of the GCS making the request.</param>
+      </entry>
+    </enum>
+  </enums>
+  <messages>
+    <message id="0" name="HEARTBEAT">
+      <field type="uint8_t" name="type">type</field>
+      <field type="uint8_t" name="autopilot">autopilot</field>
+      <field type="uint8_t" name="base_mode">base mode</field>
+      <field type="uint32_t" name="custom_mode">custom mode</field>
+      <field type="uint8_t" name="system_status">status</field>
+      <field type="uint8_t_mavlink_version" name="mavlink_version">version</field>
+    </message>
+    <message id="76" name="COMMAND_LONG">
+      <field type="uint8_t" name="target_system">System which should execute the command</field>
+      <field type="uint8_t" name="target_component">Component which should execute the command</field>
+      <field type="uint16_t" name="command">Command ID</field>
+      <field type="uint8_t" name="confirmation">confirmation</field>
+      <field type="float" name="param1">p1</field>
+      <field type="float" name="param2">p2</field>
+      <field type="float" name="param3">p3</field>
+      <field type="float" name="param4">p4</field>
+      <field type="float" name="param5">p5</field>
+      <field type="float" name="param6">p6</field>
+      <field type="float" name="param7">p7</field>
+    </message>
+    <message id="77" name="COMMAND_ACK">
+      <field type="uint16_t" name="command">Command ID</field>
+      <field type="uint8_t" name="result">Result</field>
+      <extensions/>
+      <field type="uint8_t" name="progress">progress</field>
+      <field type="int32_t" name="result_param2">param2</field>
+      <field type="uint8_t" name="target_system">target system</field>
+      <field type="uint8_t" name="target_component">target component</field>
+    </message>
+    <message id="512" name="CONTROL_STATUS">
+      <field type="uint8_t" name="flags" display="bitmask">Control status.</field>
+      <field type="uint8_t" name="gcs_main">System ID of GCS in control.</field>
+      <field type="uint8_t[10]" name="gcs_secondary">System IDs of secondary GCS.</field>
+    </message>
+  </messages>
+</mavlink>
+"""
+
+
+@pytest.fixture(scope="module")
+def today(tmp_path_factory):
+    """The Python dialect pymavlink's mavgen makes from ``TODAY_XML``."""
+    import importlib.util
+    import sys
+
+    from pymavlink.generator import mavgen
+
+    d = tmp_path_factory.mktemp("today")
+    xml = d / "today.xml"
+    xml.write_text(TODAY_XML)
+    out = d / "today_gen"
+    mavgen.mavgen(mavgen.Opts(str(out), wire_protocol="2.0", language="Python3", validate=False), [str(xml)])
+    path = Path(str(out) + ".py") if not out.exists() else out
+    spec = importlib.util.spec_from_file_location("today_gen", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["today_gen"] = mod
+    spec.loader.exec_module(mod)
+    yield mod
+    sys.modules.pop("today_gen", None)
+
+
+class TodayClient:
+    """A GCS built from today's XML, on a gateway: QGroundControl's way (p4 = its own sysid, ACK the
+    forwarded request, allow takeover by asking again with p2 = 1) or MAVProxy's (`long` commands: p4 0)."""
+
+    def __init__(self, net, gs: str, dialect, p4: int, port: int, sysid: int = 255) -> None:
+        self.net, self.gw, self.d, self.p4 = net, net.gateways[gs], dialect, p4
+        self.t = self.gw.transports[0]
+        self.peer = ("127.0.0.1", port)
+        self.mav = dialect.MAVLink(None, srcSystem=sysid, srcComponent=190)
+        self.mav.robust_parsing = True
+
+    def send(self, msg) -> None:
+        self.gw.on_app_frame(0, self.peer, bytes(msg.pack(self.mav)), self.net.now)
+        self.mav.seq = (self.mav.seq + 1) % 256
+
+    def hello(self) -> None:
+        self.send(self.d.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+
+    def ask(self, p1: float, p2: float = 0.0, p3: float = 10.0) -> None:
+        self.send(self.d.MAVLink_command_long_message(1, 1, OPC, 0, p1, p2, p3, self.p4, 0, 0, 0))
+
+    def heard(self) -> list:
+        parser = self.d.MAVLink(None, srcSystem=255, srcComponent=190)
+        parser.robust_parsing = True
+        out = []
+        for frame, peer in self.t.out:
+            if peer == self.peer:
+                out += [m for m in parser.parse_buffer(frame) or [] if m.get_type() != "BAD_DATA"]
+        return out
+
+    def acks(self) -> list[int]:
+        return [m.result for m in self.heard() if m.get_type() == "COMMAND_ACK" and m.command == OPC]
+
+    def shown(self) -> list:
+        return [m for m in self.heard() if m.get_type() == "COMMAND_LONG" and m.command == OPC]
+
+    def status(self):
+        return [m for m in self.heard() if m.get_type() == "CONTROL_STATUS"][-1]
+
+
+@pytest.mark.parametrize("p4", [255, 0], ids=["qgroundcontrol", "mavproxy"])
+def test_the_operator_control_flow_with_clients_generated_from_todays_xml(fleet_dir, today, p4):
+    """The nine steps of the flow as the owner's and the requester's applications see them, every frame
+    built and parsed by the dialect mavgen makes from today's definitions; the owner's consent names
+    itself (QGroundControl) or nobody (MAVProxy)."""
+    from tests.unit.test_operator_control import CoreStation, GcsGateway, MemTransport
+
+    net = make_net(fleet_dir)
+    for g in ("A", "B"):
+        gw = GcsGateway(CoreStation(net, g), [])
+        gw.transports = [MemTransport()]
+        net.gateways[g] = gw
+    a, b = TodayClient(net, "A", today, p4, 14601), TodayClient(net, "B", today, p4, 14602)
+    a.hello(), b.hello()
+    net.run(net.now + 1.5)
+    steps = []
+    # 1. each application is told who is in control, as today's CONTROL_STATUS
+    steps.append(a.status().gcs_main == 255 and b.status().gcs_main == SYSID["A"])
+    # 2. B's operator asks: FAILED (the owner is asked)
+    b.ask(1, 0, 10)
+    steps.append(b.acks()[-1] == mav.MAV_RESULT_FAILED)
+    net.run(net.now + 0.5)
+    # 3. A's application is shown the request: 32100 with the requester's sysid in p4
+    steps.append(len(a.shown()) == 1 and a.shown()[0].param4 == SYSID["B"])
+    # 4. it ACKs the notification
+    a.send(today.MAVLink_command_ack_message(OPC, mav.MAV_RESULT_ACCEPTED, 0, 0, 1, 1))
+    steps.append(net.gateways["A"].counters["operator_request_acked"] == 1)
+    # 5. A's operator allows the takeover: asks again with p2 = 1 (p4: itself, or 0)
+    a.ask(1, 1, 10)
+    steps.append(a.acks()[-1] == mav.MAV_RESULT_ACCEPTED)
+    net.run(net.now + 1.2)
+    # 6. B's GS asks again at once on the allowance (today's flow: the requester asks again within 10 s)
+    steps.append(net.owner == "B")
+    # 7. B's application asks again within the window, as its operator does: ACCEPTED
+    b.ask(1, 0, 10)
+    steps.append(b.acks()[-1] == mav.MAV_RESULT_ACCEPTED)
+    # 8. each application is told: B's "you are", A's "B is"
+    steps.append(b.status().gcs_main == 255 and a.status().gcs_main == SYSID["B"])
+    # 9. a consent naming another GS of the fleet is refused
+    b.send(today.MAVLink_command_long_message(1, 1, OPC, 0, 1, 1, 10, SYSID["X"], 0, 0, 0))
+    steps.append(b.acks()[-1] == mav.MAV_RESULT_DENIED or net.owner == "B")
+    assert steps == [True] * 9, (steps, [(m.flags, m.gcs_main) for m in b.heard() if m.get_type() == "CONTROL_STATUS"],
+                                 net.owner, b.acks(), a.acks())
