@@ -231,3 +231,50 @@ def test_rotating_the_owner_in_flight_repairs_it_under_the_new_key_without_a_gap
     assert net.drone.links["A"] is not old_link and "A" not in net.drone.rekey  # the new key is live
     assert len(net.to_vehicle) > forwarded  # A's frames went on reaching the vehicle
     assert net.drone.responder.ground_stations["A"] == new.public
+
+
+def test_a_stamp_of_a_newer_revision_or_relayed_on_another_gs_key_renews_nothing(fleet_dir):
+    """Found by review: B, revoked behind a split, relayed the other side's genuine stamps (naming the
+    revision revoking B, which the drone never got) on B's own key; a stamp naming a newer revision
+    renewed the lease. Now a stamp renews only the revision in force, and only on its own GS's key."""
+    from zdrone.core.revision import make_push, split_push
+    from zdrone.fleet.files import load_secret
+
+    net = linked(fleet_dir)  # A owns: B's stamps are the ones that renew
+    net.stamps = False
+    d = net.drone
+    apply(net, revoked(fleet_dir, "X"))  # revision 1 in force
+    key = load_secret(fleet_dir, "B", d.fleet).signing
+
+    def stamp(number: int) -> bytes:
+        got, _ = split_push(make_push("B", number, net.now, key, None))
+        assert got is not None
+        return got
+
+    net.run(1.0)
+    synced = d.revision_synced
+    assert d.on_revision_stamp(stamp(2), net.now, carrier="B") == []  # a revision the drone does not hold
+    assert d.counters["stamp_refused:newer_revision"] == 1 and d.revision_synced == synced
+    assert d.on_revision_stamp(stamp(1), net.now, carrier="A") == []  # B's stamp on A's key: a relay
+    assert d.counters["stamp_refused:relayed"] == 1 and d.revision_synced == synced
+    d.on_revision_stamp(stamp(1), net.now, carrier="B")  # on its own key, the revision in force: renews
+    assert d.revision_synced == net.now
+
+
+def test_a_new_owner_after_a_lapse_holds_a_lease_of_its_own(fleet_dir):
+    """Found by review: after the owner's lease lapsed, the GS that took authority held it with no
+    lease at all. Now each owner's lease runs from when it took authority, and a lapsed GS's stamps
+    renew nothing: B (owner) hears only its own stamps and lapses; A, the covered heir, takes over and,
+    hearing only the lapsed B's stamps, lapses in its turn: the failsafe."""
+    net = in_region_owned_by_b(fleet_dir)  # B owns, the drone inside both coverages, both links proven
+    lease = _lease(net)
+    net.stamps = False  # A's radio stays up (an heir), but only B's stamps reach the drone
+    moved_at = None
+    for _ in range(int(2.5 * lease / 5.0)):
+        net.drone_outs(net.drone.on_revision_stamp(net.stamp("B"), net.now, carrier="B"))
+        net.run(5.0)
+        if moved_at is None and net.drone.machine.owner == "A":
+            moved_at = net.now
+    assert moved_at is not None, "B's lease never lapsed"
+    assert net.drone.lapsed == {"A", "B"} and net.drone.counters["revision_lease_lapsed"] == 2
+    assert net.drone.machine.state is State.FAILSAFE

@@ -158,9 +158,9 @@ def test_revisions_have_one_key_and_one_budget_per_sending_gs():
     assert not any(kx.revision("d1") in r["key_exprs"] for r in cfg["access_control"]["rules"])
 
     by_id = {d["id"]: d for d in cfg["downsampling"]}
-    for m in ("put", "reply"):
+    for m, flow in (("put", "ingress"), ("reply", "egress")):  # puts: per sending session
         d = by_id[f"revision-{m}-rate"]
-        assert d["flows"] == ["egress"] and d["messages"] == [m] and d["link_protocols"] == ["tcp", "tls"]
+        assert d["flows"] == [flow] and d["messages"] == [m] and d["link_protocols"] == ["tcp", "tls"]
         assert d["rules"] == [{"key_expr": kx.revision(g), "freq": REVISION_MAX_HZ} for g in "ABX"]
     q = by_id["revision-query-rate"]
     assert q["flows"] == ["ingress"] and q["messages"] == ["query"]
@@ -180,5 +180,8 @@ def test_a_revoked_gs_has_no_revision_budget_or_rights():
     cfg = router_config(msgspec.structs.replace(default_fleet(), revoked=frozenset({"B"})), "c.txt")
     assert not any(r["id"].startswith("B-") for r in cfg["access_control"]["rules"])
     by_id = {d["id"]: d for d in cfg["downsampling"]}
+    # a flood with a GS's leaked credentials spends its own sessions' budget (ingress), never the real
+    # GS's: found by review, the stamps that renew the drones' leases were starved on egress
+    assert by_id["revision-put-rate"]["flows"] == ["ingress"] and by_id["revision-reply-rate"]["flows"] == ["egress"]
     assert {r["key_expr"] for r in by_id["revision-put-rate"]["rules"]} == {"zdrone-fleet/revision/A",
                                                                            "zdrone-fleet/revision/X"}

@@ -35,10 +35,11 @@ every drone behind it — is never limited as if it were one drone; the ACL admi
 
 Fleet revisions (``zdrone.fleet.revisions``) travel on one key per sender, ``zdrone-fleet/revision/<g>``:
 only GS ``g`` may put, declare a queryable and reply there; every node subscribes and queries
-``zdrone-fleet/revision/*``. Each GS's key has its own budget on egress of client transports
-(``REVISION_MAX_HZ`` puts and as many replies per second toward each receiving session, each at most
-``REVISION_MAX_BYTES``, low-pass on ingress), so a flood with one GS's credential spends that GS's
-budget only: the other GSs' revisions (the one revoking it included) still reach every node. A
+``zdrone-fleet/revision/*``. Each GS's key has its own budget: ``REVISION_MAX_HZ`` puts per second
+from each sending session (on ingress: a flood with a GS's leaked credentials spends its own sessions'
+budget, never the real GS's, whose signed stamps renew the drones' owner leases) and as many replies
+per second toward each receiving session (egress), each at most ``REVISION_MAX_BYTES`` (low-pass on
+ingress): the other GSs' revisions (the one revoking a flooder included) still reach every node. A
 session asks at most ``REVISION_QUERY_HZ`` times per second (on ingress): a drone's leaked password
 cannot make the GSs answer without end. These rules grow with the GSs, like the uplinks'.
 
@@ -225,16 +226,21 @@ def uplink_downsampling(fleet: Fleet, per_credential: bool = True) -> list[dict[
 
 
 def revision_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
-    """Zenoh downsampling of fleet revisions: one rule per GS's revision key on egress of client
-    transports, puts and replies each with a budget of their own (a push and the answer to a query
-    never spend each other's), so each is one budget per (receiving session, GS) shared by every
-    session sending as that GS; and one rule on ingress bounding each session's revision queries."""
+    """Zenoh downsampling of fleet revisions: one rule per GS's revision key, puts and replies each
+    with a budget of their own (a push and the answer to a query never spend each other's): puts on
+    ingress of client transports, one budget per sending session (a thief's sessions never spend the
+    real GS's: its signed stamps renew the drones' owner leases), replies on egress, one budget per
+    (receiving session, GS); and one rule on ingress bounding each session's revision queries."""
     gss = [g for g in fleet.ground_stations() if not fleet.is_revoked(g)]
     if not gss:
         return []
     rules = [{"key_expr": kx.revision(g), "freq": REVISION_MAX_HZ} for g in gss]
-    return [{"id": f"revision-{m}-rate", "flows": ["egress"], "messages": [m], "link_protocols": CLIENT_LINKS,
-             "rules": rules} for m in ("put", "reply")] + [
+    # puts (the GSs' pushes and stamps) on ingress: per sending session, so a flood with a GS's leaked
+    # credentials spends its own sessions' budget, never the real GS's (its stamps renew the drones' leases)
+    return [{"id": "revision-put-rate", "flows": ["ingress"], "messages": ["put"], "link_protocols": CLIENT_LINKS,
+             "rules": rules},
+            {"id": "revision-reply-rate", "flows": ["egress"], "messages": ["reply"], "link_protocols": CLIENT_LINKS,
+             "rules": rules}] + [
             {"id": "revision-query-rate", "flows": ["ingress"], "messages": ["query"], "link_protocols": CLIENT_LINKS,
              "rules": [{"key_expr": kx.revision_all(), "freq": REVISION_QUERY_HZ}]}]
 

@@ -306,7 +306,7 @@ class DroneNode:
             self._do(self.core.on_telemetry(self.vehicle.accept(data, now), now), now)
             return
         if kind in revisions.KINDS:
-            self._on_revision(kind, data, now)
+            self._on_revision(kind, peer, data, now)
             return
         if self.gate is not None and not self.gate.allow(peer, "up"):
             return
@@ -314,7 +314,7 @@ class DroneNode:
             return
         self._do(self.core.on_envelope(peer, data, now), now)
 
-    def _on_revision(self, kind: str, data: Any, now: float) -> None:
+    def _on_revision(self, kind: str, peer: str, data: Any, now: float) -> None:
         """A fleet revision heard (published, or a query's reply): applied live if it is the next one;
         a GS's signed stamp may renew the owner's lease (``DroneCore.on_revision_stamp``). TESTBED: out of every GS's radio
         (the coverage gate), the drone hears none."""
@@ -326,7 +326,7 @@ class DroneNode:
             self._rekey_audit(got.fleet)  # before the revision's own entry: that one is signed under the new key
             self._do(self.core.on_revision(got.fleet, now), now)
         if (stamp := self.revision.take_stamp()) is not None:  # checked by the core against the fleet in force
-            self._do(self.core.on_revision_stamp(stamp, now), now)
+            self._do(self.core.on_revision_stamp(stamp, now, carrier=peer), now)
 
     def _rekey_audit(self, fleet: Fleet) -> None:
         """A revision that changed this drone's own keys: its authority record goes on under the new

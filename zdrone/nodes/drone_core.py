@@ -195,9 +195,9 @@ class DroneCore:
         self._timer_handled = float("-inf")
         self.revision_synced: float | None = None  # the time of the newest stamp that renewed the lease
         self.rekey: set[str] = set()  # rotated GSs whose live key predates their new static key
-        self._lease_lapsed = False
-        self._lease_armed: float | None = None  # the first pairing: the lease runs from here
-        self._lapsed_owner: str | None = None  # whose lease lapsed (it renews nothing, it regains nothing)
+        self._lease_armed: float | None = None  # when the owner in force took authority: its lease runs from here
+        self._lease_owner: str | None = None  # ... that owner (a new owner's lease runs from its taking over)
+        self.lapsed: set[str] = set()  # GSs whose lease lapsed: their stamps renew nothing, they regain nothing
         self._queued: dict[str, list[_Batch]] = {}  # GS -> the envelopes of this pass (``batch``)
 
     # ---------------------------------------------------------------- inputs
@@ -374,8 +374,7 @@ class DroneCore:
                          if fleet.nodes[n].coverage is not None}
         rotated = sorted(n for n, v in fleet.nodes.items() if n in old.nodes and v.public_key != old.nodes[n].public_key)
         self.rekey = (self.rekey | {g for g in rotated if g in self.links}) & authorized
-        if self._lease_lapsed:  # a revision is no renewal (whoever relayed it): the lapsed owner stays out
-            authorized -= {self._lapsed_owner}
+        authorized -= self.lapsed  # a revision is no renewal (whoever relayed it): a lapsed owner stays out
         out: list[Out] = [Emit(rec.RevisionApplied(number=fleet.revision, revoked=tuple(sorted(fleet.revoked)), rotated=tuple(rotated),
                                                    pairing_pq=fleet.pairing_pq))]
         out += self._handle(ha.Revised(now, authorized, fleet.revision), now)
@@ -386,21 +385,27 @@ class DroneCore:
         """The owner's lease (s; 0: none): the fleet's signed value, else the node's option."""
         return self.fleet.revision_lease or self.opts.revision_lease
 
-    def on_revision_stamp(self, data: bytes, now: float) -> list[Out]:
-        """A GS's revision stamp (``zdrone.core.revision.RevisionStamp``) heard. It renews the owner's
-        lease only if it is signed by a GS of the fleet under its key in force, is not revoked, is
-        not the owner (nor the owner whose lease lapsed), names the revision in force or a newer one,
-        and is not dated ahead of our clock; the lease then runs from the stamp's own time (a replayed
-        old stamp buys nothing past its time). After a lapse, the authorized list is whole again (the
-        lapsed owner excepted until a stamp renews): the GSs take control back by the usual rules."""
+    def on_revision_stamp(self, data: bytes, now: float, carrier: str | None = None) -> list[Out]:
+        """A GS's revision stamp (``zdrone.core.revision.RevisionStamp``) heard on ``carrier``'s
+        revision key. It renews the owner's lease only if it is signed by a GS of the fleet under its
+        key in force, came on that GS's own key, is not revoked, is neither the owner nor a GS whose
+        lease lapsed, names **the revision in force** (a newer one renews nothing until the drone holds
+        it: the GS that pushes it pushes its bytes too), and is not dated ahead of our clock; the lease
+        then runs from the stamp's own time (a replayed old stamp buys nothing past its time). After a
+        lapse, a renewal makes the authorized list whole again: the GSs take control back by the usual
+        rules."""
         stamp = check_stamp(data, self.fleet)
         if stamp is None:
             self.counters["stamp_refused:signature"] += 1
             return []
-        if stamp.number < self.fleet.revision:
-            self.counters["stamp_refused:stale_revision"] += 1
+        if carrier is not None and stamp.gs != carrier:
+            self.counters["stamp_refused:relayed"] += 1  # another GS's stamp on this key: a relay
             return []
-        if stamp.gs in (self.machine.owner, self._lapsed_owner):
+        if stamp.number != self.fleet.revision:
+            why = "newer_revision" if stamp.number > self.fleet.revision else "stale_revision"
+            self.counters[f"stamp_refused:{why}"] += 1
+            return []
+        if stamp.gs == self.machine.owner or stamp.gs in self.lapsed:
             self.counters["stamp_refused:owner"] += 1
             return []
         wall = now + self.wall_offset
@@ -412,32 +417,34 @@ class DroneCore:
             return []
         self.revision_synced = at
         self.counters["stamp_renewed"] += 1
-        if not self._lease_lapsed or now >= at + self.lease_s:
+        if not self.lapsed or now >= at + self.lease_s:
             return []
-        log.warning("revision stamp from %s: the lease is renewed", stamp.gs)
-        self._lease_lapsed, self._lapsed_owner = False, None
+        log.warning("revision stamp from %s: the lease is renewed (%s may take control again)", stamp.gs,
+                    ", ".join(sorted(self.lapsed)))
+        self.lapsed.clear()
         node = self.fleet.nodes[self.name]
-        authorized = frozenset() if self.fleet.is_revoked(self.name) else frozenset(node.authorized_gs)
+        authorized = frozenset() if self.fleet.is_revoked(self.name) else frozenset(
+            g for g in node.authorized_gs if not self.fleet.is_revoked(g))
         return self._handle(ha.Revised(now, authorized, self.fleet.revision), now) + self._effects(now)
 
     def lease_due(self) -> float | None:
-        """When the owner's lease lapses if no stamp renews it (None: no lease, or not armed yet)."""
-        if self.lease_s <= 0 or self._lease_lapsed:
+        """When the owner's lease lapses if no stamp renews it (None: no lease, or no owner): from the
+        newest renewing stamp, or from when the owner in force took authority, whichever is later."""
+        if self.lease_s <= 0 or self._lease_armed is None or self.machine.owner is None:
             return None
-        since = [t for t in (self.revision_synced, self._lease_armed) if t is not None]
-        return max(since) + self.lease_s if since and self._lease_armed is not None else None
+        return max(self._lease_armed, self.revision_synced or self._lease_armed) + self.lease_s
 
     def _lease(self, now: float) -> list[Out]:
         due = self.lease_due()
-        if due is None or now < due or self.machine.owner is None:
+        owner = self.machine.owner
+        if due is None or now < due or owner is None or owner in self.lapsed:
             return []
-        self._lease_lapsed, self._lapsed_owner = True, self.machine.owner
+        self.lapsed.add(owner)
         self.counters["revision_lease_lapsed"] += 1
-        log.warning("no revision stamp from a GS other than %s for %.0f s: its authority lapses",
-                    self.machine.owner, self.lease_s)
-        out: list[Out] = [Emit(rec.Drop(gs=self.machine.owner, reason="lease_lapsed",
+        log.warning("no revision stamp from a GS other than %s for %.0f s: its authority lapses", owner, self.lease_s)
+        out: list[Out] = [Emit(rec.Drop(gs=owner, reason="lease_lapsed",
                                         detail=f"no stamp from another GS for {self.lease_s:.0f} s"))]
-        authorized = frozenset(self.machine.config.authorized) - {self.machine.owner}
+        authorized = frozenset(self.machine.config.authorized) - self.lapsed
         why = f"lease lapsed (no revision stamp from another GS for {self.lease_s:g} s)"
         return out + self._handle(ha.Revised(now, authorized, self.fleet.revision, why), now)
 
@@ -711,8 +718,9 @@ class DroneCore:
         listen to (the machine's plus every GS whose new pairing key waits for its proof) and what to
         persist."""
         out = self._poll_links(now, timer)
-        if self._lease_armed is None and self.machine.owner is not None:
-            self._lease_armed = now  # the first pairing arms the lease
+        if self.machine.owner != self._lease_owner:  # a new owner (the first pairing included): its lease runs from now
+            self._lease_owner = self.machine.owner
+            self._lease_armed = now if self.machine.owner is not None else None
         if timer:
             out += self._lease(now)
             due = self.machine.get_timer()
