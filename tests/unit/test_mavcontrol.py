@@ -3,20 +3,19 @@ dialect pymavlink's own generator makes from today's definition of CONTROL_STATU
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import sys
-from pathlib import Path
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from pymavlink.generator import mavgen
 
 from zdrone.core.mavcontrol import (CRC_EXTRA_CONTROL_STATUS, FLAG_SYSTEM_MANAGER, FLAG_TAKEOVER_ALLOWED,
                                     MSG_ID_CONTROL_STATUS, ControlStatus, decode_control_status,
                                     encode_control_status, parse_operator_request)
 from zdrone.core.mavlink import encode_raw, read_header
+
+from tests.mavgen_dialect import generated_dialect
 
 #: CONTROL_STATUS as development.xml defines it since mavlink PR 2313 (three fields)
 SPEC_XML = """<?xml version="1.0"?>
@@ -38,18 +37,7 @@ SPEC_XML = """<?xml version="1.0"?>
 @pytest.fixture(scope="module")
 def spec_dialect(tmp_path_factory):
     """The Python dialect pymavlink's generator makes from ``SPEC_XML``."""
-    d = tmp_path_factory.mktemp("dialect")
-    xml = d / "opcontrol.xml"
-    xml.write_text(SPEC_XML)
-    out = d / "opcontrol_gen"
-    mavgen.mavgen(mavgen.Opts(str(out), wire_protocol="2.0", language="Python3", validate=False), [str(xml)])
-    path = Path(str(out) + ".py") if not out.exists() else out
-    spec = importlib.util.spec_from_file_location("opcontrol_gen", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["opcontrol_gen"] = mod
-    spec.loader.exec_module(mod)
-    yield mod
+    yield generated_dialect(SPEC_XML, tmp_path_factory.mktemp("dialect"), "opcontrol_gen")
     sys.modules.pop("opcontrol_gen", None)
 
 

@@ -3,15 +3,15 @@ through the gateway binds to the one pending request shown to *that* application
 
 from __future__ import annotations
 
-from pathlib import Path
+import sys
 
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from gs.opcontrol import Answer
 from zdrone.core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL
 
 from tests.unit.test_operator_control import SYSID, App, ask, fleet3_dir, make_net, with_gateways  # noqa: F401
+from tests.mavgen_dialect import generated_dialect
 from tests.unit.test_station_core import fleet_dir  # noqa: F401  (fixture)
 
 OPC = MAV_CMD_REQUEST_OPERATOR_CONTROL
@@ -158,23 +158,7 @@ TODAY_XML = """<?xml version="1.0"?>
 @pytest.fixture(scope="module")
 def today(tmp_path_factory):
     """The Python dialect pymavlink's mavgen makes from ``TODAY_XML``."""
-    import importlib.util
-    import sys
-
-    from pymavlink.generator import mavgen
-
-    d = tmp_path_factory.mktemp("today")
-    xml = d / "today.xml"
-    xml.write_text(TODAY_XML)
-    out = d / "today_gen"
-    mavgen.mavgen(mavgen.Opts(str(out), wire_protocol="2.0", language="Python3", validate=False), [str(xml)])
-    path = Path(str(out) + ".py") if not out.exists() else out
-    spec = importlib.util.spec_from_file_location("today_gen", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["today_gen"] = mod
-    spec.loader.exec_module(mod)
-    yield mod
+    yield generated_dialect(TODAY_XML, tmp_path_factory.mktemp("today"), "today_gen")
     sys.modules.pop("today_gen", None)
 
 
