@@ -52,10 +52,10 @@ from zdrone.core.mavlink import FrameError, read_header
 from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.outputs import Emit, Put
 from zdrone.core.kk import check_message1, is_hybrid
-from zdrone.core.revision import STAMP_AHEAD_S, check_stamp
+from zdrone.core.lease import OwnerLease, Renewed, StampRefused
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
                                  _prologue as pairing_prologue)
-from zdrone.core.tbm import LinkState, TbmThresholds
+from zdrone.core.tbm import TbmThresholds
 from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
 from zdrone.fleet import keyexprs as kx
@@ -193,11 +193,8 @@ class DroneCore:
         self._persisted: tuple[str | None, int, str] | None = None
         self._next_beacon = 0.0
         self._timer_handled = float("-inf")
-        self.revision_synced: float | None = None  # the time of the newest stamp that renewed the lease
         self.rekey: set[str] = set()  # rotated GSs whose live key predates their new static key
-        self._lease_armed: float | None = None  # when the owner in force took authority: its lease runs from here
-        self._lease_owner: str | None = None  # ... that owner (a new owner's lease runs from its taking over)
-        self.lapsed: set[str] = set()  # GSs whose lease lapsed: their stamps renew nothing, they regain nothing
+        self.lease = OwnerLease()  # the owner's lease (``zdrone.core.lease``)
         self._queued: dict[str, list[_Batch]] = {}  # GS -> the envelopes of this pass (``batch``)
 
     # ---------------------------------------------------------------- inputs
@@ -385,61 +382,44 @@ class DroneCore:
         """The owner's lease (s; 0: none): the fleet's signed value, else the node's option."""
         return self.fleet.revision_lease or self.opts.revision_lease
 
+    @property
+    def revision_synced(self) -> float | None:
+        """The time of the newest stamp that renewed the owner's lease."""
+        return self.lease.synced
+
+    @property
+    def lapsed(self) -> set[str]:
+        """The GSs whose lease lapsed: their stamps renew nothing, they regain nothing."""
+        return self.lease.lapsed
+
     def on_revision_stamp(self, data: bytes, now: float, carrier: str | None = None) -> list[Out]:
-        """A GS's revision stamp (``zdrone.core.revision.RevisionStamp``) heard on ``carrier``'s
-        revision key. It renews the owner's lease only if it is signed by a GS of the fleet under its
-        key in force, came on that GS's own key, is not revoked, is neither the owner nor a GS whose
-        lease lapsed, names **the revision in force** (a newer one renews nothing until the drone holds
-        it: the GS that pushes it pushes its bytes too), and is not dated ahead of our clock; the lease
-        then runs from the stamp's own time (a replayed old stamp buys nothing past its time). After a
-        lapse, a renewal makes the authorized list whole again: the GSs take control back by the usual
-        rules."""
-        stamp = check_stamp(data, self.fleet)
-        if stamp is None:
-            self.counters["stamp_refused:signature"] += 1
+        """A GS's revision stamp heard on ``carrier``'s revision key, judged by the owner's lease
+        (``zdrone.core.lease``). A renewal that ends a lapse makes the authorized list whole again:
+        the GSs take control back by the usual rules."""
+        got = self.lease.stamp(data, self.fleet, carrier, now, self.wall_offset, self.lease_s)
+        if isinstance(got, StampRefused):
+            self.counters[f"stamp_refused:{got.reason}"] += 1
             return []
-        if carrier is not None and stamp.gs != carrier:
-            self.counters["stamp_refused:relayed"] += 1  # another GS's stamp on this key: a relay
+        if not isinstance(got, Renewed):
             return []
-        if stamp.number != self.fleet.revision:
-            why = "newer_revision" if stamp.number > self.fleet.revision else "stale_revision"
-            self.counters[f"stamp_refused:{why}"] += 1
-            return []
-        if stamp.gs == self.machine.owner or stamp.gs in self.lapsed:
-            self.counters["stamp_refused:owner"] += 1
-            return []
-        wall = now + self.wall_offset
-        if stamp.wall > wall + STAMP_AHEAD_S:
-            self.counters["stamp_refused:ahead"] += 1
-            return []
-        at = min(now, stamp.wall - self.wall_offset)
-        if self.revision_synced is not None and at <= self.revision_synced:
-            return []
-        self.revision_synced = at
         self.counters["stamp_renewed"] += 1
-        if not self.lapsed or now >= at + self.lease_s:
+        if not got.restores:
             return []
-        log.warning("revision stamp from %s: the lease is renewed (%s may take control again)", stamp.gs,
-                    ", ".join(sorted(self.lapsed)))
-        self.lapsed.clear()
+        log.warning("revision stamp from %s: the lease is renewed (%s may take control again)", got.gs,
+                    ", ".join(sorted(got.restores)))
         node = self.fleet.nodes[self.name]
         authorized = frozenset() if self.fleet.is_revoked(self.name) else frozenset(
             g for g in node.authorized_gs if not self.fleet.is_revoked(g))
         return self._handle(ha.Revised(now, authorized, self.fleet.revision), now) + self._effects(now)
 
     def lease_due(self) -> float | None:
-        """When the owner's lease lapses if no stamp renews it (None: no lease, or no owner): from the
-        newest renewing stamp, or from when the owner in force took authority, whichever is later."""
-        if self.lease_s <= 0 or self._lease_armed is None or self.machine.owner is None:
-            return None
-        return max(self._lease_armed, self.revision_synced or self._lease_armed) + self.lease_s
+        """When the owner's lease lapses if no stamp renews it (None: no lease, or no owner)."""
+        return self.lease.due(self.lease_s) if self.machine.owner is not None else None
 
     def _lease(self, now: float) -> list[Out]:
-        due = self.lease_due()
-        owner = self.machine.owner
-        if due is None or now < due or owner is None or owner in self.lapsed:
+        owner = self.lease.lapse_due(now, self.lease_s)
+        if owner is None:
             return []
-        self.lapsed.add(owner)
         self.counters["revision_lease_lapsed"] += 1
         log.warning("no revision stamp from a GS other than %s for %.0f s: its authority lapses", owner, self.lease_s)
         out: list[Out] = [Emit(rec.Drop(gs=owner, reason="lease_lapsed",
@@ -718,9 +698,7 @@ class DroneCore:
         listen to (the machine's plus every GS whose new pairing key waits for its proof) and what to
         persist."""
         out = self._poll_links(now, timer)
-        if self.machine.owner != self._lease_owner:  # a new owner (the first pairing included): its lease runs from now
-            self._lease_owner = self.machine.owner
-            self._lease_armed = now if self.machine.owner is not None else None
+        self.lease.owner_is(self.machine.owner, now)  # a new owner's lease runs from its taking over
         if timer:
             out += self._lease(now)
             due = self.machine.get_timer()
