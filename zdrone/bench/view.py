@@ -97,6 +97,7 @@ new MutationObserver((muts) => {
 #: listener ran), the server's time of its snapshot, its size.
 STREAM_PROBE = """
 window.__pictures = [];
+window.__lastPicture = null;
 (() => {
   const Original = window.EventSource;
   window.EventSource = class extends Original {
@@ -107,6 +108,7 @@ window.__pictures = [];
         const at = ev.data.lastIndexOf('"server_time":');
         const server = at < 0 ? null : parseFloat(ev.data.slice(at + 14));
         const size = ev.data.length;
+        window.__lastPicture = ev.data;
         setTimeout(() => window.__pictures.push([got, Date.now() / 1000, server, size]), 0);
       });
     }
@@ -417,31 +419,12 @@ QUICK_ATTACK_WINDOW_S = 10.0
 LOAD_RAMP_S = 30.0
 #: Seconds after the load arrived before its window opens (the first wave of refusals settles).
 LOAD_SETTLE_S = 3.0
-#: Every picture event the real page gets: its arrival (the page's wall clock) and the server's time of it;
-#: the newest picture's data kept (the view's counters: parts opened, dropped by reason).
-PICTURE_STAMPS = """
-window.__pics = [];
-window.__lastPicture = null;
-(() => {
-  const Original = window.EventSource;
-  window.EventSource = class extends Original {
-    constructor(url, init) {
-      super(url, init);
-      this.addEventListener('picture', (ev) => {
-        const at = ev.data.lastIndexOf('"server_time":');
-        window.__pics.push([Date.now() / 1000, at < 0 ? null : parseFloat(ev.data.slice(at + 14))]);
-        window.__lastPicture = ev.data;
-      });
-    }
-  };
-})();
-"""
 #: What the page shows now: its stream's state, d1's row (live or stale, owner), pictures so far.
 READ_D1 = """() => {
   const tr = document.querySelector('#rows tr[data-drone="d1"]');
   return {t: Date.now() / 1000, conn: document.getElementById('conn').dataset.state,
           d1: tr ? (tr.dataset.stale === 'true' ? 'stale' : 'live') : 'absent',
-          owner: tr ? tr.getAttribute('data-owner') : null, pictures: window.__pics.length};
+          owner: tr ? tr.getAttribute('data-owner') : null, pictures: window.__pictures.length};
 }"""
 #: The view's counters in the newest picture the page got.
 READ_COUNTERS = """() => {
@@ -522,9 +505,9 @@ def _window(page: Any, view_pid: int, window: float, name: str, status: Progress
                    + (f", clients open {held[-1][0]} streaming {held[-1][1]}" if held else ""))
     span, cpu1, wall1 = time.monotonic() - t0, cpu_seconds(view_pid), time.time()
     counters1, load1, forge1 = page.evaluate(READ_COUNTERS), _load_at(clients), _load_at(forger)
-    pics = page.evaluate("window.__pics")
+    pics = page.evaluate("window.__pictures")  # [arrived, rendered, server's time, size] (STREAM_PROBE)
     stamps = [p[0] for p in pics]
-    lags = [got - server for got, server in pics if server is not None and wall0 <= got <= wall1]
+    lags = [got - server for got, _, server, _ in pics if server is not None and wall0 <= got <= wall1]
     out: dict[str, Any] = {
         "window_s": round(span, 1), "samples": len(shown),
         "rss_max_mb": round(max(rss), 1) if rss else None, "rss_start_mb": round(rss[0], 1) if rss else None,
@@ -598,7 +581,7 @@ def _attack(browser: Browser, base: Path, clients: int, rate: float, window: flo
             view = demo.children.get("view")
             if view is not None and view.proc.poll() is None and (d / "view.log").exists() \
                     and "zdrone view:" in (d / "view.log").read_text(errors="replace"):
-                page = browser.open(f"http://127.0.0.1:{port}", PICTURE_STAMPS)
+                page = browser.open(f"http://127.0.0.1:{port}", STREAM_PROBE)
             else:
                 status.say(f"view attack: the flight starting, {time.monotonic() - t_start:.0f} s")
                 time.sleep(0.2)
