@@ -86,11 +86,12 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
         subs = [d.declare_subscriber(lane, lambda s: got.append(s.payload.to_bytes())) for lane in kx.up_lanes("d1", "A")]
         lanes = kx.up_lanes("d1", "A")
         try:
-            def routed() -> bool:  # until the route exists
-                a.put(lanes[0], b"r")
-                return bool(wait_until(lambda: got, 0.1, 0.02))
+            def routed() -> bool:  # until the route exists on every lane (a lane's subscription may come later)
+                for key in lanes:
+                    a.put(key, key.encode())
+                return bool(wait_until(lambda: {k.encode() for k in lanes} <= set(got), 0.2, 0.02))
 
-            assert wait_until(routed, 5.0, 0.0), "no route from A to the drone"
+            assert wait_until(routed, 10.0, 0.0), f"no route from A to the drone on every lane: {got}"
             wait_until(lambda: False, 1.0 / UPLINK_LANE_HZ * 4, 0.01)  # the lane's interval has passed
             got.clear()
             for i, key in enumerate(lanes):
