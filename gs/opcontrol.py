@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
@@ -56,7 +55,8 @@ from zdrone.core.authority import State as HaState
 from zdrone.core.mavcontrol import (DEFAULT_REQUEST_TIMEOUT_S, REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S,
                                     OperatorControlRequest)
 
-from .ownership import owns
+from gs.droneview import DroneView
+from gs.ownership import owns
 
 #: After the owner's operator consents with "allow takeover", takeover stays allowed this long (the
 #: spec's 10 s in which the requester asks again).
@@ -125,7 +125,7 @@ class TakeoverWindow:
     until: float
     app: str
 
-    def allows(self, view: Any, now: float) -> bool:
+    def allows(self, view: DroneView, now: float) -> bool:
         return self.epoch == view.epoch and now < self.until
 
 
@@ -156,7 +156,7 @@ class OperatorControl:
     held_epoch: int | None = None  # the epoch we took by our operator's request
 
     # ------------------------------------------------------------------ queries
-    def is_owner(self, view: Any) -> bool:
+    def is_owner(self, view: DroneView) -> bool:
         return owns(view, self.gs)
 
     def deadline(self, now: float) -> float | None:
@@ -171,29 +171,29 @@ class OperatorControl:
         later = [d for d in due if d is not None and d > now]
         return min(later) if later else None
 
-    def takeover_for(self, view: Any, now: float) -> tuple[bool, str | None]:
+    def takeover_for(self, view: DroneView, now: float) -> tuple[bool, str | None]:
         """Our takeover setting now: (allowed, the one requester it is for, or None for any)."""
         if self.window is not None and self.window.allows(view, now):
             return True, self.window.to
         return self.allow_takeover or self.setting_epoch == view.epoch, None
 
-    def takeover_allowed(self, view: Any, now: float) -> bool:
+    def takeover_allowed(self, view: DroneView, now: float) -> bool:
         return self.takeover_for(view, now)[0]
 
-    def shown_takeover(self, view: Any, now: float) -> bool:
+    def shown_takeover(self, view: DroneView, now: float) -> bool:
         """What CONTROL_STATUS says about takeover: ours when we own the drone, else the owner's."""
         return self.takeover_allowed(view, now) if self.is_owner(view) else bool(view.takeover)
 
-    def holds(self, view: Any) -> bool:
+    def holds(self, view: DroneView) -> bool:
         """Our operator holds control: no automatic hand-over in this epoch."""
         return self.held_epoch == view.epoch and view.owner == self.gs
 
-    def live_request(self, view: Any, now: float) -> PendingRequest | None:
+    def live_request(self, view: DroneView, now: float) -> PendingRequest | None:
         r = self.request
         return r if r is not None and r.alive(now) and r.epoch == view.epoch and self.is_owner(view) else None
 
     # ------------------------------------------------------------------ operator
-    def command(self, view: Any, req: OperatorControlRequest, now: float, app: str = "",
+    def command(self, view: DroneView, req: OperatorControlRequest, now: float, app: str = "",
                 named: str | None = None) -> tuple[Answer, Step]:
         """One MAV_CMD_REQUEST_OPERATOR_CONTROL from application ``app`` of this GS; ``named``: the
         fleet GS its p4 names as that application was shown it (None: no GS)."""
@@ -217,7 +217,7 @@ class OperatorControl:
         return Answer.FAILED, step + Step(say=(f"zdrone gs {self.gs}: control of {view.name} requested; "
                                                f"{view.owner}'s operator is asked ({req.timeout:.0f} s)",))
 
-    def _owner_command(self, view: Any, req: OperatorControlRequest, now: float, app: str,
+    def _owner_command(self, view: DroneView, req: OperatorControlRequest, now: float, app: str,
                        named: str | None) -> tuple[Answer, Step]:
         pending = self.live_request(view, now)
         if pending is None:
@@ -267,7 +267,7 @@ class OperatorControl:
                                              f"declined; its requests are not shown for {DECLINE_HOLD_S:.0f} s",)))
 
     # ------------------------------------------------------------------ drone
-    def on_request(self, view: Any, msg: wire.OperatorRequest, now: float) -> Step:
+    def on_request(self, view: DroneView, msg: wire.OperatorRequest, now: float) -> Step:
         """The drone passes on another GS's request for authority."""
         if not self.is_owner(view) or msg.epoch != view.epoch or msg.to != msg.requester:
             # control goes to whoever asks, never to a GS it names; and only ours, in our epoch
@@ -293,7 +293,7 @@ class OperatorControl:
         return self._received(view, req, False) + Step(say=(
             f"zdrone gs {self.gs}: {msg.requester} requests control of {view.name} ({req.timeout:.0f} s to consent)",))
 
-    def _pend(self, view: Any, msg: wire.OperatorRequest, now: float) -> PendingRequest:
+    def _pend(self, view: DroneView, msg: wire.OperatorRequest, now: float) -> PendingRequest:
         self.seq += 1
         # the spec's range (3-60 s): a request never stands longer, whatever its sender says
         timeout = min(max(msg.timeout, REQUEST_TIMEOUT_MIN_S), REQUEST_TIMEOUT_MAX_S) if msg.timeout > 0 \
@@ -301,7 +301,7 @@ class OperatorControl:
         self.request = PendingRequest(msg.requester, msg.requester, msg.epoch, timeout, now, self.seq, msg.ask_id)
         return self.request
 
-    def _received(self, view: Any, req: PendingRequest, allowed: bool) -> Step:
+    def _received(self, view: DroneView, req: PendingRequest, allowed: bool) -> Step:
         return self._log(rec.OperatorRequestReceived(drone=view.name, requester=req.requester, to=req.to,
                                                      epoch=req.epoch, timeout=req.timeout, takeover_allowed=allowed))
 
@@ -315,7 +315,7 @@ class OperatorControl:
         self.noted.add(key)
         return self._log(record)
 
-    def _grant(self, view: Any, req: PendingRequest, now: float, why: str, app: str) -> Step:
+    def _grant(self, view: DroneView, req: PendingRequest, now: float, why: str, app: str) -> Step:
         assert req.to == req.requester  # control goes to the GS that asked (``on_request``)
         self.release_to, self.release_epoch, self.last_release = req.to, view.epoch, now
         self.release_until = now + GRANT_WINDOW_S
@@ -326,7 +326,7 @@ class OperatorControl:
                        say=(f"zdrone gs {self.gs}: control of {view.name} goes to {req.to} ({why})",)))
 
     # ------------------------------------------------------------------- time
-    def tick(self, view: Any, now: float) -> Step:
+    def tick(self, view: DroneView, now: float) -> Step:
         """Deadlines, re-sends, and what follows from the drone's status."""
         step = NOTHING
         w = self.window
@@ -366,7 +366,7 @@ class OperatorControl:
             self.release_to = self.release_epoch = self.release_until = None  # authority moved on
         return step
 
-    def _tell(self, view: Any, now: float) -> Step:
+    def _tell(self, view: DroneView, now: float) -> Step:
         """Tell the drone our takeover setting until its status agrees (as owner)."""
         want, to = self.takeover_for(view, now)
         if (bool(view.takeover), getattr(view, "takeover_to", None)) == (want, to if want else None):
@@ -385,7 +385,7 @@ class OperatorControl:
             self.held_off = {r: t for r, t in self.held_off.items() if t > now}
             self.held_off[req.requester] = now + hold
 
-    def _ask(self, view: Any) -> wire.HandoverRequest:
+    def _ask(self, view: DroneView) -> wire.HandoverRequest:
         return wire.HandoverRequest(self.gs, view.epoch, timeout=self.asked_timeout, ask_id=self.ask_id)
 
     @staticmethod

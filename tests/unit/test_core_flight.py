@@ -51,7 +51,7 @@ def _no_command_lost_or_doubled(f: CoreFlight) -> None:
     """Every commanding frame an authority sent in its epoch was forwarded to the vehicle, once; no GS
     commanded in an epoch not its own."""
     owners = {r.epoch: r.to for _, r in f.of(rec.AuthorityMoved)}
-    sent = {f"{epoch}:{g}": n for g, st in f.gs.items() for epoch, n in st.core.views[DRONE].commands_sent.items() if n}
+    sent = {f"{epoch}:{g}": n for g, st in f.gs.items() for epoch, n in st.core.sessions[DRONE].commands_sent.items() if n}
     assert sent and all(owners[int(k.split(":")[0])] == k.split(":")[1] for k in sent), (sent, owners)
     assert dict(f.drone.forwarded_epochs) == sent
 
@@ -73,7 +73,7 @@ def _found_and_encoded_for(f: CoreFlight, autopilot: str) -> None:
 @pytest.mark.parametrize("autopilot", AUTOPILOTS)
 def test_the_reference_flight_hands_over_to_b_and_back_inside_the_overlap(fleet_dir, autopilot):
     f = _flight(fleet_dir, autopilot)
-    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].mission.stage}"
+    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.sessions[DRONE].mission.stage}"
     assert _moves(f) == [(None, "A", 1, "paired"), ("A", "B", 2, "handover"), ("B", "A", 3, "handover")]
     for _, r in f.of(rec.HandoverComplete):
         assert _inside(f, "A", r.position) and _inside(f, "B", r.position), r
@@ -132,7 +132,7 @@ def test_the_heir_crashing_before_the_hand_over_leaves_authority_with_a_who_brin
 @pytest.mark.parametrize("autopilot", AUTOPILOTS)
 def test_a_hung_authority_loses_authority_to_the_proven_heir_and_learns_it_on_waking(fleet_dir, autopilot):
     f = _flight(fleet_dir, autopilot)
-    _fly_until(f, lambda: f.in_range("B") and f.in_range("A") and f.gs["B"].core.views[DRONE].link is not None,
+    _fly_until(f, lambda: f.in_range("B") and f.in_range("A") and f.gs["B"].core.sessions[DRONE].link is not None,
                "in the overlap with B proven")
     hung = f.now
     f.gs["A"].down = True
@@ -180,20 +180,21 @@ def _restart_with_b_refusing(f: CoreFlight, refuse_for: float, lose: str | None)
     of ``lose`` ("HOLD" or "MISSION") A sends is lost on the radio."""
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import QueryAnswer
+    from gs.actions import QueryAnswer
     from zdrone.vehicle.modes import set_mode_params
 
     a, b = f.gs["A"].core, f.gs["B"].core
-    send, lost = a._command, []
+    view = a.sessions["d1"]
+    send, lost = view._command, []
 
-    def lossy(view, command, *params):
+    def lossy(command, *params):
         if (command == mav.MAV_CMD_DO_SET_MODE and lose and not lost
                 and tuple(params) == tuple(set_mode_params(view.autopilot, lose))):
             lost.append(f.now)
             return []
-        return send(view, command, *params)
+        return send(command, *params)
 
-    a._command = lossy
+    view._command = lossy
     _fly_until(f, lambda: f.in_range("B") and f.in_range("A"), "in the overlap", timeout=200)
     f.run_until(lambda: False, 0.5)
     f.restart_drone(2.0)
@@ -241,6 +242,6 @@ def test_a_radio_outage_on_the_ground_after_pairing_is_no_failsafe_and_the_fligh
     _fly_until(f, lambda: f.now >= t0 + 3.65, "the outage's end", timeout=10)
     f.gs["A"].down = False
     assert f.of(rec.OwnerLinkLostOnGround) and f.commands == [] and f.of(rec.Failsafe) == []
-    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.views[DRONE].mission.stage}"
+    assert f.run_until(f.flown, 400), f"not flown: stage {f.gs['A'].core.sessions[DRONE].mission.stage}"
     assert _moves(f) == [(None, "A", 1, "paired"), ("A", "B", 2, "handover"), ("B", "A", 3, "handover")]
     assert f.commands == [] and f.of(rec.Failsafe) == [] and _home_distance(f) < 3.0

@@ -36,10 +36,10 @@ def test_the_reference_flight_with_the_autopilots_real_start_up(fleet_dir, autop
     while not f.flown() and f.now < 500:
         f.step()
         if f.now < fix_at - 0.5:
-            assert f.drone.position is None and f.gs["A"].core.views[DRONE].position is None, f.now  # never (0, 0)
+            assert f.drone.position is None and f.gs["A"].core.sessions[DRONE].position is None, f.now  # never (0, 0)
         if first_armed is None and f.sim.armed:
             first_armed = f.now
-    assert f.flown(), f"not flown: stage {f.gs['A'].core.views[DRONE].mission.stage}"
+    assert f.flown(), f"not flown: stage {f.gs['A'].core.sessions[DRONE].mission.stage}"
     assert first_armed is not None and first_armed >= position_at  # armed only once it could fly the mission
     waits = [x["waiting"] for _, x in f.gs_logs("A", "vehicle_waiting")]
     # the first pairing gives authority, so it waits for the vehicle's own position (issue 18: an unknown
@@ -57,7 +57,7 @@ def test_a_vehicle_that_disarms_on_the_ground_after_the_start_is_armed_and_start
     """ArduCopter's case: the start accepted, then "Disarming motors" on the ground, left in AUTO; the
     GS used to believe it flew."""
     f = CoreFlight(fleet_dir, personality(autopilot))
-    view = f.gs["A"].core.views[DRONE]
+    view = f.gs["A"].core.sessions[DRONE]
     assert f.run_until(lambda: view.mission.stage is Stage.TAKING_OFF, 100)
     f.sim.disarm("disarmed_preflight")  # the auto-disarm, before it could climb
     assert view.mission.stage is not Stage.FLYING
@@ -81,7 +81,7 @@ def test_a_cancelled_mission_upload_is_tried_again_and_flown(fleet_dir, autopilo
     from zdrone.core.mavlink import read_header
 
     f = CoreFlight(fleet_dir, personality(autopilot))
-    view = f.gs["A"].core.views[DRONE]
+    view = f.gs["A"].core.sessions[DRONE]
     receive = f.sim.receive
 
     def items_lost_until_cancelled(frame: bytes, now: float, link: int = 0) -> None:

@@ -68,7 +68,7 @@ def test_insider_heir_b_repairing_from_outside_its_coverage_never_takes_authorit
     net.fly(home, net.between(home, net.centre("B"), 0.1), 3.0)
     b = net.gss["B"]
     for _ in range(3):  # B's operator (or an attacker holding B's keys) pairs again in flight
-        b.views["d1"].link = None
+        b.sessions["d1"].link = None
         b.opts = dataclasses.replace(b.opts, pair=True)
         net.run(1.0)
     assert "B" in net.drone.links and net.drone.machine.is_proven("B") and not net.drone.machine.is_heir("B")
@@ -98,7 +98,7 @@ def test_key_escrow_a_asked_for_its_own_key_answers_nothing_while_its_link_is_al
     ask = KeyShareAsk(b.identity, "B", "A", net.fleet.nodes["A"].public_bytes, "d1", net.now, wall=1_800_000_000.0 + net.now)
     answer, _logs = a.on_linkkey_query("d1", ask.payload, net.now, bytes(32), 1_800_000_000.0 + net.now)
     assert answer.reply is None and answer.error == b"live_link" and not answer.crypto
-    assert a.views["d1"].slot.candidates == [] and a.counters["linkkey_refused:live_link"] == 1
+    assert a.sessions["d1"].slot.candidates == [] and a.counters["linkkey_refused:live_link"] == 1
 
 
 def test_stale_pairing_replays_around_a_companion_restart_cost_nothing_and_the_owner_comes_back(fleet_dir):
@@ -142,7 +142,7 @@ def test_a_third_partys_grant_never_replaces_a_live_link_on_the_drone(fleet_dir)
 
     net = linked(fleet_dir)
     a = net.gss["A"]
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     net.run(1.0)
     live_b = net.drone.links["B"]
     secret = bytes(range(32))
@@ -180,7 +180,7 @@ def _in_the_overlap_after_two_hand_overs(fleet_dir, on_ground: bool) -> FleetNet
 def _b_asks_to_pair(net: FleetNet) -> None:
     """B (authorized, covering the vehicle) pairs as if it had no link: its first try goes out at once."""
     b = net.gss["B"]
-    b.views["d1"].link = None
+    b.sessions["d1"].link = None
     b.opts = dataclasses.replace(b.opts, pair=True)
 
 
@@ -204,7 +204,7 @@ def test_a_ground_restart_in_the_overlap_gives_a_the_first_claim_even_if_b_asks_
     assert (net.persisted.owner, net.persisted.epoch) == ("A", 4)
     net.run(4.0)  # B tries again: a link now, never the authority
     assert m.owner == "A" and m.epoch == 4 and "B" in net.drone.links and not net.commands
-    assert net.gss["A"].views["d1"].epoch == 4 and net.gss["B"].views["d1"].epoch == 4
+    assert net.gss["A"].sessions["d1"].epoch == 4 and net.gss["B"].sessions["d1"].epoch == 4
 
 
 def test_after_the_first_claim_without_a_a_covering_b_pairs_in_the_next_epoch(fleet_dir):
@@ -351,7 +351,7 @@ def test_a_late_loop_never_hands_over_to_a_gs_that_really_went_silent_meanwhile(
     net.run(3.0)
     d, m = net.drone, net.drone.machine
     assert m.owner == "A" and m.proven_in_cover("B")
-    a_link = net.gss["A"].views["d1"].link
+    a_link = net.gss["A"].sessions["d1"].link
     net.hung.add("B")
     queued: list[tuple[str, bytes]] = []
     net._put_up = lambda gs, a: queued.append((gs, a.payload))

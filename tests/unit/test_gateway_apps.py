@@ -47,6 +47,7 @@ class StubView:
     link: object | None = field(default_factory=object)
     ha_state: object | None = None
     takeover: bool = False
+    stale: bool = False
     operator: OperatorControl = field(default_factory=lambda: OperatorControl("A"))
 
 

@@ -29,7 +29,7 @@ def armed_net(fleet_dir) -> FleetNet:
     net.add_gs("B", command_rate=5.0)
     net.run(4.0)
     for core in net.gss.values():
-        core.views["d1"].armed = True  # the vehicle's HEARTBEAT would say so: the command stream runs
+        core.sessions["d1"].armed = True  # the vehicle's HEARTBEAT would say so: the command stream runs
     net.on_ground = False
     return net
 

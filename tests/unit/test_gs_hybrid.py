@@ -67,7 +67,7 @@ def test_with_pairing_pq_pairing_and_key_sharing_complete_hybrid_end_to_end(flee
     assert pairs and all(is_hybrid(a.payload) for _, a in pairs)
     assert shares and all(is_hybrid(decode_query(a.payload).m1) for _, a in shares)
     assert not net.drone.counters["pair_refused:downgrade"] and not b_core.counters["linkkey_refused:downgrade"]
-    assert a_core.views["d1"].link.key == net.drone.links["A"].key
+    assert a_core.sessions["d1"].link.key == net.drone.links["A"].key
 
 
 def test_with_pairing_pq_a_classical_pairing_or_key_sharing_query_is_refused_as_a_downgrade(fleet_dir):
@@ -135,7 +135,7 @@ def test_with_pairing_pq_a_key_grant_over_a_classical_link_is_refused_and_the_ow
 
     secret = os.urandom(32)
     grant = wire.KeyGrant(gs="B", sysid=net.fleet.nodes["B"].sysid, secret=secret, grant_id=1)
-    sealed = a_core.views["d1"].link.seal_control(grant)  # as A sends it: under its live (classical) link key
+    sealed = a_core.sessions["d1"].link.seal_control(grant)  # as A sends it: under its live (classical) link key
     net.drone_outs(net.drone.on_envelope("A", sealed, net.now))
     assert net.drone.counters["grant_refused:downgrade"] == 1
     slot = net.drone.slots.get("B")
@@ -149,11 +149,11 @@ def test_with_pairing_pq_a_key_grant_over_a_classical_link_is_refused_and_the_ow
     pairs = asks(net, AskKind.PAIR)
     net.run(4.0)
     assert pairs and all(is_hybrid(a.payload) for _, a in pairs)
-    assert net.drone.links["A"].hybrid and a_core.views["d1"].link.hybrid
-    assert a_core.views["d1"].link.key == net.drone.links["A"].key
+    assert net.drone.links["A"].hybrid and a_core.sessions["d1"].link.hybrid
+    assert a_core.sessions["d1"].link.key == net.drone.links["A"].key
     assert (net.drone.machine.owner, net.drone.machine.epoch) == ("A", epoch) and not net.commands
     # the same grant under A's hybrid link key is taken (a candidate of B's until B proves it)
-    sealed = a_core.views["d1"].link.seal_control(grant)
+    sealed = a_core.sessions["d1"].link.seal_control(grant)
     net.drone_outs(net.drone.on_envelope("A", sealed, net.now))
     assert net.drone.counters["grant_refused:downgrade"] == 1
     taken = [c.link for c in net.drone.slots["B"].candidates if c.link.key.same_as(LinkKey.from_secret("d1", "B", secret))]

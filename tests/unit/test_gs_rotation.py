@@ -70,7 +70,7 @@ def test_rotating_the_owner_in_flight_keeps_the_shared_keys_and_the_hand_over_go
     net.gs_outs("A", replied + early)
     net.run(3.0)
     assert m.owner == "A" and m.epoch == epoch and m.state is State.LINKED and not net.commands
-    assert "A" not in net.drone.rekey and net.drone.links["A"].key == a_core.views["d1"].link.key
+    assert "A" not in net.drone.rekey and net.drone.links["A"].key == a_core.sessions["d1"].link.key
     assert b_core.counters["linkkey_shared"] == shared and net.drone.links["B"] is b_key
     net.cut.discard("B")
     net.fly(net.position, b, 30.0)
@@ -91,15 +91,15 @@ def test_a_rotation_the_drone_has_not_applied_yet_is_paired_again_until_it_has(f
                         load_fleet_signing_key(fleet_dir, base))
     fleet = apply_revision(base, rev)
     a_core.fleet = fleet
-    old = a_core.views["d1"].link
+    old = a_core.sessions["d1"].link
     net.gs_outs("A", a_core.adopt_identity(new, net.now, WALL0 + net.now))
     forwarded = len(net.to_vehicle)
     net.run(5.0)
-    assert a_core.views["d1"].link is old and a_core.holds_authority("d1")  # the old link serves
+    assert a_core.sessions["d1"].link is old and a_core.holds_authority("d1")  # the old link serves
     assert len(net.to_vehicle) > forwarded
     net.drone_outs(net.drone.on_revision(fleet, net.now))
     net.run(3.0)
-    assert a_core.views["d1"].link is not old and net.drone.links["A"].key == a_core.views["d1"].link.key
+    assert a_core.sessions["d1"].link is not old and net.drone.links["A"].key == a_core.sessions["d1"].link.key
     assert net.drone.machine.owner == "A" and not net.commands
 
 
@@ -110,10 +110,10 @@ def test_the_old_link_serves_until_the_drone_speaks_under_the_new_key(fleet_dir)
     net.on_ground = False
     net.run(1.0)
     forwarded = len(net.to_vehicle)
-    old = a_core.views["d1"].link
+    old = a_core.sessions["d1"].link
     rotate(net, fleet_dir, "A")
     for _ in range(40):
         net.step(0.05)
         assert a_core.drone_status("d1", net.now).holds_authority  # no moment without command
-    assert a_core.views["d1"].link is not old and net.drone.links["A"].key == a_core.views["d1"].link.key
+    assert a_core.sessions["d1"].link is not old and net.drone.links["A"].key == a_core.sessions["d1"].link.key
     assert len(net.to_vehicle) > forwarded and not net.commands

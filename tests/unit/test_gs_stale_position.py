@@ -42,4 +42,4 @@ def test_a_new_owner_releases_only_from_a_position_reported_after_its_authority(
     b_core.on_envelope("d1", position(), t + 0.01)  # the drone's next report: after the authority change
     b_core.handle_timer(t + 0.01)
     assert not b_core.holds_authority("d1")  # released toward A, from a position it may trust
-    assert b_core.views["d1"].handover.to == "A"
+    assert b_core.sessions["d1"].handover.to == "A"

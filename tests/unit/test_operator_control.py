@@ -112,7 +112,7 @@ class Net:
                 gw.poll(self.now)
 
     def command(self, gs: str, req: OperatorControlRequest) -> Answer:
-        answer, actions = self.cores[gs].operator_command(self.cores[gs].views["d1"], req, self.now)
+        answer, actions = self.cores[gs].operator_command(self.cores[gs].sessions["d1"], req, self.now)
         self.deliver(gs, actions)
         return answer
 
@@ -153,7 +153,7 @@ def make_net(fleet_dir, gss: tuple[str, ...] = ("A", "B"), **a_opts) -> Net:
         net.drone_acts(machine.handle(ha.PairingDone(0.0, g)))
         net.drone_acts(machine.handle(ha.LinkChanged(0.0, g, LinkState.OK)))
     net.run(1.0)
-    assert net.owner == "A" and cores["B"].views["d1"].owner == "A" and machine.is_proven("B")
+    assert net.owner == "A" and cores["B"].sessions["d1"].owner == "A" and machine.is_proven("B")
     return net
 
 
@@ -162,7 +162,7 @@ def test_without_consent_nothing_moves(fleet_dir):
     assert net.command("B", ask(timeout=3.0)) is Answer.FAILED  # the spec's answer: the owner is asked
     net.run(1.5)
     assert "operator_request" in net.kinds("A") and any("B requests control of d1" in t for t in net.said)
-    a_req = net.cores["A"].views["d1"].operator.request
+    a_req = net.cores["A"].sessions["d1"].operator.request
     assert a_req is not None and (a_req.requester, a_req.to, a_req.timeout) == ("B", "B", 3.0)
     net.run(6.0)
     assert net.owner == "A" and net.machine.epoch == 1
@@ -179,9 +179,9 @@ def test_consent_by_release_hands_control_to_the_requester_which_holds_it(fleet_
     assert net.command("A", consent("B")) is Answer.ACCEPTED  # A's operator: release to the requester
     net.run(2.0)
     assert (net.owner, net.machine.epoch) == ("B", 2)
-    b = net.cores["B"].views["d1"]
+    b = net.cores["B"].sessions["d1"]
     assert "operator_control_taken" in net.kinds("B") and b.operator.holds(b)
-    assert net.cores["B"].holds_authority(b) and not net.cores["A"].holds_authority(net.cores["A"].views["d1"])
+    assert net.cores["B"].holds_authority(b) and not net.cores["A"].holds_authority(net.cores["A"].sessions["d1"])
     b.position = offset(HOME, 0.0, 200.0)  # in the overlap, nearer A: B would hand back to A by itself
     net.run(5.0)
     assert net.owner == "B"  # held: no automatic hand-over while B's operator holds control
@@ -196,7 +196,7 @@ def test_consent_by_allowing_takeover_opens_a_window_for_the_requester_which_ask
     net.command("B", ask(timeout=10.0))
     net.run(1.5)
     assert net.command("A", consent("B", takeover=True, request=True), ) is Answer.ACCEPTED
-    a = net.cores["A"].views["d1"].operator
+    a = net.cores["A"].sessions["d1"].operator
     assert a.window is not None and a.window.to == "B" and not a.allow_takeover  # the window, not a setting
     assert net.owner == "A"  # nothing moves until the requester asks again (today's flow)
     assert net.machine.status().takeover and net.machine.status().takeover_to == "B"  # told to every GS
@@ -222,8 +222,8 @@ def test_declined_requests_and_late_answers_move_nothing(fleet_dir):
 def test_with_takeover_allowed_the_request_takes_control_at_once(fleet_dir):
     net = make_net(fleet_dir, allow_takeover=True)  # ``zdrone gs --allow-takeover`` at A
     net.run(2.0)
-    assert net.machine.status().takeover and net.cores["B"].views["d1"].takeover  # what B's CONTROL_STATUS says
-    b = net.cores["B"].views["d1"]
+    assert net.machine.status().takeover and net.cores["B"].sessions["d1"].takeover  # what B's CONTROL_STATUS says
+    b = net.cores["B"].sessions["d1"]
     assert b.operator.shown_takeover(b, net.now)
     t0 = net.now
     assert net.command("B", ask(takeover=False)) is Answer.IN_PROGRESS
@@ -255,17 +255,17 @@ def test_the_owners_apps_set_takeover_and_the_requesters_p2_is_its_own_setting(f
 def test_a_passed_on_request_for_another_epoch_or_at_a_non_owner_is_ignored(fleet_dir):
     net = make_net(fleet_dir)
     b = net.cores["B"]
-    out = b._on_control(b.views["d1"], wire.OperatorRequest("A", "A", 1, 5.0), net.now)  # B is not the owner
+    out = b.sessions["d1"].on_control(wire.OperatorRequest("A", "A", 1, 5.0), net.now)  # B is not the owner
     assert [x.kind for x in out if isinstance(x, Emit)] == ["operator_request_stale"]
     a = net.cores["A"]
-    out = a._on_control(a.views["d1"], wire.OperatorRequest("B", "B", 7, 5.0), net.now)  # another epoch
+    out = a.sessions["d1"].on_control(wire.OperatorRequest("B", "B", 7, 5.0), net.now)  # another epoch
     assert [x.kind for x in out if isinstance(x, Emit)] == ["operator_request_stale"]
-    assert a.views["d1"].operator.request is None
+    assert a.sessions["d1"].operator.request is None
 
 
 def test_no_link_no_request(fleet_dir):
     c = core(fleet_dir, "B")
-    answer, actions = c.operator_command(c.views["d1"], ask(), 0.0)
+    answer, actions = c.operator_command(c.sessions["d1"], ask(), 0.0)
     assert answer is Answer.TEMPORARILY_REJECTED and actions == []
 
 
@@ -276,7 +276,7 @@ def test_the_grant_window_closes(fleet_dir):
     net.command("A", consent("B", takeover=True, request=True))
     net.command("B", ask(request=False))  # B's operator withdraws: it does not ask again
     net.run(1.5 + GRANT_WINDOW_S + 0.5)
-    a = net.cores["A"].views["d1"].operator
+    a = net.cores["A"].sessions["d1"].operator
     assert a.window is None and "takeover_window_closed" in net.kinds("A") and net.owner == "A"
 
 
@@ -286,7 +286,7 @@ class CoreStation:
 
     def __init__(self, net: Net, gs: str) -> None:
         self.net, self.core = net, net.cores[gs]
-        self.name, self.sysid, self.fleet, self.views = gs, self.core.sysid, self.core.fleet, self.core.views
+        self.name, self.sysid, self.fleet, self.views = gs, self.core.sysid, self.core.fleet, self.core.sessions
         self.frame_listeners: list = []
         self.loop_hooks: list = []
         self.events = StubEvents()
@@ -441,13 +441,13 @@ def test_with_the_drone_core_a_request_needs_consent_and_takeover_allowed_grants
     assert m.owner == "A" and "B" in net.listening
 
     def command(core: StationCore, req: OperatorControlRequest) -> Answer:
-        answer, actions = core.operator_command(core.views["d1"], req, net.now)
+        answer, actions = core.operator_command(core.sessions["d1"], req, net.now)
         net.gs_outs(core.name, actions)
         return answer
 
     assert command(b, ask(timeout=3.0)) is Answer.FAILED
     net.run(1.0)
-    assert a.views["d1"].operator.request is not None and a.views["d1"].operator.request.requester == "B"
+    assert a.sessions["d1"].operator.request is not None and a.sessions["d1"].operator.request.requester == "B"
     net.run(4.0)
     assert (m.owner, m.epoch) == ("A", 1)  # no consent: nothing moved
     command(b, ask(timeout=10.0))
@@ -456,7 +456,7 @@ def test_with_the_drone_core_a_request_needs_consent_and_takeover_allowed_grants
     assert command(a, consent("B", takeover=True, request=True)) is Answer.ACCEPTED  # the window, for B
     assert (m.owner, m.epoch) == ("A", 1)
     net.run(1.5)  # B's request, sent again each second, is granted
-    assert (m.owner, m.epoch) == ("B", 2) and b.holds_authority(b.views["d1"])
+    assert (m.owner, m.epoch) == ("B", 2) and b.holds_authority(b.sessions["d1"])
     moves = [(r.from_, r.to, r.kind) for r in net.records if isinstance(r, HandoverComplete)]
     assert moves == [("A", "B", "handover")]
 
@@ -469,7 +469,7 @@ def test_consent_goes_to_the_requester_it_names_never_to_whoever_asked_last(flee
     net.run(net.now + 1.1)
     assert net.command("X", ask(timeout=10.0)) is Answer.FAILED
     net.run(net.now + 1.5)
-    op = net.cores["A"].views["d1"].operator
+    op = net.cores["A"].sessions["d1"].operator
     assert op.request is not None and op.request.requester == "B"  # one pending at a time: B's
     assert "operator_request_busy" in net.kinds("A") and net.kinds("A").count("operator_request_busy") == 1
     assert net.command("A", consent("X")) is Answer.DENIED  # X is not the one shown
@@ -487,7 +487,7 @@ def test_a_window_for_one_requester_does_not_let_another_in(fleet3_dir):
     assert net.command("A", consent("B", takeover=True, request=True)) is Answer.ACCEPTED
     net.command("B", ask(request=False))  # B's operator withdraws before it is granted
     net.run(net.now + 0.6)
-    x = net.cores["X"].views["d1"]
+    x = net.cores["X"].sessions["d1"]
     assert x.takeover and x.takeover_to == "B"
     assert net.command("X", ask(timeout=10.0)) is Answer.FAILED  # the window is not for X
     net.run(net.now + 3.0)
@@ -510,8 +510,8 @@ def test_allow_takeover_holds_for_the_owners_epoch_only(fleet_dir):
     assert net.command("B", consent("A")) is Answer.ACCEPTED  # B's operator gives it back
     net.run(net.now + 1.5)
     assert (net.owner, net.machine.epoch) == ("A", 3)
-    assert not net.machine.status().takeover and not net.cores["A"].views["d1"].operator.takeover_allowed(
-        net.cores["A"].views["d1"], net.now)
+    assert not net.machine.status().takeover and not net.cores["A"].sessions["d1"].operator.takeover_allowed(
+        net.cores["A"].sessions["d1"], net.now)
     assert net.command("B", ask(timeout=10.0)) is Answer.FAILED  # A's operator is asked again
     net.run(net.now + 3.0)
     assert net.owner == "A" and net.machine.epoch == 3
@@ -541,10 +541,10 @@ def prompts_per_minute(fleet_dir, answer: str) -> int:
     net = make_net(fleet_dir)
     t0 = net.now
     while net.now < t0 + 60.0:
-        if net.cores["B"].views["d1"].operator.asked_until is None:
+        if net.cores["B"].sessions["d1"].operator.asked_until is None:
             net.command("B", ask(timeout=3.0))
         net.run(net.now + 0.5)
-        if answer == "decline" and net.cores["A"].views["d1"].operator.live_request(net.cores["A"].views["d1"], net.now):
+        if answer == "decline" and net.cores["A"].sessions["d1"].operator.live_request(net.cores["A"].sessions["d1"], net.now):
             net.command("A", consent("B", request=True))
     return net.kinds("A").count("operator_request")
 

@@ -10,7 +10,7 @@ import zdrone.core
 
 CORE = Path(zdrone.core.__file__).parent
 #: the ground station's pure parts (its protocol core and mission planner)
-GS_PURE = [*(Path(gs.__file__).parent / f for f in ("core.py", "planner.py", "actions.py", "handover.py", "mission.py",
+GS_PURE = [*(Path(gs.__file__).parent / f for f in ("core.py", "session.py", "droneview.py", "planner.py", "actions.py", "handover.py", "mission.py",
                                                     "linking.py", "keyhold.py", "ownership.py", "opcontrol.py")),
            CORE.parent / "nodes" / "drone_core.py"]  # and the drone's protocol core
 FORBIDDEN = {"zenoh", "socket", "threading", "asyncio", "time", "subprocess", "multiprocessing", "select",

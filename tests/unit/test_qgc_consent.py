@@ -64,7 +64,7 @@ def test_a_qgc_allow_takeover_with_p4_zero_or_itself_opens_the_window_for_the_sh
     assert refused[-1].fields["named"] == "X" and refused[-1].fields["requester"] == "B"
     a.request(1, 1, 10, 0)  # p4 = 0: the request this application was shown
     assert a.acks()[-1] == (OPC, mav.MAV_RESULT_ACCEPTED)
-    op = net.cores["A"].views["d1"].operator
+    op = net.cores["A"].sessions["d1"].operator
     assert op.window is not None and (op.window.to, op.window.epoch) == ("B", 1)
     net.run(net.now + 2.0)  # B's standing request, sent again each second, is granted
     assert (net.owner, net.machine.epoch) == ("B", 2)
@@ -89,7 +89,7 @@ def test_a_consent_naming_itself_from_an_app_not_shown_the_request_is_refused(fl
     assert late.acks()[-1] == (OPC, mav.MAV_RESULT_DENIED)
     assert net.kinds("A").count("operator_consent_refused") == 2
     net.run(net.now + 1.0)
-    assert net.owner == "A" and net.cores["A"].views["d1"].operator.window is None
+    assert net.owner == "A" and net.cores["A"].sessions["d1"].operator.window is None
     a.request(0, 0, 0, 255)  # the application that was shown it
     assert a.acks()[-1] == (OPC, mav.MAV_RESULT_ACCEPTED)
     net.run(net.now + 1.5)

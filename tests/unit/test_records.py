@@ -341,6 +341,7 @@ def _calls(path: Path) -> list[ast.Call]:
 NODE_WRITERS = {
     ROOT / "nodes" / "drone.py": rec.DRONE_RECORDS, ROOT / "net" / "runtime.py": rec.DRONE_RECORDS + rec.GS_RECORDS,
     GS_ROOT / "station.py": rec.GS_RECORDS, GS_ROOT / "gateway.py": rec.GS_RECORDS, GS_ROOT / "core.py": rec.GS_RECORDS,
+    GS_ROOT / "session.py": rec.GS_RECORDS,
     GS_ROOT / "opcontrol.py": rec.GS_RECORDS,
 }
 

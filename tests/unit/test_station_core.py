@@ -40,7 +40,7 @@ def paired_a(fleet_dir) -> StationCore:
     m2, _key = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, asks[0].payload, bytes(32))
     out = a.on_pair_reply("d1", m2, None, 0.1)
     assert any(isinstance(x, Put) for x in out)  # the proof of the new key goes out at once
-    a.views["d1"].owner, a.views["d1"].epoch = "A", 1
+    a.sessions["d1"].owner, a.sessions["d1"].epoch = "A", 1
     return a
 
 
@@ -55,10 +55,10 @@ def test_key_sharing_end_to_end_leaves_the_owner_live_link_alone(fleet_dir):
     ask = share(a, b, 1.0)
     ans, logs = b.on_linkkey_query("d1", ask.payload, 1.1, bytes(range(32)))
     assert ans.reply is not None and ans.crypto and [x.kind for x in logs] == ["linkkey_shared"]
-    assert b.views["d1"].link is None and len(b.views["d1"].slot.candidates) == 1  # pending the drone's proof
+    assert b.sessions["d1"].link is None and len(b.sessions["d1"].slot.candidates) == 1  # pending the drone's proof
     out = a.on_linkkey_reply("d1", "B", ans.reply, None, 1.2)
     assert [x.kind for x in out if isinstance(x, Emit)] == ["linkkey_received"]
-    assert a.views["d1"].linking.shares["B"].grant.secret == bytes(range(32))
+    assert a.sessions["d1"].linking.shares["B"].grant.secret == bytes(range(32))
 
 
 def test_attack1_forged_reply_before_and_after_the_real_one(fleet_dir):
@@ -71,17 +71,17 @@ def test_attack1_forged_reply_before_and_after_the_real_one(fleet_dir):
     assert isinstance(forged, bytes)
     a.on_linkkey_reply("d1", "B", forged, None, 1.1)
     a.on_linkkey_reply("d1", "B", b"\x00" * 80, None, 1.1)
-    assert a.counters["linkkey_reply:bad_mac"] == 2 and not a.views["d1"].linking.grants_pending  # refused by the tag
+    assert a.counters["linkkey_reply:bad_mac"] == 2 and not a.sessions["d1"].linking.grants_pending  # refused by the tag
     ans, _ = b.on_linkkey_query("d1", ask.payload, 1.2, bytes(range(32)))
     a.on_linkkey_reply("d1", "B", ans.reply, None, 1.3)
-    assert a.views["d1"].linking.shares["B"].grant.secret == bytes(range(32))
+    assert a.sessions["d1"].linking.shares["B"].grant.secret == bytes(range(32))
     a.on_linkkey_reply("d1", "B", forged, None, 1.4)  # later replies: nobody is waiting
-    assert a.counters["linkkey_reply:not_waiting"] == 1 and a.views["d1"].linking.shares["B"].grant.secret == bytes(range(32))
+    assert a.counters["linkkey_reply:not_waiting"] == 1 and a.sessions["d1"].linking.shares["B"].grant.secret == bytes(range(32))
 
 
 def test_attack2_query_claiming_b_without_b_key_is_refused_and_changes_nothing(fleet_dir):
     a = paired_a(fleet_dir)
-    live = a.views["d1"].link
+    live = a.sessions["d1"].link
     x = Identity.generate()
     forged = KeyShareAsk(x, "B", "A", a.fleet.nodes["A"].public_bytes, "d1", 0.0)  # claims to be B
     ans, logs = a.on_linkkey_query("d1", forged.payload, 2.0, bytes(32))
@@ -89,7 +89,7 @@ def test_attack2_query_claiming_b_without_b_key_is_refused_and_changes_nothing(f
     assert ans.reply is None and ans.error is None and not ans.crypto and a.counters["linkkey_refused:bad_mac"] == 1
     ans, _ = a.on_linkkey_query("d1", b"junk", 2.0, bytes(32))
     assert ans.error == b"malformed" and not ans.crypto
-    assert a.views["d1"].link is live and not a.views["d1"].slot.candidates
+    assert a.sessions["d1"].link is live and not a.sessions["d1"].slot.candidates
 
 
 def test_unauthorized_asker_and_rate_limit_refused_before_crypto(fleet_dir):
@@ -112,10 +112,10 @@ def test_forged_pairing_reply_does_not_spoil_pairing(fleet_dir):
     a = core(fleet_dir, "A", pair=True)
     ask = [x for x in a.handle_timer(0.0) if isinstance(x, Ask)][0]
     a.on_pair_reply("d1", b"\x02" * 64, None, 0.1)
-    assert a.counters["pair_bad_reply"] == 1 and a.views["d1"].link is None
+    assert a.counters["pair_bad_reply"] == 1 and a.sessions["d1"].link is None
     m2, _ = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, ask.payload, bytes(32))
     a.on_pair_reply("d1", m2, None, 0.2)
-    assert a.views["d1"].link is not None
+    assert a.sessions["d1"].link is not None
     assert a.on_pair_reply("d1", m2, None, 0.3) == [] and a.counters["pair_reply_late"] == 1
 
 
@@ -124,19 +124,19 @@ def test_mission_stages_are_a_table(fleet_dir):
 
     assert {s for s, _ in TABLE} <= set(Stage)
     a = paired_a(fleet_dir)
-    assert a.views["d1"].mission.stage is Stage.IDLE
+    assert a.sessions["d1"].mission.stage is Stage.IDLE
     a.opts = CoreOptions(pair=True, mission=None)
     a.handle_timer(5.0)
-    assert a.views["d1"].mission.stage is Stage.IDLE  # no mission: nothing to fly
-    assert a._flight(a.views["d1"], FlightAck(5.0, 400, True, 0)) == []
-    assert a._flight(a.views["d1"], FlightTick(5.0)) == []
+    assert a.sessions["d1"].mission.stage is Stage.IDLE  # no mission: nothing to fly
+    assert a.sessions["d1"].flight(FlightAck(5.0, 400, True, 0)) == []
+    assert a.sessions["d1"].flight(FlightTick(5.0)) == []
 
 
 def _in_overlap_nearer_b(a: StationCore, links: set[str]) -> None:
     from zdrone.core.geometry import offset
     from zdrone.core.reference import HOME
 
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     view.position = offset(HOME, 0.0, 300.0)  # 300 m from A's centre, 200 m from B's: inside both
     view.linking.drone_links = links
 
@@ -153,11 +153,11 @@ def test_no_release_toward_a_gs_the_drone_has_no_key_for_the_vehicle_comes_home(
     out = a.handle_timer(10.0)
     assert [x.gs for x in out if isinstance(x, Ask) and x.kind is AskKind.LINKKEY] == ["B"]  # B's key: asked for
     assert not [x for x in out if isinstance(x, Emit) and x.kind in ("handover_failed", "handover_release")]
-    a.views["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m: no more waiting
+    a.sessions["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m: no more waiting
     out = a.handle_timer(10.5)
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert len(failed) == 1 and "no link to B" in failed[0].fields["reason"] and failed[0].fields["action"] == "RTL"
-    assert not a.views["d1"].handover.released and a.holds_authority(a.views["d1"])
+    assert not a.sessions["d1"].handover.released and a.holds_authority(a.sessions["d1"])
     assert not [x for x in a.handle_timer(11.0) if isinstance(x, Emit) and x.kind in ("handover_failed", "handover_release")]
 
 
@@ -183,26 +183,26 @@ def test_a_refused_release_is_a_failed_hand_over(fleet_dir):
     from zdrone.core import wire
     from zdrone.core.geometry import offset
     from zdrone.core.reference import HOME
-    from gs.core import HANDOVER_RETRY_S
+    from gs.context import HANDOVER_RETRY_S
 
     a = paired_a(fleet_dir)
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     _in_overlap_nearer_b(a, {"A", "B"})
     out = a.handle_timer(10.0)
     assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["B"]
-    out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 10.5)
+    out = view.on_control(wire.Reject("release", "no link: no key installed for B"), 10.5)
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert len(failed) == 1 and failed[0].fields["reason"].startswith("release refused")
     assert failed[0].fields["action"] == "retry" and a.holds_authority(view)
     assert not [x for x in a.handle_timer(10.6) if isinstance(x, Emit) and x.kind == "handover_release"]  # the retry waits
     view.position = offset(HOME, 0.0, 340.0)  # 40 m farther from A's centre: leaving A's coverage
     assert [x for x in a.handle_timer(10.5 + HANDOVER_RETRY_S + 0.01) if isinstance(x, Put)]  # the release again
-    out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 13.0)
+    out = view.on_control(wire.Reject("release", "no link: no key installed for B"), 13.0)
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert [x.fields["action"] for x in failed] == ["RTL"] and a.holds_authority(view)
     assert any(isinstance(x, Put) for x in out)  # the RTL command
     a.handle_timer(15.1)
-    out = a._on_control(view, wire.Reject("release", "no link: no key installed for B"), 15.2)
+    out = view.on_control(wire.Reject("release", "no link: no key installed for B"), 15.2)
     assert not [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]  # counted, not logged again
     assert not [x for x in out if isinstance(x, Put)]  # RTL once per epoch
 
@@ -215,20 +215,20 @@ def test_a_timed_out_hand_back_is_tried_again_when_the_vehicle_flies_into_our_co
     from zdrone.core.authority import State as HaState
     from zdrone.core.geometry import offset
     from zdrone.core.reference import HOME
-    from gs.core import HANDOVER_RETRY_S
+    from gs.context import HANDOVER_RETRY_S
 
     b = core(fleet_dir, "B")
-    view = b.views["d1"]
+    view = b.sessions["d1"]
     from zdrone.core.keys import LinkKey
-    view.slot.install(b._new_link(view, LinkKey.from_secret("d1", "B", bytes(32)), 0.0), 0.0)
+    view.slot.install(view.new_link(LinkKey.from_secret("d1", "B", bytes(32)), 0.0), 0.0)
     view.link = view.slot.live
     view.owner, view.epoch, view.linking.drone_links = "B", 2, {"A", "B"}
     view.position = offset(HOME, 0.0, 200.0)  # nearer A's centre than B's
     out = b.handle_timer(1.0)
     assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["A"]
-    b._on_control(view, wire.AuthorityStatus("B", 2, HaState.HANDOVER_PENDING, "A", ["A", "B"]), 1.1)
+    view.on_control(wire.AuthorityStatus("B", 2, HaState.HANDOVER_PENDING, "A", ["A", "B"]), 1.1)
     view.position = offset(HOME, 0.0, 220.0)  # flying toward B
-    out = b._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.6)
+    out = view.on_control(wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.6)
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
     assert [(x.fields["action"], x.fields["reason"]) for x in failed] == [("retry", "release timed out")]
     assert not [x for x in out if isinstance(x, Put)]  # no RTL
@@ -243,10 +243,10 @@ def test_a_gs_cut_off_learns_who_holds_authority_before_it_acts(fleet_dir):
     authority status says who holds it."""
     from zdrone.core import wire
     from zdrone.core.authority import State as HaState
-    from gs.core import STALE_VIEW_S
+    from gs.context import STALE_VIEW_S
 
     a = paired_a(fleet_dir)
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     _in_overlap_nearer_b(a, {"A", "B"})
     a.opts = CoreOptions(pair=True, command_rate=5.0)
     view.armed = True
@@ -255,10 +255,10 @@ def test_a_gs_cut_off_learns_who_holds_authority_before_it_acts(fleet_dir):
     assert view.stale and not a.holds_authority(view)
     assert not [x for x in out if isinstance(x, Emit) and x.kind in ("handover_release", "handover_failed")]
     assert not [x for x in out if isinstance(x, Put) and len(x.payload) > 60]  # no command (heartbeats only)
-    a._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.0)
+    view.on_control(wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 3.0)
     assert not view.stale and view.owner == "B" and not a.holds_authority(view)
     assert not [x for x in a.handle_timer(3.1) if isinstance(x, Emit) and x.kind in ("handover_release", "handover_failed")]
-    a._on_control(view, wire.AuthorityStatus("A", 3, HaState.LINKED, None, ["A", "B"]), 4.0)
+    view.on_control(wire.AuthorityStatus("A", 3, HaState.LINKED, None, ["A", "B"]), 4.0)
     assert a.holds_authority(view)  # handed back: A acts again
 
 
@@ -268,8 +268,8 @@ def test_after_a_failsafe_the_gs_asks_for_control_only_with_the_operators_reques
     for standing in (False, True):
         a = paired_a(fleet_dir)
         a.opts = CoreOptions(pair=True, take_control=standing)
-        a._on_control(a.views["d1"], wire.FailsafeNotice("LAND", "authority link to A lost"), 5.0)
-        assert not a.holds_authority(a.views["d1"])  # the drone obeys nobody in its failsafe
+        a.sessions["d1"].on_control(wire.FailsafeNotice("LAND", "authority link to A lost"), 5.0)
+        assert not a.holds_authority(a.sessions["d1"])  # the drone obeys nobody in its failsafe
         asked = [x for x in a.handle_timer(6.0) if isinstance(x, Emit) and x.kind == "control_requested"]
         assert len(asked) == (1 if standing else 0)
         assert not [x for x in a.handle_timer(6.5) if isinstance(x, Emit) and x.kind == "control_requested"]  # 1/s at most
@@ -280,26 +280,26 @@ def _flying_core(fleet_dir, autopilot: str) -> StationCore:
 
     a = paired_a(fleet_dir)
     a.opts = CoreOptions(pair=True, mission=reference_plan())
-    a.views["d1"].mission.plan = a.opts.mission
-    a.views["d1"].autopilot = autopilot
+    a.sessions["d1"].mission.plan = a.opts.mission
+    a.sessions["d1"].autopilot = autopilot
     return a
 
 
 def test_the_mission_is_encoded_for_the_autopilot_found(fleet_dir):
-    from gs.core import FlightParam, FlightTick
+    from gs.mission import FlightParam, FlightTick
 
     px4 = _flying_core(fleet_dir, "px4")
-    logs = [x for x in px4._flight(px4.views["d1"], FlightTick(1.0)) if isinstance(x, Emit)]
+    logs = [x for x in px4.sessions["d1"].flight(FlightTick(1.0)) if isinstance(x, Emit)]
     assert logs[-1].kind == "mission_upload" and logs[-1].fields["items"] == 7  # no second take-off
     ap = _flying_core(fleet_dir, "ardupilot")
-    assert ap._flight(ap.views["d1"], FlightTick(1.0)) and ap.views["d1"].mission.stage is Stage.PREPARING  # MIS_OPTIONS first
-    assert ap._flight(ap.views["d1"], FlightParam(1.1, "MIS_OPTIONS", 0.0)) == []  # not yet set
-    logs = [x for x in ap._flight(ap.views["d1"], FlightParam(1.2, "MIS_OPTIONS", 4.0)) if isinstance(x, Emit)]
-    assert logs[-1].fields["items"] == 9 and ap.views["d1"].mission.stage is Stage.UPLOADING  # home placeholder + both take-offs
+    assert ap.sessions["d1"].flight(FlightTick(1.0)) and ap.sessions["d1"].mission.stage is Stage.PREPARING  # MIS_OPTIONS first
+    assert ap.sessions["d1"].flight(FlightParam(1.1, "MIS_OPTIONS", 0.0)) == []  # not yet set
+    logs = [x for x in ap.sessions["d1"].flight(FlightParam(1.2, "MIS_OPTIONS", 4.0)) if isinstance(x, Emit)]
+    assert logs[-1].fields["items"] == 9 and ap.sessions["d1"].mission.stage is Stage.UPLOADING  # home placeholder + both take-offs
 
 
 def _uploaded(a: StationCore) -> None:
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     view.mission.stage, view.mission.stage_time, view.mission.tries, view.mission.next_try = Stage.WAITING_READY, 10.0, 0, 0.0
 
 
@@ -326,35 +326,35 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
     ArduCopter's AUTO needs its EKF to use GPS, which comes long after its pre-arm checks pass."""
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import FlightAck, FlightTick
+    from gs.mission import FlightAck, FlightTick
 
     a = _flying_core(fleet_dir, "ardupilot")
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     _uploaded(a)
     view.prearm_ok = False
     view.texts = [(9.0, "PreArm: EKF attitude is bad")]
-    out = a._flight(view, FlightTick(11.0))
+    out = view.flight(FlightTick(11.0))
     assert not [x for x in out if isinstance(x, Put)] and view.mission.stage is Stage.WAITING_READY  # not ready: no ARM
     assert _says(out) == ["zdrone gs A: d1 not ready: pre-arm checks failing (PreArm: EKF attitude is bad)"]
-    assert a._flight(view, FlightTick(11.5)) == []  # said once, until it changes
+    assert view.flight(FlightTick(11.5)) == []  # said once, until it changes
     view.prearm_ok = True
     _ekf(view, absolute=False)  # a GPS fix and a position, but the EKF does not use GPS yet
     assert view.position is None
-    out = a._flight(view, FlightTick(12.0))
+    out = view.flight(FlightTick(12.0))
     assert _says(out) == ["zdrone gs A: d1 not ready: waiting for the EKF to use GPS "
                           "(EKF_STATUS_REPORT: no absolute position)"]
     for i in range(200):  # no retry counter runs out while the vehicle is not ready
-        a._flight(view, FlightTick(13.0 + i))
+        view.flight(FlightTick(13.0 + i))
     assert view.mission.stage is Stage.WAITING_READY
     _ekf(view, absolute=True)
-    out = a._flight(view, FlightTick(300.0))
+    out = view.flight(FlightTick(300.0))
     assert _says(out) == ["zdrone gs A: d1 ready: arming"] and view.mission.stage is Stage.ARMING
     assert len([x for x in out if isinstance(x, Put)]) == 1  # the ARM
     # refused all the same, with its reason: waited for, however often
     for i in range(20):
         view.mission.stage, view.texts = Stage.ARMING, [(301.0 + i, "Arm: Accels inconsistent")]
-        a._flight(view, FlightAck(301.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
-        out = a._flight(view, FlightTick(301.6 + i))
+        view.flight(FlightAck(301.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+        out = view.flight(FlightTick(301.6 + i))
         assert view.mission.stage is Stage.WAITING_READY, i
     refused = [x for x in out if isinstance(x, Emit) and x.kind == "vehicle_refused"]
     assert refused and refused[0].fields["texts"] == ["Arm: Accels inconsistent"]
@@ -363,8 +363,8 @@ def test_arming_waits_until_the_autopilot_can_fly_the_mission_and_says_what_it_w
 
     for i in range(MAX_UNEXPLAINED):
         view.mission.stage, view.texts = Stage.ARMING, []
-        a._flight(view, FlightAck(400.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
-        out = a._flight(view, FlightTick(400.6 + i))
+        view.flight(FlightAck(400.0 + i, mav.MAV_CMD_COMPONENT_ARM_DISARM, False, mav.MAV_RESULT_FAILED))
+        out = view.flight(FlightTick(400.6 + i))
     assert view.mission.stage is Stage.FAILED and any(isinstance(x, Emit) and x.kind == "mission_failed" for x in out)
 
 
@@ -373,30 +373,30 @@ def test_a_refusal_is_classified_with_the_reason_that_follows_its_ack(fleet_dir)
     later; the GS read only the texts before the ACK and gave up."""
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import FlightAck, FlightTick
+    from gs.mission import FlightAck, FlightTick
 
     b = _flying_core(fleet_dir, "ardupilot")
-    vb = b.views["d1"]
+    vb = b.sessions["d1"]
     _ekf(vb, absolute=True)
     vb.mission.stage, vb.armed, vb.prearm_ok = Stage.STARTING, True, True
-    assert b._flight(vb, FlightAck(30.0, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED)) == []
+    assert vb.flight(FlightAck(30.0, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_FAILED)) == []
     vb.texts = [(30.0003, "Mode change to AUTO failed: requires position")]  # after the ACK
-    assert b._flight(vb, FlightTick(30.2)) == [] and vb.mission.stage is Stage.REFUSED  # a moment for the reasons
-    out = b._flight(vb, FlightTick(30.6))
+    assert vb.flight(FlightTick(30.2)) == [] and vb.mission.stage is Stage.REFUSED  # a moment for the reasons
+    out = vb.flight(FlightTick(30.6))
     assert vb.mission.stage is Stage.WAITING_READY and vb.mission.next_try > 30.6
     assert "not ready yet" in _says(out)[0] and "requires position" in _says(out)[0]
     _ekf(vb, absolute=False)  # armed, but no absolute position: no MISSION_START until there is one
-    out = b._flight(vb, FlightTick(33.0))
+    out = vb.flight(FlightTick(33.0))
     assert not [x for x in out if isinstance(x, Put)] and "EKF to use GPS" in _says(out)[0]
     _ekf(vb, absolute=True)
-    assert [x for x in b._flight(vb, FlightTick(34.0)) if isinstance(x, Put)] and vb.mission.stage is Stage.STARTING
+    assert [x for x in vb.flight(FlightTick(34.0)) if isinstance(x, Put)] and vb.mission.stage is Stage.STARTING
     # PX4's infeasible mission: refused for good, whatever order its words and its ACK come in
     a = _flying_core(fleet_dir, "px4")
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     view.mission.stage, view.armed, view.landed_state = Stage.STARTING, True, mav.MAV_LANDED_STATE_ON_GROUND
-    a._flight(view, FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
+    view.flight(FlightAck(30.1, mav.MAV_CMD_MISSION_START, False, mav.MAV_RESULT_DENIED))
     view.texts = [(30.1, "Mission rejected: takeoff not first waypoint item")]
-    out = a._flight(view, FlightTick(30.7))
+    out = view.flight(FlightTick(30.7))
     failed = [x for x in out if isinstance(x, Emit) and x.kind == "mission_failed"]
     assert view.mission.stage is Stage.FAILED and "takeoff not first waypoint item" in failed[0].fields["reason"]
     assert any(isinstance(x, ToOperator) for x in out) and len([x for x in out if isinstance(x, Put)]) == 1  # the DISARM
@@ -406,30 +406,30 @@ def test_take_off_is_verified_and_a_disarm_on_the_ground_arms_and_starts_again(f
     """Issue 22: ArduCopter disarmed itself on the ground after the start, and the GS believed it flew."""
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import FlightAck, FlightTick
+    from gs.mission import FlightAck, FlightTick
 
     a = _flying_core(fleet_dir, "ardupilot")
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     _ekf(view, absolute=True)
     view.mission.stage, view.prearm_ok, view.armed = Stage.STARTING, True, True
     view.landed_state = mav.MAV_LANDED_STATE_ON_GROUND
-    a._flight(view, FlightAck(40.0, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
+    view.flight(FlightAck(40.0, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
     assert view.mission.stage is Stage.TAKING_OFF  # not flying: it has not left the ground
-    assert a._flight(view, FlightTick(41.0)) == [] and a.report(0.0)["drones"]["d1"]["stage"] == "taking_off"
+    assert view.flight(FlightTick(41.0)) == [] and a.report(0.0)["drones"]["d1"]["stage"] == "taking_off"
     view.armed, view.disarmed_at, view.custom_mode = False, 42.0, 3  # disarmed by itself, left in AUTO
-    out = a._flight(view, FlightTick(42.1))
+    out = view.flight(FlightTick(42.1))
     assert view.mission.stage is Stage.WAITING_READY and view.mission.restarts == 1
     assert _says(out) == ["zdrone gs A: d1 disarmed on the ground before taking off (the autopilot's auto-disarm): "
                           "arming and starting again"]
-    out = a._flight(view, FlightTick(44.5))  # AUTO cannot be armed in: GUIDED first
+    out = view.flight(FlightTick(44.5))  # AUTO cannot be armed in: GUIDED first
     assert view.mission.stage is Stage.WAITING_READY and len([x for x in out if isinstance(x, Put)]) == 1
     view.custom_mode = 4
-    a._flight(view, FlightTick(45.6))
+    view.flight(FlightTick(45.6))
     assert view.mission.stage is Stage.ARMING
-    a._flight(view, FlightAck(45.7, mav.MAV_CMD_COMPONENT_ARM_DISARM, True, mav.MAV_RESULT_ACCEPTED))
-    a._flight(view, FlightAck(45.8, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
+    view.flight(FlightAck(45.7, mav.MAV_CMD_COMPONENT_ARM_DISARM, True, mav.MAV_RESULT_ACCEPTED))
+    view.flight(FlightAck(45.8, mav.MAV_CMD_MISSION_START, True, mav.MAV_RESULT_ACCEPTED))
     view.landed_state = mav.MAV_LANDED_STATE_IN_AIR
-    out = a._flight(view, FlightTick(46.5))
+    out = view.flight(FlightTick(46.5))
     assert view.mission.stage is Stage.FLYING and _says(out) == ["zdrone gs A: d1 took off"]
     assert [x.fields["restarts"] for x in out if isinstance(x, Emit) and x.kind == "takeoff_confirmed"] == [1]
 
@@ -439,16 +439,16 @@ def test_the_gs_takes_no_position_from_an_autopilot_without_a_fix(fleet_dir):
     from pymavlink.dialects.v20 import common as mav
 
     a = paired_a(fleet_dir)
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     codec = FrameCodec(1, 1)
     view.fix.on_message(codec.decode(codec.encode(mav.MAVLink_global_position_int_message(0, 0, 0, 0, 0, 0, 0, 0, 0))))
     assert view.position is None and a.report(0.0)["drones"]["d1"]["position"] is None
-    assert a._coordinate(view, 5.0) == []
+    assert view.release_due(5.0) == []
 
 
 def _repair(fleet_dir, holds_key: bool):
     a = paired_a(fleet_dir)
-    live = a.views["d1"].link
+    live = a.sessions["d1"].link
     asks = [x for x in a.handle_timer(10.0) if isinstance(x, Ask) and x.kind is AskKind.PAIR]  # silent 10 s: pair again
     assert len(asks) == 1
     m2, _ = respond(ident(fleet_dir, "d1"), "d1", "A", a.fleet.nodes["A"].public_bytes, asks[0].payload, bytes(32),
@@ -461,9 +461,9 @@ def test_pairing_again_after_silence_keeps_the_key_the_drone_still_holds(fleet_d
     """Out of radio coverage is not a restart: the drone says it still holds our key, and we keep it
     (switching would leave us with a key the drone cannot confirm until it is back in range)."""
     a, live, out = _repair(fleet_dir, holds_key=True)
-    assert a.views["d1"].link is live and [x.kind for x in out if isinstance(x, Emit)] == ["pair_not_needed"]
+    assert a.sessions["d1"].link is live and [x.kind for x in out if isinstance(x, Emit)] == ["pair_not_needed"]
     b, live_b, out_b = _repair(fleet_dir, holds_key=False)  # a restarted companion holds nothing
-    assert b.views["d1"].link is not live_b and any(isinstance(x, Emit) and x.kind == "paired" for x in out_b)
+    assert b.sessions["d1"].link is not live_b and any(isinstance(x, Emit) and x.kind == "paired" for x in out_b)
 
 
 def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
@@ -472,24 +472,24 @@ def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
     mission as started and never sends MISSION_START to it."""
     from pymavlink.dialects.v20 import common as mav
 
-    from gs.core import FlightTick
+    from gs.mission import FlightTick
 
     a = _flying_core(fleet_dir, "px4")
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     view.mission.stage, view.mission.stage_time, view.prearm_ok, view.armed = Stage.STARTING, 40.0, True, True
     view.landed_state = mav.MAV_LANDED_STATE_IN_AIR  # it took off: the start was obeyed, its ACK lost
-    out = a._flight(view, FlightTick(44.0))
+    out = view.flight(FlightTick(44.0))
     assert view.mission.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
     # and from the retry stage (the answer timed out before the vehicle left the ground)
     view.mission.stage, view.mission.next_try = Stage.WAITING_READY, 0.0
-    out = a._flight(view, FlightTick(50.0))
+    out = view.flight(FlightTick(50.0))
     assert view.mission.stage is Stage.FLYING and not [x for x in out if isinstance(x, Put)]
 
 
 def _flying_mission(a: StationCore) -> None:
     from zdrone.vehicle.modes import custom_mode
 
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     view.autopilot, view.armed, view.custom_mode = "px4", True, custom_mode("px4", "MISSION")
 
 
@@ -500,7 +500,7 @@ def _mode_commands(a: StationCore, out) -> list[str]:
     from zdrone.vehicle.modes import mode_name
 
     names = []
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     for x in out:
         if not isinstance(x, Put):
             continue
@@ -521,7 +521,7 @@ def _held_for_b(fleet_dir, restarted: bool = True) -> StationCore:
     _in_overlap_nearer_b(a, {"A"})
     _flying_mission(a)
     if restarted:
-        a.views["d1"].linking.lost_key_at = 9.0
+        a.sessions["d1"].linking.lost_key_at = 9.0
     share(a, core(fleet_dir, "B"), 10.0)
     a.on_linkkey_reply("d1", "B", None, b"live_link", 10.1)
     return a
@@ -530,7 +530,9 @@ def _held_for_b(fleet_dir, restarted: bool = True) -> StationCore:
 def _set_mode(a: StationCore, name: str) -> None:
     from zdrone.vehicle.modes import custom_mode
 
-    a.views["d1"].custom_mode = custom_mode("px4", name)  # as the vehicle's HEARTBEAT says
+    session = a.sessions["d1"]
+    session.custom_mode = custom_mode("px4", name)  # as the vehicle's HEARTBEAT says ...
+    session.due = 0.0  # ... an input: the session looks at it at once
 
 
 def _handover_logs(out) -> list[str]:
@@ -545,7 +547,7 @@ def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_bef
     from gs.keyhold import HOLD_RESEND_S
 
     a = _held_for_b(fleet_dir)
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     out = a.handle_timer(10.2)
     assert _handover_logs(out) == ["handover_hold"] and _mode_commands(a, out) == ["HOLD"] and a.holds_authority(view)
     assert _mode_commands(a, a.handle_timer(10.2 + HOLD_RESEND_S + 0.01)) == ["HOLD"]  # not confirmed: sent again
@@ -555,7 +557,7 @@ def test_a_key_known_to_be_coming_holds_the_vehicle_then_the_mission_resumes_bef
     out = a.handle_timer(13.0)
     assert _handover_logs(out) == ["handover_resume"] and _mode_commands(a, out) == ["MISSION"]
     assert _mode_commands(a, a.handle_timer(13.0 + HOLD_RESEND_S + 0.01)) == ["MISSION"]  # not confirmed: sent again
-    a.on_mode_ack(view, True, 13.6)  # COMMAND_ACK accepted
+    view.on_mode_ack(True, 13.6)  # COMMAND_ACK accepted
     out = a.handle_timer(13.7)
     assert _handover_logs(out) == ["handover_release"]
 
@@ -568,7 +570,7 @@ def test_a_hold_the_vehicle_never_confirms_ends_in_rtl_past_the_key_wait_radius(
 
     a = _held_for_b(fleet_dir)
     assert _mode_commands(a, a.handle_timer(10.2)) == ["HOLD"]
-    a.views["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m, still in MISSION
+    a.sessions["d1"].position = offset(HOME, 0.0, 320.0)  # past 90 % of A's 350 m, still in MISSION
     out = a.handle_timer(10.8)
     assert [x.fields["action"] for x in out if isinstance(x, Emit) and x.kind == "handover_failed"] == ["RTL"]
     assert _mode_commands(a, out) == ["RTL"]
@@ -593,7 +595,7 @@ def test_a_mode_someone_else_chose_during_the_hold_stands(fleet_dir):
     from gs.keyhold import HOLD_FOR_KEY_S
 
     a = _held_for_b(fleet_dir)
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     a.handle_timer(10.2)
     _set_mode(a, "HOLD")
     a.handle_timer(11.0)
@@ -614,16 +616,16 @@ def test_an_unauthenticated_live_link_error_alone_holds_nothing(fleet_dir):
     from zdrone.core.reference import HOME
 
     a = _held_for_b(fleet_dir, restarted=False)
-    a.views["d1"].position = offset(HOME, 0.0, 320.0)
+    a.sessions["d1"].position = offset(HOME, 0.0, 320.0)
     out = a.handle_timer(10.2)
     assert [x.fields["action"] for x in out if isinstance(x, Emit) and x.kind == "handover_failed"] == ["RTL"]
     assert "handover_hold" not in _handover_logs(out)
     b = paired_a(fleet_dir)
     _in_overlap_nearer_b(b, {"A"})
     _flying_mission(b)
-    b.views["d1"].linking.lost_key_at = 9.0
+    b.sessions["d1"].linking.lost_key_at = 9.0
     share(b, core(fleet_dir, "B"), 10.0)  # no answer at all
-    b.views["d1"].position = offset(HOME, 0.0, 320.0)
+    b.sessions["d1"].position = offset(HOME, 0.0, 320.0)
     out = b.handle_timer(10.2)
     assert [x.fields["action"] for x in out if isinstance(x, Emit) and x.kind == "handover_failed"] == ["RTL"]
 
@@ -632,10 +634,10 @@ def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_
     """The authority re-pairs a silent drone fast (a restarted companion must have its owner back
     within the loss threshold), and slower once the silence has lasted SILENT_FAST_S (a drone out of
     reach for good is not asked five times a second forever)."""
-    from gs.core import SILENT_FAST_S, SILENT_REPAIR_S, SILENT_RETRY_S, SILENT_SLOW_RETRY_S
+    from gs.context import SILENT_FAST_S, SILENT_REPAIR_S, SILENT_RETRY_S, SILENT_SLOW_RETRY_S
 
     a = paired_a(fleet_dir)
-    heard = a.views["d1"].link.tbm.last_seen or 0.1
+    heard = a.sessions["d1"].link.tbm.last_seen or 0.1
     times = []
     for i in range(1, 800):  # 40 s of ticks, not a word from the drone, no answer to any query
         now = 0.1 + i * 0.05
@@ -653,7 +655,7 @@ def test_the_timer_is_due_at_once_after_an_input_and_else_at_the_next_heartbeat_
     otherwise; an input makes it due at once, for what the input changed may decide something."""
     a = paired_a(fleet_dir)
     assert a.get_timer() <= 0.1  # the pairing reply was an input
-    a.views["d1"].owner = "B"  # not ours: nothing to re-pair, share or fly
+    a.sessions["d1"].owner = "B"  # not ours: nothing to re-pair, share or fly
     a.handle_timer(1.0)
     assert a.get_timer() == a._hb_due  # the heartbeat alone: no poll of anything
     a.on_envelope("d1", b"not an envelope", 1.01)
@@ -668,7 +670,7 @@ def test_the_timer_is_due_at_once_after_an_input_and_else_at_the_next_heartbeat_
 def test_a_deadline_shorter_than_the_heartbeat_is_honoured(fleet_dir):
     """An unconfirmed release is sent again after RELEASE_RESEND_S (0.25 s), sooner than the next
     heartbeat: the timer is due then, not at a poll's rhythm."""
-    from gs.core import DEADLINE_SLACK_S, RELEASE_RESEND_S
+    from gs.context import DEADLINE_SLACK_S, RELEASE_RESEND_S
 
     a = paired_a(fleet_dir)
     _in_overlap_nearer_b(a, {"A", "B"})
@@ -685,7 +687,7 @@ def test_no_timer_fires_without_work(fleet_dir):
     """Driven by its timer alone for 10 s, a GS whose drone is owned by another wakes for its
     heartbeats only (a 50 ms poll woke it 200 times)."""
     a = paired_a(fleet_dir)
-    a.views["d1"].owner = "B"
+    a.sessions["d1"].owner = "B"
     a.handle_timer(0.2)
     wakes, now = 0, 0.2
     while (now := a.get_timer()) < 10.2:
@@ -697,9 +699,9 @@ def test_no_timer_fires_without_work(fleet_dir):
 
 def test_adapters_name_a_drone_and_read_its_status(fleet_dir):
     a = paired_a(fleet_dir)
-    assert a.drones == tuple(a.views)
+    assert a.drones == tuple(a.sessions)
     st = a.drone_status("d1", 1.0)
-    v = a.views["d1"]
+    v = a.sessions["d1"]
     assert (st.name, st.sysid, st.linked, st.owner, st.epoch) == ("d1", v.sysid, True, "A", 1)
     assert st.holds_authority == a.holds_authority("d1") == a.holds_authority(v)
     assert st.request is None and not st.takeover
@@ -726,7 +728,7 @@ def test_a_bundle_opens_every_envelope_in_it_and_a_malformed_one_is_counted(flee
     from zdrone.core.keys import LinkKey
 
     a = paired_a(fleet_dir)
-    view = a.views["d1"]
+    view = a.sessions["d1"]
     drone = SecureLink(key=view.slot.candidates[0].link.key if view.link is None else view.link.key, role="drone",
                        tx_keyexpr="zdrone/d1/down/A", rx_keyexpr="zdrone/d1/up/A", peer_sysid=None, now=0.0)
     forged = SecureLink(key=LinkKey.from_secret("d1", "A", bytes(32)), role="drone",
@@ -765,19 +767,19 @@ def test_a_release_refused_because_authority_moved_on_stops_our_commands_until_t
 
     for reason in (RELEASE_NOT_AUTHORITY, f"{RELEASE_STALE_EPOCH}: 1 != 2"):
         a = paired_a(fleet_dir)
-        view = a.views["d1"]
+        view = a.sessions["d1"]
         _in_overlap_nearer_b(a, {"A", "B"})
         a.opts = CoreOptions(pair=True, command_rate=5.0)
         view.armed = True
         out = a.handle_timer(10.0)
         assert [x.fields["to"] for x in out if isinstance(x, Emit) and x.kind == "handover_release"] == ["B"]
-        a._on_control(view, wire.AuthorityStatus("A", 1, HaState.HANDOVER_PENDING, "B", ["A", "B"]), 10.1)
-        out = a._on_control(view, wire.Reject("release", reason), 10.2)
+        view.on_control(wire.AuthorityStatus("A", 1, HaState.HANDOVER_PENDING, "B", ["A", "B"]), 10.1)
+        out = view.on_control(wire.Reject("release", reason), 10.2)
         assert not [x for x in out if isinstance(x, Emit) and x.kind == "handover_failed"]
         assert not a.holds_authority(view) and a.counters["release_after_authority_moved"] == 1
         for t in (10.3, 10.6, 11.0):  # the command stream and the retries wait
             out = a.handle_timer(t)
             assert not [x for x in out if isinstance(x, Emit) and x.kind in ("handover_release", "handover_failed")]
             assert not [x for x in out if isinstance(x, Put) and len(x.payload) > 60]  # heartbeats only
-        a._on_control(view, wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 11.2)
+        view.on_control(wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 11.2)
         assert view.owner == "B" and not a.holds_authority(view)

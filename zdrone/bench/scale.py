@@ -454,7 +454,7 @@ def _host_stations(args: argparse.Namespace) -> int:
 
     def count_sent() -> tuple[dict[str, Any], dict[str, Any]]:
         return ({st.name: {d: st.commands_sent(d) for d in st.drones} for st in stations},
-                {st.name: {d: {str(e): c for e, c in st.core.views[d].commands_sent.items()} for d in st.drones}
+                {st.name: {d: {str(e): c for e, c in st.core.sessions[d].commands_sent.items()} for d in st.drones}
                  for st in stations})  # per epoch the GS believed it commanded in (bench revoke's attribution)
 
     counted: tuple[dict[str, Any], dict[str, Any]] | None = None

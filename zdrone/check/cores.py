@@ -157,11 +157,11 @@ class CoreExplorer:
         for g in ("A", "B", "X"):
             live = d.links.get(g)
             gs = net.gss.get(g)
-            gs_live = gs.views["d1"].link if gs is not None else None
+            gs_live = gs.sessions["d1"].link if gs is not None else None
             same = live is not None and gs_live is not None and live.key.same_as(gs_live.key)
             links.append((g, live.tbm.state(now).value if live else None, same,
                           min(m.links[g].frames_in_cover, 2) if g in m.links else None))
-        views = tuple((g, v.owner, v.epoch, v.stale) for g, c in sorted(net.gss.items()) for v in [c.views["d1"]])
+        views = tuple((g, v.owner, v.epoch, v.stale) for g, c in sorted(net.gss.items()) for v in [c.sessions["d1"]])
         return (m.state.value, m.owner, m.epoch, m.pending_to, tuple(links), views, self.place(net), net.on_ground,
                 tuple(sorted(net.cut)), tuple(sorted(net.hung)), net.faults,  # type: ignore[attr-defined]
                 m.repair_deadline is not None, m.first_claim)
@@ -196,7 +196,7 @@ class CoreExplorer:
             self._replay_pairings
         yield "B re-pairs", self._b_repairs
         yield "B re-pairs every 0.5 s for 3 s (its link stays proven, wherever the drone is)", self._b_repairs_for_3s
-        yield "B asks for authority", lambda n: self._b_control(n, wire.HandoverRequest("B", n.gss["B"].views["d1"].epoch))
+        yield "B asks for authority", lambda n: self._b_control(n, wire.HandoverRequest("B", n.gss["B"].sessions["d1"].epoch))
         yield "B forges a release to itself", lambda n: self._b_control(n, wire.HandoverRelease("B", n.drone.machine.epoch))  # type: ignore[union-attr]
         if d.machine.owner == "B":
             yield "B (owner) grants a key for A and proves it as A", self._b_grant_over_a
@@ -244,7 +244,7 @@ class CoreExplorer:
 
     def _b_repairs(self, net: FleetNet) -> None:
         b = net.gss["B"]
-        b.views["d1"].link = None
+        b.sessions["d1"].link = None
         b.opts = replace(b.opts, pair=True)
         net.step(0.1)
         b.opts = replace(b.opts, pair=False)
@@ -256,13 +256,13 @@ class CoreExplorer:
 
     def _b_control(self, net: FleetNet, msg: wire.Control) -> None:
         b = net.gss["B"]
-        net.gs_outs("B", b.send_control(b.views["d1"], msg))
+        net.gs_outs("B", b.send_control(b.sessions["d1"], msg))
 
     def _b_grant_over_a(self, net: FleetNet) -> None:
         b, d = net.gss["B"], net.drone
         assert d is not None
         secret = os.urandom(32)
-        net.gs_outs("B", b.send_control(b.views["d1"], wire.KeyGrant("A", net.fleet.nodes["A"].sysid, secret, 7)))
+        net.gs_outs("B", b.send_control(b.sessions["d1"], wire.KeyGrant("A", net.fleet.nodes["A"].sysid, secret, 7)))
         forged = SecureLink(key=LinkKey.from_secret("d1", "A", secret), role="gs", tx_keyexpr="zdrone/d1/up/A",
                             rx_keyexpr="zdrone/d1/down/A", peer_sysid=1, now=net.now)
         hb = FrameCodec(net.fleet.nodes["A"].sysid, 190).encode(mav.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
@@ -318,8 +318,8 @@ class CoreExplorer:
             if isinstance(r, rec.LinkConfirmed) and r.how == "grant" and r.replaced:
                 raise Broken("nobody replaces another's live link", f"a grant replaced {r.gs}'s live key on the drone")
         for g, core in after.gss.items():
-            old = before.gss[g].views["d1"].link
-            link = core.views["d1"].link
+            old = before.gss[g].sessions["d1"].link
+            link = core.sessions["d1"].link
             if old is not None and link is not None and not link.key.same_as(old.key) and g not in after.hung:
                 # heard when the new key was made (a move may span the loss threshold: B's link LOST,
                 # then a key shared, within one 3 s move, is no replacement of a live link)

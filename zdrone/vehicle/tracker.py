@@ -103,7 +103,7 @@ class StreamWant:
         return self.autopilots is None or autopilot in self.autopilots
 
 
-#: What the drone node and the ground stations depend on (gs.core.USED_MSGIDS besides the replies).
+#: What the drone node and the ground stations depend on (gs.context.USED_MSGIDS besides the replies).
 DEFAULT_STREAMS: tuple[StreamWant, ...] = (
     StreamWant(mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, "GLOBAL_POSITION_INT", 0.25, mav.MAV_DATA_STREAM_POSITION,
                "drone: region and coverage; GS: position"),
