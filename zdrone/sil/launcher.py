@@ -8,7 +8,8 @@ is in rooms of its own, and importable without a process:
 
 - ``zdrone.sil.moments``: the moments of a flight (triggers) and those a fault can move to;
 - ``zdrone.sil.scenarios``: ``SCENARIO_TABLE``, one row a scenario (its attackers, faults, predicate);
-- ``zdrone.sil.verdicts``: ``Outcome`` and every predicate (``flight_unaffected``, ``safety_invariants``, ...);
+- ``zdrone.sil.verdicts``: ``Outcome`` and the predicates every scenario builds on (``flight_unaffected``,
+  ``safety_invariants``, ...); each scenario's own in ``attack_verdicts``, ``fault_verdicts``, ``operator_verdicts``;
 - ``zdrone.sil.summary``: the summary and verdict of a run, from its logs (``summarize``);
 - ``zdrone.sil.liveview``: the live view.
 
@@ -28,27 +29,29 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..core.records import (AnyRecord, Drop, DroneStatus, LinkStateChanged, MissionFailed, MissionStarted, Subscribe,
-                            Unsubscribe, fields_of)
-from .testbed_records import LinkFault, RadioLinkChanged
-from ..core.reference import DEFAULT_NODES
-from ..fleet.files import init_fleet, load_sites
-from ..net.eventlog import EventLog, LogTail
-from . import procs
-from .liveview import LiveView, describe
-from .moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVER_STARTED,
-                      HANDOVERS_DONE, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
-from .netns import NetnsTopology
-from .ports import free_port
-from ..fleet.routerconfig import mesh_endpoint
-from .radiolink import DatagramLink, RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
-from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, REVOKE_BEHIND_CUT, ROTATE, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
-                        SCENARIO_TLS, SCENARIOS, Fault, RogueSpec, Scenario, scenario_help)
-from .summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart, summarize, watch,
-                      watch_state)
-from .verdicts import (DELIVERY_RADIUS_M, FAILSAFE_LATE_MS, SILENT_AUTHORITY_S, Outcome, active_faults, delivered,
-                       delivered_at, escrow_left_standing, fault_over_check, flight_completes, flight_unaffected,
-                       insider_takeovers, return_time, safety_invariants)
+from zdrone.core.records import (AnyRecord, DroneStatus, Drop, LinkStateChanged, MissionFailed, MissionStarted,
+                                 Subscribe, Unsubscribe, fields_of)
+from zdrone.core.reference import DEFAULT_NODES
+from zdrone.fleet.files import init_fleet, load_sites
+from zdrone.fleet.routerconfig import mesh_endpoint
+from zdrone.net.eventlog import EventLog, LogTail
+from zdrone.sil import procs
+from zdrone.sil.attack_verdicts import escrow_left_standing, insider_takeovers
+from zdrone.sil.liveview import LiveView, describe
+from zdrone.sil.moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
+                                HANDOVER_STARTED, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
+from zdrone.sil.netns import NetnsTopology
+from zdrone.sil.ports import free_port
+from zdrone.sil.radiolink import DatagramLink, RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
+from zdrone.sil.scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, REVOKE_BEHIND_CUT, ROTATE,
+                                  SCENARIOS, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE, SCENARIO_TLS, Fault,
+                                  RogueSpec, Scenario, scenario_help)
+from zdrone.sil.summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart,
+                                summarize, watch, watch_state)
+from zdrone.sil.testbed_records import LinkFault, RadioLinkChanged
+from zdrone.sil.verdicts import (DELIVERY_RADIUS_M, FAILSAFE_LATE_MS, SILENT_AUTHORITY_S, Outcome, active_faults,
+                                 delivered, delivered_at, fault_over_check, flight_completes, flight_unaffected,
+                                 return_time, safety_invariants)
 
 __all__ = [  # the orchestration, and the testbed's public names as they were before its rooms
     "Child", "Demo", "DemoOptions", "EXTERNAL_BOOT_S", "GCS_KEYS", "NEAR_DELIVERY_M", "run_demo",
@@ -238,7 +241,7 @@ class Demo:
     def _report_crashes(self, codes: dict[str, int | None]) -> None:
         """A child that died of a crash signal (SIGSEGV, SIGABRT, ...): a note with the signal and the
         end of its log, where faulthandler left its stacks (``zdrone.crashes``)."""
-        from ..crashes import crash_report
+        from zdrone.crashes import crash_report
 
         for name, code in codes.items():
             report = crash_report(name, code, self.children[name].log.read_text(errors="replace"))
@@ -533,8 +536,8 @@ class Demo:
         """A bundle per host from the run's fleet (``bundles/<node>``: ``zdrone fleet export``), which
         each node and router runs from: nothing of the run's nodes sees another's secret. The
         attackers keep the whole fleet directory (they stand for stolen secrets)."""
-        from ..fleet.bundle import export_bundle
-        from ..fleet.files import load_fleet
+        from zdrone.fleet.bundle import export_bundle
+        from zdrone.fleet.files import load_fleet
 
         for node in [*load_fleet(self.out / "fleet").nodes, *routers]:
             export_bundle(self.out / "fleet", node, self.out / "bundles" / node)
@@ -617,7 +620,7 @@ class Demo:
         get the new files; ``node``'s site knows nothing of the revision."""
         import shutil
 
-        from ..fleet import revise as rv
+        from zdrone.fleet import revise as rv
 
         fleet, bundles = self.out / "fleet", self.out / "bundles"
         if rotate:
@@ -650,7 +653,7 @@ class Demo:
         beside the running one (``zdrone router --take-over``), the old one stopped (SIGTERM) once the
         new one is ready, the new one listening within a retry of its going. Both write to the
         router's log; ``children[name]`` is the new one from then on."""
-        from ..net.router import TAKE_OVER_LINE
+        from zdrone.net.router import TAKE_OVER_LINE
 
         old = self.children[name]
         text = old.log.read_text(errors="replace")
@@ -782,7 +785,7 @@ def _ready_line(name: str) -> str | None:
 
 def _exit_text(code: int | None) -> str:
     """An exit code in words: ``1``, ``SIGSEGV (-11)``."""
-    from ..crashes import exit_text
+    from zdrone.crashes import exit_text
 
     return exit_text(code)
 
@@ -808,7 +811,7 @@ def run_demo(opts: DemoOptions) -> int:
         return 128 + exc.signum
     if opts.report:
         try:
-            from ..report import write_report
+            from zdrone.report import write_report
 
             path = write_report(out)
             print(f"report: {path}")
