@@ -122,7 +122,7 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
     loop takes them (vehicle -> GS, sent), and each frame the core forwards to the vehicle, under the
     CRC of the envelope it came in (GS -> vehicle, got). Wraps the node's own callables on the instance;
     nothing changes without ``--latency``."""
-    from zdrone.nodes.drone_core import ToVehicle
+    from zdrone.nodes.drone_actions import ToVehicle
 
     name, envelope = node.name, [b""]
     on_envelope, recv = node.core.on_envelope, node.vehicle.recv
