@@ -33,7 +33,8 @@ from zdrone.fleet.revisions import STAMP_PERIOD_S
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
-from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Persist, ToVehicle
+from zdrone.nodes.drone_actions import CommandVehicle, Listen, Persist, ToVehicle
+from zdrone.nodes.drone_core import DroneCore, DroneCoreOptions
 from zdrone.vehicle.link import COMPANION_COMPID
 from zdrone.vehicle.modes import ARDUPILOT, set_mode_params
 from zdrone.vehicle.personality import PX4, Personality

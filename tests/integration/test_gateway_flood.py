@@ -13,7 +13,8 @@ import time
 
 from pymavlink.dialects.v20 import common as mav
 
-from gs.gateway import FIRST_APP_COMPID, MAX_APPS, GcsGateway
+from gs.apptable import FIRST_APP_COMPID, MAX_APPS
+from gs.gateway import GcsGateway
 from tests.procs import free_port
 from tests.unit.test_gateway_apps import GS_SYSID, VEHICLE_SYSID, StubStation, command_long, heartbeat
 from tests.waiting import readable

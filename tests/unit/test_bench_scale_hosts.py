@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from zdrone.bench.scale import drones_file, merge_drone_hosts
+from zdrone.bench.scalehosts import drones_file, merge_drone_hosts
 
 
 def _part(names: list[str], cpu_s: float, flight_s: float, worst_pass: float, released: str = "keys") -> dict:

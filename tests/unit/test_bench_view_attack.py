@@ -3,8 +3,8 @@ the table's rows, the load's stats file). No timing: the figures are the bench's
 
 import json
 
-from zdrone.bench import view
-from zdrone.bench.view import attack_rows, counter_delta, meets_targets, picture_gaps
+from zdrone.bench import view, viewattack
+from zdrone.bench.viewattack import attack_rows, counter_delta, meets_targets, picture_gaps
 from zdrone.bench.viewload import StatsFile, last_stats
 
 
@@ -59,7 +59,8 @@ def test_rows_show_both_windows_and_the_targets():
     assert [r[0] for r in rows] == ["control (no load)", "under attack", "target"]
     assert rows[0][-1] == "rss:yes cpu:yes gap:yes"
     assert rows[1][-1] == "rss:NO cpu:NO gap:NO"
-    assert rows[2][1:4] == [f"<= {view.TARGET_RSS_MB:g}", f"<= {view.TARGET_CPU_PCT:g}", f"<= {view.TARGET_GAP_S:g}"]
+    assert rows[2][1:4] == [f"<= {viewattack.TARGET_RSS_MB:g}", f"<= {viewattack.TARGET_CPU_PCT:g}",
+                              f"<= {viewattack.TARGET_GAP_S:g}"]
 
 
 def test_render_attack_prints_the_tables(capsys):
@@ -69,7 +70,7 @@ def test_render_attack_prints_the_tables(capsys):
                 clients={"held_open": {"min": 250, "max": 256}, "streaming": {"min": 63, "max": 63},
                          "attempts_per_s": 700.0, "refused_503_per_s": 100.0, "cut_before_answer_per_s": 600.0},
                 forger={"sent_per_s": 1000.0, "reached_per_s": 0.8})
-    view.render_attack({"clients": 1000, "forged_rate": 1000.0, "window_s": 10.0, "control": control, "load": load})
+    viewattack.render_attack({"clients": 1000, "forged_rate": 1000.0, "window_s": 10.0, "control": control, "load": load})
     out = capsys.readouterr().out
     assert "under attack" in out and "unknown_drone 8" in out
 

@@ -5,7 +5,8 @@ a LAND commanded into a port someone else had bound (a hijack) was absorbed, the
 from __future__ import annotations
 
 from zdrone.core.records import Failsafe, FailsafeConfirmed, FailsafeUnconfirmed
-from zdrone.sil.verdicts import Outcome, check_failsafe_recover, check_link_loss, check_site_router_down_alone
+from zdrone.sil.fault_verdicts import check_failsafe_recover, check_link_loss, check_site_router_down_alone
+from zdrone.sil.verdicts import Outcome
 
 T0 = 1795338600.0
 FS = Failsafe(t=T0 + 10, node="d1", action="LAND", reason="authority link to A lost", detect_to_command_ms=1.5,

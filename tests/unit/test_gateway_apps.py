@@ -23,8 +23,9 @@ from pymavlink.dialects.v20 import ardupilotmega as apm, common as mav
 from zenoh import ZError
 
 import gs.gateway as gateway_mod
-from gs.gateway import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, MAX_UNSIGNED_PER_PEER,
-                        STATION_COMPID, AppKey, AppTable, GcsGateway)
+from gs.apptable import (APP_EXPIRY_S, FIRST_APP_COMPID, MAX_APPS, MAX_APPS_LIMIT, MAX_UNSIGNED_PER_PEER,
+                         STATION_COMPID, AppKey, AppTable)
+from gs.gateway import GcsGateway
 from gs.core import DroneSeen
 from gs.opcontrol import OperatorControl
 from zdrone.core import wire

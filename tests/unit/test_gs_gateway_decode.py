@@ -1,4 +1,4 @@
-"""The GCS gateway decodes an application's frame at most once on its way (``gs.gateway.AppFrame``):
+"""The GCS gateway decodes an application's frame at most once on its way (``gs.apptable.AppFrame``):
 a command that reaches the drone, one refused because the GS is not in control, a mission write refused,
 and a frame that needs no field of its message at all (decoded never)."""
 

@@ -1,4 +1,4 @@
-"""zdrone/core, gs/core.py and zdrone/nodes/drone_core.py are sans-IO: it imports no zenoh, socket, threading, asyncio, time (nor their kin)."""
+"""zdrone/core, gs/core.py and the drone's core (zdrone/nodes/drone_core.py and its parts) are sans-IO: it imports no zenoh, socket, threading, asyncio, time (nor their kin)."""
 
 import ast
 import subprocess
@@ -12,7 +12,8 @@ CORE = Path(zdrone.core.__file__).parent
 #: the ground station's pure parts (its protocol core and mission planner)
 GS_PURE = [*(Path(gs.__file__).parent / f for f in ("core.py", "session.py", "droneview.py", "planner.py", "actions.py", "handover.py", "mission.py",
                                                     "linking.py", "keyhold.py", "ownership.py", "opcontrol.py")),
-           CORE.parent / "nodes" / "drone_core.py"]  # and the drone's protocol core
+           # and the drone's protocol core: its outputs and its part in the fleet's revisions too
+           *(CORE.parent / "nodes" / f for f in ("drone_core.py", "drone_actions.py", "drone_revisions.py"))]
 FORBIDDEN = {"zenoh", "socket", "threading", "asyncio", "time", "subprocess", "multiprocessing", "select",
              "selectors", "datetime"}
 

@@ -2,7 +2,7 @@
 
 The same processes as ``bench scale``'s run (one router, or one router per site meshed site n to sites
 1..n-1; a process hosting the K drones, each with its own Zenoh session and an in-process simulator,
-all stepped by one loop every ``scale.PASS_S``; a process hosting the G GSs, each with its own session),
+all stepped by one loop every ``scalehosts.PASS_S``; a process hosting the G GSs, each with its own session),
 the same keys, the same QoS and the same application traffic, and nothing else:
 
 * **routers**: plain TCP (the mesh too), no authentication, no access control, no downsampling, no
@@ -47,11 +47,11 @@ from typing import Any
 
 import zenoh
 
-from ..core.bundle import unpack
-from ..core.geometry import GeoPoint, distance_m
-from ..fleet import keyexprs as kx
-from ..net.runtime import LINK_EXPRESS, LINK_PRIORITY
-from .latency import LatencyLog
+from zdrone.bench.latency import LatencyLog
+from zdrone.core.bundle import unpack
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.fleet import keyexprs as kx
+from zdrone.net.runtime import LINK_EXPRESS, LINK_PRIORITY
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ STAMP_BYTES = 120
 #: waiting for its GPS fix).
 ARM_RETRY_S = 1.0
 #: After the last vehicle has landed the flight ends this much later (zdrone's: the GSs count what they
-#: sent, ``scale.LANDED_DRAIN_S`` after that the drones host stops).
+#: sent, ``scalehosts.LANDED_DRAIN_S`` after that the drones host stops).
 LANDED_TAIL_S = 2.5
 #: How long the stations host and routers may take to start.
 START_TIMEOUT_S = 60.0
@@ -75,7 +75,7 @@ READY = "bare drones host: ready"
 def client_config(router: str) -> zenoh.Config:
     """A client of ``router``: scouting off, no authentication, no TLS (``zdrone.net.session``
     without them)."""
-    from ..fleet.routerconfig import MAX_MESSAGE_SIZE
+    from zdrone.fleet.routerconfig import MAX_MESSAGE_SIZE
 
     cfg = {"mode": "client",
            "connect": {"endpoints": [router], "timeout_ms": 5000, "exit_on_failure": True},
@@ -86,7 +86,7 @@ def client_config(router: str) -> zenoh.Config:
 
 def router_config(listen: str, connect: list[str]) -> dict[str, Any]:
     """A bare router: plain TCP, nothing checked or limited; ``connect``: the other sites' routers."""
-    from ..fleet.routerconfig import MAX_MESSAGE_SIZE
+    from zdrone.fleet.routerconfig import MAX_MESSAGE_SIZE
 
     cfg: dict[str, Any] = {
         "mode": "router", "listen": {"endpoints": [listen]},
@@ -136,8 +136,8 @@ class BareDrone:
     """One drone: its session, its vehicle, what came up for it."""
 
     def __init__(self, name: str, router: str, vehicle: Any, gss: list[str]) -> None:
-        from ..core.bundle import BundleWriter
-        from ..core.standby import StandbyStream
+        from zdrone.core.bundle import BundleWriter
+        from zdrone.core.standby import StandbyStream
 
         self.name, self.vehicle, self.gss = name, vehicle, gss
         self.session = zenoh.open(client_config(router))
@@ -198,12 +198,13 @@ def _take_off(vehicle: Any, codec: Any) -> None:
 def _host_drones(args: argparse.Namespace) -> int:
     from gs.planner import shuttle_mission
 
-    from ..core.mavlink import FrameCodec
-    from ..core.reference import HOME
-    from ..fleet.files import load_fleet
-    from ..net.runtime import freeze_start_up
-    from ..vehicle.inproc import InProcessVehicle
-    from .scale import CROSSINGS, PASS_S, _memory_mb
+    from zdrone.bench.procstats import _memory_mb
+    from zdrone.bench.scalehosts import CROSSINGS, PASS_S
+    from zdrone.core.mavlink import FrameCodec
+    from zdrone.core.reference import HOME
+    from zdrone.fleet.files import load_fleet
+    from zdrone.net.runtime import freeze_start_up
+    from zdrone.vehicle.inproc import InProcessVehicle
 
     fleet = load_fleet(args.fleet)
     gss = sorted(fleet.ground_stations())
@@ -312,7 +313,7 @@ class BareStation:
 
     def __init__(self, name: str, sysid: int, router: str, drones: dict[str, int], circles: dict[str, Any],
                  lat: LatencyLog | None) -> None:
-        from ..core.mavlink import FrameCodec
+        from zdrone.core.mavlink import FrameCodec
 
         self.name, self.drones, self.circles, self.lat = name, drones, circles, lat
         self.codec = FrameCodec(sysid, 190)
@@ -371,7 +372,7 @@ class BareStation:
     def _run(self) -> None:
         from pymavlink.dialects.v20 import common as mav
 
-        from ..fleet.revisions import STAMP_PERIOD_S
+        from zdrone.fleet.revisions import STAMP_PERIOD_S
 
         hb = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
         now = time.monotonic()
@@ -407,9 +408,9 @@ class BareStation:
 
 
 def _host_stations(args: argparse.Namespace) -> int:
-    from ..fleet.files import load_fleet
-    from ..net.runtime import freeze_start_up
-    from .scale import _memory_mb
+    from zdrone.bench.procstats import _memory_mb
+    from zdrone.fleet.files import load_fleet
+    from zdrone.net.runtime import freeze_start_up
 
     fleet = load_fleet(args.fleet)
     gss = sorted(fleet.ground_stations())[:args.stations]
@@ -458,11 +459,12 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
     """One bare run: K drones x G GSs through one router, or ``sites`` meshed routers (GS i at site
     i, drone i at site i mod N), flying ``flight_s`` seconds from the take-off. The row has what the
     bench compares: CPU (100 % = one core) and RSS per process, samples delivered per second, latency."""
-    from ..fleet.files import init_fleet, scale_nodes
-    from ..sil.procs import spawn, stop_in_order
-    from . import latency as lat
-    from .scale import _free_ports, _memory_mb, _wait_line, give_way
-    from .stallwatch import cpu_seconds
+    from zdrone.bench import latency as lat
+    from zdrone.bench.procstats import _memory_mb
+    from zdrone.bench.scale import _free_ports, _wait_line, give_way
+    from zdrone.bench.stallwatch import cpu_seconds
+    from zdrone.fleet.files import init_fleet, scale_nodes
+    from zdrone.sil.procs import spawn, stop_in_order
 
     n_routers = max(1, sites)
     d = base / f"bare-k{k}-{f'sites{sites}' if sites else 'one'}"
@@ -491,7 +493,7 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
         procs["stations"] = spawn(hpy + ["host-stations", "--stations", str(g), "--router", ",".join(gs_routers), *common],
                                   stdout=logs["stations"], stderr=subprocess.STDOUT)
         row["hosts_given_way"] = {h: give_way(procs[h].pid, hosts_nice) for h in ("drones", "stations")}
-        from .scale import READY_TIMEOUT_S
+        from zdrone.bench.scale import READY_TIMEOUT_S
 
         if _wait_line(d / "drones.log", READY, READY_TIMEOUT_S, procs["drones"]) is None:
             raise RuntimeError(f"bare drones host did not start; see {d / 'drones.log'}")
@@ -540,7 +542,7 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..crashes import stacks_on_crash
+    from zdrone.crashes import stacks_on_crash
 
     stacks_on_crash()
     p = argparse.ArgumentParser(prog="python -m zdrone.bench.bare")

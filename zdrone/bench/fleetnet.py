@@ -26,7 +26,8 @@ from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.fleet.revisions import STAMP_PERIOD_S
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
-from zdrone.nodes.drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_core import DroneCore, DroneCoreOptions
 
 WALL0 = 1_800_000_000.0  # the time of day at now = 0
 

@@ -25,6 +25,9 @@ counted per (receiver, sender) in the hosts and placed by each session's router;
 client links (data segments, from ``ss -ti``). The mesh runs over QUIC (UDP): no per-link byte
 counters there, and Zenoh 1.x's admin space (``@/<zid>/router``) lists sessions and links but
 carries no message counters in the Python build (no ``stats`` feature).
+
+The two host processes are ``zdrone.bench.scalehosts`` (started as ``python -m zdrone.bench.scale
+host-drones | host-stations``); what is read of the processes from outside, ``zdrone.bench.procstats``.
 """
 
 from __future__ import annotations
@@ -32,26 +35,21 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections import Counter
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..net.runtime import freeze_start_up
-from .latency import LatencyLog
-from .stallwatch import CpuSampler, FrameGaps, GcClock, LoopTimer, PassClock, StallWatch, cpu_seconds
+from zdrone.bench.procstats import _memory_mb, _tcp_sockets, _traffic
+from zdrone.bench.scalehosts import _host_drones, _host_stations, drones_file, merge_drone_hosts
+from zdrone.bench.stallwatch import CpuSampler, cpu_seconds
 
-CROSSINGS = 2
 SPEEDUP = 4.0
 #: Without ``--speedup`` a run of K drones flies at ``SPEEDUP`` up to this K, at 1 above it: the
 #: vehicles' telemetry grows with K x speed-up (docs/results.md: 100 x 3 flew 100 of 100 at 4; 300 x 3
@@ -65,20 +63,8 @@ def speedup_for(k: int) -> float:
 
 #: How long the drones host may take to open its K sessions before the run counts as failed.
 READY_TIMEOUT_S = 180.0
-#: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
-#: sleeps until its next deadline or input; stepping hundreds in turn, each pass costs them all).
-PASS_S = 0.01
-#: After the last vehicle has landed the GSs stop commanding and count what they sent (``COUNTED``
-#: file), and the drones host steps on this long after that, so what is still on its way arrives: a
-#: command sent to a drone whose host had stopped was counted lost, one sent after the GSs had counted
-#: but forwarded before the host stopped was "-1 lost" (7 drones of 300).
-LANDED_DRAIN_S = 2.0
 #: The fleet target's worst authority-link silence (a drone's link is DEGRADED after 1 s).
 SILENCE_TARGET_S = 1.0
-#: Written by the stations host once it stopped commanding and counted; the drones host waits for it
-#: this long at most after the landing.
-COUNTED = "stations.counted"
-COUNTED_WAIT_S = 30.0
 #: The niceness the drones and GSs hosts run at (their threads and their session's scheduling group,
 #: ``give_way``; the routers at the machine's own, 0). The hosts stand in for 300 companion computers
 #: and three GS machines on two cores and keep them about 1.4 cores busy, in bursts a full core each:
@@ -89,8 +75,6 @@ COUNTED_WAIT_S = 30.0
 HOSTS_NICE = 10
 #: The flight's time limit from take-off, in simulated seconds (150 wall seconds at speed-up 4).
 FLIGHT_SIM_S = 600.0
-#: Readiness of a held vehicle (simulated seconds after boot before it may arm): never, until released.
-HOLD_READY_AFTER = 1e9
 
 
 def give_way(pid: int, nice: int) -> str:
@@ -120,421 +104,6 @@ def hold_limit(k: int) -> float:
 log = logging.getLogger(__name__)
 
 
-class DeliveryCounter:
-    """Samples delivered to one node, per sender: wraps its inbox's ``put``, which every subscribed
-    sample reaches (called from Zenoh's threads); query replies (pairing, key sharing) are not counted."""
-
-    DATA_KINDS = frozenset({"up", "down"})
-
-    def __init__(self, inbox: Any, gaps: FrameGaps | None = None, node: str = "") -> None:
-        self.lock = threading.Lock()
-        self.by_sender: Counter[str] = Counter()
-        original = inbox.put
-
-        def counted(kind: str, peer: str, data: Any) -> None:
-            if kind in self.DATA_KINDS:
-                with self.lock:
-                    self.by_sender[peer] += 1
-                if gaps is not None and kind == "up":  # a GS's frame reached this drone's callback
-                    gaps.note(peer, node, time.monotonic())
-            original(kind, peer, data)
-
-        inbox.put = counted
-
-    def snapshot(self) -> dict[str, int]:
-        with self.lock:
-            return dict(self.by_sender)
-
-    def since(self, baseline: dict[str, int]) -> dict[str, int]:
-        """Samples delivered since ``baseline`` (an earlier snapshot)."""
-        return {peer: n - baseline.get(peer, 0) for peer, n in self.snapshot().items()}
-
-
-def _router_zid(session: Any) -> str | None:
-    """The router this client session is connected to."""
-    try:
-        zids = session.info.routers_zid()
-        return str(zids[0]) if zids else None
-    except Exception as exc:  # a closed session: nothing to report
-        log.warning("router zid: %s", exc)
-        return None
-
-
-def drones_file(part: int, parts: int) -> str:
-    """The results of one drones host (``drones.json`` when it is the only one)."""
-    return "drones.json" if parts == 1 else f"drones-{part}.json"
-
-
-def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
-    """The drones hosts' results as one: every drone's, the slowest pass and step of any host, CPU and
-    memory summed (``cpu_percent``: each host's CPU over its own flight, added)."""
-    if len(parts) == 1:
-        return parts[0]
-    slow = [p["slow"] for p in parts]
-    worst_step = max(slow, key=lambda x: x["worst_step_s"])
-    return {
-        "results": {n: r for p in parts for n, r in p["results"].items()}, "loops": min(p["loops"] for p in parts),
-        "timed_out": any(p["timed_out"] for p in parts), "flight_s": max(p["flight_s"] for p in parts),
-        "cpu_s": sum(p["cpu_s"] for p in parts),
-        "cpu_percent": round(sum(100.0 * p["cpu_s"] / max(1e-6, p["flight_s"]) for p in parts), 1),
-        "memory_mb": {k: round(sum((p["memory_mb"] or {}).get(k, 0.0) for p in parts), 1) for k in ("rss", "peak")},
-        "ground_s": max(p["ground_s"] for p in parts),
-        "released": "keys" if all(p["released"] == "keys" for p in parts) else "hold timeout",
-        "router_zid": {n: z for p in parts for n, z in p["router_zid"].items()},
-        "slow": {"hosts": len(parts), "worst_pass_s": max(x["worst_pass_s"] for x in slow),
-                 "passes_over_0_5s": sum(x["passes_over_0_5s"] for x in slow),
-                 "worst_step_s": worst_step["worst_step_s"], "worst_step_node": worst_step["worst_step_node"],
-                 "listen_worst_s": max(x["listen_worst_s"] for x in slow), "listen_total_s": round(sum(x["listen_total_s"] for x in slow), 2),
-                 "stalls": [s for x in slow for s in x.get("stalls", [])], "stalls_seen": sum(x.get("stalls_seen", 0) for x in slow),
-                 "watch_late_worst_s": max(x.get("watch_late_worst_s", 0.0) for x in slow),
-                 "slow_passes": [s for x in slow for s in x.get("slow_passes", [])]},
-        "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
-
-
-def note_drone_latency(node: Any, latency: LatencyLog) -> None:
-    """``bench overhead``'s opt-in hook (``--latency``) on one drone node: the vehicle's frames as its
-    loop takes them (vehicle -> GS, sent), and each frame the core forwards to the vehicle, under the
-    CRC of the envelope it came in (GS -> vehicle, got). Wraps the node's own callables on the instance;
-    nothing changes without ``--latency``."""
-    from ..nodes.drone_core import ToVehicle
-
-    name, envelope = node.name, [b""]
-    on_envelope, recv = node.core.on_envelope, node.vehicle.recv
-
-    def opened(gs: str, data: bytes, now: float) -> Any:
-        envelope[0] = data
-        return on_envelope(gs, data, now)
-
-    def received(timeout: float = 0.0) -> list[bytes]:
-        frames = recv(timeout)
-        latency.note_many("down", "sent", name, frames, time.monotonic())
-        return frames
-
-    handlers = node._handlers  # the adapter's output handlers (built once, on first use)
-    to_vehicle = handlers[ToVehicle]
-
-    def forwarded(o: Any) -> None:
-        latency.note("up", "got", name, envelope[0], time.monotonic())
-        to_vehicle(o)
-
-    node.core.on_envelope, node.vehicle.recv, handlers[ToVehicle] = opened, received, forwarded
-
-
-def note_station_latency(station: Any, latency: LatencyLog) -> None:
-    """The same on a GS: each envelope its core hands the adapter to put (before the pacing) (GS ->
-    vehicle, sent), each vehicle frame out of an envelope (``FrameUp``) (vehicle -> GS, got)."""
-    from gs.actions import FrameUp
-    from ..core.outputs import Put
-
-    handlers = station._handlers
-    put, frame_up = handlers[Put], handlers[FrameUp]
-
-    def sent(a: Any) -> None:
-        latency.note("up", "sent", a.peer, a.payload, time.monotonic())
-        put(a)
-
-    def got(a: Any) -> None:
-        latency.note("down", "got", a.drone, a.frame, time.monotonic())
-        frame_up(a)
-
-    handlers[Put], handlers[FrameUp] = sent, got
-
-
-def _host_drones(args: argparse.Namespace) -> int:
-    from ..core.reference import HOME
-    from ..core.authority import HaDrop
-    from ..core.tbm import LinkState
-    from ..fleet.files import load_fleet
-    from ..nodes.drone import DroneNode, DroneOptions
-    from ..sil.coverage import CoverageGate
-    from ..vehicle.inproc import InProcessVehicle
-
-    routers = args.router.split(",")
-    fleet = load_fleet(args.fleet)
-    nodes = []
-    for i in range(args.part, args.k, args.parts):  # this host's share of the fleet (the i-th drone spread as in one host)
-        name = f"d{i + 1}"
-        router = routers[i % len(routers)] if args.drone_router == "spread" else args.router
-        opts = DroneOptions(drone=name, fleet=args.fleet, router=router, vehicle="inproc", gate=CoverageGate(fleet),
-                            events=str(Path(args.out) / f"{name}.jsonl"), handover_timeout=max(1.5, 5.0 / args.speedup),
-                            status_period=2.0)
-        nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)))
-    arrivals = FrameGaps()  # a GS's frames at each drone's Zenoh callback (where a silence begins)
-    deliveries = {n.name: DeliveryCounter(n.rt.inbox, arrivals, n.name) for n in nodes}
-    latency = LatencyLog() if args.latency else None  # ``bench overhead``: noted from the take-off on
-    if latency is not None:
-        for n in nodes:
-            note_drone_latency(n, latency)
-    router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
-    gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
-    for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
-        n.vehicle.sim.ready_after = HOLD_READY_AFTER
-    freeze_start_up()  # as every node does (``NodeRuntime.serve``): a full collection of 300 drones took 0.64 s
-    print(f"drones host: {len(nodes)} drones ready", flush=True)
-    stop = [False]
-    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
-    mended: list[float | None] = [None]
-    jam: list[bool | None] = [None]  # --jam: SIGUSR1 cuts that drone's radio (every GS out of reach), SIGUSR2 mends it
-    if args.jam:
-        signal.signal(signal.SIGUSR1, lambda *_: jam.__setitem__(0, True))
-        signal.signal(signal.SIGUSR2, lambda *_: jam.__setitem__(0, False))
-    armed_seen = [False] * len(nodes)
-    landed_at: float | None = None
-    counted_at: float | None = None  # the GSs stopped commanding and counted (``COUNTED``)
-    # where the host's time goes when a pass is slow: a pass over every drone, one drone's step, its
-    # uplink subscriptions (declared when a GS's coverage is entered: Zenoh calls in the loop)
-    slow: dict[str, Any] = {"worst_pass_s": 0.0, "passes_over_0_5s": 0, "worst_step_s": 0.0, "worst_step_node": None}
-    # which call a slow step waits in (``ZDRONE_STALL_NATIVE=dir``: with py-spy's native stacks there)
-    watch = StallWatch(native_dir=os.environ.get("ZDRONE_STALL_NATIVE"))
-    clock = PassClock()  # a slow pass: the loop on a CPU, waiting for one, or asleep
-    worst_owner_silence = [0.0] * len(nodes)
-    worst_at: list[dict[str, Any] | None] = [None] * len(nodes)
-    owner_lost = [0] * len(nodes)
-    # the drone's own judgement: its owner's link reported DEGRADED or LOST in flight (times it went so)
-    owner_judged_silent, owner_silent_now = [0] * len(nodes), [False] * len(nodes)
-    t_ready = time.monotonic()
-    t0, cpu0 = t_ready, time.process_time()
-    deadline = t_ready + args.hold + args.duration
-    released: str | None = None
-    baseline: dict[str, dict[str, int]] = {}
-    loops = 0
-    try:
-        while not stop[0] and time.monotonic() < deadline:
-            if released is None and (all(gss[n.name] <= set(n.core.links) for n in nodes)
-                                     or time.monotonic() - t_ready >= args.hold):
-                released = "keys" if time.monotonic() - t_ready < args.hold else "hold timeout"
-                for n in nodes:
-                    n.vehicle.sim.ready_after = 0.0
-                t0, cpu0 = time.monotonic(), time.process_time()
-                deadline = t0 + args.duration
-                baseline = {d: c.snapshot() for d, c in deliveries.items()}
-                if latency is not None:
-                    latency.start(t0)
-                print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
-            pass_start = time.monotonic()
-            clock.begin()
-            if jam[0] is not None:
-                gate = next(n.gate for n in nodes if n.name == args.jam)
-                if gate.jammed != jam[0]:
-                    gate.jammed = jam[0]
-                    mended[0] = None if jam[0] else time.monotonic()
-                    print(f"drones host: {args.jam} {'out of' if jam[0] else 'back in'} reach at {time.time():.3f}",
-                          flush=True)
-            for i, n in enumerate(nodes):
-                step_start = time.monotonic()
-                watch.begin(n.name)
-                n.step(0.0)
-                watch.end()
-                step_s = time.monotonic() - step_start
-                if step_s > slow["worst_step_s"]:
-                    slow["worst_step_s"], slow["worst_step_node"] = round(step_s, 3), n.name
-                m = n.machine
-                if n.vehicle.armed:
-                    armed_seen[i] = True
-                    link = n.core.links.get(m.owner or "")
-                    if link is not None:
-                        now = time.monotonic()
-                        silence = link.tbm.since_last(now)
-                        if silence > worst_owner_silence[i]:  # when, and under which epoch (a hand-over's?)
-                            worst_owner_silence[i] = silence
-                            worst_at[i] = {"after_takeoff_s": round(now - t0, 2), "owner": m.owner, "epoch": m.epoch,
-                                           "state": m.state.value}
-                        if link.tbm.state(now) is LinkState.LOST:
-                            owner_lost[i] += 1
-                    judged = m.links.get(m.owner or "")
-                    silent = judged is not None and judged.state is not LinkState.OK
-                    owner_judged_silent[i] += silent and not owner_silent_now[i]
-                    owner_silent_now[i] = silent
-            loops += 1
-            pass_s = time.monotonic() - pass_start
-            clock.end(pass_start - t0)
-            slow["worst_pass_s"] = max(slow["worst_pass_s"], round(pass_s, 3))
-            slow["passes_over_0_5s"] += pass_s > 0.5
-            if landed_at is None and all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (
-                    not args.jam or mended[0] is not None and time.monotonic() > mended[0] + 10.0):
-                # (--jam: not before the cut-off drone has been back in reach for 10 s)
-                landed_at = time.monotonic()  # the GSs count what they sent now; what is on its way still arrives
-                print("drones host: all landed", flush=True)
-            if landed_at is not None:
-                # (several hosts: the GSs count once every host has landed, so wait for them as long as a flight)
-                if counted_at is None and (Path(args.out, COUNTED).exists() or time.monotonic() - landed_at
-                                           >= (COUNTED_WAIT_S if args.parts == 1 else max(COUNTED_WAIT_S, args.duration))):
-                    counted_at = time.monotonic()
-                if counted_at is not None and time.monotonic() - counted_at >= LANDED_DRAIN_S:
-                    break
-            time.sleep(max(0.0005, PASS_S - (time.monotonic() - pass_start)))
-        flight_s, cpu_s = time.monotonic() - t0, time.process_time() - cpu0
-        results = {}
-        for i, n in enumerate(nodes):
-            m = n.machine
-            results[n.name] = {
-                "handovers": max(0, m.epoch - 1),  # epoch 1 at pairing, +1 per hand-over
-                "owners": [o for _, o, _ in m.history], "state": m.state.value, "flew": armed_seen[i],
-                "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
-                "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
-                "not_authority": m.drops[HaDrop.NOT_AUTHORITY], "in_failsafe": m.drops[HaDrop.FAILSAFE],
-                "worst_owner_silence_s": round(worst_owner_silence[i], 3), "worst_owner_silence_at": worst_at[i],
-                "owner_lost_samples": owner_lost[i], "owner_judged_silent": owner_judged_silent[i],
-                "security_drops": {gs: {r.value: c for r, c in ln.drops.items() if c} for gs, ln in n.core.links.items()},
-                # the testbed's radio: frames it stopped, out of a GS's coverage ("up:A": A's to the drone)
-                "radio_blocked": dict(n.gate.blocked) if n.gate is not None else {}}
-        if latency is not None:
-            latency.dump(Path(args.out, f"latency-{drones_file(args.part, args.parts)}"))
-        Path(args.out, f"gaps-{drones_file(args.part, args.parts)}").write_text(
-            json.dumps({"t0": t0, **arrivals.report()}))
-        Path(args.out, drones_file(args.part, args.parts)).write_text(json.dumps({
-            "results": results, "loops": loops, "timed_out": time.monotonic() >= deadline, "flight_s": flight_s,
-            "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "ground_s": round(t0 - t_ready, 1), "released": released, "router_zid": router_zids,
-            "slow": {**slow, "listen_worst_s": round(max(n.listen_worst_s for n in nodes), 3),
-                     "listen_total_s": round(sum(n.listen_total_s for n in nodes), 2),
-                     **watch.report(), "slow_passes": clock.slow}, "delivered": {d: c.since(baseline.get(d, {})) for d, c in deliveries.items()}}))
-    finally:
-        watch.close()
-        for n in nodes:
-            n.close()
-    return 0
-
-
-def _host_stations(args: argparse.Namespace) -> int:
-    from gs.planner import shuttle_mission
-    from gs.station import GroundStation, StationOptions
-
-    deliveries: dict[str, DeliveryCounter] = {}
-    baseline: dict[str, dict[str, int]] = {}
-    # the drones took off (from the bench, at once): count deliveries from now on
-    loops = LoopTimer()  # where a GS's slow pass went (its heartbeats to every drone wait for it)
-
-    latency = LatencyLog() if args.latency else None  # ``bench overhead``: noted from the take-off on
-
-    def took_off(*_: Any) -> None:
-        baseline.update({g: c.snapshot() for g, c in deliveries.items()})
-        loops.mark()
-        if latency is not None:
-            latency.start(time.monotonic())
-
-    signal.signal(signal.SIGUSR1, took_off)
-    if args.inbox_senders:  # testbed what-if: the GS inbox's bound on (kind, sender) queues
-        from ..net import inbox
-
-        inbox.MAX_SENDERS = args.inbox_senders
-    names = [chr(ord("A") + i) for i in range(args.stations)]
-    routers = args.router.split(",")  # one for all, or one per station in order
-    mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (args.stations - 1) - 60.0)
-    stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=routers[i % len(routers)], pair=(g == "A"),
-                                             mission=mission if g == "A" else None, command_rate=1.0,
-                                             events=None)) for i, g in enumerate(names)]
-    deliveries.update({st.name: DeliveryCounter(st.rt.inbox) for st in stations})
-    puts = FrameGaps()  # each GS's frames to each drone as it puts them (where a silence begins)
-    for st in stations:
-        put_on_lane = st.rt._put_on_lane
-
-        def noted(uplink: str, payload: bytes, gs: str = st.name, put_on_lane: Any = put_on_lane) -> None:
-            puts.note(gs, uplink.split("/")[1], time.monotonic())  # kx.up: zdrone/<drone>/up/<gs>
-            put_on_lane(uplink, payload)
-
-        st.rt._put_on_lane = noted
-    if latency is not None:
-        for st in stations:
-            note_station_latency(st, latency)
-    router_zids = {st.name: _router_zid(st.rt.session) for st in stations}
-    freeze_start_up()  # as every node does (``NodeRuntime.serve``)
-    gcs = GcClock()
-    for st in stations:
-        loops.watch(st)
-    print(f"stations host: {len(stations)} stations ready", flush=True)
-    # one thread per station: a GS's blocking backhaul query must not wait on another GS's loop
-    threads = [threading.Thread(target=st.run, daemon=True) for st in stations]
-    for t in threads:
-        t.start()
-    # a plain flag: a handler setting an event the main thread is waiting on can deadlock it
-    # (zdrone.net.shutdown); ``pause`` is never set
-    stop, pause, landed = [False], threading.Event(), [False]
-    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__(0, True))
-    signal.signal(signal.SIGUSR2, lambda *_: landed.__setitem__(0, True))  # every vehicle has landed
-
-    def count_sent() -> tuple[dict[str, Any], dict[str, Any]]:
-        return ({st.name: {d: st.commands_sent(d) for d in st.drones} for st in stations},
-                {st.name: {d: {str(e): c for e, c in st.core.sessions[d].commands_sent.items()} for d in st.drones}
-                 for st in stations})  # per epoch the GS believed it commanded in (bench revoke's attribution)
-
-    counted: tuple[dict[str, Any], dict[str, Any]] | None = None
-    while not stop[0]:
-        pause.wait(0.2)
-        if landed[0] and counted is None:
-            for st in stations:  # no command after the count: every command counted is one the drones can forward
-                st.core.opts = replace(st.core.opts, command_rate=0.0)
-            pause.wait(0.3)  # a tick that began before the freeze has sent what it sends
-            counted = count_sent()  # what was sent while the drones were still there to forward it
-            Path(args.out, COUNTED).touch()
-    sent, sent_epochs = counted or count_sent()
-    counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
-    delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}
-    for st in stations:
-        st.stop()
-    for t in threads:
-        t.join(15)
-    Path(args.out, "gaps-stations.json").write_text(json.dumps(puts.report()))
-    if latency is not None:
-        latency.dump(Path(args.out, "latency-stations.json"))
-    Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
-                                                           "router_zid": router_zids,
-                                                           "delivered": delivered, "counters": counters,
-                                                           "gc": gcs.report(), "loops": loops.report()}))
-    return 0
-
-
-# ------------------------------------------------------------------ measuring the processes
-def _memory_mb(pid: int | str) -> dict[str, float] | None:
-    """Resident memory of a live process now and at its peak (VmRSS, VmHWM), MB."""
-    try:
-        text = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
-        return None
-    kb = {k: int(v.split()[0]) for k, v in (line.split(":", 1) for line in text.splitlines() if ":" in line)
-          if k in ("VmRSS", "VmHWM")}
-    return {"rss": round(kb.get("VmRSS", 0) / 1024, 1), "peak": round(kb.get("VmHWM", 0) / 1024, 1)}
-
-
-_SS_FIELDS = re.compile(r"\b(bytes_sent|bytes_received|data_segs_out|data_segs_in):(\d+)")
-
-
-def _tcp_sockets(pids: set[int]) -> dict[tuple[str, str], dict[str, int]] | None:
-    """Established TCP sockets of ``pids``: (local, peer) -> pid, bytes and data segments each way
-    (``ss -tinp``; None without ``ss``)."""
-    if shutil.which("ss") is None:
-        return None
-    try:
-        text = subprocess.run(["ss", "-tinpH", "state", "established"], capture_output=True, text=True, timeout=10).stdout
-    except (OSError, subprocess.SubprocessError):
-        return None
-    socks: dict[tuple[str, str], dict[str, int]] = {}
-    current: dict[str, int] | None = None
-    for line in text.splitlines():
-        if line and not line[0].isspace():  # the socket line; its TCP info follows, indented
-            current = None
-            parts = line.split()
-            pid = re.search(r"pid=(\d+)", line)
-            if len(parts) >= 4 and pid and int(pid.group(1)) in pids:
-                current = socks.setdefault((parts[2], parts[3]), {"pid": int(pid.group(1))})
-        elif current is not None:
-            current.update({k: int(v) for k, v in _SS_FIELDS.findall(line)})
-    return socks
-
-
-def _port(addr: str) -> int:
-    return int(addr.rsplit(":", 1)[1])
-
-
-def _traffic(before: dict | None, after: dict | None, keys: list[tuple[str, str]]) -> dict[str, int]:
-    """Bytes and data segments, both ways, that crossed ``keys`` between two ``_tcp_sockets`` snapshots."""
-    total = {"bytes": 0, "segments": 0}
-    for key in keys:
-        a, b = (after or {}).get(key, {}), (before or {}).get(key, {})
-        total["bytes"] += sum(a.get(f, 0) - b.get(f, 0) for f in ("bytes_sent", "bytes_received"))
-        total["segments"] += sum(a.get(f, 0) - b.get(f, 0) for f in ("data_segs_out", "data_segs_in"))
-    return total
-
-
 def _wait_line(path: Path, text: str, timeout: float, proc: subprocess.Popen) -> str | None:
     """The first line of ``path`` holding ``text`` (None if ``proc`` ended or the time ran out)."""
     deadline = time.monotonic() + timeout
@@ -552,7 +121,7 @@ def _wait_line(path: Path, text: str, timeout: float, proc: subprocess.Popen) ->
 
 
 def _free_ports(n: int) -> list[int]:
-    from ..sil.launcher import free_port
+    from zdrone.sil.launcher import free_port
 
     ports: list[int] = []
     while len(ports) < n:
@@ -568,8 +137,8 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers;
     ``latency``: the hosts note messages for ``zdrone.bench.latency`` (``latency-*.json`` in the run's
     directory, ``runs``)."""
-    from ..fleet.files import init_fleet, load_sites, scale_nodes
-    from ..sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
+    from zdrone.fleet.files import init_fleet, load_sites, scale_nodes
+    from zdrone.sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
 
     layout = f"{sites} sites" if sites else ("1 router, TLS" if tls else "1 router")
     d = base / f"k{k}-{f'sites{sites}' if sites else 'one'}"
@@ -786,7 +355,7 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
     ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
     rows = []
-    from .table import ProgressLine
+    from zdrone.bench.table import ProgressLine
 
     status = ProgressLine(progress)
     try:
@@ -834,7 +403,7 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
 
 
 def render(r: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     def layout(x: dict[str, Any]) -> str:
         return f"{x['sites']} sites" if x.get("sites", 1) > 1 else "1 router"

@@ -44,19 +44,19 @@ from typing import Any, Callable, Iterator
 from cryptography.hazmat.primitives.ciphers.aead import AESGCM, ChaCha20Poly1305
 from pymavlink.dialects.v20 import common as mav
 
-from ..core import records as rec
-from ..core import wire
-from ..core.authority import State
-from ..core.envelope import SecureLink
-from ..core.geometry import GeoPoint, offset
-from ..core.keys import LinkKey
-from ..core.keyshare import KeyShareAsk, Refused
-from ..core.mavlink import FrameCodec
-from ..core.kk import stamp_of
-from ..core.pairing import PairingInitiator
-from ..core.tbm import LinkState
-from ..fleet.files import load_secret
-from ..bench.fleetnet import WALL0, FleetNet, make_fleet
+from zdrone.bench.fleetnet import WALL0, FleetNet, make_fleet
+from zdrone.core import records as rec
+from zdrone.core import wire
+from zdrone.core.authority import State
+from zdrone.core.envelope import SecureLink
+from zdrone.core.geometry import GeoPoint, offset
+from zdrone.core.keys import LinkKey
+from zdrone.core.keyshare import KeyShareAsk, Refused
+from zdrone.core.kk import stamp_of
+from zdrone.core.mavlink import FrameCodec
+from zdrone.core.pairing import PairingInitiator
+from zdrone.core.tbm import LinkState
+from zdrone.fleet.files import load_secret
 
 # Stateless or immutable objects that deep copies of a fleet may share (they cannot be pickled).
 for _shared in (ChaCha20Poly1305, AESGCM, struct.Struct, logging.Logger):
@@ -74,7 +74,7 @@ class Broken(Exception):
 @contextlib.contextmanager
 def planted(flaw: str | None) -> Iterator[None]:
     """PLANTED FLAWS, for proving the checker can fail: patch the shipped rule for the run."""
-    from ..core import authority, linkslot, pairing
+    from zdrone.core import authority, linkslot, pairing
 
     if flaw is None:
         yield
@@ -99,14 +99,14 @@ def planted(flaw: str | None) -> Iterator[None]:
             self.cache = pairing.ResponseCache(0.0)  # and forgets its answers, like a restarted companion
             return original(self, gs, message1, now, secret, policy, holds_key, None)
     elif flaw == "forgetful-ground-restart":
-        from ..nodes import drone_core
+        from zdrone.nodes import drone_actions, drone_core
 
         target, name = drone_core.DroneCore, "restore"
         original_restore = drone_core.DroneCore.restore
 
         def bad(self, owner, epoch, state, now):  # type: ignore[no-untyped-def]
             if self.on_ground:  # forgotten on the ground: the epoch starts at 1 again, whoever pairs first
-                return [drone_core.Persist(None, 0, State.UNPAIRED.value)]
+                return [drone_actions.Persist(None, 0, State.UNPAIRED.value)]
             return original_restore(self, owner, epoch, state, now)
     else:
         raise ValueError(f"unknown flaw {flaw!r}")

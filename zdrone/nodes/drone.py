@@ -33,23 +33,24 @@ import msgspec
 import zenoh
 from pymavlink.dialects.v20 import common as mav
 
-from ..core import authority as ha
-from ..core import records as rec
-from ..core.fleet import ConfigError, Fleet
-from ..core.tbm import TbmThresholds
-from ..vehicle.fcsigning import FcKeyStore, FcSigning
-from ..vehicle.link import VehicleLink, VehicleState
-from ..fleet.routerconfig import UPLINK_MAX_BYTES
-from ..fleet import keyexprs as kx
-from ..net.authstore import AuthorityStore, SavedAuthority
-from ..net.inbox import payload_bytes
-from ..net.runtime import NodeRuntime
-from ..fleet import revisions
-from ..core.revision import RevisionAccepted
-from ..core.outputs import Emit, Handlers, Put, dispatch
-from ..core.bundle import BundleWriter
-from ..core.pairing import query_answer
-from .drone_core import CommandVehicle, DroneCore, DroneCoreOptions, Listen, Out, Persist, ToVehicle
+from zdrone.core import authority as ha
+from zdrone.core import records as rec
+from zdrone.core.bundle import BundleWriter
+from zdrone.core.fleet import ConfigError, Fleet
+from zdrone.core.outputs import Emit, Handlers, Put, dispatch
+from zdrone.core.pairing import query_answer
+from zdrone.core.revision import RevisionAccepted
+from zdrone.core.tbm import TbmThresholds
+from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import revisions
+from zdrone.fleet.routerconfig import UPLINK_MAX_BYTES
+from zdrone.net.authstore import AuthorityStore, SavedAuthority
+from zdrone.net.inbox import payload_bytes
+from zdrone.net.runtime import NodeRuntime
+from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_core import DroneCore, DroneCoreOptions
+from zdrone.vehicle.fcsigning import FcKeyStore, FcSigning
+from zdrone.vehicle.link import VehicleLink, VehicleState
 
 __all__ = ["DroneNode", "DroneOptions", "run_drone"]
 
@@ -340,7 +341,7 @@ class DroneNode:
         held = self.core.responder.me.public, (self.core.attester.key.public if self.core.attester else None)
         if (node.public_bytes, node.signing_public_bytes) == held:
             return
-        from ..fleet.files import load_secret
+        from zdrone.fleet.files import load_secret
 
         try:
             secret = load_secret(self.opts.fleet, self.name, fleet)

@@ -7,7 +7,7 @@ Theory of operation
 live key, candidates waiting for their proof, the key just replaced), the pairing responder, the
 ``AuthorityMachine`` and the counters. Time comes in as ``now`` (monotonic seconds) and, where a
 peer's time stamp is compared, ``wall`` (time of day); bytes and facts come in through ``on_*``
-methods; what the adapter must do comes out as values:
+methods; what the adapter must do comes out as values (``zdrone.nodes.drone_actions``):
 
 * ``Put(gs, payload)``: publish a sealed envelope on ``down/<gs>`` (``zdrone.core.outputs``);
 * ``ToVehicle(frame)``: send a MAVLink frame to the flight controller;
@@ -22,6 +22,8 @@ The inputs: ``on_envelope`` (an uplink envelope of GS ``gs``), ``on_pair_query``
 while it has no fix, and whether it is on the ground), ``on_telemetry`` (a vehicle frame for the
 GSs), ``restore`` (the authority saved before a restart) and ``handle_timer`` at ``get_timer()``:
 link-state thresholds, the machine's deadlines, a pairing probation's end, the status beacon.
+The fleet's revisions come in through ``on_revision``, ``on_revision_stamp`` and ``adopt_own_keys``
+(the core's part in them, with the owner's lease: ``zdrone.nodes.drone_revisions``).
 
 Side effects that follow from the state (which uplinks to listen to, what to persist) are computed
 once at the end of every input from the old and the new state (``_effects``), never appended by
@@ -33,7 +35,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any, Callable, Union
+from typing import Any
 
 import msgspec
 
@@ -46,19 +48,21 @@ from zdrone.core.envelope import Dropped, Opened, SecureLink
 from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import Circle, GeoPoint
 from zdrone.core.keys import Identity, LinkKey, SigningKey
+from zdrone.core.kk import check_message1, is_hybrid
+from zdrone.core.lease import OwnerLease
 from zdrone.core.linkslot import LinkSlot, Promoted
 from zdrone.core.linktraffic import LinkTraffic
 from zdrone.core.mavlink import FrameError, read_header
-from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.outputs import Emit, Put
-from zdrone.core.kk import check_message1, is_hybrid
-from zdrone.core.lease import OwnerLease, Renewed, StampRefused
 from zdrone.core.pairing import (PairAccepted, PairingResponder, PairRefusal, PairRefused, PairRepeated, PairResult,
                                  _prologue as pairing_prologue)
+from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.tbm import TbmThresholds
 from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
 from zdrone.fleet import keyexprs as kx
+from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_revisions import DroneRevisions
 
 log = logging.getLogger(__name__)
 
@@ -74,41 +78,6 @@ LOGGED_PER_REASON = 5
 
 Position = tuple[float, float, float]
 
-
-# ------------------------------------------------------------------------------ outputs
-@dataclass(frozen=True, slots=True)
-class ToVehicle:
-    """Send ``frame`` (MAVLink, as a GS sent it) to the flight controller."""
-
-    frame: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class CommandVehicle:
-    """The failsafe: command the vehicle to ``command`` (LAND, RTL)."""
-
-    command: str
-    reason: str
-    detect_to_command_ms: float | None  # from the loss threshold to this decision
-
-
-@dataclass(frozen=True, slots=True)
-class Listen:
-    """Subscribe to the uplinks of exactly these GSs from now on."""
-
-    gss: frozenset[str]
-
-
-@dataclass(frozen=True, slots=True)
-class Persist:
-    """Keep this authority across a restart (``owner`` None: forget what was kept)."""
-
-    owner: str | None
-    epoch: int
-    state: str
-
-
-Out = Union[Put, ToVehicle, CommandVehicle, Listen, Emit, Persist]
 
 _NOTE_RECORDS: dict[str, type[rec.AuthorityNote]] = {
     cls.__struct_config__.tag: cls for cls in rec.AuthorityNote.__subclasses__()  # type: ignore[misc]
@@ -150,7 +119,7 @@ class _Batch:
         self.size = 1  # the batch's prefix, then each item and its length
 
 
-class DroneCore:
+class DroneCore(DroneRevisions):
     """The companion of drone ``name``: feed it inputs, carry out what they return."""
 
     def __init__(self, fleet: Fleet, name: str, identity: Identity, opts: DroneCoreOptions = DroneCoreOptions(),
@@ -343,99 +312,6 @@ class DroneCore:
         failsafe = state == ha.State.FAILSAFE.value  # restarted during the failsafe: it goes on
         out += self._apply(self.machine.restore(owner, epoch, now, self.opts.thresholds.lost, failsafe), now)
         return out + self._effects(now)
-
-    def on_revision(self, fleet: Fleet, now: float) -> list[Out]:
-        """A fleet revision the adapter checked (signature, number) and applied (``fleet``, the new
-        effective fleet). A GS off the drone's authorized list (revoked, or no longer authorized)
-        loses its link at once: its keys and candidates erased, its uplink no longer heard, its
-        requests refused; if it held authority, an heir takes over, else the failsafe
-        (``AuthorityMachine._on_revised``). A rotated GS pairs from now on under its new key only;
-        its live link goes on until its new pairing's key is proven (no gap)."""
-        old, self.fleet = self.fleet, fleet
-        node = fleet.nodes[self.name]
-        authorized = frozenset() if fleet.is_revoked(self.name) else frozenset(
-            g for g in node.authorized_gs if not fleet.is_revoked(g))
-        gone = sorted(g for g in {*self.slots, *self.probation} if g not in authorized)
-        for gs in gone:  # keys erased: the slot (live key, candidates) and its link dropped
-            self.slots.pop(gs, None)
-            self.links.pop(gs, None)
-            self.probation.pop(gs, None)
-            self.counters["revoked_links"] += 1
-        r = self.responder
-        r.ground_stations = {g: fleet.nodes[g].public_bytes for g in fleet.ground_stations()}
-        r.authorized = authorized
-        r.require_hybrid = fleet.pairing_pq
-        self.uplink = node.uplink
-        self.gs_sysids = {n: fleet.nodes[n].sysid for n in fleet.ground_stations()}
-        self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
-                         if fleet.nodes[n].coverage is not None}
-        rotated = sorted(n for n, v in fleet.nodes.items() if n in old.nodes and v.public_key != old.nodes[n].public_key)
-        self.rekey = (self.rekey | {g for g in rotated if g in self.links}) & authorized
-        authorized -= self.lapsed  # a revision is no renewal (whoever relayed it): a lapsed owner stays out
-        out: list[Out] = [Emit(rec.RevisionApplied(number=fleet.revision, revoked=tuple(sorted(fleet.revoked)), rotated=tuple(rotated),
-                                                   pairing_pq=fleet.pairing_pq))]
-        out += self._handle(ha.Revised(now, authorized, fleet.revision), now)
-        return out + self._effects(now)
-
-    @property
-    def lease_s(self) -> float:
-        """The owner's lease (s; 0: none): the fleet's signed value, else the node's option."""
-        return self.fleet.revision_lease or self.opts.revision_lease
-
-    @property
-    def revision_synced(self) -> float | None:
-        """The time of the newest stamp that renewed the owner's lease."""
-        return self.lease.synced
-
-    @property
-    def lapsed(self) -> set[str]:
-        """The GSs whose lease lapsed: their stamps renew nothing, they regain nothing."""
-        return self.lease.lapsed
-
-    def on_revision_stamp(self, data: bytes, now: float, carrier: str | None = None) -> list[Out]:
-        """A GS's revision stamp heard on ``carrier``'s revision key, judged by the owner's lease
-        (``zdrone.core.lease``). A renewal that ends a lapse makes the authorized list whole again:
-        the GSs take control back by the usual rules."""
-        got = self.lease.stamp(data, self.fleet, carrier, now, self.wall_offset, self.lease_s)
-        if isinstance(got, StampRefused):
-            self.counters[f"stamp_refused:{got.reason}"] += 1
-            return []
-        if not isinstance(got, Renewed):
-            return []
-        self.counters["stamp_renewed"] += 1
-        if not got.restores:
-            return []
-        log.warning("revision stamp from %s: the lease is renewed (%s may take control again)", got.gs,
-                    ", ".join(sorted(got.restores)))
-        node = self.fleet.nodes[self.name]
-        authorized = frozenset() if self.fleet.is_revoked(self.name) else frozenset(
-            g for g in node.authorized_gs if not self.fleet.is_revoked(g))
-        return self._handle(ha.Revised(now, authorized, self.fleet.revision), now) + self._effects(now)
-
-    def lease_due(self) -> float | None:
-        """When the owner's lease lapses if no stamp renews it (None: no lease, or no owner)."""
-        return self.lease.due(self.lease_s) if self.machine.owner is not None else None
-
-    def _lease(self, now: float) -> list[Out]:
-        owner = self.lease.lapse_due(now, self.lease_s)
-        if owner is None:
-            return []
-        self.counters["revision_lease_lapsed"] += 1
-        log.warning("no revision stamp from a GS other than %s for %.0f s: its authority lapses", owner, self.lease_s)
-        out: list[Out] = [Emit(rec.Drop(gs=owner, reason="lease_lapsed",
-                                        detail=f"no stamp from another GS for {self.lease_s:.0f} s"))]
-        authorized = frozenset(self.machine.config.authorized) - self.lapsed
-        why = f"lease lapsed (no revision stamp from another GS for {self.lease_s:g} s)"
-        return out + self._handle(ha.Revised(now, authorized, self.fleet.revision, why), now)
-
-    def adopt_own_keys(self, identity: Identity | None, signing: SigningKey | None) -> None:
-        """The fleet rotated this drone's keys (``identity``, ``signing``: the new ones from its bundle;
-        None where the bundle does not hold them yet): pairing answers under the new static key, and
-        the drone's word on its authority is signed with the new key, or not at all (never with a
-        retired key: the viewer shows the drone stale until the new key is here). Live links go on."""
-        if identity is not None:
-            self.responder.me = identity
-        self.attester = Attester(self.name, signing) if signing is not None else None
 
     def ready(self, wall: float) -> None:
         """The companion is ready (its vehicle heard, its saved authority restored) at time of day
@@ -718,6 +594,3 @@ class DroneCore:
             self._persisted = kept
             out.append(Persist(*kept))
         return out
-
-
-OutHandler = Callable[[Out], None]

@@ -2,13 +2,16 @@
 processes, flies the reference flight (or an attack / fault scenario), shows it live, writes the
 event logs and a summary, and shuts everything down.
 
-This module is the orchestration (``Demo``): the processes, the moments of the flight as the logs
-show them, the attackers and faults a scenario ties to each, the shutdown. The rest of the testbed
-is in rooms of its own, and importable without a process:
+This module is the orchestration (``Demo``): the moments of the flight as the logs show them, the
+attackers and faults a scenario ties to each, the end of the run. ``Demo`` runs its processes as
+``zdrone.sil.children`` says (started in the run's folder, restarted, stopped in order) and its sites
+as ``zdrone.sil.sitelinks`` says (a router per site, the radio and backhaul links). The rest of the
+testbed is in rooms of its own, and importable without a process:
 
 - ``zdrone.sil.moments``: the moments of a flight (triggers) and those a fault can move to;
 - ``zdrone.sil.scenarios``: ``SCENARIO_TABLE``, one row a scenario (its attackers, faults, predicate);
-- ``zdrone.sil.verdicts``: ``Outcome`` and every predicate (``flight_unaffected``, ``safety_invariants``, ...);
+- ``zdrone.sil.verdicts``: ``Outcome`` and the predicates every scenario builds on (``flight_unaffected``,
+  ``safety_invariants``, ...); each scenario's own in ``attack_verdicts``, ``fault_verdicts``, ``operator_verdicts``;
 - ``zdrone.sil.summary``: the summary and verdict of a run, from its logs (``summarize``);
 - ``zdrone.sil.liveview``: the live view.
 
@@ -28,27 +31,29 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..core.records import (AnyRecord, Drop, DroneStatus, LinkStateChanged, MissionFailed, MissionStarted, Subscribe,
-                            Unsubscribe, fields_of)
-from .testbed_records import LinkFault, RadioLinkChanged
-from ..core.reference import DEFAULT_NODES
-from ..fleet.files import init_fleet, load_sites
-from ..net.eventlog import EventLog, LogTail
-from . import procs
-from .liveview import LiveView, describe
-from .moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVER_STARTED,
-                      HANDOVERS_DONE, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
-from .netns import NetnsTopology
-from .ports import free_port
-from ..fleet.routerconfig import mesh_endpoint
-from .radiolink import DatagramLink, RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
-from .scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, REVOKE_BEHIND_CUT, ROTATE, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE,
-                        SCENARIO_TLS, SCENARIOS, Fault, RogueSpec, Scenario, scenario_help)
-from .summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart, summarize, watch,
-                      watch_state)
-from .verdicts import (DELIVERY_RADIUS_M, FAILSAFE_LATE_MS, SILENT_AUTHORITY_S, Outcome, active_faults, delivered,
-                       delivered_at, escrow_left_standing, fault_over_check, flight_completes, flight_unaffected,
-                       insider_takeovers, return_time, safety_invariants)
+from zdrone.core.records import (AnyRecord, DroneStatus, Drop, LinkStateChanged, MissionFailed, MissionStarted,
+                                 Subscribe, Unsubscribe, fields_of)
+from zdrone.core.reference import DEFAULT_NODES
+from zdrone.fleet.files import init_fleet
+from zdrone.net.eventlog import EventLog, LogTail
+from zdrone.sil import procs
+from zdrone.sil.attack_verdicts import escrow_left_standing, insider_takeovers
+from zdrone.sil.children import PY, Child, ChildProcesses, _exit_text
+from zdrone.sil.liveview import LiveView, describe
+from zdrone.sil.moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
+                                HANDOVER_STARTED, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
+from zdrone.sil.netns import NetnsTopology
+from zdrone.sil.ports import free_port
+from zdrone.sil.radiolink import SiteCoverage, SwitchedLink, TruthReceiver
+from zdrone.sil.scenarios import (ATTACK_SCENARIOS, LINK_DOWN, LINK_UP, RESTART, REVOKE, REVOKE_BEHIND_CUT, ROTATE,
+                                  SCENARIOS, SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TABLE, SCENARIO_TLS, Fault,
+                                  RogueSpec, Scenario, scenario_help)
+from zdrone.sil.sitelinks import SiteLinks
+from zdrone.sil.summary import (NEAR_DELIVERY_M, RunFacts, RunLogs, authority_link, follow, repair_after_restart,
+                                summarize, watch, watch_state)
+from zdrone.sil.verdicts import (DELIVERY_RADIUS_M, FAILSAFE_LATE_MS, SILENT_AUTHORITY_S, Outcome, active_faults,
+                                 delivered, delivered_at, fault_over_check, flight_completes, flight_unaffected,
+                                 return_time, safety_invariants)
 
 __all__ = [  # the orchestration, and the testbed's public names as they were before its rooms
     "Child", "Demo", "DemoOptions", "EXTERNAL_BOOT_S", "GCS_KEYS", "NEAR_DELIVERY_M", "run_demo",
@@ -62,8 +67,6 @@ __all__ = [  # the orchestration, and the testbed's public names as they were be
     "RunFacts", "RunLogs", "authority_link", "follow", "repair_after_restart", "summarize", "watch", "watch_state",
     "LiveView", "free_port",
 ]
-
-PY = sys.executable
 
 #: GS A's GCS application key file in the run folder (``Scenario.app_signing``), mode 0600.
 GCS_KEYS = "gcs-keys"
@@ -105,17 +108,7 @@ class DemoOptions:
 
 
 @dataclass
-class Child:
-    name: str
-    proc: subprocess.Popen
-    log: Path
-    stopped: bool = False
-    args: list[str] = field(default_factory=list)
-    ns: str | None = None  # the network namespace it runs in (``--netns``)
-
-
-@dataclass
-class Demo:
+class Demo(ChildProcesses, SiteLinks):
     opts: DemoOptions
     out: Path
     children: dict[str, Child] = field(default_factory=dict)
@@ -147,103 +140,6 @@ class Demo:
     def spec(self) -> Scenario:
         spec = self.opts.spec or SCENARIO_BY_NAME[self.opts.scenario]
         return spec.at_moment(self.opts.moment) if self.opts.moment else spec
-
-    # --------------------------------------------------------------- processes
-    def start(self, name: str, args: list[str], append: bool = False, ns: str | None = None) -> Child:
-        log = self.out / f"{name}.log"
-        fh = open(log, "a" if append else "w")
-        prefix = self.netns.exec_prefix(ns) if (ns and self.netns) else []  # ``ip netns exec`` execs: same PID
-        try:  # dies with the launcher, however it ends (zdrone.sil.procs)
-            proc = procs.spawn([*prefix, PY, *args], stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                               cwd=self.out)
-        finally:
-            fh.close()
-        child = Child(name, proc, log, args=list(args), ns=ns)
-        self.children[name] = child
-        return child
-
-    def restart(self, name: str, down: float) -> None:
-        """Kill ``name`` (SIGKILL), wait ``down`` seconds, start it again with the same arguments."""
-        child = self.children[name]
-        if child.proc.poll() is None:
-            os.kill(child.proc.pid, signal.SIGKILL)
-        child.proc.wait(5.0)
-        time.sleep(down)
-        needle = _ready_line(name)
-        if needle:
-            self.restarting[name] = (needle, child.log.read_text(errors="replace").count(needle))
-        self.start(name, child.args, append=True, ns=child.ns)
-
-    def _wait_restarted(self, timeout: float) -> None:
-        """Before the end: every restarted child has finished starting (its ready line is there again),
-        so that SIGTERM finds its handler in place (a router stopped mid-start dies of the signal)."""
-        deadline = time.monotonic() + timeout
-        for name, (needle, before) in self.restarting.items():
-            child = self.children[name]
-            while time.monotonic() < deadline and child.proc.poll() is None:
-                if child.log.read_text(errors="replace").count(needle) > before:
-                    break
-                time.sleep(0.05)
-        self.restarting.clear()
-
-    def wait_line(self, child: Child, needle: str, timeout: float) -> None:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if needle in child.log.read_text(errors="replace"):
-                return
-            if child.proc.poll() is not None:
-                raise RuntimeError(f"{child.name} exited ({child.proc.returncode}): {child.log.read_text()[-600:]}")
-            time.sleep(0.05)
-        raise RuntimeError(f"{child.name}: {needle!r} not seen within {timeout:.0f} s")
-
-    def signal(self, name: str, sig: int) -> None:
-        child = self.children.get(name)
-        if child is not None and child.proc.poll() is None:
-            os.kill(child.proc.pid, sig)
-
-    def shutdown(self, timeout: float = 10.0) -> dict[str, int | None]:
-        """SIGTERM the nodes first (so they close their sessions while the router is still up), then
-        the simulator and the router; SIGKILL only what does not exit in time; return exit codes."""
-        codes: dict[str, int | None] = {}
-        self._wait_restarted(timeout)
-        nodes = [c for n, c in self.children.items() if n != "sim" and not n.startswith("router")]
-        infra = [c for n, c in self.children.items() if n == "sim" or n.startswith("router")]
-        for group in (nodes, infra):
-            for child in reversed(group):
-                if child.proc.poll() is None:
-                    try:
-                        os.kill(child.proc.pid, signal.SIGCONT)  # a stopped process cannot handle SIGTERM
-                        child.proc.terminate()
-                    except ProcessLookupError:
-                        pass
-            deadline = time.monotonic() + timeout
-            for child in group:
-                try:
-                    child.proc.wait(max(0.1, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    try:
-                        os.kill(child.proc.pid, signal.SIGUSR1)  # its stacks go to its log, for diagnosis
-                        time.sleep(0.5)
-                    except ProcessLookupError:
-                        pass
-                    child.proc.kill()
-                    child.proc.wait(5)
-                    self.notes.append(f"{child.name} had to be killed (stacks in {child.log.name})")
-                procs.forget(child.proc)
-                codes[child.name] = child.proc.returncode
-        self._report_crashes(codes)
-        self.close_links()
-        return {n: codes.get(n) for n in self.children}
-
-    def _report_crashes(self, codes: dict[str, int | None]) -> None:
-        """A child that died of a crash signal (SIGSEGV, SIGABRT, ...): a note with the signal and the
-        end of its log, where faulthandler left its stacks (``zdrone.crashes``)."""
-        from ..crashes import crash_report
-
-        for name, code in codes.items():
-            report = crash_report(name, code, self.children[name].log.read_text(errors="replace"))
-            if report is not None:
-                self.notes.append(report)
 
     # ----------------------------------------------------------------- running
     def start_core(self) -> None:
@@ -310,120 +206,9 @@ class Demo:
                            ns=self._ns())
         self.wait_line(drone, "ready", 40)
 
-    def _start_sites(self, rport: int) -> None:
-        """A router per site, meshed through a backhaul link per pair of sites; the drone reaches each
-        site through that site's radio link, up only while the vehicle is inside the site's coverage
-        (from the simulator's true position). No frame filter: coverage is which links exist.
-        On loopback the links are relays the testbed opens and closes; with ``--netns`` each site and
-        the drone have their own network namespace and the links are veth pairs."""
-        if self.opts.netns:
-            self._start_sites_netns()
-            return
-        site_eps = [f"tls/127.0.0.1:{rport}", f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
-        self.router = site_eps[0]
-        fleet = init_fleet(self.out / "fleet", sites=site_eps, nodes_spec=self._nodes_spec(), **self._lease())
-        self.sites = load_sites(self.out / "fleet")
-        self._export_bundles(list(self.sites))
-        names = list(self.sites)
-        ports = {site: int(self.sites[site]["endpoint"].rsplit(":", 1)[1]) for site in names}
-        for n, site in enumerate(names):
-            connect: list[str] = []
-            for earlier in names[:n]:  # site N reaches sites < N over its backhaul link to each
-                link = DatagramLink(f"backhaul-{earlier}-{site}", ("127.0.0.1", ports[earlier]), up=True)
-                self.links[link.name] = link
-                connect += ["--connect", mesh_endpoint(f"tls/{link.endpoint}")]  # the mesh runs over QUIC
-            name = "router" if n == 0 else f"router{n + 1}"
-            r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", *connect])
-            self.wait_line(r, "listening", 20)
-        radios = {site: RadioLink(site, ("127.0.0.1", ports[site]), up=self.opts.vehicle is not None) for site in names}
-        self.links.update(radios)
-        self.site_of_endpoint = {f"tls/{link.endpoint}": site for site, link in radios.items()}
-        self._start_coverage(fleet, radios, "127.0.0.1")
-
-    def _start_sites_netns(self) -> None:
-        """Each site and the drone in their own namespace: the site's router listens on 127.0.0.1
-        (its GSs) and on its radio address (the drone, and the higher sites over the backhaul)."""
-        names = ["site-1", "site-2"]
-        topo = self.netns = NetnsTopology(names)
-        topo.create()
-        port = 7447  # each router alone in its namespace
-        fleet = init_fleet(self.out / "fleet", sites=[f"tls/{topo.radio_ip[site]}:{port}" for site in names],
-                           nodes_spec=self._nodes_spec(), **self._lease())
-        self.sites = load_sites(self.out / "fleet")
-        self._export_bundles(list(self.sites))
-        self.router = f"tls/127.0.0.1:{port}"  # inside site 1's namespace (the attackers run there)
-        for n, site in enumerate(names):
-            name = "router" if n == 0 else f"router{n + 1}"
-            r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", "--listen",
-                                              f"tls/127.0.0.1:{port}", "--listen", f"tls/{topo.radio_ip[site]}:{port}",
-                                              "--listen", mesh_endpoint(f"tls/{topo.radio_ip[site]}:{port}")],
-                           ns=topo.site_ns[site])
-            self.wait_line(r, "listening", 20)
-        self.links.update(topo.backhauls)
-        self.links.update(topo.radios)
-        self.site_of_endpoint = {f"tls/{topo.radio_ip[site]}:{port}": site for site in names}
-        if self.opts.vehicle is not None:
-            raise RuntimeError("--netns runs the built-in simulator in the drone's namespace: no --vehicle")
-        self._start_coverage(fleet, dict(topo.radios), topo.control_host)
-
-    def _start_coverage(self, fleet: Any, radios: dict[str, SwitchedLink], truth_host: str) -> None:
-        self.radio_log = EventLog(self.out / "radio.jsonl", "radio")
-        if self.opts.vehicle is None:  # the built-in simulator tells where the vehicle truly is
-            log_ = self.radio_log
-            self.coverage = SiteCoverage(site_circles(fleet, self.sites), radios,
-                                         lambda site, up, p: log_.write_record(RadioLinkChanged(
-                                             site=site, up=up, position=(round(p.lat, 7), round(p.lon, 7), round(p.alt, 2)))))
-            self.truth = TruthReceiver(self.coverage.update, truth_host)
-        else:
-            self.notes.append("--vehicle with --sites: no true position, every site's radio stays up")
-
-    def _ns(self, gs: str | None = None) -> str | None:
-        """With --netns: the drone's namespace, or GS ``gs``'s site's."""
-        if self.netns is None:
-            return None
-        if gs is None:
-            return self.netns.drone_ns
-        return next(self.netns.site_ns[site] for site, info in self.sites.items() if gs in info["ground_stations"])
-
     def _ready_args(self) -> list[str]:
         """The simulator's start-up (``--ready-after``), if one was given."""
         return [] if self.opts.ready_after is None else ["--ready-after", f"{self.opts.ready_after:g}"]
-
-    def _truth_args(self) -> list[str]:
-        return ["--truth", f"{self.truth.host}:{self.truth.port}"] if self.truth is not None else []
-
-    def _wait_coverage(self, timeout: float = 20.0) -> None:
-        """With radio links: the first true position has set them (the drone starts in range)."""
-        deadline = time.monotonic() + timeout
-        while self.coverage is not None and self.coverage.updates == 0:
-            if time.monotonic() > deadline:
-                raise RuntimeError("no true position from the simulator: radio links cannot be set")
-            time.sleep(0.05)
-
-    def link_fault(self, target: str, up: bool) -> None:
-        """Cut or mend a testbed link (``backhaul``: every backhaul link; a site's name: its radio, held
-        down whatever the vehicle's position until mended, when the position decides again)."""
-        for name, link in self.links.items():
-            if name == target or (target == "backhaul" and name.startswith("backhaul-")):
-                if self.coverage is not None and name in self.coverage.links:
-                    self.coverage.jam(name, not up)
-                else:
-                    link.set_up(up)
-                if self.radio_log is not None:
-                    self.radio_log.write_record(LinkFault(link=name, up=up))
-
-    def close_links(self) -> None:
-        if self.truth is not None:
-            self.truth.close()
-            self.truth = None
-        for link in self.links.values():
-            link.close()
-        self.links.clear()
-        if self.netns is not None:
-            self.netns.destroy()
-            self.netns = None
-        if self.radio_log is not None:
-            self.radio_log.close()
 
     def _nodes_spec(self) -> list[tuple[str, str, int, Any, list[str]]] | None:
         """The fleet's nodes: the reference fleet, with X authorized for d1 if the scenario says so."""
@@ -533,8 +318,8 @@ class Demo:
         """A bundle per host from the run's fleet (``bundles/<node>``: ``zdrone fleet export``), which
         each node and router runs from: nothing of the run's nodes sees another's secret. The
         attackers keep the whole fleet directory (they stand for stolen secrets)."""
-        from ..fleet.bundle import export_bundle
-        from ..fleet.files import load_fleet
+        from zdrone.fleet.bundle import export_bundle
+        from zdrone.fleet.files import load_fleet
 
         for node in [*load_fleet(self.out / "fleet").nodes, *routers]:
             export_bundle(self.out / "fleet", node, self.out / "bundles" / node)
@@ -617,7 +402,7 @@ class Demo:
         get the new files; ``node``'s site knows nothing of the revision."""
         import shutil
 
-        from ..fleet import revise as rv
+        from zdrone.fleet import revise as rv
 
         fleet, bundles = self.out / "fleet", self.out / "bundles"
         if rotate:
@@ -650,7 +435,7 @@ class Demo:
         beside the running one (``zdrone router --take-over``), the old one stopped (SIGTERM) once the
         new one is ready, the new one listening within a retry of its going. Both write to the
         router's log; ``children[name]`` is the new one from then on."""
-        from ..net.router import TAKE_OVER_LINE
+        from zdrone.net.router import TAKE_OVER_LINE
 
         old = self.children[name]
         text = old.log.read_text(errors="replace")
@@ -671,17 +456,6 @@ class Demo:
         self._wait_more(new, "listening", counts["listening"], timeout)
         self.notes.append(f"{name} taken over: the old one ended {1000 * (t_gone - t_stop):.0f} ms after SIGTERM, "
                           f"the new one listening {1000 * (time.monotonic() - t_gone):.0f} ms after that (its ready line seen)")
-
-    def _wait_more(self, child: Child, needle: str, before: int, timeout: float) -> None:
-        """Wait until ``child``'s log holds ``needle`` more than ``before`` times (a log that an
-        earlier process of the same name began)."""
-        deadline = time.monotonic() + timeout
-        while child.log.read_text(errors="replace").count(needle) <= before:
-            if child.proc.poll() is not None:
-                raise RuntimeError(f"{child.name} exited ({child.proc.returncode}): {child.log.read_text()[-600:]}")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"{child.name}: {needle!r} not seen again within {timeout:.0f} s")
-            time.sleep(0.02)
 
     def _send_go(self, live: "LiveView | None") -> None:
         """SIGUSR2 to each attacker whose moment came, once it has set up (its handler is in place)."""
@@ -769,24 +543,6 @@ class Demo:
         return summary
 
 
-def _ready_line(name: str) -> str | None:
-    """What a child's log says once it has started (None: nothing known to wait for)."""
-    if name.startswith("router"):
-        return "listening"
-    if name == "drone":
-        return "ready"
-    if name.startswith("gs"):
-        return f"zdrone gs {name[2:]}"
-    return None
-
-
-def _exit_text(code: int | None) -> str:
-    """An exit code in words: ``1``, ``SIGSEGV (-11)``."""
-    from ..crashes import exit_text
-
-    return exit_text(code)
-
-
 def run_demo(opts: DemoOptions) -> int:
     if opts.scenario not in SCENARIOS:
         raise ValueError(opts.scenario)
@@ -808,7 +564,7 @@ def run_demo(opts: DemoOptions) -> int:
         return 128 + exc.signum
     if opts.report:
         try:
-            from ..report import write_report
+            from zdrone.report import write_report
 
             path = write_report(out)
             print(f"report: {path}")

@@ -3,10 +3,10 @@
 A row names its attackers (each a separate process, ``python -m zdrone.sil.rogue --mode ...``, with
 real router credentials from the run's fleet directory), the moment each is started and told to
 attack, an optional fault (a GS stopped or killed, a router restarted, a link cut), and its success
-predicate (``zdrone.sil.verdicts``). A scenario succeeds (``zdrone demo`` exits 0) only if the
-flight turned out as the row expects *and* the counters show every attack was seen and refused;
-the attackers write what they did to ``rogue.jsonl`` so both sides are checked. Pure: a table of
-data; the launcher (``zdrone.sil.launcher``) runs it.
+predicate (``zdrone.sil.verdicts``, and the modules by kind of scenario it names). A scenario succeeds
+(``zdrone demo`` exits 0) only if the flight turned out as the row expects *and* the counters show every
+attack was seen and refused; the attackers write what they did to ``rogue.jsonl`` so both sides are
+checked. Pure: a table of data; the launcher (``zdrone.sil.launcher``) runs it.
 """
 
 from __future__ import annotations
@@ -16,20 +16,23 @@ import textwrap
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
-from .moments import (AIRBORNE, AT_DELIVERY, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
-                      MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
-from .verdicts import (check_backhaul_cut_early, check_big_flood, check_companion_restart, check_consent_bound,
-                       check_failsafe_recover, check_fake_autopilot, check_fc_rogue_radio, check_gateway_flood,
-                       check_gs_crash, check_gs_hang, check_insider_heir, check_key_escrow, check_key_injection,
-                       check_link_loss, check_linkkey_knockout, check_local_app, check_lossy_radio, check_no_cert,
-                       check_no_key, check_operator_consent, check_pair_flood, check_pair_replay, check_revoke_in_flight,
-                       check_revoke_uncovered, check_revoked_alone, REVOKED_ALONE_LEASE_S,
-                       check_rotate_in_flight, check_router_restart,
-                       check_site_router_down, check_site_router_down_alone, check_stale_pairing, check_unauthorized,
-                       check_uplink_policy, check_view_truth, fault_over_check, flight_unaffected)
+from zdrone.sil.attack_verdicts import (check_big_flood, check_fake_autopilot, check_fc_rogue_radio,
+                                        check_gateway_flood, check_insider_heir, check_key_escrow, check_key_injection,
+                                        check_linkkey_knockout, check_local_app, check_no_cert, check_no_key,
+                                        check_pair_flood, check_pair_replay, check_stale_pairing, check_unauthorized,
+                                        check_uplink_policy, check_view_truth)
+from zdrone.sil.fault_verdicts import (REVOKED_ALONE_LEASE_S, check_backhaul_cut_early, check_companion_restart,
+                                       check_failsafe_recover, check_gs_crash, check_gs_hang, check_link_loss,
+                                       check_lossy_radio, check_revoke_in_flight, check_revoke_uncovered,
+                                       check_revoked_alone, check_rotate_in_flight, check_router_restart,
+                                       check_site_router_down, check_site_router_down_alone)
+from zdrone.sil.moments import (AIRBORNE, AT_DELIVERY, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED,
+                                HANDOVERS_DONE, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
+from zdrone.sil.operator_verdicts import check_consent_bound, check_operator_consent
+from zdrone.sil.verdicts import fault_over_check, flight_unaffected
 
 if TYPE_CHECKING:
-    from .verdicts import Outcome
+    from zdrone.sil.verdicts import Outcome
 
 
 @dataclass(frozen=True)
