@@ -44,7 +44,7 @@ operations centre over the backhaul): its proof is that of its link, wherever th
 
 The machine is pure: every event carries ``now``; ``handle(event)`` returns a list of actions that
 the drone node adapter carries out (forward a frame, send a control message, command the vehicle).
-One step is three passes:
+One step is three passes, taken by the machine engine (``zdrone.core.machine``: ``_step``):
 
 1. the event's handler, found in the table ``TRANSITIONS``: (state, event type) -> (handler,
    allowed next states). A pair missing from the table is an illegal step: a GS-originated event
@@ -88,13 +88,12 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from dataclasses import dataclass, replace
-from typing import Callable
 
 from .authority_events import (GS_EVENTS, Action, AuthorityAsked, AuthorityChanged, DropFrame, Event,  # noqa: F401
                                FailsafeCommand, Forward, Frame, GrantAccepted, GrantHeard, GrantRejected,
                                GrantRejection, GrantResult, GroundChanged, HaDrop, LinkChanged, Note, PairingDone,
                                RegionChanged, Release, Revised, SendControl, Tick, check_grant)
-from .errors import ProtocolError
+from .machine import IllegalTransition, Machine, SettleRow, Table
 from .mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
 from .pairing import PairRefusal, PairRefused
 from .ratelimit import RateLimiter
@@ -125,10 +124,6 @@ RELEASE_STALE_EPOCH = "stale epoch"
 State = AuthorityState  # one enum: the machine's states are what the drone reports on the wire
 
 
-class IllegalTransition(ProtocolError):
-    """An event that no table entry covers and that no GS sent: a programming error."""
-
-
 @dataclass(frozen=True, slots=True)
 class Config:
     authorized: frozenset[str]
@@ -143,11 +138,10 @@ class _Link:
     frames_in_cover: int = 0  # the same, counted only while the drone is inside the GS's coverage (an heir's proof)
 
 
-Handler = Callable[["AuthorityMachine", Event], "tuple[State, list[Action]]"]
-
-
-class AuthorityMachine:
+class AuthorityMachine(Machine):
     """The HA of one drone. Feed events with ``handle``; carry out the actions it returns."""
+
+    _log = log
 
     def __init__(self, config: Config) -> None:
         if config.failsafe_action not in ("LAND", "RTL"):
@@ -257,13 +251,12 @@ class AuthorityMachine:
         self.owner, self.epoch = owner, epoch
         self.links[owner] = _Link()  # LOST until it re-pairs
         if failsafe:
-            self._set_state(State.FAILSAFE, now)
+            self._move("restore", State.FAILSAFE, RESTORED, now)
             action = self.config.failsafe_action
             return [Note("restored", f"authority {owner} epoch {epoch} in failsafe: {action} again"),
                     FailsafeCommand(action, "restarted during the failsafe")]
         self.repair_deadline = now + grace
-        self._set_state(State.LINKED, now)
-        self._follow_subscriptions()  # no status: nobody holds a key yet
+        self._move("restore", State.LINKED, RESTORED, now)  # no status: nobody holds a key yet
         return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair")]
 
     def restore_on_ground(self, owner: str, epoch: int, now: float, window: float = FIRST_CLAIM_S) -> list[Action]:
@@ -285,39 +278,26 @@ class AuthorityMachine:
     # ------------------------------------------------------------------- engine
     def handle(self, event: Event) -> list[Action]:
         """Apply one event; return the actions to carry out. Never raises for GS-sent events."""
-        entry = TRANSITIONS.get((self.state, type(event)))
-        if entry is None:
+        row = self._row(TRANSITIONS, event)
+        if row is None:
             if isinstance(event, GS_EVENTS):
                 sender = getattr(event, "sender", None) or getattr(event, "gs")
                 return self._reject(sender, type(event).__name__, f"illegal in state {self.state.value}")
             raise IllegalTransition(f"{type(event).__name__} in state {self.state.value}")
-        before = self._before()
-        self._tell, self._tell_everyone = set(), False
-        handler, allowed = entry
-        next_state, actions = handler(self, event)
-        self._move(handler.__name__, next_state, allowed, event.now)
-        actions += self._settle(event.now)
-        return actions + self._effects(before)
+        return self._step(row, event, SETTLE)
 
-    def _move(self, rule: str, next_state: State, allowed: frozenset[State], now: float) -> None:
-        if next_state not in allowed:
-            raise IllegalTransition(f"{rule} chose {next_state} from {self.state}")
-        self._set_state(next_state, now)
+    def _move(self, rule: str, new: State, allowed: frozenset[State], now: float) -> None:
+        """Enter the state a handler or a rule chose; the history and whom to listen to follow it."""
+        super()._move(rule, new, allowed, now)
+        if self.owner is not None and (not self.history or self.history[-1][1:] != (self.owner, self.epoch)):
+            self.history.append((now, self.owner, self.epoch))
         self._follow_subscriptions()  # the state's rule, as it stands after this move
 
-    def _settle(self, now: float) -> list[Action]:
-        """The rules that follow from the state and the time alone, looked at once after every event,
-        whatever the event was (as h11's state-triggered transitions): the first row of ``SETTLE``
-        whose rule fires applies, and the state it chooses must be one of the row's."""
-        for states, rule, allowed in SETTLE:
-            if self.state not in states:
-                continue
-            fired = rule(self, now)
-            if fired is not None:
-                next_state, actions = fired
-                self._move(rule.__name__, next_state, allowed, now)
-                return actions
-        return []
+    def _machine_name(self, key: object = None) -> str:
+        return "authority"
+
+    def _state_note(self) -> str:
+        return f"owner {self.owner}, epoch {self.epoch}"
 
     # the rules of ``SETTLE``: each returns (next state, actions) if it fires, else None
     def _proven_recipient(self, now: float) -> tuple[State, list[Action]] | None:
@@ -367,6 +347,8 @@ class AuthorityMachine:
         return st.owner, st.epoch, st.state, st.pending_to, st.takeover, st.takeover_to
 
     def _before(self) -> tuple[tuple[object, ...], str | None, State]:
+        """The status, the owner and the state before the step; nobody has asked to hear it yet."""
+        self._tell, self._tell_everyone = set(), False
         return self._status_key(), self.owner, self.state
 
     def _effects(self, before: tuple[tuple[object, ...], str | None, State]) -> list[Action]:
@@ -393,13 +375,6 @@ class AuthorityMachine:
     def _tell_all(self) -> None:
         """The status goes to every GS listened to after this step, changed or not."""
         self._tell_everyone = True
-
-    def _set_state(self, new: State, now: float) -> None:
-        if new is not self.state:
-            log.info("authority: %s -> %s (owner %s, epoch %d)", self.state.value, new.value, self.owner, self.epoch)
-            self.state = new
-        if self.owner is not None and (not self.history or self.history[-1][1:] != (self.owner, self.epoch)):
-            self.history.append((now, self.owner, self.epoch))
 
     def _reject(self, gs: str, what: str, reason: str) -> list[Action]:
         self.rejects[reason.split(":")[0]] += 1
@@ -656,7 +631,7 @@ class AuthorityMachine:
 
 S = State
 #: (state, event type) -> (handler, next states it may choose)
-TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
+TRANSITIONS: Table[State] = {
     (S.UNPAIRED, PairingDone): (AuthorityMachine._on_first_pair, frozenset({S.UNPAIRED, S.LINKED})),
     (S.UNPAIRED, Frame): (AuthorityMachine._on_frame_unpaired, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
@@ -699,8 +674,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
 
 #: The rules of state and time alone (``_settle``), in order, the first that fires applies:
 #: (states it applies in, rule, next states it may choose)
-SETTLE: tuple[tuple[frozenset[State], Callable[[AuthorityMachine, float], "tuple[State, list[Action]] | None"],
-                    frozenset[State]], ...] = (
+SETTLE: tuple[SettleRow[State], ...] = (
     (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._proven_recipient, frozenset({S.LINKED})),
     (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._handover_deadline, frozenset({S.LINKED})),
     (frozenset({S.LINKED, S.HANDOVER_PENDING}), AuthorityMachine._repair_deadline,
@@ -708,3 +682,5 @@ SETTLE: tuple[tuple[frozenset[State], Callable[[AuthorityMachine, float], "tuple
     (frozenset({S.FAILSAFE}), AuthorityMachine._owner_back_on_ground, frozenset({S.LINKED})),
     (frozenset({S.UNPAIRED}), AuthorityMachine._first_claim_over, frozenset({S.UNPAIRED})),
 )
+#: A restart's restore (``restore``), outside the table: LINKED(owner, epoch), or FAILSAFE again.
+RESTORED = frozenset({S.LINKED, S.FAILSAFE})
