@@ -108,6 +108,15 @@ def test_a_move_the_row_does_not_allow_raises_one_programming_error():
     assert issubclass(IllegalTransition, ProtocolError) and issubclass(IllegalTransition, AssertionError)
 
 
+def test_every_machine_raises_the_same_error_under_its_own_name():
+    from gs.keyhold import IllegalHold
+    from gs.linking import IllegalPhase
+    from gs.mission import IllegalStage
+    from zdrone.core import authority
+
+    assert authority.IllegalTransition is IllegalHold is IllegalPhase is IllegalStage is IllegalTransition
+
+
 def test_a_move_is_logged_old_to_new_with_the_machines_name_and_reason(caplog):
     t = Toy()
     with caplog.at_level(logging.DEBUG, logger="tests.toy"):
