@@ -4,8 +4,7 @@ Theory of operation
 -------------------
 While this GS holds a drone's authority, ``StationCore._coordinate`` decides *whether* to release it
 (the vehicle flies into another authorized GS's coverage) and *to whom*; this machine keeps *where
-the release stands* in the drone's current epoch, which the core used to spell as flags stamped
-with the epoch they were true in. Phases:
+the release stands* in the drone's current epoch. Phases:
 
 * ``IDLE``: nothing released in this epoch;
 * ``RELEASED``: a ``HANDOVER_RELEASE`` went out and the drone has not confirmed it (the core sends it
@@ -17,10 +16,12 @@ with the epoch they were true in. Phases:
 
 Events (``HandoverEvent``, frozen): ``ReleaseSent`` (the core sent a release, first or again),
 ``Confirmed`` (the drone reports HANDOVER_PENDING for it), ``Failed`` (the hand-over cannot happen
-now). ``TABLE`` maps (phase, event type) to (handler, next phase); a pair not in the table changes
-nothing (``handle`` returns False): e.g. a confirmation while nothing is released, a status seen
-after an operator's own release. A new epoch starts the machine afresh (``for_epoch``): whatever
-was released or failed belonged to the epoch before.
+now). ``TABLE`` maps (phase, event type) to (handler, next phase), a table of the machine engine
+(``zdrone.core.machine``): the handler keeps the facts, the row says where the phase goes, and the
+move is logged ``old -> new``. A pair not in the table changes nothing (``handle`` returns False):
+e.g. a confirmation while nothing is released, a status seen after an operator's own release. A new
+epoch starts the machine afresh (``for_epoch``): whatever was released or failed belonged to the
+epoch before.
 
 Besides the phase, the machine keeps what the epoch's hand-over decisions need: when the release
 was last sent, when and how often it failed (the first failure is logged, retries are counted), the
@@ -33,7 +34,8 @@ from __future__ import annotations
 import enum
 import logging
 from dataclasses import dataclass
-from typing import Callable
+
+from zdrone.core.machine import Machine, Table
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +75,11 @@ class Failed(HandoverEvent):
 P = HandoverPhase
 
 
-class Handover:
+class Handover(Machine):
     """Where this GS's release of one drone stands in the drone's current epoch."""
+
+    _state_attr = "phase"
+    _log = log
 
     def __init__(self, drone: str) -> None:
         self.drone = drone
@@ -120,18 +125,16 @@ class Handover:
 
     def handle(self, ev: HandoverEvent) -> bool:
         """Apply ``ev``; False if the table has no row for it in this phase (nothing changed)."""
-        row = TABLE.get((self.phase, type(ev)))
+        row = self._row(TABLE, ev)
         if row is None:
             return False
         handler, next_phase = row
         handler(self, ev)
-        self._set_phase(next_phase)
+        self._set_state(next_phase)
         return True
 
-    def _set_phase(self, new: HandoverPhase) -> None:
-        if new is not self.phase:
-            log.info("hand-over of %s (epoch %s): %s -> %s", self.drone, self.epoch, self.phase.value, new.value)
-            self.phase = new
+    def _machine_name(self, key: object = None) -> str:
+        return f"hand-over of {self.drone} (epoch {self.epoch})"
 
     # ------------------------------------------------------------------ handlers
     def _on_release(self, ev: ReleaseSent) -> None:
@@ -147,18 +150,17 @@ class Handover:
         self.failed_at = ev.now
 
 
-Handler = Callable[[Handover, HandoverEvent], None]
 #: (phase, event type) -> (handler, next phase). Pairs not listed change nothing.
-TABLE: dict[tuple[HandoverPhase, type], tuple[Handler, HandoverPhase]] = {
-    (P.IDLE, ReleaseSent): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
-    (P.FAILED, ReleaseSent): (Handover._on_release, P.RELEASED),  # type: ignore[dict-item]
-    (P.RELEASED, ReleaseSent): (Handover._on_release, P.RELEASED),  # sent again, never confirmed  # type: ignore[dict-item]
-    (P.RELEASED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),  # type: ignore[dict-item]
-    (P.CONFIRMED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),  # type: ignore[dict-item]
-    (P.IDLE, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
-    (P.RELEASED, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
-    (P.CONFIRMED, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
-    (P.FAILED, Failed): (Handover._on_failed, P.FAILED),  # type: ignore[dict-item]
+TABLE: Table[HandoverPhase] = {
+    (P.IDLE, ReleaseSent): (Handover._on_release, P.RELEASED),
+    (P.FAILED, ReleaseSent): (Handover._on_release, P.RELEASED),
+    (P.RELEASED, ReleaseSent): (Handover._on_release, P.RELEASED),  # sent again, never confirmed
+    (P.RELEASED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),
+    (P.CONFIRMED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),
+    (P.IDLE, Failed): (Handover._on_failed, P.FAILED),
+    (P.RELEASED, Failed): (Handover._on_failed, P.FAILED),
+    (P.CONFIRMED, Failed): (Handover._on_failed, P.FAILED),
+    (P.FAILED, Failed): (Handover._on_failed, P.FAILED),
 }
 # Not listed: a release while CONFIRMED (the core waits for the drone), a confirmation while IDLE or
 # FAILED (a release that is not ours, e.g. the operator's, or one that failed already).

@@ -16,10 +16,12 @@ there: the mission mode asked for, re-sent likewise; the release waits for it) a
 
 Events (frozen): ``KeyMissing`` (the core's look while the release is due and the key is still
 missing), ``KeyThere`` (the key reached the drone: the release is due), ``ModeAck`` (a COMMAND_ACK of
-DO_SET_MODE). ``TABLE`` maps (phase, event type) to (handler, the phases it may move to); a pair not in
-it returns None, which the core reads as "no hold of ours" (it then waits for the key or fails the
-hand-over; or releases). A handler's answer is a ``HoldStep``: a mode command to send, and whether
-the hold ended without the hand-over (``over``, with an RTL or not). ``_set_state`` logs every move.
+DO_SET_MODE). ``TABLE`` maps (phase, event type) to (handler, the phases it may move to), a table of
+the machine engine (``zdrone.core.machine``); a pair not in it returns None, which the core reads as
+"no hold of ours" (it then waits for the key or fails the hand-over; or releases). A handler's answer
+is a ``HoldStep``: a mode command to send, and whether the hold ended without the hand-over (``over``,
+with an RTL or not). A handler moves by ``_set_state`` (the engine's: checked against its row, logged
+``old -> new (why)``); a move its row does not allow raises ``IllegalHold``.
 """
 
 from __future__ import annotations
@@ -28,9 +30,9 @@ import enum
 import logging
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any, Callable
 
 from zdrone.core import records as rec
+from zdrone.core.machine import IllegalTransition, Machine, Table
 
 log = logging.getLogger(__name__)
 
@@ -88,12 +90,15 @@ class HoldStep:
 WAIT = HoldStep()
 
 
-class IllegalHold(AssertionError):
-    """A handler moved to a phase its table row does not allow: a programming error."""
+#: A handler moved to a phase its table row does not allow: a programming error (the engine's one error).
+IllegalHold = IllegalTransition
 
 
-class KeyHold:
+class KeyHold(Machine):
     """The hold of one epoch (see the module docstring)."""
+
+    _state_attr = "phase"
+    _log = log
 
     def __init__(self, drone: str, epoch: int, to: str, since: float, hold_mode: str, mission_mode: str,
                  params: dict[str, tuple[float, float, float]], counters: Counter[str]) -> None:
@@ -106,7 +111,6 @@ class KeyHold:
         self.confirmed = False  # the current phase's mode confirmed by the vehicle
         self.seen = False  # the vehicle's HEARTBEAT showed the hold mode
         self.stands = False  # a mode someone else chose (not the mission's) stands for the epoch
-        self._allowed: frozenset[HoldPhase] = frozenset()
 
     @classmethod
     def start(cls, drone: str, epoch: int, to: str, now: float, hold_mode: str, mission_mode: str,
@@ -133,20 +137,13 @@ class KeyHold:
     # ------------------------------------------------------------------ engine
     def handle(self, ev: KeyMissing | KeyThere | ModeAck) -> HoldStep | None:
         """Apply ``ev``; None: the table has no row for it (no hold of ours in this phase)."""
-        row = TABLE.get((self.phase, type(ev)))
+        row = self._row(TABLE, ev)
         if row is None:
             return None
-        handler, self._allowed = row
-        return handler(self, ev)
+        return row[0](self, ev)
 
-    def _set_state(self, new: HoldPhase, why: str) -> None:
-        if new is self.phase:
-            return
-        if new not in self._allowed:
-            raise IllegalHold(f"hold of {self.drone}: {self.phase.value} -> {new.value} is not in the table")
-        log.info("hold of %s (epoch %d, for %s): %s -> %s (%s)", self.drone, self.epoch, self.to, self.phase.value,
-                 new.value, why)
-        self.phase = new
+    def _machine_name(self, key: object = None) -> str:
+        return f"hold of {self.drone} (epoch {self.epoch}, for {self.to})"
 
     def _command(self, mode: str, now: float) -> tuple[float, float, float]:
         self.sent = now
@@ -218,7 +215,7 @@ class KeyHold:
 
 H = HoldPhase
 #: (phase, event type) -> (handler, the phases it may move to). Pairs not listed: no hold of ours.
-TABLE: dict[tuple[HoldPhase, type], tuple[Callable[..., Any], frozenset[HoldPhase]]] = {
+TABLE: Table[HoldPhase] = {
     (H.HOLDING, KeyMissing): (KeyHold._holding, frozenset({H.OVER})),
     (H.HOLDING, KeyThere): (KeyHold._resume, frozenset({H.RESUMING, H.OVER})),
     (H.RESUMING, KeyThere): (KeyHold._resuming, frozenset({H.OVER})),

@@ -33,9 +33,13 @@ it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``Reply``
 and ``KeysLost`` (the drone restarted: every key we shared for it is gone). One new query per
 ``RETRY_S`` per drone (a "live link" retry excepted).
 
-``PAIR_TABLE`` and ``SHARE_TABLE`` map (phase, event type) to (handler, the phases it may move to);
-pairs not in a table change nothing, a handler moving elsewhere is a programming error
-(``_set_state`` raises), every move is logged ``old -> new``. ``deadline(now)`` is when the timer next
+``PAIR_TABLE`` and ``SHARE_TABLE`` map (phase, event type) to (handler, the phases it may move to),
+tables of the machine engine (``zdrone.core.machine``); the key-sharing table applies to each other
+GS apart, its state that GS's ``Share`` (the engine's ``key``: the GS; the pairing exchange is
+``key`` None). Pairs not in a table change nothing, a handler moving elsewhere is a programming error
+(``_set_state`` raises ``IllegalPhase``), every move is logged ``old -> new (why)``. The pairing
+exchange also closes outside its table, to IDLE only (``PAIR_CLOSED``): its deadline passed before the
+lookup, or a rotation of our static key abandoned it. ``deadline(now)`` is when the timer next
 matters for these exchanges if no input comes.
 """
 
@@ -46,13 +50,14 @@ import itertools
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Hashable, Iterator
 
 from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.fleet import Fleet
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
+from zdrone.core.machine import IllegalTransition, Machine, Table
 from zdrone.core.pairing import PairingFailed, PairingInitiator
 from zdrone.fleet import keyexprs as kx
 
@@ -85,6 +90,10 @@ def _due(last: float | None, now: float, period: float) -> bool:
 class PairPhase(enum.Enum):
     IDLE = "idle"
     ASKING = "asking"
+
+
+#: Where the pairing exchange goes when it closes outside its table (deadline passed, abandoned).
+PAIR_CLOSED = frozenset({PairPhase.IDLE})
 
 
 class SharePhase(enum.Enum):
@@ -147,8 +156,8 @@ class PairProven:
     rotated: bool = True  # a fresh pairing for a rotated static key (False: to make a classical link hybrid)
 
 
-class IllegalPhase(AssertionError):
-    """A handler moved to a phase its table row does not allow: a programming error."""
+#: A handler moved to a phase its table row does not allow: a programming error (the engine's one error).
+IllegalPhase = IllegalTransition
 
 
 @dataclass
@@ -174,8 +183,11 @@ class Context:
     grant_ids: Iterator[int] = field(default_factory=lambda: itertools.count(1))
 
 
-class Linking:
+class Linking(Machine):
     """Pairing and key sharing with one drone (see the module docstring)."""
+
+    _log = log
+    _log_level = logging.DEBUG
 
     def __init__(self, ctx: Context) -> None:
         self.ctx = ctx
@@ -192,7 +204,6 @@ class Linking:
         self.drone_links: set[str] = set()  # GSs the drone already holds keys for (its status)
         self.last_share_try: float | None = None
         self.grant_sent: float | None = None
-        self._allowed: frozenset[Any] = frozenset()
 
     # ------------------------------------------------------------------ queries
     def asking(self, g: str) -> bool:
@@ -241,14 +252,13 @@ class Linking:
     def on_pair(self, ev: PairDue | Reply) -> tuple[list[Action], PairProven | None]:
         """Apply a pairing event: the actions, and the new key if a reply proved it."""
         if self.pair_phase is PairPhase.ASKING and isinstance(ev, PairDue) and ev.now >= self.pairing_deadline:
-            self._set_state(None, PairPhase.IDLE, "deadline")  # the exchange expired unanswered
+            self._set_state(PairPhase.IDLE, "deadline", allowed=PAIR_CLOSED)  # the exchange expired unanswered
         if self.pair_phase is PairPhase.ASKING and isinstance(ev, Reply) and ev.now >= self.pairing_deadline:
-            self._set_state(None, PairPhase.IDLE, "deadline")
-        row = PAIR_TABLE.get((self.pair_phase, type(ev)))
+            self._set_state(PairPhase.IDLE, "deadline", allowed=PAIR_CLOSED)
+        row = self._row(PAIR_TABLE, ev)
         if row is None:
             return [], None
-        handler, self._allowed = row
-        return handler(self, ev)
+        return row[0](self, ev)
 
     def _pair_start(self, ev: PairDue) -> tuple[list[Action], PairProven | None]:
         """Send a message 1 (stamped with our time of day: the drone refuses an old one) unless the
@@ -263,7 +273,7 @@ class Linking:
         self._rekey_exchange = self.rekey_pending
         self._exchange_hybrid = c.fleet.pairing_pq
         self.pairing_deadline = ev.now + ev.timeout
-        self._set_state(None, PairPhase.ASKING, "message 1")
+        self._set_state(PairPhase.ASKING, "message 1")
         return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
 
     def _pair_late(self, ev: Reply) -> tuple[list[Action], PairProven | None]:
@@ -289,7 +299,7 @@ class Linking:
         self.pairing = None
         if fresh:
             self.rekey_pending = False
-        self._set_state(None, PairPhase.IDLE, "paired")
+        self._set_state(PairPhase.IDLE, "paired")
         return [], PairProven(key, kept=kept, fresh=fresh, hybrid=self._exchange_hybrid, rotated=self._rekey_rotated)
 
     def rekey(self, identity: Identity, linked: bool, rotated: bool = True) -> None:
@@ -301,8 +311,7 @@ class Linking:
             return
         self.pairing = None
         self.rekey_pending, self._rekey_rotated = True, rotated
-        self._allowed = frozenset({PairPhase.IDLE})
-        self._set_state(None, PairPhase.IDLE, "abandoned")
+        self._set_state(PairPhase.IDLE, "abandoned", allowed=PAIR_CLOSED)
 
     # ------------------------------------------------------------------ key sharing
     def keys_lost(self, now: float) -> None:
@@ -340,11 +349,10 @@ class Linking:
         return self._share(g, GrantAcked(now, grant_id)) if g in self.shares else []
 
     def _share(self, g: str, ev: Any) -> list[Action]:
-        row = SHARE_TABLE.get((self.shares[g].phase, type(ev)))
+        row = self._row(SHARE_TABLE, ev, key=g)
         if row is None:
             return []
-        handler, self._allowed = row
-        return handler(self, g, ev)
+        return row[0](self, g, ev)
 
     def _ask(self, g: str, ev: ShareDue) -> list[Action]:
         s, c = self.shares[g], self.ctx
@@ -356,7 +364,7 @@ class Linking:
         self.last_share_try = ev.now
         s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall,
                             hybrid=c.fleet.pairing_pq)
-        self._set_state(g, SharePhase.ASKED, "asked")
+        self._set_state(SharePhase.ASKED, "asked", key=g)
         return [Ask(AskKind.LINKKEY, c.drone, g, kx.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
 
     def _ask_over(self, g: str, ev: ShareDue) -> list[Action]:
@@ -367,7 +375,7 @@ class Linking:
             return []
         self.ctx.counters["linkkey_no_answer" if s.ask_again is None else "linkkey_asked_again"] += 1
         s.ask = None
-        self._set_state(g, SharePhase.NONE, "ask over")
+        self._set_state(SharePhase.NONE, "ask over", key=g)
         return self._ask(g, ev)
 
     def _reply(self, g: str, ev: Reply) -> list[Action]:
@@ -390,7 +398,7 @@ class Linking:
         s.ask, s.ask_again = None, None
         s.grant = wire.KeyGrant(g, c.fleet.nodes[g].sysid, secret, next(c.grant_ids))
         self.grant_sent = None
-        self._set_state(g, SharePhase.GRANTING, "reply")
+        self._set_state(SharePhase.GRANTING, "reply", key=g)
         return [Emit(rec.LinkkeyReceived(drone=c.drone, gs=g))]
 
     def _reply_error(self, g: str, ev: Reply) -> list[Action]:
@@ -412,29 +420,27 @@ class Linking:
         if s.grant.grant_id != ev.grant_id:
             return []
         s.grant = None
-        self._set_state(g, SharePhase.GRANTED, "acknowledged")
+        self._set_state(SharePhase.GRANTED, "acknowledged", key=g)
         return [Emit(rec.KeyGranted(drone=self.ctx.drone, gs=g))]
 
     def _forget(self, g: str, ev: KeysLost) -> list[Action]:
         self.shares[g].grant = None
-        self._set_state(g, SharePhase.NONE, "keys lost")
+        self._set_state(SharePhase.NONE, "keys lost", key=g)
         return []
 
     # ------------------------------------------------------------------ engine
-    def _set_state(self, g: str | None, new: Any, why: str) -> None:
-        """Move the pairing exchange (``g`` None) or the key sharing for ``g`` to ``new``."""
-        old = self.pair_phase if g is None else self.shares[g].phase
-        if new is old:
-            return
-        if why != "deadline" and new not in self._allowed:
-            raise IllegalPhase(f"{self.ctx.drone}: {old.value} -> {new.value} is not in the table")
-        what = "pairing" if g is None else f"key of {g}"
-        log.debug("%s, %s: %s -> %s (%s)", self.ctx.drone, what, old.value, new.value, why)
-        if g is None:
+    def _machine_name(self, key: Hashable | None = None) -> str:
+        return f"{self.ctx.drone}, {'pairing' if key is None else f'key of {key}'}"
+
+    def _get_state(self, key: Hashable | None = None) -> Any:
+        """The pairing exchange's phase (``key`` None), or the key sharing's for the GS ``key``."""
+        return self.pair_phase if key is None else self.shares[key].phase  # type: ignore[index]
+
+    def _put_state(self, new: Any, key: Hashable | None = None, now: float | None = None) -> None:
+        if key is None:
             self.pair_phase = new
         else:
-            self.shares[g].phase = new
-
+            self.shares[key].phase = new  # type: ignore[index]
 
 class KeyOwner:
     """Key sharing as the owner of our links: answering other GSs' queries (one per GS)."""
@@ -507,7 +513,7 @@ class KeyOwner:
 P, S = PairPhase, SharePhase
 #: The pairing exchange: (phase, event type) -> (handler, the phases it may move to). An exchange
 #: past its deadline is IDLE before the table is read.
-PAIR_TABLE: dict[tuple[PairPhase, type], tuple[Callable[..., Any], frozenset[PairPhase]]] = {
+PAIR_TABLE: Table[PairPhase] = {
     (P.IDLE, PairDue): (Linking._pair_start, frozenset({P.ASKING})),
     (P.IDLE, Reply): (Linking._pair_late, frozenset()),
     (P.ASKING, Reply): (Linking._pair_reply, frozenset({P.IDLE})),
@@ -515,7 +521,7 @@ PAIR_TABLE: dict[tuple[PairPhase, type], tuple[Callable[..., Any], frozenset[Pai
 # Not listed: PairDue while ASKING (the exchange is open until its deadline).
 
 #: Key sharing for one other GS: (phase, event type) -> (handler, the phases it may move to).
-SHARE_TABLE: dict[tuple[SharePhase, type], tuple[Callable[..., Any], frozenset[SharePhase]]] = {
+SHARE_TABLE: Table[SharePhase] = {
     (S.NONE, ShareDue): (Linking._ask, frozenset({S.ASKED})),
     (S.ASKED, ShareDue): (Linking._ask_over, frozenset({S.NONE, S.ASKED})),
     (S.ASKED, Reply): (Linking._reply, frozenset({S.GRANTING})),

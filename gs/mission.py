@@ -17,9 +17,11 @@ back to ``WAITING_READY`` or, for a refusal waiting cannot fix, ``FAILED``).
 
 Events (frozen): ``FlightTick`` (time passes: the stage's deadlines and what the vehicle reports),
 ``FlightAck`` (a COMMAND_ACK to this GS), ``FlightParam`` (a PARAM_VALUE). ``TABLE`` maps (stage,
-event type) to (handler, the stages it may move to); a pair not in the table does nothing by
-definition, and a handler moving anywhere else is a programming error (``_set_state`` raises).
-Every move is logged ``old -> new`` by ``_set_state``.
+event type) to (handler, the stages it may move to), a table of the machine engine
+(``zdrone.core.machine``); a pair not in the table does nothing by definition. A handler moves by
+``_set_state(stage, now=...)`` (the engine's): a move anywhere its row does not allow is a
+programming error (``IllegalStage``, raised); every move is logged ``old -> new``, and the stage's
+clock (``stage_time``, what its deadlines count from) starts at the move's ``now``.
 
 The first upload and the first arming of each drone wait a draw of ``upload_spread_s`` /
 ``takeoff_spread_s`` (the GS's fleet spread over time); the draws come from ``seed``, randomness the
@@ -41,6 +43,7 @@ from typing import Any, Callable, Protocol
 from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core import records as rec
+from zdrone.core.machine import IllegalTransition, Machine, Table
 from zdrone.vehicle.fix import PositionFix
 from zdrone.vehicle.modes import mode_name, set_mode_params
 
@@ -176,12 +179,15 @@ class VehicleFacts(Protocol):
 Send = Callable[[Any], "list[Action]"]  # seal one MAVLink message for the drone
 
 
-class IllegalStage(AssertionError):
-    """A handler moved to a stage its table row does not allow: a programming error."""
+#: A handler moved to a stage its table row does not allow: a programming error (the engine's one error).
+IllegalStage = IllegalTransition
 
 
-class Mission:
+class Mission(Machine):
     """Where this GS stands in flying its mission with one drone (see the module docstring)."""
+
+    _state_attr = "stage"
+    _log = log
 
     def __init__(self, gs: str, drone: str, sysid: int, plan: list[PlannedItem] | None, *, seed: bytes = b"",
                  upload_spread_s: float = 0.0, takeoff_spread_s: float = 0.0,
@@ -204,23 +210,22 @@ class Mission:
         self.restarts = 0  # armed and started again after a disarm on the ground
         self.unexplained = 0  # refusals neither the vehicle's words nor its state explain
         self.takeoff_late_said = False
-        self._allowed: frozenset[Stage] = frozenset()
 
     # ------------------------------------------------------------------ engine
     def handle(self, ev: FlightEvent, v: VehicleFacts, send: Send) -> list[Action]:
         """Apply ``ev``: the table's handler for (stage, event type), if any."""
-        row = TABLE.get((self.stage, type(ev)))
-        if row is None or self.plan is None:
+        if self.plan is None:
             return []
-        handler, self._allowed = row
-        return handler(self, ev, v, send)
+        row = self._row(TABLE, ev)
+        if row is None:
+            return []
+        return row[0](self, ev, v, send)
 
-    def _set_state(self, new: Stage, now: float) -> None:
-        if new is self.stage:
-            return
-        if new not in self._allowed:
-            raise IllegalStage(f"mission {self.drone}: {self.stage.value} -> {new.value} is not in the table")
-        log.info("mission %s: %s -> %s", self.drone, self.stage.value, new.value)
+    def _machine_name(self, key: object = None) -> str:
+        return f"mission {self.drone}"
+
+    def _put_state(self, new: Stage, key: object = None, now: float | None = None) -> None:
+        assert now is not None, "a mission's move names its time (the stage's clock starts then)"
         self.stage, self.stage_time = new, now
 
     def deadline(self, now: float, v: VehicleFacts) -> float | None:
@@ -267,7 +272,7 @@ class Mission:
 
     def _give_up(self, v: VehicleFacts, send: Send, now: float, reason: str) -> list[Action]:
         """The mission cannot be flown: say why, and leave the vehicle disarmed if it is on the ground."""
-        self._set_state(Stage.FAILED, now)
+        self._set_state(Stage.FAILED, now=now)
         self.counters["mission_failed"] += 1
         out: list[Action] = [Emit(rec.MissionFailed(drone=self.drone, reason=reason)),
                              ToOperator(f"zdrone gs {self.gs}: mission for {self.drone} failed: {reason}")]
@@ -285,7 +290,7 @@ class Mission:
             return []
         self.tries = 0
         if v.autopilot == "ardupilot":
-            self._set_state(Stage.PREPARING, ev.now)
+            self._set_state(Stage.PREPARING, now=ev.now)
             return self._set_mis_options(send, ev.now)
         return self._start_upload(ev, v, send)
 
@@ -316,7 +321,7 @@ class Mission:
         out: list[Action] = []
         for m in self.uploader.start(ev.now):
             out += send(m)
-        self._set_state(Stage.UPLOADING, ev.now)
+        self._set_state(Stage.UPLOADING, now=ev.now)
         return out + [Emit(rec.MissionUpload(drone=self.drone, items=len(items), autopilot=v.autopilot))]
 
     def _upload_tick(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
@@ -327,7 +332,7 @@ class Mission:
         if self.uploader.done:
             if self.uploader.accepted:
                 self.tries, self.next_try = 0, 0.0
-                self._set_state(Stage.WAITING_READY, ev.now)
+                self._set_state(Stage.WAITING_READY, now=ev.now)
             else:
                 out += self._upload_failed(v, send, ev.now)
         return out
@@ -354,7 +359,7 @@ class Mission:
             return self._give_up(v, send, now, f"mission upload failed {self.upload_tries} times in "
                                                 f"{now - first:.0f} s (last: {what})")
         self.uploader, self.next_try = None, now + wait
-        self._set_state(Stage.UPLOAD_WAIT, now)
+        self._set_state(Stage.UPLOAD_WAIT, now=now)
         self.counters["mission_upload_retry"] += 1
         return [Emit(rec.MissionRetry(drone=self.drone, what="upload", result=None if up.timed_out else result,
                                       try_=self.upload_tries, after=round(wait, 3))),
@@ -406,7 +411,7 @@ class Mission:
     def _flying_already(self, now: float) -> list[Action]:
         """The start's answer was lost (a lossy radio) but the vehicle flies: the mission started. Never
         start it again (that would fly it from its first item)."""
-        self._set_state(Stage.FLYING, now)
+        self._set_state(Stage.FLYING, now=now)
         return [Emit(rec.TakeoffConfirmed(drone=self.drone, restarts=self.restarts)),
                 ToOperator(f"zdrone gs {self.gs}: {self.drone} is flying (its start's answer was lost)")]
 
@@ -425,12 +430,12 @@ class Mission:
         if ev.now < self.arm_at:
             return out
         if v.armed:  # armed already (e.g. a start refused while armed): go on with the start
-            self._set_state(Stage.STARTING, ev.now)
+            self._set_state(Stage.STARTING, now=ev.now)
             return out + self._command(send, mav.MAV_CMD_MISSION_START, 0, 0)
         if v.autopilot == "ardupilot" and v.custom_mode in ARDUPILOT_NOT_ARMABLE:
             self.next_try = ev.now + MODE_SETTLE_S  # left in AUTO (or RTL, LAND) by a disarm: arm in GUIDED
             return out + self._command(send, mav.MAV_CMD_DO_SET_MODE, *set_mode_params("ardupilot", "GUIDED"))
-        self._set_state(Stage.ARMING, ev.now)
+        self._set_state(Stage.ARMING, now=ev.now)
         return out + self._command(send, mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def _stage_timeout(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
@@ -441,13 +446,13 @@ class Mission:
             return []
         what = "arm" if self.stage is Stage.ARMING else "mission start"
         self.next_try = ev.now + RETRY_AFTER_S
-        self._set_state(Stage.WAITING_READY, ev.now)
+        self._set_state(Stage.WAITING_READY, now=ev.now)
         return [Emit(rec.VehicleRefused(drone=self.drone, what=f"{what} (no answer)", result=None, try_=self.tries, texts=[]))]
 
     def _step_refused(self, ev: FlightAck, what: str) -> list[Action]:
         """A refusal: classified only after ``REASON_WAIT_S`` (ArduPilot says why after its ACK)."""
         self.refusal = PendingRefusal(what, ev.result, ev.now)
-        self._set_state(Stage.REFUSED, ev.now)
+        self._set_state(Stage.REFUSED, now=ev.now)
         return []
 
     def _arm_ack(self, ev: FlightAck, v: VehicleFacts, send: Send) -> list[Action]:
@@ -456,7 +461,7 @@ class Mission:
         if not ev.accepted:
             return self._step_refused(ev, "arm")
         v.armed = True  # the ACK says so before the next HEARTBEAT does
-        self._set_state(Stage.STARTING, ev.now)
+        self._set_state(Stage.STARTING, now=ev.now)
         return self._command(send, mav.MAV_CMD_MISSION_START, 0, 0)
 
     def _start_ack(self, ev: FlightAck, v: VehicleFacts, send: Send) -> list[Action]:
@@ -464,7 +469,7 @@ class Mission:
             return []
         if not ev.accepted:
             return self._step_refused(ev, "mission start")
-        self._set_state(Stage.TAKING_OFF, ev.now)
+        self._set_state(Stage.TAKING_OFF, now=ev.now)
         return [Emit(rec.MissionStarted(drone=self.drone, result=ev.result))]
 
     def _classify_refusal(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
@@ -490,7 +495,7 @@ class Mission:
             out.append(Emit(rec.MissionStartFailed(drone=self.drone, result=r.result, texts=texts)))
             return out + self._give_up(v, send, ev.now, f"{r.what} refused (result {r.result}): {reason}")
         self.next_try = ev.now + RETRY_AFTER_S
-        self._set_state(Stage.WAITING_READY, ev.now)
+        self._set_state(Stage.WAITING_READY, now=ev.now)
         return out + [ToOperator(f"zdrone gs {self.gs}: {self.drone}: {r.what} refused ({reason}); "
                           f"{'not ready yet, waiting' if not_ready else 'trying again'}")]
 
@@ -499,7 +504,7 @@ class Mission:
         """After the start: the vehicle must leave the ground; if it disarmed on the ground (ArduCopter's
         auto-disarm, PX4's preflight disarm) it is armed and started again."""
         if self._airborne(v):
-            self._set_state(Stage.FLYING, ev.now)
+            self._set_state(Stage.FLYING, now=ev.now)
             return [Emit(rec.TakeoffConfirmed(drone=self.drone, restarts=self.restarts)),
                     ToOperator(f"zdrone gs {self.gs}: {self.drone} took off")]
         disarmed = (v.disarmed_at is not None and v.disarmed_at > self.stage_time) or (
@@ -508,7 +513,7 @@ class Mission:
             self.restarts += 1
             self.takeoff_late_said = False
             self.next_try = ev.now + RETRY_AFTER_S
-            self._set_state(Stage.WAITING_READY, ev.now)
+            self._set_state(Stage.WAITING_READY, now=ev.now)
             reason = "disarmed on the ground before taking off (the autopilot's auto-disarm)"
             return [Emit(rec.TakeoffRestart(drone=self.drone, reason=reason, restarts=self.restarts)),
                     ToOperator(f"zdrone gs {self.gs}: {self.drone} {reason}: arming and starting again")]
@@ -520,9 +525,8 @@ class Mission:
 
 
 S = Stage
-Handler = Callable[[Mission, Any, VehicleFacts, Send], "list[Action]"]
 #: (stage, event type) -> (handler, the stages it may move to). Pairs not listed do nothing.
-TABLE: dict[tuple[Stage, type], tuple[Handler, frozenset[Stage]]] = {
+TABLE: Table[Stage] = {
     (S.IDLE, FlightTick): (Mission._identify, frozenset({S.PREPARING, S.UPLOADING})),
     (S.PREPARING, FlightTick): (Mission._preparing_tick, frozenset({S.FAILED})),
     (S.PREPARING, FlightParam): (Mission._preparing_param, frozenset({S.UPLOADING})),

@@ -44,7 +44,7 @@ operations centre over the backhaul): its proof is that of its link, wherever th
 
 The machine is pure: every event carries ``now``; ``handle(event)`` returns a list of actions that
 the drone node adapter carries out (forward a frame, send a control message, command the vehicle).
-One step is three passes:
+One step is three passes, taken by the machine engine (``zdrone.core.machine``: ``_step``):
 
 1. the event's handler, found in the table ``TRANSITIONS``: (state, event type) -> (handler,
    allowed next states). A pair missing from the table is an illegal step: a GS-originated event
@@ -65,12 +65,9 @@ One step is three passes:
 Handlers return only what is theirs to say: forwards and drops, rejects, the operator's request,
 the failsafe's command and notice, and the event-log notes.
 
-Key grants and pairings have typed results. ``grant(GrantHeard)`` returns ``GrantAccepted`` (the
-adapter installs the key: live if the link has none, else a candidate the GS must prove) or
-``GrantRejected(reason)`` (its ``Reject`` is among the actions), with the actions; ``check_grant``
-refuses a grant whose content does not fit the fleet before it reaches the machine.
-``pair_refusal`` gives the machine's rule for pairing as a ``PairRefused`` (the pairing responder's
-result type), or None.
+The events, the actions, the drops' reasons and the key grants' typed results are the machine's
+vocabulary, in ``zdrone.core.authority_events`` (re-exported here). ``pair_refusal`` gives the
+machine's rule for pairing as a ``PairRefused`` (the pairing responder's result type), or None.
 
 Fleet revisions (``zdrone.core.revision``). A signed revision may take GSs off the drone's
 authorized list (revoked, or de-authorized) or add some: ``Revised(authorized)`` gives the new
@@ -88,20 +85,21 @@ usual rules apply: any authorized GS whose coverage holds the vehicle may pair f
 
 from __future__ import annotations
 
-import enum
 import logging
 from collections import Counter
 from dataclasses import dataclass, replace
-from typing import Callable, Mapping
 
-from .errors import ProtocolError
-from .keys import KEY_LEN
+from .authority_events import (GS_EVENTS, Action, AuthorityAsked, AuthorityChanged, DropFrame, Event,  # noqa: F401
+                               FailsafeCommand, Forward, Frame, GrantAccepted, GrantHeard, GrantRejected,
+                               GrantRejection, GrantResult, GroundChanged, HaDrop, LinkChanged, Note, PairingDone,
+                               RegionChanged, Release, Revised, SendControl, Tick, check_grant)
+from .machine import IllegalTransition, Machine, SettleRow, Table
 from .mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
 from .pairing import PairRefusal, PairRefused
 from .ratelimit import RateLimiter
 from .tbm import LinkState
 from .uplink import UplinkClass
-from .wire import AuthorityState, AuthorityStatus, Control, FailsafeNotice, KeyGrant, OperatorRequest, Reject
+from .wire import AuthorityState, AuthorityStatus, FailsafeNotice, OperatorRequest, Reject
 
 log = logging.getLogger(__name__)
 
@@ -126,198 +124,6 @@ RELEASE_STALE_EPOCH = "stale epoch"
 State = AuthorityState  # one enum: the machine's states are what the drone reports on the wire
 
 
-class HaDrop(enum.Enum):
-    """Why the HA refused to forward a frame (counted per reason)."""
-
-    NOT_AUTHORITY = "not_authority"
-    NOT_LINKED = "not_linked"
-    FAILSAFE = "failsafe"
-    DENIED_BY_POLICY = "denied_by_policy"
-
-
-# ----------------------------------------------------------------------------- events
-@dataclass(frozen=True, slots=True)
-class Event:
-    now: float
-
-
-@dataclass(frozen=True, slots=True)
-class PairingDone(Event):
-    """Pairing with ``gs`` completed (the adapter already checked its static key)."""
-
-    gs: str
-    on_ground: bool = True
-
-
-@dataclass(frozen=True, slots=True)
-class GrantHeard(Event):
-    """``sender`` (over its sealed link) hands the drone a link key for ``gs``."""
-
-    sender: str
-    gs: str
-
-
-@dataclass(frozen=True, slots=True)
-class Frame(Event):
-    """An authentic MAVLink frame from ``gs``, classified by the drone's uplink policy."""
-
-    gs: str
-    uplink: UplinkClass
-
-
-@dataclass(frozen=True, slots=True)
-class LinkChanged(Event):
-    """The TBM state of the link to ``gs`` changed."""
-
-    gs: str
-    state: LinkState
-
-
-@dataclass(frozen=True, slots=True)
-class RegionChanged(Event):
-    """The set of GS coverage circles the vehicle is inside changed."""
-
-    inside: frozenset[str]
-
-
-@dataclass(frozen=True, slots=True)
-class AuthorityAsked(Event):
-    """``sender`` asks that authority pass to ``to`` (passed on to the owner, whose operator has
-    ``timeout`` seconds to consent); from the owner for itself, its "allow takeover" setting."""
-
-    sender: str
-    to: str
-    timeout: float = 0.0
-    takeover: bool = False
-    ask_id: int = 0
-    takeover_to: str | None = None  # with ``takeover`` from the owner: the one GS it is for (None: any)
-
-
-@dataclass(frozen=True, slots=True)
-class Release(Event):
-    """``sender`` releases authority of ``epoch`` to ``to`` (effective once ``to`` is proven)."""
-
-    sender: str
-    to: str
-    epoch: int
-
-
-@dataclass(frozen=True, slots=True)
-class GroundChanged(Event):
-    """The vehicle is on the ground (disarmed, or landed) or not, by its own HEARTBEAT and
-    EXTENDED_SYS_STATE. The machine starts "in the air": the failsafe rule holds until told otherwise."""
-
-    on_ground: bool
-
-
-@dataclass(frozen=True, slots=True)
-class Revised(Event):
-    """A fleet revision was applied: ``authorized`` is the drone's authorized list under it."""
-
-    authorized: frozenset[str]
-    revision: int = 0
-    why: str = ""  # not a revision: why the list shrank (the owner's lease lapsed)
-
-
-@dataclass(frozen=True, slots=True)
-class Tick(Event):
-    """Time passes (the adapter ticks the machine at its loop rate)."""
-
-
-GS_EVENTS = (PairingDone, GrantHeard, Frame, AuthorityAsked, Release)
-
-
-# ---------------------------------------------------------------------------- actions
-@dataclass(frozen=True, slots=True)
-class Action:
-    pass
-
-
-@dataclass(frozen=True, slots=True)
-class Forward(Action):
-    """Forward the frame of the event being handled to the vehicle."""
-
-    gs: str
-
-
-@dataclass(frozen=True, slots=True)
-class DropFrame(Action):
-    gs: str
-    reason: HaDrop
-
-
-@dataclass(frozen=True, slots=True)
-class SendControl(Action):
-    gs: str
-    msg: Control
-
-
-@dataclass(frozen=True, slots=True)
-class FailsafeCommand(Action):
-    command: str  # "LAND" | "RTL"
-    reason: str
-
-
-@dataclass(frozen=True, slots=True)
-class AuthorityChanged(Action):
-    """For the event log: authority moved (``old`` None at first pairing)."""
-
-    old: str | None
-    new: str
-    epoch: int
-    kind: str  # "paired" | "handover" | "emergency" | "repaired" | "regained"
-
-
-@dataclass(frozen=True, slots=True)
-class Note(Action):
-    """For the event log: something worth recording (region entered, hand-over timed out, ...)."""
-
-    kind: str
-    detail: str
-
-
-class IllegalTransition(ProtocolError):
-    """An event that no table entry covers and that no GS sent: a programming error."""
-
-
-# ------------------------------------------------------------------------- key grants
-class GrantRejection(enum.Enum):
-    """Why the drone rejected a key grant (each answered with a ``Reject`` to its sender)."""
-
-    BAD_GRANT = "bad_grant"  # names no GS of the fleet, or a wrong sysid, or a secret of the wrong length
-    ILLEGAL_STATE = "illegal_state"  # no grants while unpaired or in failsafe
-    NOT_AUTHORITY = "not_authority"  # only the authority grants keys
-    UNAUTHORIZED = "unauthorized"  # the key is for a GS not authorized for this drone
-
-
-@dataclass(frozen=True, slots=True)
-class GrantAccepted:
-    """The grant of a link key for ``gs`` stands: install it and acknowledge it."""
-
-    gs: str
-
-
-@dataclass(frozen=True, slots=True)
-class GrantRejected:
-    """The grant of a link key for ``gs`` is rejected; ``detail`` is the ``Reject``'s text."""
-
-    gs: str
-    reason: GrantRejection
-    detail: str
-
-
-GrantResult = GrantAccepted | GrantRejected
-
-
-def check_grant(grant: KeyGrant, gs_sysids: Mapping[str, int]) -> GrantRejected | None:
-    """A grant's content against the fleet (``gs_sysids``: each ground station's sysid): it must name
-    a GS of the fleet with its sysid and carry a whole link secret. None if it does."""
-    if gs_sysids.get(grant.gs) != grant.sysid or len(grant.secret) != KEY_LEN:
-        return GrantRejected(grant.gs, GrantRejection.BAD_GRANT,
-                             f"unknown ground station or sysid: {grant.gs}/{grant.sysid}")
-    return None
-
-
 @dataclass(frozen=True, slots=True)
 class Config:
     authorized: frozenset[str]
@@ -332,11 +138,10 @@ class _Link:
     frames_in_cover: int = 0  # the same, counted only while the drone is inside the GS's coverage (an heir's proof)
 
 
-Handler = Callable[["AuthorityMachine", Event], "tuple[State, list[Action]]"]
-
-
-class AuthorityMachine:
+class AuthorityMachine(Machine):
     """The HA of one drone. Feed events with ``handle``; carry out the actions it returns."""
+
+    _log = log
 
     def __init__(self, config: Config) -> None:
         if config.failsafe_action not in ("LAND", "RTL"):
@@ -446,13 +251,12 @@ class AuthorityMachine:
         self.owner, self.epoch = owner, epoch
         self.links[owner] = _Link()  # LOST until it re-pairs
         if failsafe:
-            self._set_state(State.FAILSAFE, now)
+            self._move("restore", State.FAILSAFE, RESTORED, now)
             action = self.config.failsafe_action
             return [Note("restored", f"authority {owner} epoch {epoch} in failsafe: {action} again"),
                     FailsafeCommand(action, "restarted during the failsafe")]
         self.repair_deadline = now + grace
-        self._set_state(State.LINKED, now)
-        self._follow_subscriptions()  # no status: nobody holds a key yet
+        self._move("restore", State.LINKED, RESTORED, now)  # no status: nobody holds a key yet
         return [Note("restored", f"authority {owner} epoch {epoch}; waiting {grace:.1f} s for it to re-pair")]
 
     def restore_on_ground(self, owner: str, epoch: int, now: float, window: float = FIRST_CLAIM_S) -> list[Action]:
@@ -474,39 +278,26 @@ class AuthorityMachine:
     # ------------------------------------------------------------------- engine
     def handle(self, event: Event) -> list[Action]:
         """Apply one event; return the actions to carry out. Never raises for GS-sent events."""
-        entry = TRANSITIONS.get((self.state, type(event)))
-        if entry is None:
+        row = self._row(TRANSITIONS, event)
+        if row is None:
             if isinstance(event, GS_EVENTS):
                 sender = getattr(event, "sender", None) or getattr(event, "gs")
                 return self._reject(sender, type(event).__name__, f"illegal in state {self.state.value}")
             raise IllegalTransition(f"{type(event).__name__} in state {self.state.value}")
-        before = self._before()
-        self._tell, self._tell_everyone = set(), False
-        handler, allowed = entry
-        next_state, actions = handler(self, event)
-        self._move(handler.__name__, next_state, allowed, event.now)
-        actions += self._settle(event.now)
-        return actions + self._effects(before)
+        return self._step(row, event, SETTLE)
 
-    def _move(self, rule: str, next_state: State, allowed: frozenset[State], now: float) -> None:
-        if next_state not in allowed:
-            raise IllegalTransition(f"{rule} chose {next_state} from {self.state}")
-        self._set_state(next_state, now)
+    def _move(self, rule: str, new: State, allowed: frozenset[State], now: float) -> None:
+        """Enter the state a handler or a rule chose; the history and whom to listen to follow it."""
+        super()._move(rule, new, allowed, now)
+        if self.owner is not None and (not self.history or self.history[-1][1:] != (self.owner, self.epoch)):
+            self.history.append((now, self.owner, self.epoch))
         self._follow_subscriptions()  # the state's rule, as it stands after this move
 
-    def _settle(self, now: float) -> list[Action]:
-        """The rules that follow from the state and the time alone, looked at once after every event,
-        whatever the event was (as h11's state-triggered transitions): the first row of ``SETTLE``
-        whose rule fires applies, and the state it chooses must be one of the row's."""
-        for states, rule, allowed in SETTLE:
-            if self.state not in states:
-                continue
-            fired = rule(self, now)
-            if fired is not None:
-                next_state, actions = fired
-                self._move(rule.__name__, next_state, allowed, now)
-                return actions
-        return []
+    def _machine_name(self, key: object = None) -> str:
+        return "authority"
+
+    def _state_note(self) -> str:
+        return f"owner {self.owner}, epoch {self.epoch}"
 
     # the rules of ``SETTLE``: each returns (next state, actions) if it fires, else None
     def _proven_recipient(self, now: float) -> tuple[State, list[Action]] | None:
@@ -556,6 +347,8 @@ class AuthorityMachine:
         return st.owner, st.epoch, st.state, st.pending_to, st.takeover, st.takeover_to
 
     def _before(self) -> tuple[tuple[object, ...], str | None, State]:
+        """The status, the owner and the state before the step; nobody has asked to hear it yet."""
+        self._tell, self._tell_everyone = set(), False
         return self._status_key(), self.owner, self.state
 
     def _effects(self, before: tuple[tuple[object, ...], str | None, State]) -> list[Action]:
@@ -582,13 +375,6 @@ class AuthorityMachine:
     def _tell_all(self) -> None:
         """The status goes to every GS listened to after this step, changed or not."""
         self._tell_everyone = True
-
-    def _set_state(self, new: State, now: float) -> None:
-        if new is not self.state:
-            log.info("authority: %s -> %s (owner %s, epoch %d)", self.state.value, new.value, self.owner, self.epoch)
-            self.state = new
-        if self.owner is not None and (not self.history or self.history[-1][1:] != (self.owner, self.epoch)):
-            self.history.append((now, self.owner, self.epoch))
 
     def _reject(self, gs: str, what: str, reason: str) -> list[Action]:
         self.rejects[reason.split(":")[0]] += 1
@@ -845,7 +631,7 @@ class AuthorityMachine:
 
 S = State
 #: (state, event type) -> (handler, next states it may choose)
-TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
+TRANSITIONS: Table[State] = {
     (S.UNPAIRED, PairingDone): (AuthorityMachine._on_first_pair, frozenset({S.UNPAIRED, S.LINKED})),
     (S.UNPAIRED, Frame): (AuthorityMachine._on_frame_unpaired, frozenset({S.UNPAIRED})),
     (S.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
@@ -888,8 +674,7 @@ TRANSITIONS: dict[tuple[State, type], tuple[Handler, frozenset[State]]] = {
 
 #: The rules of state and time alone (``_settle``), in order, the first that fires applies:
 #: (states it applies in, rule, next states it may choose)
-SETTLE: tuple[tuple[frozenset[State], Callable[[AuthorityMachine, float], "tuple[State, list[Action]] | None"],
-                    frozenset[State]], ...] = (
+SETTLE: tuple[SettleRow[State], ...] = (
     (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._proven_recipient, frozenset({S.LINKED})),
     (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._handover_deadline, frozenset({S.LINKED})),
     (frozenset({S.LINKED, S.HANDOVER_PENDING}), AuthorityMachine._repair_deadline,
@@ -897,3 +682,5 @@ SETTLE: tuple[tuple[frozenset[State], Callable[[AuthorityMachine, float], "tuple
     (frozenset({S.FAILSAFE}), AuthorityMachine._owner_back_on_ground, frozenset({S.LINKED})),
     (frozenset({S.UNPAIRED}), AuthorityMachine._first_claim_over, frozenset({S.UNPAIRED})),
 )
+#: A restart's restore (``restore``), outside the table: LINKED(owner, epoch), or FAILSAFE again.
+RESTORED = frozenset({S.LINKED, S.FAILSAFE})
