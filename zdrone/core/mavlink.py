@@ -226,13 +226,12 @@ class FrameCodec:
         parser = next((p for ids, p in self._parsers if msgid in ids), None)
         if parser is None:
             return None
-        try:
-            msgs = parser.parse_buffer(frame)
+        try:  # the dialect's decoder on the one frame (its byte-by-byte parser costs as much again)
+            msg = parser.decode(bytearray(frame))
         except Exception:  # pymavlink raises assorted errors on garbage
             return None
-        if not msgs:
+        if msg is None:
             return None
-        msg = msgs[0]
         if msg.get_type() == "BAD_DATA" or msg.get_type().startswith("UNKNOWN_"):
             return None
         return msg
