@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
+from pathlib import Path
 from typing import Callable, Sequence
 
 from zdrone.core.errors import ConfigError, UsageError
@@ -181,10 +183,20 @@ def _bench_overhead(args: argparse.Namespace) -> int:
         raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
     if args.hosts_nice is not None and not 0 <= args.hosts_nice <= 19:
         raise UsageError(f"--hosts-nice {args.hosts_nice}: must be 0..19")
-    result = overhead.run(ks, stations=args.stations, sites=args.sites, flight=args.flight, quick=args.quick,
-                          speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice)
+    if args.from_json is not None:
+        try:
+            result = json.loads(Path(args.from_json).read_text())
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--from-json {args.from_json}: {exc}") from None
+    else:
+        result = overhead.run(ks, stations=args.stations, sites=args.sites, flight=args.flight, quick=args.quick,
+                              speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice)
+    if args.plot is not None:
+        from zdrone.bench.overheadplot import plot
+
+        log.info("CPU per drone plotted to %s", plot(result, Path(args.plot)))
     _emit(args, result, overhead.render)
-    return 0 if all(not r["errors"] for r in result["rows"]) else 1
+    return 0 if all(not r.get("errors") for r in result["rows"]) else 1
 
 
 def _bench_soak(args: argparse.Namespace) -> int:
@@ -463,6 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the simulators' speed-up (default by K, as bench scale: 4 up to 100 drones, 1 above)")
     bo.add_argument("--hosts-nice", type=int, default=None, metavar="N",
                     help="the niceness of the drones and GSs hosts in both halves (default 10, as bench scale)")
+    bo.add_argument("--plot", metavar="PNG", help="also draw the CPU per drone against K, per class, to this file")
+    bo.add_argument("--from-json", metavar="FILE", help="show (and --plot) a result saved with --json; fly nothing")
     bo.set_defaults(func=_bench_overhead)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "
