@@ -72,7 +72,6 @@ class Failed(HandoverEvent):
     reason: str
 
 
-P = HandoverPhase
 
 
 class Handover(Machine):
@@ -88,7 +87,7 @@ class Handover(Machine):
 
     def _fresh(self) -> None:
         """Nothing released, failed or commanded yet (a new epoch)."""
-        self.phase = P.IDLE
+        self.phase = HandoverPhase.IDLE
         self.to: str | None = None  # the recipient of the last release
         self.sent = 0.0  # the last release went out then
         self.failed_at = 0.0  # the last failure
@@ -100,24 +99,24 @@ class Handover(Machine):
     @property
     def released(self) -> bool:
         """A release of ours stands (sent, confirmed or not): we no longer command the drone."""
-        return self.phase in (P.RELEASED, P.CONFIRMED)
+        return self.phase in (HandoverPhase.RELEASED, HandoverPhase.CONFIRMED)
 
     def released_in(self, epoch: int) -> bool:
         return self.epoch == epoch and self.released
 
     def retry_waits(self, now: float, retry: float) -> bool:
         """Failed less than ``retry`` seconds ago: the next try waits."""
-        return self.phase is P.FAILED and now - self.failed_at < retry
+        return self.phase is HandoverPhase.FAILED and now - self.failed_at < retry
 
     def resend_waits(self, now: float, resend: float) -> bool:
         """Released: wait for the drone (the release is sent again only if it never confirmed)."""
-        return self.phase is P.CONFIRMED or self.phase is P.RELEASED and now - self.sent < resend
+        return self.phase is HandoverPhase.CONFIRMED or self.phase is HandoverPhase.RELEASED and now - self.sent < resend
 
     # ------------------------------------------------------------------ engine
     def for_epoch(self, epoch: int) -> "Handover":
         """The machine of ``epoch``: a new epoch starts afresh (``IDLE``, nothing failed, no RTL)."""
         if epoch != self.epoch:
-            if self.phase is not P.IDLE:
+            if self.phase is not HandoverPhase.IDLE:
                 log.info("hand-over of %s: epoch %s -> %d, %s -> idle", self.drone, self.epoch, epoch, self.phase.value)
             self._fresh()
             self.epoch = epoch
@@ -152,15 +151,15 @@ class Handover(Machine):
 
 #: (phase, event type) -> (handler, next phase). Pairs not listed change nothing.
 TABLE: Table[HandoverPhase] = {
-    (P.IDLE, ReleaseSent): (Handover._on_release, P.RELEASED),
-    (P.FAILED, ReleaseSent): (Handover._on_release, P.RELEASED),
-    (P.RELEASED, ReleaseSent): (Handover._on_release, P.RELEASED),  # sent again, never confirmed
-    (P.RELEASED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),
-    (P.CONFIRMED, Confirmed): (Handover._on_confirmed, P.CONFIRMED),
-    (P.IDLE, Failed): (Handover._on_failed, P.FAILED),
-    (P.RELEASED, Failed): (Handover._on_failed, P.FAILED),
-    (P.CONFIRMED, Failed): (Handover._on_failed, P.FAILED),
-    (P.FAILED, Failed): (Handover._on_failed, P.FAILED),
+    (HandoverPhase.IDLE, ReleaseSent): (Handover._on_release, HandoverPhase.RELEASED),
+    (HandoverPhase.FAILED, ReleaseSent): (Handover._on_release, HandoverPhase.RELEASED),
+    (HandoverPhase.RELEASED, ReleaseSent): (Handover._on_release, HandoverPhase.RELEASED),  # sent again, never confirmed
+    (HandoverPhase.RELEASED, Confirmed): (Handover._on_confirmed, HandoverPhase.CONFIRMED),
+    (HandoverPhase.CONFIRMED, Confirmed): (Handover._on_confirmed, HandoverPhase.CONFIRMED),
+    (HandoverPhase.IDLE, Failed): (Handover._on_failed, HandoverPhase.FAILED),
+    (HandoverPhase.RELEASED, Failed): (Handover._on_failed, HandoverPhase.FAILED),
+    (HandoverPhase.CONFIRMED, Failed): (Handover._on_failed, HandoverPhase.FAILED),
+    (HandoverPhase.FAILED, Failed): (Handover._on_failed, HandoverPhase.FAILED),
 }
 # Not listed: a release while CONFIRMED (the core waits for the drone), a confirmation while IDLE or
 # FAILED (a release that is not ours, e.g. the operator's, or one that failed already).

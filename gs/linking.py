@@ -59,9 +59,9 @@ from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.keyshare import KeyShareAsk, KeyShareResponder, Refused, ShareRefusal, decode_query
 from zdrone.core.machine import IllegalTransition, Machine, Table
 from zdrone.core.pairing import PairingFailed, PairingInitiator
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 
-from .actions import Action, Ask, AskKind, Emit, QueryAnswer
+from gs.actions import Action, Ask, AskKind, Emit, QueryAnswer
 
 log = logging.getLogger(__name__)
 
@@ -274,7 +274,7 @@ class Linking(Machine):
         self._exchange_hybrid = c.fleet.pairing_pq
         self.pairing_deadline = ev.now + ev.timeout
         self._set_state(PairPhase.ASKING, "message 1")
-        return [Ask(AskKind.PAIR, c.drone, c.gs, kx.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
+        return [Ask(AskKind.PAIR, c.drone, c.gs, keyexprs.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
 
     def _pair_late(self, ev: Reply) -> tuple[list[Action], PairProven | None]:
         self.ctx.counters["pair_reply_late"] += 1
@@ -365,7 +365,7 @@ class Linking(Machine):
         s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall,
                             hybrid=c.fleet.pairing_pq)
         self._set_state(SharePhase.ASKED, "asked", key=g)
-        return [Ask(AskKind.LINKKEY, c.drone, g, kx.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
+        return [Ask(AskKind.LINKKEY, c.drone, g, keyexprs.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
 
     def _ask_over(self, g: str, ev: ShareDue) -> list[Action]:
         """An open query: past its deadline (no answer) or its "live link" retry, asked again."""

@@ -47,8 +47,8 @@ from zdrone.core.machine import IllegalTransition, Machine, Table
 from zdrone.vehicle.fix import PositionFix
 from zdrone.vehicle.modes import mode_name, set_mode_params
 
-from .actions import Action, Emit, ToOperator
-from .planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
+from gs.actions import Action, Emit, ToOperator
+from gs.planner import AUTOPILOTS, MissionUploader, PlannedItem, encode_mission
 
 log = logging.getLogger(__name__)
 
@@ -524,21 +524,20 @@ class Mission(Machine):
         return []
 
 
-S = Stage
 #: (stage, event type) -> (handler, the stages it may move to). Pairs not listed do nothing.
 TABLE: Table[Stage] = {
-    (S.IDLE, FlightTick): (Mission._identify, frozenset({S.PREPARING, S.UPLOADING})),
-    (S.PREPARING, FlightTick): (Mission._preparing_tick, frozenset({S.FAILED})),
-    (S.PREPARING, FlightParam): (Mission._preparing_param, frozenset({S.UPLOADING})),
-    (S.UPLOADING, FlightTick): (Mission._upload_tick, frozenset({S.WAITING_READY, S.UPLOAD_WAIT, S.FAILED})),
-    (S.UPLOAD_WAIT, FlightTick): (Mission._upload_wait_tick, frozenset({S.UPLOADING})),
-    (S.WAITING_READY, FlightTick): (Mission._ready_tick, frozenset({S.FLYING, S.STARTING, S.ARMING})),
-    (S.ARMING, FlightTick): (Mission._stage_timeout, frozenset({S.WAITING_READY})),
-    (S.STARTING, FlightTick): (Mission._stage_timeout, frozenset({S.FLYING, S.WAITING_READY})),
-    (S.ARMING, FlightAck): (Mission._arm_ack, frozenset({S.REFUSED, S.STARTING})),
-    (S.STARTING, FlightAck): (Mission._start_ack, frozenset({S.REFUSED, S.TAKING_OFF})),
-    (S.REFUSED, FlightTick): (Mission._classify_refusal, frozenset({S.WAITING_READY, S.FAILED})),
-    (S.TAKING_OFF, FlightTick): (Mission._takeoff_tick, frozenset({S.FLYING, S.WAITING_READY})),
+    (Stage.IDLE, FlightTick): (Mission._identify, frozenset({Stage.PREPARING, Stage.UPLOADING})),
+    (Stage.PREPARING, FlightTick): (Mission._preparing_tick, frozenset({Stage.FAILED})),
+    (Stage.PREPARING, FlightParam): (Mission._preparing_param, frozenset({Stage.UPLOADING})),
+    (Stage.UPLOADING, FlightTick): (Mission._upload_tick, frozenset({Stage.WAITING_READY, Stage.UPLOAD_WAIT, Stage.FAILED})),
+    (Stage.UPLOAD_WAIT, FlightTick): (Mission._upload_wait_tick, frozenset({Stage.UPLOADING})),
+    (Stage.WAITING_READY, FlightTick): (Mission._ready_tick, frozenset({Stage.FLYING, Stage.STARTING, Stage.ARMING})),
+    (Stage.ARMING, FlightTick): (Mission._stage_timeout, frozenset({Stage.WAITING_READY})),
+    (Stage.STARTING, FlightTick): (Mission._stage_timeout, frozenset({Stage.FLYING, Stage.WAITING_READY})),
+    (Stage.ARMING, FlightAck): (Mission._arm_ack, frozenset({Stage.REFUSED, Stage.STARTING})),
+    (Stage.STARTING, FlightAck): (Mission._start_ack, frozenset({Stage.REFUSED, Stage.TAKING_OFF})),
+    (Stage.REFUSED, FlightTick): (Mission._classify_refusal, frozenset({Stage.WAITING_READY, Stage.FAILED})),
+    (Stage.TAKING_OFF, FlightTick): (Mission._takeoff_tick, frozenset({Stage.FLYING, Stage.WAITING_READY})),
 }
 # Not listed: FLYING and FAILED take no event (the mission is the autopilot's, or given up); an ACK
 # or a parameter outside the stage that waits for it changes nothing.

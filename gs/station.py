@@ -40,7 +40,7 @@ from zdrone.core.errors import ConfigError
 from zdrone.core.fleet import Fleet
 from zdrone.core.keys import SigningKey
 from zdrone.core.mavcontrol import OperatorControlRequest
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet import revisions
 from zdrone.net.eventlog import EventLog
 from zdrone.net.inbox import payload_bytes
@@ -48,9 +48,9 @@ from zdrone.net.runtime import NodeRuntime
 
 from zdrone.core.outputs import Handlers, dispatch
 
-from .actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
-from .core import GCS_COMPID, CoreOptions, DroneSeen, StationCore, view_line
-from .planner import PlannedItem
+from gs.actions import Action, Ask, AskKind, Checkpoint, Emit, FrameUp, Put, ToOperator
+from gs.core import GCS_COMPID, CoreOptions, DroneSeen, StationCore, view_line
+from gs.planner import PlannedItem
 from zdrone.net.opspublish import OpsPublisher
 
 log = logging.getLogger(__name__)
@@ -139,8 +139,8 @@ class GroundStation:
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
         self.status_sources: dict[str, Callable[[], dict[str, Any]]] = {}  # e.g. the gateway's stats
         self.session = self.rt.session
-        self.sub = self.rt.subscribe(kx.down("*", self.name), "down", kx.drone_of, limit=MAX_BUNDLE)
-        self.linkkey_q = self.rt.queryable(kx.linkkey_all(self.name))
+        self.sub = self.rt.subscribe(keyexprs.down("*", self.name), "down", keyexprs.drone_of, limit=MAX_BUNDLE)
+        self.linkkey_q = self.rt.queryable(keyexprs.linkkey_all(self.name))
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True,
                                                   signing=lambda: self.secret.signing, wall=time.time)
         # the operations picture for the fleet's viewer (``zdrone view``), if the fleet has one
@@ -156,7 +156,7 @@ class GroundStation:
 
     def _put(self, a: Put) -> None:
         """A link frame on the drone's uplink key: paced, priority, express."""
-        self.rt.put_link(kx.up(a.peer, self.name), a.payload, time.monotonic())
+        self.rt.put_link(keyexprs.up(a.peer, self.name), a.payload, time.monotonic())
 
     def _emit(self, a: Emit) -> None:
         self.events.write_record(a.record)
@@ -286,7 +286,7 @@ class GroundStation:
                 if payload is None:
                     self.counters["linkkey_refused:oversize"] += 1
                     continue
-                ans, actions = self.core.on_linkkey_query(kx.gs_of(q.key_expr), payload, now, os.urandom(32), time.time())
+                ans, actions = self.core.on_linkkey_query(keyexprs.gs_of(q.key_expr), payload, now, os.urandom(32), time.time())
                 handshakes += ans.crypto
                 if ans.reply is not None:
                     q.reply(q.key_expr, ans.reply)
@@ -376,9 +376,9 @@ def run_station(opts: StationOptions) -> int:
     station = GroundStation(opts)
     gateway = None
     if opts.gcs:
-        from .gateway import GcsGateway
+        from gs.gateway import GcsGateway
 
-        from .appkeys import load_gs_keys, signing_state_path
+        from gs.appkeys import load_gs_keys, signing_state_path
 
         try:
             keys = load_gs_keys(opts.gcs_keys, station.name, others=station.fleet.ground_stations()) if opts.gcs_keys else ()

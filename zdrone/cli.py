@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
+from pathlib import Path
 from typing import Callable, Sequence
 
-from .core.errors import ConfigError, UsageError
+from zdrone.core.errors import ConfigError, UsageError
 
 log = logging.getLogger("zdrone")
 
@@ -19,7 +21,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _fleet_init(args: argparse.Namespace) -> int:
-    from .fleet.files import init_fleet
+    from zdrone.fleet.files import init_fleet
 
     sites = [s for s in args.sites.split(",") if s] if args.sites else None
     if args.revision_lease < 0:
@@ -32,7 +34,7 @@ def _fleet_init(args: argparse.Namespace) -> int:
 
 
 def _fleet_export(args: argparse.Namespace) -> int:
-    from .fleet.bundle import export_bundle
+    from zdrone.fleet.bundle import export_bundle
 
     b = export_bundle(args.dir, args.node, args.out)
     print(f"wrote {args.out}: the bundle of {b.node} ({b.role}{', TLS' if b.tls else ''}): " + ", ".join(b.files))
@@ -42,8 +44,8 @@ def _fleet_export(args: argparse.Namespace) -> int:
 def _fleet_show(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .fleet.bundle import BUNDLE_FILE, check_bundle
-    from .fleet.files import fleet_path, load_fleet, load_secret
+    from zdrone.fleet.bundle import BUNDLE_FILE, check_bundle
+    from zdrone.fleet.files import fleet_path, load_fleet, load_secret
 
     if (fleet_path(args.dir).parent / BUNDLE_FILE).is_file():
         b = check_bundle(fleet_path(args.dir).parent) if args.check_secrets else None
@@ -67,8 +69,8 @@ def _service(args: argparse.Namespace) -> int:
     import os
     import shutil
 
-    from .fleet.service import render_unit, service_spec
-    from .vehicle.transport import parse_endpoint
+    from zdrone.fleet.service import render_unit, service_spec
+    from zdrone.vehicle.transport import parse_endpoint
 
     if args.vehicle and not args.vehicle.startswith("/dev/"):
         parse_endpoint(args.vehicle)  # a bad connection is a usage error
@@ -87,7 +89,7 @@ def _service(args: argparse.Namespace) -> int:
 
 def _emit(args: argparse.Namespace, result: dict, render: Callable[[dict], None]) -> None:
     """Every bench prints a table for people, or ``--json`` for tools."""
-    from .bench import table
+    from zdrone.bench import table
 
     if args.json:
         table.print_json(result)
@@ -96,7 +98,7 @@ def _emit(args: argparse.Namespace, result: dict, render: Callable[[dict], None]
 
 
 def _bench_crypto(args: argparse.Namespace) -> int:
-    from .bench import crypto
+    from zdrone.bench import crypto
 
     _emit(args, crypto.run(quick=args.quick), crypto.render)
     return 0
@@ -105,7 +107,7 @@ def _bench_crypto(args: argparse.Namespace) -> int:
 def _bench_traffic(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .bench import traffic
+    from zdrone.bench import traffic
 
     result = traffic.run(quick=args.quick, out=Path(args.out) if args.out else None, progress=not args.json,
                          autopilot=args.autopilot)
@@ -114,14 +116,14 @@ def _bench_traffic(args: argparse.Namespace) -> int:
 
 
 def _bench_link(args: argparse.Namespace) -> int:
-    from .bench import link
+    from zdrone.bench import link
 
     _emit(args, link.run(quick=args.quick, progress=not args.json), link.render)
     return 0
 
 
 def _bench_handover(args: argparse.Namespace) -> int:
-    from .bench import handover
+    from zdrone.bench import handover
 
     for name in ("crossings", "trials"):
         v = getattr(args, name)
@@ -133,13 +135,13 @@ def _bench_handover(args: argparse.Namespace) -> int:
 
 
 def _bench_scale(args: argparse.Namespace) -> int:
-    from .bench import scale
+    from zdrone.bench import scale
 
     try:
         ks = [int(x) for x in args.drones.split(",")] if args.drones else None
     except ValueError:
         raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
-    from .fleet.files import MAX_SCALE_DRONES
+    from zdrone.fleet.files import MAX_SCALE_DRONES
 
     if ks and not all(1 <= k <= MAX_SCALE_DRONES for k in ks) or not 2 <= args.stations <= 26:
         raise UsageError(f"--drones: each 1..{MAX_SCALE_DRONES}; --stations: 2..26")
@@ -170,7 +172,7 @@ def _bench_scale(args: argparse.Namespace) -> int:
 
 
 def _bench_overhead(args: argparse.Namespace) -> int:
-    from .bench import overhead
+    from zdrone.bench import overhead
 
     try:
         ks = overhead.parse_drones(args.drones, args.quick)
@@ -181,16 +183,26 @@ def _bench_overhead(args: argparse.Namespace) -> int:
         raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
     if args.hosts_nice is not None and not 0 <= args.hosts_nice <= 19:
         raise UsageError(f"--hosts-nice {args.hosts_nice}: must be 0..19")
-    result = overhead.run(ks, stations=args.stations, sites=args.sites, flight=args.flight, quick=args.quick,
-                          speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice)
+    if args.from_json is not None:
+        try:
+            result = json.loads(Path(args.from_json).read_text())
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"--from-json {args.from_json}: {exc}") from None
+    else:
+        result = overhead.run(ks, stations=args.stations, sites=args.sites, flight=args.flight, quick=args.quick,
+                              speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice)
+    if args.plot is not None:
+        from zdrone.bench.overheadplot import plot
+
+        log.info("CPU per drone plotted to %s", plot(result, Path(args.plot)))
     _emit(args, result, overhead.render)
-    return 0 if all(not r["errors"] for r in result["rows"]) else 1
+    return 0 if all(not r.get("errors") for r in result["rows"]) else 1
 
 
 def _bench_soak(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .bench import soak
+    from zdrone.bench import soak
     from gs.planner import MAX_SHUTTLE_CROSSINGS
 
     if not 1 <= args.crossings <= MAX_SHUTTLE_CROSSINGS:
@@ -205,7 +217,7 @@ def _bench_soak(args: argparse.Namespace) -> int:
 
 
 def _bench_chaos(args: argparse.Namespace) -> int:
-    from .bench import chaos
+    from zdrone.bench import chaos
 
     if not 1 <= args.runs <= 1000:
         raise UsageError(f"--runs {args.runs}: must be 1..1000")
@@ -217,7 +229,7 @@ def _bench_chaos(args: argparse.Namespace) -> int:
 
 
 def _bench_restart(args: argparse.Namespace) -> int:
-    from .bench import restart
+    from zdrone.bench import restart
 
     if not 1 <= args.runs <= 200:
         raise UsageError(f"--runs {args.runs}: must be 1..200")
@@ -227,7 +239,7 @@ def _bench_restart(args: argparse.Namespace) -> int:
 
 
 def _bench_revoke(args: argparse.Namespace) -> int:
-    from .bench import revoke
+    from zdrone.bench import revoke
 
     if args.drones is not None and not 1 <= args.drones <= 150:
         raise UsageError(f"--drones {args.drones}: must be 1..150")
@@ -242,8 +254,8 @@ def _bench_revoke(args: argparse.Namespace) -> int:
 def _bench_sweep(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .bench import sweep
-    from .sil.launcher import MOMENTS, SCENARIO_BY_NAME
+    from zdrone.bench import sweep
+    from zdrone.sil.launcher import MOMENTS, SCENARIO_BY_NAME
 
     names = [n for n in (args.scenarios or "").split(",") if n]
     bad = [n for n in names if n not in SCENARIO_BY_NAME]
@@ -267,7 +279,7 @@ def _bench_sweep(args: argparse.Namespace) -> int:
 def _bench_view(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .bench import view
+    from zdrone.bench import view
 
     if args.crossings is not None and not 1 <= args.crossings <= 500:
         raise UsageError(f"--crossings {args.crossings}: must be 1..500")
@@ -291,8 +303,8 @@ def _bench_view(args: argparse.Namespace) -> int:
 
 
 def _bench_attack(args: argparse.Namespace) -> int:
-    from .bench import attack
-    from .sil.launcher import ATTACK_SCENARIOS
+    from zdrone.bench import attack
+    from zdrone.sil.launcher import ATTACK_SCENARIOS
 
     names = None
     if args.scenarios is not None:
@@ -324,7 +336,7 @@ def _bench_attack(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from .check import run as check
+    from zdrone.check import run as check
 
     if args.depth < 1 or args.faults < 0:
         raise UsageError("check: --depth must be >= 1 and --faults >= 0")
@@ -350,7 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "tcp/127.0.0.1:7447,tcp/127.0.0.1:7448); writes router/site-N.json5 and router/sites.json")
     fi.add_argument("--tls", action="store_true",
                     help="also a fleet CA and a certificate per node and router; the router then requires them (mutual TLS)")
-    from .fleet.files import DEFAULT_REVISION_LEASE_S
+    from zdrone.fleet.files import DEFAULT_REVISION_LEASE_S
 
     fi.add_argument("--revision-lease", type=float, default=DEFAULT_REVISION_LEASE_S, metavar="S",
                     help="the owners' lease: from its first pairing, a drone's owner keeps authority only while the "
@@ -367,8 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     fe.add_argument("--dir", default="fleet", help="the fleet directory (default: ./fleet)")
     fe.add_argument("--out", required=True, metavar="DIR", help="the bundle's folder (new or empty)")
     fe.set_defaults(func=_fleet_export)
-    from .fleet.revise import add_parsers as add_revision_parsers
-    from .net.revisions import publish_command
+    from zdrone.fleet.revise import add_parsers as add_revision_parsers
+    from zdrone.net.revisions import publish_command
 
     add_revision_parsers(fsub, publish_command)  # revoke, rotate, revise, publish (signed fleet revisions)
 
@@ -463,6 +475,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the simulators' speed-up (default by K, as bench scale: 4 up to 100 drones, 1 above)")
     bo.add_argument("--hosts-nice", type=int, default=None, metavar="N",
                     help="the niceness of the drones and GSs hosts in both halves (default 10, as bench scale)")
+    bo.add_argument("--plot", metavar="PNG", help="also draw the CPU per drone against K, per class, to this file")
+    bo.add_argument("--from-json", metavar="FILE", help="show (and --plot) a result saved with --json; fly nothing")
     bo.set_defaults(func=_bench_overhead)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "
@@ -560,7 +574,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--json", action="store_true", help="print JSON instead of text")
     ck.set_defaults(func=_check)
 
-    from .commands import NODE_COMMANDS
+    from zdrone.commands import NODE_COMMANDS
 
     for add in NODE_COMMANDS:
         add(sub)
@@ -572,7 +586,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import faulthandler
     import signal
 
-    from .crashes import stacks_on_crash
+    from zdrone.crashes import stacks_on_crash
 
     stacks_on_crash()  # a crash leaves every thread's stack on stderr, here and in every process started from here
     try:  # `kill -USR1 PID` prints every thread's stack, even if one is stuck in C
@@ -594,10 +608,10 @@ LAUNCHER_COMMANDS = ("demo", "bench")
 def run_parsed(args: argparse.Namespace) -> int:
     """Run a parsed subcommand: logging, signal thread, one-line errors with exit code 2."""
     try:
-        from .commands import SIGNAL_THREAD_COMMANDS
+        from zdrone.commands import SIGNAL_THREAD_COMMANDS
 
         if getattr(args, "func", None) in SIGNAL_THREAD_COMMANDS:
-            from .net.shutdown import block_signals
+            from zdrone.net.shutdown import block_signals
 
             block_signals()  # before any library starts a thread: see zdrone.net.shutdown
         level = logging.WARNING - 10 * min(args.verbose, 2)
@@ -608,7 +622,7 @@ def run_parsed(args: argparse.Namespace) -> int:
         logging.basicConfig(level=level, format="%(name)s %(levelname)s %(message)s" if journal
                             else "%(asctime)s %(name)s %(levelname)s %(message)s")
         if getattr(args, "command", None) in LAUNCHER_COMMANDS:
-            from .sil.procs import on_signals
+            from zdrone.sil.procs import on_signals
 
             with on_signals():  # SIGTERM/SIGHUP unwind like Ctrl-C; every child is stopped on the way out
                 code = args.func(args)
@@ -620,7 +634,7 @@ def run_parsed(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     except BaseException as exc:
-        from .sil.procs import Terminated
+        from zdrone.sil.procs import Terminated
 
         if isinstance(exc, Terminated):
             print(f"zdrone: {exc}", file=sys.stderr)

@@ -9,8 +9,8 @@ import math
 from pathlib import Path
 from typing import Any, Callable
 
-from .core.errors import UsageError
-from .core.geometry import GeoPoint
+from zdrone.core.errors import UsageError
+from zdrone.core.geometry import GeoPoint
 
 log = logging.getLogger(__name__)
 
@@ -37,9 +37,9 @@ def positive(text: str) -> float:
 
 
 def _sim(args: argparse.Namespace) -> int:
-    from .core.reference import HOME
-    from .vehicle.personality import personality
-    from .vehicle.simserver import SimOptions, run_sim
+    from zdrone.core.reference import HOME
+    from zdrone.vehicle.personality import personality
+    from zdrone.vehicle.simserver import SimOptions, run_sim
 
     home = parse_home(args.home) if args.home else HOME
     if not 1 <= args.sysid <= 255:
@@ -93,7 +93,7 @@ def add_sim(sub: argparse._SubParsersAction) -> None:
 
 
 def _router(args: argparse.Namespace) -> int:
-    from .net.router import run_router
+    from zdrone.net.router import run_router
 
     if args.take_over is not None and not 0 < args.take_over <= 600:
         raise UsageError(f"--take-over {args.take_over:g}: must be more than 0 and at most 600 seconds")
@@ -118,7 +118,7 @@ def add_router(sub: argparse._SubParsersAction) -> None:
 
 
 def _thresholds(args: argparse.Namespace):
-    from .core.tbm import TbmThresholds
+    from zdrone.core.tbm import TbmThresholds
 
     try:
         return TbmThresholds(args.degraded_after, args.lost_after)
@@ -128,7 +128,7 @@ def _thresholds(args: argparse.Namespace):
 
 def _event_limits(args: argparse.Namespace) -> None:
     """Every event log of this node process rotates at ``--events-max-mb`` (``net.eventlog``)."""
-    from .net.eventlog import configure
+    from zdrone.net.eventlog import configure
 
     if not 0.01 <= args.events_max_mb <= 100_000:
         raise UsageError(f"--events-max-mb {args.events_max_mb:g}: must be 0.01..100000")
@@ -144,7 +144,7 @@ def _add_event_options(p: argparse.ArgumentParser) -> None:
 
 
 def _drone(args: argparse.Namespace) -> int:
-    from .nodes.drone import DroneOptions, run_drone
+    from zdrone.nodes.drone import DroneOptions, run_drone
 
     _event_limits(args)
     routers = args.router or ["tcp/127.0.0.1:7447"]
@@ -162,15 +162,15 @@ def _gate(args: argparse.Namespace) -> "Any":
     """The emulated radio coverage (testbed only), or None."""
     if not args.sil_coverage:
         return None
-    from .fleet.files import load_fleet
-    from .sil.coverage import CoverageGate
+    from zdrone.fleet.files import load_fleet
+    from zdrone.sil.coverage import CoverageGate
 
     return CoverageGate(load_fleet(args.fleet))
 
 
 def _radio(args: argparse.Namespace) -> "Any":
     """The emulated radio's impairments (testbed only), or None for a perfect one."""
-    from .sil.radio import RadioChannel, parse_models
+    from zdrone.sil.radio import RadioChannel, parse_models
 
     if not (args.sil_loss or args.sil_bursts or args.sil_delay_ms or args.sil_jitter_ms):
         return None
@@ -231,7 +231,7 @@ def _gs(args: argparse.Namespace) -> int:
     from gs.planner import load_plan, reference_plan
     from gs.station import StationOptions, run_station
 
-    from .vehicle.transport import parse_endpoint
+    from zdrone.vehicle.transport import parse_endpoint
 
     for conn in args.gcs or ():
         parse_endpoint(conn)  # a bad endpoint is a usage error before anything connects
@@ -317,7 +317,7 @@ def add_gs(sub: argparse._SubParsersAction, bench: bool = False) -> None:
 def _demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .sil.launcher import SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
+    from zdrone.sil.launcher import SCENARIO_BY_NAME, SCENARIO_SITES, SCENARIO_TLS, DemoOptions, run_demo
 
     live = True if args.live else (False if args.no_live else None)
     moment = None
@@ -333,7 +333,7 @@ def _demo(args: argparse.Namespace) -> int:
                              f"{', '.join(spec.moments()) or 'no other moment'}")
         moment = args.moment if args.moment != spec.own_moment() else None
     if args.netns:
-        from .sil.netns import netns_refusal
+        from zdrone.sil.netns import netns_refusal
 
         refusal = netns_refusal()
         if refusal:
@@ -341,7 +341,7 @@ def _demo(args: argparse.Namespace) -> int:
         if args.vehicle:
             raise UsageError("--netns: the built-in simulator runs in the drone's namespace; no --vehicle")
     if args.vehicle:
-        from .vehicle.transport import parse_endpoint
+        from zdrone.vehicle.transport import parse_endpoint
 
         parse_endpoint(args.vehicle)  # a bad connection is a usage error before anything starts
     if args.ready_after is not None:
@@ -363,7 +363,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def add_demo(sub: argparse._SubParsersAction) -> None:
-    from .sil.launcher import MOMENTS, SCENARIOS, scenario_help
+    from zdrone.sil.launcher import MOMENTS, SCENARIOS, scenario_help
 
     p = sub.add_parser("demo", help="fly the reference flight with router, sim, drone and two GSs as processes",
                        epilog=scenario_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -411,7 +411,7 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from .report import write_report
+    from zdrone.report import write_report
 
     print(write_report(args.log))
     return 0
@@ -424,8 +424,8 @@ def add_report(sub: argparse._SubParsersAction) -> None:
 
 
 def _audit_verify(args: argparse.Namespace) -> int:
-    from .fleet.revisions import signing_key_epochs
-    from .report import audit_files, run_expected, run_fleet, run_fleet_dir, verify_audit
+    from zdrone.fleet.revisions import signing_key_epochs
+    from zdrone.report import audit_files, run_expected, run_fleet, run_fleet_dir, verify_audit
 
     files = audit_files(args.targets)
     fleet = run_fleet(args.targets, args.fleet)
@@ -466,13 +466,13 @@ def add_audit(sub: argparse._SubParsersAction) -> None:
 
 #: The node subcommands, in ``zdrone --help`` order (the fleet and bench commands live in ``cli``).
 def _view(args: argparse.Namespace) -> int:
-    from .view.server import view_command
+    from zdrone.view.server import view_command
 
     return view_command(args)
 
 
 def add_view(sub: argparse._SubParsersAction) -> None:
-    from .view.server import add_view as add
+    from zdrone.view.server import add_view as add
 
     add(sub, _view)
 

@@ -11,12 +11,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .core.envelope import enable_bench_ciphers
+from zdrone.core.envelope import enable_bench_ciphers
 
 
 def main(argv: list[str] | None = None) -> int:
-    from . import cli, commands
-    from .crashes import stacks_on_crash
+    from zdrone import cli, commands
+    from zdrone.crashes import stacks_on_crash
 
     stacks_on_crash()  # a crash leaves every thread's stack in the node's log
     enable_bench_ciphers()

@@ -21,13 +21,13 @@ from typing import Any, Mapping
 
 import msgspec
 
-from .core.audit import AuditWitness, ChainReport, CheckedChain, PublicKeys, Verified, check_chain, decode_line
-from .core.fleet import ConfigError, Fleet, parse_fleet
-from .core.geometry import GeoPoint, ne_of
-from .core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
+from zdrone.core.audit import AuditWitness, ChainReport, CheckedChain, PublicKeys, Verified, check_chain, decode_line
+from zdrone.core.fleet import ConfigError, Fleet, parse_fleet
+from zdrone.core.geometry import GeoPoint, ne_of
+from zdrone.core.records import (AnyRecord, Closed, Drop, DroneState, DroneStatus, DroneStop, Failsafe, HandoverComplete,
                            LinkStateChanged, Start, Subscribe, Unsubscribe, fields_of, only, record_type)
-from .core.reference import COVERAGE_RADIUS_M, GS_A, GS_B, HOME
-from .net.eventlog import read_records
+from zdrone.core.reference import COVERAGE_RADIUS_M, GS_A, GS_B, HOME
+from zdrone.net.eventlog import read_records
 
 COLOURS = {"A": "#1f77b4", "B": "#ff7f0e", None: "#999999"}
 #: records left out of the events table (the status is in the plots)
@@ -83,7 +83,7 @@ def run_fleet_dir(targets: list[str | Path], fleet_dir: str | Path | None) -> Pa
 
 def run_fleet(targets: list[str | Path], fleet_dir: str | Path | None) -> Fleet:
     """The fleet to verify against: ``--fleet``, else ``fleet/`` of the run folder given."""
-    from .fleet.files import load_fleet
+    from zdrone.fleet.files import load_fleet
 
     return load_fleet(run_fleet_dir(targets, fleet_dir))
 
@@ -191,7 +191,7 @@ def _audit_section(run: Path) -> str:
     files = sorted(run.glob("*.audit.jsonl"))
     if not files:
         return "<h2>Authority record</h2><p>none in this run</p>"
-    from .fleet.revisions import signing_key_epochs
+    from zdrone.fleet.revisions import signing_key_epochs
 
     try:
         fleet = run_fleet([run], None)

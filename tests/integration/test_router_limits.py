@@ -13,7 +13,7 @@ import zenoh
 
 from tests.procs import ZDRONE, free_port, spawn, wait_until
 from zdrone.fleet.files import init_fleet, load_secret
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet.routerconfig import UPLINK_LANE_HZ, UPLINK_MAX_BYTES, UPLINK_MAX_HZ, UPLINK_PACE_S
 from zdrone.bench.sessions import flood_trial, router_with_d1_and_a
 from zdrone.net.session import open_client
@@ -32,17 +32,17 @@ def test_a_message_over_64_kib_is_dropped_and_the_sender_stays_connected(tmp_pat
         small = threading.Event()
         subs = [d.declare_subscriber(lane, lambda s: (got.append(len(s.payload)),
                                                       small.set() if len(s.payload) == 500 else None))
-                for lane in kx.up_lanes("d1", "A")]
+                for lane in keyexprs.up_lanes("d1", "A")]
         try:
             for _ in range(50):  # until the route exists
-                a.put(kx.up_lane("d1", "A", 0), b"p" * 10)
+                a.put(keyexprs.up_lane("d1", "A", 0), b"p" * 10)
                 if got:
                     break
                 threading.Event().wait(0.1)
             assert got, "no route from A to the drone"
-            a.put(kx.up_lane("d1", "A", 1), b"x" * 70_000)
+            a.put(keyexprs.up_lane("d1", "A", 1), b"x" * 70_000)
             threading.Event().wait(UPLINK_PACE_S)
-            a.put(kx.up_lane("d1", "A", 2), b"y" * 500)
+            a.put(keyexprs.up_lane("d1", "A", 2), b"y" * 500)
             assert small.wait(10.0), "the small message after the big one never arrived"
             assert 70_000 not in got
         finally:
@@ -83,8 +83,8 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
     minimum interval, with no burst allowance: why an uplink has lanes)."""
     with _router_with_d1_and_a(tmp_path) as (fleet, ep, d, a):
         got: list[bytes] = []
-        subs = [d.declare_subscriber(lane, lambda s: got.append(s.payload.to_bytes())) for lane in kx.up_lanes("d1", "A")]
-        lanes = kx.up_lanes("d1", "A")
+        subs = [d.declare_subscriber(lane, lambda s: got.append(s.payload.to_bytes())) for lane in keyexprs.up_lanes("d1", "A")]
+        lanes = keyexprs.up_lanes("d1", "A")
         try:
             def routed() -> bool:  # until the route exists on every lane (a lane's subscription may come later)
                 for key in lanes:

@@ -10,7 +10,7 @@ import socket
 import threading
 
 from tests.procs import ZDRONE, free_port, spawn, wait_until
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet.tls import node_files
 from zdrone.net.router import TAKE_OVER_LINE
@@ -26,7 +26,7 @@ def test_a_router_started_beside_the_running_one_takes_its_port_when_it_ends_and
         old.wait_line("listening", 20)
         d, a = (open_client(ep, n, load_secret(fleet, n).router_password, node_files(fleet, n)) for n in ("d1", "A"))
         got: list[int] = []
-        sub = d.declare_subscriber(kx.up_lane("d1", "A", 0), lambda s: got.append(int(s.payload.to_bytes())))
+        sub = d.declare_subscriber(keyexprs.up_lane("d1", "A", 0), lambda s: got.append(int(s.payload.to_bytes())))
         sent = itertools.count()
         last_sent = [0]
         stop = threading.Event()
@@ -34,7 +34,7 @@ def test_a_router_started_beside_the_running_one_takes_its_port_when_it_ends_and
         def publish() -> None:  # A's uplink, a numbered frame every 20 ms, whatever the router does
             while not stop.wait(0.02):
                 last_sent[0] = next(sent)
-                a.put(kx.up_lane("d1", "A", 0), str(last_sent[0]).encode())
+                a.put(keyexprs.up_lane("d1", "A", 0), str(last_sent[0]).encode())
 
         pub = threading.Thread(target=publish, daemon=True)
         pub.start()

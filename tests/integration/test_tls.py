@@ -10,7 +10,7 @@ import pytest
 
 from tests.procs import ZDRONE, free_port, spawn
 from zdrone.core.errors import ConfigError
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet.tls import TlsFiles, init_tls, node_files
 from zdrone.net.session import open_client
@@ -49,7 +49,7 @@ def test_a_fleet_node_gets_in_and_reaches_its_peer(tls_router):
     a = open_client(ep, "A", _password(fleet, "A"), node_files(fleet, "A"))
     d = open_client(ep, "d1", _password(fleet, "d1"), node_files(fleet, "d1"))
     try:
-        assert _delivered(a, d, kx.up_lane("d1", "A", 0))
+        assert _delivered(a, d, keyexprs.up_lane("d1", "A", 0))
     finally:
         a.close()
         d.close()
@@ -78,7 +78,7 @@ def test_a_stolen_password_with_another_nodes_certificate_speaks_on_no_key(tls_r
         except ConfigError:
             return  # refused at connect: as good
         try:
-            assert not _delivered(mallory, d, kx.up_lane("d1", "A", 0))
+            assert not _delivered(mallory, d, keyexprs.up_lane("d1", "A", 0))
         finally:
             mallory.close()
     finally:

@@ -9,7 +9,6 @@ from hypothesis import strategies as st
 
 from gs.handover import TABLE, Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 
-P = HandoverPhase
 times = st.floats(0, 1000, allow_nan=False)
 EVENTS = st.one_of(
     st.builds(ReleaseSent, times, st.sampled_from(["B", "C"]), st.floats(0, 500, allow_nan=False)),
@@ -18,10 +17,10 @@ EVENTS = st.one_of(
 )
 #: A way into each phase from a fresh epoch.
 INTO = {
-    P.IDLE: [],
-    P.RELEASED: [ReleaseSent(1.0, "B", 100.0)],
-    P.CONFIRMED: [ReleaseSent(1.0, "B", 100.0), Confirmed(1.5)],
-    P.FAILED: [Failed(1.0, "no link")],
+    HandoverPhase.IDLE: [],
+    HandoverPhase.RELEASED: [ReleaseSent(1.0, "B", 100.0)],
+    HandoverPhase.CONFIRMED: [ReleaseSent(1.0, "B", 100.0), Confirmed(1.5)],
+    HandoverPhase.FAILED: [Failed(1.0, "no link")],
 }
 
 
@@ -30,7 +29,7 @@ def _state(h: Handover) -> dict:
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.sampled_from(list(P)), EVENTS)
+@given(st.sampled_from(list(HandoverPhase)), EVENTS)
 def test_every_phase_and_event_goes_where_the_table_says_or_changes_nothing(phase, ev):
     h = Handover("d1").for_epoch(3)
     for e in INTO[phase]:
@@ -56,21 +55,21 @@ def test_over_any_sequence_the_machine_keeps_its_epoch_and_its_facts(steps):
         if e != epoch:
             epoch, failures, first = e, 0, None
             h.for_epoch(e)
-            assert h.phase is P.IDLE and h.failures == 0 and h.first_distance is None and not h.rtl_done
+            assert h.phase is HandoverPhase.IDLE and h.failures == 0 and h.first_distance is None and not h.rtl_done
         was = h.phase
         h.handle(ev)
         if isinstance(ev, Failed):
             failures += 1
-            assert h.phase is P.FAILED and h.failed_at == ev.now and not h.released_in(e)
-        elif isinstance(ev, ReleaseSent) and was is not P.CONFIRMED:
+            assert h.phase is HandoverPhase.FAILED and h.failed_at == ev.now and not h.released_in(e)
+        elif isinstance(ev, ReleaseSent) and was is not HandoverPhase.CONFIRMED:
             first = ev.distance if first is None else first
-            assert h.phase is P.RELEASED and h.sent == ev.now and h.released_in(e) and h.to == ev.to
-        elif isinstance(ev, Confirmed) and was in (P.RELEASED, P.CONFIRMED):
-            assert h.phase is P.CONFIRMED
+            assert h.phase is HandoverPhase.RELEASED and h.sent == ev.now and h.released_in(e) and h.to == ev.to
+        elif isinstance(ev, Confirmed) and was in (HandoverPhase.RELEASED, HandoverPhase.CONFIRMED):
+            assert h.phase is HandoverPhase.CONFIRMED
         else:
             assert h.phase is was
         assert (h.failures, h.first_distance, h.epoch) == (failures, first, e)
-        assert h.released == (h.phase in (P.RELEASED, P.CONFIRMED))
+        assert h.released == (h.phase in (HandoverPhase.RELEASED, HandoverPhase.CONFIRMED))
         assert not h.released_in(e + 1)
 
 
@@ -83,4 +82,4 @@ def test_the_waits_follow_the_phase():
     h.handle(Failed(11.0, "release timed out"))
     assert h.retry_waits(12.0, 2.0) and not h.retry_waits(13.0, 2.0) and not h.resend_waits(12.0, 0.25)
     h.for_epoch(2)
-    assert h.phase is P.IDLE and not h.retry_waits(12.0, 2.0)
+    assert h.phase is HandoverPhase.IDLE and not h.retry_waits(12.0, 2.0)

@@ -156,3 +156,15 @@ def test_every_import_of_the_project_names_one_of_its_modules():
             if target not in mods:
                 missing.append(f"{path.relative_to(ROOT)}:{node.lineno}: {target}")
     assert not missing, "imports of modules that do not exist:\n" + "\n".join(missing)
+
+
+def test_one_import_style_absolute_everywhere():
+    """The product and the testbed import by absolute name (``from zdrone.core import wire``), never
+    relative (``from ..core import wire``): a reader sees where a name comes from without counting dots."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    relative = [f"{p.relative_to(root)}:{n}" for pkg in ("zdrone", "gs") for p in sorted((root / pkg).rglob("*.py"))
+                for n, line in enumerate(p.read_text().splitlines(), 1) if re.match(r"\s*from \.", line)]
+    assert not relative, relative

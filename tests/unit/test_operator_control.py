@@ -26,7 +26,7 @@ from zdrone.core.records import HandoverComplete
 from zdrone.core.reference import HOME
 from zdrone.core.tbm import LinkState
 from zdrone.core.uplink import UplinkClass
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 
 from tests.unit.test_gateway_apps import MemTransport, StubEvents
 from tests.unit.test_station_core import core, fleet_dir, ident  # noqa: F401  (fixture)
@@ -147,7 +147,7 @@ def make_net(fleet_dir, gss: tuple[str, ...] = ("A", "B"), **a_opts) -> Net:
         c = cores[g]
         m1 = next(x for x in c.handle_timer(0.0) if type(x).__name__ == "Ask")
         m2, key = respond(ident(fleet_dir, "d1"), "d1", g, c.fleet.nodes[g].public_bytes, m1.payload, bytes([sysid]) * 32)
-        links[g] = SecureLink(key=key, role="drone", tx_keyexpr=kx.down("d1", g), rx_keyexpr=kx.up("d1", g),
+        links[g] = SecureLink(key=key, role="drone", tx_keyexpr=keyexprs.down("d1", g), rx_keyexpr=keyexprs.up("d1", g),
                               peer_sysid=sysid, now=0.0)
         net.deliver(g, c.on_pair_reply("d1", m2, None, 0.0))
         net.drone_acts(machine.handle(ha.PairingDone(0.0, g)))

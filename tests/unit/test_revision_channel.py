@@ -14,7 +14,7 @@ import pytest
 from zdrone.cli import main
 from zdrone.core.errors import ConfigError
 from zdrone.core.revision import RevisionAccepted, RevisionRefusal, RevisionRefused
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet import revisions
 from zdrone.fleet.bundle import export_bundle
 from zdrone.fleet.files import REVISION_FILE
@@ -63,7 +63,7 @@ class _Runtime:
         self.asks: list[tuple[float, str, int]] = []
 
     def subscribe(self, keyexpr: str, kind: str, peer_of: Any, limit: int) -> None:
-        assert peer_of(kx.revision("A")) == "A"  # one inbox queue per sender
+        assert peer_of(keyexprs.revision("A")) == "A"  # one inbox queue per sender
         self.subs.append((keyexpr, kind, limit))
 
     def queryable(self, keyexpr: str) -> _Queryable:
@@ -105,9 +105,9 @@ def test_a_drone_answers_nothing_and_asks_at_start_on_coming_back_in_reach_and_e
     export_bundle(fleet_dir, "d1", tmp_path / "d1")
     rt, radio = _Runtime("d1"), [True]
     ch = RevisionChannel(rt, tmp_path / "d1", publisher=False, in_reach=lambda: radio[0])
-    assert rt.queryables == [] and rt.subs == [(kx.revision_all(), revisions.PUBLISHED, MAX_REVISION_BYTES)]
+    assert rt.queryables == [] and rt.subs == [(keyexprs.revision_all(), revisions.PUBLISHED, MAX_REVISION_BYTES)]
     _run(ch, rt, 100.0, 110.0)
-    assert rt.asks == [(100.0, kx.revision_all(), MAX_REVISION_BYTES)]  # at start, with the revision's size limit
+    assert rt.asks == [(100.0, keyexprs.revision_all(), MAX_REVISION_BYTES)]  # at start, with the revision's size limit
     radio[0] = False  # out of every GS's radio: no ask
     _run(ch, rt, 110.0, 125.0)
     radio[0] = True
@@ -137,14 +137,14 @@ def test_a_gs_answers_on_its_own_key_and_pushes_every_10_s_and_a_new_revision_at
     rt = _Runtime("A")
     ch = RevisionChannel(rt, tmp_path / "A", publisher=True, write_applied=True)
     (q,) = rt.queryables
-    assert q.keyexpr == kx.revision("A")
+    assert q.keyexpr == keyexprs.revision("A")
     _run(ch, rt, 0.0, 5.0)
     assert rt.puts == []  # nothing to push before the first revision
     first = _revision(fleet_dir, "X")
     assert isinstance(ch.on_inbox(revisions.PUBLISHED, first), RevisionAccepted)
     _run(ch, rt, 5.0, 35.3)
-    assert [(t, k, d) for t, k, d in rt.puts] == [(5.0, kx.revision("A"), first), (15.0, kx.revision("A"), first),
-                                                  (25.0, kx.revision("A"), first), (35.0, kx.revision("A"), first)]
+    assert [(t, k, d) for t, k, d in rt.puts] == [(5.0, keyexprs.revision("A"), first), (15.0, keyexprs.revision("A"), first),
+                                                  (25.0, keyexprs.revision("A"), first), (35.0, keyexprs.revision("A"), first)]
     second = _revision(fleet_dir, "B")
     assert isinstance(ch.on_inbox(revisions.REPLY, (second, None)), RevisionAccepted)
     _run(ch, rt, 35.3, 47.0)
@@ -154,7 +154,7 @@ def test_a_gs_answers_on_its_own_key_and_pushes_every_10_s_and_a_new_revision_at
     replies: list[tuple[str, bytes]] = []
     q.waiting = [_Query(replies) for _ in range(3)]
     ch.serve(47.0)
-    assert replies == [(kx.revision("A"), second)] * 3 and ch.keeper.counters["answered"] == 3
+    assert replies == [(keyexprs.revision("A"), second)] * 3 and ch.keeper.counters["answered"] == 3
     assert [type(r).__name__ for r in rt.events.records] == ["RevisionApplied", "RevisionApplied"]
 
 

@@ -44,28 +44,28 @@ def test_with_tls_each_gs_has_one_budget_per_lane_toward_each_drone_session():
     egress of client transports — a drone's session carries only its own uplinks, so each rule is one
     budget per (drone, GS, lane) that every session sending as that GS shares; the rules grow with the
     GSs, not drones x GSs."""
-    from zdrone.fleet import keyexprs as kx
+    from zdrone.fleet import keyexprs
     from zdrone.fleet.routerconfig import (PAIR_MAX_HZ, UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S)
 
     ups, pairs, *_revisions = router_config(default_fleet(), "c.txt", tls=True)["downsampling"]
     assert ups["flows"] == pairs["flows"] == ["egress"] and ups["messages"] == ["put"] and pairs["messages"] == ["query"]
     assert ups["link_protocols"] == pairs["link_protocols"] == ["tcp", "tls"]  # never the mesh (QUIC)
-    assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/*/up/{g}/{i}" for g in "ABX" for i in range(kx.UP_LANES)}
-    assert len(ups["rules"]) == 3 * kx.UP_LANES  # no key twice (each rule its own budget)
+    assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/*/up/{g}/{i}" for g in "ABX" for i in range(keyexprs.UP_LANES)}
+    assert len(ups["rules"]) == 3 * keyexprs.UP_LANES  # no key twice (each rule its own budget)
     assert all(r["freq"] == UPLINK_LANE_HZ for r in ups["rules"])
     assert {r["key_expr"]: r["freq"] for r in pairs["rules"]} == {f"zdrone/*/pair/{g}": PAIR_MAX_HZ for g in "ABX"}
-    assert UPLINK_LANE_HZ * kx.UP_LANES == UPLINK_MAX_HZ
-    assert kx.UP_LANES * UPLINK_PACE_S >= 4 / UPLINK_LANE_HZ  # a lane's frames four of its intervals apart
+    assert UPLINK_LANE_HZ * keyexprs.UP_LANES == UPLINK_MAX_HZ
+    assert keyexprs.UP_LANES * UPLINK_PACE_S >= 4 / UPLINK_LANE_HZ  # a lane's frames four of its intervals apart
 
 
 def test_with_a_password_alone_each_sending_session_has_its_own_budget_per_drone_and_lane():
     """A leaked password is all it takes to write as a GS without TLS: the budgets are per sending
     session (ingress), one rule per (drone, lane), so a thief's sessions never spend the real GS's."""
-    from zdrone.fleet import keyexprs as kx
+    from zdrone.fleet import keyexprs
 
     ups, pairs, *_revisions = router_config(default_fleet(), "c.txt")["downsampling"]
     assert ups["flows"] == pairs["flows"] == ["ingress"]
-    assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/d1/up/*/{i}" for i in range(kx.UP_LANES)}
+    assert {r["key_expr"] for r in ups["rules"]} == {f"zdrone/d1/up/*/{i}" for i in range(keyexprs.UP_LANES)}
     assert [r["key_expr"] for r in pairs["rules"]] == ["zdrone/d1/pair/*"]
 
 
@@ -104,14 +104,14 @@ def test_nodes_only_over_client_links_and_routers_only_over_the_mesh():
 
 
 def test_lanes_are_keys_of_their_uplink_and_name_its_gs():
-    from zdrone.fleet import keyexprs as kx
+    from zdrone.fleet import keyexprs
 
-    assert kx.up_lane("d1", "A", 3) == "zdrone/d1/up/A/3" == kx.lane_of(kx.up("d1", "A"), 3)
-    assert kx.gs_of_uplink("zdrone/d1/up/A/3") == "A"
+    assert keyexprs.up_lane("d1", "A", 3) == "zdrone/d1/up/A/3" == keyexprs.lane_of(keyexprs.up("d1", "A"), 3)
+    assert keyexprs.gs_of_uplink("zdrone/d1/up/A/3") == "A"
     import pytest
-    for bad in (-1, kx.UP_LANES):
+    for bad in (-1, keyexprs.UP_LANES):
         with pytest.raises(ValueError):
-            kx.up_lane("d1", "A", bad)
+            keyexprs.up_lane("d1", "A", bad)
 
 
 def test_every_site_router_limits_its_clients_and_meshes_over_quic():
@@ -138,36 +138,36 @@ def test_revisions_have_one_key_and_one_budget_per_sending_gs():
     and asks every sender's key; drones never answer. Each GS's key has its own budget toward each
     session (puts and replies apart), bounded in bytes, and each session's queries are bounded: the
     rules grow with the GSs."""
-    from zdrone.fleet import keyexprs as kx
+    from zdrone.fleet import keyexprs
     from zdrone.fleet.revisions import ASK_GAP_S, MAX_REVISION_BYTES, PUSH_GAP_S, PUSH_PERIOD_S
     from zdrone.fleet.routerconfig import (MAX_MESSAGE_SIZE, REVISION_MAX_BYTES, REVISION_MAX_BYTES_S, REVISION_MAX_HZ,
                                            REVISION_QUERY_HZ)
 
     cfg = router_config(default_fleet(), "c.txt")
     rules = {r["id"]: r for r in cfg["access_control"]["rules"]}
-    assert kx.revision("A") == "zdrone-fleet/revision/A" and kx.revision_all() == "zdrone-fleet/revision/*"
+    assert keyexprs.revision("A") == "zdrone-fleet/revision/A" and keyexprs.revision_all() == "zdrone-fleet/revision/*"
     for n in ("d1", "A", "B", "X"):
         assert rules[f"{n}-revision"]["messages"] == ["declare_subscriber", "query"]
-        assert rules[f"{n}-revision"]["key_exprs"] == rules[f"{n}-revision-recv"]["key_exprs"] == [kx.revision_all()]
+        assert rules[f"{n}-revision"]["key_exprs"] == rules[f"{n}-revision-recv"]["key_exprs"] == [keyexprs.revision_all()]
         assert rules[f"{n}-revision-recv"]["flows"] == ["egress"]
     for g in ("A", "B", "X"):  # its own key only
         own = rules[f"{g}-revision-own"]
-        assert own["key_exprs"] == [kx.revision(g)] and own["flows"] == ["ingress"]
+        assert own["key_exprs"] == [keyexprs.revision(g)] and own["flows"] == ["ingress"]
         assert own["messages"] == ["put", "declare_queryable", "reply"]
     assert "d1-revision-own" not in rules and "d1-revision-q" not in rules  # a drone publishes and answers nothing
-    assert not any(kx.revision("d1") in r["key_exprs"] for r in cfg["access_control"]["rules"])
+    assert not any(keyexprs.revision("d1") in r["key_exprs"] for r in cfg["access_control"]["rules"])
 
     by_id = {d["id"]: d for d in cfg["downsampling"]}
     for m, flow in (("put", "ingress"), ("reply", "egress")):  # puts: per sending session
         d = by_id[f"revision-{m}-rate"]
         assert d["flows"] == [flow] and d["messages"] == [m] and d["link_protocols"] == ["tcp", "tls"]
-        assert d["rules"] == [{"key_expr": kx.revision(g), "freq": REVISION_MAX_HZ} for g in "ABX"]
+        assert d["rules"] == [{"key_expr": keyexprs.revision(g), "freq": REVISION_MAX_HZ} for g in "ABX"]
     q = by_id["revision-query-rate"]
     assert q["flows"] == ["ingress"] and q["messages"] == ["query"]
-    assert q["rules"] == [{"key_expr": kx.revision_all(), "freq": REVISION_QUERY_HZ}]
+    assert q["rules"] == [{"key_expr": keyexprs.revision_all(), "freq": REVISION_QUERY_HZ}]
     (size,) = [f for f in cfg["low_pass_filter"] if f["id"] == "revision-size"]
     assert size == {"id": "revision-size", "flows": ["ingress"], "messages": ["put", "reply"],
-                    "key_exprs": [kx.revision_all()], "size_limit": REVISION_MAX_BYTES}
+                    "key_exprs": [keyexprs.revision_all()], "size_limit": REVISION_MAX_BYTES}
     assert MAX_REVISION_BYTES == REVISION_MAX_BYTES < MAX_MESSAGE_SIZE - 1024  # a router passes the largest
     assert REVISION_MAX_BYTES_S * 8 <= 4_000_000 / 4  # one credential: at most a quarter of a 4 Mbit/s radio
     # an honest node never meets its budget: a GS's puts two intervals apart, a node's queries too

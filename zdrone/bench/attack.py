@@ -49,15 +49,15 @@ import json5
 
 from pymavlink.dialects.v20.common import MAV_LANDED_STATE_IN_AIR
 
-from ..core.geometry import offset
-from ..core.records import (AnyRecord, DroneStatus, Failsafe, LinkConfirmed, LinkStateChanged, Paired, R, fields_of,
+from zdrone.core.geometry import offset
+from zdrone.core.records import (AnyRecord, DroneStatus, Failsafe, LinkConfirmed, LinkStateChanged, Paired, R, fields_of,
                             only, record_type)
-from ..core.reference import HOME
-from ..net.eventlog import read_records
-from ..sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec, free_port
-from ..fleet.routerconfig import UPLINK_MAX_HZ
-from .stallwatch import cpu_seconds
-from .table import ProgressLine
+from zdrone.core.reference import HOME
+from zdrone.net.eventlog import read_records
+from zdrone.sil.launcher import ATTACK_SCENARIOS, Demo, DemoOptions, RogueSpec, free_port
+from zdrone.fleet.routerconfig import UPLINK_MAX_HZ
+from zdrone.bench.stallwatch import cpu_seconds
+from zdrone.bench.table import ProgressLine
 
 SPEEDUP = 4.0
 FLOOD_SECONDS = 10.0
@@ -286,9 +286,9 @@ def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD
     """One trial: the drone behind a 4 Mbit/s radio, A holding authority, ``size``-byte junk on up/B.
     Without ``budget`` (a what-if, the control): the router's rate budgets taken out of its config.
     With ``tls``: a site router (mutual TLS: B's certificate and password, budgets per credential)."""
-    from ..fleet.files import init_fleet
-    from ..fleet.routerconfig import UPLINK_MAX_BYTES, UPLINK_MAX_BYTES_S
-    from ..sil.netns import NetnsError, ShapedRadio
+    from zdrone.fleet.files import init_fleet
+    from zdrone.fleet.routerconfig import UPLINK_MAX_BYTES, UPLINK_MAX_BYTES_S
+    from zdrone.sil.netns import NetnsError, ShapedRadio
 
     d = base / f"shaped-radio-{size}-{i}{'' if budget else '-no-budget'}{'-tls' if tls else ''}"
     d.mkdir(parents=True, exist_ok=True)
@@ -432,7 +432,7 @@ def run(quick: bool = False, scenarios: list[str] | None = None, trials: int | N
     if radio and not quick and radio_sizes is None:
         status.say("the control: the same flood of 500-byte junk with the router's budgets taken out")
         radio.append(_shaped_radio_trial(base, 0, 500, budget=False))
-    from . import sessions as per_credential
+    from zdrone.bench import sessions as per_credential
 
     cred = per_credential.run(sessions if sessions is not None else ((1, 4) if quick else (1, 4, 16)), status.say)
     status.close()
@@ -463,7 +463,7 @@ def _fmt_counts(d: dict[str, Any]) -> str:
 
 
 def render(r: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = []
     for s in r["scenarios"]:

@@ -50,7 +50,7 @@ import zenoh
 from zdrone.bench.latency import LatencyLog
 from zdrone.core.bundle import unpack
 from zdrone.core.geometry import GeoPoint, distance_m
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.net.runtime import LINK_EXPRESS, LINK_PRIORITY
 
 log = logging.getLogger(__name__)
@@ -152,7 +152,7 @@ class BareDrone:
         inq = self.inq
 
         def on_up(sample: zenoh.Sample) -> None:  # Zenoh's thread: hand over and return
-            inq.append((kx.gs_of(sample.key_expr), sample.payload.to_bytes()))
+            inq.append((keyexprs.gs_of(sample.key_expr), sample.payload.to_bytes()))
             self.delivered += 1
 
         self.sub = self.session.declare_subscriber(f"zdrone/{name}/up/*", zenoh.handlers.Callback(on_up, indirect=False))
@@ -282,7 +282,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                             if g != owner and d.standby.allow(g, mid, now):
                                 bundles.add(g, f)
                 for g, b in bundles.take():
-                    d.session.put(kx.down(d.name, g), b, **put_opts)
+                    d.session.put(keyexprs.down(d.name, g), b, **put_opts)
             loops += 1
             if landed_at is None and t0 and all(d.armed_seen for d in drones) and not any(d.vehicle.armed for d in drones):
                 landed_at = time.monotonic()
@@ -326,14 +326,14 @@ class BareStation:
         self.sent = collections.Counter[str]()
         self.session = zenoh.open(client_config(router))
         self.subs = [
-            self.session.declare_subscriber(kx.down("*", name), zenoh.handlers.Callback(self._on_down, indirect=False)),
+            self.session.declare_subscriber(keyexprs.down("*", name), zenoh.handlers.Callback(self._on_down, indirect=False)),
             self.session.declare_subscriber("backhaul/*/stamp", zenoh.handlers.Callback(self._on_backhaul, indirect=False))]
         self.running = True
         self.error: str | None = None
 
     def _on_down(self, sample: zenoh.Sample) -> None:
         self.delivered += 1
-        drone = kx.drone_of(sample.key_expr)
+        drone = keyexprs.drone_of(sample.key_expr)
         frames = unpack(sample.payload.to_bytes()) or []
         now = time.monotonic()
         if self.lat is not None:
@@ -359,7 +359,7 @@ class BareStation:
         self.seq[drone] = codec.mav.seq
         if self.lat is not None:
             self.lat.note("up", "sent", drone, frame, time.monotonic())
-        self.session.put(kx.up(drone, self.name), frame, congestion_control=zenoh.CongestionControl.DROP,
+        self.session.put(keyexprs.up(drone, self.name), frame, congestion_control=zenoh.CongestionControl.DROP,
                          priority=LINK_PRIORITY, express=LINK_EXPRESS)
 
     def run(self) -> None:

@@ -40,10 +40,10 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ..sil.launcher import (AIRBORNE, HANDOVER_STARTED, HANDOVERS_DONE, LINK_DOWN, LINK_UP, MISSION_STARTED,
+from zdrone.sil.launcher import (AIRBORNE, HANDOVER_STARTED, HANDOVERS_DONE, LINK_DOWN, LINK_UP, MISSION_STARTED,
                             REGION_ENTERED, RESTART, RETURNING, Demo, DemoOptions, Fault, Outcome, Scenario,
                             active_faults, flight_completes, return_time, safety_invariants)
-from .table import ProgressLine
+from zdrone.bench.table import ProgressLine
 
 SPEEDUP = 4.0
 MOMENTS = (MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE)
@@ -195,7 +195,7 @@ def run(runs: int, seed: int, quick: bool = False, progress: bool = True, sites:
 
 
 def render(result: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = [[r["seed"], "; ".join(r["faults"]), ", ".join(r["handovers"]) or "-", "yes" if r["failsafe"] else "-",
              "; ".join(r["violations"]) or "none"] for r in result["schedules"]]

@@ -14,9 +14,9 @@ import msgspec
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.envelope import SecureLink, enable_bench_ciphers
-from ..core.keys import LinkKey, verify_signature
-from ..core.mavlink import FrameCodec
+from zdrone.core.envelope import SecureLink, enable_bench_ciphers
+from zdrone.core.keys import LinkKey, verify_signature
+from zdrone.core.mavlink import FrameCodec
 
 CIPHERS = ("zdrone", "fernet")
 
@@ -65,8 +65,8 @@ def seal_open_us(cipher: str, frame: bytes, n: int) -> float:
 
 def handshake_us(n: int) -> dict[str, float]:
     """What a pairing query costs the drone: refusing a forged one by its tag, and a full handshake."""
-    from ..core.keys import Identity
-    from ..core.pairing import PairAccepted, PairingInitiator, PairingResponder, PairRefusal, PairRefused
+    from zdrone.core.keys import Identity
+    from zdrone.core.pairing import PairAccepted, PairingInitiator, PairingResponder, PairRefusal, PairRefused
 
     drone, gs, fake = Identity.generate(), Identity.generate(), Identity.generate()
     responder = PairingResponder(drone, "d1", {"A": gs.public}, frozenset({"A"}), rate=1e9, burst=1e9)
@@ -88,8 +88,8 @@ def handshake_us(n: int) -> dict[str, float]:
 def handshake_modes(n: int) -> list[dict[str, Any]]:
     """One pairing, classical and hybrid: message sizes, the GS's time (message 1 and reading message
     2) and the drone's (every check and message 2), best of three runs of ``n``, microseconds."""
-    from ..core.keys import Identity
-    from ..core.pairing import PairAccepted, PairingInitiator, PairingResponder
+    from zdrone.core.keys import Identity
+    from zdrone.core.pairing import PairAccepted, PairingInitiator, PairingResponder
 
     drone, gs = Identity.generate(), Identity.generate()
     rows = []
@@ -122,11 +122,11 @@ def audit_chain(n: int) -> dict[str, Any]:
     (hash, and a signed checkpoint every ``CHECKPOINT_EVERY``), encoding them as lines, a GS
     countersigning each checkpoint in its own chain (a witness entry), and verifying both records
     offline: the drone's chain, the GS's chain with its countersignatures, the drone's against them."""
-    from ..core.audit import (CHECKPOINT_EVERY, WITNESS_KIND, AuditChain, AuditCheckpoint, check_chain, countersign,
+    from zdrone.core.audit import (CHECKPOINT_EVERY, WITNESS_KIND, AuditChain, AuditCheckpoint, check_chain, countersign,
                               encode_line, witness_fields)
     import msgspec
 
-    from ..core.keys import SigningKey
+    from zdrone.core.keys import SigningKey
 
     key, gs_key = SigningKey.generate(), SigningKey.generate()
     chain = AuditChain("d1", key)
@@ -167,8 +167,8 @@ def fc_signing_us(frame: bytes, n: int) -> dict[str, float]:
     frame goes on to the GSs). Best of three runs, microseconds."""
     import tempfile
 
-    from ..core import fcsign
-    from ..vehicle.fcsigning import FcKeyStore, FcSigning, FcState, StoredKey
+    from zdrone.core import fcsign
+    from zdrone.vehicle.fcsigning import FcKeyStore, FcSigning, FcState, StoredKey
 
     key = os.urandom(32)
     with tempfile.TemporaryDirectory() as d:
@@ -199,10 +199,10 @@ def attestation_cost(n: int) -> dict[str, Any]:
     """The drone's signed word on who commands it (``zdrone.core.attestation``), as it rides in each
     status beacon: bytes of the attestation, of the status with and without it, sealed; per minute on
     one radio link (one status a beacon per linked GS); sign and verify µs."""
-    from ..core import wire
-    from ..core.attestation import BEACON_S, Attester, attestation_message
-    from ..core.keys import SigningKey
-    from ..core.wire import AuthorityState
+    from zdrone.core import wire
+    from zdrone.core.attestation import BEACON_S, Attester, attestation_message
+    from zdrone.core.keys import SigningKey
+    from zdrone.core.wire import AuthorityState
 
     key = SigningKey(bytes(range(32)))
     attester = Attester("d1", key)
@@ -249,7 +249,7 @@ def run(quick: bool = False) -> dict[str, Any]:
     out["handshake"] = handshake_modes(20 if quick else 300)
     out["audit"] = audit_chain(10_000 if quick else 100_000)
     out["attestation"] = attestation_cost(200 if quick else 2000)
-    from ..core import fcsign
+    from zdrone.core import fcsign
 
     costs = [fc_signing_us(f, 300 if quick else 5000) for f in frames.values()]
     out["fc_signing"] = {
@@ -262,7 +262,7 @@ def run(quick: bool = False) -> dict[str, Any]:
 
 
 def render(result: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = [[f["message"], f["frame_bytes"], f["added_bytes"]["zdrone"], f["added_bytes"]["fernet"]] for f in result["frames"]]
     print_table("Bytes per MAVLink frame", ["message", "frame bytes", "+ zdrone", "+ fernet (paper)"], rows,

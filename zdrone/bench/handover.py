@@ -19,10 +19,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..core.records import AnyRecord, HandoverComplete, RegionEntered
-from ..net.eventlog import read_records
-from ..sil.launcher import Demo, DemoOptions
-from .table import ProgressLine
+from zdrone.core.records import AnyRecord, HandoverComplete, RegionEntered
+from zdrone.net.eventlog import read_records
+from zdrone.sil.launcher import Demo, DemoOptions
+from zdrone.bench.table import ProgressLine
 
 
 def _shuttle(base: Path, crossings: int, speedup: float) -> dict[str, Any]:
@@ -100,7 +100,7 @@ def run(quick: bool = False, crossings: int | None = None, trials: int | None = 
 
 
 def render(r: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     h, ll = r["handover"], r["link_loss"]
     rows = [["hand-overs completed", f"{h['handovers']} of {h['crossings']} crossings"],

@@ -28,14 +28,14 @@ from typing import Any
 import json5
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.envelope import Opened, SecureLink
-from ..core.keys import LinkKey
-from ..core.mavlink import FrameCodec
-from ..fleet.files import init_fleet, load_secret
-from ..fleet import keyexprs as kx
-from ..net.session import open_client
-from ..sil.launcher import free_port
-from ..sil.procs import spawn  # the router dies with the bench, however it ends
+from zdrone.core.envelope import Opened, SecureLink
+from zdrone.core.keys import LinkKey
+from zdrone.core.mavlink import FrameCodec
+from zdrone.fleet.files import init_fleet, load_secret
+from zdrone.fleet import keyexprs
+from zdrone.net.session import open_client
+from zdrone.sil.launcher import free_port
+from zdrone.sil.procs import spawn  # the router dies with the bench, however it ends
 
 
 def _frames(n: int) -> list[bytes]:
@@ -48,9 +48,9 @@ def _sender(router: str, fleet: str, secret: bytes, secure: bool, n: int, rate_h
     """GS process: seal and put ``n`` frames (paced at ``rate_hz``, or as fast as possible if 0)."""
     gs = open_client(router, "A", load_secret(fleet, "A").router_password)
     key = LinkKey.from_secret("d1", "A", secret)
-    tx = SecureLink(key=key, role="gs", tx_keyexpr=kx.up("d1", "A"), rx_keyexpr=kx.down("d1", "A"), peer_sysid=1, now=0.0)
+    tx = SecureLink(key=key, role="gs", tx_keyexpr=keyexprs.up("d1", "A"), rx_keyexpr=keyexprs.down("d1", "A"), peer_sysid=1, now=0.0)
     frames = _frames(n)
-    put, ke = gs.put, kx.up_lane("d1", "A", 0)  # one lane: no per-lane limit in this router
+    put, ke = gs.put, keyexprs.up_lane("d1", "A", 0)  # one lane: no per-lane limit in this router
     sent: list[float] = []
     if rate_hz <= 0 and secure:  # throughput: seal ahead, the GS's own CPU is not the path under test
         frames, secure = [tx.seal(f) for f in frames], False
@@ -78,11 +78,11 @@ class _Path:
         self.secret = os.urandom(32)
         self.dr = open_client(router, "d1", load_secret(fleet, "d1").router_password)
         key = LinkKey.from_secret("d1", "A", self.secret)
-        self.rx = SecureLink(key=key, role="drone", tx_keyexpr=kx.down("d1", "A"), rx_keyexpr=kx.up("d1", "A"),
+        self.rx = SecureLink(key=key, role="drone", tx_keyexpr=keyexprs.down("d1", "A"), rx_keyexpr=keyexprs.up("d1", "A"),
                              peer_sysid=4, now=time.monotonic())
         self.q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         # the bound put itself is the callback: no Python frame runs on Zenoh's thread (as in DroneNode)
-        self.sub = self.dr.declare_subscriber(kx.up_lane("d1", "A", 0), self.q.put)
+        self.sub = self.dr.declare_subscriber(keyexprs.up_lane("d1", "A", 0), self.q.put)
         self.vehicle = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.vehicle.bind(("127.0.0.1", 0))
         self.vehicle.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
@@ -127,7 +127,7 @@ class _Path:
         """A fresh link for each run: a sender restarts its counter at 0."""
         self.secret = os.urandom(32)
         key = LinkKey.from_secret("d1", "A", self.secret)
-        self.rx = SecureLink(key=key, role="drone", tx_keyexpr=kx.down("d1", "A"), rx_keyexpr=kx.up("d1", "A"),
+        self.rx = SecureLink(key=key, role="drone", tx_keyexpr=keyexprs.down("d1", "A"), rx_keyexpr=keyexprs.up("d1", "A"),
                              peer_sysid=4, now=time.monotonic())
 
     def run_sender(self, n: int, rate_hz: float) -> list[float]:
@@ -242,7 +242,7 @@ def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
 
 
 def render(r: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = [[n, r["latency_us"][n]["p50"], r["latency_us"][n]["p99"], r["frames_per_s"][n]] for n in ("plain", "zdrone")]
     rows.append(["added by zdrone", r["added_p50_us"], r["added_p99_us"], f"ratio {r['throughput_ratio']:.2f}"])

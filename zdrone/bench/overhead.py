@@ -53,7 +53,7 @@ class OverheadArgsError(ValueError):
 
 def parse_drones(text: str | None, quick: bool) -> list[int]:
     """``--drones 100,300`` as numbers (default: 100 and 300; ``--quick``: 25)."""
-    from ..fleet.files import MAX_SCALE_DRONES
+    from zdrone.fleet.files import MAX_SCALE_DRONES
 
     if not text:
         return [QUICK_K] if quick else [100, 300]
@@ -159,9 +159,9 @@ def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None =
         speedup: float | None = None, progress: bool = True, hosts_nice: int | None = None) -> dict[str, Any]:
     """Fly each K twice (zdrone, then bare) in the layout; the rows and their comparison. ``hosts_nice``:
     the drones and GSs hosts' niceness in both halves (default ``scale.HOSTS_NICE``)."""
-    from . import bare as bare_mod
-    from . import scale
-    from .table import ProgressLine
+    from zdrone.bench import bare as bare_mod
+    from zdrone.bench import scale
+    from zdrone.bench.table import ProgressLine
 
     nice = scale.HOSTS_NICE if hosts_nice is None else hosts_nice
     flight_s = flight if flight is not None else (QUICK_FLIGHT_S if quick else FLIGHT_S)
@@ -175,7 +175,7 @@ def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None =
             status.say(f"zdrone: {k} drones x {stations} GSs, {where}, {flight_s:g} s of flight (speed-up {sp:g})…")
             zd = scale._one(k, stations, base, timeout=flight_s, sites=sites, speedup=sp, hosts_nice=nice, latency=True)
             if "runs" in zd:
-                from . import latency as lat
+                from zdrone.bench import latency as lat
 
                 files = sorted(Path(zd["runs"]).glob("latency-*.json"))
                 zd["latency"] = lat.summary(lat.load(files))
@@ -231,7 +231,7 @@ def table_rows(cmp: dict[str, Any]) -> list[list[str]]:
 
 
 def render(r: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     for row in r["rows"]:
         cmp, zd, bz = row["compare"], row["zdrone"], row["bare"]

@@ -17,10 +17,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from ..core.records import Paired, Restarted, only
-from ..net.eventlog import read_records
-from ..sil.launcher import Demo, DemoOptions
-from .table import ProgressLine
+from zdrone.core.records import Paired, Restarted, only
+from zdrone.net.eventlog import read_records
+from zdrone.sil.launcher import Demo, DemoOptions
+from zdrone.bench.table import ProgressLine
 
 SPEEDUP = 4.0
 GOAL_S = 0.5
@@ -68,7 +68,7 @@ def run(runs: int = 20, quick: bool = False, progress: bool = True, parallel: in
 
 
 def render(result: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = [[r["run"], r["repair_s"] if r["repair_s"] is not None else "never", r["commands_lost"],
              "yes" if r["failsafe"] else "-", "ok" if r["ok"] else "; ".join(r["why_not_ok"])] for r in result["rows"]]

@@ -53,7 +53,7 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..core.records import AuthorityMoved, Failsafe, LinkConfirmed, RevisionApplied, only
+from zdrone.core.records import AuthorityMoved, Failsafe, LinkConfirmed, RevisionApplied, only
 
 QUICK_K = 3
 FULL_K = 100
@@ -75,7 +75,7 @@ def percentile(sorted_values: list[float], q: float) -> float:
 
 
 def _records(d: Path, k: int) -> dict[str, list[Any]]:
-    from ..net.eventlog import read_records
+    from zdrone.net.eventlog import read_records
 
     out: dict[str, list[Any]] = {}
     for i in range(k):
@@ -92,11 +92,11 @@ def _held_by_b(recs: list[Any]) -> bool:
 def run_one(k: int, base: Path, timeout: float, action: str = "revoke") -> dict[str, Any]:
     """One run: ``action`` ``revoke`` (B, with the last drone out of reach from just before the
     revision for ``OUT_OF_REACH_S``) or ``rotate`` (A's keys)."""
-    from ..fleet.files import init_fleet, scale_nodes
-    from ..fleet.revise import revoke, rotate
-    from ..net.revisions import publish
-    from ..sil.procs import spawn, stop_in_order
-    from .scale import SPEEDUP, _free_ports, _wait_line, hold_limit
+    from zdrone.fleet.files import init_fleet, scale_nodes
+    from zdrone.fleet.revise import revoke, rotate
+    from zdrone.net.revisions import publish
+    from zdrone.sil.procs import spawn, stop_in_order
+    from zdrone.bench.scale import SPEEDUP, _free_ports, _wait_line, hold_limit
 
     d = base / f"{action}-k{k}"
     d.mkdir(parents=True, exist_ok=True)
@@ -277,8 +277,8 @@ def _figures(d: Path, fleet: Path, k: int, t_pub: float, held: list[str], action
 
 def _failsafes_covered(fleet_dir: Path, recs: dict[str, list[Any]]) -> int:
     """Failsafes commanded where an authorized GS's coverage held the vehicle (the revision's fleet)."""
-    from ..core.geometry import GeoPoint
-    from ..fleet.files import load_fleet
+    from zdrone.core.geometry import GeoPoint
+    from zdrone.fleet.files import load_fleet
 
     fleet = load_fleet(fleet_dir)
     n = 0

@@ -28,14 +28,14 @@ from typing import Any, Iterator
 #: The flooder: K sessions as one node, every lane of its uplink to d1, as fast as they can.
 FLOODER = """
 import sys, time, zenoh
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet.files import load_secret
 from zdrone.fleet.tls import node_files
 from zdrone.net.session import open_client
 router, fleet, who, seconds, k = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), int(sys.argv[5])
 tls = node_files(fleet, who) if router.startswith("tls/") else None
 sessions = [open_client(router, who, load_secret(fleet, who).router_password, tls) for _ in range(k)]
-lanes = kx.up_lanes("d1", who)
+lanes = keyexprs.up_lanes("d1", who)
 small, big = b"j" * 40, b"J" * 1000
 print("flooding", flush=True)
 n, t0 = 0, time.monotonic()
@@ -75,7 +75,7 @@ def _wait_line(proc: subprocess.Popen, needle: str, timeout: float) -> str:
 
 @contextlib.contextmanager
 def _child(args: list[str]) -> Iterator[subprocess.Popen]:
-    from ..sil.procs import forget, spawn
+    from zdrone.sil.procs import forget, spawn
 
     proc = spawn(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -95,9 +95,9 @@ def _child(args: list[str]) -> Iterator[subprocess.Popen]:
 def router_with_d1_and_a(base: Path, tls: bool = False) -> Iterator[tuple[Path, str, Any, Any]]:
     """A fleet's router on a free port (with ``tls``: mutual TLS), with sessions of the drone d1 and of
     GS A (closed after): (fleet directory, endpoint, d1's session, A's session)."""
-    from ..fleet.files import init_fleet, load_secret
-    from ..fleet.tls import node_files
-    from ..net.session import open_client
+    from zdrone.fleet.files import init_fleet, load_secret
+    from zdrone.fleet.tls import node_files
+    from zdrone.net.session import open_client
 
     fleet = base / "fleet"
     init_fleet(fleet, tls=tls)
@@ -121,7 +121,7 @@ def flood_trial(base: Path, tls: bool, who: str, k: int, seconds: float = 2.0) -
     """One trial (see the module's text): K sessions of ``who`` flood ``who``'s lanes to d1."""
     import zenoh
 
-    from ..fleet import keyexprs as kx
+    from zdrone.fleet import keyexprs
 
     base.mkdir(parents=True, exist_ok=True)
     with router_with_d1_and_a(base, tls) as (fleet, ep, d, a):
@@ -130,10 +130,10 @@ def flood_trial(base: Path, tls: bool, who: str, k: int, seconds: float = 2.0) -
 
         def on_sample(s: Any) -> None:
             with lock:
-                got.setdefault(kx.gs_of_uplink(s.key_expr), []).append((time.monotonic(), s.payload.to_bytes()))
+                got.setdefault(keyexprs.gs_of_uplink(s.key_expr), []).append((time.monotonic(), s.payload.to_bytes()))
 
-        subs = [d.declare_subscriber(lane, on_sample) for lane in kx.up_lanes("d1", "*")]
-        lanes = kx.up_lanes("d1", "A")
+        subs = [d.declare_subscriber(lane, on_sample) for lane in keyexprs.up_lanes("d1", "*")]
+        lanes = keyexprs.up_lanes("d1", "A")
         tick = threading.Event()
         try:
             deadline = time.monotonic() + 5.0

@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..sil.launcher import Demo, DemoOptions
-from .background import BackgroundFlight
-from .table import ProgressLine
+from zdrone.sil.launcher import Demo, DemoOptions
+from zdrone.bench.background import BackgroundFlight
+from zdrone.bench.table import ProgressLine
 
 #: processes sampled (the launcher is this process)
 PROCESSES = ("launcher", "router", "sim", "drone", "gsA", "gsB")
@@ -150,7 +150,7 @@ def verdict(r: dict[str, Any], growth: bool = True) -> list[str]:
 
 
 def render(r: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = [[n, p["rss_start_mb"], p["rss_end_mb"], p["growth_mb_per_h"], f"{p['fds'][0]} -> {p['fds'][1]}",
              f"{p['threads'][0]} -> {p['threads'][1]}", p["cpu_pct"]] for n, p in r["processes"].items()]

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..sil.launcher import SCENARIO_BY_NAME, SCENARIO_TABLE, Demo, DemoOptions
-from .table import ProgressLine
+from zdrone.sil.launcher import SCENARIO_BY_NAME, SCENARIO_TABLE, Demo, DemoOptions
+from zdrone.bench.table import ProgressLine
 
 SPEEDUPS = (1.0, 2.0, 4.0)
 #: ``--quick``: two cells flown at once (about 45 s): the failure this sweep was made for (A's site
@@ -133,7 +133,7 @@ def run(quick: bool = False, jobs: int = DEFAULT_JOBS, scenarios: Sequence[str] 
 
 def render(result: dict[str, Any]) -> None:
     """A table: one row per scenario and moment, one column per speed-up; then why each failed cell failed."""
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     speeds = result["speedups"]
     grid: dict[tuple[str, str], dict[float, str]] = {}

@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..sil.launcher import Demo, DemoOptions
+from zdrone.sil.launcher import Demo, DemoOptions
 
 VARIANTS = {"plain": ("plain", False), "zdrone": ("zdrone", False), "paper": ("fernet", True)}
 PAPER = {"without": {"packets_per_min": 161, "mean_packet_bytes": 433.2},
@@ -202,7 +202,7 @@ def _kinds(row: dict[str, Any]) -> dict[str, dict[str, float]]:
 
 
 def render(result: dict[str, Any]) -> None:
-    from .table import print_table
+    from zdrone.bench.table import print_table
 
     rows = []
     ok = [r for r in result["rows"] if "error" not in r]

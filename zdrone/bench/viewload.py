@@ -178,11 +178,11 @@ async def _run_clients(args: argparse.Namespace, stats: StatsFile) -> None:
 
 # ------------------------------------------------------------------ the forger
 def _forge(args: argparse.Namespace, stats: StatsFile) -> None:
-    from ..core import opspicture as op
-    from ..fleet import keyexprs as kx
-    from ..net.shutdown import route_signals
-    from ..sil.attackers.common import Ctx, session_as
-    from ..sil.attackers.ops import _lie, _sealer
+    from zdrone.core import opspicture as op
+    from zdrone.fleet import keyexprs
+    from zdrone.net.shutdown import route_signals
+    from zdrone.sil.attackers.common import Ctx, session_as
+    from zdrone.sil.attackers.ops import _lie, _sealer
 
     stop = threading.Event()
     route_signals({signal.SIGTERM: stop.set, signal.SIGINT: stop.set})
@@ -191,7 +191,7 @@ def _forge(args: argparse.Namespace, stats: StatsFile) -> None:
     sealer = _sealer(c, "X")
     # plain session puts, as ops-unauthorized sends (through declared publishers none of X's parts reached the
     # view in a trial: X, which may not subscribe there, is likely told of no subscriber to send to)
-    lanes = kx.ops_lanes("X")
+    lanes = keyexprs.ops_lanes("X")
     sent, lane, ticks = 0, 0, 0
     print(f"viewload forge: X at {args.rate:g} parts/s", flush=True)
     try:
@@ -209,7 +209,7 @@ def _forge(args: argparse.Namespace, stats: StatsFile) -> None:
                 part = op.report_parts("X", t, drones, events)[0]
                 for _ in range(due):
                     s.put(lanes[lane], sealer.seal(part))
-                    lane = (lane + 1) % kx.OPS_LANES
+                    lane = (lane + 1) % keyexprs.OPS_LANES
                 sent += due
             ticks += 1
             if now >= next_stats:
@@ -222,7 +222,7 @@ def _forge(args: argparse.Namespace, stats: StatsFile) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..crashes import stacks_on_crash
+    from zdrone.crashes import stacks_on_crash
 
     stacks_on_crash()
     p = argparse.ArgumentParser(prog="python -m zdrone.bench.viewload", description="TESTBED ONLY: bench view's load")

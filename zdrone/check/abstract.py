@@ -61,12 +61,12 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator
 
-from ..core import authority as ha
-from ..core.authority import AuthorityMachine, Config, State
-from ..core.linkslot import replaces_live
-from ..core.tbm import LinkState
-from ..core.uplink import UplinkClass
-from .search import Violation, _Broken, breadth_first  # noqa: F401  (the explorer runs on them)
+from zdrone.core import authority as ha
+from zdrone.core.authority import AuthorityMachine, Config, State
+from zdrone.core.linkslot import replaces_live
+from zdrone.core.tbm import LinkState
+from zdrone.core.uplink import UplinkClass
+from zdrone.check.search import Violation, _Broken, breadth_first  # noqa: F401  (the explorer runs on them)
 
 AUTHORIZED = ("A", "B")
 ROGUE = "X"
@@ -98,7 +98,7 @@ class _PairAnywhereMachine(AuthorityMachine):
     vehicle, or one whose companion restarted on the ground, went to whoever paired first)."""
 
     def pair_refusal(self, gs: str, on_ground: bool, now: float) -> Any:
-        from ..core.pairing import PairRefusal, PairRefused
+        from zdrone.core.pairing import PairRefusal, PairRefused
 
         if not self.is_authorized(gs):
             return PairRefused(PairRefusal.UNAUTHORIZED, f"{gs} is not authorized for this drone")

@@ -39,13 +39,13 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator
 
 from gs.opcontrol import OperatorControl, Step
-from ..core import authority as ha
-from ..core import wire
-from ..core.authority import AuthorityMachine, Config, State
-from ..core.mavcontrol import OperatorControlRequest
-from ..core.tbm import LinkState
-from ..core.uplink import UplinkClass
-from .search import _Broken, breadth_first
+from zdrone.core import authority as ha
+from zdrone.core import wire
+from zdrone.core.authority import AuthorityMachine, Config, State
+from zdrone.core.mavcontrol import OperatorControlRequest
+from zdrone.core.tbm import LinkState
+from zdrone.core.uplink import UplinkClass
+from zdrone.check.search import _Broken, breadth_first
 
 GSS = ("A", "B", "C")
 FLAWS = ("consent-to-last-asker", "window-across-epochs")

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from .abstract import Explorer
-from .search import Violation
+from zdrone.check.abstract import Explorer
+from zdrone.check.search import Violation
 
 
 def run(depth: int = 8, faults: int = 2, flaw: str | None = None, max_states: int | None = None,
@@ -14,16 +14,16 @@ def run(depth: int = 8, faults: int = 2, flaw: str | None = None, max_states: in
     """Explore; the result says whether every invariant held, with the figures and any violation's trace.
     ``cores``: explore the shipped cores themselves (``check_cores``) instead of the abstract world;
     ``consent`` (or a consent flaw): the operator-consent world (``check_consent``)."""
-    from .consent import FLAWS as CONSENT_FLAWS
+    from zdrone.check.consent import FLAWS as CONSENT_FLAWS
 
     if consent or flaw in CONSENT_FLAWS:
-        from .consent import ConsentExplorer
+        from zdrone.check.consent import ConsentExplorer
 
         found, figures = ConsentExplorer(depth, flaw, max_states).run()
         violation = None if found is None else Violation(*found)
         figures = {**figures, "flaw": flaw, "world": "consent"}
     elif cores:
-        from .cores import CoreExplorer
+        from zdrone.check.cores import CoreExplorer
 
         broken, trace, figures = CoreExplorer(depth, faults, max_states, flaw=flaw).run()
         violation = None if broken is None else Violation(broken.invariant, broken.detail, trace)

@@ -39,9 +39,9 @@ from typing import Mapping, Sequence
 
 import msgspec
 
-from .keys import SigningKey, verify_signature
-from .ratelimit import TokenBucket
-from .wire import AuthorityAttestation, AuthorityStatus
+from zdrone.core.keys import SigningKey, verify_signature
+from zdrone.core.ratelimit import TokenBucket
+from zdrone.core.wire import AuthorityAttestation, AuthorityStatus
 
 DOMAIN = b"zdrone-authority-attestation/v2\0"
 #: The drone signs its authority status at least this often (its status beacon: ``DroneCore``'s

@@ -69,7 +69,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import msgspec
 
-from .keys import SigningKey, verify_signature
+from zdrone.core.keys import SigningKey, verify_signature
 
 #: Checkpoint at least every this many entries, and this many seconds after an unsigned entry.
 CHECKPOINT_EVERY = 64

@@ -89,17 +89,17 @@ import logging
 from collections import Counter
 from dataclasses import dataclass, replace
 
-from .authority_events import (GS_EVENTS, Action, AuthorityAsked, AuthorityChanged, DropFrame, Event,  # noqa: F401
+from zdrone.core.authority_events import (GS_EVENTS, Action, AuthorityAsked, AuthorityChanged, DropFrame, Event,  # noqa: F401
                                FailsafeCommand, Forward, Frame, GrantAccepted, GrantHeard, GrantRejected,
                                GrantRejection, GrantResult, GroundChanged, HaDrop, LinkChanged, Note, PairingDone,
                                RegionChanged, Release, Revised, SendControl, Tick, check_grant)
-from .machine import IllegalTransition, Machine, SettleRow, Table
-from .mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
-from .pairing import PairRefusal, PairRefused
-from .ratelimit import RateLimiter
-from .tbm import LinkState
-from .uplink import UplinkClass
-from .wire import AuthorityState, AuthorityStatus, FailsafeNotice, OperatorRequest, Reject
+from zdrone.core.machine import IllegalTransition, Machine, SettleRow, Table
+from zdrone.core.mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
+from zdrone.core.pairing import PairRefusal, PairRefused
+from zdrone.core.ratelimit import RateLimiter
+from zdrone.core.tbm import LinkState
+from zdrone.core.uplink import UplinkClass
+from zdrone.core.wire import AuthorityState, AuthorityStatus, FailsafeNotice, OperatorRequest, Reject
 
 log = logging.getLogger(__name__)
 
@@ -629,45 +629,44 @@ class AuthorityMachine(Machine):
         return self.state, []
 
 
-S = State
 #: (state, event type) -> (handler, next states it may choose)
 TRANSITIONS: Table[State] = {
-    (S.UNPAIRED, PairingDone): (AuthorityMachine._on_first_pair, frozenset({S.UNPAIRED, S.LINKED})),
-    (S.UNPAIRED, Frame): (AuthorityMachine._on_frame_unpaired, frozenset({S.UNPAIRED})),
-    (S.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
-    (S.UNPAIRED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.UNPAIRED})),
-    (S.UNPAIRED, Tick): (AuthorityMachine._ignore, frozenset({S.UNPAIRED})),
-    (S.UNPAIRED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.UNPAIRED})),
-    (S.LINKED, PairingDone): (AuthorityMachine._on_pair_linked, frozenset({S.LINKED})),
-    (S.LINKED, GrantHeard): (AuthorityMachine._on_key_granted, frozenset({S.LINKED})),
-    (S.LINKED, Frame): (AuthorityMachine._on_frame, frozenset({S.LINKED})),
-    (S.LINKED, LinkChanged): (AuthorityMachine._on_link, frozenset({S.LINKED, S.FAILSAFE})),
-    (S.LINKED, RegionChanged): (AuthorityMachine._on_region, frozenset({S.LINKED})),
-    (S.LINKED, AuthorityAsked): (AuthorityMachine._on_request, frozenset({S.LINKED, S.HANDOVER_PENDING})),
-    (S.LINKED, Release): (AuthorityMachine._on_release, frozenset({S.LINKED, S.HANDOVER_PENDING})),
-    (S.LINKED, Tick): (AuthorityMachine._ignore, frozenset({S.LINKED, S.FAILSAFE})),
-    (S.LINKED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.LINKED, S.FAILSAFE})),
-    (S.HANDOVER_PENDING, PairingDone): (AuthorityMachine._on_pair_linked, frozenset({S.HANDOVER_PENDING})),
-    (S.HANDOVER_PENDING, GrantHeard): (AuthorityMachine._on_key_granted, frozenset({S.HANDOVER_PENDING})),
-    (S.HANDOVER_PENDING, Frame): (AuthorityMachine._on_frame, frozenset({S.HANDOVER_PENDING, S.LINKED})),
-    (S.HANDOVER_PENDING, LinkChanged): (AuthorityMachine._on_link, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
-    (S.HANDOVER_PENDING, RegionChanged): (AuthorityMachine._on_region, frozenset({S.HANDOVER_PENDING})),
-    (S.HANDOVER_PENDING, AuthorityAsked): (AuthorityMachine._on_request, frozenset({S.HANDOVER_PENDING, S.LINKED})),
-    (S.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({S.HANDOVER_PENDING, S.LINKED})),
-    (S.HANDOVER_PENDING, Tick): (AuthorityMachine._ignore, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
-    (S.HANDOVER_PENDING, GroundChanged): (AuthorityMachine._on_ground_changed,
-                                          frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
-    (S.FAILSAFE, PairingDone): (AuthorityMachine._on_pair_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
-    (S.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({S.FAILSAFE})),
-    (S.FAILSAFE, AuthorityAsked): (AuthorityMachine._on_request_failsafe, frozenset({S.FAILSAFE, S.LINKED})),
-    (S.FAILSAFE, LinkChanged): (AuthorityMachine._on_link, frozenset({S.FAILSAFE})),
-    (S.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({S.FAILSAFE})),
-    (S.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({S.FAILSAFE})),
-    (S.FAILSAFE, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({S.FAILSAFE})),
-    (S.UNPAIRED, Revised): (AuthorityMachine._on_revised, frozenset({S.UNPAIRED})),
-    (S.LINKED, Revised): (AuthorityMachine._on_revised, frozenset({S.LINKED, S.FAILSAFE})),
-    (S.HANDOVER_PENDING, Revised): (AuthorityMachine._on_revised, frozenset({S.HANDOVER_PENDING, S.LINKED, S.FAILSAFE})),
-    (S.FAILSAFE, Revised): (AuthorityMachine._on_revised, frozenset({S.FAILSAFE})),
+    (State.UNPAIRED, PairingDone): (AuthorityMachine._on_first_pair, frozenset({State.UNPAIRED, State.LINKED})),
+    (State.UNPAIRED, Frame): (AuthorityMachine._on_frame_unpaired, frozenset({State.UNPAIRED})),
+    (State.UNPAIRED, LinkChanged): (AuthorityMachine._ignore, frozenset({State.UNPAIRED})),
+    (State.UNPAIRED, RegionChanged): (AuthorityMachine._on_region, frozenset({State.UNPAIRED})),
+    (State.UNPAIRED, Tick): (AuthorityMachine._ignore, frozenset({State.UNPAIRED})),
+    (State.UNPAIRED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({State.UNPAIRED})),
+    (State.LINKED, PairingDone): (AuthorityMachine._on_pair_linked, frozenset({State.LINKED})),
+    (State.LINKED, GrantHeard): (AuthorityMachine._on_key_granted, frozenset({State.LINKED})),
+    (State.LINKED, Frame): (AuthorityMachine._on_frame, frozenset({State.LINKED})),
+    (State.LINKED, LinkChanged): (AuthorityMachine._on_link, frozenset({State.LINKED, State.FAILSAFE})),
+    (State.LINKED, RegionChanged): (AuthorityMachine._on_region, frozenset({State.LINKED})),
+    (State.LINKED, AuthorityAsked): (AuthorityMachine._on_request, frozenset({State.LINKED, State.HANDOVER_PENDING})),
+    (State.LINKED, Release): (AuthorityMachine._on_release, frozenset({State.LINKED, State.HANDOVER_PENDING})),
+    (State.LINKED, Tick): (AuthorityMachine._ignore, frozenset({State.LINKED, State.FAILSAFE})),
+    (State.LINKED, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({State.LINKED, State.FAILSAFE})),
+    (State.HANDOVER_PENDING, PairingDone): (AuthorityMachine._on_pair_linked, frozenset({State.HANDOVER_PENDING})),
+    (State.HANDOVER_PENDING, GrantHeard): (AuthorityMachine._on_key_granted, frozenset({State.HANDOVER_PENDING})),
+    (State.HANDOVER_PENDING, Frame): (AuthorityMachine._on_frame, frozenset({State.HANDOVER_PENDING, State.LINKED})),
+    (State.HANDOVER_PENDING, LinkChanged): (AuthorityMachine._on_link, frozenset({State.HANDOVER_PENDING, State.LINKED, State.FAILSAFE})),
+    (State.HANDOVER_PENDING, RegionChanged): (AuthorityMachine._on_region, frozenset({State.HANDOVER_PENDING})),
+    (State.HANDOVER_PENDING, AuthorityAsked): (AuthorityMachine._on_request, frozenset({State.HANDOVER_PENDING, State.LINKED})),
+    (State.HANDOVER_PENDING, Release): (AuthorityMachine._on_release, frozenset({State.HANDOVER_PENDING, State.LINKED})),
+    (State.HANDOVER_PENDING, Tick): (AuthorityMachine._ignore, frozenset({State.HANDOVER_PENDING, State.LINKED, State.FAILSAFE})),
+    (State.HANDOVER_PENDING, GroundChanged): (AuthorityMachine._on_ground_changed,
+                                          frozenset({State.HANDOVER_PENDING, State.LINKED, State.FAILSAFE})),
+    (State.FAILSAFE, PairingDone): (AuthorityMachine._on_pair_failsafe, frozenset({State.FAILSAFE, State.LINKED})),
+    (State.FAILSAFE, Frame): (AuthorityMachine._on_frame_failsafe, frozenset({State.FAILSAFE})),
+    (State.FAILSAFE, AuthorityAsked): (AuthorityMachine._on_request_failsafe, frozenset({State.FAILSAFE, State.LINKED})),
+    (State.FAILSAFE, LinkChanged): (AuthorityMachine._on_link, frozenset({State.FAILSAFE})),
+    (State.FAILSAFE, RegionChanged): (AuthorityMachine._on_region, frozenset({State.FAILSAFE})),
+    (State.FAILSAFE, Tick): (AuthorityMachine._ignore, frozenset({State.FAILSAFE})),
+    (State.FAILSAFE, GroundChanged): (AuthorityMachine._on_ground_changed, frozenset({State.FAILSAFE})),
+    (State.UNPAIRED, Revised): (AuthorityMachine._on_revised, frozenset({State.UNPAIRED})),
+    (State.LINKED, Revised): (AuthorityMachine._on_revised, frozenset({State.LINKED, State.FAILSAFE})),
+    (State.HANDOVER_PENDING, Revised): (AuthorityMachine._on_revised, frozenset({State.HANDOVER_PENDING, State.LINKED, State.FAILSAFE})),
+    (State.FAILSAFE, Revised): (AuthorityMachine._on_revised, frozenset({State.FAILSAFE})),
 }
 # Missing on purpose (illegal steps, answered with a Reject): GrantHeard, AuthorityAsked and
 # Release in UNPAIRED; GrantHeard and Release in FAILSAFE.
@@ -675,12 +674,12 @@ TRANSITIONS: Table[State] = {
 #: The rules of state and time alone (``_settle``), in order, the first that fires applies:
 #: (states it applies in, rule, next states it may choose)
 SETTLE: tuple[SettleRow[State], ...] = (
-    (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._proven_recipient, frozenset({S.LINKED})),
-    (frozenset({S.HANDOVER_PENDING}), AuthorityMachine._handover_deadline, frozenset({S.LINKED})),
-    (frozenset({S.LINKED, S.HANDOVER_PENDING}), AuthorityMachine._repair_deadline,
-     frozenset({S.LINKED, S.HANDOVER_PENDING, S.FAILSAFE})),
-    (frozenset({S.FAILSAFE}), AuthorityMachine._owner_back_on_ground, frozenset({S.LINKED})),
-    (frozenset({S.UNPAIRED}), AuthorityMachine._first_claim_over, frozenset({S.UNPAIRED})),
+    (frozenset({State.HANDOVER_PENDING}), AuthorityMachine._proven_recipient, frozenset({State.LINKED})),
+    (frozenset({State.HANDOVER_PENDING}), AuthorityMachine._handover_deadline, frozenset({State.LINKED})),
+    (frozenset({State.LINKED, State.HANDOVER_PENDING}), AuthorityMachine._repair_deadline,
+     frozenset({State.LINKED, State.HANDOVER_PENDING, State.FAILSAFE})),
+    (frozenset({State.FAILSAFE}), AuthorityMachine._owner_back_on_ground, frozenset({State.LINKED})),
+    (frozenset({State.UNPAIRED}), AuthorityMachine._first_claim_over, frozenset({State.UNPAIRED})),
 )
 #: A restart's restore (``restore``), outside the table: LINKED(owner, epoch), or FAILSAFE again.
-RESTORED = frozenset({S.LINKED, S.FAILSAFE})
+RESTORED = frozenset({State.LINKED, State.FAILSAFE})

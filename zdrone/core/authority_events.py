@@ -23,10 +23,10 @@ import enum
 from dataclasses import dataclass
 from typing import Mapping
 
-from .keys import KEY_LEN
-from .tbm import LinkState
-from .uplink import UplinkClass
-from .wire import Control, KeyGrant
+from zdrone.core.keys import KEY_LEN
+from zdrone.core.tbm import LinkState
+from zdrone.core.uplink import UplinkClass
+from zdrone.core.wire import Control, KeyGrant
 
 
 class HaDrop(enum.Enum):

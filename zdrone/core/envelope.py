@@ -36,12 +36,12 @@ from cryptography.exceptions import InvalidTag
 from cryptography.fernet import Fernet, InvalidToken
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
-from . import bundle, wire
-from .errors import ProtocolError
-from .keys import DOWN, UP, KeyChain, LinkKey
-from .mavlink import FrameError, FrameHeader, read_header
-from .replay import ReplayWindow
-from .tbm import TbmSnapshot, TbmThresholds, TimeBetweenMessages
+from zdrone.core import bundle, wire
+from zdrone.core.errors import ProtocolError
+from zdrone.core.keys import DOWN, UP, KeyChain, LinkKey
+from zdrone.core.mavlink import FrameError, FrameHeader, read_header
+from zdrone.core.replay import ReplayWindow
+from zdrone.core.tbm import TbmSnapshot, TbmThresholds, TimeBetweenMessages
 
 log = logging.getLogger(__name__)
 

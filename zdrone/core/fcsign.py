@@ -20,7 +20,7 @@ import struct
 from dataclasses import dataclass
 from enum import Enum
 
-from .mavlink import CRC_EXTRA, MAGIC_V2, SIGNATURE_LEN, SIGNED_FLAG, FrameError, _crc, crc_seed
+from zdrone.core.mavlink import CRC_EXTRA, MAGIC_V2, SIGNATURE_LEN, SIGNED_FLAG, FrameError, _crc, crc_seed
 
 KEY_LEN = 32
 #: 2015-01-01 00:00:00 UTC in Unix seconds: the signing timestamp's origin.

@@ -7,16 +7,16 @@ wrong, so the CLI can print one line.
 
 from __future__ import annotations
 
-from .errors import ConfigError
+from zdrone.core.errors import ConfigError
 
 from typing import Any, Annotated, Literal
 
 import json5
 import msgspec
 
-from .geometry import Circle, GeoPoint
-from .keys import unb64
-from .uplink import UplinkPolicy
+from zdrone.core.geometry import Circle, GeoPoint
+from zdrone.core.keys import unb64
+from zdrone.core.uplink import UplinkPolicy
 
 SysId = Annotated[int, msgspec.Meta(ge=1, le=255)]
 Name = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_-]{1,32}$")]

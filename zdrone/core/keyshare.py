@@ -41,9 +41,9 @@ import enum
 
 import msgspec
 
-from .keys import KEY_LEN, Identity
-from .kk import MAX_MESSAGE, KKFail, KKInitiator, ResponseCache, check_message1, is_hybrid, respond
-from .ratelimit import RateLimiter
+from zdrone.core.keys import KEY_LEN, Identity
+from zdrone.core.kk import MAX_MESSAGE, KKFail, KKInitiator, ResponseCache, check_message1, is_hybrid, respond
+from zdrone.core.ratelimit import RateLimiter
 
 #: How long an ask waits for B's reply before it is given up (the adapter asks again later).
 ASK_TIMEOUT = 5.0

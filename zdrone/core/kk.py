@@ -79,7 +79,7 @@ from cryptography.hazmat.primitives.asymmetric.mlkem import MLKEM768PrivateKey, 
 from cryptography.hazmat.primitives.asymmetric.x25519 import X25519PrivateKey, X25519PublicKey
 from noise.connection import Keypair, NoiseConnection
 
-from .keys import Identity, hkdf
+from zdrone.core.keys import Identity, hkdf
 
 PROTOCOL = b"Noise_KK_25519_ChaChaPoly_SHA256"
 PROTOCOL_HYBRID = b"Noise_KKpsk2_25519_ChaChaPoly_SHA256"

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .fleet import Fleet
-from .revision import STAMP_AHEAD_S, check_stamp
+from zdrone.core.fleet import Fleet
+from zdrone.core.revision import STAMP_AHEAD_S, check_stamp
 
 
 @dataclass(frozen=True, slots=True)

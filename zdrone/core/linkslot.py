@@ -36,8 +36,8 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from .envelope import Dropped, DropReason, Opened, SecureLink
-from .tbm import LinkState
+from zdrone.core.envelope import Dropped, DropReason, Opened, SecureLink
+from zdrone.core.tbm import LinkState
 
 MAX_CANDIDATES = 3
 #: Origins of keys that only the peer itself can prove (its own re-pairing): they may replace a live

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import msgspec
 
-from . import wire
-from .envelope import Opened
+from zdrone.core import wire
+from zdrone.core.envelope import Opened
 
 _enc = msgspec.msgpack.Encoder()
 

@@ -62,7 +62,7 @@ import enum
 import logging
 from typing import Any, Callable, ClassVar, Hashable, Iterable, Mapping, TypeVar, Union
 
-from .errors import ProtocolError
+from zdrone.core.errors import ProtocolError
 
 log = logging.getLogger(__name__)
 

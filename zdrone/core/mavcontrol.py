@@ -19,7 +19,7 @@ import math
 
 import msgspec
 
-from .mavlink import FrameError, crc_seed, encode_raw, read_header
+from zdrone.core.mavlink import FrameError, crc_seed, encode_raw, read_header
 
 MSG_ID_CONTROL_STATUS = 512
 CRC_EXTRA_CONTROL_STATUS = 21

@@ -22,7 +22,7 @@ import msgspec
 from pymavlink.dialects.v20 import ardupilotmega, common as mavlink2
 from pymavlink.generator.mavcrc import x25crc
 
-from .uplink import DEFAULT_POLICY, UplinkClass
+from zdrone.core.uplink import DEFAULT_POLICY, UplinkClass
 
 try:  # not in every pymavlink release
     from pymavlink.dialects.v20 import development

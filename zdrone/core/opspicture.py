@@ -69,12 +69,12 @@ import msgspec
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
-from .attestation import BEACON_S, AttestationCheck
-from .fleet import Fleet
-from .keys import Identity, hkdf, public_key
-from .ratelimit import TokenBucket
-from .replay import ReplayWindow
-from .wire import AuthorityAttestation
+from zdrone.core.attestation import BEACON_S, AttestationCheck
+from zdrone.core.fleet import Fleet
+from zdrone.core.keys import Identity, hkdf, public_key
+from zdrone.core.ratelimit import TokenBucket
+from zdrone.core.replay import ReplayWindow
+from zdrone.core.wire import AuthorityAttestation
 
 #: The largest sealed part: far under the router's largest message (``routerconfig.MAX_MESSAGE_SIZE``)
 #: and its size limit on ``zdrone-ops/*`` (``OPS_MAX_BYTES`` there too).
@@ -365,7 +365,7 @@ class _Track:
 
 
 def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
-    from .geometry import GeoPoint, distance_m
+    from zdrone.core.geometry import GeoPoint, distance_m
 
     return distance_m(GeoPoint(a[0], a[1]), GeoPoint(b[0], b[1]))
 

@@ -44,9 +44,9 @@ from typing import ClassVar
 
 import msgspec
 
-from .keys import KEY_LEN, Identity, LinkKey
-from .kk import KKFail, KKInitiator, ResponseCache, check_message1, is_hybrid, respond as kk_respond, stamp_of
-from .ratelimit import RateLimiter
+from zdrone.core.keys import KEY_LEN, Identity, LinkKey
+from zdrone.core.kk import KKFail, KKInitiator, ResponseCache, check_message1, is_hybrid, respond as kk_respond, stamp_of
+from zdrone.core.ratelimit import RateLimiter
 
 
 class PairingFailed(msgspec.Struct, frozen=True):

@@ -7,7 +7,7 @@ d1's authorized list. V is the viewer: it reads the GSs' operations pictures, no
 
 from __future__ import annotations
 
-from .geometry import GeoPoint, offset
+from zdrone.core.geometry import GeoPoint, offset
 
 HOME = GeoPoint(47.397742, 8.545594, 0.0)
 COVERAGE_RADIUS_M = 350.0

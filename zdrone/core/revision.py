@@ -52,9 +52,9 @@ from typing import Annotated
 
 import msgspec
 
-from .errors import ConfigError
-from .fleet import Coverage, Fleet, Name
-from .keys import SigningKey, b64, unb64, verify_signature
+from zdrone.core.errors import ConfigError
+from zdrone.core.fleet import Coverage, Fleet, Name
+from zdrone.core.keys import SigningKey, b64, unb64, verify_signature
 
 DOMAIN = b"zdrone fleet revision v1\n"
 SIGNATURE_LEN = 64

@@ -30,10 +30,10 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core.errors import ConfigError
-from ..core.fleet import Fleet
-from ..core.keys import Identity, SigningKey, unb64
-from .files import FLEET_FILE, FLEET_SIGNING_FILE, REVISION_FILE, load_fleet, load_secret
+from zdrone.core.errors import ConfigError
+from zdrone.core.fleet import Fleet
+from zdrone.core.keys import Identity, SigningKey, unb64
+from zdrone.fleet.files import FLEET_FILE, FLEET_SIGNING_FILE, REVISION_FILE, load_fleet, load_secret
 
 BUNDLE_FILE = "bundle.json"
 ROUTER = "router"

@@ -27,12 +27,12 @@ from pathlib import Path
 
 import msgspec
 
-from ..core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
-from ..core.keys import Identity, SigningKey, b64, unb64
+from zdrone.core.fleet import ConfigError, Coverage, Fleet, Home, Node, encode_fleet, parse_fleet
+from zdrone.core.keys import Identity, SigningKey, b64, unb64
 
-from ..core.revision import Revision, RevisionAccepted, apply_revision, check_revision  # types built at import
-from ..core.geometry import GeoPoint, offset
-from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
+from zdrone.core.revision import Revision, RevisionAccepted, apply_revision, check_revision  # types built at import
+from zdrone.core.geometry import GeoPoint, offset
+from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, HOME
 
 FLEET_FILE = "fleet.json5"
 #: the fleet signing key's file, relative to the fleet directory (``load_fleet_signing_key``)
@@ -160,12 +160,12 @@ def init_fleet(directory: str | Path, force: bool = False,
                   revision_lease=revision_lease)
     (d / FLEET_FILE).write_text("// zdrone fleet: public, shared by every node\n" + encode_fleet(fleet))
     _write_private(d / "router" / "credentials.txt", "\n".join(creds) + "\n")
-    from .routerconfig import HEADER, render, router_config
+    from zdrone.fleet.routerconfig import HEADER, render, router_config
 
     if tls or sites:  # sites are meshed over mutual TLS
-        from .tls import init_tls
+        from zdrone.fleet.tls import init_tls
 
-        from .tls import DEFAULT_ROUTER_HOSTS
+        from zdrone.fleet.tls import DEFAULT_ROUTER_HOSTS
 
         # a site router's certificate also names the host of its endpoint (its radio address)
         hosts = tuple(dict.fromkeys(DEFAULT_ROUTER_HOSTS + tuple(ep.split("/", 1)[-1].rsplit(":", 1)[0]
@@ -213,7 +213,7 @@ def _write_sites(d: Path, fleet: Fleet, endpoints: list[str], passwords: dict[st
     ``router/site-<n>.json5`` (private: it holds its router's password for the mesh) and
     ``router/sites.json`` (public: each site's endpoint and GSs)."""
     names = list(passwords)
-    from .routerconfig import HEADER, render, site_router_config
+    from zdrone.fleet.routerconfig import HEADER, render, site_router_config
 
     if len(endpoints) < 2:
         raise ConfigError("--sites: at least two site routers")

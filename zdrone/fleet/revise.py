@@ -30,12 +30,12 @@ from typing import Any, Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core.errors import ConfigError
-from ..core.fleet import Coverage, Fleet
-from ..core.keys import Identity, SigningKey
-from ..core.revision import (Changes, Revision, apply_revision, encode_revision, make_revision, next_changes,
+from zdrone.core.errors import ConfigError
+from zdrone.core.fleet import Coverage, Fleet
+from zdrone.core.keys import Identity, SigningKey
+from zdrone.core.revision import (Changes, Revision, apply_revision, encode_revision, make_revision, next_changes,
                              with_authorized, with_coverage, with_keys, with_lease, with_revoked)
-from .files import (REVISION_FILE, NodeSecret, _write_private, _write_sites, fleet_path, load_base_fleet,
+from zdrone.fleet.files import (REVISION_FILE, NodeSecret, _write_private, _write_sites, fleet_path, load_base_fleet,
                     load_fleet_signing_key, load_revision, load_secret, write_secret)
 
 REVISIONS_DIR = "revisions"
@@ -119,7 +119,7 @@ def rotate(where: str | Path, node: str, out: str | Path | None = None, note: st
         _reissue_certificate(d, node)
     regenerate_router_files(d, revised.fleet)
     if out is not None:
-        from .bundle import export_bundle
+        from zdrone.fleet.bundle import export_bundle
 
         export_bundle(d, node, out)
     return revised
@@ -158,7 +158,7 @@ def revise(where: str | Path, authorize: dict[str, list[str]] | None = None,
 def regenerate_router_files(d: Path, fleet: Fleet) -> None:
     """``router/credentials.txt`` (the nodes not revoked, and the site routers' mesh passwords),
     ``router/router.json5`` and each site's config, from the effective fleet."""
-    from .routerconfig import HEADER, render, router_config
+    from zdrone.fleet.routerconfig import HEADER, render, router_config
 
     creds_path = d / "router" / "credentials.txt"
     old = dict(line.split(":", 1) for line in creds_path.read_text().splitlines() if ":" in line)
@@ -179,7 +179,7 @@ def _reissue_certificate(d: Path, node: str) -> None:
     from cryptography import x509
     from cryptography.hazmat.primitives import serialization
 
-    from .tls import _pem_key, _write, issue, node_files
+    from zdrone.fleet.tls import _pem_key, _write, issue, node_files
 
     ca = x509.load_pem_x509_certificate((d / "tls" / "ca.crt").read_bytes())
     ca_key = serialization.load_pem_private_key((d / "tls" / "ca.key").read_bytes(), password=None)

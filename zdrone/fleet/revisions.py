@@ -4,14 +4,14 @@ Theory of operation
 -------------------
 Every node (drone, GS) holds a ``RevisionKeeper``: the base fleet (``fleet.json5`` of its bundle),
 the revision in force and its bytes. Revisions travel on one key per sender,
-``kx.revision(<gs>)`` (``zdrone-fleet/revision/<gs>``): the router lets GS ``g`` put and answer on
+``keyexprs.revision(<gs>)`` (``zdrone-fleet/revision/<gs>``): the router lets GS ``g`` put and answer on
 its own key only and budgets each key on its own (``fleet/routerconfig.py``), so a flood with one
 credential never starves the revisions of the others. A node hears them three ways:
 
 * a **push**: every GS re-publishes the revision it holds every ``PUSH_PERIOD_S``, and at once when
   it takes a new one (``zdrone fleet publish`` puts one as its GS, on that GS's key). A push is one
   put that the router fans out: O(nodes) messages per period for the fleet, whatever its size;
-* the **reply to its query** on ``kx.revision_all()``: only GSs declare the queryable (a drone
+* the **reply to its query** on ``keyexprs.revision_all()``: only GSs declare the queryable (a drone
   never answers, so a query costs one reply per GS, not one per node). A node asks at start,
   whenever it comes back in reach (one of its router paths (re)connected, or the testbed's coverage
   let it hear a GS again: looked at every ``REACH_LOOK_S``), and then every ``ASK_PERIOD_S``;
@@ -50,16 +50,16 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable
 
-from ..core import records as rec
-from ..core.fleet import Fleet
-from ..core.revision import (Revision, RevisionAccepted, RevisionRefusal, RevisionRefused, RevisionResult,
+from zdrone.core import records as rec
+from zdrone.core.fleet import Fleet
+from zdrone.core.revision import (Revision, RevisionAccepted, RevisionRefusal, RevisionRefused, RevisionResult,
                              check_revision, encode_revision, make_push, split_push)
-from ..core.keys import SigningKey
-from ..core.errors import ConfigError
-from . import keyexprs as kx
-from .files import (REVISION_FILE, STATE_DIR_ENV, fleet_path, load_base_fleet, load_revision, read_revisions,
+from zdrone.core.keys import SigningKey
+from zdrone.core.errors import ConfigError
+from zdrone.fleet import keyexprs
+from zdrone.fleet.files import (REVISION_FILE, STATE_DIR_ENV, fleet_path, load_base_fleet, load_revision, read_revisions,
                     write_durably)
-from .routerconfig import REVISION_MAX_BYTES, REVISION_MAX_HZ, REVISION_QUERY_HZ
+from zdrone.fleet.routerconfig import REVISION_MAX_BYTES, REVISION_MAX_HZ, REVISION_QUERY_HZ
 
 log = logging.getLogger(__name__)
 
@@ -156,8 +156,8 @@ class RevisionChannel:
         self.keeper = RevisionKeeper(fleet_dir, rt.name)
         self.write_applied = write_applied  # the drone's core writes its own record
         self.in_reach = in_reach
-        rt.subscribe(kx.revision_all(), PUBLISHED, kx.gs_of, limit=MAX_REVISION_BYTES)
-        self.own = kx.revision(rt.name) if publisher else None
+        rt.subscribe(keyexprs.revision_all(), PUBLISHED, keyexprs.gs_of, limit=MAX_REVISION_BYTES)
+        self.own = keyexprs.revision(rt.name) if publisher else None
         self.queries = rt.queryable(self.own) if self.own is not None else None
         self._next_ask, self._last_ask = 0.0, float("-inf")
         self._next_push, self._last_push = 0.0, float("-inf")
@@ -204,7 +204,7 @@ class RevisionChannel:
         if self._reach and now >= max(self._next_ask, self._last_ask + ASK_GAP_S):
             self._last_ask, self._next_ask = now, now + ASK_PERIOD_S
             self.keeper.counters["asked"] += 1
-            self.rt.ask(kx.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
+            self.rt.ask(keyexprs.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
         if self.own is None or now < self._last_push + PUSH_GAP_S:
             return
         key = self.signing() if self.signing is not None else None

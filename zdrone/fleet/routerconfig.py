@@ -72,10 +72,10 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from ..core.fleet import Fleet
-from ..core.kk import MAX_MESSAGE
-from ..core.opspicture import OPS_MAX_BYTES
-from . import keyexprs as kx
+from zdrone.core.fleet import Fleet
+from zdrone.core.kk import MAX_MESSAGE
+from zdrone.core.opspicture import OPS_MAX_BYTES
+from zdrone.fleet import keyexprs
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 DEFAULT_TLS_LISTEN = "tls/127.0.0.1:7447"
@@ -90,7 +90,7 @@ MAX_MESSAGE_SIZE = 65536
 UPLINK_MAX_HZ = 200.0
 #: Puts per second on each lane (Zenoh's downsampling: a put closer than 1/UPLINK_LANE_HZ s to the
 #: previous one on that lane is dropped).
-UPLINK_LANE_HZ = UPLINK_MAX_HZ / kx.UP_LANES
+UPLINK_LANE_HZ = UPLINK_MAX_HZ / keyexprs.UP_LANES
 #: A GS's frames on one uplink go out this far apart at least (on the lanes in turn), so at most
 #: 1/UPLINK_PACE_S frames/s (50: a joystick's MANUAL_CONTROL stream fits): one lane's frames are then
 #: UP_LANES * UPLINK_PACE_S apart, four of its router intervals, so that delays on the way (a busy
@@ -159,41 +159,41 @@ def access_control(fleet: Fleet, tls: bool = False, routers: tuple[str, ...] = (
             ids.append(rid)
 
         if node.role == "viewer":  # reads the GSs' pictures sealed for it and the fleet's revisions, nothing else
-            add("ops-sub", ["declare_subscriber"], ["ingress"], [kx.ops_all()])
-            add("ops-recv", ["put"], ["egress"], [kx.ops_all()])  # bounded per (GS, lane): ops_downsampling
-            add("revision", ["declare_subscriber", "query"], ["ingress"], [kx.revision_all()])
-            add("revision-recv", ["put", "reply"], ["egress"], [kx.revision_all()])
+            add("ops-sub", ["declare_subscriber"], ["ingress"], [keyexprs.ops_all()])
+            add("ops-recv", ["put"], ["egress"], [keyexprs.ops_all()])  # bounded per (GS, lane): ops_downsampling
+            add("revision", ["declare_subscriber", "query"], ["ingress"], [keyexprs.revision_all()])
+            add("revision-recv", ["put", "reply"], ["egress"], [keyexprs.revision_all()])
             enrol(name, ids)
             continue
         if node.role == "drone":
             add("pub-down", ["put"], ["ingress"], [f"zdrone/{name}/down/*"])
             # exactly the lanes: a key under an uplink that is not one (unlimited: no rule) never reaches it
-            add("sub-up", ["declare_subscriber"], ["ingress"], kx.up_lanes(name, "*"))
-            add("recv-up", ["put"], ["egress"], kx.up_lanes(name, "*"))
-            add("pair", ["declare_queryable", "reply"], ["ingress"], [kx.pair_all(name)])
-            add("pair-q", ["query"], ["egress"], [kx.pair_all(name)])
+            add("sub-up", ["declare_subscriber"], ["ingress"], keyexprs.up_lanes(name, "*"))
+            add("recv-up", ["put"], ["egress"], keyexprs.up_lanes(name, "*"))
+            add("pair", ["declare_queryable", "reply"], ["ingress"], [keyexprs.pair_all(name)])
+            add("pair-q", ["query"], ["egress"], [keyexprs.pair_all(name)])
         else:
             drones = [d for d in fleet.drones() if fleet.is_authorized(d, name)]
-            add("pub-up", ["put"], ["ingress"], kx.up_lanes("*", name))
-            add("sub-down", ["declare_subscriber"], ["ingress"], [kx.down("*", name)])
-            add("recv-down", ["put"], ["egress"], [kx.down("*", name)])
-            add("linkkey-own", ["declare_queryable", "reply"], ["ingress"], [kx.linkkey_all(name)])
-            add("linkkey-own-q", ["query"], ["egress"], [kx.linkkey_all(name)])
+            add("pub-up", ["put"], ["ingress"], keyexprs.up_lanes("*", name))
+            add("sub-down", ["declare_subscriber"], ["ingress"], [keyexprs.down("*", name)])
+            add("recv-down", ["put"], ["egress"], [keyexprs.down("*", name)])
+            add("linkkey-own", ["declare_queryable", "reply"], ["ingress"], [keyexprs.linkkey_all(name)])
+            add("linkkey-own-q", ["query"], ["egress"], [keyexprs.linkkey_all(name)])
             if fleet.viewers():  # its operations picture, sealed for the viewer
-                add("ops-own", ["put"], ["ingress"], kx.ops_lanes(name))
+                add("ops-own", ["put"], ["ingress"], keyexprs.ops_lanes(name))
             if drones:  # pairing and key sharing only for the drones this GS is authorized for
-                add("pair", ["query"], ["ingress"], [kx.pair(d, name) for d in drones])
-                add("pair-r", ["reply"], ["egress"], [kx.pair(d, name) for d in drones])
-                add("linkkey-ask", ["query"], ["ingress"], [kx.linkkey("*", d) for d in drones])
-                add("linkkey-ans", ["reply"], ["egress"], [kx.linkkey("*", d) for d in drones])
+                add("pair", ["query"], ["ingress"], [keyexprs.pair(d, name) for d in drones])
+                add("pair-r", ["reply"], ["egress"], [keyexprs.pair(d, name) for d in drones])
+                add("linkkey-ask", ["query"], ["ingress"], [keyexprs.linkkey("*", d) for d in drones])
+                add("linkkey-ans", ["reply"], ["egress"], [keyexprs.linkkey("*", d) for d in drones])
         # fleet revisions (signed by the fleet key, checked by every node): every node hears and asks
         # on every sender's key; a GS alone publishes and answers, on its own key only
-        add("revision", ["declare_subscriber", "query"], ["ingress"], [kx.revision_all()])
-        add("revision-recv", ["put", "reply"], ["egress"], [kx.revision_all()])
+        add("revision", ["declare_subscriber", "query"], ["ingress"], [keyexprs.revision_all()])
+        add("revision-recv", ["put", "reply"], ["egress"], [keyexprs.revision_all()])
         if node.role != "drone":
-            add("revision-own", ["put", "declare_queryable", "reply"], ["ingress"], [kx.revision(name)])
+            add("revision-own", ["put", "declare_queryable", "reply"], ["ingress"], [keyexprs.revision(name)])
             # the queries on every sender's key (a query names no GS): only GSs declare the queryable
-            add("revision-q", ["query"], ["egress"], [kx.revision_all()])
+            add("revision-q", ["query"], ["egress"], [keyexprs.revision_all()])
         enrol(name, ids)
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
@@ -213,12 +213,12 @@ def uplink_downsampling(fleet: Fleet, per_credential: bool = True) -> list[dict[
         return []
     if per_credential:
         flow = "egress"
-        lanes = [kx.up_lane("*", g, lane) for g in gss for lane in range(kx.UP_LANES)]
-        pairs = [kx.pair("*", g) for g in gss]
+        lanes = [keyexprs.up_lane("*", g, lane) for g in gss for lane in range(keyexprs.UP_LANES)]
+        pairs = [keyexprs.pair("*", g) for g in gss]
     else:
         flow = "ingress"
-        lanes = [kx.up_lane(d, "*", lane) for d in drones for lane in range(kx.UP_LANES)]
-        pairs = [kx.pair_all(d) for d in drones]
+        lanes = [keyexprs.up_lane(d, "*", lane) for d in drones for lane in range(keyexprs.UP_LANES)]
+        pairs = [keyexprs.pair_all(d) for d in drones]
     return [{"id": "uplink-rate", "flows": [flow], "messages": ["put"], "link_protocols": CLIENT_LINKS,
              "rules": [{"key_expr": k, "freq": UPLINK_LANE_HZ} for k in lanes]},
             {"id": "pair-rate", "flows": [flow], "messages": ["query"], "link_protocols": CLIENT_LINKS,
@@ -234,7 +234,7 @@ def revision_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
     gss = [g for g in fleet.ground_stations() if not fleet.is_revoked(g)]
     if not gss:
         return []
-    rules = [{"key_expr": kx.revision(g), "freq": REVISION_MAX_HZ} for g in gss]
+    rules = [{"key_expr": keyexprs.revision(g), "freq": REVISION_MAX_HZ} for g in gss]
     # puts (the GSs' pushes and stamps) on ingress: per sending session, so a flood with a GS's leaked
     # credentials spends its own sessions' budget, never the real GS's (its stamps renew the drones' leases)
     return [{"id": "revision-put-rate", "flows": ["ingress"], "messages": ["put"], "link_protocols": CLIENT_LINKS,
@@ -242,7 +242,7 @@ def revision_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
             {"id": "revision-reply-rate", "flows": ["egress"], "messages": ["reply"], "link_protocols": CLIENT_LINKS,
              "rules": rules}] + [
             {"id": "revision-query-rate", "flows": ["ingress"], "messages": ["query"], "link_protocols": CLIENT_LINKS,
-             "rules": [{"key_expr": kx.revision_all(), "freq": REVISION_QUERY_HZ}]}]
+             "rules": [{"key_expr": keyexprs.revision_all(), "freq": REVISION_QUERY_HZ}]}]
 
 
 #: Puts a second on each lane of a GS's operations picture, at the viewer's egress (an honest GS: at
@@ -257,7 +257,7 @@ def ops_downsampling(fleet: Fleet) -> list[dict[str, Any]]:
     if not gss or not fleet.viewers():
         return []
     return [{"id": "ops-rate", "flows": ["egress"], "messages": ["put"], "link_protocols": CLIENT_LINKS,
-             "rules": [{"key_expr": k, "freq": OPS_LANE_HZ} for g in gss for k in kx.ops_lanes(g)]}]
+             "rules": [{"key_expr": k, "freq": OPS_LANE_HZ} for g in gss for k in keyexprs.ops_lanes(g)]}]
 
 
 def size_limits(fleet: Fleet) -> list[dict[str, Any]]:
@@ -275,14 +275,14 @@ def ops_size_limits(fleet: Fleet) -> list[dict[str, Any]]:
     """Zenoh's low-pass filter on ingress: the largest part of an operations picture."""
     if not fleet.viewers():
         return []
-    return [{"id": "ops-size", "flows": ["ingress"], "messages": ["put"], "key_exprs": [kx.ops_all()],
+    return [{"id": "ops-size", "flows": ["ingress"], "messages": ["put"], "key_exprs": [keyexprs.ops_all()],
              "size_limit": OPS_MAX_BYTES}]
 
 
 def revision_size_limits() -> list[dict[str, Any]]:
     """Zenoh's low-pass filter on ingress: the largest revision put or reply (``REVISION_MAX_BYTES``)."""
     return [{"id": "revision-size", "flows": ["ingress"], "messages": ["put", "reply"],
-             "key_exprs": [kx.revision_all()], "size_limit": REVISION_MAX_BYTES}]
+             "key_exprs": [keyexprs.revision_all()], "size_limit": REVISION_MAX_BYTES}]
 
 
 def router_config(fleet: Fleet, credentials_file: str, listen: str | None = None, tls: bool = False) -> dict[str, Any]:

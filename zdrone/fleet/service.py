@@ -17,8 +17,8 @@ import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core.errors import ConfigError
-from .bundle import BUNDLE_FILE, check_bundle
+from zdrone.core.errors import ConfigError
+from zdrone.fleet.bundle import BUNDLE_FILE, check_bundle
 
 SERVICE_USER = "zdrone"
 

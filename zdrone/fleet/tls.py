@@ -29,8 +29,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from ..core.errors import ConfigError
-from ..core.fleet import Fleet
+from zdrone.core.errors import ConfigError
+from zdrone.core.fleet import Fleet
 
 VALID_DAYS = 3650
 ROUTER_NAME = "router"

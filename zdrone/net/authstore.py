@@ -20,7 +20,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..fleet.files import fleet_path, write_durably
+from zdrone.fleet.files import fleet_path, write_durably
 
 log = logging.getLogger(__name__)
 

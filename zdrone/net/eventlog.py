@@ -46,10 +46,10 @@ from typing import Any, Callable, NamedTuple, TextIO, TypeVar
 
 import msgspec
 
-from ..core.ratelimit import TokenBucket
-from ..core import audit
-from ..core.keys import SigningKey
-from ..core.records import (AnyRecord, Suppressed, UntypedRecord, decode_record, encode_record, misfit, record_type,
+from zdrone.core.ratelimit import TokenBucket
+from zdrone.core import audit
+from zdrone.core.keys import SigningKey
+from zdrone.core.records import (AnyRecord, Suppressed, UntypedRecord, decode_record, encode_record, misfit, record_type,
                             records_for)
 
 log = logging.getLogger(__name__)

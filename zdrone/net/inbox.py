@@ -17,7 +17,7 @@ import time
 from collections import Counter, deque
 from typing import Any, Callable
 
-from ..core.kk import MAX_MESSAGE
+from zdrone.core.kk import MAX_MESSAGE
 
 #: Items handled per drain at most, so the rest of the loop still runs under load.
 MAX_BATCH = 512

@@ -17,12 +17,12 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Protocol
 
-from ..core.fleet import Fleet
-from ..core.keys import Identity
-from ..core.opspicture import (OPS_MAX_EVENTS, OPS_MIN_GAP_S, OPS_PERIOD_S, DroneOps, OpsEvent, OpsSealer, SALT_LEN,
+from zdrone.core.fleet import Fleet
+from zdrone.core.keys import Identity
+from zdrone.core.opspicture import (OPS_MAX_EVENTS, OPS_MIN_GAP_S, OPS_PERIOD_S, DroneOps, OpsEvent, OpsSealer, SALT_LEN,
                                report_parts)
-from ..core.records import AnyRecord, fields_of, record_type
-from ..fleet import keyexprs as kx
+from zdrone.core.records import AnyRecord, fields_of, record_type
+from zdrone.fleet import keyexprs
 
 #: The records a GS logs that the viewer's authority feed shows (by type).
 AUTHORITY_KINDS = frozenset({
@@ -68,7 +68,7 @@ class OpsPublisher:
         if not viewers:
             return None
         viewer = viewers[0]
-        return OpsSealer(identity, gs, viewer, fleet.nodes[viewer].public_bytes, kx.ops(gs), os.urandom(SALT_LEN))
+        return OpsSealer(identity, gs, viewer, fleet.nodes[viewer].public_bytes, keyexprs.ops(gs), os.urandom(SALT_LEN))
 
     @classmethod
     def for_station(cls, gs: str, fleet: Fleet, identity: Identity, source: PictureSource,
@@ -113,9 +113,9 @@ class OpsPublisher:
         drones = [self.source.drone_ops(d, now) for d in self.source.drones]
         for i, part in enumerate(report_parts(self.gs, round(wall, 3), drones, self.events)):
             # part i on lane i (the router's budget per lane); more parts than lanes share the last one
-            self._put(kx.ops_lane(self.gs, min(i, kx.OPS_LANES - 1)), self.sealer.seal(part))
+            self._put(keyexprs.ops_lane(self.gs, min(i, keyexprs.OPS_LANES - 1)), self.sealer.seal(part))
             self.parts_sent += 1
-            self.lane_overflow += i >= kx.OPS_LANES
+            self.lane_overflow += i >= keyexprs.OPS_LANES
         self.events, self.urgent, self.last = [], False, now
 
     def stats(self) -> dict[str, Any]:

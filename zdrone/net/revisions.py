@@ -6,12 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..core.errors import ConfigError
-from ..core.revision import RevisionAccepted, check_revision
-from ..fleet import keyexprs as kx
-from ..fleet.files import REVISION_FILE, fleet_path, load_base_fleet, load_fleet, load_secret
-from ..fleet.tls import node_files
-from .session import open_client
+from zdrone.core.errors import ConfigError
+from zdrone.core.revision import RevisionAccepted, check_revision
+from zdrone.fleet import keyexprs
+from zdrone.fleet.files import REVISION_FILE, fleet_path, load_base_fleet, load_fleet, load_secret
+from zdrone.fleet.tls import node_files
+from zdrone.net.session import open_client
 
 
 def publish(fleet_dir: str | Path, node: str, router: str, data: bytes) -> None:
@@ -26,7 +26,7 @@ def publish(fleet_dir: str | Path, node: str, router: str, data: bytes) -> None:
     tls = node_files(fleet_dir, node).check() if router.startswith("tls/") else None
     session = open_client(router, node, secret.router_password, tls, None)
     try:
-        session.put(kx.revision(node), data)
+        session.put(keyexprs.revision(node), data)
     finally:
         session.close()
 

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import zenoh
 
-from ..core.bundle import unpack
+from zdrone.core.bundle import unpack
 
-from ..core.fleet import ConfigError
-from .session import load_router_config
-from .shutdown import route_signals
+from zdrone.core.fleet import ConfigError
+from zdrone.net.session import load_router_config
+from zdrone.net.shutdown import route_signals
 
 log = logging.getLogger(__name__)
 

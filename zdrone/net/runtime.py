@@ -34,19 +34,19 @@ from typing import Any, Callable
 
 import zenoh
 
-from ..core import records as rec
-from ..core.errors import ConfigError
-from ..core.fleet import Fleet, Node
-from ..fleet import keyexprs as kx
-from ..fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
-from ..fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
-from ..fleet.tls import node_files
-from .declarations import DECLARATIONS
-from .eventlog import EventLog
-from .inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes, senders_bound
-from .pacing import Pacer
-from .paths import PathQueryable, RecentPayloads, SessionPath
-from .session import open_client, query_queue
+from zdrone.core import records as rec
+from zdrone.core.errors import ConfigError
+from zdrone.core.fleet import Fleet, Node
+from zdrone.fleet import keyexprs
+from zdrone.fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
+from zdrone.fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
+from zdrone.fleet.tls import node_files
+from zdrone.net.declarations import DECLARATIONS
+from zdrone.net.eventlog import EventLog
+from zdrone.net.inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes, senders_bound
+from zdrone.net.pacing import Pacer
+from zdrone.net.paths import PathQueryable, RecentPayloads, SessionPath
+from zdrone.net.session import open_client, query_queue
 
 log = logging.getLogger(__name__)
 
@@ -214,7 +214,7 @@ class NodeRuntime:
             s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP, **qos)
 
     def put_link(self, keyexpr: str, payload: bytes, now: float) -> None:
-        """Publish a GS's link frame on uplink ``keyexpr`` (``kx.up``), paced: at once if the
+        """Publish a GS's link frame on uplink ``keyexpr`` (``keyexprs.up``), paced: at once if the
         uplink's last put is ``UPLINK_PACE_S`` old, else in its turn (``flush``), and on the uplink's
         lanes in turn, so that the router's per-lane rate limit never drops it, even when a stall
         makes the router process several back to back. The node's loop calls ``flush`` every pass
@@ -229,8 +229,8 @@ class NodeRuntime:
 
     def _put_on_lane(self, uplink: str, payload: bytes) -> None:
         lane = self._lanes.get(uplink, 0)
-        self._lanes[uplink] = (lane + 1) % kx.UP_LANES
-        self.put(kx.lane_of(uplink, lane), payload, link=True)
+        self._lanes[uplink] = (lane + 1) % keyexprs.UP_LANES
+        self.put(keyexprs.lane_of(uplink, lane), payload, link=True)
 
     def next_flush(self) -> float | None:
         """When the next paced frame is due, or None if none waits."""
@@ -286,7 +286,7 @@ class NodeRuntime:
     def serve(self, run: Callable[[], None]) -> int:
         """Run ``run()`` with SIGTERM/SIGINT turned into ``stop()`` by the signal thread (the command
         line blocked those signals before any thread started: ``cli.run_parsed``)."""
-        from .shutdown import serve_signals
+        from zdrone.net.shutdown import serve_signals
 
         closed = threading.Event()
         serve_signals(self.stop, self.close_sessions, closed)

@@ -9,9 +9,9 @@ from typing import Any
 
 import zenoh
 
-from ..core.fleet import ConfigError, read_json5
-from ..fleet.routerconfig import MAX_MESSAGE_SIZE, SITE_KEEP_ALIVE, TLS_FILE_FIELDS
-from ..fleet.tls import TlsFiles
+from zdrone.core.fleet import ConfigError, read_json5
+from zdrone.fleet.routerconfig import MAX_MESSAGE_SIZE, SITE_KEEP_ALIVE, TLS_FILE_FIELDS
+from zdrone.fleet.tls import TlsFiles
 
 log = logging.getLogger(__name__)
 

@@ -41,7 +41,7 @@ from zdrone.core.outputs import Emit, Handlers, Put, dispatch
 from zdrone.core.pairing import query_answer
 from zdrone.core.revision import RevisionAccepted
 from zdrone.core.tbm import TbmThresholds
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.fleet import revisions
 from zdrone.fleet.routerconfig import UPLINK_MAX_BYTES
 from zdrone.net.authstore import AuthorityStore, SavedAuthority
@@ -189,7 +189,7 @@ class DroneNode:
             opts.vehicle, companion_sysid=self.sysid,
             signing=FcSigning(FcKeyStore.for_node(opts.fleet, opts.drone), opts.fc_signing, opts.rotate_fc_key))
         self._vehicle_pushes = False  # True once the vehicle's frames come through the inbox
-        self.pairing = self.rt.queryable(kx.pair_all(self.name))
+        self.pairing = self.rt.queryable(keyexprs.pair_all(self.name))
         # fleet revisions: heard and kept, asked for on coming back in reach (a drone never answers)
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=False, in_reach=self._hears_a_gs)
 
@@ -236,8 +236,8 @@ class DroneNode:
         started = time.monotonic()
         try:
             if gs not in self.subs:  # the router's size limit, held here too
-                self.subs[gs] = [self.rt.subscribe(lane, "up", kx.gs_of_uplink, limit=UPLINK_MAX_BYTES)
-                                 for lane in kx.up_lanes(self.name, gs)]
+                self.subs[gs] = [self.rt.subscribe(lane, "up", keyexprs.gs_of_uplink, limit=UPLINK_MAX_BYTES)
+                                 for lane in keyexprs.up_lanes(self.name, gs)]
         finally:
             self._declared_in(time.monotonic() - started)
 
@@ -266,7 +266,7 @@ class DroneNode:
         self._do(self.core.flush(), now)
         if self.bundles.pending():
             for gs, bundle in self.bundles.take():
-                self.rt.put(kx.down(self.name, gs), bundle)
+                self.rt.put(keyexprs.down(self.name, gs), bundle)
 
     # -------------------------------------------------- the testbed's radio
     def _through_radio(self, direction: str, gs: str, data: bytes) -> bool:
@@ -381,7 +381,7 @@ class DroneNode:
                 if handshakes >= PAIRING_PER_TURN:
                     self.core.counters["pair_deferred"] += 1  # over this turn's budget: the GS asks again
                     continue
-                gs = kx.gs_of(q.key_expr)
+                gs = keyexprs.gs_of(q.key_expr)
                 ans, outs = self.core.on_pair_query(gs, payload_bytes(q.payload), now, os.urandom(32), time.time())
                 self._do(outs, now)
                 handshakes += int(ans.crypto)

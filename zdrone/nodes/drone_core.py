@@ -60,7 +60,7 @@ from zdrone.core.standby import STREAMED, StandbyStream
 from zdrone.core.tbm import TbmThresholds
 from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
-from zdrone.fleet import keyexprs as kx
+from zdrone.fleet import keyexprs
 from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
 from zdrone.nodes.drone_revisions import DroneRevisions
 
@@ -376,7 +376,7 @@ class DroneCore(DroneRevisions):
     # ------------------------------------------------------------- internals
     def _new_link(self, gs: str, key: LinkKey, now: float) -> SecureLink:
         return SecureLink(
-            key=key, role="drone", tx_keyexpr=kx.down(self.name, gs), rx_keyexpr=kx.up(self.name, gs),
+            key=key, role="drone", tx_keyexpr=keyexprs.down(self.name, gs), rx_keyexpr=keyexprs.up(self.name, gs),
             peer_sysid=self.fleet.nodes[gs].sysid, now=now, thresholds=self.opts.thresholds, cipher=self.opts.cipher,
             authorize=lambda g: self.fleet.is_authorized(self.name, g))
 

@@ -31,10 +31,10 @@ import time
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.reference import DEFAULT_NODES
-from ..net.eventlog import EventLog
-from ..crashes import stacks_on_crash
-from .operator import A_SYSID, APP_SYSID, B_SYSID, OperatorApp, Script, StepFailed, inside_both, play
+from zdrone.core.reference import DEFAULT_NODES
+from zdrone.net.eventlog import EventLog
+from zdrone.crashes import stacks_on_crash
+from zdrone.sil.operator import A_SYSID, APP_SYSID, B_SYSID, OperatorApp, Script, StepFailed, inside_both, play
 
 X_SYSID = next(n[2] for n in DEFAULT_NODES if n[0] == "X")
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from collections import Counter
 
-from ..core.fleet import Fleet
-from ..core.geometry import Circle, GeoPoint
+from zdrone.core.fleet import Fleet
+from zdrone.core.geometry import Circle, GeoPoint
 
 
 class CoverageGate:

@@ -55,7 +55,7 @@ from zdrone.sil.verdicts import (DELIVERY_RADIUS_M, FAILSAFE_LATE_MS, SILENT_AUT
                                  delivered, delivered_at, fault_over_check, flight_completes, flight_unaffected,
                                  return_time, safety_invariants)
 
-__all__ = [  # the orchestration, and the testbed's public names as they were before its rooms
+__all__ = [  # the orchestration, and the testbed's public names its callers import from here
     "Child", "Demo", "DemoOptions", "EXTERNAL_BOOT_S", "GCS_KEYS", "NEAR_DELIVERY_M", "run_demo",
     "AIRBORNE", "BEFORE_DRONE", "BEFORE_GS_A", "DRONE_RESTARTED", "FAILSAFE_FIRED", "HANDOVER_STARTED",
     "HANDOVERS_DONE", "MISSION_STARTED", "MOMENTS", "REGION_ENTERED", "RETURNING", "TRIGGERS",

@@ -6,9 +6,9 @@ from __future__ import annotations
 from collections import deque
 from typing import Any, Sequence
 
-from ..core.geometry import GeoPoint
-from ..core.records import AnyRecord, AuthorityMoved, DroneStatus, Failsafe, fields_of, record_type
-from ..core.reference import HOME
+from zdrone.core.geometry import GeoPoint
+from zdrone.core.records import AnyRecord, AuthorityMoved, DroneStatus, Failsafe, fields_of, record_type
+from zdrone.core.reference import HOME
 
 
 def describe(ev: AnyRecord) -> str:
@@ -93,6 +93,6 @@ class LiveView:
 
 
 def _ne(pos: Sequence[float]) -> tuple[float, float]:
-    from ..core.geometry import ne_of
+    from zdrone.core.geometry import ne_of
 
     return ne_of(HOME, GeoPoint(pos[0], pos[1]))

@@ -33,12 +33,12 @@ from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.geometry import GeoPoint, distance_m
-from ..core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL, ControlStatus, decode_control_status
-from ..core.mavlink import FrameCodec
-from ..core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, GS_A, GS_B
-from ..net.eventlog import EventLog
-from ..vehicle.px4modes import FlightMode
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL, ControlStatus, decode_control_status
+from zdrone.core.mavlink import FrameCodec
+from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, GS_A, GS_B
+from zdrone.net.eventlog import EventLog
+from zdrone.vehicle.px4modes import FlightMode
 
 APP_SYSID = 255
 #: the fleet sysids of GS A and GS B (the reference fleet)
@@ -255,7 +255,7 @@ class Script:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..crashes import stacks_on_crash
+    from zdrone.crashes import stacks_on_crash
 
     stacks_on_crash()  # a crash leaves every thread's stack in our log
     p = argparse.ArgumentParser(prog="python -m zdrone.sil.operator", description="TESTBED ONLY operators")

@@ -34,7 +34,7 @@ import time
 from types import FrameType
 from typing import Any, Callable, Iterator, Sequence
 
-from ..crashes import child_env
+from zdrone.crashes import child_env
 
 log = logging.getLogger(__name__)
 

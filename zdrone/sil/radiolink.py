@@ -31,8 +31,8 @@ from collections import Counter
 from collections.abc import Mapping
 from typing import Any, Callable, Protocol
 
-from ..core.fleet import Fleet
-from ..core.geometry import Circle, GeoPoint
+from zdrone.core.fleet import Fleet
+from zdrone.core.geometry import Circle, GeoPoint
 
 log = logging.getLogger(__name__)
 

@@ -17,12 +17,12 @@ import logging
 import signal
 import sys
 
-from ..core.fleet import ConfigError
-from ..net.eventlog import EventLog
-from . import testbed_records as trec
-from .attackers import ATTACKS, MODES, Ctx
-from .attackers.common import dangerous_messages
-from .attackers.companion_host import fake_autopilot_frames
+from zdrone.core.fleet import ConfigError
+from zdrone.net.eventlog import EventLog
+from zdrone.sil import testbed_records as trec
+from zdrone.sil.attackers import ATTACKS, MODES, Ctx
+from zdrone.sil.attackers.common import dangerous_messages
+from zdrone.sil.attackers.companion_host import fake_autopilot_frames
 
 __all__ = ["ATTACKS", "MODES", "Ctx", "dangerous_messages", "fake_autopilot_frames", "main"]
 
@@ -30,8 +30,8 @@ __all__ = ["ATTACKS", "MODES", "Ctx", "dangerous_messages", "fake_autopilot_fram
 def main(argv: list[str] | None = None) -> int:
     import faulthandler
 
-    from ..crashes import stacks_on_crash
-    from ..net.shutdown import route_signals
+    from zdrone.crashes import stacks_on_crash
+    from zdrone.net.shutdown import route_signals
 
     stacks_on_crash()  # a crash leaves every thread's stack in our log
     try:  # stuck at the end of a run: the launcher's SIGUSR1 prints every thread's stack to our log

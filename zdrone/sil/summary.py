@@ -13,20 +13,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.geometry import GeoPoint, distance_m
-from ..core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AutopilotFound, DroneState, DroneStatus, DroneStop,
+from zdrone.core.geometry import GeoPoint, distance_m
+from zdrone.core.records import (AnyRecord, AuthorityChange, AuthorityMoved, AutopilotFound, DroneState, DroneStatus, DroneStop,
                             Failsafe, GsState, HandoverComplete, HandoverStart, LinkStateChanged, Paired, PathState,
                             RegionEntered, Restarted, Start, fields_of, logged, only, record_type)
-from ..core.reference import DELIVERY, HOME
-from ..core.tbm import LinkState, TbmThresholds
-from ..crashes import exit_text
-from ..net.eventlog import read_records
-from .moments import AIRBORNE, AT_DELIVERY, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
-from .testbed_records import LinkFault, RadioLinkChanged
-from .verdicts import DELIVERY_RADIUS_M, Outcome, delivered_at, flight_unaffected
+from zdrone.core.reference import DELIVERY, HOME
+from zdrone.core.tbm import LinkState, TbmThresholds
+from zdrone.crashes import exit_text
+from zdrone.net.eventlog import read_records
+from zdrone.sil.moments import AIRBORNE, AT_DELIVERY, FAILSAFE_FIRED, HANDOVER_STARTED, HANDOVERS_DONE, REGION_ENTERED, RETURNING
+from zdrone.sil.testbed_records import LinkFault, RadioLinkChanged
+from zdrone.sil.verdicts import DELIVERY_RADIUS_M, Outcome, delivered_at, flight_unaffected
 
 if TYPE_CHECKING:
-    from .scenarios import Scenario
+    from zdrone.sil.scenarios import Scenario
 
 
 @dataclass

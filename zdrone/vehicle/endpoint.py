@@ -35,7 +35,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
-from ..core.mavlink import MAGIC_V2
+from zdrone.core.mavlink import MAGIC_V2
 
 log = logging.getLogger(__name__)
 

@@ -70,12 +70,12 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core import fcsign
-from ..core.errors import UsageError
-from ..core.fleet import ConfigError
-from ..core.mavlink import FrameError
-from ..fleet.files import fleet_path, write_durably
-from ..net.authstore import STATE_DIR_ENV
+from zdrone.core import fcsign
+from zdrone.core.errors import UsageError
+from zdrone.core.fleet import ConfigError
+from zdrone.core.mavlink import FrameError
+from zdrone.fleet.files import fleet_path, write_durably
+from zdrone.net.authstore import STATE_DIR_ENV
 
 log = logging.getLogger(__name__)
 

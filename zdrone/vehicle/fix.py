@@ -15,7 +15,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
-from ..core.geometry import GeoPoint
+from zdrone.core.geometry import GeoPoint
 
 #: GPS_RAW_INT fix_type from which a position is a position (GPS_FIX_TYPE_3D_FIX)
 MIN_FIX_TYPE = 3

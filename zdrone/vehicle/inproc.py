@@ -8,11 +8,11 @@ from __future__ import annotations
 import time
 from typing import Any, Callable
 
-from ..core.geometry import GeoPoint
-from .link import VehicleState
-from .modes import mode_name
-from .px4modes import FlightMode
-from .sim import SimAutopilot
+from zdrone.core.geometry import GeoPoint
+from zdrone.vehicle.link import VehicleState
+from zdrone.vehicle.modes import mode_name
+from zdrone.vehicle.px4modes import FlightMode
+from zdrone.vehicle.sim import SimAutopilot
 
 #: How often a node's loop that sleeps until its next deadline steps the simulator.
 STEP_S = 0.02

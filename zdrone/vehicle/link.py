@@ -48,15 +48,15 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402  (after MAVLINK20 is set)
 from pymavlink.dialects.v20 import common as mav  # noqa: E402
 
-from ..core import fcsign  # noqa: E402
-from ..core.fleet import ConfigError  # noqa: E402
-from ..core.mavlink import FrameError, split_frames  # noqa: E402
-from .endpoint import AutopilotEndpoint  # noqa: E402
-from .fcsigning import FcSigning, FcSigningError, FcState  # noqa: E402
-from ..core.geometry import GeoPoint  # noqa: E402
-from .modes import ARDUPILOT, set_mode_params  # noqa: E402
-from .transport import bind_udp  # noqa: E402
-from .tracker import AUTOPILOT_COMPID, DEFAULT_STREAMS, FailsafeOutcome, StreamWant, Timing, VehicleTracker  # noqa: E402
+from zdrone.core import fcsign  # noqa: E402
+from zdrone.core.fleet import ConfigError  # noqa: E402
+from zdrone.core.mavlink import FrameError, split_frames  # noqa: E402
+from zdrone.vehicle.endpoint import AutopilotEndpoint  # noqa: E402
+from zdrone.vehicle.fcsigning import FcSigning, FcSigningError, FcState  # noqa: E402
+from zdrone.core.geometry import GeoPoint  # noqa: E402
+from zdrone.vehicle.modes import ARDUPILOT, set_mode_params  # noqa: E402
+from zdrone.vehicle.transport import bind_udp  # noqa: E402
+from zdrone.vehicle.tracker import AUTOPILOT_COMPID, DEFAULT_STREAMS, FailsafeOutcome, StreamWant, Timing, VehicleTracker  # noqa: E402
 
 log = logging.getLogger(__name__)
 COMPANION_COMPID = mav.MAV_COMP_ID_ONBOARD_COMPUTER

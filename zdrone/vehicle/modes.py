@@ -19,9 +19,9 @@ from types import MappingProxyType
 
 from pymavlink.dialects.v20 import common as mav
 
-from .personality import ARDUCOPTER_MODES
-from .px4modes import FlightMode
-from .px4modes import mode_name as px4_mode_name
+from zdrone.vehicle.personality import ARDUCOPTER_MODES
+from zdrone.vehicle.px4modes import FlightMode
+from zdrone.vehicle.px4modes import mode_name as px4_mode_name
 
 PX4 = "px4"
 ARDUPILOT = "ardupilot"

@@ -28,8 +28,8 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.fleet import ConfigError
-from .px4modes import FlightMode
+from zdrone.core.fleet import ConfigError
+from zdrone.vehicle.px4modes import FlightMode
 
 # --------------------------------------------------------------------------- message ids
 #: ids outside pymavlink's common dialect that PX4 v1.16 sends (EVENT family and friends)

@@ -22,9 +22,9 @@ from typing import Any, Union
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.geometry import GeoPoint
-from .fix import MSG_EKF_STATUS_REPORT, PositionFix
-from .modes import autopilot_name
+from zdrone.core.geometry import GeoPoint
+from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
+from zdrone.vehicle.modes import autopilot_name
 
 #: the vehicle's recent STATUSTEXTs kept (the mission reads a refusal's reasons from them)
 TEXTS_KEPT = 8

@@ -23,11 +23,11 @@ import socket
 import time
 from dataclasses import dataclass
 
-from ..core.geometry import GeoPoint
-from .personality import PX4, Personality
-from .sim import SimAutopilot
-from .sim.signing import RULES as SIGNING_RULES, SigningStorage, SimSigning
-from .transport import MavTransport
+from zdrone.core.geometry import GeoPoint
+from zdrone.vehicle.personality import PX4, Personality
+from zdrone.vehicle.sim import SimAutopilot
+from zdrone.vehicle.sim.signing import RULES as SIGNING_RULES, SigningStorage, SimSigning
+from zdrone.vehicle.transport import MavTransport
 
 log = logging.getLogger(__name__)
 

@@ -72,10 +72,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..core.geometry import GeoPoint
-from .fix import MSG_EKF_STATUS_REPORT, PositionFix
-from .modes import autopilot_name, landed_from_heartbeat, mode_name
-from .report import PositionReported, TextHeard, VehicleReport
+from zdrone.core.geometry import GeoPoint
+from zdrone.vehicle.fix import MSG_EKF_STATUS_REPORT, PositionFix
+from zdrone.vehicle.modes import autopilot_name, landed_from_heartbeat, mode_name
+from zdrone.vehicle.report import PositionReported, TextHeard, VehicleReport
 
 log = logging.getLogger(__name__)
 

@@ -23,8 +23,8 @@ import socket
 import time
 from dataclasses import dataclass
 
-from ..core.fleet import ConfigError
-from ..core.mavlink import split_frames
+from zdrone.core.fleet import ConfigError
+from zdrone.core.mavlink import split_frames
 
 log = logging.getLogger(__name__)
 PEER_TIMEOUT_S = 30.0

@@ -49,10 +49,10 @@ from typing import Any
 
 import msgspec
 
-from ..core.errors import ConfigError, UsageError
-from ..core.opspicture import OPS_MAX_BYTES, FleetPicture, OpsOpener, OpsReport, fleet_authorized, fleet_senders
-from ..fleet import keyexprs as kx
-from ..net.shutdown import serve_signals
+from zdrone.core.errors import ConfigError, UsageError
+from zdrone.core.opspicture import OPS_MAX_BYTES, FleetPicture, OpsOpener, OpsReport, fleet_authorized, fleet_senders
+from zdrone.fleet import keyexprs
+from zdrone.net.shutdown import serve_signals
 
 log = logging.getLogger(__name__)
 
@@ -187,9 +187,9 @@ class Follower:
     taken live (one thread)."""
 
     def __init__(self, opts: ViewOptions) -> None:
-        from ..net.runtime import NodeRuntime
-        from ..fleet.files import fleet_path, load_fleet
-        from ..fleet.revisions import RevisionChannel, signing_key_history
+        from zdrone.net.runtime import NodeRuntime
+        from zdrone.fleet.files import fleet_path, load_fleet
+        from zdrone.fleet.revisions import RevisionChannel, signing_key_history
 
         fleet = load_fleet(opts.fleet)
         names = [opts.viewer] if opts.viewer else [
@@ -206,7 +206,7 @@ class Follower:
                                     fleet_senders(self.fleet))
         self.lock = threading.Lock()
         self.stopping = threading.Event()  # the server is ending: the streams end (the page reconnects)
-        self.rt.subscribe(kx.ops_all(), "ops", kx.gs_of_ops, limit=OPS_MAX_BYTES)
+        self.rt.subscribe(keyexprs.ops_all(), "ops", keyexprs.gs_of_ops, limit=OPS_MAX_BYTES)
         # the fleet's revisions, as every node hears them (the router lets the viewer subscribe and ask,
         # never publish): a revoked GS drops out, a rotated key is taken, without a restart
         self.revisions = RevisionChannel(self.rt, opts.fleet, publisher=False)
@@ -226,7 +226,7 @@ class Follower:
                 self.opener.drops["internal_error"] += 1
 
     def _on_item(self, kind: str, gs: str, data: Any, now: float) -> None:
-        from ..fleet.revisions import KINDS, RevisionAccepted
+        from zdrone.fleet.revisions import KINDS, RevisionAccepted
 
         if kind in KINDS:
             got = self.revisions.on_inbox(kind, data)
@@ -235,7 +235,7 @@ class Follower:
                     self.apply_fleet(got.fleet)
             return
         with self.lock:
-            got_part = self.opener.open(gs, kx.ops(gs), bytes(data), time.monotonic(), time.time())
+            got_part = self.opener.open(gs, keyexprs.ops(gs), bytes(data), time.monotonic(), time.time())
             if isinstance(got_part, OpsReport):
                 self.picture.on_report(got_part, time.monotonic(), time.time())
 
@@ -272,7 +272,7 @@ class Follower:
     def close(self) -> None:
         self.rt.stop()
         self._thread.join(2.0)
-        from ..core import records as rec
+        from zdrone.core import records as rec
 
         self.rt.close({}, rec.Closed)
 

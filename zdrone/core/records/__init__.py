@@ -24,10 +24,10 @@ from typing import Any, Iterable, TypeVar, Union
 
 import msgspec
 
-from .base import *  # noqa: F401,F403
-from .base import Position, Record, UntypedRecord  # noqa: F401  (Position: the logged position type)
-from .drone import *  # noqa: F401,F403
-from .station import *  # noqa: F401,F403
+from zdrone.core.records.base import *  # noqa: F401,F403
+from zdrone.core.records.base import Position, Record, UntypedRecord  # noqa: F401  (Position: the logged position type)
+from zdrone.core.records.drone import *  # noqa: F401,F403
+from zdrone.core.records.station import *  # noqa: F401,F403
 
 
 # ----------------------------------------------------------------------------- vocabularies

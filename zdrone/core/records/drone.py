@@ -6,10 +6,10 @@ from typing import Any
 
 import msgspec
 
-from ..tbm import LinkState
-from ..wire import AuthorityState
+from zdrone.core.tbm import LinkState
+from zdrone.core.wire import AuthorityState
 
-from .base import Position, Record
+from zdrone.core.records.base import Position, Record
 
 
 # ----------------------------------------------------------------------------- the drone node

@@ -6,9 +6,9 @@ from typing import Any
 
 import msgspec
 
-from ..wire import AuthorityState
+from zdrone.core.wire import AuthorityState
 
-from .base import Position, Record
+from zdrone.core.records.base import Position, Record
 
 
 # ----------------------------------------------------------------------------- the ground station

@@ -22,14 +22,14 @@ from __future__ import annotations
 
 from typing import Callable
 
-from .common import Ctx
-from .companion_host import fake_autopilot, fc_radio
-from .flood import big_flood, junk_flood, pair_flood
-from .gs_host import gateway_flood, local_app
-from .insider import insider_heir, key_escrow, uplink_sealed
-from .ops import ops_insider, ops_unauthorized
-from .outsider import key_injection, linkkey_knockout, no_cert, no_key, pair_replay, stale_pairing, uplink_unsealed
-from .unauthorized import unauthorized
+from zdrone.sil.attackers.common import Ctx
+from zdrone.sil.attackers.companion_host import fake_autopilot, fc_radio
+from zdrone.sil.attackers.flood import big_flood, junk_flood, pair_flood
+from zdrone.sil.attackers.gs_host import gateway_flood, local_app
+from zdrone.sil.attackers.insider import insider_heir, key_escrow, uplink_sealed
+from zdrone.sil.attackers.ops import ops_insider, ops_unauthorized
+from zdrone.sil.attackers.outsider import key_injection, linkkey_knockout, no_cert, no_key, pair_replay, stale_pairing, uplink_unsealed
+from zdrone.sil.attackers.unauthorized import unauthorized
 
 MODES = ("no-key", "unauthorized", "key-injection", "linkkey-knockout", "pair-replay", "pair-flood",
          "uplink-sealed", "uplink-unsealed", "gateway-flood", "big-flood", "junk-flood", "no-cert", "insider-heir",

@@ -18,13 +18,13 @@ from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.fleet import Fleet
-from ...core.mavlink import FrameCodec
-from ...fleet.files import load_fleet, load_secret
-from ...fleet import keyexprs as kx
-from ...fleet.routerconfig import UPLINK_MAX_HZ
-from ...net.eventlog import EventLog
-from .. import testbed_records as trec
+from zdrone.core.fleet import Fleet
+from zdrone.core.mavlink import FrameCodec
+from zdrone.fleet.files import load_fleet, load_secret
+from zdrone.fleet import keyexprs
+from zdrone.fleet.routerconfig import UPLINK_MAX_HZ
+from zdrone.net.eventlog import EventLog
+from zdrone.sil import testbed_records as trec
 
 ROGUE_COMPID = 190
 #: How long a ``--wait-go`` attacker waits for its signal before giving up.
@@ -41,8 +41,8 @@ _next_lane: dict[tuple[str, str], int] = {}
 def next_up(drone: str, gs: str) -> str:
     """The key of the next lane of uplink (drone, gs): an attacker uses them in turn, as a GS does."""
     lane = _next_lane.get((drone, gs), 0)
-    _next_lane[(drone, gs)] = (lane + 1) % kx.UP_LANES
-    return kx.up_lane(drone, gs, lane)
+    _next_lane[(drone, gs)] = (lane + 1) % keyexprs.UP_LANES
+    return keyexprs.up_lane(drone, gs, lane)
 
 
 @dataclass
@@ -162,10 +162,10 @@ def session_as(c: Ctx, node: str, own_site: bool = True) -> "zenoh.Session":
     """A session as fleet member ``node`` with its real credentials: its router password and, with a
     TLS router, its own certificate; with a router per site and ``own_site``, at ``node``'s own
     site's router."""
-    from ...core.errors import ConfigError
-    from ...fleet.files import load_sites
-    from ...fleet.tls import node_files
-    from ...net.session import open_client
+    from zdrone.core.errors import ConfigError
+    from zdrone.fleet.files import load_sites
+    from zdrone.fleet.tls import node_files
+    from zdrone.net.session import open_client
 
     if not c.router.startswith("tls/"):
         return open_client(c.router, node, c.password(node))

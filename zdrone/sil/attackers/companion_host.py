@@ -26,11 +26,11 @@ from collections import Counter
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core import fcsign
-from ...core.fleet import ConfigError
-from ...core.mavlink import FrameCodec
-from .. import testbed_records as trec
-from .common import ROGUE_COMPID, Ctx, gcs_heartbeat
+from zdrone.core import fcsign
+from zdrone.core.fleet import ConfigError
+from zdrone.core.mavlink import FrameCodec
+from zdrone.sil import testbed_records as trec
+from zdrone.sil.attackers.common import ROGUE_COMPID, Ctx, gcs_heartbeat
 
 
 #: The fc-radio attacker's MAVLink system id (a GCS nobody configured).
@@ -43,8 +43,8 @@ FAKE_AUTOPILOT_SYSID = 7
 
 def fc_radio(c: Ctx) -> None:
     """The attacker on the autopilot's TELEM2 (see the module's docstring)."""
-    from ...vehicle.modes import set_mode_params
-    from ...vehicle.transport import MavTransport
+    from zdrone.vehicle.modes import set_mode_params
+    from zdrone.vehicle.transport import MavTransport
 
     if c.fc_port is None:
         raise ConfigError("--fc-port is required for fc-radio")
@@ -126,8 +126,8 @@ def fake_autopilot_frames(sysid: int, lat: float, lon: float, alt_m: float, arme
 
 def fake_autopilot(c: Ctx) -> None:
     """The fake autopilot on the companion host (see the module's docstring)."""
-    from ...core.reference import GS_B
-    from ...vehicle.modes import custom_mode
+    from zdrone.core.reference import GS_B
+    from zdrone.vehicle.modes import custom_mode
 
     if c.vehicle_port is None:
         raise ConfigError("--vehicle-port is required for fake-autopilot")

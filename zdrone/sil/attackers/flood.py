@@ -28,12 +28,12 @@ from collections import Counter
 
 import zenoh
 
-from ...core.pairing import PairingInitiator
-from ...fleet.files import load_secret
-from ...fleet import keyexprs as kx
-from .. import testbed_records as trec
-from ...net.session import open_client
-from .common import Ctx, Replies, next_up, session_as
+from zdrone.core.pairing import PairingInitiator
+from zdrone.fleet.files import load_secret
+from zdrone.fleet import keyexprs
+from zdrone.sil import testbed_records as trec
+from zdrone.net.session import open_client
+from zdrone.sil.attackers.common import Ctx, Replies, next_up, session_as
 
 
 def pair_flood(c: Ctx) -> None:
@@ -41,7 +41,7 @@ def pair_flood(c: Ctx) -> None:
     me = load_secret(c.fleet_dir, "B", fleet)  # B's private key and router password
     s = open_client(c.router, "B", me.router_password)
     replies = Replies()
-    key = kx.pair(drone, "B")
+    key = keyexprs.pair(drone, "B")
     try:
         c.ready()
         if not c.wait_for_go():
@@ -87,14 +87,14 @@ def big_flood(c: Ctx) -> None:
         period, next_huge = 1.0 / c.rate, 0.0
         while going():
             s.put(next_up(drone, "B"), big, congestion_control=zenoh.CongestionControl.DROP)
-            s.get(kx.pair(drone, "B"), replies, payload=big, timeout=1.0)
-            s.get(kx.linkkey("A", drone), replies, payload=big, timeout=1.0)
+            s.get(keyexprs.pair(drone, "B"), replies, payload=big, timeout=1.0)
+            s.get(keyexprs.linkkey("A", drone), replies, payload=big, timeout=1.0)
             sent["big"] += 3
             if time.monotonic() >= next_huge:
                 next_huge = time.monotonic() + 1.0
                 s.put(next_up(drone, "B"), huge, congestion_control=zenoh.CongestionControl.DROP)
-                s.get(kx.pair(drone, "B"), replies, payload=huge, timeout=1.0)
-                s.get(kx.linkkey("A", drone), replies, payload=huge, timeout=1.0)
+                s.get(keyexprs.pair(drone, "B"), replies, payload=huge, timeout=1.0)
+                s.get(keyexprs.linkkey("A", drone), replies, payload=huge, timeout=1.0)
                 sent["huge"] += 3
             c.stop.wait(period)
         c.stop.wait(1.5)  # the last replies
@@ -110,7 +110,7 @@ def junk_flood(c: Ctx) -> None:
     per_epoch = max(1, min(64, (64 << 20) // (3 * c.size)))  # at most 64 MiB of junk in memory
     pool = [bytes([e]) + rng.randbytes(c.size - 1) for e in (0, 1, 7) for _ in range(per_epoch)]  # epochs 0, 1, unknown
     rng.shuffle(pool)
-    keys = kx.up_lanes(drone, "B")  # every lane: the most the router lets through
+    keys = keyexprs.up_lanes(drone, "B")  # every lane: the most the router lets through
     drop = zenoh.CongestionControl.DROP
     try:
         c.ready()

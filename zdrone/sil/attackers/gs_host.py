@@ -28,9 +28,9 @@ from typing import Any, Callable
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.fleet import ConfigError
-from ...core.mavlink import FrameCodec
-from .common import Ctx, gcs_heartbeat
+from zdrone.core.fleet import ConfigError
+from zdrone.core.mavlink import FrameCodec
+from zdrone.sil.attackers.common import Ctx, gcs_heartbeat
 
 
 def gateway_flood(c: Ctx) -> None:
@@ -80,7 +80,7 @@ class _GcsApp:
     ``setup_signing`` does, or not); CONTROL_STATUS decoded with today's layout."""
 
     def __init__(self, port: int, sysid: int, key: bytes | None = None) -> None:
-        from ...core import fcsign as _fcsign
+        from zdrone.core import fcsign as _fcsign
 
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.connect(("127.0.0.1", port))
@@ -100,7 +100,7 @@ class _GcsApp:
     def _wall_clock(self) -> None:
         """Signing timestamps follow the wall clock, as QGroundControl's and MAVProxy's do: pymavlink only
         counts up from its start, and a stream first heard a minute after that start is stale (refused)."""
-        from ...core import fcsign as _fcsign
+        from zdrone.core import fcsign as _fcsign
 
         if self.enc.signing.secret_key is not None:
             now = _fcsign.units(time.time())
@@ -120,7 +120,7 @@ class _GcsApp:
         return since
 
     def pump(self) -> None:
-        from ...core.mavcontrol import decode_control_status
+        from zdrone.core.mavcontrol import decode_control_status
 
         now = time.monotonic()
         if now - self._hb >= 1.0:
@@ -161,10 +161,10 @@ def local_app(c: Ctx) -> None:
     """The unsigned local application on the owner GS's host (see the module's docstring)."""
     from gs.appkeys import load_keys
 
-    from ...core import fcsign as _fcsign
-    from ...core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL, MAV_RESULT_NOT_IN_CONTROL
-    from ...vehicle.modes import set_mode_params
-    from ..operator import MODES as OPERATOR_MODES
+    from zdrone.core import fcsign as _fcsign
+    from zdrone.core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL, MAV_RESULT_NOT_IN_CONTROL
+    from zdrone.vehicle.modes import set_mode_params
+    from zdrone.sil.operator import MODES as OPERATOR_MODES
 
     if c.gcs_port is None or c.gcs_port_b is None or c.gcs_keys is None:
         raise ConfigError("--gcs-port, --gcs-port-b and --gcs-keys are required for local-app")

@@ -35,19 +35,19 @@ from typing import Any, Callable
 import zenoh
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.bundle import pack, unpack
-from ...core.envelope import Opened, SecureLink
-from ...core.fleet import ConfigError
-from ...core.keys import LinkKey
-from ...core.keyshare import KeyShareAsk
-from ...core.mavlink import FrameCodec
-from ...core.pairing import PairingInitiator
-from ...core import wire
-from ...fleet.files import load_secret
-from ...fleet import keyexprs as kx
-from .. import testbed_records as trec
-from ...net.session import open_client
-from .common import ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, gcs_heartbeat, next_up, session_as
+from zdrone.core.bundle import pack, unpack
+from zdrone.core.envelope import Opened, SecureLink
+from zdrone.core.fleet import ConfigError
+from zdrone.core.keys import LinkKey
+from zdrone.core.keyshare import KeyShareAsk
+from zdrone.core.mavlink import FrameCodec
+from zdrone.core.pairing import PairingInitiator
+from zdrone.core import wire
+from zdrone.fleet.files import load_secret
+from zdrone.fleet import keyexprs
+from zdrone.sil import testbed_records as trec
+from zdrone.net.session import open_client
+from zdrone.sil.attackers.common import ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, gcs_heartbeat, next_up, session_as
 
 
 
@@ -63,7 +63,7 @@ def uplink_sealed(c: Ctx) -> None:
     me = load_secret(c.fleet_dir, "B", fleet)
     s = open_client(c.router, "B", me.router_password)
     down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    sub = s.declare_subscriber(kx.down(drone, "B"), _envelopes_to(down))
+    sub = s.declare_subscriber(keyexprs.down(drone, "B"), _envelopes_to(down))
     codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
     target = fleet.nodes[drone].sysid
     try:
@@ -73,7 +73,7 @@ def uplink_sealed(c: Ctx) -> None:
         ini = PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes, stamp=time.time())
         key = None
         refusals = []
-        for r in s.get(kx.pair(drone, "B"), payload=ini.start(), timeout=2.0):
+        for r in s.get(keyexprs.pair(drone, "B"), payload=ini.start(), timeout=2.0):
             if r.ok is not None and key is None:
                 out = ini.finish(r.ok.payload.to_bytes())
                 key = out if isinstance(out, LinkKey) else None
@@ -83,7 +83,7 @@ def uplink_sealed(c: Ctx) -> None:
             c.events.write_record(trec.RoguePairFailed(refusals=refusals))
             return
         now = time.monotonic()
-        link = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(drone, "B"), rx_keyexpr=kx.down(drone, "B"),
+        link = SecureLink(key=key, role="gs", tx_keyexpr=keyexprs.up(drone, "B"), rx_keyexpr=keyexprs.down(drone, "B"),
                           peer_sysid=target, now=now)
         c.events.write_record(trec.PairedAs(gs="B"))
         for _ in range(3):  # the proof of the new key: authentic, read-only frames
@@ -144,7 +144,7 @@ def insider_heir(c: Ctx) -> None:
     me = load_secret(c.fleet_dir, "B", fleet)  # B's own static key: the drone cannot tell it from B
     s = session_as(c, "B")
     down: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    sub = s.declare_subscriber(kx.down(drone, "B"), _envelopes_to(down))
+    sub = s.declare_subscriber(keyexprs.down(drone, "B"), _envelopes_to(down))
     codec = FrameCodec(fleet.nodes["B"].sysid, ROGUE_COMPID)
     target = fleet.nodes[drone].sysid
     rtl = mav.MAVLink_command_long_message(target, 1, mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0, 0)
@@ -180,8 +180,8 @@ def insider_heir(c: Ctx) -> None:
                         continue
                     out = pairing.ini.finish(ok or b"")
                     if isinstance(out, LinkKey):
-                        links = (links + [SecureLink(key=out, role="gs", tx_keyexpr=kx.up(drone, "B"),
-                                                     rx_keyexpr=kx.down(drone, "B"), peer_sysid=target, now=now)])[-3:]
+                        links = (links + [SecureLink(key=out, role="gs", tx_keyexpr=keyexprs.up(drone, "B"),
+                                                     rx_keyexpr=keyexprs.down(drone, "B"), peer_sysid=target, now=now)])[-3:]
                         sent["pairings"] += 1
                         for _ in range(PROOF_BURST):  # the proof, and frames towards "proven"
                             s.put(next_up(drone, "B"), links[-1].seal(codec.encode(gcs_heartbeat())))
@@ -191,7 +191,7 @@ def insider_heir(c: Ctx) -> None:
                 next_pair = now + PAIR_EVERY_S
                 pairing = _Pairing(PairingInitiator(me.identity, "B", drone, fleet.nodes[drone].public_bytes,
                                                      stamp=time.time()))
-                s.get(kx.pair(drone, "B"), pairing, payload=pairing.ini.start(), timeout=2.0)
+                s.get(keyexprs.pair(drone, "B"), pairing, payload=pairing.ini.start(), timeout=2.0)
                 sent["pair_queries"] += 1
             if links and now >= next_beat:
                 next_beat = now + 0.2
@@ -261,7 +261,7 @@ def key_escrow(c: Ctx) -> None:
                               wall=time.time())
             sent["queries"] += 1
             secret: bytes | None = None
-            for r in s_b.get(kx.linkkey("A", drone), payload=ask.payload, timeout=3.0):
+            for r in s_b.get(keyexprs.linkkey("A", drone), payload=ask.payload, timeout=3.0):
                 if r.ok is None:
                     refused[(r.err.payload.to_bytes().decode(errors="replace") if r.err else "?")[:40]] += 1
                     continue
@@ -275,13 +275,13 @@ def key_escrow(c: Ctx) -> None:
             sent["secrets"] += 1
             key = LinkKey.from_secret(drone, "A", secret)  # the key A would use with the drone, had it granted it
             now = time.monotonic()
-            as_drone = SecureLink(key=key, role="drone", tx_keyexpr=kx.down(drone, "A"), rx_keyexpr=kx.up(drone, "A"),
+            as_drone = SecureLink(key=key, role="drone", tx_keyexpr=keyexprs.down(drone, "A"), rx_keyexpr=keyexprs.up(drone, "A"),
                                   peer_sysid=fleet.nodes["A"].sysid, now=now)
-            as_a = SecureLink(key=key, role="gs", tx_keyexpr=kx.up(drone, "A"), rx_keyexpr=kx.down(drone, "A"),
+            as_a = SecureLink(key=key, role="gs", tx_keyexpr=keyexprs.up(drone, "A"), rx_keyexpr=keyexprs.down(drone, "A"),
                               peer_sysid=fleet.nodes[drone].sysid, now=now)
             for _ in range(3):
                 seq += 1
-                s_d.put(kx.down(drone, "A"), pack([as_drone.seal_control(wire.SmHeartbeat(seq))]))  # to A, as the drone
+                s_d.put(keyexprs.down(drone, "A"), pack([as_drone.seal_control(wire.SmHeartbeat(seq))]))  # to A, as the drone
                 s_a.put(next_up(drone, "A"), as_a.seal(FrameCodec(fleet.nodes["A"].sysid, ROGUE_COMPID).encode(gcs_heartbeat())))
                 sent["injected_down"] += 1
                 sent["injected_up"] += 1

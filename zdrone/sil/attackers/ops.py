@@ -34,13 +34,13 @@ from typing import Any
 from cryptography.exceptions import InvalidTag
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 
-from ...core import opspicture as op
-from ...core.keys import public_key
-from ...core.wire import AuthorityAttestation
-from ...fleet import keyexprs as kx
-from ...fleet.files import load_secret
-from .. import testbed_records as trec
-from .common import GO_TIMEOUT, Ctx, session_as
+from zdrone.core import opspicture as op
+from zdrone.core.keys import public_key
+from zdrone.core.wire import AuthorityAttestation
+from zdrone.fleet import keyexprs
+from zdrone.fleet.files import load_secret
+from zdrone.sil import testbed_records as trec
+from zdrone.sil.attackers.common import GO_TIMEOUT, Ctx, session_as
 
 #: The epoch the liars name (far above any the flight reaches).
 LIE_EPOCH = 99
@@ -66,7 +66,7 @@ def _sealer(c: Ctx, gs: str) -> op.OpsSealer:
     fleet = c.fleet
     viewer = fleet.viewers()[0]
     me = load_secret(c.fleet_dir, gs, fleet)
-    return op.OpsSealer(me.identity, gs, viewer, fleet.nodes[viewer].public_bytes, kx.ops(gs), os.urandom(op.SALT_LEN))
+    return op.OpsSealer(me.identity, gs, viewer, fleet.nodes[viewer].public_bytes, keyexprs.ops(gs), os.urandom(op.SALT_LEN))
 
 
 _LANE = itertools.count()
@@ -76,7 +76,7 @@ def _publish(s: Any, sealer: op.OpsSealer, drones: list[op.DroneOps], events: li
     """Each part on the next of the GS's lanes in turn (the most the router lets one credential through)."""
     parts = op.report_parts(sealer.gs, round(time.time(), 3), drones, events)
     for part in parts:
-        s.put(kx.ops_lane(sealer.gs, next(_LANE) % kx.OPS_LANES), sealer.seal(part))
+        s.put(keyexprs.ops_lane(sealer.gs, next(_LANE) % keyexprs.OPS_LANES), sealer.seal(part))
     return len(parts)
 
 
@@ -132,7 +132,7 @@ class _Reader:
         header = data[:op.HEADER_LEN]
         try:
             part = aead.decrypt(b"\0\0\0\0" + header[-8:], data[op.HEADER_LEN:],
-                                op._ad(kx.ops(self.gs), self.gs, self.viewer, header))
+                                op._ad(keyexprs.ops(self.gs), self.gs, self.viewer, header))
         except InvalidTag:
             return None
         try:
@@ -147,7 +147,7 @@ def ops_insider(c: Ctx) -> None:
     s = session_as(c, "B")
     watch = session_as(c, viewer)  # the viewer's leaked password: it may subscribe to the pictures, nothing else
     heard: "queue.SimpleQueue[bytes]" = queue.SimpleQueue()
-    sub = watch.declare_subscriber(kx.ops("B") + "/*", lambda smp: heard.put(smp.payload.to_bytes()))
+    sub = watch.declare_subscriber(keyexprs.ops("B") + "/*", lambda smp: heard.put(smp.payload.to_bytes()))
     reader = _Reader(c, "B")
     sealer = _sealer(c, "B")
     kept: dict[tuple[str | None, int], AuthorityAttestation] = {}  # (owner, epoch) -> the first word of it seen

@@ -61,19 +61,19 @@ import msgspec
 import zenoh
 from cryptography.hazmat.primitives import serialization
 
-from ...core.envelope import SecureLink
-from ...core.fleet import ConfigError
-from ...core.keys import Identity, LinkKey
-from ...core.keyshare import LinkKeyQuery, _prologue as linkkey_prologue, decode_query
-from ...core.kk import KKInitiator, respond as kk_respond
-from ...core.mavlink import FrameCodec
-from ...core.pairing import PairingInitiator
-from ...fleet.files import load_secret
-from ...fleet import keyexprs as kx
-from ...fleet.tls import issue, make_ca, node_files
-from .. import testbed_records as trec
-from ...net.session import open_client
-from .common import GO_TIMEOUT, ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, land_frame, next_up, Replies
+from zdrone.core.envelope import SecureLink
+from zdrone.core.fleet import ConfigError
+from zdrone.core.keys import Identity, LinkKey
+from zdrone.core.keyshare import LinkKeyQuery, _prologue as linkkey_prologue, decode_query
+from zdrone.core.kk import KKInitiator, respond as kk_respond
+from zdrone.core.mavlink import FrameCodec
+from zdrone.core.pairing import PairingInitiator
+from zdrone.fleet.files import load_secret
+from zdrone.fleet import keyexprs
+from zdrone.fleet.tls import issue, make_ca, node_files
+from zdrone.sil import testbed_records as trec
+from zdrone.net.session import open_client
+from zdrone.sil.attackers.common import GO_TIMEOUT, ROGUE_COMPID, UPLINK_GAP_S, Ctx, dangerous_messages, land_frame, next_up, Replies
 
 
 log = logging.getLogger("zdrone.sil.rogue")
@@ -90,15 +90,15 @@ def no_key(c: Ctx) -> None:
     s_cap = open_client(c.router, drone, c.password(drone))
     captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     caps = [s_cap.declare_subscriber(lane, lambda smp: captured.put(smp.payload.to_bytes()))
-            for lane in kx.up_lanes(drone, "A")]
+            for lane in keyexprs.up_lanes(drone, "A")]
     try:
         c.ready()
         fake = Identity.generate()
         ini = PairingInitiator(fake, "A", drone, fleet.nodes[drone].public_bytes)
-        replies = list(s_pub.get(kx.pair(drone, "A"), payload=ini.start(), timeout=3.0))
+        replies = list(s_pub.get(keyexprs.pair(drone, "A"), payload=ini.start(), timeout=3.0))
         c.events.write_record(trec.PairAttempt(answered=sum(1 for r in replies if r.ok is not None)))
-        forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=kx.up(drone, "A"),
-                            rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
+        forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=keyexprs.up(drone, "A"),
+                            rx_keyexpr=keyexprs.down(drone, "A"), peer_sysid=None, now=0.0)
         sysid_a = fleet.nodes["A"].sysid
         sent = {"plain": 0, "forged": 0, "replayed": 0}
         going = c.attack_window()
@@ -138,7 +138,7 @@ def _forged_message2(drone: str, owner: str, asker: str) -> bytes:
 
 def key_injection(c: Ctx) -> None:
     s = open_client(c.router, "B", c.password("B"))
-    qable = s.declare_queryable(kx.linkkey_all("B"), zenoh.handlers.RingChannel(256))
+    qable = s.declare_queryable(keyexprs.linkkey_all("B"), zenoh.handlers.RingChannel(256))
     sent: Counter[str] = Counter()
     askers: Counter[str] = Counter()
     # made ahead, so that the forged replies leave before the real B has computed its own
@@ -153,7 +153,7 @@ def key_injection(c: Ctx) -> None:
                 c.stop.wait(0.001)
                 continue
             try:
-                drone = kx.gs_of(q.key_expr)
+                drone = keyexprs.gs_of(q.key_expr)
                 req = decode_query(q.payload.to_bytes() if q.payload is not None else b"")
                 asker = req.asker if isinstance(req, LinkKeyQuery) else "?"
                 askers[asker] += 1
@@ -208,10 +208,10 @@ def linkkey_knockout(c: Ctx) -> None:
         while going():
             fake = Identity.generate()  # claims to be B without B's private key
             m1 = KKInitiator(fake, fleet.nodes["A"].public_bytes, linkkey_prologue(drone, "A", "B")).message1
-            s.get(kx.linkkey("A", drone), replies, payload=encoder.encode(LinkKeyQuery("B", m1)), timeout=2.0)
+            s.get(keyexprs.linkkey("A", drone), replies, payload=encoder.encode(LinkKeyQuery("B", m1)), timeout=2.0)
             sent["forged_m1"] += 1
             junk = junk_queries(rng)
-            s.get(kx.linkkey("A", drone), replies, payload=junk[i % len(junk)], timeout=2.0)
+            s.get(keyexprs.linkkey("A", drone), replies, payload=junk[i % len(junk)], timeout=2.0)
             sent["junk"] += 1
             i += 1
             c.stop.wait(period)
@@ -224,7 +224,7 @@ def linkkey_knockout(c: Ctx) -> None:
 def pair_replay(c: Ctx) -> None:
     drone = c.drone
     s_cap = open_client(c.router, drone, c.password(drone))  # the drone's account may declare pair/*
-    qable = s_cap.declare_queryable(kx.pair(drone, "A"), zenoh.handlers.RingChannel(16))
+    qable = s_cap.declare_queryable(keyexprs.pair(drone, "A"), zenoh.handlers.RingChannel(16))
     s_a = open_client(c.router, "A", c.password("A"))
     captured: list[bytes] = []
     replies = Replies()
@@ -249,7 +249,7 @@ def pair_replay(c: Ctx) -> None:
         going = c.attack_window()
         replayed = 0
         while going():
-            s_a.get(kx.pair(drone, "A"), replies, payload=captured[0], timeout=2.0)
+            s_a.get(keyexprs.pair(drone, "A"), replies, payload=captured[0], timeout=2.0)
             replayed += 1
             c.stop.wait(1.0)
         c.stop.wait(2.0)
@@ -272,7 +272,7 @@ def uplink_unsealed(c: Ctx) -> None:
         going = c.attack_window()
         while going():
             forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs",
-                                tx_keyexpr=kx.up(drone, "A"), rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
+                                tx_keyexpr=keyexprs.up(drone, "A"), rx_keyexpr=keyexprs.down(drone, "A"), peer_sysid=None, now=0.0)
             for _name, msg in dangerous_messages(target):
                 frame = codec.encode(msg)
                 s.put(next_up(drone, "A"), frame)
@@ -330,13 +330,13 @@ def no_cert(c: Ctx) -> None:
         return
     outcome["x_certificate"] = "connected"
     captured: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-    sub = s.declare_subscriber(kx.down(drone, "A"), lambda smp: captured.put(b""))
+    sub = s.declare_subscriber(keyexprs.down(drone, "A"), lambda smp: captured.put(b""))
     sent, answered = 0, 0
     try:
         ini = PairingInitiator(Identity.generate(), "A", drone, fleet.nodes[drone].public_bytes)
-        answered = sum(1 for r in s.get(kx.pair(drone, "A"), payload=ini.start(), timeout=2.0) if r.ok is not None)
-        forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=kx.up(drone, "A"),
-                            rx_keyexpr=kx.down(drone, "A"), peer_sysid=None, now=0.0)
+        answered = sum(1 for r in s.get(keyexprs.pair(drone, "A"), payload=ini.start(), timeout=2.0) if r.ok is not None)
+        forged = SecureLink(key=LinkKey.from_secret(drone, "A", os.urandom(32)), role="gs", tx_keyexpr=keyexprs.up(drone, "A"),
+                            rx_keyexpr=keyexprs.down(drone, "A"), peer_sysid=None, now=0.0)
         sysid_a = fleet.nodes["A"].sysid
         going = c.attack_window()
         while going():
@@ -363,7 +363,7 @@ def stale_pairing(c: Ctx) -> None:
     if held:
         c.events.write_record(trec.Captured(what=f"{len(held)} pairing message 1s of A recorded earlier", bytes_=len(held[0])))
     s_cap = open_client(c.router, drone, c.password(drone))
-    qable = s_cap.declare_queryable(kx.pair(drone, "A"), zenoh.handlers.RingChannel(256))
+    qable = s_cap.declare_queryable(keyexprs.pair(drone, "A"), zenoh.handlers.RingChannel(256))
     s_a = open_client(c.router, "A", c.password("A"))
     captured = {"before": 0, "after": 0}
     results: list[Replies] = [Replies() for _ in held]
@@ -400,7 +400,7 @@ def stale_pairing(c: Ctx) -> None:
             up = any(answered)
             todo = [i for i in reversed(range(len(held))) if not answered[i]][: None if up else 4]
             for i in todo:
-                s_a.get(kx.pair(drone, "A"), results[i], payload=held[i], timeout=1.0)
+                s_a.get(keyexprs.pair(drone, "A"), results[i], payload=held[i], timeout=1.0)
                 replayed += 1
             c.stop.wait(0.1 if up else 0.01)
         c.stop.wait(1.5)  # the last replies

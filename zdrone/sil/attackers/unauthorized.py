@@ -10,13 +10,13 @@ from __future__ import annotations
 import time
 
 
-from ...core.keyshare import KeyShareAsk
-from ...core.pairing import PairingInitiator
-from ...fleet.files import load_secret
-from ...fleet import keyexprs as kx
-from .. import testbed_records as trec
-from ...net.session import open_client
-from .common import Ctx, land_frame, next_up
+from zdrone.core.keyshare import KeyShareAsk
+from zdrone.core.pairing import PairingInitiator
+from zdrone.fleet.files import load_secret
+from zdrone.fleet import keyexprs
+from zdrone.sil import testbed_records as trec
+from zdrone.net.session import open_client
+from zdrone.sil.attackers.common import Ctx, land_frame, next_up
 
 
 def unauthorized(c: Ctx) -> None:
@@ -30,11 +30,11 @@ def unauthorized(c: Ctx) -> None:
         while going():
             ini = PairingInitiator(me.identity, "X", drone, fleet.nodes[drone].public_bytes, stamp=time.time())
             refused = answered = 0
-            for r in s.get(kx.pair(drone, "X"), payload=ini.start(), timeout=3.0):
+            for r in s.get(keyexprs.pair(drone, "X"), payload=ini.start(), timeout=3.0):
                 answered += r.ok is not None
                 refused += r.err is not None
             ask = KeyShareAsk(me.identity, "X", "B", fleet.nodes["B"].public_bytes, drone, 0.0)
-            keys = [r for r in s.get(kx.linkkey("B", drone), payload=ask.payload, timeout=2.0) if r.ok is not None]
+            keys = [r for r in s.get(keyexprs.linkkey("B", drone), payload=ask.payload, timeout=2.0) if r.ok is not None]
             s.put(next_up(drone, "A"), land_frame(fleet.nodes["X"].sysid))  # denied by the router's ACL
             s.put(next_up(drone, "X"), land_frame(fleet.nodes["X"].sysid))  # nobody listens: X has no link
             tries += 1

@@ -6,9 +6,9 @@ telemetry streams (``telemetry``) and the GCS link (``gcslink``). The socket ada
 ``zdrone.vehicle.personality``.
 """
 
-from ..personality import Param
-from .autopilot import SimAutopilot
-from .kinematics import Kinematics
-from .mission import MissionItem
+from zdrone.vehicle.personality import Param
+from zdrone.vehicle.sim.autopilot import SimAutopilot
+from zdrone.vehicle.sim.kinematics import Kinematics
+from zdrone.vehicle.sim.mission import MissionItem
 
 __all__ = ["SimAutopilot", "MissionItem", "Param", "Kinematics"]

@@ -52,21 +52,21 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.geometry import GeoPoint, offset
-from ...core import fcsign
-from ...core.mavlink import FrameCodec, split_frames
-from ..personality import PX4, ModeRow, Param, Personality, Say, ardupilot_takeoff_next
-from ..px4modes import FlightMode
-from .commands import CommandProtocol
-from .gcslink import GcsLink
-from .guidance import Guidance
-from .vehicle import VehicleState
-from .kinematics import SUBSTEP_S, Kinematics, Limits, advance, battery_after
-from .mission import MissionItem, MissionProtocol
-from .outbox import Outbox
-from .params import ParamProtocol
-from .signing import RULES as SIGNING_RULES, SimSigning
-from .telemetry import Telemetry
+from zdrone.core.geometry import GeoPoint, offset
+from zdrone.core import fcsign
+from zdrone.core.mavlink import FrameCodec, split_frames
+from zdrone.vehicle.personality import PX4, ModeRow, Param, Personality, Say, ardupilot_takeoff_next
+from zdrone.vehicle.px4modes import FlightMode
+from zdrone.vehicle.sim.commands import CommandProtocol
+from zdrone.vehicle.sim.gcslink import GcsLink
+from zdrone.vehicle.sim.guidance import Guidance
+from zdrone.vehicle.sim.vehicle import VehicleState
+from zdrone.vehicle.sim.kinematics import SUBSTEP_S, Kinematics, Limits, advance, battery_after
+from zdrone.vehicle.sim.mission import MissionItem, MissionProtocol
+from zdrone.vehicle.sim.outbox import Outbox
+from zdrone.vehicle.sim.params import ParamProtocol
+from zdrone.vehicle.sim.signing import RULES as SIGNING_RULES, SimSigning
+from zdrone.vehicle.sim.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 

@@ -27,18 +27,18 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.geometry import GeoPoint, ne_of
-from ..personality import Say
-from ..px4modes import FlightMode
-from .mission import MAX_DISTANCE_M, relative_alt
+from zdrone.core.geometry import GeoPoint, ne_of
+from zdrone.vehicle.personality import Say
+from zdrone.vehicle.px4modes import FlightMode
+from zdrone.vehicle.sim.mission import MAX_DISTANCE_M, relative_alt
 
 if TYPE_CHECKING:
-    from .vehicle import VehicleState
-    from .guidance import Guidance
-    from .mission import MissionProtocol
-    from .outbox import Outbox
-    from .telemetry import Telemetry
-    from ..personality import ModeRow, Personality, Say
+    from zdrone.vehicle.sim.vehicle import VehicleState
+    from zdrone.vehicle.sim.guidance import Guidance
+    from zdrone.vehicle.sim.mission import MissionProtocol
+    from zdrone.vehicle.sim.outbox import Outbox
+    from zdrone.vehicle.sim.telemetry import Telemetry
+    from zdrone.vehicle.personality import ModeRow, Personality, Say
 
 
 class CommandedAutopilot(Protocol):

@@ -25,12 +25,12 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..px4modes import FlightMode
+from zdrone.vehicle.px4modes import FlightMode
 
 if TYPE_CHECKING:
-    from .vehicle import VehicleState
-    from .outbox import Outbox
-    from ..personality import ModeRow, Param, Personality
+    from zdrone.vehicle.sim.vehicle import VehicleState
+    from zdrone.vehicle.sim.outbox import Outbox
+    from zdrone.vehicle.personality import ModeRow, Param, Personality
 
 
 class LinkAutopilot(Protocol):

@@ -39,15 +39,15 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.geometry import GeoPoint, ne_of
-from ..personality import ModeRow, Say
-from ..px4modes import FlightMode
+from zdrone.core.geometry import GeoPoint, ne_of
+from zdrone.vehicle.personality import ModeRow, Say
+from zdrone.vehicle.px4modes import FlightMode
 
 if TYPE_CHECKING:
-    from .vehicle import VehicleState
-    from .guidance import Guidance
-    from .outbox import Outbox
-    from ..personality import ModeRow, Param
+    from zdrone.vehicle.sim.vehicle import VehicleState
+    from zdrone.vehicle.sim.guidance import Guidance
+    from zdrone.vehicle.sim.outbox import Outbox
+    from zdrone.vehicle.personality import ModeRow, Param
 
 
 class MissionAutopilot(Protocol):

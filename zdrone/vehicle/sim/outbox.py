@@ -20,8 +20,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.mavlink import FrameCodec, encode_raw
-from ..personality import MSG_EVENT, RAW_CRC_EXTRA, Personality, Say, px4_event_id
+from zdrone.core.mavlink import FrameCodec, encode_raw
+from zdrone.vehicle.personality import MSG_EVENT, RAW_CRC_EXTRA, Personality, Say, px4_event_id
 
 log = logging.getLogger(__name__)
 

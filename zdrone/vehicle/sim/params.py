@@ -25,8 +25,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from ..personality import Param, Personality, Say
-from .outbox import Outbox
+from zdrone.vehicle.personality import Param, Personality, Say
+from zdrone.vehicle.sim.outbox import Outbox
 
 #: the value range of each integer MAV_PARAM_TYPE
 INT_RANGES: Mapping[int, tuple[int, int]] = MappingProxyType({

@@ -32,9 +32,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mav
 
-from ...core import fcsign
-from ...core.mavlink import FrameError
-from ..personality import Say
+from zdrone.core import fcsign
+from zdrone.core.mavlink import FrameError
+from zdrone.vehicle.personality import Say
 
 log = logging.getLogger(__name__)
 

@@ -29,10 +29,10 @@ from typing import TYPE_CHECKING, Any, Protocol
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mav
 
-from ...core.geometry import GeoPoint, offset
-from ..personality import (AP_STREAM_PARAMS, MSG_AHRS2, MSG_CURRENT_EVENT_SEQUENCE, MSG_CURRENT_MODE,
+from zdrone.core.geometry import GeoPoint, offset
+from zdrone.vehicle.personality import (AP_STREAM_PARAMS, MSG_AHRS2, MSG_CURRENT_EVENT_SEQUENCE, MSG_CURRENT_MODE,
                            MSG_EKF_STATUS_REPORT, MSG_LINK_NODE_STATUS, MSG_MEMINFO, MSG_TIME_ESTIMATE_TO_TARGET)
-from .kinematics import battery_millivolts, wrap_pi
+from zdrone.vehicle.sim.kinematics import battery_millivolts, wrap_pi
 
 try:  # CURRENT_MODE (436) lives in the development dialect
     from pymavlink.dialects.v20 import development as dev
@@ -40,11 +40,11 @@ except ImportError:  # pragma: no cover
     dev = None  # type: ignore[assignment]
 
 if TYPE_CHECKING:
-    from .vehicle import VehicleState
+    from zdrone.vehicle.sim.vehicle import VehicleState
     import random
-    from .mission import MissionProtocol
-    from .outbox import Outbox
-    from ..personality import ModeRow, Param, Personality
+    from zdrone.vehicle.sim.mission import MissionProtocol
+    from zdrone.vehicle.sim.outbox import Outbox
+    from zdrone.vehicle.personality import ModeRow, Param, Personality
 
 
 class ReportedAutopilot(Protocol):

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .kinematics import Kinematics
+from zdrone.vehicle.sim.kinematics import Kinematics
 
 
 @dataclass(slots=True)
