@@ -325,7 +325,11 @@ class CoreExplorer:
                 # then a key shared, within one 3 s move, is no replacement of a live link)
                 heard = old.tbm.state(max(before.now, link.tbm.created)) is not LinkState.LOST
                 paired = core.counters["pair_sent"] > before.gss[g].counters["pair_sent"]
-                if heard and not paired:
+                # the drone spoke under the key a third party's replaced while it was LOST: the slot took
+                # the drone's own key back (``LinkSlot`` revert), which replaces nobody's
+                fallback = before.gss[g].sessions["d1"].slot.fallback
+                reverted = fallback is not None and link.key.same_as(fallback.key)
+                if heard and not paired and not reverted:
                     raise Broken("nobody replaces another's live link", f"{g}'s live key replaced while it heard the drone")
         owner = m.owner
         if owner is not None and m.state is not State.FAILSAFE and m.repair_deadline is None:
