@@ -36,6 +36,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import logging
+import math
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Callable, Protocol
@@ -242,7 +243,9 @@ class Mission(Machine):
         elif s is Stage.UPLOADING and self.uploader is not None:
             due = (self.uploader.last_activity + self.uploader.retry_s,)
         elif s is Stage.WAITING_READY:
-            due = (self.next_try, t + READY_WAIT_S, self.arm_at or 0.0)
+            # ready (or not yet looked at) with no arming moment drawn: the next tick draws it, at once
+            first = self.arm_at is None and self.waiting is None and self.next_try <= now
+            due = (self.next_try, t + READY_WAIT_S, self.arm_at or 0.0, math.nextafter(now, math.inf) if first else 0.0)
         elif s in (Stage.ARMING, Stage.STARTING):
             due = (t + STAGE_TIMEOUT,)
         elif s is Stage.REFUSED and self.refusal is not None:
