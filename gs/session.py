@@ -79,6 +79,7 @@ class Facts(NamedTuple):
     """What a session's effects are computed from, before and after an input (``_effects``)."""
 
     ours: bool  # the drone's own current word names us its authority (and our view is not stale)
+    word: tuple[str | None, int, HaState | None]  # what that word says: owner, epoch, state
     fc_signed: bool | None
 
 
@@ -102,7 +103,7 @@ class DroneSession(DroneView):
 
     # ------------------------------------------------------------------ inputs
     def _facts(self) -> Facts:
-        return Facts(self.owner == self.st.name and not self.stale, self.fc_signed)
+        return Facts(self.owner == self.st.name and not self.stale, (self.owner, self.epoch, self.ha_state), self.fc_signed)
 
     def _effects(self, before: Facts, now: float) -> list[Action]:
         """What follows from the change an input made, and the session is due at once."""
@@ -113,8 +114,8 @@ class DroneSession(DroneView):
         out: list[Action] = []
         if after.fc_signed != before.fc_signed and after.fc_signed is not None:
             out.append(Emit(rec.FcSigningHeard(drone=self.name, signed=after.fc_signed)))
-        if after.ours and not before.ours:
-            out += self._ours_in_hold()
+        if after.ours and not before.ours and after.word != before.word:
+            out += self._ours_in_hold()  # a new word made it ours (not the same word again after a silence)
         return out
 
     def _ours_in_hold(self) -> list[Action]:

@@ -63,3 +63,34 @@ def test_no_rule_of_a_session_acts_before_the_deadline_it_names(fleet_dir, autop
     assert f.flown() and restarted, f"flown {f.flown()}, restarted {restarted}"
     assert probes > 500, probes
     assert not fired, fired[:5]
+
+
+def test_the_same_word_again_after_a_silence_does_not_tell_the_operator_the_drone_became_ours(tmp_path):
+    """"d1 is ours and holds in the air" is said when the drone's word makes it ours (a new owner, epoch
+    or state), not again each time the same word comes back after a radio gap made our view stale."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from gs.actions import ToOperator
+    from tests.unit.test_station_core import paired_a
+    from zdrone.core import wire
+    from zdrone.core.authority import State as HaState
+    from zdrone.fleet.files import init_fleet
+    from zdrone.vehicle.modes import MODE_ROLES, mode_name
+
+    init_fleet(tmp_path)
+    a = paired_a(tmp_path)
+    v = a.sessions["d1"]
+    v.autopilot, v.armed, v.landed_state = "ardupilot", True, mav.MAV_LANDED_STATE_IN_AIR
+    v.custom_mode = next(m for m in range(64) if mode_name("ardupilot", m) == MODE_ROLES["ardupilot"]["hold"])
+
+    def said(out):
+        return [x.text for x in out if isinstance(x, ToOperator) and "holds in the air" in x.text]
+
+    v.link.tbm.observe(1.0)
+    assert not said(v.on_control(wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 1.0))  # B's
+    assert said(v.on_control(wire.AuthorityStatus("A", 3, HaState.LINKED, None, ["A", "B"]), 1.1))  # made ours
+    a.handle_timer(2.5)
+    assert v.stale  # a radio gap: our view waits for the drone's word
+    v.link.tbm.observe(2.6)
+    assert not said(v.on_control(wire.AuthorityStatus("A", 3, HaState.LINKED, None, ["A", "B"]), 2.6))  # the same word
+    assert not v.stale and a.holds_authority("d1")
