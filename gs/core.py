@@ -37,6 +37,7 @@ from zdrone.core import bundle
 from zdrone.core import wire
 from zdrone.core.authority import State as HaState
 from zdrone.core.fleet import Fleet
+from zdrone.core.geometry import Circle
 from zdrone.core.keys import Identity
 from zdrone.core.linktraffic import LinkTraffic
 from zdrone.core.mavcontrol import OperatorControlRequest, sysid_as_seen_by
@@ -122,7 +123,7 @@ class StationCore:
         return self.st.identity
 
     @property
-    def coverage(self) -> Any:
+    def coverage(self) -> Circle | None:
         return self.st.coverage
 
     @property

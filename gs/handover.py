@@ -2,9 +2,9 @@
 
 Theory of operation
 -------------------
-While this GS holds a drone's authority, ``StationCore._coordinate`` decides *whether* to release it
-(the vehicle flies into another authorized GS's coverage) and *to whom*; this machine keeps *where
-the release stands* in the drone's current epoch. Phases:
+While this GS holds a drone's authority, ``DroneSession.release_due`` (``gs.session``) decides
+*whether* to release it (the vehicle flies into another authorized GS's coverage) and *to whom*; this
+machine keeps *where the release stands* in the drone's current epoch. Phases:
 
 * ``IDLE``: nothing released in this epoch;
 * ``RELEASED``: a ``HANDOVER_RELEASE`` went out and the drone has not confirmed it (the core sends it

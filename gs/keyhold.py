@@ -42,7 +42,7 @@ HOLD_FOR_KEY_S = 15.0
 RESUME_GRACE_S = 5.0
 #: A mode change of the hold (to hold, back to the mission) is sent again this often until the
 #: vehicle confirms it; a hold not confirmed this long after it was asked, with the vehicle past
-#: ``gs.core.KEY_WAIT_RADIUS``, has failed: RTL.
+#: ``gs.context.KEY_WAIT_RADIUS``, has failed: RTL.
 HOLD_RESEND_S = 0.5
 
 

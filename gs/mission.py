@@ -165,7 +165,7 @@ class PendingRefusal:
 
 
 class VehicleFacts(Protocol):
-    """What the mission reads of the vehicle (the GS's view of the drone: ``gs.core.DroneView``)."""
+    """What the mission reads of the vehicle (the GS's view of the drone: ``gs.droneview.DroneView``)."""
 
     autopilot: str | None
     armed: bool

@@ -105,9 +105,13 @@ class DroneSession(DroneView):
     def _facts(self) -> Facts:
         return Facts(self.owner == self.st.name and not self.stale, (self.owner, self.epoch, self.ha_state), self.fc_signed)
 
+    def _input(self, now: float) -> None:
+        """An input came at ``now``: the session's rules look at it at once (``tick``)."""
+        self.due = min(self.due, now)
+
     def _effects(self, before: Facts, now: float) -> list[Action]:
         """What follows from the change an input made, and the session is due at once."""
-        self.due = min(self.due, now)
+        self._input(now)
         after = self._facts()
         if after == before:
             return []
@@ -155,7 +159,7 @@ class DroneSession(DroneView):
 
     def on_pair_reply(self, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply to our pairing query (``ok`` payload, or the drone's error text)."""
-        self.due = min(self.due, now)
+        self._input(now)
         out, paired = self.linking.on_pair(Reply(now, ok, err))
         if paired is None:
             return out
@@ -181,13 +185,13 @@ class DroneSession(DroneView):
 
     def on_linkkey_reply(self, gs: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply from ``gs`` to our key-sharing query about this drone."""
-        self.due = min(self.due, now)
+        self._input(now)
         return self.linking.on_share_reply(gs, ok, err, now)
 
     def offer_candidate(self, asker: str, secret: bytes, payload: bytes, now: float, ttl: float) -> None:
         """The key we handed ``asker`` (``gs.linking.KeyOwner``) is a candidate of our link until the
         drone speaks under it; the live link is never touched."""
-        self.due = min(self.due, now)
+        self._input(now)
         candidate = self.new_link(LinkKey.from_secret(self.name, self.st.name, secret), now)
         candidate.hybrid = is_hybrid(payload)
         self.slot.offer(candidate, now, f"linkkey:{asker}", ttl)
@@ -202,15 +206,15 @@ class DroneSession(DroneView):
     def rekey(self, identity: Identity, now: float, wall: float) -> list[Action]:
         """Our static key was rotated: pair again under ``identity`` at once if we hold a link
         (``Linking.rekey``; make-before-break)."""
-        self.due = min(self.due, now)
+        self._input(now)
         self.linking.rekey(identity, linked=self.link is not None)
         return self._try_pair(now, wall, retry=0.0) if self.link is not None else []
 
-    def revised(self, fleet: Fleet, now: float | None = None) -> None:
+    def revised(self, fleet: Fleet) -> None:
         """A fleet revision took effect. With the hybrid pairing required, a link on a classical key is
         paired again (hybrid, make-before-break): the drone takes key grants only over hybrid links."""
         self.linking.ctx.fleet = fleet
-        self.due = 0.0 if now is None else min(self.due, now)
+        self.due = 0.0
         if fleet.pairing_pq and self.link is not None and not self.link.hybrid and not self.linking.rekey_pending:
             self.linking.rekey(self.st.identity, linked=True, rotated=False)
             self.st.counters["repair_hybrid"] += 1
@@ -578,7 +582,7 @@ class DroneSession(DroneView):
 
     def on_mode_ack(self, accepted: bool, now: float) -> None:
         """A COMMAND_ACK of DO_SET_MODE from the vehicle: confirms the hold's current mode change."""
-        self.due = min(self.due, now)
+        self._input(now)
         if self.hold is not None:
             self.hold.handle(ModeAck(now, accepted))
 
