@@ -134,18 +134,26 @@ def _forwarded_after(o: Outcome, gs: str, t: float) -> int:
     return seen[-1] - seen[0] if seen else 0
 
 
+def _b_revoked(o: Outcome) -> tuple[list[str], RevisionApplied | None]:
+    """What every flight revoking B needs: the safety invariants, the drone applying the revision
+    (None: it never did) and no command of B forwarded after it."""
+    why = safety_invariants(o)
+    rev = _revision_applied(o, revoked=("B",))
+    why += _need(rev is not None, "the drone never applied the revision revoking B")
+    if rev is not None:
+        why += _need(_forwarded_after(o, "B", rev.t) == 0, "a command of B was forwarded after the revision")
+    return why, rev
+
+
 def check_revoke_in_flight(o: Outcome) -> list[str]:
     """``revoke-in-flight``: B, holding authority on the way back, is revoked: the drone applies the
     signed revision, drops B's link and keys, and A (proven inside its coverage) takes authority in
     an emergency hand-over; no failsafe; no frame of B forwarded after the revision; B never holds
     authority again; the routers were restarted on the regenerated files and the flight did not notice."""
     s = o.summary
-    why = safety_invariants(o)
-    rev = _revision_applied(o, revoked=("B",))
-    why += _need(rev is not None, "the drone never applied the revision revoking B")
+    why, rev = _b_revoked(o)
     if rev is None:
         return why
-    why += _need(_forwarded_after(o, "B", rev.t) == 0, "a command of B was forwarded after the revision")
     why += _need(not any(isinstance(e, AuthorityMoved) and e.to == "B" and e.t > rev.t for e in o.drone),
                  "B held authority after its revocation")
     why += _need(s["final_owner"] == "A", f"final authority {s['final_owner']}, expected A")
@@ -162,12 +170,9 @@ def check_revoke_uncovered(o: Outcome) -> list[str]:
     of B forwarded after the revision, none of anyone in the failsafe; the routers restarted on the
     regenerated files."""
     s = o.summary
-    why = safety_invariants(o)
-    rev = _revision_applied(o, revoked=("B",))
-    why += _need(rev is not None, "the drone never applied the revision revoking B")
+    why, rev = _b_revoked(o)
     if rev is None:
         return why
-    why += _need(_forwarded_after(o, "B", rev.t) == 0, "a command of B was forwarded after the revision")
     moved = [e for e in only(o.drone, AuthorityMoved) if e.t >= rev.t]
     why += _need(not moved, f"authority moved after the revision ({', '.join(f'to {e.to}' for e in moved)}): "
                             "no authorized GS covered the drone")
