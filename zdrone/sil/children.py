@@ -126,7 +126,7 @@ class ChildProcesses:
                 except subprocess.TimeoutExpired:
                     try:
                         os.kill(child.proc.pid, signal.SIGUSR1)  # its stacks go to its log, for diagnosis
-                        time.sleep(0.5)
+                        time.sleep(0.25)
                     except ProcessLookupError:
                         pass
                     child.proc.kill()

@@ -240,8 +240,9 @@ class Demo(ChildProcesses, SiteLinks):
         into one) stops every process it started before the exception goes on."""
         try:
             return self._run()
-        except BaseException as exc:  # a signal asks for a quick end: 2 s per group before SIGKILL
-            self.shutdown(timeout=2.0 if isinstance(exc, (KeyboardInterrupt, procs.Terminated)) else 10.0)
+        except BaseException as exc:  # a signal asks for a quick end: 1.5 s per group before SIGKILL, all
+            # gone within 5 s of the signal (a loaded host's slow exits included)
+            self.shutdown(timeout=1.5 if isinstance(exc, (KeyboardInterrupt, procs.Terminated)) else 10.0)
             raise
 
     def start_view(self, port: int) -> Child:
