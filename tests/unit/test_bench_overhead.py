@@ -153,3 +153,43 @@ def test_bare_application_rules() -> None:
     assert nearest_covering(offset(HOME, 0.0, 200.0), circles, None) == "A"
     assert nearest_covering(offset(HOME, 0.0, 300.0), circles, "A") == "B"  # both cover it: the nearer
     assert nearest_covering(GeoPoint(0.0, 0.0), circles, "C") == "C"  # none: the last one
+
+
+def test_gs_to_vehicle_is_split_where_the_drones_host_takes_it_from_zenoh(tmp_path) -> None:
+    """The wire (sent -> arrived in the host's callback) and the host (arrived -> forwarded to the
+    vehicle: the wait for the drone's turn in the pass), each matched by the same bytes."""
+    gs, host = lat.LatencyLog(), lat.LatencyLog()
+    frames = [f for f in (i.to_bytes(2, "big") for i in range(2000)) if lat.crc(f) % lat.SAMPLE_UP == 0][:2]
+    host.arrive("d1", frames[0], 10.001)
+    assert host.notes["up"]["arrived"] == []  # before the take-off
+    gs.start(9.0)
+    host.start(9.0)
+    for i, f in enumerate(frames):
+        gs.note("up", "sent", "d1", f, 10.0 + i)
+        host.arrive("d1", f, 10.001 + i)
+        host.note("up", "got", "d1", f, 10.011 + i * 1.02)
+    outside = next(f for f in (i.to_bytes(2, "big") for i in range(2000)) if lat.crc(f) % lat.SAMPLE_UP)
+    host.arrive("d1", outside, 12.0)  # not in the sample: not noted
+    assert len(host.notes["up"]["arrived"]) == 2 and host.counts["up"].get("arrived") is None  # noted, not counted
+    gs.dump(tmp_path / "gs.json")
+    host.dump(tmp_path / "host.json")
+    s = lat.summary(lat.load([tmp_path / "gs.json", tmp_path / "host.json"]))
+    assert s["gs_to_vehicle_wire"] == {"n": 2, "p50_ms": 1.0, "p99_ms": 1.0}
+    assert s["gs_to_vehicle_host"] == {"n": 2, "p50_ms": 10.0, "p99_ms": 30.0}
+    assert s["gs_to_vehicle"]["p99_ms"] == 31.0
+
+
+def test_the_split_is_compared_and_judged_on_the_wire_alone() -> None:
+    bare = _run({"router": 10.0, "stations host": 10.0, "drones host": 50.0}, 5.0, 10.0, 1000.0)
+    zd = _run({"router": 14.0, "stations host": 30.0, "drones host": 60.0}, 30.0, 80.0, 900.0)
+    bare["latency"]["gs_to_vehicle_wire"] = {"n": 9, "p50_ms": 2.0, "p99_ms": 8.0}
+    zd["latency"]["gs_to_vehicle_wire"] = {"n": 9, "p50_ms": 2.5, "p99_ms": 12.0}
+    bare["latency"]["gs_to_vehicle_host"] = {"n": 9, "p50_ms": 3.0, "p99_ms": 5.0}
+    zd["latency"]["gs_to_vehicle_host"] = {"n": 9, "p50_ms": 27.0, "p99_ms": 70.0}
+    c = ov.compare(300, zd, bare)
+    assert c["latency_ms"]["gs_to_vehicle_wire"]["p50"]["added_ms"] == 0.5
+    assert c["goals"]["added_p50_within"] is False
+    assert c["goals"]["wire_added_p50_within"] is True and c["goals"]["wire_added_p99_within"] is True
+    rows = ov.table_rows(c)
+    assert ["latency p50 ms", "  GS -> drone's host (wire)", "2.00", "2.50", "1.25", "+0.50 ms"] in rows
+    assert ["latency p99 ms", "  drone's host -> vehicle", "5.00", "70.00", "14.00", "+65.00 ms"] in rows

@@ -28,3 +28,42 @@ def test_the_queue_per_key_is_bounded_and_refusals_are_counted():
         p.offer("k", bytes([i]), 0.0)
     assert p.waiting() == 3 and refused == {"put:pace_full": 6}
     assert [p.due(float(t)) for t in (1, 2, 3)] == [[("k", b"\x01")], [("k", b"\x02")], [("k", b"\x03")]]
+
+
+def test_with_a_burst_of_lanes_a_frame_per_lane_goes_at_once_and_each_lane_keeps_its_gap():
+    """burst = the uplink's lanes, gap = how far apart one lane's frames must be: the frames go on the
+    lanes in turn (as ``NodeRuntime.put_link`` does), so the n-th frame's lane last carried frame n-burst."""
+    lanes, gap = 4, 0.16
+    p = Pacer(gap, lambda r: None, burst=lanes)
+    sent: list[tuple[int, float]] = []  # (lane, when)
+
+    def out(now: float, went: bool) -> None:
+        if went:
+            sent.append((len(sent) % lanes, now))
+
+    for i in range(6):  # a heartbeat, a command and control messages in one tick
+        out(0.0, p.offer("up/A", bytes([i]), 0.0))
+    assert len(sent) == lanes and p.waiting() == 2  # a frame per lane at once; the rest waits
+    assert p.next_due() == gap and p.due(gap - 0.001) == []
+    for _key, _payload in p.due(gap):
+        out(gap, True)
+    assert len(sent) == 6 and p.waiting() == 0
+    assert p.offer("up/A", b"late", 0.2)  # lane 2 last went at 0.0
+    out(0.2, True)
+    last: dict[int, float] = {}
+    for lane, t in sent:  # the rule the router enforces: one lane's frames at least the gap apart
+        assert lane not in last or t - last[lane] >= gap - 1e-9, (lane, t, last)
+        last[lane] = t
+    assert p.offer("up/A", b"lane 3", 0.25)  # lane 3 last went at 0.0
+    assert not p.offer("up/A", b"held", 0.26)  # lane 0 went at 0.16: its turn at 0.32
+    assert p.next_due() == gap * 2
+
+
+def test_sustained_the_rate_is_a_burst_per_gap():
+    p = Pacer(0.16, lambda r: None, burst=8)
+    went = sum(p.offer("k", b"x", i * 0.001) for i in range(1000))  # 1 000 offers in a second
+    t, now = went, 0.0
+    while now < 1.0:
+        now += 0.001
+        t += len(p.due(now))
+    assert t <= 8 * (1 + int(1.0 / 0.16)) + 8 and t >= 8 * int(1.0 / 0.16)

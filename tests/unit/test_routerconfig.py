@@ -45,7 +45,7 @@ def test_with_tls_each_gs_has_one_budget_per_lane_toward_each_drone_session():
     budget per (drone, GS, lane) that every session sending as that GS shares; the rules grow with the
     GSs, not drones x GSs."""
     from zdrone.fleet import keyexprs
-    from zdrone.fleet.routerconfig import (PAIR_MAX_HZ, UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S)
+    from zdrone.fleet.routerconfig import (PAIR_MAX_HZ, UPLINK_LANE_GAP_S, UPLINK_LANE_HZ, UPLINK_MAX_HZ, UPLINK_PACE_S)
 
     ups, pairs, *_revisions = router_config(default_fleet(), "c.txt", tls=True)["downsampling"]
     assert ups["flows"] == pairs["flows"] == ["egress"] and ups["messages"] == ["put"] and pairs["messages"] == ["query"]
@@ -55,7 +55,8 @@ def test_with_tls_each_gs_has_one_budget_per_lane_toward_each_drone_session():
     assert all(r["freq"] == UPLINK_LANE_HZ for r in ups["rules"])
     assert {r["key_expr"]: r["freq"] for r in pairs["rules"]} == {f"zdrone/*/pair/{g}": PAIR_MAX_HZ for g in "ABX"}
     assert UPLINK_LANE_HZ * keyexprs.UP_LANES == UPLINK_MAX_HZ
-    assert keyexprs.UP_LANES * UPLINK_PACE_S >= 4 / UPLINK_LANE_HZ  # a lane's frames four of its intervals apart
+    assert UPLINK_LANE_GAP_S >= 4 / UPLINK_LANE_HZ  # a lane's frames four of its intervals apart
+    assert UPLINK_LANE_GAP_S / keyexprs.UP_LANES == UPLINK_PACE_S  # sustained: a frame per pace
 
 
 def test_with_a_password_alone_each_sending_session_has_its_own_budget_per_drone_and_lane():

@@ -135,7 +135,7 @@ def _router(args: argparse.Namespace) -> int:
 class BareDrone:
     """One drone: its session, its vehicle, what came up for it."""
 
-    def __init__(self, name: str, router: str, vehicle: Any, gss: list[str]) -> None:
+    def __init__(self, name: str, router: str, vehicle: Any, gss: list[str], lat: LatencyLog | None = None) -> None:
         from zdrone.core.bundle import BundleWriter
         from zdrone.core.standby import StandbyStream
 
@@ -152,7 +152,10 @@ class BareDrone:
         inq = self.inq
 
         def on_up(sample: zenoh.Sample) -> None:  # Zenoh's thread: hand over and return
-            inq.append((keyexprs.gs_of(sample.key_expr), sample.payload.to_bytes()))
+            data = sample.payload.to_bytes()
+            if lat is not None:
+                lat.arrive(name, data, time.monotonic())
+            inq.append((keyexprs.gs_of(sample.key_expr), data))
             self.delivered += 1
 
         self.sub = self.session.declare_subscriber(f"zdrone/{name}/up/*", zenoh.handlers.Callback(on_up, indirect=False))
@@ -221,7 +224,7 @@ def _host_drones(args: argparse.Namespace) -> int:
         if not _upload(vehicle, mission, gcs):
             print(f"bare drones host: {name} refused the mission", file=sys.stderr, flush=True)
             return 2
-        drones.append(BareDrone(name, routers[i % len(routers)], vehicle, gss))
+        drones.append(BareDrone(name, routers[i % len(routers)], vehicle, gss, lat))
     freeze_start_up()
     print(f"{READY}: {len(drones)} drones", flush=True)
     stop, go = [False], [False]

@@ -17,6 +17,13 @@ MAVLink frame as the vehicle gives it to the drone's loop and as the GS gets it 
 GS's ``FrameUp``, the frame out of its envelope; bare: the frame out of the bundle in the GS's
 Zenoh callback).
 
+GS -> vehicle is also split where the drone's host takes the message from Zenoh (``arrive``: in the
+Zenoh callback, before any queue): **the wire** (sent -> arrived: the GS's pacing, its session, the
+routers, the drone's session) and **the host** (arrived -> got: the wait for the drone's turn in its
+host's pass, then the drone's own handling: opening and checking the envelope, in zdrone). A host that
+steps hundreds of drones in one loop, as the benches' does, makes the second as long as its pass; a
+drone on its own companion computer waits for no other drone.
+
 Pure but for ``dump``/``load``: ``LatencyLog`` is what a host keeps, ``match`` and ``summary`` what
 the bench computes.
 """
@@ -39,6 +46,8 @@ SAMPLE_DOWN = 64
 WINDOW_S = 5.0
 #: The streams noted: "up" GS -> vehicle, "down" vehicle -> GS.
 DIRECTIONS = ("up", "down")
+#: Where a message is noted: sent, arrived in the receiving host's Zenoh callback (GS -> vehicle only), got.
+SIDES = ("sent", "arrived", "got")
 _EVERY = {"up": SAMPLE_UP, "down": SAMPLE_DOWN}
 
 
@@ -54,7 +63,7 @@ class LatencyLog:
         self.on = False
         self.t0 = 0.0
         self.notes: dict[str, dict[str, list[tuple[str, int, float]]]] = {
-            d: {"sent": [], "got": []} for d in DIRECTIONS}
+            d: {side: [] for side in SIDES} for d in DIRECTIONS}
         # every message (not only the sample), per second after ``start``: the rate each half carried
         self.counts: dict[str, dict[str, dict[int, int]]] = {d: {"sent": {}, "got": {}} for d in DIRECTIONS}
 
@@ -70,6 +79,14 @@ class LatencyLog:
             c = zlib.crc32(data)
             if c % _EVERY[direction] == 0:
                 self.notes[direction][side].append((drone, c, now))
+
+    def arrive(self, drone: str, data: bytes, now: float) -> None:
+        """A GS's message to ``drone`` taken from Zenoh by the drone's host (its callback's thread:
+        one append, atomic under the GIL), before any queue; in the sample only, not counted."""
+        if self.on:
+            c = zlib.crc32(data)
+            if c % SAMPLE_UP == 0:
+                self.notes["up"]["arrived"].append((drone, c, now))
 
     def note_many(self, direction: str, side: str, drone: str, frames: list[bytes], now: float) -> None:
         if self.on and frames:
@@ -104,14 +121,14 @@ def rates(paths: Iterable[Path], window_s: float) -> dict[str, dict[str, float]]
 
 def load(paths: Iterable[Path]) -> dict[str, dict[str, list[tuple[str, int, float]]]]:
     """The notes of several hosts as one (a missing or unreadable file adds nothing)."""
-    out: dict[str, dict[str, list[tuple[str, int, float]]]] = {d: {"sent": [], "got": []} for d in DIRECTIONS}
+    out: dict[str, dict[str, list[tuple[str, int, float]]]] = {d: {side: [] for side in SIDES} for d in DIRECTIONS}
     for p in paths:
         try:
             data = json.loads(Path(p).read_text())
         except (OSError, ValueError):
             continue
         for d in DIRECTIONS:
-            for side in ("sent", "got"):
+            for side in SIDES:
                 out[d][side] += [tuple(x) for x in data.get(d, {}).get(side, [])]  # type: ignore[misc]
     return out
 
@@ -144,12 +161,20 @@ def percentile(xs: list[float], q: float) -> float | None:
     return ys[min(len(ys) - 1, max(0, math.ceil(q * len(ys) - 1e-9) - 1))]
 
 
+def _stats(xs: list[float]) -> dict[str, Any]:
+    p50, p99 = percentile(xs, 0.5), percentile(xs, 0.99)
+    return {"n": len(xs), "p50_ms": None if p50 is None else round(1000 * p50, 2),
+            "p99_ms": None if p99 is None else round(1000 * p99, 2)}
+
+
 def summary(notes: dict[str, dict[str, list[tuple[str, int, float]]]]) -> dict[str, Any]:
-    """Per direction: messages matched, p50 and p99 in milliseconds."""
+    """Per direction: messages matched, p50 and p99 in milliseconds; GS -> vehicle also split into
+    the wire (sent -> arrived) and the drone's host (arrived -> got), where arrivals were noted."""
     out: dict[str, Any] = {}
     for d, name in (("up", "gs_to_vehicle"), ("down", "vehicle_to_gs")):
-        xs = match(notes[d]["sent"], notes[d]["got"])
-        p50, p99 = percentile(xs, 0.5), percentile(xs, 0.99)
-        out[name] = {"n": len(xs), "p50_ms": None if p50 is None else round(1000 * p50, 2),
-                     "p99_ms": None if p99 is None else round(1000 * p99, 2)}
+        out[name] = _stats(match(notes[d]["sent"], notes[d]["got"]))
+    up = notes["up"]
+    if up.get("arrived"):
+        out["gs_to_vehicle_wire"] = _stats(match(up["sent"], up["arrived"]))
+        out["gs_to_vehicle_host"] = _stats(match(up["arrived"], up["got"]))
     return out

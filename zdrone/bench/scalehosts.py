@@ -119,13 +119,19 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 def note_drone_latency(node: Any, latency: LatencyLog) -> None:
     """``bench overhead``'s opt-in hook (``--latency``) on one drone node: the vehicle's frames as its
-    loop takes them (vehicle -> GS, sent), and each frame the core forwards to the vehicle, under the
-    CRC of the envelope it came in (GS -> vehicle, got). Wraps the node's own callables on the instance;
+    loop takes them (vehicle -> GS, sent), each GS envelope as Zenoh's callback hands it to the inbox
+    (GS -> vehicle, arrived), and each frame the core forwards to the vehicle, under the CRC of the
+    envelope it came in (GS -> vehicle, got). Wraps the node's own callables on the instance;
     nothing changes without ``--latency``."""
     from zdrone.nodes.drone_actions import ToVehicle
 
     name, envelope = node.name, [b""]
-    on_envelope, recv = node.core.on_envelope, node.vehicle.recv
+    on_envelope, recv, inbox_put = node.core.on_envelope, node.vehicle.recv, node.rt.inbox.put
+
+    def arrived(kind: str, peer: str, data: Any) -> None:  # Zenoh's thread: the envelope as it came
+        if kind == "up":
+            latency.arrive(name, data, time.monotonic())
+        inbox_put(kind, peer, data)
 
     def opened(gs: str, data: bytes, now: float) -> Any:
         envelope[0] = data
@@ -144,6 +150,7 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
         to_vehicle(o)
 
     node.core.on_envelope, node.vehicle.recv, handlers[ToVehicle] = opened, received, forwarded
+    node.rt.inbox.put = arrived
 
 
 def note_station_latency(station: Any, latency: LatencyLog) -> None:

@@ -57,9 +57,10 @@ Zenoh's limit is a minimum interval between puts on a key, measured when the rou
 with no burst allowance: a router that stalls (scheduling, load) processes the frames that waited back
 to back and drops all but the first, at any rate (measured: ``experiments/router_stall.py``,
 docs/results.md). So an uplink has ``UP_LANES`` keys, each with its own budget: the GS sends its frames
-on the lanes in turn, ``UPLINK_PACE_S`` apart at least (``net/pacing.py``), so that one lane's frames
-are ``UP_LANES`` paces apart (``UPLINK_PACE_S * UPLINK_MAX_HZ`` of the lane's intervals), and frames
-bunched by a stall are on different lanes (a burst allowance of ``UP_LANES`` frames).
+on the lanes in turn, one lane's frames ``UPLINK_LANE_GAP_S`` apart at least (``net/pacing.py``: four of
+the lane's intervals), so that frames bunched by a stall are on different lanes. A burst of up to
+``UP_LANES`` frames goes at once (a lane each); only frames beyond it wait, and the uplink's sustained
+rate is ``1 / UPLINK_PACE_S``.
 
 Not bounded here: the number of sessions one credential opens (Zenoh 1.x has one ``max_sessions``
 for all, and no limit per username or certificate; with TLS extra sessions gain no budget), and a
@@ -91,11 +92,13 @@ UPLINK_MAX_HZ = 200.0
 #: Puts per second on each lane (Zenoh's downsampling: a put closer than 1/UPLINK_LANE_HZ s to the
 #: previous one on that lane is dropped).
 UPLINK_LANE_HZ = UPLINK_MAX_HZ / keyexprs.UP_LANES
-#: A GS's frames on one uplink go out this far apart at least (on the lanes in turn), so at most
-#: 1/UPLINK_PACE_S frames/s (50: a joystick's MANUAL_CONTROL stream fits): one lane's frames are then
-#: UP_LANES * UPLINK_PACE_S apart, four of its router intervals, so that delays on the way (a busy
-#: sender, batching) do not bring two closer than the limit.
+#: A GS's frames on one uplink go out at most 1/UPLINK_PACE_S a second, sustained (50: a joystick's
+#: MANUAL_CONTROL stream fits), on the lanes in turn ...
 UPLINK_PACE_S = 4.0 / UPLINK_MAX_HZ
+#: ... so that one lane's frames are at least this far apart: four of its router intervals, so that
+#: delays on the way (a busy sender, batching) do not bring two closer than the limit. Up to UP_LANES
+#: frames may go at once (a lane each; ``net/pacing.py``).
+UPLINK_LANE_GAP_S = keyexprs.UP_LANES * UPLINK_PACE_S
 #: The largest uplink put (a sealed envelope: one MAVLink frame, <= 280 bytes, or one small control
 #: message, plus the envelope's 24): the router's low-pass filter drops a bigger one on ingress, and
 #: the drone's own subscriber refuses it too (``net/inbox.py``).

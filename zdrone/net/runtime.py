@@ -39,7 +39,7 @@ from zdrone.core.errors import ConfigError
 from zdrone.core.fleet import Fleet, Node
 from zdrone.fleet import keyexprs
 from zdrone.fleet.files import NodeSecret, fleet_path, load_fleet, load_secret
-from zdrone.fleet.routerconfig import SITE_LEASE_MS, UPLINK_PACE_S
+from zdrone.fleet.routerconfig import SITE_LEASE_MS, UPLINK_LANE_GAP_S
 from zdrone.fleet.tls import node_files
 from zdrone.net.declarations import DECLARATIONS
 from zdrone.net.eventlog import EventLog
@@ -83,7 +83,7 @@ class NodeRuntime:
         self.router = " + ".join(routers)
         self.events = EventLog(events, name)
         self.inbox = Inbox(max_senders=senders_bound(len(self.fleet.nodes)))
-        self.pacer = Pacer(UPLINK_PACE_S, self.inbox.drop)
+        self.pacer = Pacer(UPLINK_LANE_GAP_S, self.inbox.drop, burst=keyexprs.UP_LANES)  # a lane each, in turn
         self._lanes: dict[str, int] = {}  # uplink -> the lane its next frame goes on
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
@@ -214,10 +214,11 @@ class NodeRuntime:
             s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP, **qos)
 
     def put_link(self, keyexpr: str, payload: bytes, now: float) -> None:
-        """Publish a GS's link frame on uplink ``keyexpr`` (``keyexprs.up``), paced: at once if the
-        uplink's last put is ``UPLINK_PACE_S`` old, else in its turn (``flush``), and on the uplink's
-        lanes in turn, so that the router's per-lane rate limit never drops it, even when a stall
-        makes the router process several back to back. The node's loop calls ``flush`` every pass
+        """Publish a GS's link frame on uplink ``keyexpr`` (``keyexprs.up``), paced: on the uplink's
+        lanes in turn, at once if the lane it goes on was last used ``UPLINK_LANE_GAP_S`` ago or more
+        (a burst of up to a frame per lane goes at once), else in its turn (``flush``), so that the
+        router's per-lane rate limit never drops it, even when a stall makes the router process
+        several back to back. The node's loop calls ``flush`` every pass
         and wakes by ``next_flush``."""
         if self.pacer.offer(keyexpr, payload, now):
             self._put_on_lane(keyexpr, payload)
