@@ -135,7 +135,8 @@ def _router(args: argparse.Namespace) -> int:
 class BareDrone:
     """One drone: its session, its vehicle, what came up for it."""
 
-    def __init__(self, name: str, router: str, vehicle: Any, gss: list[str], lat: LatencyLog | None = None) -> None:
+    def __init__(self, name: str, router: str, vehicle: Any, gss: list[str], lat: LatencyLog | None = None,
+                 woken: "collections.deque[BareDrone] | None" = None) -> None:
         from zdrone.core.bundle import BundleWriter
         from zdrone.core.standby import StandbyStream
 
@@ -157,8 +158,20 @@ class BareDrone:
                 lat.arrive(name, data, time.monotonic())
             inq.append((keyexprs.gs_of(sample.key_expr), data))
             self.delivered += 1
+            if woken is not None:
+                woken.append(self)
 
         self.sub = self.session.declare_subscriber(f"zdrone/{name}/up/*", zenoh.handlers.Callback(on_up, indirect=False))
+
+    def take_uplink(self, lat: LatencyLog | None) -> None:
+        """Every frame that came up goes to the vehicle (at the drone's turn, and between turns as
+        ``scalehosts.WAKE_EVERY`` says, as zdrone's host does)."""
+        inq, vehicle = self.inq, self.vehicle
+        while inq:
+            gs, frame = inq.popleft()
+            if lat is not None:
+                lat.note("up", "got", self.name, frame, time.monotonic())
+            vehicle.send(frame)
 
     def close(self) -> None:
         try:
@@ -202,7 +215,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     from gs.planner import shuttle_mission
 
     from zdrone.bench.procstats import _memory_mb
-    from zdrone.bench.scalehosts import CROSSINGS, PASS_S
+    from zdrone.bench.scalehosts import CROSSINGS, PASS_S, WAKE_EVERY
     from zdrone.core.mavlink import FrameCodec
     from zdrone.core.reference import HOME
     from zdrone.fleet.files import load_fleet
@@ -216,6 +229,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     gcs = FrameCodec(fleet.nodes[gss[0]].sysid, 190)  # the GS that flies them (A), for the set-up frames
     mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (len(gss) - 1) - 60.0)
     lat = LatencyLog() if args.latency else None
+    woken: collections.deque[BareDrone] = collections.deque()  # drones a GS's frame reached since last served
     drones = []
     for i in range(args.k):
         name = f"d{i + 1}"
@@ -224,7 +238,7 @@ def _host_drones(args: argparse.Namespace) -> int:
         if not _upload(vehicle, mission, gcs):
             print(f"bare drones host: {name} refused the mission", file=sys.stderr, flush=True)
             return 2
-        drones.append(BareDrone(name, routers[i % len(routers)], vehicle, gss, lat))
+        drones.append(BareDrone(name, routers[i % len(routers)], vehicle, gss, lat, woken))
     freeze_start_up()
     print(f"{READY}: {len(drones)} drones", flush=True)
     stop, go = [False], [False]
@@ -251,14 +265,13 @@ def _host_drones(args: argparse.Namespace) -> int:
             arm_now = t0 > 0.0 and pass_start >= next_arm
             if arm_now:
                 next_arm = pass_start + ARM_RETRY_S
-            for d in drones:
+            for i, d in enumerate(drones):
+                if i % WAKE_EVERY == 0:
+                    while woken:
+                        woken.popleft().take_uplink(lat)
                 now = time.monotonic()
-                inq, vehicle = d.inq, d.vehicle
-                while inq:
-                    gs, frame = inq.popleft()
-                    if lat is not None:
-                        lat.note("up", "got", d.name, frame, now)
-                    vehicle.send(frame)
+                vehicle = d.vehicle
+                d.take_uplink(lat)
                 if arm_now and not d.armed_seen:
                     if vehicle.armed:
                         d.armed_seen = True

@@ -9,6 +9,7 @@ results as JSON into the run's directory for the bench to read (``drones_file``,
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import logging
 import os
@@ -27,6 +28,10 @@ from zdrone.net.runtime import freeze_start_up
 
 #: Crossings of the shuttle each drone flies (A's area to the last GS's area, and back).
 CROSSINGS = 2
+#: Between the steps of this many drones the host hands every drone that got a GS's frame meanwhile
+#: its inputs (``DroneNode.take_inputs``; the bare half does the same), as a drone on its own companion
+#: wakes on one: the frame waits for a few drones' steps, not for a pass over all of them.
+WAKE_EVERY = 10
 #: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
 #: sleeps until its next deadline or input; stepping hundreds in turn, each pass costs them all).
 PASS_S = 0.01
@@ -153,6 +158,24 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
     node.rt.inbox.put = arrived
 
 
+def wake_on_uplink(node: Any, woken: "collections.deque[Any]") -> None:
+    """``node`` goes into ``woken`` when a GS's frame reaches its inbox (Zenoh's thread: one append)."""
+    put = node.rt.inbox.put
+
+    def woke(kind: str, peer: str, data: Any) -> None:
+        put(kind, peer, data)
+        if kind == "up":
+            woken.append(node)
+
+    node.rt.inbox.put = woke
+
+
+def serve_woken(woken: "collections.deque[Any]") -> None:
+    """Hand each drone woken by a GS's frame its inputs (``WAKE_EVERY``)."""
+    while woken:
+        woken.popleft().take_inputs()
+
+
 def note_station_latency(station: Any, latency: LatencyLog) -> None:
     """The same on a GS: each envelope its core hands the adapter to put (before the pacing) (GS ->
     vehicle, sent), each vehicle frame out of an envelope (``FrameUp``) (vehicle -> GS, got)."""
@@ -198,6 +221,9 @@ def _host_drones(args: argparse.Namespace) -> int:
     if latency is not None:
         for n in nodes:
             note_drone_latency(n, latency)
+    woken: collections.deque[Any] = collections.deque()
+    for n in nodes:
+        wake_on_uplink(n, woken)
     router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
     gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
     for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
@@ -254,6 +280,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                     print(f"drones host: {args.jam} {'out of' if jam[0] else 'back in'} reach at {time.time():.3f}",
                           flush=True)
             for i, n in enumerate(nodes):
+                if i % WAKE_EVERY == 0:
+                    serve_woken(woken)
                 step_start = time.monotonic()
                 watch.begin(n.name)
                 n.step(0.0)

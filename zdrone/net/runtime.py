@@ -63,6 +63,9 @@ LINK_PRIORITY = zenoh.Priority.INTERACTIVE_HIGH
 #: ``experiments/express_burst.py``). Not express, a burst shares batches (one 64 KiB batch holds
 #: hundreds of frames) and waits at most Zenoh's 1 ms batching limit, only under back-pressure.
 LINK_EXPRESS = False
+#: The put options: every put (DROP: never blocks), and a link frame's.
+_QOS: dict[str, Any] = {"congestion_control": zenoh.CongestionControl.DROP}
+_LINK_QOS: dict[str, Any] = {**_QOS, "priority": LINK_PRIORITY, "express": LINK_EXPRESS}
 #: Subscriber callbacks run in Zenoh's receiving thread instead of a Python thread each (see ``subscribe``).
 DIRECT_CALLBACKS = os.environ.get("ZDRONE_INDIRECT_CALLBACKS") != "1"
 
@@ -85,6 +88,7 @@ class NodeRuntime:
         self.inbox = Inbox(max_senders=senders_bound(len(self.fleet.nodes)))
         self.pacer = Pacer(UPLINK_LANE_GAP_S, self.inbox.drop, burst=keyexprs.UP_LANES)  # a lane each, in turn
         self._lanes: dict[str, int] = {}  # uplink -> the lane its next frame goes on
+        self._lane_keys: dict[str, tuple[str, ...]] = {}  # uplink -> its lanes' keys
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
         self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
@@ -209,9 +213,9 @@ class NodeRuntime:
         sessions = self._out()
         if not sessions:
             self.inbox.drop("put:no_path")
-        qos: dict[str, Any] = {"priority": LINK_PRIORITY, "express": LINK_EXPRESS} if link else {}
+        qos = _LINK_QOS if link else _QOS
         for s in sessions:
-            s.put(keyexpr, payload, congestion_control=zenoh.CongestionControl.DROP, **qos)
+            s.put(keyexpr, payload, **qos)
 
     def put_link(self, keyexpr: str, payload: bytes, now: float) -> None:
         """Publish a GS's link frame on uplink ``keyexpr`` (``keyexprs.up``), paced: on the uplink's
@@ -229,9 +233,12 @@ class NodeRuntime:
             self._put_on_lane(keyexpr, payload)
 
     def _put_on_lane(self, uplink: str, payload: bytes) -> None:
+        lanes = self._lane_keys.get(uplink)
+        if lanes is None:
+            lanes = self._lane_keys[uplink] = tuple(keyexprs.lane_of(uplink, i) for i in range(keyexprs.UP_LANES))
         lane = self._lanes.get(uplink, 0)
         self._lanes[uplink] = (lane + 1) % keyexprs.UP_LANES
-        self.put(keyexprs.lane_of(uplink, lane), payload, link=True)
+        self.put(lanes[lane], payload, link=True)
 
     def next_flush(self) -> float | None:
         """When the next paced frame is due, or None if none waits."""

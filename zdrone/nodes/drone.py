@@ -472,6 +472,12 @@ class DroneNode:
         """How long the loop may wait for input now: until the next deadline, ``MAX_SLEEP_S`` at most."""
         return min(MAX_SLEEP_S, max(0.0, self.next_deadline(self._last_pass) - time.monotonic()))
 
+    def take_inputs(self) -> None:
+        """Handle what came, without waiting and without the rest of a pass: a host that steps many
+        drones in turn calls it between their steps, so that a GS's frame does not wait for its
+        drone's turn (a drone on its own companion wakes on it: ``step``'s wait)."""
+        self.rx.drain(0.0, self._on_inbox)
+
     def step(self, wait: float) -> None:
         """One pass of the loop: wait up to ``wait`` s for the first input (an envelope, a vehicle
         message), handle what came, then whatever is due. ``step(0.0)`` never waits (benches step
