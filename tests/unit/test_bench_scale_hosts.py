@@ -45,3 +45,25 @@ def test_a_host_gives_way_to_the_routers_by_its_session_when_the_kernel_groups_s
     finally:
         child.kill()
         child.wait()
+
+
+def test_a_drone_a_gs_frame_reached_is_handed_its_inputs_between_turns_and_nothing_else_is() -> None:
+    """``wake_on_uplink``: the inbox's ``put`` (Zenoh's thread) still queues every sample, and a GS's
+    frame (kind "up") also marks the drone woken; ``serve_woken`` hands each woken drone its inputs."""
+    import collections
+    from types import SimpleNamespace
+
+    from zdrone.bench.scalehosts import serve_woken, wake_on_uplink
+
+    queued: list[tuple[str, str, bytes]] = []
+    taken: list[str] = []
+    node = SimpleNamespace(name="d1", rt=SimpleNamespace(inbox=SimpleNamespace(put=lambda *item: queued.append(item))),
+                           take_inputs=lambda: taken.append("d1"))
+    woken: collections.deque = collections.deque()
+    wake_on_uplink(node, woken)
+    node.rt.inbox.put("revision", "A", b"stamp")  # not a GS's link frame: waits for the drone's turn
+    assert queued == [("revision", "A", b"stamp")] and not woken
+    node.rt.inbox.put("up", "A", b"frame")
+    assert queued[-1] == ("up", "A", b"frame") and list(woken) == [node]
+    serve_woken(woken)
+    assert taken == ["d1"] and not woken
