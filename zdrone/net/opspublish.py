@@ -3,9 +3,11 @@
 The station calls ``on_record`` with every record its core logs and ``publish(now, wall)`` once per
 loop pass (and wakes by ``next_due``). The picture (``StationCore.drone_ops`` of every drone it
 serves, the drone's signed word on its authority among them, and the authority events logged since
-the last one) goes out every ``OPS_PERIOD_S``, and at once (at most every ``OPS_MIN_GAP_S``) after an
-authority event, so the viewer shows a hand-over
-within a few tens of milliseconds of the GS hearing it. It is cut into parts under
+the last one) goes out every ``OPS_PERIOD_S``; after an authority event a short picture goes at once (at
+most every ``OPS_MIN_GAP_S``): the events and the drones they name only, so the viewer shows a hand-over
+within a few tens of milliseconds of the GS hearing it, and a GS whose drones hand over all the time
+(300 of them) does not build its whole picture ten times a second. The viewer takes each drone's entry
+on its own (``FleetPicture.on_report``): the others keep the last whole picture's. It is cut into parts under
 ``OPS_MAX_BYTES`` and each is sealed for the viewer (``zdrone.core.opspicture``), on ``zdrone-ops/<gs>/<lane>``
 (the only key the router lets this GS put its picture on; only the viewer receives it).
 
@@ -15,7 +17,7 @@ One viewer per fleet (the first of ``Fleet.viewers``): a fleet without one publi
 from __future__ import annotations
 
 import os
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Iterable, Protocol
 
 from zdrone.core.fleet import Fleet
 from zdrone.core.keys import Identity
@@ -58,6 +60,7 @@ class OpsPublisher:
         self.events_dropped = 0
         self.urgent = False
         self.last: float | None = None
+        self.last_whole: float | None = None  # when the last picture of every drone went
         self.parts_sent = 0
         self.lane_overflow = 0  # parts beyond the lanes (on the last lane: the router may drop them)
 
@@ -101,22 +104,33 @@ class OpsPublisher:
             del self.events[:-OPS_MAX_EVENTS]
         self.urgent = True
 
+    def _whole_due(self) -> float:
+        return 0.0 if self.last_whole is None else self.last_whole + OPS_PERIOD_S
+
     def next_due(self) -> float:
         if self.last is None:
             return 0.0
-        return self.last + (OPS_MIN_GAP_S if self.urgent else OPS_PERIOD_S)
+        return min(self._whole_due(), self.last + OPS_MIN_GAP_S) if self.urgent else self._whole_due()
 
     def publish(self, now: float, wall: float) -> None:
-        """Publish the picture if it is due."""
+        """Publish the picture if it is due: every drone's at the period, the events' drones' in between."""
         if now < self.next_due():
             return
-        drones = [self.source.drone_ops(d, now) for d in self.source.drones]
+        whole = now >= self._whole_due()
+        if whole:
+            names: Iterable[str] = self.source.drones
+        else:
+            served = set(self.source.drones)
+            names = [d for d in dict.fromkeys(ev.drone for ev in self.events) if d in served]
+        drones = [self.source.drone_ops(d, now) for d in names]
         for i, part in enumerate(report_parts(self.gs, round(wall, 3), drones, self.events)):
             # part i on lane i (the router's budget per lane); more parts than lanes share the last one
             self._put(keyexprs.ops_lane(self.gs, min(i, keyexprs.OPS_LANES - 1)), self.sealer.seal(part))
             self.parts_sent += 1
             self.lane_overflow += i >= keyexprs.OPS_LANES
         self.events, self.urgent, self.last = [], False, now
+        if whole:
+            self.last_whole = now
 
     def stats(self) -> dict[str, Any]:
         return {"parts_sent": self.parts_sent, "events_dropped": self.events_dropped, "lane_overflow": self.lane_overflow}
