@@ -105,9 +105,6 @@ class StationCore:
         self._hb_due = 0.0
         self._due = 0.0  # the earliest of the sessions' ``due``, as of the last ``handle_timer``
         self._input_at: float | None = None  # an input came at this time since ``handle_timer`` last ran
-        # the sessions the drones' envelopes reached since ``handle_timer`` last ran (None: another input
-        # came, whose sessions are not named: every session is looked at)
-        self._touched: list[DroneSession] | None = []
 
     @property
     def opts(self) -> CoreOptions:
@@ -190,15 +187,10 @@ class StationCore:
         """We command ``drone`` (``DroneSession.holds_authority``)."""
         return self.session(drone).holds_authority()
 
-    def _input(self, now: float, session: "DroneSession | None" = None) -> None:
-        """An input came (to ``session`` alone, if named): the sessions it made due are looked at at
-        once (``get_timer``)."""
+    def _input(self, now: float) -> None:
+        """An input came: the sessions it made due are looked at at once (``get_timer``)."""
         if self._input_at is None or now < self._input_at:
             self._input_at = now
-        if session is None:
-            self._touched = None
-        elif self._touched is not None:
-            self._touched.append(session)
 
     # ------------------------------------------------------------------ sending
     def send_frame(self, drone: "str | DroneSession", frame: bytes) -> list[Action]:
@@ -223,15 +215,10 @@ class StationCore:
         self._input_at = None
         stamp = now if wall is None else wall
         out: list[Action] = []
-        touched, self._touched = self._touched, []
-        heartbeat = now >= self._hb_due
-        # only the sessions the drones' envelopes reached, unless a deadline or the heartbeat has come
-        # or another input did (each session's ``due`` is the one moment its rules need: ``tick``)
-        every = touched is None or heartbeat or now >= self._due
-        for session in (self.sessions.values() if every else {id(t): t for t in touched}.values()):  # type: ignore[union-attr]
+        for session in self.sessions.values():
             if session.due <= now:
                 out += session.tick(now, stamp)
-        if heartbeat:
+        if now >= self._hb_due:
             # the next a period after this one was due (after ``now``, a late pass stretched the period)
             period = 1.0 / self.opts.heartbeat_hz
             nxt = self._hb_due + period
@@ -241,10 +228,7 @@ class StationCore:
                 if self.opts.paper_heartbeat:
                     self._sm_seq += 1
                     out += session.send_control(wire.SmHeartbeat(self._sm_seq))
-        if every:
-            self._due = min((s.due for s in self.sessions.values()), default=float("inf"))
-        else:  # the others' ``due`` did not change; one of these may be earlier now (early is harmless)
-            self._due = min(self._due, min((s.due for s in touched), default=float("inf")))  # type: ignore[union-attr]
+        self._due = min((s.due for s in self.sessions.values()), default=float("inf"))
         return out
 
     # ------------------------------------------------------------------ linking
@@ -311,11 +295,11 @@ class StationCore:
 
     def on_envelope(self, drone: str, data: bytes, now: float) -> list[Action]:
         """One sealed envelope from ``drone`` (``DroneSession.on_envelope``)."""
+        self._input(now)
         session = self.sessions.get(drone)
         if session is None:
             self.counters["down:unknown_drone"] += 1
             return []
-        self._input(now, session)
         return session.on_envelope(data, now)
 
     # ---------------------------------------------------------- operator control
