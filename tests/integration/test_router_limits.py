@@ -88,15 +88,14 @@ def test_frames_processed_back_to_back_pass_on_the_lanes_and_not_on_one_key(tmp_
         try:
             def quiet() -> None:
                 """Until nothing has arrived for four lane intervals (a stalled router's backlog is through)."""
-                interval = 4.0 / UPLINK_LANE_HZ
-                seen, since = len(got), time.monotonic()
-                deadline = since + 10.0
-                while time.monotonic() < deadline:
-                    if len(got) != seen:
-                        seen, since = len(got), time.monotonic()
-                    elif time.monotonic() - since >= interval:
-                        return
-                    time.sleep(0.01)
+                last = {"n": len(got), "at": time.monotonic()}
+
+                def settled() -> bool:
+                    if len(got) != last["n"]:
+                        last.update(n=len(got), at=time.monotonic())
+                    return time.monotonic() - last["at"] >= 4.0 / UPLINK_LANE_HZ
+
+                wait_until(settled, 10.0, 0.01)
 
             def routed() -> bool:  # until the route exists on every lane (a lane's subscription may come later)
                 for key in lanes:

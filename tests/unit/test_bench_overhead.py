@@ -160,16 +160,16 @@ def test_gs_to_vehicle_is_split_where_the_drones_host_takes_it_from_zenoh(tmp_pa
     vehicle: the wait for the drone's turn in the pass), each matched by the same bytes."""
     gs, host = lat.LatencyLog(), lat.LatencyLog()
     frames = [f for f in (i.to_bytes(2, "big") for i in range(2000)) if lat.crc(f) % lat.SAMPLE_UP == 0][:2]
-    host.arrive("d1", frames[0], 10.001)
+    host.note("up", "arrived", "d1", frames[0], 10.001)
     assert host.notes["up"]["arrived"] == []  # before the take-off
     gs.start(9.0)
     host.start(9.0)
     for i, f in enumerate(frames):
         gs.note("up", "sent", "d1", f, 10.0 + i)
-        host.arrive("d1", f, 10.001 + i)
+        host.note("up", "arrived", "d1", f, 10.001 + i)
         host.note("up", "got", "d1", f, 10.011 + i * 1.02)
     outside = next(f for f in (i.to_bytes(2, "big") for i in range(2000)) if lat.crc(f) % lat.SAMPLE_UP)
-    host.arrive("d1", outside, 12.0)  # not in the sample: not noted
+    host.note("up", "arrived", "d1", outside, 12.0)  # not in the sample: not noted
     assert len(host.notes["up"]["arrived"]) == 2 and host.counts["up"].get("arrived") is None  # noted, not counted
     gs.dump(tmp_path / "gs.json")
     host.dump(tmp_path / "host.json")

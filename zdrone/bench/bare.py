@@ -155,7 +155,7 @@ class BareDrone:
         def on_up(sample: zenoh.Sample) -> None:  # Zenoh's thread: hand over and return
             data = sample.payload.to_bytes()
             if lat is not None:
-                lat.arrive(name, data, time.monotonic())
+                lat.note("up", "arrived", name, data, time.monotonic())
             inq.append((keyexprs.gs_of(sample.key_expr), data))
             self.delivered += 1
             if woken is not None:

@@ -17,7 +17,7 @@ MAVLink frame as the vehicle gives it to the drone's loop and as the GS gets it 
 GS's ``FrameUp``, the frame out of its envelope; bare: the frame out of the bundle in the GS's
 Zenoh callback).
 
-GS -> vehicle is also split where the drone's host takes the message from Zenoh (``arrive``: in the
+GS -> vehicle is also split where the drone's host takes the message from Zenoh ("arrived": in the
 Zenoh callback, before any queue): **the wire** (sent -> arrived: the GS's pacing, its session, the
 routers, the drone's session) and **the host** (arrived -> got: the wait for the drone's turn in its
 host's pass, then the drone's own handling: opening and checking the envelope, in zdrone). A host that
@@ -71,22 +71,17 @@ class LatencyLog:
         self.on, self.t0 = True, now
 
     def note(self, direction: str, side: str, drone: str, data: bytes, now: float) -> None:
-        """``side`` is "sent" or "got"; noted only if on, and kept if the bytes are in the sample."""
+        """``side`` is one of ``SIDES``; noted only if on, and kept if the bytes are in the sample.
+        Sent and got are also counted; an arrival is not (noted in Zenoh's callback thread: one append,
+        atomic under the GIL, where a count's read-and-write would not be)."""
         if self.on:
-            counts = self.counts[direction][side]
-            s = int(now - self.t0)
-            counts[s] = counts.get(s, 0) + 1
+            if side != "arrived":
+                counts = self.counts[direction][side]
+                s = int(now - self.t0)
+                counts[s] = counts.get(s, 0) + 1
             c = zlib.crc32(data)
             if c % _EVERY[direction] == 0:
                 self.notes[direction][side].append((drone, c, now))
-
-    def arrive(self, drone: str, data: bytes, now: float) -> None:
-        """A GS's message to ``drone`` taken from Zenoh by the drone's host (its callback's thread:
-        one append, atomic under the GIL), before any queue; in the sample only, not counted."""
-        if self.on:
-            c = zlib.crc32(data)
-            if c % SAMPLE_UP == 0:
-                self.notes["up"]["arrived"].append((drone, c, now))
 
     def note_many(self, direction: str, side: str, drone: str, frames: list[bytes], now: float) -> None:
         if self.on and frames:

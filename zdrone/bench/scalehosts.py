@@ -135,7 +135,7 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
 
     def arrived(kind: str, peer: str, data: Any) -> None:  # Zenoh's thread: the envelope as it came
         if kind == "up":
-            latency.arrive(name, data, time.monotonic())
+            latency.note("up", "arrived", name, data, time.monotonic())
         inbox_put(kind, peer, data)
 
     def opened(gs: str, data: bytes, now: float) -> Any:

@@ -27,10 +27,11 @@ Nothing here knows a protocol: what a node does with what arrives is its own.
 from __future__ import annotations
 
 import gc
+import itertools
 import logging
 import os
 import threading
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import zenoh
 
@@ -87,8 +88,7 @@ class NodeRuntime:
         self.events = EventLog(events, name)
         self.inbox = Inbox(max_senders=senders_bound(len(self.fleet.nodes)))
         self.pacer = Pacer(UPLINK_LANE_GAP_S, self.inbox.drop, burst=keyexprs.UP_LANES)  # a lane each, in turn
-        self._lanes: dict[str, int] = {}  # uplink -> the lane its next frame goes on
-        self._lane_keys: dict[str, tuple[str, ...]] = {}  # uplink -> its lanes' keys
+        self._lanes: dict[str, Iterator[str]] = {}  # uplink -> its lanes' keys, in turn (the next is the next frame's)
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
         self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
@@ -233,12 +233,10 @@ class NodeRuntime:
             self._put_on_lane(keyexpr, payload)
 
     def _put_on_lane(self, uplink: str, payload: bytes) -> None:
-        lanes = self._lane_keys.get(uplink)
+        lanes = self._lanes.get(uplink)
         if lanes is None:
-            lanes = self._lane_keys[uplink] = tuple(keyexprs.lane_of(uplink, i) for i in range(keyexprs.UP_LANES))
-        lane = self._lanes.get(uplink, 0)
-        self._lanes[uplink] = (lane + 1) % keyexprs.UP_LANES
-        self.put(lanes[lane], payload, link=True)
+            lanes = self._lanes[uplink] = itertools.cycle([keyexprs.lane_of(uplink, i) for i in range(keyexprs.UP_LANES)])
+        self.put(next(lanes), payload, link=True)
 
     def next_flush(self) -> float | None:
         """When the next paced frame is due, or None if none waits."""
