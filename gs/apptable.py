@@ -25,6 +25,7 @@ from typing import Any, Iterator
 from pymavlink.dialects.v20 import common as mav
 
 from gs.appkeys import STATE_DIR_ENV, AppSigning, read_signing_state, write_signing_state
+from gs.opcontrol import Prompt
 from zdrone.core import fcsign
 from zdrone.core import records as rec
 from zdrone.core.fleet import ConfigError
@@ -76,7 +77,7 @@ class App:
     refused: int = 0
     last_text: float = -1e9  # when the last refusal STATUSTEXT went to it (at most one a second)
     signer: str | None = None  # the name of the key its frames are signed with (None: unsigned)
-    shown: tuple[int, int] | None = None  # (seq, epoch) of the other GS's request last presented to it
+    prompt: Prompt = field(default_factory=Prompt)  # the other GS's request presented to it, and since when
     decoder: FrameCodec = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:

@@ -140,7 +140,7 @@ class GcsGateway(OperatorApps):
         self._next_status = 0.0
         self._last_control: tuple[Any, ...] | None = None
         self._awaiting: dict[AppKey, float] = {}  # applications told IN_PROGRESS: their request's deadline
-        self._shown_seq = 0  # the last request of another GS presented to the applications
+        self._shown: tuple[int, int] | None = None  # (seq, epoch) of the request presented to the applications
         self._seq = 0
         self._error_log = RateLimit()
         self._op_takes_app = _takes_app(station.operator_command)
@@ -365,11 +365,23 @@ class GcsGateway(OperatorApps):
         or consents (``gs.opcontrol``); answered at once, and again when an IN_PROGRESS one ends."""
         req = parse_operator_request(msg.param1, msg.param2, msg.param3, msg.param4)
         who = self.identity(app)
+        unread = None
         if req is not None:
-            req = self._bind_to_shown(app, req, now)
+            req, unread = self._bind_to_shown(app, req, now)
         if req is None:
             self.counters["operator_request_bad"] += 1
             result = mav.MAV_RESULT_DENIED
+        elif unread is not None:  # a consent to a request this application has not been shown long enough
+            self.counters["operator_consent_unread"] += 1
+            result = mav.MAV_RESULT_DENIED
+            status = self.status(now)
+            self.station.events.write_record(rec.OperatorConsentRefused(
+                drone=self.drone, requester=status.request.requester if status.request is not None else "",
+                named=None, reason=unread, app=who))
+            log.warning("gateway: %s (sysid %d): consent refused: %s", who, app.sysid, unread)
+            self._ack(app, msg.command, result)
+            self._show(app, status, now, again=True)  # the request pending now, shown (again) to be read
+            return
         else:
             try:
                 result = self._operator_command(app, req, now)
@@ -385,19 +397,38 @@ class GcsGateway(OperatorApps):
                  app.sysid, msg.param1, msg.param2, msg.param3, msg.param4, result)
         self._ack(app, msg.command, result)
 
-    def _bind_to_shown(self, app: App, req: OperatorControlRequest, now: float) -> OperatorControlRequest:
+    def _bind_to_shown(self, app: App, req: OperatorControlRequest,
+                       now: float) -> tuple[OperatorControlRequest, str | None]:
         """A consent (p1 = 0, or p1 = 1 with p2 = 1) whose p4 is 0 or the application's own sysid (as
-        QGroundControl sends) names the requester of the one pending request presented to *this*
-        application, in this epoch: p4 becomes that requester's sysid as the application was shown it.
-        Anything else is left as it came (a p4 naming another GS is refused by ``gs.opcontrol``)."""
+        QGroundControl and MAVProxy send) names the requester of the one pending request presented to
+        *this* application, in this epoch, alone and unchanged for ``CONSENT_READ_S``: p4 becomes that
+        requester's sysid as the application was shown it. Such a consent while a request is pending
+        that it has not been shown that long is refused (the reason, second). Anything else is left as
+        it came (a p4 naming another GS is refused by ``gs.opcontrol``; with nothing pending, a release
+        is a let-go and an "allow takeover" is refused there)."""
         if req.sysid not in (0, app.sysid) or (req.request and not req.takeover):
-            return req
+            return req, None
         status = self.status(now)
         pending = status.request if status.owned else None
-        if pending is None or app.shown != (pending.seq, pending.epoch) or pending.epoch != status.epoch:
-            return req  # nothing shown to it is pending: a setting / let-go, or refused as naming nobody
+        if pending is None:
+            return req, None
+        why = app.prompt.binds(pending, status.epoch, now)
+        if why is not None:
+            return req, why
         self.counters["operator_consent_bound"] += 1
-        return msgspec.structs.replace(req, sysid=_not_the_apps(self._sysid_of(pending.requester), app.sysid))
+        return msgspec.structs.replace(req, sysid=_not_the_apps(self._sysid_of(pending.requester), app.sysid)), None
+
+    def _show(self, app: App, status: Any, now: float, again: bool = False) -> None:
+        """Present the pending request of another GS to ``app`` (p4: the requester as it sees it)."""
+        req = status.request
+        if req is None:
+            return
+        if not app.prompt.show(req.seq, req.epoch, req.requester, now) and not again:
+            return
+        codec = self._vehicle_codec(self.vehicle_sysid, 1)
+        p4 = _not_the_apps(self._sysid_of(req.requester), app.sysid)
+        self._reply(app, codec, mav.MAVLink_command_long_message(
+            app.sysid, app.compid, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, req.timeout, p4, 0, 0, 0))
 
     def _ack(self, app: App, command: int, result: int) -> None:
         codec = self._vehicle_codec(self.vehicle_sysid, 1)
@@ -416,16 +447,17 @@ class GcsGateway(OperatorApps):
             if app is not None:  # still there: the request's final answer
                 self._ack(app, MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED if owner else mav.MAV_RESULT_FAILED)
         req = status.request
-        if req is not None and req.seq != self._shown_seq and self.apps:
-            self._shown_seq = req.seq
-            requester = self._sysid_of(req.requester)
-            codec = self._vehicle_codec(self.vehicle_sysid, 1)
+        shown = (req.seq, req.epoch) if req is not None else None
+        if shown != self._shown and self.apps:
+            self._shown = shown
             for app in self.apps:
-                app.shown = (req.seq, req.epoch)
-                p4 = _not_the_apps(requester, app.sysid)
-                self._reply(app, codec, mav.MAVLink_command_long_message(
-                    app.sysid, app.compid, MAV_CMD_REQUEST_OPERATOR_CONTROL, 0, 1, 0, req.timeout, p4, 0, 0, 0))
-            self.station.events.write_record(rec.OperatorRequestShown(drone=self.drone, requester=req.requester, apps=len(self.apps)))
+                if req is None:
+                    app.prompt.end(now)  # what it was shown ended: a consent that does not name it binds to nothing
+                else:
+                    self._show(app, status, now)
+            if req is not None:
+                self.station.events.write_record(rec.OperatorRequestShown(drone=self.drone, requester=req.requester,
+                                                                          apps=len(self.apps)))
         takeover = status.takeover
         control = (status.linked, status.owner, status.epoch, status.state, owner, takeover)
         if now >= self._next_status or control != self._last_control:

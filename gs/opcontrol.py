@@ -15,8 +15,9 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
   second and is shown once the pending one is decided. A consent is bound to what the operator saw:
   it must name the pending requester in p4 (else ``operator_consent_refused``, answered DENIED; the
   gateway turns a p4 of 0 or the application's own sysid, as QGroundControl sends it, into the
-  requester of the request it showed that application), it holds in the owner's epoch only and ends
-  at any authority change.
+  requester of the request it showed that application, only once that one request has been on the
+  application's screen alone and unchanged for ``CONSENT_READ_S``: ``Prompt``), it holds in the owner's
+  epoch only and ends at any authority change.
 
   - p1 = 0 naming the requester: release to it now (the ordinary ``HandoverRelease``, make-before-break);
   - p1 = 1, p2 = 1 naming the requester: takeover allowed *for that requester* for ``GRANT_WINDOW_S``
@@ -27,17 +28,19 @@ Every step is a sealed control message between fleet identities; a MAVLink sysid
     requester causes at most 20 prompts a minute while the operator ignores it, one once declined.
 
   Without consent nothing moves.
-* **Allow takeover** with nothing pending (p1 = 1, p2 = 1, p4 the application's own sysid; one naming
-  another GS is refused: a consent to a request nobody made) is the owner's setting for its current epoch
-  only (any authorized requester is granted); ``zdrone gs --allow-takeover`` is the standing policy of
-  the station, every epoch. The owner tells the drone with a ``HandoverRequest`` for itself (naming the
-  one requester a window is for, if any); the drone's ``AuthorityStatus`` carries it to every GS.
+* **Allow takeover** answers the request it was given for, in its epoch, and nothing else: with nothing
+  pending an operator's p1 = 1, p2 = 1 is DENIED (``operator_consent_refused``: a consent to a request
+  nobody made; a late "allow takeover" must not become a standing setting that the next asker takes),
+  and a requester's own p2 is not carried into the epoch it takes. The one standing setting is the
+  station's configuration, ``zdrone gs --allow-takeover`` (every epoch; its grants are recorded as the
+  station's policy). The owner tells the drone with a ``HandoverRequest`` for itself (naming the one
+  requester a window is for); the drone's ``AuthorityStatus`` carries it to every GS.
 * **Held control**: an epoch this GS took by its operator's request is the operator's: the station's
   automatic hand-over toward the GS whose coverage the drone flies into stays off in it until the
   operator lets go (p1 = 0 with nobody asking).
 
 Every decision record names the application that made it (``app``: its signing key's name, or
-``unsigned:<peer>``). ``OperatorControl`` holds the state; its methods take the station's view of the
+``unsigned:<peer>``); every grant names who decided (``decided_by``: ``operator`` or ``station_policy``). ``OperatorControl`` holds the state; its methods take the station's view of the
 drone and ``now`` and return a ``Step``: control messages for the drone, event records and operator
 lines (the station core turns them into its actions).
 """
@@ -45,6 +48,7 @@ lines (the station core turns them into its actions).
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mav
@@ -68,6 +72,10 @@ ASK_RESEND_S = 1.0
 TELL_RESEND_S = 0.5
 #: A requester the operator declined is not shown again for this long (said to the operator).
 DECLINE_HOLD_S = 60.0
+#: A consent that does not name the requester (p4 = 0 or the application's own sysid, as QGroundControl and
+#: MAVProxy send it) binds to the request an application was shown only once that request has stood on its
+#: screen, alone and unchanged, this long: long enough to be read. Shorter than the shortest request (3 s).
+CONSENT_READ_S = 2.0
 #: (A requester whose request expired unanswered may ask again at once: the operator may have missed
 #: it. Each request stands REQUEST_TIMEOUT_MIN_S at least, so one requester prompts at most 20 times a
 #: minute until the operator declines it.)
@@ -129,13 +137,47 @@ class TakeoverWindow:
         return self.epoch == view.epoch and now < self.until
 
 
+@dataclass(slots=True)
+class Prompt:
+    """What one operator application is shown of the requests pending at its GS, and since when: the
+    request shown (its number and epoch, None: none) and the moment that last changed (a request shown,
+    or the one shown ended). An unnamed consent binds to the request shown only when it has stood alone
+    and unchanged for ``CONSENT_READ_S`` and is the one pending now (``binds``)."""
+
+    shown: tuple[int, int] | None = None
+    requester: str | None = None
+    changed: float = -math.inf
+
+    def show(self, seq: int, epoch: int, requester: str, now: float) -> bool:
+        """The application is shown request ``seq`` of ``epoch``; True when that is a change."""
+        if self.shown == (seq, epoch):
+            return False
+        self.shown, self.requester, self.changed = (seq, epoch), requester, now
+        return True
+
+    def end(self, now: float) -> None:
+        """Nothing is pending any more: what the application was shown is gone."""
+        if self.shown is not None:
+            self.shown, self.requester, self.changed = None, None, now
+
+    def binds(self, pending: "PendingRequest | None", epoch: int, now: float) -> str | None:
+        """None when an unnamed consent given now binds to ``pending``; else why it does not."""
+        if pending is None:
+            return "no request is pending"
+        if self.shown != (pending.seq, pending.epoch) or pending.epoch != epoch:
+            return f"{pending.requester}'s request was not shown to this application"
+        if now - self.changed < CONSENT_READ_S:
+            return (f"{pending.requester}'s request was shown {max(0.0, now - self.changed):.1f} s ago "
+                    f"(a consent that does not name it needs {CONSENT_READ_S:.0f} s)")
+        return None
+
+
 @dataclass
 class OperatorControl:
     """The operator-control state of one GS for one drone (see the module docstring)."""
 
     gs: str
     allow_takeover: bool = False  # the station's standing policy (``--allow-takeover``), every epoch
-    setting_epoch: int | None = None  # our operator allowed takeover (nothing pending) in this epoch
     window: TakeoverWindow | None = None  # a consent: one requester may take control for a while
     request: PendingRequest | None = None  # as owner: the request shown to the operator
     closed: tuple[str, int, int] | None = None  # (requester, epoch, ask id) decided: its re-sends ignored
@@ -144,7 +186,6 @@ class OperatorControl:
     seq: int = 0
     asked_until: float | None = None  # as requester: our operator's request stands until then
     asked_timeout: float = DEFAULT_REQUEST_TIMEOUT_S
-    asked_takeover: bool = False  # as requester: p2 of our operator's request (our setting once in control)
     asked_on_takeover: bool = False  # as requester: asked again as soon as the owner allowed us takeover
     ask_id: int = 0  # our operator's requests, numbered
     last_ask: float | None = None
@@ -175,7 +216,7 @@ class OperatorControl:
         """Our takeover setting now: (allowed, the one requester it is for, or None for any)."""
         if self.window is not None and self.window.allows(view, now):
             return True, self.window.to
-        return self.allow_takeover or self.setting_epoch == view.epoch, None
+        return self.allow_takeover, None
 
     def takeover_allowed(self, view: DroneView, now: float) -> bool:
         return self.takeover_for(view, now)[0]
@@ -205,7 +246,7 @@ class OperatorControl:
             was = self.asked_until is not None
             self.asked_until = None
             return Answer.ACCEPTED, self._log(rec.OperatorRequestWithdrawn(drone=view.name, app=app)) if was else NOTHING
-        self.asked_takeover = req.takeover  # our setting once in control, for that epoch
+        # (its p2 is not carried into the epoch it takes: only the station's configuration is a standing setting)
         self.asked_until, self.asked_timeout, self.last_ask = now + req.timeout, req.timeout, now
         self.ask_id += 1
         for_us = bool(view.takeover) and getattr(view, "takeover_to", None) in (None, self.gs)
@@ -237,15 +278,16 @@ class OperatorControl:
                 held, self.held_epoch = self.held_epoch, None  # let go: automatic hand-overs again
                 return Answer.ACCEPTED, (self._log(rec.OperatorControlLetGo(drone=view.name, app=app))
                                          if held == view.epoch else NOTHING)
-            was = self.takeover_allowed(view, now)
-            self.setting_epoch = view.epoch if req.takeover else None
-            if not req.takeover:
-                self.window = None  # "takeover refused" ends a consent's window too
-            self.last_tell = None  # tell the drone at the next tick
-            changed = self.takeover_allowed(view, now) != was
-            return Answer.ACCEPTED, (self._log(rec.OperatorTakeoverSetting(drone=view.name, allowed=req.takeover,
-                                                                           epoch=view.epoch, app=app))
-                                     if changed else NOTHING)
+            if req.takeover:  # "allow takeover" answers a request; with none pending it is no standing setting
+                why = "no request is pending to allow (a standing takeover is the station's --allow-takeover)"
+                return Answer.DENIED, (self._log(rec.OperatorConsentRefused(drone=view.name, requester="", named=None,
+                                                                           reason=why, app=app))
+                                       + Step(say=(f"zdrone gs {self.gs}: consent for {view.name} refused: {why}",)))
+            if self.window is None:  # "takeover refused" with nothing open: nothing changes
+                return Answer.ACCEPTED, NOTHING
+            self.window, self.last_tell = None, None  # "takeover refused" ends a consent's window; tell the drone
+            return Answer.ACCEPTED, self._log(rec.OperatorTakeoverSetting(drone=view.name, allowed=False,
+                                                                          epoch=view.epoch, app=app))
         if named != pending.requester:  # a consent binds to the request the operator was shown
             why = (f"p4 names {named}, not the pending requester {pending.requester}" if named
                    else f"p4 ({req.sysid}) names no ground station; the pending requester is {pending.requester}")
@@ -281,7 +323,8 @@ class OperatorControl:
         if allowed and only in (None, msg.requester) and (live is None or live.requester == msg.requester):
             req = live or self._pend(view, msg, now)
             step = NOTHING if live is not None else self._received(view, req, True)
-            return step + self._grant(view, req, now, "takeover allowed", self.window.app if only else "")
+            return step + self._grant(view, req, now, "takeover allowed", self.window.app if only else "",
+                                      "operator" if only else "station_policy")
         if live is not None:
             if (live.requester, live.ask_id) == (msg.requester, msg.ask_id):
                 return NOTHING  # the requester sending its standing request again
@@ -315,13 +358,14 @@ class OperatorControl:
         self.noted.add(key)
         return self._log(record)
 
-    def _grant(self, view: DroneView, req: PendingRequest, now: float, why: str, app: str) -> Step:
+    def _grant(self, view: DroneView, req: PendingRequest, now: float, why: str, app: str,
+               decided_by: str = "operator") -> Step:
         assert req.to == req.requester  # control goes to the GS that asked (``on_request``)
         self.release_to, self.release_epoch, self.last_release = req.to, view.epoch, now
         self.release_until = now + GRANT_WINDOW_S
         self.request = None
         return (self._log(rec.OperatorRequestGranted(drone=view.name, requester=req.requester, to=req.to, why=why,
-                                                     epoch=view.epoch, app=app))
+                                                     epoch=view.epoch, app=app, decided_by=decided_by))
                 + Step(send=(wire.HandoverRelease(req.to, view.epoch),),
                        say=(f"zdrone gs {self.gs}: control of {view.name} goes to {req.to} ({why})",)))
 
@@ -343,8 +387,6 @@ class OperatorControl:
         if self.is_owner(view):
             if self.asked_until is not None:  # ours now: the request succeeded
                 self.asked_until, self.held_epoch = None, view.epoch
-                if self.asked_takeover:
-                    self.setting_epoch = view.epoch
                 step += self._log(rec.OperatorControlTaken(drone=view.name, epoch=view.epoch))
             step += self._tell(view, now)
             if (self.release_to is not None and self.release_epoch == view.epoch and self.release_until is not None

@@ -563,8 +563,8 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--max-states", type=int, default=None, metavar="N", help="stop after N distinct states")
     ck.add_argument("--flaw", choices=("heir-without-position", "promotion-over-live", "unstamped-pairing",
                                        "pairing-without-position", "forgetful-ground-restart",
-                                       "consent-to-last-asker", "window-across-epochs"),
-                    help="plant a known flaw (the checker must find it; the last two are in the consent world)")
+                                       "consent-to-last-asker", "window-across-epochs", "consent-without-reading"),
+                    help="plant a known flaw (the checker must find it; the last three are in the consent world)")
     ck.add_argument("--cores", action="store_true",
                     help="explore the shipped cores themselves (DroneCore, StationCores A and B, real crypto, in memory) "
                          "instead of the abstract world; much slower: use --depth 3 to 5")

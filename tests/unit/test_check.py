@@ -83,6 +83,7 @@ def test_consent_goes_only_to_the_named_requester_in_its_epoch_over_every_interl
     ("consent-to-last-asker", ["asks for control", "releases to"]),
     ("window-across-epochs", ["asks for control", "allows B takeover", "asks for control", "asks for control",
                               "releases to A", "asks for control"]),
+    ("consent-without-reading", ["asks for control", "releases to the request it is shown"]),
 ])
 def test_each_planted_consent_flaw_is_found(flaw, steps):
     r = check.run(depth=6, flaw=flaw)

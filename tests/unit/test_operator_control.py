@@ -12,7 +12,7 @@ from pymavlink.dialects.v20 import common as mav
 from gs.actions import Emit, Put, ToOperator
 from gs.core import StationCore
 from gs.gateway import GcsGateway
-from gs.opcontrol import DECLINE_HOLD_S, GRANT_WINDOW_S, Answer
+from gs.opcontrol import CONSENT_READ_S, DECLINE_HOLD_S, GRANT_WINDOW_S, Answer
 from zdrone.core import authority as ha
 from zdrone.core import wire
 from zdrone.core.envelope import Opened, SecureLink
@@ -237,19 +237,26 @@ def test_with_takeover_allowed_the_request_takes_control_at_once(fleet_dir):
     assert net.owner == "B"
 
 
-def test_the_owners_apps_set_takeover_and_the_requesters_p2_is_its_own_setting(fleet_dir):
+def test_allow_takeover_is_no_standing_setting_of_an_operator_nor_of_a_requesters_p2(fleet_dir):
+    """Found from outside: a late "allow takeover" (nothing pending) became the owner's setting for its epoch
+    and the next asker took the drone; a requester's p2 became its setting once in control. Only the
+    station's configuration is a standing setting now."""
     net = make_net(fleet_dir)
-    net.command("A", ask(takeover=True))  # nobody asking: A's standing setting
+    assert net.command("A", ask(takeover=True)) is Answer.DENIED  # nothing pending: refused, not a setting
+    refused = [x for x in net.logs["A"] if x.kind == "operator_consent_refused"]
+    assert refused and "no request is pending" in refused[-1].fields["reason"]
     net.run(1.5)
-    assert net.machine.status().takeover
-    net.command("B", ask(takeover=True))
-    net.run(2.0)
+    assert not net.machine.status().takeover
+    assert net.command("B", ask(takeover=True, timeout=3.0)) is Answer.FAILED  # A's operator is asked
+    net.run(net.now + 1.0)
+    assert net.command("A", consent("B")) is Answer.ACCEPTED
+    net.run(net.now + 1.5)
     assert net.owner == "B"
-    net.run(3.0)
-    assert net.machine.status().takeover  # B allows takeover in its epoch, as its request said
-    net.command("A", ask())
-    net.run(3.5)
-    assert net.owner == "A" and net.machine.epoch == 3
+    net.run(net.now + 1.0)
+    assert not net.machine.status().takeover  # B's p2 = 1 is not carried into the epoch it took
+    assert net.command("A", ask(timeout=3.0)) is Answer.FAILED
+    net.run(net.now + 3.5)
+    assert net.owner == "B"
 
 
 def test_a_passed_on_request_for_another_epoch_or_at_a_non_owner_is_ignored(fleet_dir):
@@ -398,19 +405,21 @@ def test_through_the_gateways_a_request_is_presented_refused_then_consented(flee
 
 
 def test_through_the_gateways_takeover_allowed_is_shown_and_taken_at_once(fleet_dir):
-    net = make_net(fleet_dir, allow_takeover=True)
+    net = make_net(fleet_dir, allow_takeover=True)  # the station's configuration: its policy, every epoch
     a, b = with_gateways(net)
     net.run(net.now + 1.5)
     assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER | FLAG_TAKEOVER_ALLOWED, 4)
     assert a.statuses()[-1].takeover_allowed
-    b.request(1, 1, 5)  # p2 = 1: B allows takeover once in control
+    b.request(1, 1, 5)  # p2 = 1: not carried into B's epoch (no standing setting from an operator)
     assert b.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_IN_PROGRESS)
     net.run(net.now + 0.3, step=0.05)
     assert net.owner == "B"
     assert b.acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)  # the final answer
     assert not a.presented()  # takeover allowed: A's operator was not asked
+    granted = [x for x in net.logs["A"] if x.kind == "operator_request_granted"]
+    assert granted[-1].fields["decided_by"] == "station_policy" and granted[-1].fields["app"] == ""
     net.run(net.now + 1.0)
-    assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER | FLAG_TAKEOVER_ALLOWED, 255)
+    assert b.statuses()[-1] == ControlStatus(FLAG_SYSTEM_MANAGER, 255)
 
 
 def test_the_vehicles_own_control_status_and_bad_requests_stay_at_the_gateway(fleet_dir):
@@ -495,15 +504,16 @@ def test_a_window_for_one_requester_does_not_let_another_in(fleet3_dir):
 
 
 def test_allow_takeover_holds_for_the_owners_epoch_only(fleet_dir):
-    """A's operator allows takeover (p1 = 1, p2 = 1, nothing pending) in epoch 1; B takes it, hands it
-    back (epoch 3); B asks again: A's operator is asked, nothing moves by itself."""
+    """A's operator allows B takeover in answer to B's request (epoch 1); B takes it, hands it back (epoch
+    3); B asks again: A's operator is asked, nothing moves by itself."""
     net = make_net(fleet_dir)
-    assert net.command("A", ask(takeover=True)) is Answer.ACCEPTED
+    assert net.command("B", ask(timeout=10.0)) is Answer.FAILED
     net.run(net.now + 1.0)
-    assert net.machine.status().takeover
-    assert net.command("B", ask(timeout=10.0)) is Answer.IN_PROGRESS
+    assert net.command("A", consent("B", takeover=True, request=True)) is Answer.ACCEPTED
     net.run(net.now + 1.0)
     assert (net.owner, net.machine.epoch) == ("B", 2)
+    granted = [x for x in net.logs["A"] if x.kind == "operator_request_granted"]
+    assert granted[-1].fields["decided_by"] == "operator"
     assert net.command("B", ask(request=False)) is Answer.ACCEPTED  # B's operator lets go
     assert net.command("A", ask(timeout=10.0)) is Answer.FAILED
     net.run(net.now + 1.0)
@@ -571,12 +581,12 @@ def test_a_declined_requester_is_not_granted_by_a_later_allow_takeover_during_th
     net.command("X", ask(timeout=10.0))
     net.run(net.now + 1.0)
     net.command("A", consent("X", request=True))  # declined
-    assert net.command("A", ask(takeover=True)) is Answer.ACCEPTED  # then: takeover allowed for anyone
+    assert net.command("A", ask(takeover=True)) is Answer.DENIED  # nothing pending: no setting for anyone
     net.run(net.now + 3.0)  # X's standing request is sent again meanwhile
     assert net.owner == "A"
-    assert net.command("B", ask(timeout=5.0)) is Answer.IN_PROGRESS  # anyone else: granted at once
+    assert net.command("B", ask(timeout=5.0)) is Answer.FAILED  # anyone else: A's operator is asked
     net.run(net.now + 1.0)
-    assert net.owner == "B"
+    assert net.owner == "A"
 
 
 def test_an_answer_naming_a_gs_with_nothing_pending_is_denied_and_a_late_decline_still_holds(fleet_dir):
@@ -593,3 +603,79 @@ def test_an_answer_naming_a_gs_with_nothing_pending_is_denied_and_a_late_decline
     net.command("B", ask(timeout=3.0))
     net.run(net.now + 5.0)
     assert net.kinds("A").count("operator_request") == shown and "operator_request_held_off" in net.kinds("A")
+
+
+# ------------------------------------------------ the consent race, through the gateways (issue: a consent
+# goes to a GS the operator never saw)
+def with_three_gateways(net: Net) -> dict[str, App]:
+    apps = {}
+    for g in ("A", "B", "X"):
+        gw = GcsGateway(CoreStation(net, g), [])
+        gw.transports = [MemTransport()]
+        net.gateways[g] = gw
+        apps[g] = App(net, g)
+        apps[g].send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+    return apps
+
+
+def race(fleet3_dir, answer_after: float, p1: int, p2: int, p4: int | None = None):
+    """B asks (3 s); X asks every 0.25 s; A's application (sysid 255, as QGroundControl) answers
+    ``answer_after`` s after B's request was shown to it, p4 = its own sysid (or ``p4``)."""
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    apps = with_three_gateways(net)
+    net.run(net.now + 1.0)
+    apps["B"].request(1, 0, 3)
+    net.run(net.now + 0.1)
+    assert [int(m.param4) for m in apps["A"].presented()] == [3]  # B's request, shown
+    t_shown = net.now
+    while net.now < t_shown + answer_after - 1e-6:
+        apps["X"].request(1, 0, 3)  # X asks every 0.25 s
+        net.run(net.now + 0.25, step=0.05)
+    apps["A"].request(p1, p2, 5, 255 if p4 is None else p4)
+    answer = apps["A"].acks()[-1]
+    net.run(net.now + 3.0)
+    return net, apps, answer
+
+
+@pytest.mark.parametrize("p1,p2", [(0, 0), (1, 1)])  # a release, and "allow takeover"
+@pytest.mark.parametrize("p4", [None, 0])  # QGroundControl (its own sysid) and MAVProxy (0)
+def test_a_consent_not_naming_the_requester_never_goes_to_a_request_shown_for_less_than_the_read_time(
+        fleet3_dir, p1, p2, p4):
+    net, apps, answer = race(fleet3_dir, 3.5, p1, p2, p4)  # B's expired at 3 s; X's shown ~0.5 s
+    assert answer == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)
+    assert net.owner == "A" and net.machine.epoch == 1  # X did not take the drone
+    refused = net.gateways["A"].station.events.of("operator_consent_refused")
+    assert refused and refused[-1]["requester"] == "X" and "shown" in refused[-1]["reason"]
+    assert net.gateways["A"].counters["operator_consent_unread"] == 1
+    assert int(apps["A"].presented()[-1].param4) == 7  # X's request shown again, to be read
+
+
+@pytest.mark.parametrize("p1,p2", [(0, 0), (1, 1)])
+def test_control_a_consent_after_the_read_time_goes_to_the_request_shown(fleet3_dir, p1, p2):
+    net, apps, answer = race(fleet3_dir, CONSENT_READ_S + 0.5, p1, p2)
+    assert answer == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)
+    assert (net.owner, net.machine.epoch) == ("B", 2)
+    granted = [x for x in net.logs["A"] if x.kind == "operator_request_granted"]
+    assert granted[-1].fields["to"] == "B" and granted[-1].fields["decided_by"] == "operator"
+
+
+def test_a_consent_naming_the_requester_binds_to_it_at_once(fleet3_dir):
+    net, apps, answer = race(fleet3_dir, 0.5, 0, 0, p4=3)  # p4 = B's sysid, 0.5 s after it was shown
+    assert answer == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_ACCEPTED)
+    assert net.owner == "B"
+
+
+def test_a_late_allow_takeover_is_no_setting_the_next_asker_takes(fleet3_dir):
+    """Found from outside: "allow takeover" just after B's request expired became the epoch's setting and
+    X's next request took the drone."""
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    apps = with_three_gateways(net)
+    net.run(net.now + 1.0)
+    apps["B"].request(1, 0, 3)
+    net.run(net.now + 3.1)  # shown, then expired unanswered
+    apps["A"].request(1, 1, 5)  # the late "allow takeover", p4 = its own sysid
+    assert apps["A"].acks()[-1] == (MAV_CMD_REQUEST_OPERATOR_CONTROL, mav.MAV_RESULT_DENIED)
+    for _ in range(8):
+        apps["X"].request(1, 0, 3)
+        net.run(net.now + 0.25, step=0.05)
+    assert net.owner == "A" and not net.machine.status().takeover

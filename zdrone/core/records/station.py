@@ -393,7 +393,8 @@ class OperatorControlLetGo(OperatorControlEvent, frozen=True, tag="operator_cont
 
 
 class OperatorTakeoverSetting(OperatorControlEvent, frozen=True, tag="operator_takeover_setting"):
-    """Our operator's "allow takeover" setting for ``epoch`` changed (nothing pending)."""
+    """Our operator refused takeover with nothing pending: the window a consent opened in ``epoch`` is
+    closed (``allowed`` is False; an "allow takeover" with nothing pending is refused, never a setting)."""
 
     allowed: bool
     epoch: int | None = None
@@ -419,13 +420,15 @@ class OperatorRequestStale(OperatorControlEvent, frozen=True, tag="operator_requ
 
 class OperatorRequestGranted(OperatorControlEvent, frozen=True, tag="operator_request_granted"):
     """As owner: authority of ``epoch`` released to ``to`` (``why``: takeover allowed, or the operator's
-    consent; ``app``: the application that consented or opened the window, "" for the station's policy)."""
+    consent; ``app``: the application that consented or opened the window, "" for the station's policy;
+    ``decided_by``: who decided, ``operator`` (that application) or ``station_policy`` (``--allow-takeover``))."""
 
     requester: str
     to: str
     why: str
     epoch: int = 0
     app: str = ""
+    decided_by: str = "operator"
 
 
 class OperatorRequestDeclined(OperatorControlEvent, frozen=True, tag="operator_request_declined"):
