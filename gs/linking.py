@@ -23,7 +23,8 @@ answers it as holding no key of ours, which says nothing of a restart), and the 
 every ``retry`` until one is proven.
 
 Both exchanges are hybrid (ML-KEM-768 next to X25519) while the fleet in force says ``pairing_pq``:
-``ctx.fleet`` is read at each new exchange, so a revision turning it on applies to the next one.
+``ctx.fleet`` is read at each new exchange, so a revision turning it on applies to the next one (and the
+reply to a classical one still open gives no key: ``pair_reply_refused:classical``).
 
 Key-sharing phases, per other authorized GS (``SharePhase``): ``NONE`` (nothing asked: the drone may
 hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link" refusal asks again
@@ -295,6 +296,12 @@ class Linking(Machine):
             c.counters["pair_bad_reply"] += 1  # forged or stale: the genuine reply may still come
             return ([Emit(rec.PairFailed(drone=c.drone, reason=key.reason))] if c.counters["pair_bad_reply"] <= LOGGED
                     else []), None
+        if c.fleet.pairing_pq and not self._exchange_hybrid:
+            # begun before the revision requiring hybrid: the drone dropped its candidate; pair again, hybrid
+            c.counters["pair_reply_refused:classical"] += 1
+            self.pairing = None
+            self._set_state(PairPhase.IDLE, "classical")
+            return [], None
         kept, fresh = self.pairing.peer_kept_key, self._rekey_exchange
         self.pairing = None
         if fresh:

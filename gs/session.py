@@ -153,6 +153,7 @@ class DroneSession(DroneView):
             self.link = self.slot.live
             out.append(Emit(rec.GsLinkConfirmed(drone=self.name, how=promoted.origin, replaced=promoted.replaced)))
             log.info("link to %s: key confirmed by the drone (%s)", self.name, promoted.origin)
+            self._repair_hybrid()  # a classical key (shared before the revision) confirmed after it
         for item in res.items():
             out += self._on_message(item, now)
         return out + self._effects(before, now)
@@ -215,7 +216,13 @@ class DroneSession(DroneView):
         paired again (hybrid, make-before-break): the drone takes key grants only over hybrid links."""
         self.linking.ctx.fleet = fleet
         self.due = 0.0
-        if fleet.pairing_pq and self.link is not None and not self.link.hybrid and not self.linking.rekey_pending:
+        self._repair_hybrid()
+
+    def _repair_hybrid(self) -> None:
+        """With the hybrid pairing required, a live link on a classical key (whenever it became live)
+        is paired again, hybrid, make-before-break (``Linking.rekey``)."""
+        if (self.st.fleet.pairing_pq and self.link is not None and not self.link.hybrid
+                and not self.linking.rekey_pending):
             self.linking.rekey(self.st.identity, linked=True, rotated=False)
             self.st.counters["repair_hybrid"] += 1
 

@@ -142,11 +142,16 @@ class GroundStation:
         self.sub = self.rt.subscribe(keyexprs.down("*", self.name), "down", keyexprs.drone_of, limit=MAX_BUNDLE)
         self.linkkey_q = self.rt.queryable(keyexprs.linkkey_all(self.name))
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True,
-                                                  signing=lambda: self.secret.signing, wall=time.time)
+                                                  signing=lambda: self.secret.signing, wall=time.time,
+                                                  drones=self._vouched)
         # the operations picture for the fleet's viewer (``zdrone view``), if the fleet has one
         self.ops = OpsPublisher.for_station(self.name, self.fleet, self.secret.identity, self.core, self.rt.put)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask, Emit: self._emit,
                                     ToOperator: lambda a: print(a.text, flush=True), Checkpoint: self._countersign}
+
+    def _vouched(self) -> list[str]:
+        """The drones this GS's revision stamps name: those it is authorized for in the fleet in force."""
+        return [d for d in self.fleet.drones() if self.fleet.is_authorized(d, self.name)]
 
     # ------------------------------------------------------------------ plumbing
 

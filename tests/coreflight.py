@@ -209,8 +209,9 @@ class CoreFlight:
             self._next_stamp = self.now + STAMP_PERIOD_S
             for name, st in self.gs.items():
                 if not st.down:
-                    stamp, _ = split_push(make_push(name, self.fleet.revision, self.now, self._signing[name], None))
-                    self.handle(self.drone.on_revision_stamp(stamp, self.now))
+                    stamp, _ = split_push(make_push(name, self.fleet.revision, self.now, self._signing[name], None,
+                                                    (DRONE,)))
+                    self.handle(self.drone.on_revision_stamp(stamp, self.now, carrier=name))
         timer = self.drone.get_timer()
         if timer is not None and self.now >= timer:
             self.handle(self.drone.handle_timer(self.now))

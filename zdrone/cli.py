@@ -366,7 +366,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     fi.add_argument("--revision-lease", type=float, default=DEFAULT_REVISION_LEASE_S, metavar="S",
                     help="the owners' lease: from its first pairing, a drone's owner keeps authority only while the "
-                         "drone hears a signed revision stamp from another GS within S seconds (default %(default)g; 0: none)")
+                         "drone hears a signed revision stamp from another GS authorized for it within S seconds "
+                         "(default %(default)g; 0: none)")
     fi.set_defaults(func=_fleet_init)
     fs = fsub.add_parser("show", help="validate and list a fleet")
     fs.add_argument("--dir", default="fleet", help="fleet directory or fleet.json5 path")

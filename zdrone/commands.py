@@ -209,8 +209,9 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
                         "not sign; then any process that can write into the vehicle link can move the drone's "
                         "authority (README, threat model)")
     p.add_argument("--revision-lease", type=float, default=0.0, metavar="S",
-                   help="once the fleet has a signed revision, authority stands only while a valid revision was heard "
-                        "within S seconds (each GS re-publishes it every 10 s: give S more than that); else it lapses as a lost authority link: an heir "
+                   help="where the fleet sets no lease: from the first pairing, authority stands only while a revision "
+                        "stamp naming the drone from another GS authorized for it was heard within S seconds (each GS "
+                        "stamps every 5 s: give S more than that); else it lapses as a lost authority link: an heir "
                         "covering the drone takes over, else the failsafe (default 0: off; docs/deploy.md)")
     p.add_argument("--sil-coverage", action="store_true", help="TESTBED ONLY: emulate radio coverage from fleet circles")
     p.add_argument("--sil-loss", action="append", metavar="[GS=]P",

@@ -19,7 +19,9 @@ def test_operator_consent_no_consent_moves_nothing_consent_and_takeover_move_con
     assert op["operator_done"]["ok"] is True
     assert op["no_consent"]["answer"] == mav.MAV_RESULT_FAILED and op["no_consent"]["shown_p4"] == 3  # B's sysid
     assert op["consent"]["within_window"] and op["consent"]["to_control_s"] < 10.0
-    assert op["takeover"]["b_first_answer"] == mav.MAV_RESULT_IN_PROGRESS and op["takeover"]["b_to_control_s"] < 1.0
+    # "allow takeover" answers the request the owner's operator read, both ways (no standing setting)
+    assert op["takeover"]["b_first_answer"] == mav.MAV_RESULT_FAILED and op["takeover"]["b_to_control_s"] < 3.0
+    assert op["takeover"]["allow_answers"] == [mav.MAV_RESULT_ACCEPTED] * 2
     moves = [(h["from"], h["to"], h["kind"]) for h in s["handovers"]]
     assert moves[:4] == [("A", "B", "handover"), ("B", "A", "handover"), ("A", "B", "handover"), ("B", "A", "handover")]
     assert s["failsafe"] is None and s["distance_from_home_m"] < 5.0
@@ -43,6 +45,9 @@ def test_consent_bound_goes_to_the_named_requester_in_its_epoch_and_a_decline_ho
     op = s["operator"]
     step = op["consent_to_b_while_x_asks"]
     assert step["wrong_named_answer"] == mav.MAV_RESULT_DENIED and step["consent_answer"] == mav.MAV_RESULT_ACCEPTED
+    # the race: A's operator answers as B's request ends and X's appears: refused, X never gets the drone
+    assert op["consent_race"]["answer"] == mav.MAV_RESULT_DENIED
+    assert op["window_across_epochs"]["late_allow_answer"] == mav.MAV_RESULT_DENIED
     assert op["window_across_epochs"]["later_epoch_answer"] == mav.MAV_RESULT_FAILED
     assert all("X" not in (h["from"], h["to"]) for h in s["handovers"])
     a = read_events(out / "A.jsonl")
@@ -50,6 +55,7 @@ def test_consent_bound_goes_to_the_named_requester_in_its_epoch_and_a_decline_ho
     assert any(e["type"] == "operator_request_busy" and e["requester"] == "X" and e["pending"] == "B" for e in a)
     refused = [e for e in a if e["type"] == "operator_consent_refused"]
     assert refused and refused[0]["named"] == "X" and refused[0]["requester"] == "B"
+    assert any(e["requester"] == "X" and e["named"] is None and "shown" in e["reason"] for e in refused)
     b = read_events(out / "B.jsonl")
     assert any(e["type"] == "operator_request_declined" and e["requester"] == "X" for e in b)
     assert any(e["type"] == "operator_request_held_off" and e["requester"] == "X" for e in b)

@@ -8,6 +8,7 @@ import sys
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
+from gs.opcontrol import CONSENT_READ_S
 from zdrone.core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL
 
 from tests.unit.test_operator_control import SYSID, App, ask, fleet3_dir, make_net, with_gateways  # noqa: F401
@@ -39,6 +40,7 @@ def test_a_qgc_release_naming_itself_goes_to_the_request_it_was_shown(fleet_dir)
     net.run(net.now + 1.0)
     assert a.presented()[-1].param4 == SYSID["B"]  # shown: B's sysid
     a.send(mav.MAVLink_command_ack_message(OPC, mav.MAV_RESULT_ACCEPTED, 0, 0, 1, 1))  # QGC ACKs the notification
+    net.run(net.now + CONSENT_READ_S)  # read
     a.request(0, 0, 0, 255)  # QGC's releaseOperatorControl(): p4 = its own sysid
     assert a.acks()[-1] == (OPC, mav.MAV_RESULT_ACCEPTED)
     assert "operator_consent_refused" not in net.kinds("A")
@@ -62,7 +64,7 @@ def test_a_qgc_allow_takeover_with_p4_zero_or_itself_opens_the_window_for_the_sh
     assert a.acks()[-1] == (OPC, mav.MAV_RESULT_DENIED)
     refused = [x for x in net.logs["A"] if x.kind == "operator_consent_refused"]
     assert refused[-1].fields["named"] == "X" and refused[-1].fields["requester"] == "B"
-    a.request(1, 1, 10, 0)  # p4 = 0: the request this application was shown
+    a.request(1, 1, 10, 0)  # p4 = 0: the request this application was shown (for 2.1 s: read)
     assert a.acks()[-1] == (OPC, mav.MAV_RESULT_ACCEPTED)
     op = net.cores["A"].sessions["d1"].operator
     assert op.window is not None and (op.window.to, op.window.epoch) == ("B", 1)
@@ -87,9 +89,10 @@ def test_a_consent_naming_itself_from_an_app_not_shown_the_request_is_refused(fl
     assert late.acks()[-1] == (OPC, mav.MAV_RESULT_DENIED)
     late.request(1, 1, 10, 255)
     assert late.acks()[-1] == (OPC, mav.MAV_RESULT_DENIED)
-    assert net.kinds("A").count("operator_consent_refused") == 2
+    assert len(net.gateways["A"].station.events.of("operator_consent_refused")) == 2  # not shown to it long enough
     net.run(net.now + 1.0)
     assert net.owner == "A" and net.cores["A"].sessions["d1"].operator.window is None
+    assert late.presented() and late.presented()[-1].param4 == SYSID["B"]  # shown to it now, to be read
     a.request(0, 0, 0, 255)  # the application that was shown it
     assert a.acks()[-1] == (OPC, mav.MAV_RESULT_ACCEPTED)
     net.run(net.now + 1.5)
@@ -229,6 +232,7 @@ def test_the_operator_control_flow_with_clients_generated_from_todays_xml(fleet_
     # 4. it ACKs the notification
     a.send(today.MAVLink_command_ack_message(OPC, mav.MAV_RESULT_ACCEPTED, 0, 0, 1, 1))
     steps.append(net.gateways["A"].counters["operator_request_acked"] == 1)
+    net.run(net.now + CONSENT_READ_S)  # the operator reads the request
     # 5. A's operator allows the takeover: asks again with p2 = 1 (p4: itself, or 0)
     a.ask(1, 1, 10)
     steps.append(a.acks()[-1] == mav.MAV_RESULT_ACCEPTED)
@@ -245,3 +249,45 @@ def test_the_operator_control_flow_with_clients_generated_from_todays_xml(fleet_
     steps.append(b.acks()[-1] == mav.MAV_RESULT_DENIED or net.owner == "B")
     assert steps == [True] * 9, (steps, [(m.flags, m.gcs_main) for m in b.heard() if m.get_type() == "CONTROL_STATUS"],
                                  net.owner, b.acks(), a.acks())
+
+
+@pytest.mark.parametrize("p4", ["own", "zero", "requester"])
+def test_the_consent_race_with_clients_generated_from_todays_xml(fleet3_dir, today, p4):
+    """A third GS asking while the owner's operator answers (found from outside): B asks for 3 s, X asks
+    every 0.25 s (10 s); A's operator answers 3.5 s after B's request appeared (B's expired, X's shown ~0.5 s),
+    p4 = its own sysid (QGroundControl), 0 (MAVProxy) or B's sysid; then, as control, again once X's
+    request has been read. An unnamed consent never goes to the request shown for less than the read
+    time; one naming B, whose request is gone, is refused; X takes control only by the consent given
+    after the operator read X's request."""
+    from tests.unit.test_operator_control import CoreStation, GcsGateway, MemTransport
+
+    net = make_net(fleet3_dir, gss=("A", "B", "X"))
+    for g in ("A", "B", "X"):
+        gw = GcsGateway(CoreStation(net, g), [])
+        gw.transports = [MemTransport()]
+        net.gateways[g] = gw
+    a_p4 = {"own": 255, "zero": 0, "requester": SYSID["B"]}[p4]
+    a = TodayClient(net, "A", today, a_p4, 14601)
+    b, x = TodayClient(net, "B", today, 255, 14602), TodayClient(net, "X", today, 255, 14603)
+    for c in (a, b, x):
+        c.hello()
+    net.run(net.now + 1.0)
+    b.ask(1, 0, 3)
+    net.run(net.now + 0.1)
+    assert [m.param4 for m in a.shown()] == [SYSID["B"]]
+    t0 = net.now
+    while net.now < t0 + 3.5 - 1e-6:
+        x.ask(1, 0, 10)
+        net.run(net.now + 0.25, step=0.05)
+    assert a.shown()[-1].param4 == SYSID["X"]  # B's expired; X's is shown now, for about 0.5 s
+    a.ask(0, 0, 5)  # the release
+    assert a.acks()[-1] == mav.MAV_RESULT_DENIED
+    net.run(net.now + 1.0)
+    assert net.owner == "A" and net.machine.epoch == 1
+    if p4 == "requester":
+        return  # p4 names B: it binds to B's request alone, and B's is gone
+    net.run(net.now + CONSENT_READ_S)  # control: X's request, read now (shown again after the refusal)
+    a.ask(0, 0, 5)
+    assert a.acks()[-1] == mav.MAV_RESULT_ACCEPTED
+    net.run(net.now + 1.5)
+    assert net.owner == "X"

@@ -178,3 +178,40 @@ def test_only_a_ground_station_publishes_a_revision(fleet_dir):
     data = _revision(fleet_dir, "B")
     with pytest.raises(ConfigError, match="as a ground station"):
         publish(fleet_dir, "d1", "tcp/127.0.0.1:9", data)
+
+
+def _push(fleet_dir: Path, gs: str, drones: tuple[str, ...] = ("d1",)) -> bytes:
+    from zdrone.core.revision import make_push
+    from zdrone.fleet.files import load_secret
+
+    return make_push(gs, 0, 1_800_000_000.0, load_secret(fleet_dir, gs).signing, None, drones)
+
+
+def test_a_stamp_is_handed_on_only_from_a_publication_never_from_a_querys_reply(fleet_dir, tmp_path):
+    """A query's replies all come labelled ``fleet`` (``NodeRuntime.ask``), whoever answered: a stamp in
+    one would be judged as published on the key of a GS named ``fleet``. So a reply hands on none."""
+    from zdrone.core.revision import split_push
+
+    export_bundle(fleet_dir, "d1", tmp_path / "d1")
+    ch = RevisionChannel(_Runtime("d1"), tmp_path / "d1", publisher=False)
+    push = _push(fleet_dir, "B")
+    ch.on_inbox(revisions.REPLY, (push, None))
+    assert ch.take_stamp() is None
+    ch.on_inbox(revisions.PUBLISHED, push)
+    assert ch.take_stamp() == split_push(push)[0] and ch.take_stamp() is None  # once
+
+
+@pytest.mark.parametrize("drones", [["d1"], None])
+def test_a_gss_stamp_names_the_drones_it_vouches_for(fleet_dir, tmp_path, drones):
+    from zdrone.core.revision import check_stamp, split_push
+    from zdrone.fleet.files import load_fleet, load_secret
+
+    export_bundle(fleet_dir, "A", tmp_path / "A")
+    rt = _Runtime("A")
+    key = load_secret(fleet_dir, "A").signing
+    ch = RevisionChannel(rt, tmp_path / "A", publisher=True, signing=lambda: key, wall=lambda: 1_800_000_000.0,
+                         drones=(lambda: drones) if drones is not None else None)
+    _run(ch, rt, 0.0, 0.1)
+    (_, keyexpr, data), = rt.puts
+    got = check_stamp(split_push(data)[0], load_fleet(fleet_dir))
+    assert keyexpr == keyexprs.revision("A") and got is not None and got.drones == tuple(drones or ())

@@ -135,7 +135,7 @@ def test_a_replayed_old_stamp_of_another_gs_buys_nothing_past_its_own_time(fleet
     net.cut.add("B")
     for _ in range(int(lease) + 5):  # replayed every second by whoever holds it
         net.run(1.0)
-        net.drone_outs(net.drone.on_revision_stamp(old, net.now))
+        net.drone_outs(net.drone.on_revision_stamp(old, net.now, carrier="B"))
     assert net.drone.counters["revision_lease_lapsed"] == 1 and net.drone.machine.state is State.FAILSAFE
 
 
@@ -145,15 +145,17 @@ def test_stamps_that_are_forged_revoked_from_the_future_or_of_an_older_revision_
     d = net.drone
     b = net.stamp("B")
     forged = b[:-1] + bytes([b[-1] ^ 1])
-    assert d.on_revision_stamp(forged, net.now) == [] and d.counters["stamp_refused:signature"] == 1
-    assert d.on_revision_stamp(net.stamp("B", wall=net.now + 60), net.now) == []
+    assert d.on_revision_stamp(forged, net.now, carrier="B") == [] and d.counters["stamp_refused:signature"] == 1
+    assert d.on_revision_stamp(net.stamp("B", wall=net.now + 60), net.now, carrier="B") == []
     assert d.counters["stamp_refused:ahead"] == 1
     apply(net, revoked(fleet_dir, "X"))
     old_revision = b  # B's stamp names revision 0, the fleet is at 1 now
     net.run(1.0)
-    assert d.on_revision_stamp(old_revision, net.now) == [] and d.counters["stamp_refused:stale_revision"] == 1
+    assert d.on_revision_stamp(old_revision, net.now, carrier="B") == []
+    assert d.counters["stamp_refused:stale_revision"] == 1
     apply(net, revoked(fleet_dir, "X", "B", number=2))
-    assert d.on_revision_stamp(net.stamp("B"), net.now) == [] and d.counters["stamp_refused:signature"] == 2
+    assert d.on_revision_stamp(net.stamp("B"), net.now, carrier="B") == []
+    assert d.counters["stamp_refused:signature"] == 2
 
 
 def test_the_lease_length_is_part_of_the_signed_revision(fleet_dir):
@@ -247,7 +249,7 @@ def test_a_stamp_of_a_newer_revision_or_relayed_on_another_gs_key_renews_nothing
     key = load_secret(fleet_dir, "B", d.fleet).signing
 
     def stamp(number: int) -> bytes:
-        got, _ = split_push(make_push("B", number, net.now, key, None))
+        got, _ = split_push(make_push("B", number, net.now, key, None, ("d1",)))
         assert got is not None
         return got
 
@@ -278,3 +280,28 @@ def test_a_new_owner_after_a_lapse_holds_a_lease_of_its_own(fleet_dir):
     assert moved_at is not None, "B's lease never lapsed"
     assert net.drone.lapsed == {"A", "B"} and net.drone.counters["revision_lease_lapsed"] == 2
     assert net.drone.machine.state is State.FAILSAFE
+
+
+def test_a_gs_authorized_for_no_drone_renews_nothing(fleet_dir):
+    """Found by an outside attack: lease 15 s, B behind a partition; X, a GS of the fleet authorized for
+    no drone, put a stamp every 5 s naming the drone's revision: A kept the drone 45.7 s with no lapse.
+    Now A lapses at its lease, whatever X says, and X's stamps do not end the lapse."""
+    from zdrone.core.revision import with_lease
+
+    base = load_base_fleet(fleet_dir)
+    net = linked(fleet_dir)  # A owns
+    apply(net, apply_revision(base, make_revision(base, 1, with_lease(Changes(), 15.0),
+                                                  load_fleet_signing_key(fleet_dir, base))))
+    net.stamps = False
+    net.cut.add("B")  # the partition: B's stamps are gone
+    due, lapsed_at = net.drone.lease_due(), None
+    assert due is not None
+    for i in range(500):  # 50 s; X stamps every 5 s
+        if i % 50 == 0:
+            net.drone_outs(net.drone.on_revision_stamp(net.stamp("X"), net.now, carrier="X"))
+        net.step(0.1)
+        if lapsed_at is None and net.drone.counters["revision_lease_lapsed"]:
+            lapsed_at = net.now
+    assert lapsed_at is not None and due <= lapsed_at <= due + 0.1 + 1e-6, (due, lapsed_at)
+    assert net.drone.counters["stamp_renewed"] == 0 or net.drone.revision_synced <= due - 15.0
+    assert net.drone.lapsed == {"A"} and net.drone.machine.state is State.FAILSAFE

@@ -155,19 +155,21 @@ class FleetNet:
             self.next_stamp = self.now + STAMP_PERIOD_S
             for name in self.gss:
                 if name not in self.hung and name not in self.cut:
-                    self.drone_outs(self.drone.on_revision_stamp(self.stamp(name), self.now))
+                    self.drone_outs(self.drone.on_revision_stamp(self.stamp(name), self.now, carrier=name))
         timer = self.drone.get_timer()
         if timer is not None and self.now >= timer:
             self.drone_outs(self.drone.handle_timer(self.now))
         self.drone_outs(self.drone.flush())  # the pass's batches (``batch``; nothing otherwise)
 
-    def stamp(self, gs: str, wall: float | None = None) -> bytes:
-        """GS ``gs``'s signed revision stamp at time of day ``wall`` (default: now), under its key in force."""
+    def stamp(self, gs: str, wall: float | None = None, drones: tuple[str, ...] = ("d1",)) -> bytes:
+        """GS ``gs``'s signed revision stamp at time of day ``wall`` (default: now) naming ``drones``,
+        under its key in force."""
         try:
             key = load_secret(self.fleet_dir, gs, self.drone.fleet).signing
         except ConfigError:  # a rotated GS that has not adopted its new key signs with its old one
             key = load_secret(self.fleet_dir, gs).signing
-        stamp, _ = split_push(make_push(gs, self.drone.fleet.revision, self.now if wall is None else wall, key, None))
+        stamp, _ = split_push(make_push(gs, self.drone.fleet.revision, self.now if wall is None else wall, key, None,
+                                        drones))
         assert stamp is not None
         return stamp
 

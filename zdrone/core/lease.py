@@ -4,11 +4,15 @@ Theory of operation
 -------------------
 From its first pairing, a drone's owner keeps authority only while the drone hears, within the
 fleet's lease (``Fleet.revision_lease``), a signed revision stamp (``zdrone.core.revision``) from a GS
-*other than the owner*. ``OwnerLease.stamp`` judges one stamp: signed by a GS of the fleet under its
-key in force, heard on that GS's own revision key (not relayed on another's), naming the revision in
-force (a newer one renews nothing until the drone holds it), from a GS that is neither the owner nor
-one whose lease lapsed, not dated ahead of the drone's clock. A renewal runs from the stamp's own time
-(a replayed old stamp buys nothing past it). Each owner's lease runs from when it took authority
+*authorized for the drone, other than the owner*. ``OwnerLease.stamp`` judges one stamp: signed by a
+GS of the fleet under its key in force (no other name signs one), heard on that GS's own revision key
+(not relayed on another's; a query's reply carries none: the adapter drops it), naming the revision
+in force (a newer one renews nothing until the drone holds it), naming the drone, from a GS
+authorized for the drone in the revision in force that is neither the owner nor one whose lease
+lapsed, not dated ahead of the drone's clock. A renewal runs from the stamp's own time, signed by its
+issuer (a replayed old stamp buys nothing past it). So the lease lapses at the silence of every
+*other GS authorized for the drone*: the owner's stamps, those of a GS authorized for other drones
+only, of a revoked or a lapsed GS never renew it. Each owner's lease runs from when it took authority
 (``owner_is``) or from the newest renewing stamp, whichever is later (``due``); at ``due`` the owner
 ``lapse``s: the drone's core takes it off the authorized list (a covered heir, else the failsafe),
 and its stamps renew nothing until another GS's do (``Renewed.restores``).
@@ -26,7 +30,7 @@ from zdrone.core.revision import STAMP_AHEAD_S, check_stamp
 
 @dataclass(frozen=True, slots=True)
 class StampRefused:
-    reason: str  # signature, relayed, newer_revision, stale_revision, owner, ahead
+    reason: str  # signature, relayed, newer_revision, stale_revision, unnamed, unauthorized, owner, ahead
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,16 +75,21 @@ class OwnerLease:
         self.lapsed.add(self.owner)
         return self.owner
 
-    def stamp(self, data: bytes, fleet: Fleet, carrier: str | None, now: float, wall_offset: float,
+    def stamp(self, data: bytes, fleet: Fleet, drone: str, carrier: str, now: float, wall_offset: float,
               lease_s: float) -> StampResult:
-        """Judge one stamp heard on ``carrier``'s revision key (None: the carrier is not known)."""
+        """Judge one stamp heard by ``drone`` (``fleet``: the revision in force there) on ``carrier``'s
+        revision key (the GS of the key it was published on: always known)."""
         stamp = check_stamp(data, fleet)
         if stamp is None:
             return StampRefused("signature")
-        if carrier is not None and stamp.gs != carrier:
+        if stamp.gs != carrier:
             return StampRefused("relayed")
         if stamp.number != fleet.revision:
             return StampRefused("newer_revision" if stamp.number > fleet.revision else "stale_revision")
+        if not stamp.names(drone):
+            return StampRefused("unnamed")
+        if not fleet.is_authorized(drone, stamp.gs):
+            return StampRefused("unauthorized")
         if stamp.gs == self.owner or stamp.gs in self.lapsed:
             return StampRefused("owner")
         if stamp.wall > now + wall_offset + STAMP_AHEAD_S:

@@ -26,6 +26,9 @@ asker of the key-sharing query), so if the peer speaks under the old key again, 
 back at once (``Promoted("revert")``) — a secret escrowed while the link was LOST cannot cut a
 GS off for good.
 
+With ``require_hybrid`` (the fleet's ``pairing_pq``) the slot holds no classical key but its live one
+(make-before-break until a hybrid key replaces it): no classical key not yet proven ever becomes live.
+
 Failures are counted once, on the live link (or, when the slot has none yet, in ``unlinked``):
 trying a candidate never inflates the drop counters. Work per envelope is bounded by
 ``MAX_CANDIDATES`` + 2 AEAD attempts.
@@ -87,6 +90,8 @@ class LinkSlot:
     expired: int = 0
     live_protected: int = 0  # authentic frames under a third party's candidate refused: the live link is alive
     fallback: SecureLink | None = None  # a LOST live key a third party's key replaced: the peer may still use it
+    hybrid_only: bool = False  # the fleet requires hybrid keys: no classical key becomes live (``require_hybrid``)
+    classical_refused: int = 0  # classical keys offered while ``hybrid_only``: refused
 
     def may_replace_live(self, origin: str, now: float) -> bool:
         """Whether a candidate of ``origin`` may replace the live key now (``replaces_live``)."""
@@ -102,9 +107,27 @@ class LinkSlot:
         self.candidates.clear()
         self.fallback = None  # a key this end installed or the peer proved: nothing to go back to
 
-    def offer(self, link: SecureLink, now: float, origin: str, ttl: float = CANDIDATE_TTL) -> None:
+    def require_hybrid(self, on: bool) -> list[str]:
+        """The fleet requires hybrid keys (``on``) or no longer does. On: every classical key that is
+        not live is dropped at once, and what was dropped is said (``"candidate"`` once per key,
+        ``"fallback"``); the live key stays until a hybrid one replaces it."""
+        self.hybrid_only = on
+        if not on:
+            return []
+        dropped = ["candidate" for c in self.candidates if not c.link.hybrid]
+        self.candidates = [c for c in self.candidates if c.link.hybrid]
+        if self.fallback is not None and not self.fallback.hybrid:
+            self.fallback = None
+            dropped.append("fallback")
+        return dropped
+
+    def offer(self, link: SecureLink, now: float, origin: str, ttl: float = CANDIDATE_TTL) -> bool:
         """Add a candidate key. It replaces an earlier candidate of the same origin (each origin
-        only ever means its newest key); the oldest is forgotten beyond ``MAX_CANDIDATES``."""
+        only ever means its newest key); the oldest is forgotten beyond ``MAX_CANDIDATES``. A
+        classical key is refused (False) while the slot requires hybrid keys."""
+        if self.hybrid_only and not link.hybrid:
+            self.classical_refused += 1
+            return False
         self.expire(now)
         replaced = [c for c in self.candidates if c.origin == origin]
         if replaced:
@@ -114,17 +137,23 @@ class LinkSlot:
         if len(self.candidates) > MAX_CANDIDATES:
             self.candidates.pop(0)
             self.expired += 1
+        return True
 
     def expire(self, now: float) -> None:
         before = len(self.candidates)
         self.candidates = [c for c in self.candidates if c.expires > now]
         self.expired += before - len(self.candidates)
+        self.end_grace(now)
+
+    def end_grace(self, now: float) -> None:
+        """The key replaced last is wiped once its grace is over."""
         if self.previous is not None and now >= self.previous_until:
             self.previous = None
 
     def open(self, data: bytes, now: float) -> tuple[Opened | Dropped, Promoted | None]:
         """Open one envelope from the peer; say whether it proved (and promoted) a candidate."""
         first: Dropped | None = None
+        self.end_grace(now)  # even while the live key opens everything
         if self.live is not None:
             res = self.live.open(data, now, count=False)
             if isinstance(res, Opened):

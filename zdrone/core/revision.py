@@ -20,11 +20,12 @@ The changes (``Changes``):
 * ``pairing_pq``: pairing must use the hybrid post-quantum handshake from now on;
 * ``revision_lease``: the owner's lease (s) from now on (None: the base fleet's).
 
-A *revision stamp* (``RevisionStamp``) is a GS's signed word "I hold revision N at time T": every
-GS pushes one with its revision (``zdrone.fleet.revisions``). It renews a drone's owner lease only
-when it comes from a GS other than the owner, under that GS's key in force, and renews it to the
-stamp's own time, never later: a stamp replayed by the owner buys nothing past its time
-(``zdrone.nodes.drone_core.DroneCore.on_revision_stamp``).
+A *revision stamp* (``RevisionStamp``) is a GS's signed word "I hold revision N at time T and vouch
+for drones D" (D: the drones it is authorized for in that revision): every GS pushes one with its
+revision (``zdrone.fleet.revisions``). It renews drone d's owner lease only if it names d and comes,
+under its key in force, from a GS authorized for d in the revision in force other than the owner
+(``zdrone.core.lease``), and renews it to the stamp's own time, never later: a replayed stamp buys
+nothing past its time.
 
 Checking (``check_revision``), in order, each refusal a ``RevisionRefused(reason)`` counted by the
 adapter: the bytes decode (``malformed``) -> the revision names the pinned fleet key
@@ -48,7 +49,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Iterable
 
 import msgspec
 
@@ -246,7 +247,7 @@ def with_lease(c: Changes, seconds: float) -> Changes:
 
 
 # ------------------------------------------------------------------ revision stamps
-STAMP_DOMAIN = b"zdrone revision stamp v1\n"
+STAMP_DOMAIN = b"zdrone revision stamp v2\n"  # v2: the stamp names its drones
 #: a push that carries a stamp starts with these bytes (a bare revision is JSON: it starts with "{")
 STAMP_MAGIC = b"ZDRS1"
 #: a stamp dated further ahead of the receiver's clock than this is refused (clocks disagree)
@@ -254,12 +255,17 @@ STAMP_AHEAD_S = 5.0
 
 
 class RevisionStamp(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
-    """GS ``gs`` says it holds revision ``number`` at time of day ``wall`` (s), signed with its key."""
+    """GS ``gs`` says it holds revision ``number`` at time of day ``wall`` (s) and vouches for ``drones``
+    (sorted: the drones it is authorized for in that revision), signed with its key."""
 
     gs: str
     number: int
     wall: float
+    drones: tuple[str, ...]
     signature: bytes = b""
+
+    def names(self, drone: str) -> bool:
+        return drone in self.drones
 
     def signed_bytes(self) -> bytes:
         return STAMP_DOMAIN + msgspec.msgpack.encode(msgspec.structs.replace(self, signature=b""))
@@ -268,10 +274,13 @@ class RevisionStamp(msgspec.Struct, frozen=True, array_like=True, forbid_unknown
 _STAMP_DECODER = msgspec.msgpack.Decoder(RevisionStamp)
 
 
-def make_push(gs: str, number: int, wall: float, key: SigningKey, revision: bytes | None) -> bytes:
-    """A GS's push: its signed stamp, then the revision bytes it holds (if any)."""
-    stamp = RevisionStamp(gs, number, round(wall, 3))
+def make_push(gs: str, number: int, wall: float, key: SigningKey, revision: bytes | None,
+              drones: Iterable[str] = ()) -> bytes:
+    """A GS's push: its signed stamp naming ``drones``, then the revision bytes it holds (if any)."""
+    stamp = RevisionStamp(gs, number, round(wall, 3), tuple(sorted(set(drones))))
     body = msgspec.msgpack.encode(msgspec.structs.replace(stamp, signature=key.sign(stamp.signed_bytes())))
+    if len(body) > 0xFFFF:  # its length travels in two bytes
+        raise ValueError(f"a stamp naming {len(stamp.drones)} drones is {len(body)} bytes: over 65535")
     return STAMP_MAGIC + len(body).to_bytes(2, "big") + body + (revision or b"")
 
 

@@ -243,7 +243,8 @@ def add_parsers(fsub, publish_command: Callable[[Any], int]) -> None:
                     help="the GS's new coverage circle (repeatable)")
     rs.add_argument("--pairing-pq", choices=["on", "off"], help="hybrid post-quantum pairing required (on) or not")
     rs.add_argument("--lease", type=float, metavar="S",
-                    help="the owners' lease from now on (s; 0: none): renewed only by another GS's signed stamp")
+                    help="the owners' lease from now on (s; 0: none): renewed only by the signed stamp of another "
+                         "GS authorized for the drone")
     rs.add_argument("--note", default="")
     rs.set_defaults(func=_cli_revise)
     pb = fsub.add_parser("publish", help="put the latest revision on a GS's revision key through a router")

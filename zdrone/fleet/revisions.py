@@ -35,11 +35,14 @@ counted by reason and never raised; an acceptance is written durably (``revision
 state directory if the node runs under ``zdrone service``, else in its bundle folder) before the
 node applies the new effective fleet.
 
-A GS's push starts with its signed **revision stamp** ("GS g holds revision N at time T",
-``zdrone.core.revision.make_push``), pushed every ``STAMP_PERIOD_S`` (alone, or with the revision
-every ``PUSH_PERIOD_S``). A revision's bytes renew nothing (anyone may replay them); a drone's owner lease is renewed
-only by a stamp from a GS other than the owner (``DroneCore.on_revision_stamp``). The channel hands
-the last stamp it heard to its node (``take_stamp``); the node's core checks it.
+A GS's push starts with its signed **revision stamp** ("GS g holds revision N at time T and vouches
+for drones D", ``zdrone.core.revision.make_push``; D: ``drones()``, those it is authorized for in the
+revision it holds), pushed every ``STAMP_PERIOD_S`` (alone, or with the revision every
+``PUSH_PERIOD_S``). A revision's bytes renew nothing (anyone may replay them); a drone's owner lease
+is renewed only by a stamp naming the drone from a GS authorized for it other than the owner
+(``zdrone.core.lease``). The channel hands its node the last stamp *published* on a GS's own key
+(``take_stamp``); a query's reply comes labelled ``fleet``, not by its sender, so a stamp in one is
+dropped. The node's core checks it.
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ import logging
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from zdrone.core import records as rec
 from zdrone.core.fleet import Fleet
@@ -147,11 +150,12 @@ class RevisionChannel:
 
     def __init__(self, rt: Any, fleet_dir: str | Path, publisher: bool, write_applied: bool = False,
                  in_reach: Callable[[], bool] | None = None, signing: Callable[[], SigningKey | None] | None = None,
-                 wall: Callable[[], float] | None = None) -> None:
+                 wall: Callable[[], float] | None = None, drones: Callable[[], Sequence[str]] | None = None) -> None:
         """``signing``: the GS's signing key in force (its pushes carry a stamp signed with it);
-        ``wall``: the time of day (the stamp's)."""
+        ``wall``: the time of day (the stamp's); ``drones``: the drones its stamp names (those it is
+        authorized for in the revision it holds; None: none)."""
         self.rt = rt
-        self.signing, self.wall = signing, wall
+        self.signing, self.wall, self.drones = signing, wall, drones
         self.stamp: bytes | None = None  # the stamp of the last push heard (``take_stamp``)
         self.keeper = RevisionKeeper(fleet_dir, rt.name)
         self.write_applied = write_applied  # the drone's core writes its own record
@@ -174,7 +178,8 @@ class RevisionChannel:
                 return RevisionRefused(RevisionRefusal.MALFORMED)
             data = ok
         if data is not None:
-            self.stamp, data = split_push(data)
+            stamp, data = split_push(data)
+            self.stamp = stamp if kind == PUBLISHED else None  # a reply is labelled "fleet": its stamp is no one's
             if data is None:  # a stamp alone (a GS that holds no revision)
                 return RevisionRefused(RevisionRefusal.REPLAYED, self.keeper.number)
         got = self.keeper.offer(data)
@@ -218,7 +223,8 @@ class RevisionChannel:
                 self.keeper.counters["pushed"] += 1
             if stamping:
                 assert key is not None and self.wall is not None
-                data = make_push(self.rt.name, self.keeper.number, self.wall(), key, data)
+                named = self.drones() if self.drones is not None else ()
+                data = make_push(self.rt.name, self.keeper.number, self.wall(), key, data, named)
                 self.keeper.counters["stamped"] += 1
             if data is not None:
                 self.rt.put(self.own, data)

@@ -95,8 +95,9 @@ class DroneCoreOptions:
     first_claim: float = ha.FIRST_CLAIM_S  # after a restart on the ground: the last owner pairs back first this long
     #: the owner's lease (s) where the fleet sets none (``Fleet.revision_lease`` wins; 0: off): from the
     #: first pairing, authority stands only while the drone has heard, within this long, a signed
-    #: revision stamp from a GS other than the owner; else the owner's authority lapses as if its link
-    #: were LOST (a covered authorized heir, else the failsafe), on the ground and in the air
+    #: revision stamp naming the drone from a GS authorized for it other than the owner; else the owner's
+    #: authority lapses as if its link were LOST (a covered authorized heir, else the failsafe), on the
+    #: ground and in the air
     revision_lease: float = 0.0
     #: seal what the drone says to one GS between two ``flush`` calls (the adapter's pass) as one
     #: envelope (``SecureLink.seal_batch``): one header and tag per radio packet instead of per frame;
@@ -212,7 +213,9 @@ class DroneCore(DroneRevisions):
             # a candidate until the GS proves it (the newest pairing replaces an older one)
             link = self._new_link(gs, ans.key, now)
             link.hybrid = payload is not None and is_hybrid(payload)
-            self.slots.setdefault(gs, LinkSlot()).offer(link, now, "pair", self.opts.pairing_ttl)
+            if not self._slot(gs).offer(link, now, "pair", self.opts.pairing_ttl):  # (the responder refused it first)
+                ans = PairRefused(PairRefusal.DOWNGRADE, "the fleet requires the hybrid (ML-KEM-768) pairing")
+        if isinstance(ans, PairAccepted):
             self.probation[gs] = now + self.opts.pairing_ttl
             self.counters["pair_answered"] += 1
             out.append(Emit(rec.PairAnswered(gs=gs)))
@@ -342,6 +345,8 @@ class DroneCore(DroneRevisions):
             plaintext = wire.encode_control(st)
             for gs, link in sorted(self.links.items()):
                 out += self._send(gs, link, plaintext)
+        for slot in self.slots.values():  # a replaced key is wiped at its grace's end, heard or not
+            slot.end_grace(now)
         return out + self._effects(now, timer=True)
 
     # -------------------------------------------------------------- reports
@@ -374,6 +379,13 @@ class DroneCore(DroneRevisions):
         return (now - link.tbm.last_seen - self.opts.thresholds.lost) * 1000.0
 
     # ------------------------------------------------------------- internals
+    def _slot(self, gs: str) -> LinkSlot:
+        """``gs``'s slot, made if new: hybrid keys only while the fleet requires the hybrid pairing."""
+        slot = self.slots.get(gs)
+        if slot is None:
+            slot = self.slots[gs] = LinkSlot(hybrid_only=self.fleet.pairing_pq)
+        return slot
+
     def _new_link(self, gs: str, key: LinkKey, now: float) -> SecureLink:
         return SecureLink(
             key=key, role="drone", tx_keyexpr=keyexprs.down(self.name, gs), rx_keyexpr=keyexprs.up(self.name, gs),
@@ -516,14 +528,16 @@ class DroneCore(DroneRevisions):
         """A key granted by the authority: live at once if the link has none, else a candidate that
         GS ``gs`` must prove (and only once its live link is LOST: ``linkslot``). The drone then
         speaks under a new live key once, so the GS can confirm it too."""
-        slot = self.slots.setdefault(gs, LinkSlot())
+        slot = self._slot(gs)
         link = self._new_link(gs, key, now)
         link.hybrid = hybrid
         if slot.live is None:
             slot.install(link, now)
             self.links[gs] = link
             return [Emit(rec.LinkInstalled(gs=gs, how="grant")), *self._control(gs, self.machine.status(), now)]
-        slot.offer(link, now, "grant")
+        if not slot.offer(link, now, "grant"):
+            self.counters["classical_refused:grant"] += 1  # not reached: ``_on_grant`` refuses it first
+            return []
         return [Emit(rec.LinkCandidate(gs=gs, how="grant"))]
 
     def _on_promoted(self, gs: str, promoted: Promoted, now: float) -> list[Out]:

@@ -1,7 +1,8 @@
 """How the drone's core follows the fleet's revisions: a signed revision applied (a revoked GS's link and
 keys dropped at once, a rotated GS re-pairing under its new key make-before-break), the owner's lease
-(renewed only by a revision stamp from a GS other than the owner; when it lapses, the owner's authority
-goes as if its link were LOST), and the drone's own keys rotated. Pure, as ``zdrone.nodes.drone_core``.
+(renewed only by a revision stamp naming the drone from a GS authorized for it other than the owner;
+when it lapses, the owner's authority goes as if its link were LOST), and the drone's own keys
+rotated. Pure, as ``zdrone.nodes.drone_core``.
 """
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ class DroneRevisions:
         loses its link at once: its keys and candidates erased, its uplink no longer heard, its
         requests refused; if it held authority, an heir takes over, else the failsafe
         (``AuthorityMachine._on_revised``). A rotated GS pairs from now on under its new key only;
-        its live link goes on until its new pairing's key is proven (no gap)."""
+        its live link goes on until its new pairing's key is proven (no gap). ``pairing_pq``: every classical
+        key not yet proven is dropped at once (``LinkSlot.require_hybrid``); a live one waits for its hybrid re-pairing."""
         old, self.fleet = self.fleet, fleet
         node = fleet.nodes[self.name]
         authorized = frozenset() if fleet.is_revoked(self.name) else frozenset(
@@ -72,6 +74,19 @@ class DroneRevisions:
         r.ground_stations = {g: fleet.nodes[g].public_bytes for g in fleet.ground_stations()}
         r.authorized = authorized
         r.require_hybrid = fleet.pairing_pq
+        classical: list[Out] = []
+        for gs, slot in sorted(self.slots.items()):
+            dropped = slot.require_hybrid(fleet.pairing_pq)
+            for what in dropped:
+                self.counters[f"classical_dropped:{what}"] += 1
+            if not dropped:
+                continue
+            if not any(c.origin == "pair" for c in slot.candidates):
+                self.probation.pop(gs, None)  # no pairing key of its left to prove
+            classical.append(Emit(rec.Drop(gs=gs, reason="classical_key", detail=(
+                f"{', '.join(dropped)} dropped: revision {fleet.revision} requires the hybrid pairing"))))
+            log.warning("revision %d requires the hybrid pairing: %s's classical %s dropped", fleet.revision, gs,
+                        ", ".join(dropped))
         self.uplink = node.uplink
         self.gs_sysids = {n: fleet.nodes[n].sysid for n in fleet.ground_stations()}
         self.coverage = {n: fleet.nodes[n].coverage.circle() for n in fleet.ground_stations()  # type: ignore[union-attr]
@@ -80,7 +95,7 @@ class DroneRevisions:
         self.rekey = (self.rekey | {g for g in rotated if g in self.links}) & authorized
         authorized -= self.lapsed  # a revision is no renewal (whoever relayed it): a lapsed owner stays out
         out: list[Out] = [Emit(rec.RevisionApplied(number=fleet.revision, revoked=tuple(sorted(fleet.revoked)), rotated=tuple(rotated),
-                                                   pairing_pq=fleet.pairing_pq))]
+                                                   pairing_pq=fleet.pairing_pq)), *classical]
         out += self._handle(ha.Revised(now, authorized, fleet.revision), now)
         return out + self._effects(now)
 
@@ -99,11 +114,11 @@ class DroneRevisions:
         """The GSs whose lease lapsed: their stamps renew nothing, they regain nothing."""
         return self.lease.lapsed
 
-    def on_revision_stamp(self, data: bytes, now: float, carrier: str | None = None) -> list[Out]:
-        """A GS's revision stamp heard on ``carrier``'s revision key, judged by the owner's lease
-        (``zdrone.core.lease``). A renewal that ends a lapse makes the authorized list whole again:
-        the GSs take control back by the usual rules."""
-        got = self.lease.stamp(data, self.fleet, carrier, now, self.wall_offset, self.lease_s)
+    def on_revision_stamp(self, data: bytes, now: float, carrier: str) -> list[Out]:
+        """A GS's revision stamp published on ``carrier``'s revision key (never a query's reply), judged
+        by the owner's lease (``zdrone.core.lease``). A renewal that ends a lapse makes the authorized
+        list whole again: the GSs take control back by the usual rules."""
+        got = self.lease.stamp(data, self.fleet, self.name, carrier, now, self.wall_offset, self.lease_s)
         if isinstance(got, StampRefused):
             self.counters[f"stamp_refused:{got.reason}"] += 1
             return []
@@ -128,11 +143,12 @@ class DroneRevisions:
         if owner is None:
             return []
         self.counters["revision_lease_lapsed"] += 1
-        log.warning("no revision stamp from a GS other than %s for %.0f s: its authority lapses", owner, self.lease_s)
+        log.warning("no revision stamp from a GS authorized for this drone other than %s for %.0f s: its authority "
+                    "lapses", owner, self.lease_s)
         out: list[Out] = [Emit(rec.Drop(gs=owner, reason="lease_lapsed",
-                                        detail=f"no stamp from another GS for {self.lease_s:.0f} s"))]
+                                        detail=f"no stamp from another authorized GS for {self.lease_s:.0f} s"))]
         authorized = frozenset(self.machine.config.authorized) - self.lapsed
-        why = f"lease lapsed (no revision stamp from another GS for {self.lease_s:g} s)"
+        why = f"lease lapsed (no revision stamp from another authorized GS for {self.lease_s:g} s)"
         return out + self._handle(ha.Revised(now, authorized, self.fleet.revision, why), now)
 
     def adopt_own_keys(self, identity: Identity | None, signing: SigningKey | None) -> None:

@@ -9,12 +9,14 @@ The script, once the drone is inside both coverages (seen in its GLOBAL_POSITION
 2. **No consent**: B asks (MAV_CMD_REQUEST_OPERATOR_CONTROL p1 = 1, p2 = 1, p3 = 3 s): answered
    FAILED; A's application is shown the request (the vehicle's COMMAND_LONG 32100, p4 = B's sysid) and
    acknowledges it, nothing more. Past the timeout, B still sees A in control.
-3. **Consent**: B asks again (p3 = 10 s): FAILED; A's operator consents with p1 = 1, p2 = 1 and p4 = the
-   requester it was shown (allow B takeover for the window; a consent naming nobody is DENIED first).
+3. **Consent**: B asks again (p3 = 10 s): FAILED; a consent naming X and one given before the request
+   could be read (p4 = its own sysid at once) are DENIED; after ``CONSENT_READ_S`` A's operator consents
+   with p1 = 1, p2 = 1 and p4 = its own sysid, as QGroundControl (allow B takeover for the window).
    A's application sees TAKEOVER_ALLOWED; B's standing request, sent again each second, is its ask
    again: B's application must see itself in control (``gcs_main`` = its own sysid) within the window.
-4. **Takeover allowed**: A asks (p2 = 1); B allows takeover (its requests said p2 = 1): A takes it at
-   once (IN_PROGRESS, then ACCEPTED). Then B asks (p2 = 0) and, A allowing takeover, takes it at once.
+4. **Takeover allowed for the request read**: A asks (p2 = 1: no standing setting, FAILED); B's operator
+   reads it and allows takeover (p1 = 1, p2 = 1, p4 its own sysid): A takes control. Then B asks and A's
+   operator allows it the same way.
 5. **Back to the mission**: A asks (B now refuses takeover: FAILED); B's operator releases (p1 = 0, p4 =
    the requester it was shown) to A; A's operator lets go of held control (p1 = 0, nobody asking) and resumes the mission (DO_SET_MODE
    mission): the flight goes on with its automatic hand-overs.
@@ -34,6 +36,7 @@ from typing import Any, Callable
 from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core.geometry import GeoPoint, distance_m
+from gs.opcontrol import CONSENT_READ_S
 from zdrone.core.mavcontrol import MAV_CMD_REQUEST_OPERATOR_CONTROL, ControlStatus, decode_control_status
 from zdrone.core.mavlink import FrameCodec
 from zdrone.core.reference import COVERAGE_RADIUS_M, DEFAULT_NODES, GS_A, GS_B
@@ -164,6 +167,17 @@ class Script:
         app.command(MAV_CMD_REQUEST_OPERATOR_CONTROL, p1, p2, p3, p4)
         return since
 
+    def read(self, app: OperatorApp, since: float, what: str, sysid: int | None = None, timeout: float = 3.0) -> float:
+        """Wait until ``app`` is shown a request (from ``sysid``, if given) after ``since``, then as long
+        as an operator takes to read it (``CONSENT_READ_S`` and a little more): when it was shown."""
+        def shown() -> list[tuple[float, Any]]:
+            return [(t, m) for (t, m) in app.messages if t >= since and m.get_type() == "COMMAND_LONG"
+                    and m.command == MAV_CMD_REQUEST_OPERATOR_CONTROL and (sysid is None or int(m.param4) == sysid)]
+        self.wait(what, lambda: bool(shown()), timeout)
+        t_shown = shown()[0][0]
+        self.hold_for(max(0.0, t_shown + CONSENT_READ_S + 0.3 - time.monotonic()), lambda: True, "")
+        return t_shown
+
     def first_ack(self, app: OperatorApp, since: float, timeout: float = 3.0) -> int:
         self.wait(f"{app.name}: answer to 32100", lambda: bool(app.acks(MAV_CMD_REQUEST_OPERATOR_CONTROL, since)), timeout)
         return app.acks(MAV_CMD_REQUEST_OPERATOR_CONTROL, since)[0]
@@ -213,6 +227,10 @@ class Script:
         unnamed = self.first_ack(a, self.ask(a, 1, 1, 10, X_SYSID))  # p4 names another GS of the fleet: refused
         if unnamed != mav.MAV_RESULT_DENIED:
             raise StepFailed(f"a consent naming another GS answered {unnamed}, not DENIED")
+        hasty = self.first_ack(a, self.ask(a, 1, 1, 10))  # p4 = its own sysid before the request could be read
+        if hasty != mav.MAV_RESULT_DENIED:
+            raise StepFailed(f"a consent given before the request could be read answered {hasty}, not DENIED")
+        self.read(a, since, "A's operator reads B's request")
         consent = self.ask(a, 1, 1, 10)  # as QGroundControl: p4 = its own sysid, bound to the request it was shown
         consent_answer = self.first_ack(a, consent)
         self.wait("B in control after A's consent", lambda: b.in_control() == APP_SYSID, 10.0)
@@ -222,25 +240,31 @@ class Script:
         self.step("consent", answer=answer, unnamed_answer=unnamed, consent_answer=consent_answer,
                   to_control_s=round(took, 3), a_sees_s=round(took_a, 3), within_window=took < 10.0)
 
-        # 4. takeover allowed: taken at once, both ways
-        self.wait("A sees B allow takeover", lambda: a.status is not None and a.status.takeover_allowed, 3.0)
-        since = self.ask(a, 1, 1, 5)
+        # 4. takeover allowed by the owner's operator for the request it read, both ways (a requester's p2 is
+        #    no standing setting: A's request is shown to B's operator)
+        since = self.ask(a, 1, 1, 10)
         first = self.first_ack(a, since)
-        self.wait("A in control at once", lambda: a.in_control() == APP_SYSID, 3.0)
-        took_a = time.monotonic() - since
-        self.wait("A's final answer", lambda: mav.MAV_RESULT_ACCEPTED in a.acks(MAV_CMD_REQUEST_OPERATOR_CONTROL, since), 3.0)
-        self.wait("B sees A allow takeover", lambda: b.status is not None and b.status.takeover_allowed and b.in_control() == A_SYSID, 3.0)
-        since = self.ask(b, 1, 0, 5)
+        self.read(b, since, "B's application shown A's request")
+        allow = self.ask(b, 1, 1, 10)  # p4 = its own sysid: the request it read
+        allowed_a = self.first_ack(b, allow)
+        self.wait("A in control after B allowed it", lambda: a.in_control() == APP_SYSID, 3.0)
+        took_a = time.monotonic() - allow
+        since = self.ask(b, 1, 0, 10)
         first_b = self.first_ack(b, since)
-        self.wait("B in control at once", lambda: b.in_control() == APP_SYSID, 3.0)
-        took_b = time.monotonic() - since
+        self.read(a, since, "A's application shown B's request")
+        allow = self.ask(a, 1, 1, 10)
+        allowed_b = self.first_ack(a, allow)
+        self.wait("B in control after A allowed it", lambda: b.in_control() == APP_SYSID, 3.0)
+        took_b = time.monotonic() - allow
         self.step("takeover", a_first_answer=first, a_to_control_s=round(took_a, 3), b_first_answer=first_b,
-                  b_to_control_s=round(took_b, 3))
-        if first != mav.MAV_RESULT_IN_PROGRESS or first_b != mav.MAV_RESULT_IN_PROGRESS:
-            raise StepFailed(f"takeover answered {first}/{first_b}, not IN_PROGRESS")
+                  b_to_control_s=round(took_b, 3), allow_answers=[allowed_a, allowed_b])
+        if first != mav.MAV_RESULT_FAILED or first_b != mav.MAV_RESULT_FAILED:
+            raise StepFailed(f"requests answered {first}/{first_b}, not FAILED (the owner's operator is asked)")
+        if (allowed_a, allowed_b) != (mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_ACCEPTED):
+            raise StepFailed(f"allow-takeover answered {allowed_a}/{allowed_b}, not ACCEPTED")
 
         # 5. back to A and the mission: B's operator releases to A's request
-        self.wait("A sees B refuse takeover", lambda: a.status is not None and not a.status.takeover_allowed, 3.0)
+        self.wait("A sees no takeover allowed", lambda: a.status is not None and not a.status.takeover_allowed, 3.0)
         since = self.ask(a, 1, 0, 10)
         answer = self.first_ack(a, since)
         self.wait("B's application shown A's request", lambda: bool(b.requests_shown(since)), 3.0)

@@ -10,8 +10,9 @@ from zdrone.sil.verdicts import Outcome, _need
 
 def check_operator_consent(o: Outcome) -> list[str]:
     """``operator-consent``: MAVLink operator control through the gateways (``zdrone.sil.operator``).
-    B's request without consent moves nothing; with A's consent B takes control within the 10 s
-    window; with takeover allowed each takes it at once; back with A, the flight goes on (its own
+    B's request without consent moves nothing; a consent before the request could be read is refused;
+    with A's consent B takes control within the 10 s window; each owner's operator allows the other's
+    request, read, and it takes control; back with A, the flight goes on (its own
     hand-overs), with no emergency hand-over, no failsafe and the authority link never LOST."""
     s, op = o.summary, o.summary.get("operator", {})
     done = op.get("operator_done", {})
@@ -34,8 +35,10 @@ def check_operator_consent(o: Outcome) -> list[str]:
 
 def check_consent_bound(o: Outcome) -> list[str]:
     """``consent-bound``: three authorized GSs (``zdrone.sil.consent_ops``). A consent goes to the requester
-    the operator was shown and named (B, though X asked last), a decline holds X off, an allow-takeover
-    given in an earlier epoch moves nothing; X never holds authority; then the flight goes on and lands
+    the operator was shown and named (B, though X asked last); a consent given 3.5 s after B's 3 s request
+    appeared, as X's request had just been shown, is refused (the race: X never gets it); a decline holds
+    X off; an allow-takeover given in an earlier epoch, or with nothing pending, moves nothing; X never
+    holds authority; then the flight goes on and lands
     at home, no emergency hand-over, no failsafe."""
     s, op = o.summary, o.summary.get("operator", {})
     done = op.get("operator_done", {})
@@ -48,6 +51,9 @@ def check_consent_bound(o: Outcome) -> list[str]:
     why += _need(all(h["kind"] == "handover" for h in s["handovers"]), "an emergency hand-over")
     refused = [e for e in only(o.gs.get("A", []), OperatorConsentRefused) if e.named == "X"]
     why += _need(bool(refused), "A's consent naming X was not refused")
+    raced = [e for e in only(o.gs.get("A", []), OperatorConsentRefused) if e.requester == "X" and e.named is None]
+    why += _need(bool(raced), "A's consent in the race (X's request just shown) is not on record as refused")
+    why += _need(op.get("consent_race", {}).get("answer") == 2, f"the race: {op.get('consent_race')}")  # DENIED
     declined = [e for e in only(o.gs.get("B", []), OperatorRequestDeclined) if e.requester == "X"]
     why += _need(bool(declined), "B's operator's decline of X is not on record")
     why += _need(s["failsafe"] is None, "failsafe triggered")
