@@ -62,6 +62,9 @@ __all__ = ["CoreOptions", "DroneSeen", "DroneSession", "DroneView", "StationCore
 #: per drone beyond the first (300 drones: 15 s and 6 s), each drone's moment drawn (``gs.mission``).
 UPLOAD_SPREAD_PER_DRONE_S = 0.05
 TAKEOFF_SPREAD_PER_DRONE_S = 0.02
+#: A checkpoint of our record offered to a drone goes out now and at this many heartbeats after
+#: (the drone countersigns it once; one that never arrives leaves our decisions ``unwitnessed``).
+AUDIT_OFFER_REPEATS = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,6 +106,8 @@ class StationCore:
         self.key_owner = KeyOwner(identity, name, fleet, self.counters)
         self._sm_seq = 0
         self._hb_due = 0.0
+        self._audit_offer: wire.AuditOffer | None = None  # our record's newest checkpoint to countersign
+        self._offer_left: dict[str, int] = {}  # drone -> sends left
         self._due = 0.0  # the earliest of the sessions' ``due``, as of the last ``handle_timer``
         self._input_at: float | None = None  # an input came at this time since ``handle_timer`` last ran
 
@@ -203,6 +208,27 @@ class StationCore:
     def send_control(self, drone: "str | DroneSession", msg: wire.Control) -> list[Action]:
         return self.session(drone).send_control(msg)
 
+    def offer_checkpoint(self, drones: "frozenset[str] | set[str]", head: wire.AuditHead) -> list[Action]:
+        """Our authority record signed a checkpoint that covers decisions about ``drones`` (none named,
+        a revision applied: all ours): each of ours among them, and each still owed an earlier one
+        (this one covers it), is asked to countersign it (``wire.AuditOffer``), now and at the next
+        ``AUDIT_OFFER_REPEATS`` heartbeats."""
+        self._audit_offer = wire.AuditOffer(head)
+        to = (set(drones) & set(self.sessions)) or set(self.sessions)
+        self._offer_left = {d: AUDIT_OFFER_REPEATS + 1 for d in to | set(self._offer_left)}
+        return self._send_offer()
+
+    def _send_offer(self) -> list[Action]:
+        out: list[Action] = []
+        if self._audit_offer is None:
+            return out
+        for d in sorted(self._offer_left):
+            out += self.sessions[d].send_control(self._audit_offer)
+            self._offer_left[d] -= 1
+            if self._offer_left[d] <= 0:
+                del self._offer_left[d]
+        return out
+
     # -------------------------------------------------------------------- time
     def get_timer(self) -> float:
         """When ``handle_timer`` must next be called if no input comes (see the module docstring)."""
@@ -228,6 +254,7 @@ class StationCore:
                 if self.opts.paper_heartbeat:
                     self._sm_seq += 1
                     out += session.send_control(wire.SmHeartbeat(self._sm_seq))
+            out += self._send_offer()
         self._due = min((s.due for s in self.sessions.values()), default=float("inf"))
         return out
 

@@ -130,6 +130,7 @@ class GroundStation:
             take_control=opts.take_control, allow_takeover=opts.allow_takeover, seed=os.urandom(32)))
         self.witnessing: Witnessing | None = None
         self.audit_key: bytes | None = None  # the public half of the key its record is signed under now
+        self._offered: object = None  # the record's checkpoint last offered to its drones (``AuditChain.offer``)
         if self.secret.signing is not None:  # its own authority record; it countersigns the drones' checkpoints
             self.events.start_audit(self.secret.signing)
             self.witnessing = Witnessing(self.name, self.secret.signing, {d: self.fleet.signing_public(d) for d in drones})
@@ -322,10 +323,20 @@ class GroundStation:
     def stop(self, *_: object) -> None:
         self.rt.stop()
 
+    def _offer_checkpoint(self) -> None:
+        """Our record's newest checkpoint that covers a decision, not offered yet: to the drones its
+        decisions name, to countersign (``StationCore.offer_checkpoint``)."""
+        offer = self.events.audit.offer if self.events.audit is not None else None
+        if offer is not None and offer is not self._offered:
+            self._offered = offer
+            cp, drones = offer
+            self._do(self.core.offer_checkpoint(drones, wire.AuditHead(*cp.raw())))
+
     def step(self, now: float) -> None:
         """One pass of the loop."""
         self._serve_linkkeys(now)
         self.revision.serve(now)
+        self._offer_checkpoint()
         if now >= self.core.get_timer():
             self._do(self.core.handle_timer(now, time.time()))
         self.rt.flush(now)

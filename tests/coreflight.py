@@ -33,7 +33,7 @@ from zdrone.fleet.revisions import STAMP_PERIOD_S
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
-from zdrone.nodes.drone_actions import CommandVehicle, Listen, Persist, ToVehicle
+from zdrone.nodes.drone_actions import CommandVehicle, Countersign, Listen, Persist, ToVehicle
 from zdrone.nodes.drone_core import DroneCore, DroneCoreOptions
 from zdrone.vehicle.link import COMPANION_COMPID
 from zdrone.vehicle.modes import ARDUPILOT, set_mode_params
@@ -85,6 +85,7 @@ class CoreFlight:
         self.records: list[tuple[float, rec.Record]] = []
         self.commands: list[CommandVehicle] = []
         self.persisted: list[Persist] = []
+        self.countersign: list[Countersign] = []  # GSs' checkpoints the drone's adapter is to countersign
         self.was_armed = False
         self.lost_frames: Counter[str] = Counter()  # per GS: frames the radio did not carry
         self.statuses: list[tuple[float, str | None, int, str]] = []  # (now, owner, epoch, state) at each step
@@ -114,7 +115,7 @@ class CoreFlight:
         """Carry out the drone core's outputs."""
         dispatch(outs, {Put: self._put_down, ToVehicle: lambda o: self.sim.receive(o.frame, self.sim.t),
                         CommandVehicle: self._command_vehicle, Emit: lambda o: self.records.append((self.now, o.record)),
-                        Listen: self._listen, Persist: self.persisted.append})
+                        Listen: self._listen, Persist: self.persisted.append, Countersign: self.countersign.append})
 
     def _put_down(self, o: Put) -> None:
         if self.in_range(o.peer):

@@ -454,13 +454,14 @@ def add_audit(sub: argparse._SubParsersAction) -> None:
                                        "other's countersignatures; names the first bad entry (modified, deleted, "
                                        "reordered, truncated) or a record missing from a run; exit 1 if any")
     v.add_argument("targets", nargs="+", metavar="RUN_DIR|FILE",
-                   help="a run folder (its *.audit.jsonl; every drone of its fleet/ and every node with an event log "
-                        "there must have its record) or authority record files")
+                   help="a run folder (its *.audit.jsonl; every drone of the fleet, its fleet/ or --fleet, and every "
+                        "node with an event log there must have its record) or authority record files")
     v.add_argument("--fleet", help="the fleet folder (its public fleet.json5 and its revisions: each checkpoint and "
                                    "countersignature is checked against the key in force at its time); default: "
                                    "RUN_DIR/fleet")
     v.add_argument("--require-witnessed", action="store_true",
-                   help="exit 1 also if a drone's record has entries after the last one a GS countersigned")
+                   help="exit 1 also if a node's record has decisions after the last entry another node "
+                        "countersigned")
     v.add_argument("--json", action="store_true", help="one object per record instead of lines")
     v.set_defaults(func=_audit_verify)
 

@@ -123,10 +123,11 @@ def _empty_record_owner(f: Path) -> str:
 
 
 def run_expected(targets: list[str | Path], fleet: Fleet) -> dict[str, str] | None:
-    """The records a run folder must hold (node -> why), None if no target is a run folder (with
-    its ``fleet/fleet.json5``): every drone of the fleet not revoked that has a signing key, and every
-    drone or GS whose event log is in the folder."""
-    runs = [Path(t) for t in targets if Path(t).is_dir() and (Path(t) / "fleet" / "fleet.json5").is_file()]
+    """The records the folders given must hold together (node -> why), None if no target is a
+    folder (files only: those are checked): every drone of the fleet not revoked that has a signing
+    key, and every drone or GS whose event log is in a folder. The same whether the fleet is the
+    folder's own ``fleet/`` or ``--fleet``."""
+    runs = [Path(t) for t in targets if Path(t).is_dir()]
     if not runs:
         return None
 
@@ -146,8 +147,8 @@ def verify_audit(files: list[Path], fleet: Fleet, key_history: Mapping[str, Publ
                  expect: dict[str, str] | None = None, where: Path | None = None) -> list[tuple[Path, ChainReport]]:
     """Each file's record verified (its node: the one its entries name) against its keys over time
     (``key_history``: ``zdrone.fleet.revisions.signing_key_epochs``; else the fleet's keys in force),
-    then against every countersignature chained in any of the records (a drone's record: its entries
-    after the last witnessed one counted). With ``expect`` (node -> why: ``run_expected``) the records
+    then against every countersignature chained in any of the records (a node's decisions after
+    the last entry countersigned counted). With ``expect`` (node -> why: ``run_expected``) the records
     are meant to be the whole run: a node expected, or countersigned by a record given, whose record
     is not among them is reported ``record_missing`` (its path: ``where``)."""
     contents: dict[Path, list[bytes]] = {f: [ln for ln in f.read_bytes().splitlines() if ln.strip()] for f in files}
@@ -168,8 +169,8 @@ def verify_audit(files: list[Path], fleet: Fleet, key_history: Mapping[str, Publ
     checked = [(f, *chains[f]) for f in contents]
     countersigned = [w for _, _, c in checked for w in c.countersigned]
     out: list[tuple[Path, ChainReport]] = []
-    for f, node, c in checked:
-        witnessed = node in fleet.nodes and fleet.nodes[node].role == "drone"
+    for f, node, c in checked:  # every node's decisions are countersigned: a drone's by its GSs, a GS's by its drones
+        witnessed = node in fleet.nodes and fleet.nodes[node].role in ("drone", "gs")
         out.append((f, c.report(countersigned, witnessed=witnessed)))
     if expect is not None:
         present = {node for _, node, _ in checked}

@@ -1,8 +1,10 @@
 """``audit-cuts``: the authority records of a real flight (``rotate-in-flight``: A's keys rotated in
 flight, so its record and countersignatures move to the new key) cut as an attacker who holds the
 files would cut them; ``zdrone audit verify`` exits 1 and names each cut, next to the untouched run
-that verifies (exit 0). The cuts with retired keys are built in ``tests/unit/test_audit_log.py``
-(they need the retired private key, which the flight does not leave behind)."""
+that verifies (exit 0): a GS's record cut back alone among them (the drone countersigned its
+checkpoints), and a record missing with the fleet given apart (``--fleet``). The cuts with retired
+keys are built in ``tests/unit/test_audit_log.py`` (they need the retired private key, which the
+flight does not leave behind)."""
 
 from __future__ import annotations
 
@@ -64,17 +66,36 @@ def test_the_records_of_a_real_flight_fail_verify_under_each_cut(tmp_path):
     assert rc == 1, _problems(reports)
     assert any(not r["ok"] and r["node"] in ("A", "B") for r in reports), _problems(reports)
 
-    # 3. the drone's record cut after a checkpoint no witness countersigned: an unwitnessed tail
+    # 3. the drone's last decision left without a countersignature: the GSs' records cut before their first
+    #    countersignature that covers it (its countersignatures of the GSs' own checkpoints are no decisions)
     cut = tmp_path / "unwitnessed"
     shutil.copytree(out, cut)
-    for gs in ("A", "B"):  # the GSs' records end before their last countersignature (cut with its checkpoint)
+    decided = max(x["seq"] for x in drone if x["audit"] == "entry" and x.get("kind") != "witness")
+    for gs in ("A", "B"):
         path = cut / f"{gs}.audit.jsonl"
         lines = _lines(path)
-        first = next((i for i, x in enumerate(lines) if x.get("kind") == "witness" and x["fields"]["seq"] == last),
-                     None)
+        first = next((i for i, x in enumerate(lines) if x.get("kind") == "witness" and x["fields"]["node"] == "d1"
+                      and x["fields"]["seq"] >= decided), None)
         if first is not None:
             _write(path, lines[:first])
     rc, reports = _verify(cut, "--require-witnessed")
     assert rc == 1, _problems(reports)
     d1 = next(r for r in reports if r["node"] == "d1")
     assert d1.get("unwitnessed"), d1
+
+    # 4. A's record replaced by an older copy of itself, from its last decision the drone countersigned on
+    cut = tmp_path / "gs-cut-back"
+    shutil.copytree(out, cut)
+    a = _lines(cut / "A.audit.jsonl")
+    top = max(x["fields"]["seq"] for x in drone if x.get("kind") == "witness" and x["fields"]["node"] == "A")
+    last = max(i for i, x in enumerate(a) if x["audit"] == "entry" and x["kind"] != "witness" and x["seq"] <= top)
+    _write(cut / "A.audit.jsonl", a[:last])
+    rc, reports = _verify(cut, "--require-witnessed")
+    assert rc == 1 and next(r for r in reports if r["node"] == "A")["kind"] == "truncated", _problems(reports)
+
+    # 5. cut 1 with the fleet given apart (``--fleet``, as docs/deploy.md shows it): the same record missing
+    cut = tmp_path / "no-drone-record-fleet-apart"
+    shutil.copytree(tmp_path / "no-drone-record", cut)
+    shutil.move(cut / "fleet", tmp_path / "fleet-apart")
+    rc, reports = _verify(cut, "--fleet", str(tmp_path / "fleet-apart"))
+    assert rc == 1 and "record missing" in _problems(reports), _problems(reports)

@@ -293,7 +293,7 @@ def test_a_countersignature_is_an_entry_of_the_witness_s_chain_and_deleting_it_b
     free = check_chain("B", [encode_line(_witness(chain))], GS_KEY.public, {"d1": DRONE_KEY.public})
     assert free.countersigned == [] and free.unchained == 1
     r = check_chain("d1", cut, DRONE_KEY.public).report(free.countersigned, witnessed=True)
-    assert r.ok and r.witnesses == 0 and r.unwitnessed == 12 and "no witness of its 12 entries" in r.summary()
+    assert r.ok and r.witnesses == 0 and r.unwitnessed == 12 and "no witness of its 12 decisions" in r.summary()
 
 
 def test_a_checkpoint_under_the_key_a_revision_the_node_applied_retired_is_refused():
@@ -356,3 +356,58 @@ def test_a_witness_follows_the_fleet_s_keys():
     got = w.on_head("d1", seq, head, sig, 3.0)
     assert got is not None and verify_chain("d1", _record()[0], DRONE_KEY.public, [got],
                                             {"B": GS_NEW_KEY.public}).witnessed_through == seq
+
+
+def test_a_checkpoint_is_offered_only_when_it_covers_a_decision_with_the_drones_it_names():
+    """``AuditChain.offer``: what a GS asks its drones to countersign. A checkpoint that covers only
+    countersignatures is not offered (else countersigning each other's would never end)."""
+    from zdrone.core.audit import WITNESS_KIND, witness_fields
+
+    gs = AuditChain("B", GS_KEY, every=64)
+    gs.append("operator_request_granted", {"drone": "d1", "requester": "A"}, 0.0)
+    gs.append("handover_release", {"drone": "d2", "to": "A"}, 0.1)
+    first = gs.checkpoint(1.0)
+    assert gs.offer == (first, frozenset({"d1", "d2"}))
+    _, chain = _record()
+    gs.append(WITNESS_KIND, witness_fields(_witness(chain)), 2.0)
+    gs.checkpoint(3.0)
+    assert gs.offer == (first, frozenset({"d1", "d2"}))  # the countersignature alone: the same offer
+    gs.append("takeover_window_opened", {"drone": "d1", "to": "A"}, 4.0)
+    assert gs.offer[0] is first
+    assert gs.tick(5.5)[0] == gs.offer[0] and gs.offer[1] == {"d1"}
+
+
+def test_a_gs_s_decisions_after_its_last_countersigned_entry_are_unwitnessed_its_countersignatures_not():
+    from zdrone.core.audit import WITNESS_KIND, check_chain, witness_fields
+
+    _, chain = _record()
+    gs = AuditChain("B", GS_KEY, every=64)
+    b = [encode_line(x) for x in gs.append("operator_request_granted", {"drone": "d1"}, 0.0)]
+    b += [encode_line(gs.checkpoint(1.0))]
+    b += [encode_line(x) for x in gs.append(WITNESS_KIND, witness_fields(_witness(chain)), 2.0)]
+    b += [encode_line(gs.checkpoint(3.0))]
+    checked = check_chain("B", b, GS_KEY.public, {"d1": DRONE_KEY.public})
+    assert checked.decisions == [0]
+    r = checked.report([], witnessed=True)
+    assert r.ok and r.unwitnessed == 1 and "no witness of its 1 decisions" in r.summary()
+    # the drone countersigns B's consent (its checkpoint of entry 0): B's trailing countersignature is no decision
+    cp = AuditCheckpoint("B", 0, checked.hashes[0], 1.0, "")
+    w = countersign("d1", DRONE_KEY, "B", GS_KEY.public, 0, bytes.fromhex(cp.head),
+                    base64.b64decode(json.loads(b[1])["sig"]), 4.0)
+    assert w is not None
+    r = checked.report([w], witnessed=True)
+    assert r.ok and (r.witnessed_through, r.unwitnessed) == (0, 0)
+    # B's record cut back before its consent: the drone's countersignature says otherwise
+    r = check_chain("B", [], GS_KEY.public).report([w], witnessed=True)
+    assert (r.kind, r.first_bad) == ("truncated", 0)
+
+
+def test_a_witness_given_a_period_countersigns_a_node_at_most_once_in_it():
+    from zdrone.core.audit import Witnessing
+
+    gs = AuditChain("B", GS_KEY, every=1)
+    w = Witnessing("d1", DRONE_KEY, {"B": GS_KEY.public}, every=0.4)
+    heads = [gs.append("handover_release", {"drone": "d1"}, float(i))[1].raw() for i in range(3)]
+    assert w.on_head("B", *heads[0], 10.0) is not None
+    assert w.on_head("B", *heads[1], 10.1) is None and w.refused == 0  # too soon: not even checked
+    assert w.on_head("B", *heads[1], 10.5).seq == 1 and w.on_head("B", *heads[2], 10.6) is None

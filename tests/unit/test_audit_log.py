@@ -16,6 +16,7 @@ from zdrone.core import records as rec
 from zdrone.core.audit import AuditCheckpoint, countersign
 from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.net.eventlog import EventLog, audit_path
+from zdrone.nodes.drone_actions import Countersign
 
 
 class Clock:
@@ -158,26 +159,29 @@ def test_after_a_key_rotation_earlier_checkpoints_verify_against_the_key_in_forc
     gs.rekey_audit(new)  # the second consent still unsigned: signed under the old key before the switch
     gs.write_record(rec.OperatorRequestGranted(drone="d1", requester="A", to="B", why="consent", epoch=4, app="qgc"))
     gs.close()
-    assert main(["audit", "verify", str(run), "--fleet", str(fleet_dir)]) == 0
+    record = str(audit_path(run / "B.jsonl"))  # the file alone: a folder would want d1's record too
+    assert main(["audit", "verify", record, "--fleet", str(fleet_dir)]) == 0
     assert "B: verified 3 of 3 entries" in capsys.readouterr().out
     # without the revisions (the base fleet alone: B's first key), the checkpoint under the new key fails
     base_only = tmp_path / "base"
     base_only.mkdir()
     (base_only / "fleet.json5").write_bytes((fleet_dir / "fleet.json5").read_bytes())
-    assert main(["audit", "verify", str(run), "--fleet", str(base_only), "--json"]) == 1
+    assert main(["audit", "verify", record, "--fleet", str(base_only), "--json"]) == 1
     got = json.loads(capsys.readouterr().out)[0]
     assert (got["kind"], got["first_bad"]) == ("bad_signature", 2)
     # a tampered revision file is named, not trusted
     (fleet_dir / "revisions" / "0001.json").write_bytes(b"{}")
-    assert main(["audit", "verify", str(run), "--fleet", str(fleet_dir)]) == 2
+    assert main(["audit", "verify", record, "--fleet", str(fleet_dir)]) == 2
 
 
 # ---------------------------------------------------------------- a run's records under every cut
 
-def _run(run: Path, fleet_dir: Path, decisions: int = 3, witnessed: int | None = None) -> dict[str, EventLog]:
+def _run(run: Path, fleet_dir: Path, decisions: int = 3, witnessed: int | None = None,
+         countersigned: bool = False) -> dict[str, EventLog]:
     """A run folder as ``zdrone demo`` leaves it: its fleet in ``fleet/``, the drone's log and record,
     A's and B's, each GS countersigning the drone's checkpoints (``Witnessing``, as ``zdrone gs`` does)
-    of the first ``witnessed`` decisions (default all), then its operator's consent."""
+    of the first ``witnessed`` decisions (default all), then its operator's consent, which the drone
+    countersigns (``countersigned``) in an entry of its own that both GSs countersign in turn."""
     import shutil
 
     from zdrone.core.audit import Witnessing
@@ -206,6 +210,21 @@ def _run(run: Path, fleet_dir: Path, decisions: int = 3, witnessed: int | None =
                 log.write_witness(w)
     for g, log in gss.items():
         log.write_record(rec.OperatorRequestGranted(drone="d1", requester=g, to=g, why="consent", epoch=9, app="qgc"))
+    if countersigned:  # the drone countersigns each GS's consent (its ``wire.AuditOffer``), as ``zdrone drone`` does
+        clock.t += 2.0
+        witnessing = Witnessing("d1", load_secret(run / "fleet", "d1", fleet).signing,
+                                {g: fleet.signing_public(g) for g in gss})
+        for g, log in gss.items():
+            log.write("link_state", gs="d1", state="ok")  # a tick: the consent signed, offered to d1
+            cp, named = log.audit.offer
+            assert named == {"d1"} and cp.seq == log.audit.seq - 1
+            w = witnessing.on_head(g, *cp.raw(), clock.t)
+            assert w is not None
+            drone.write_witness(w)
+        clock.t += 2.0
+        drone.write("link_state", gs="A", state="ok")  # a tick: the drone's checkpoint, which the GSs countersign
+        for g, log in gss.items():
+            log.write_witness(log.witnessing.on_head("d1", *seen[-1].raw(), clock.t))  # type: ignore[attr-defined]
     return {"d1": drone, **gss}
 
 
@@ -228,10 +247,12 @@ def _write(path: Path, lines: list[str]) -> None:
 
 
 def test_an_untouched_run_verifies_witnessed_to_its_end(tmp_path, fleet_dir, capsys):
-    _close(_run(tmp_path, fleet_dir))
+    _close(_run(tmp_path, fleet_dir, countersigned=True))
     code, got = _verify_run(tmp_path, capsys, "--require-witnessed")
     assert code == 0 and set(got) == {"d1", "A", "B"}
-    assert (got["d1"]["witnessed_through"], got["d1"]["unwitnessed"]) == (2, 0)
+    assert (got["d1"]["witnessed_through"], got["d1"]["unwitnessed"]) == (4, 0)  # its countersignatures of A, B too
+    assert (got["A"]["witnessed_through"], got["A"]["unwitnessed"]) == (3, 0)  # A's consent, countersigned by d1
+    assert (got["B"]["witnessed_through"], got["B"]["unwitnessed"]) == (3, 0)
 
 
 def test_cut_1_countersignatures_deleted_from_the_gs_records_break_them(tmp_path, fleet_dir, capsys):
@@ -323,7 +344,7 @@ def test_require_witnessed_refuses_an_unwitnessed_tail(tmp_path, fleet_dir, caps
     code, got = _verify_run(tmp_path, capsys, "--require-witnessed")
     assert code == 1
     assert main(["audit", "verify", str(tmp_path)]) == 0
-    assert "1 entries after the last witnessed one" in capsys.readouterr().out
+    assert "1 decisions after the last witnessed entry" in capsys.readouterr().out
 
 
 def test_a_gs_follows_the_revisions_in_its_record_and_its_countersignatures(tmp_path, capsys):
@@ -385,7 +406,8 @@ def test_a_drone_moves_its_record_to_its_new_key_when_it_applies_its_rotation(tm
 
     core = SimpleNamespace(counters=Counter(), responder=SimpleNamespace(me=held.identity),
                            attester=SimpleNamespace(key=held.signing), adopt_own_keys=adopt)
-    node = SimpleNamespace(events=drone, name="d1", opts=SimpleNamespace(fleet=str(fleet_dir)), core=core)
+    node = SimpleNamespace(events=drone, name="d1", opts=SimpleNamespace(fleet=str(fleet_dir)), core=core,
+                           witnessing=None)
     secret = fleet_dir / "secrets" / "d1.json"
     kept = secret.read_bytes()
     r1 = rotate(fleet_dir, "d1")
@@ -461,3 +483,130 @@ def test_a_gs_s_own_rotation_moves_its_signing_once_and_waits_for_a_key_it_does_
     _close(logs)
     code, got = _verify_run(tmp_path, capsys)
     assert code == 0 and got["A"]["signed_through"] == got["A"]["entries"] - 1, got["A"]
+
+
+# ------------------------------------------------ a GS's record countersigned by its drones; --fleet
+
+def test_cut_6_a_gs_s_record_replaced_by_an_older_copy_of_itself_is_truncated_against_the_drone(tmp_path, fleet_dir,
+                                                                                                  capsys):
+    """A's record replaced by an older copy (its consent and everything after gone): the drone's
+    record holds its countersignature of A's consent."""
+    _close(_run(tmp_path, fleet_dir, countersigned=True))
+    path = audit_path(tmp_path / "A.jsonl")
+    lines = _lines(path)
+    consent = next(i for i, x in enumerate(lines) if '"kind":"operator_request_granted"' in x)
+    _write(path, lines[:consent])  # the copy as it was before the consent, its checkpoints included
+    code, got = _verify_run(tmp_path, capsys, "--require-witnessed")
+    assert code == 1 and (got["A"]["kind"], got["A"]["first_bad"]) == ("truncated", 3), got["A"]
+    assert "d1 countersigned entry 3" in got["A"]["problem"]
+    assert got["B"]["ok"] and got["d1"]["ok"]
+
+
+def test_cut_7_the_drone_s_record_cut_before_its_countersignature_of_a_gs_is_truncated(tmp_path, fleet_dir, capsys):
+    """The drone's record cut back to before its countersignatures of A's and B's consents (so that
+    A's and B's records could be cut too): A and B countersigned the drone's checkpoint after them."""
+    _close(_run(tmp_path, fleet_dir, countersigned=True))
+    path = audit_path(tmp_path / "drone.jsonl")
+    lines = _lines(path)
+    _write(path, lines[:next(i for i, x in enumerate(lines) if '"kind":"witness"' in x)])
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 1 and (got["d1"]["kind"], got["d1"]["first_bad"]) == ("truncated", 3), got["d1"]
+
+
+def test_the_cut_that_stays_undetectable_is_every_record_cut_back_together(tmp_path, fleet_dir, capsys):
+    """What no offline check tells (README, "What the record promises"): A's consent cut, with the
+    drone's countersignature of it and A's and B's countersignatures of the drone's checkpoint that
+    covers it: every record that vouched for the consent cut back to a consistent earlier point."""
+    _close(_run(tmp_path, fleet_dir, countersigned=True))
+    a = audit_path(tmp_path / "A.jsonl")
+    lines = _lines(a)
+    _write(a, lines[:next(i for i, x in enumerate(lines) if '"kind":"operator_request_granted"' in x)])
+    d1 = audit_path(tmp_path / "drone.jsonl")
+    lines = _lines(d1)
+    _write(d1, lines[:next(i for i, x in enumerate(lines) if '"kind":"witness"' in x)])
+    code, _ = _verify_run(tmp_path, capsys)
+    assert code == 1  # B still holds its countersignature of the drone's checkpoint of entry 4
+    b = audit_path(tmp_path / "B.jsonl")
+    _write(b, [x for x in _lines(b) if '"seq":4,' not in x])  # B's last countersignature, its last entry
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 0 and all(r["ok"] for r in got.values()), got  # B's consent: d1's countersignature cut too
+    assert (got["B"]["unwitnessed"], got["A"]["unwitnessed"]) == (1, 0)  # ... which --require-witnessed shows
+    assert _verify_run(tmp_path, capsys, "--require-witnessed")[0] == 1
+
+
+def test_a_gs_decision_nobody_countersigned_fails_require_witnessed(tmp_path, fleet_dir, capsys):
+    _close(_run(tmp_path, fleet_dir, countersigned=False))
+    code, got = _verify_run(tmp_path, capsys)
+    assert code == 0 and got["A"]["unwitnessed"] == 1 and got["d1"]["unwitnessed"] == 0
+    assert _verify_run(tmp_path, capsys, "--require-witnessed")[0] == 1
+
+
+@pytest.mark.parametrize("cut", ["drone", "A"])
+def test_verify_with_fleet_reports_a_missing_record_as_with_the_run_s_own_fleet(tmp_path, fleet_dir, capsys, cut):
+    """``zdrone audit verify DIR --fleet FLEET`` (docs/deploy.md) wants the same records as a run
+    folder holding its own ``fleet/``: the drone's record deleted is ``record_missing`` either way."""
+    import shutil
+
+    own = tmp_path / "own"
+    own.mkdir()
+    _close(_run(own, fleet_dir, countersigned=True))
+    audit_path(own / f"{cut}.jsonl").unlink()
+    given = tmp_path / "given"
+    shutil.copytree(own, given)
+    shutil.rmtree(given / "fleet")
+    code, by_own = _verify_run(own, capsys)
+    assert code == 1 and by_own["d1" if cut == "drone" else cut]["kind"] == "record_missing"
+    code, by_flag = _verify_run(given, capsys, "--fleet", str(fleet_dir))
+    assert code == 1 and by_flag == by_own | {n: {**r, "file": r["file"].replace(str(own), str(given))}
+                                             for n, r in by_own.items()}
+    # files named one by one are checked as given
+    files = [str(f) for f in sorted(given.glob("*.audit.jsonl"))]
+    assert main(["audit", "verify", *files, "--fleet", str(fleet_dir)]) == 0
+
+
+def test_a_gs_offers_its_checkpoint_to_the_drone_which_countersigns_it_in_its_own_record(tmp_path, fleet_dir):
+    """The live path: ``StationCore.offer_checkpoint`` seals a ``wire.AuditOffer`` to the drone, now
+    and at the next heartbeats; the drone's core asks its adapter to countersign it
+    (``Countersign``), which ``DroneNode._countersign`` writes once in the drone's record."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    from gs.station import GroundStation
+    from tests.coreflight import CoreFlight
+    from zdrone.core import wire
+    from zdrone.core.audit import AuditChain, Witnessing
+    from zdrone.nodes.drone import DroneNode
+
+    f = CoreFlight(tmp_path / "fleet")
+    assert f.run_until(lambda: f.gs["A"].core.drone_status("d1", f.now).linked, 30)
+    a_key = load_secret(tmp_path / "fleet", "A", f.fleet).signing
+    chain = AuditChain("A", a_key)
+    chain.append("operator_request_granted", {"drone": "d1", "requester": "B"}, 0.0)
+    chain.checkpoint(1.0)
+    cp, named = chain.offer
+    offered: list[Any] = []  # the station's loop hands each new offer to its core once
+    station = SimpleNamespace(events=SimpleNamespace(audit=chain), _offered=None, _do=offered.extend,
+                              core=SimpleNamespace(offer_checkpoint=lambda drones, head: [(drones, head)]))
+    GroundStation._offer_checkpoint(station)  # type: ignore[arg-type]
+    GroundStation._offer_checkpoint(station)  # type: ignore[arg-type]
+    assert offered == [({"d1"}, wire.AuditHead(*cp.raw()))]
+    f.station("A", f.gs["A"].core.offer_checkpoint(named, wire.AuditHead(*cp.raw())))
+    assert [(c.gs, c.head.seq) for c in f.countersign] == [("A", 0)]
+    f.run_until(lambda: len(f.countersign) >= 3, 5)
+    f.run_until(lambda: False, 3)
+    assert len(f.countersign) == 3  # now and at the next two heartbeats, then no more
+    d1 = load_secret(tmp_path / "fleet", "d1", f.fleet).signing
+    log = EventLog(tmp_path / "drone.jsonl", "d1", clock=Clock())
+    log.start_audit(d1)
+    node = SimpleNamespace(witnessing=Witnessing("d1", d1, {"A": f.fleet.signing_public("A")}), events=log,
+                           core=SimpleNamespace(counters=Counter()))
+    for c in f.countersign:
+        DroneNode._countersign(node, c)  # type: ignore[arg-type]
+    forged = AuditChain("A", load_secret(tmp_path / "fleet", "B", f.fleet).signing, seq=1, head=cp.head)
+    forged.append("operator_request_granted", {"drone": "d1"}, 2.0)
+    DroneNode._countersign(node, Countersign("A", wire.AuditHead(*forged.checkpoint(2.0).raw())))  # type: ignore[arg-type]
+    log.close()
+    entries = [json.loads(x) for x in _lines(audit_path(tmp_path / "drone.jsonl"))]
+    witnesses = [e["fields"] for e in entries if e.get("kind") == "witness"]
+    assert [(w["node"], w["seq"]) for w in witnesses] == [("A", 0)]  # once, and never the forged one
+    assert node.core.counters["audit_bad_checkpoint"] == 1

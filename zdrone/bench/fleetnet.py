@@ -26,7 +26,7 @@ from zdrone.fleet.files import init_fleet, load_fleet, load_secret
 from zdrone.fleet.revisions import STAMP_PERIOD_S
 from zdrone.core.outputs import dispatch
 from zdrone.core.pairing import query_answer
-from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_actions import CommandVehicle, Countersign, Listen, Out, Persist, ToVehicle
 from zdrone.nodes.drone_core import DroneCore, DroneCoreOptions
 
 WALL0 = 1_800_000_000.0  # the time of day at now = 0
@@ -96,7 +96,7 @@ class FleetNet:
     def drone_outs(self, outs: list[Out]) -> None:
         dispatch(outs, {Put: self._put_down, Listen: self._listen, ToVehicle: lambda o: self.to_vehicle.append(o.frame),
                         CommandVehicle: self.commands.append, Emit: lambda o: self.records.append(o.record),
-                        Persist: self._persist})
+                        Persist: self._persist, Countersign: lambda o: None})  # no audit record here
 
     def _put_down(self, o: Put) -> None:
         if o.peer not in self.cut and o.peer in self.gss and o.peer not in self.hung:

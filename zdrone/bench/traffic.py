@@ -45,7 +45,8 @@ PAPER = {"without": {"packets_per_min": 161, "mean_packet_bytes": 433.2},
 
 #: The link's own messages (all but the MAVLink frames), in the order the kinds table lists them
 OWN_KINDS = ("envelope", "batch", "status", "attestation", "audit_head", "key_grant", "key_grant_ack",
-             "handover_request", "handover_release", "operator_request", "reject", "failsafe", "sm_heartbeat")
+             "handover_request", "handover_release", "operator_request", "reject", "failsafe", "sm_heartbeat",
+             "audit_offer")
 
 
 #: Kinds that are part of a message or of its envelope, not messages of their own

@@ -18,13 +18,17 @@ crypto``: 100 000 entries well under a second), where a signature per entry woul
 Entries after the last checkpoint are reported as unsigned, never as verified.
 
 Deleting the end of the file (and its checkpoints) leaves a shorter chain that verifies: only a copy
-held elsewhere can tell. The drone sends its newest checkpoint in its authority status to every GS it
-is linked to (``wire.AuditHead``); a GS checks the drone's signature and countersigns it: the
-countersignature (``AuditWitness``) is an **entry of the GS's own chain** (kind ``witness``,
-``witness_fields``), hashed, chained and signed like its other decisions, so deleting it breaks the
-GS's record at that entry. Against a witness, a record that ends before the witnessed ``seq``, or
-whose hash at that ``seq`` differs, is truncated or rewritten; the entries after the last witnessed
-one (``ChainReport.unwitnessed``) are the drone's word alone.
+held elsewhere can tell. So every node's checkpoints are countersigned by another node: the drone
+sends its newest checkpoint in its authority status to every GS it is linked to (``wire.AuditHead``),
+and a GS sends each checkpoint that covers one of its own decisions (``AuditChain.offer``) to the
+drones those decisions name (``wire.AuditOffer``). The countersigner checks the signature and
+countersigns it: the countersignature (``AuditWitness``) is an **entry of the countersigner's own
+chain** (kind ``witness``, ``witness_fields``), hashed, chained and signed like its decisions, so
+deleting it breaks that record at that entry. Against a countersignature, a record that ends before
+the countersigned ``seq``, or whose hash at that ``seq`` differs, is truncated or rewritten; a node's
+decisions (entries other than countersignatures) after its last countersigned one
+(``ChainReport.unwitnessed``) are its word alone. A GS's checkpoint that covers only
+countersignatures is not offered: countersigning each other's countersignatures would never end.
 
 ``check_chain`` checks one node's lines offline against the fleet's public keys and stops at the
 first problem, naming the first bad entry: ``modified`` (an entry's hash is not the one the next
@@ -46,13 +50,16 @@ revision that rotated it (``key_floor``). A countersignature is checked likewise
 signature under the witness's key in force at the revision the witness had applied before it, the
 node's signature under the node's key in force at that revision.
 
-What verifying cannot tell: records cut back together to a consistent earlier point. The
-countersignatures that are the last entries of a GS's record can be deleted with the checkpoints
-after them: the GS's record is then shorter and verifies, and the drone's record cut back to the
-last countersignature left verifies with it, witnessed to its end. Only a copy held elsewhere tells
-(records collected off the nodes). A drone's record cut anywhere else leaves entries after its last
-witnessed one, which ``unwitnessed`` reports (``zdrone audit verify --require-witnessed`` refuses
-them). A node's key stolen before its rotation can still write a record that ends before the node
+What verifying cannot tell: records cut back together to a consistent earlier point. One node's
+record cut back alone is caught wherever another record holds a countersignature of a checkpoint it
+cut (``truncated``). What no record holds a countersignature of is the **tail of each record after
+its last countersigned checkpoint** (the decisions in it are reported as ``unwitnessed``;
+``zdrone audit verify --require-witnessed`` refuses them), and the countersignatures at the very end
+of a record (they are not offered). So these cuts verify: any record cut to its last countersigned
+checkpoint; and several cut together so that each countersignature deleted goes with everything it
+vouched for, e.g. A's consent and the drone's countersignature of it and every GS's countersignature
+of the drone's checkpoint after it. Only a copy held elsewhere tells (records collected off the
+nodes). A node's key stolen before its rotation can still write a record that ends before the node
 applied the rotation.
 
 Pure: no clock (``now`` comes in), no files (lines in, lines out; ``zdrone.net.eventlog`` writes
@@ -62,9 +69,10 @@ them).
 from __future__ import annotations
 
 import base64
+import bisect
 import hashlib
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Iterable, Mapping, Sequence
 
 import msgspec
@@ -194,8 +202,13 @@ class AuditChain:
         self.seq = seq
         self.head = head if head is not None else genesis(node)
         self.last: AuditCheckpoint | None = None  # the newest checkpoint (what the node shows witnesses)
+        #: the newest checkpoint that covers a decision (not only countersignatures), with the drones
+        #: those decisions name: what a GS asks them to countersign (``wire.AuditOffer``)
+        self.offer: tuple[AuditCheckpoint, frozenset[str]] | None = None
         self._pending = 0  # entries since the last checkpoint
         self._first_pending_at = 0.0
+        self._decided = False  # a decision among them
+        self._named: set[str] = set()  # the drones their decisions name
 
     @classmethod
     def resume(cls, node: str, key: SigningKey | None, lines: Iterable[bytes | str], **kw: Any) -> "AuditChain":
@@ -220,6 +233,10 @@ class AuditChain:
         if not self._pending:
             self._first_pending_at = now
         self._pending += 1
+        if kind != WITNESS_KIND:
+            self._decided = True
+            if isinstance(drone := entry.fields.get("drone"), str):
+                self._named.add(drone)
         out: list[AuditLine] = [entry]
         if self._pending >= self.every and self.key is not None:
             out.append(self.checkpoint(now))
@@ -254,6 +271,9 @@ class AuditChain:
         cp = AuditCheckpoint(self.node, seq, self.head, round(now, 4),
                              _b64(self.key.sign(checkpoint_message(self.node, seq, self.head))))
         self.last, self._pending = cp, 0
+        if self._decided:
+            self.offer = cp, frozenset(self._named)
+            self._decided, self._named = False, set()
         return cp
 
 
@@ -288,11 +308,16 @@ class Witnessing:
     """A witness's side: countersign each node's checkpoint once, when its ``seq`` grows (the node
     repeats its newest in every status); a checkpoint whose signature fails is counted, never signed.
     The node keys follow the fleet's revisions (``set_node_keys``) and so does the witness's own
-    (``rekey``: None while it holds no key in force, then it countersigns nothing)."""
+    (``rekey``: None while it holds no key in force, then it countersigns nothing). ``every``: at most
+    one countersignature of a node per this many seconds, before any signature is checked (a drone
+    countersigning its GSs: a hostile GS's offers cost it at most that many entries; a later offer
+    covers what an earlier one did)."""
 
-    def __init__(self, witness: str, key: SigningKey | None, node_keys: dict[str, bytes | None]) -> None:
-        self.witness, self.key, self.node_keys = witness, key, dict(node_keys)
+    def __init__(self, witness: str, key: SigningKey | None, node_keys: dict[str, bytes | None],
+                 every: float = 0.0) -> None:
+        self.witness, self.key, self.node_keys, self.every = witness, key, dict(node_keys), every
         self.last: dict[str, int] = {}  # per node: the seq countersigned last (bounded by the fleet's nodes)
+        self._at: dict[str, float] = {}  # per node: when it was countersigned last
         self.refused = 0
 
     def set_node_keys(self, node_keys: dict[str, bytes | None]) -> None:
@@ -306,11 +331,13 @@ class Witnessing:
     def on_head(self, node: str, seq: int, head: bytes, sig: bytes, now: float) -> AuditWitness | None:
         if self.key is None or node not in self.node_keys or seq <= self.last.get(node, -1):
             return None
+        if node in self._at and 0.0 <= now - self._at[node] < self.every:
+            return None
         w = countersign(self.witness, self.key, node, self.node_keys[node], seq, head, sig, now)
         if w is None:
             self.refused += 1
             return None
-        self.last[node] = seq
+        self.last[node], self._at[node] = seq, now
         return w
 
 
@@ -403,7 +430,7 @@ class ChainReport:
     problem: str | None = None  # the first problem, in one line (None: the record verifies)
     kind: str | None = None  # modified, missing, out_of_order, bad_signature, bad_witness, truncated, ...
     first_bad: int | None = None  # the first bad entry's seq
-    unwitnessed: int | None = None  # entries after the last witnessed one (None: a record nobody witnesses)
+    unwitnessed: int | None = None  # decisions after the last witnessed entry (None: a record nobody witnesses)
     unchained: int = 0  # witness lines outside any chain (an older format): they vouch for nothing
 
     @property
@@ -424,8 +451,8 @@ class ChainReport:
         wit = (f", witnessed through seq {self.witnessed_through} ({self.witnesses} countersignatures)"
                if self.witnesses else ", no witness")
         if self.unwitnessed:
-            wit += (f", {self.unwitnessed} entries after the last witnessed one" if self.witnesses
-                    else f" of its {self.unwitnessed} entries")
+            wit += (f", {self.unwitnessed} decisions after the last witnessed entry" if self.witnesses
+                    else f" of its {self.unwitnessed} decisions")
         if self.unchained:
             wit += f", {self.unchained} witness lines outside any chain (ignored)"
         return f"{self.node}: verified {self.signed_through + 1} of {self.entries} entries{tail}{wit}"
@@ -445,10 +472,12 @@ class CheckedChain:
     problem: str | None = None
     kind: str | None = None
     first_bad: int | None = None
+    decisions: list[int] = field(default_factory=list)  # the seqs of its entries that are no countersignature
 
     def report(self, witnesses: Iterable[AuditWitness] = (), witnessed: bool = False) -> ChainReport:
         """The record against the (valid) countersignatures of it in ``witnesses``; ``witnessed``: a
-        record that witnesses keep (a drone's): its entries after the last witnessed one are counted."""
+        record that others countersign (a fleet node's): its decisions after the last witnessed entry
+        are counted."""
         hashes, n = self.hashes, len(self.hashes)
         if self.problem is not None:
             return ChainReport(self.node, n, self.checkpoints, self.signed, -1, 0, self.problem, self.kind,
@@ -468,7 +497,8 @@ class CheckedChain:
                                    "modified", min(w.seq, self.signed + 1), unchained=self.unchained)
             top = max(top, w.seq)
         return ChainReport(self.node, n, self.checkpoints, self.signed, top, count,
-                           unwitnessed=n - (top + 1) if witnessed else None, unchained=self.unchained)
+                           unwitnessed=len(self.decisions) - bisect.bisect_right(self.decisions, top) if witnessed
+                           else None, unchained=self.unchained)
 
 
 def check_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public: PublicKeys,
@@ -485,11 +515,12 @@ def check_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public
     revision: int | None = None  # the last revision this node applied, by its record
     hashes: list[str] = []
     countersigned: list[AuditWitness] = []
+    decisions: list[int] = []
     prev = genesis(node)
     checkpoints, signed, unchained = 0, -1, 0
 
     def bad(kind: str, first: int, problem: str) -> CheckedChain:
-        return CheckedChain(node, hashes, checkpoints, signed, countersigned, unchained, problem, kind, first)
+        return CheckedChain(node, hashes, checkpoints, signed, countersigned, unchained, problem, kind, first, decisions)
 
     for i, item in enumerate(lines):
         if isinstance(item, (bytes, str)):
@@ -525,7 +556,9 @@ def check_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public
                     return bad("bad_witness", expect, f"entry {expect}: {node}'s countersignature of {w.node}'s "
                                                       f"entry {w.seq} does not verify under their keys{at}")
                 countersigned.append(w)
-            elif line.kind == REVISION_KIND:
+            else:
+                decisions.append(expect)
+            if line.kind == REVISION_KIND:
                 number = line.fields.get("number")
                 if isinstance(number, int) and not isinstance(number, bool) and (revision is None or number > revision):
                     revision = number
@@ -553,7 +586,7 @@ def check_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public
             in_force = under
             checkpoints += 1
             signed = max(signed, line.seq)
-    return CheckedChain(node, hashes, checkpoints, signed, countersigned, unchained)
+    return CheckedChain(node, hashes, checkpoints, signed, countersigned, unchained, decisions=decisions)
 
 
 def verify_chain(node: str, lines: Iterable[bytes | str | AuditLine], node_public: PublicKeys,

@@ -86,6 +86,13 @@ class AuditHead(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     sig: bytes
 
 
+class AuditOffer(Control, frozen=True, tag="audit_offer"):
+    """GS -> drone: a checkpoint of the GS's authority record that covers its decisions, for the
+    drone to countersign in its own record (``zdrone.core.audit``), as the GS does the drone's."""
+
+    head: AuditHead
+
+
 class AuthorityAttestation(msgspec.Struct, frozen=True, forbid_unknown_fields=True, array_like=True):
     """The drone's own word on its authority (``zdrone.core.attestation``): ``owner`` holds it in
     ``epoch``, in ``state`` (handing it to ``pending_to``), allowing takeover (``takeover``, for
@@ -141,7 +148,7 @@ class SmHeartbeat(Control, frozen=True, tag="sm_heartbeat"):
 
 
 ControlMessage = (KeyGrant | KeyGrantAck | HandoverRequest | HandoverRelease | AuthorityStatus | Reject | FailsafeNotice
-                  | SmHeartbeat | OperatorRequest)
+                  | SmHeartbeat | OperatorRequest | AuditOffer)
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(ControlMessage)

@@ -35,6 +35,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core import authority as ha
 from zdrone.core import records as rec
+from zdrone.core.audit import Witnessing
 from zdrone.core.bundle import BundleWriter
 from zdrone.core.fleet import ConfigError, Fleet
 from zdrone.core.outputs import Emit, Handlers, Put, dispatch
@@ -47,7 +48,7 @@ from zdrone.fleet.routerconfig import UPLINK_MAX_BYTES
 from zdrone.net.authstore import AuthorityStore, SavedAuthority
 from zdrone.net.inbox import payload_bytes
 from zdrone.net.runtime import NodeRuntime
-from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_actions import CommandVehicle, Countersign, Listen, Out, Persist, ToVehicle
 from zdrone.nodes.drone_core import DroneCore, DroneCoreOptions
 from zdrone.vehicle.fcsigning import FcKeyStore, FcSigning
 from zdrone.vehicle.link import VehicleLink, VehicleState
@@ -155,6 +156,10 @@ class DroneOptions:
     revision_lease: float = 0.0  # DroneCoreOptions.revision_lease (0: off)
 
 
+#: The drone countersigns a GS's checkpoints at most this often (a GS sends each offer three times, 0.5 s apart).
+COUNTERSIGN_EVERY_S = 0.4
+
+
 class DroneNode:
     """The companion computer of one drone: Zenoh, the vehicle and the clock around a ``DroneCore``."""
 
@@ -172,8 +177,11 @@ class DroneNode:
                                                batch=opts.cipher != "fernet"),
                               started_wall=time.time(), signing=self.secret.signing)
         self.core.wall_offset = time.time() - time.monotonic()  # the time of day its attestations name
+        self.witnessing: Witnessing | None = None  # it countersigns its GSs' checkpoints (zdrone.core.audit)
         if self.secret.signing is not None:  # the signed authority record beside the event log (zdrone.core.audit)
             self.events.start_audit(self.secret.signing, on_checkpoint=lambda cp: self.core.on_audit_checkpoint(*cp.raw()))
+            self.witnessing = Witnessing(self.name, self.secret.signing, self._gs_keys(self.fleet),
+                                         every=COUNTERSIGN_EVERY_S)
         self.store = AuthorityStore(opts.fleet, opts.drone)
         self.gate: LinkGate | None = opts.gate
         self.radio = opts.radio
@@ -208,7 +216,24 @@ class DroneNode:
         return {Put: lambda o: self._publish(o.peer, o.payload), ToVehicle: lambda o: self.vehicle.send(o.frame),
                 Emit: lambda o: self._emit(o.record), Listen: lambda o: self._listen(o.gss),
                 CommandVehicle: lambda o: (self.vehicle.command_land if o.command == "LAND" else self.vehicle.command_rtl)(),
-                Persist: self._persist}
+                Persist: self._persist, Countersign: self._countersign}
+
+    def _gs_keys(self, fleet: Fleet) -> dict[str, bytes | None]:
+        """The GSs whose checkpoints it countersigns, under their keys in force (a revoked GS's: none)."""
+        return {g: None if fleet.is_revoked(g) else fleet.signing_public(g)
+                for g in fleet.ground_stations() if fleet.is_authorized(self.name, g)}
+
+    def _countersign(self, o: Countersign) -> None:
+        """A GS's checkpoint from its authentic offer: countersigned once, an entry of this drone's
+        record; one whose signature fails is counted, never countersigned."""
+        if self.witnessing is None:
+            return
+        refused = self.witnessing.refused
+        w = self.witnessing.on_head(o.gs, o.head.seq, o.head.head, o.head.sig, time.time())
+        if w is not None:
+            self.events.write_witness(w)
+        elif self.witnessing.refused > refused:
+            self.core.counters["audit_bad_checkpoint"] += 1
 
     def _persist(self, o: Persist) -> None:
         if o.owner is None:
@@ -325,6 +350,8 @@ class DroneNode:
         if isinstance(got, RevisionAccepted):
             self.fleet = got.fleet
             self._rekey_audit(got.fleet)  # before the revision's own entry: that one is signed under the new key
+            if self.witnessing is not None:
+                self.witnessing.set_node_keys(self._gs_keys(got.fleet))
             self._do(self.core.on_revision(got.fleet, now), now)
         if (stamp := self.revision.take_stamp()) is not None:  # checked by the core against the fleet in force
             self._do(self.core.on_revision_stamp(stamp, now, carrier=peer), now)
@@ -350,12 +377,16 @@ class DroneNode:
             self.core.counters["audit_rotation_pending"] += 1
             if self.events.audit is not None:
                 self.events.rekey_audit(None)
+            if self.witnessing is not None:
+                self.witnessing.rekey(None)
             self.core.adopt_own_keys(None, None)
             return
         log.warning("own keys rotated by the fleet: pairing, attestations and the record under the new keys")
         self.core.counters["own_keys_rotated"] += 1
         if self.events.audit is not None:
             self.events.rekey_audit(secret.signing)
+        if self.witnessing is not None:
+            self.witnessing.rekey(secret.signing)
         self.core.adopt_own_keys(secret.identity, secret.signing)
 
     def _hears_a_gs(self) -> bool:

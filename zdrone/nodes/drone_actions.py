@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Union
 
+from zdrone.core import wire
 from zdrone.core.outputs import Emit, Put
 
 
@@ -37,6 +38,15 @@ class Listen:
 
 
 @dataclass(frozen=True, slots=True)
+class Countersign:
+    """GS ``gs``'s authority-record checkpoint, from its authentic ``wire.AuditOffer``: for the drone
+    to countersign in its own record (``zdrone.core.audit``)."""
+
+    gs: str
+    head: wire.AuditHead
+
+
+@dataclass(frozen=True, slots=True)
 class Persist:
     """Keep this authority across a restart (``owner`` None: forget what was kept)."""
 
@@ -45,6 +55,6 @@ class Persist:
     state: str
 
 
-Out = Union[Put, ToVehicle, CommandVehicle, Listen, Emit, Persist]
+Out = Union[Put, ToVehicle, CommandVehicle, Listen, Emit, Persist, Countersign]
 
 OutHandler = Callable[[Out], None]

@@ -61,7 +61,7 @@ from zdrone.core.tbm import TbmThresholds
 from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
 from zdrone.fleet import keyexprs
-from zdrone.nodes.drone_actions import CommandVehicle, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_actions import CommandVehicle, Countersign, Listen, Out, Persist, ToVehicle
 from zdrone.nodes.drone_revisions import DroneRevisions
 
 log = logging.getLogger(__name__)
@@ -491,6 +491,8 @@ class DroneCore(DroneRevisions):
             return self._handle(ha.Release(now, gs, msg.to, msg.epoch), now)
         if isinstance(msg, wire.HandoverRequest):
             return self._handle(ha.AuthorityAsked(now, gs, msg.to, msg.timeout, msg.takeover, msg.ask_id, msg.takeover_to), now)
+        if isinstance(msg, wire.AuditOffer):
+            return [Countersign(gs, msg.head)]
         if isinstance(msg, wire.SmHeartbeat):
             self.counters["sm_heartbeat"] += 1
         else:
