@@ -9,7 +9,8 @@ import os
 
 from zdrone.core.attestation import Attester
 from zdrone.core.keys import Identity, SigningKey
-from zdrone.core.opspicture import (ATTEST_LIVE_S, CLAIM_KEEP_S, EXPIRE_EVERY_S, MAX_SKEW_S, OPS_MAX_BYTES,
+from zdrone.core.opspicture import (ATTEST_LIVE_S, CLAIM_KEEP_S, EXPIRE_EVERY_S, MAX_SKEW_S, OFFSET_BEHIND_S,
+                                    OPS_MAX_BYTES,
                                     REPORT_TTL_S, STALE_S, DroneOps, FleetPicture, OpsDrop, OpsEvent, OpsOpener,
                                     OpsReport, OpsRequest, OpsSealer, _natural, report_parts)
 from zdrone.core.wire import AuthorityState, AuthorityStatus
@@ -204,7 +205,39 @@ def test_a_word_held_back_and_let_go_later_is_old_on_arrival():
     # A goes silent; H had held the drone's next word back, and lets it go 6 s after it was signed
     _on(pic, "H", 19.0, _attested("A", 1, WALL + 13.0 - 2.0, seq=13, since=0.0))
     row = _row(pic, 19.0)
-    assert row["stale"] and not row["verified"] and 5.5 <= row["attested_age"] <= 6.5
+    # 8 s late by the drone's clock, of which OFFSET_BEHIND_S is credited (its clock behind, or the way)
+    assert row["stale"] and not row["verified"] and row["attested_age"] == 8.0 - OFFSET_BEHIND_S
+
+
+def test_a_sole_carrier_holding_every_word_back_buys_no_freshness_from_the_clock_offset():
+    """Found: the owner's GS stopped, B (the only GS the view hears) let every word of d1 go 4.8 s
+    late: the learnt offset took the delay for the drone's clock, and a stopped drone showed live and
+    verified for 7.0 s (2.4 s when carried at once)."""
+    for delay in (0.05, 1.0, 2.0, 4.8, 10.0):
+        pic = _picture()
+        t = 10.0
+        while t < 40.0:  # the drone signs every beacon, its clock the viewer's; B lets each go ``delay`` late
+            _on(pic, "B", t + delay, _attested("A", 1, WALL + t, seq=int(t), since=0.0))
+            t += 1.0
+        stop = t - 1.0  # its last word was signed at ``stop``; B goes on saying "link ok"
+        if delay <= OFFSET_BEHIND_S:  # carried at once: live while the drone speaks
+            assert not _row(pic, stop + delay)["stale"]
+        for k in range(1, 41):
+            now = stop + delay + 0.1 * k
+            _on(pic, "B", now, _ops("A", 1, since=0.0))
+            if now - stop > ATTEST_LIVE_S + OFFSET_BEHIND_S:
+                row = _row(pic, now)
+                assert row["stale"] and not row["verified"], (delay, now - stop)
+
+
+def test_a_drone_whose_clock_runs_ahead_is_aged_and_one_a_little_behind_stays_live():
+    for skew in (-3.0, 1.5):  # the drone's clock 3 s ahead of the viewer's, 1.5 s behind
+        pic = _picture()
+        for i in range(20):
+            t = 10.0 + i
+            _on(pic, "A", t + 0.05, _attested("A", 1, WALL + t - skew, seq=i))
+            assert not _row(pic, t + 0.05)["stale"] and not _row(pic, t + 0.95)["stale"], (skew, t)
+        assert _row(pic, 29.0 + ATTEST_LIVE_S + 0.01)["stale"]  # stopped: stale on time by the viewer's clock
 
 
 def test_a_word_dated_far_ahead_is_refused():
@@ -215,17 +248,21 @@ def test_a_word_dated_far_ahead_is_refused():
     assert pic.drops["attest_future"] == 1 and pic.attested["d1"].att.seq == 3
 
 
-def test_a_rotated_drone_key_verifies_until_the_new_one_speaks_then_the_old_one_is_refused():
-    """Found: after a rotation, an attestation signed with the retired drone key showed verified."""
-    pic = _picture()
-    _on(pic, "A", 10.0, _attested("A", 1, WALL + 10.0, key=D1_OLD, seq=1))
-    assert _row(pic, 10.0)["verified"]  # signed before the drone took its new key
+def test_a_key_the_revision_held_retired_is_refused_whether_or_not_the_new_one_was_heard():
+    """Found: after a rotation, an attestation signed with the retired drone key showed verified; then,
+    a view started after ``fleet rotate d1`` while the GSs were silent showed a word forged under the
+    retired key as the verified, live owner (B, epoch 99): it retired a key only once it heard the new one."""
+    pic = _picture()  # the revisions held give d1 (D1_OLD, D1): D1 in force
+    _on(pic, "B", 10.0, _attested("B", 99, WALL + 10.0, key=D1_OLD, seq=99))  # nothing heard under D1 yet
+    row = _row(pic, 10.0)
+    assert (row["verified"], row["stale"]) == (False, True) and "d1" not in pic.attested
+    assert pic.check.counts["retired_key"] == 1
     _on(pic, "A", 10.5, _attested("A", 1, WALL + 10.5, key=D1, seq=1))  # the drone speaks under its new key
     # the old key's thief, with a newer time and counter, even dated ahead: refused
-    _on(pic, "H", 11.0, _attested("H", 9, WALL + 11.0 + 5, key=D1_OLD, seq=99))
+    _on(pic, "H", 11.0, _attested("H", 9, WALL + 11.0 + 5, key=D1_OLD, seq=100))
     row = _row(pic, 11.0)
     assert (row["owner"], row["epoch"], row["verified"]) == ("A", 1, True)
-    assert pic.check.counts["retired_key"] == 1 and pic.check.in_force["d1"] == 1
+    assert pic.check.counts["retired_key"] == 2 and pic.check.in_force["d1"] == 1
     # a word under a retired key that came first, dated ahead, does not shadow the new key's words
     pic = _picture()
     _on(pic, "H", 10.0, _attested("H", 9, WALL + 10.0 + 20, key=D1_OLD, seq=99))
@@ -233,18 +270,23 @@ def test_a_rotated_drone_key_verifies_until_the_new_one_speaks_then_the_old_one_
     assert (_row(pic, 10.5)["owner"], _row(pic, 10.5)["verified"]) == ("A", True)
 
 
-def test_a_key_rotated_live_is_taken():
+def test_a_key_rotated_live_is_taken_and_retires_the_old_one_at_once():
     pic = FleetPicture(AUTH, {"d1": (D1_OLD.public,)}, STATIONS)
     _on(pic, "A", 10.0, _attested("A", 1, WALL + 10.0, key=D1, seq=1))
     assert not _row(pic, 10.0)["verified"]  # not a key of d1's yet
-    pic.check.add_key("d1", D1.public)  # a revision rotated it (``Follower.apply_fleet``)
-    _on(pic, "A", 10.5, _attested("A", 1, WALL + 10.5, key=D1, seq=2))
+    _on(pic, "A", 10.2, _attested("A", 1, WALL + 10.2, key=D1_OLD, seq=2))
+    assert _row(pic, 10.2)["verified"]  # under the key in force
+    pic.add_key("d1", D1.public)  # a revision rotated it (``Follower.apply_fleet``): D1_OLD retired now
+    assert "d1" not in pic.attested and not _row(pic, 10.3)["verified"]  # the word held under D1_OLD goes
+    _on(pic, "B", 10.4, _attested("B", 99, WALL + 10.4, key=D1_OLD, seq=3))  # the thief of the old key
+    assert not _row(pic, 10.4)["verified"] and pic.check.counts["retired_key"] == 1
+    _on(pic, "A", 10.5, _attested("A", 1, WALL + 10.5, key=D1, seq=4))
     assert _row(pic, 10.5)["verified"]
 
 
 def test_each_word_is_checked_once_and_a_repeated_forgery_costs_one_check():
     pic = _picture()
-    word = _attested("A", 1, WALL + 10.0, key=D1_OLD)
+    word = _attested("A", 1, WALL + 10.0)
     for t in (10.0, 10.5, 11.0):  # the same word repeated by every report, from two GSs
         _on(pic, "A", t, word)
         _on(pic, "B", t, word)

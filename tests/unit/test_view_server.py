@@ -116,7 +116,7 @@ def test_a_client_that_never_finishes_its_request_head_is_cut_off(monkeypatch):
         assert _get(port) == 200  # a whole request is served
 
 
-def test_connections_beyond_the_limit_are_cut_at_once_and_the_file_limit_is_raised(monkeypatch):
+def test_connections_beyond_the_limit_cut_the_oldest_headless_and_the_file_limit_is_raised(monkeypatch):
     import resource
 
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
@@ -131,9 +131,9 @@ def test_connections_beyond_the_limit_are_cut_at_once_and_the_file_limit_is_rais
 
         assert wait_until(lambda: len(cut()) >= 6, 5)
         gone = cut()
-        assert len(gone) == 6 and all(s.recv(10) == b"" for s in gone)  # cut at once, nothing said
-        kept = [s for s in socks if s not in gone]
-        for s in kept:  # the first four are served
+        assert gone == socks[:6] and all(s.recv(10) == b"" for s in gone)  # the oldest cut at once, nothing said
+        kept = socks[6:]
+        for s in kept:  # the newest four are served
             s.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode())
             s.settimeout(5)
             assert s.recv(12) == b"HTTP/1.1 200"
@@ -168,3 +168,92 @@ def test_every_stream_shares_one_picture_per_version_and_streams_are_bounded(mon
         assert follower.snapshots < 20  # 30 pictures sent: made once for every stream (about 6 times, not 30)
         monkeypatch.setattr(srv, "MAX_STREAMS", 0)
         assert _get(port, "/api/stream") == 503
+
+
+def test_the_gate_cuts_the_oldest_headless_connection_and_holds_each_address_to_its_own_few():
+    gate = srv.Gate(cap=4, per_address=2)
+    assert gate.admit("op1", "10.0.0.1") == [] and gate.admit("a1", "10.0.0.9") == []
+    gate.serving("op1")  # the operator's whole head came: served, never cut for another
+    assert gate.admit("a2", "10.0.0.9") == []
+    assert gate.admit("a3", "10.0.0.9") == ["a1"]  # the stranger's third headless one cuts its own oldest
+    assert gate.admit("b1", "10.0.0.7") == []  # 4 open: op1 (serving), a2, a3, b1
+    assert gate.admit("op2", "10.0.0.1") == ["a2"]  # at the cap: the oldest headless of all goes, not the newcomer
+    gate.waiting("op1", "10.0.0.1")  # op1's response done: headless again, the youngest
+    assert gate.admit("c1", "10.0.0.5") == ["a3"]
+    for c in ("b1", "op2", "op1", "c1"):
+        gate.serving(c)
+    assert gate.admit("d1", "10.0.0.4") is None and gate.refused == 1  # every one serving: the newcomer refused
+    gate.gone("b1")
+    assert gate.admit("d1", "10.0.0.4") == [] and len(gate.open) == 4 and gate.by_address == {"10.0.0.4": {"d1": None}}
+
+
+def test_half_open_heads_held_and_renewed_never_lock_the_operator_out(monkeypatch):
+    """Found: 256 connections with half a request head, reopened when cut, made the page load 0/60."""
+    monkeypatch.setattr(srv, "MAX_CONNECTIONS", 6)
+    monkeypatch.setattr(srv, "MAX_HEADLESS_PER_ADDRESS", 100)  # one address here: the global rule under test
+    with serving(FakeFollower()) as port:
+        held = []
+        for _ in range(3):  # the stranger fills the server three times over, half a head on each
+            for _ in range(6):
+                s = socket.create_connection(("127.0.0.1", port))
+                s.sendall(b"GET / HTTP/1.1\r\nHo")
+                held.append(s)
+            assert _get(port) == 200  # the operator's connection, the newest, is served
+        for s in held:
+            s.close()
+
+
+def test_one_address_holds_few_headless_connections_the_others_are_served(monkeypatch):
+    monkeypatch.setattr(srv, "MAX_HEADLESS_PER_ADDRESS", 3)
+    with serving(FakeFollower()) as port:
+        socks = [socket.create_connection(("127.0.0.1", port)) for _ in range(10)]
+        assert wait_until(lambda: len(select.select(socks, [], [], 0.05)[0]) >= 7, 5)
+        gone = select.select(socks, [], [], 0.05)[0]
+        assert gone == socks[:7] and all(s.recv(10) == b"" for s in gone)  # the oldest cut, the newest three kept
+        for s in socks:
+            s.close()
+
+
+def _cut_off(s: socket.socket) -> bool:
+    """Whether the server closed ``s`` saying nothing (a FIN, or a reset when it left bytes unread)."""
+    try:
+        return s.recv(10) == b""
+    except ConnectionResetError:
+        return True
+
+
+def _self_signed(tmp_path) -> tuple[str, str]:
+    from cryptography.hazmat.primitives import serialization
+
+    from zdrone.fleet.tls import issue, make_ca
+
+    ca, ca_key = make_ca()
+    cert, key = issue(ca, ca_key, "view", ("127.0.0.1",))
+    (tmp_path / "c.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    (tmp_path / "k.pem").write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                                       serialization.NoEncryption()))
+    return str(tmp_path / "c.pem"), str(tmp_path / "k.pem")
+
+
+def test_tls_handshakes_are_counted_and_timed_from_accept(monkeypatch, tmp_path):
+    """Found: 1500 half-open TLS handshakes were held 60 s past the connection cap (the view 66 -> 519 MB)."""
+    import ssl
+
+    monkeypatch.setattr(srv, "HEADER_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(srv, "MAX_CONNECTIONS", 4)
+    cert, key = _self_signed(tmp_path)
+    opts = ViewOptions(fleet="-", router="-", tls_cert=cert, tls_key=key)
+    with serving(FakeFollower(), opts) as port:
+        half = [socket.create_connection(("127.0.0.1", port)) for _ in range(10)]  # no ClientHello, ever
+        for s in half[:5]:
+            s.sendall(b"\x16\x03\x01\x00\xc8\x01")  # half a ClientHello
+        ctx = ssl.create_default_context(cafile=None)
+        ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+        c = http.client.HTTPSConnection("127.0.0.1", port, timeout=5, context=ctx)
+        c.request("GET", "/", headers={"Host": f"127.0.0.1:{port}"})
+        assert c.getresponse().status == 200  # the operator's handshake and request, under 10 half-open ones
+        c.close()
+        assert wait_until(lambda: len(select.select(half, [], [], 0.05)[0]) == 10, 3)  # all cut, by the cap or at 0.5 s
+        assert all(_cut_off(s) for s in half)
+        for s in half:
+            s.close()

@@ -21,10 +21,13 @@ word?" and show the drone stale when the answer is "not recent".
 The viewer (``AttestationCheck``) checks an attestation against the drone's public keys: every key
 the fleet gave the drone over time (``zdrone.fleet.revisions.signing_key_history``; a key a live
 revision rotates in is added, ``add_key``). The drone's name is inside the signed message: an
-attestation of d2 shown for d1 fails. **Key in force**: once an attestation verifies under a drone's
-newer key, its older keys are retired for it: an attestation under one of them is refused
-(``retired_key``), however new it says it is (a thief of the old key cannot speak for the drone
-after the drone spoke under its new one). A valid attestation is kept (bounded) with the key that
+attestation of d2 shown for d1 fails. **Key in force**: the newest key the revisions held give the
+drone (the last of its history, or the one a revision taken live adds) is in force from the moment
+the view holds that revision, and every older one is retired: an attestation under one of them is
+refused (``retired_key``), however new it says it is, whether or not the view ever heard the drone
+speak under its new key (a thief of the old key cannot speak for the drone; the drone itself never
+signs under a key a revision it applied retired, ``DroneCore.adopt_own_keys``, so until it holds
+its new key it is shown stale). A valid attestation is kept (bounded) with the key that
 verified it; a failed one is remembered per (GS, drone) so the same bytes repeated cost nothing; new
 ones cost a signature check each, at most ``max(CHECK_RATE, 2 x drones)`` a second per GS beyond a
 burst (a hostile GS sending a new forgery in every report gets the rest counted, not checked).
@@ -110,10 +113,11 @@ class AttestationCheck:
     under a key still in force?"""
 
     def __init__(self, keys: Mapping[str, Sequence[bytes]]) -> None:
-        """``keys``: each drone's public signing keys over time (oldest first); a drone without any
+        """``keys``: each drone's public signing keys over time (oldest first), as the revisions the
+        view holds give them: the last is in force, every earlier one retired; a drone without any
         has no valid attestation."""
         self.keys: dict[str, list[bytes]] = {d: list(k) for d, k in keys.items() if k}
-        self.in_force: dict[str, int] = {}  # drone -> the newest key index any attestation verified under
+        self.in_force: dict[str, int] = {d: len(k) - 1 for d, k in self.keys.items()}  # drone -> its key in force
         self._valid: OrderedDict[tuple[str, AuthorityAttestation], int] = OrderedDict()  # -> key index
         self._failed: dict[tuple[str, str], AuthorityAttestation] = {}  # (gs, drone) -> its last forgery
         self._buckets: dict[str, TokenBucket] = {}
@@ -121,12 +125,14 @@ class AttestationCheck:
         self.counts: Counter[str] = Counter()  # why an attestation was not believed
 
     def add_key(self, drone: str, public: bytes) -> None:
-        """A revision gave ``drone`` a new signing key (taken live): it is the newest of its keys."""
+        """A revision in force gives ``drone`` the signing key ``public`` (taken live): it is the newest
+        of its keys and in force at once, every earlier one retired."""
         keys = self.keys.setdefault(drone, [])
         if keys[-1:] != [public]:
             keys.append(public)
             self._failed = {k: v for k, v in self._failed.items() if k[1] != drone}  # worth another look
             self._buckets.clear()  # the budgets are sized by the drones known
+        self.in_force[drone] = len(keys) - 1
 
     def newest_key(self, drone: str) -> int | None:
         keys = self.keys.get(drone)
@@ -169,7 +175,6 @@ class AttestationCheck:
         if idx < self.in_force.get(drone, 0):
             self.counts["retired_key"] += 1
             return None
-        self.in_force[drone] = idx
         return idx
 
     def valid(self, gs: str, drone: str, att: AuthorityAttestation | None, now: float) -> bool:

@@ -38,15 +38,17 @@ pending recipient, takeover and its window) at every status beacon and every cha
 (``zdrone.core.attestation``); per drone the picture holds the newest valid one by the drone's own
 (time, counter): one no newer is not even checked (an old word replayed loses, whoever carries it),
 one dated beyond ``MAX_SKEW_S`` ahead of the viewer's clock is refused, one under a retired key is
-refused (``AttestationCheck``), and one under a newer key than the word held replaces it (a
-rotation). The owner, epoch, state, pending recipient, takeover window and failsafe shown are that
-word's; it is ``verified``, and the drone **live**, only while the word is recent
+refused (``AttestationCheck``: every key older than the one the revisions held name), and one under
+a newer key than the word held replaces it (a rotation). The owner, epoch, state, pending recipient,
+takeover window and failsafe shown are that word's; it is ``verified``, and the drone **live**, only while the word is recent
 (``ATTEST_LIVE_S``: two beacons and a GS's period) *and* an authorized GS heard the drone within
 ``STALE_S``. How recent: the older of its time at the viewer since it first arrived and its own time
 against the viewer's clock, less the drone's clock offset (the least seen over ``OFFSET_WINDOW_S``,
-within ``OFFSET_MAX_S``), so a word a GS held back and let go later is old on arrival. A drone whose
-clock stepped back shows stale until its time passes the newest word's (a restart with a corrected
-clock), one whose clock is more than ``OFFSET_MAX_S`` behind the viewer's shows stale. Else the drone is **stale**, shown with
+from ``OFFSET_MAX_S`` ahead to ``OFFSET_BEHIND_S`` behind), so a word a GS held back and let go later
+is old on arrival: held back by one GS that carries every word, it is credited ``OFFSET_BEHIND_S`` at
+most (its delay and a clock running behind look the same). A drone whose clock stepped back shows
+stale until its time passes the newest word's (a restart with a corrected clock), one whose clock
+runs behind the viewer's shows its words that much older, less ``OFFSET_BEHIND_S``. Else the drone is **stale**, shown with
 its age (its last values, never as live). A GS's claim the word does not back (a higher epoch,
 another owner in its epoch) is listed apart as ``unverified``; an honest GS that lags (a lower epoch)
 is not listed; a GS that says it saw a failsafe is listed (``reports_failsafe``), the alarm itself is
@@ -313,10 +315,16 @@ ATTEST_LIVE_S = 2 * BEACON_S + OPS_PERIOD_S + 0.5
 #: Each drone's clock against the viewer's is learnt as the least (arrival - signed at) seen over this
 #: long (the drone's clock offset plus the quickest way here; a word held back arrives late and looks old) ...
 OFFSET_WINDOW_S = 120.0
-#: ... within this much either way: the drone's and the viewer's clocks (GPS, NTP) are assumed this
-#: close; a word older than this on arrival is old whatever the offset (an old word replayed to a
-#: viewer that has heard nothing newer yet), a drone whose clock is further off shows stale.
+#: ... within this much ahead of the viewer's clock (a word can reach the viewer no sooner than it was
+#: signed: a drone whose clock runs ahead has its words aged by it, whoever carries them) ...
 OFFSET_MAX_S = 5.0
+#: ... and this much behind it. A word arriving later than its time says is as much a carrier holding
+#: it back as a drone's clock running behind, and the viewer cannot tell them apart when one GS carries
+#: every word: lateness beyond this ages the word (a stopped drone shows stale ``ATTEST_LIVE_S`` plus
+#: this after its last word at most, whoever carries it and however late; a drone whose clock runs
+#: further behind shows its words that much older, live still while that stays under ``ATTEST_LIVE_S``
+#: less a beacon).
+OFFSET_BEHIND_S = 0.5
 #: Drone records and events taken per GS per second: this many per drone the GS is authorized for,
 #: and a base (an honest GS sends at most 1 / ``OPS_MIN_GAP_S`` = 10 pictures a second); bursts of
 #: ``REPORT_BURST`` seconds' worth. The rest are counted (``rate_limited``), not taken.
@@ -488,7 +496,18 @@ class FleetPicture:
         if cur is not None and key > cur.key:
             self._offsets.pop(drone, None)  # what the retired key's words taught of the drone's clock goes too
         self.attested[drone] = _Attested(att, key, now, gs)
-        self._offsets.setdefault(drone, _Offset()).add(wall, min(max(wall - att.at, -OFFSET_MAX_S), OFFSET_MAX_S))
+        self._offsets.setdefault(drone, _Offset()).add(wall, min(max(wall - att.at, -OFFSET_MAX_S), OFFSET_BEHIND_S))
+
+    def add_key(self, drone: str, public: bytes) -> None:
+        """A revision in force gives ``drone`` the signing key ``public``: in force at once, every
+        earlier one retired (``AttestationCheck.add_key``); a word held under a retired key goes, with
+        what it taught of the drone's clock."""
+        self.check.add_key(drone, public)
+        held = self.attested.get(drone)
+        if held is not None and held.key < self.check.in_force[drone]:
+            del self.attested[drone]
+            self._offsets.pop(drone, None)
+            self.version += 1
 
     def _expire(self, now: float) -> None:
         self._next_expiry = now + EXPIRE_EVERY_S

@@ -11,7 +11,8 @@ parts into a ``FleetPicture`` under a lock, which checks each drone's signed wor
 against the drone's signing keys over time and takes a GS's word only on the drones it is authorized
 for. The same thread takes the fleet's revisions live (``zdrone.fleet.revisions``): a revoked GS
 drops out at once (its parts no longer open), a rotated GS key must start anew, a rotated drone key
-is added and retires the old one once the drone spoke under it.
+is in force at once and retires the old one (as at start: the last key the revisions held give a
+drone is the one in force, heard under or not).
 
 **Serving.** Starlette on uvicorn: ``/`` the page, ``/static/*`` its own JS and CSS (shipped in the
 package, no CDN, no map tiles: the plan is drawn from the fleet's own geometry), ``/api/stream`` the
@@ -20,17 +21,20 @@ picture as server-sent events (msgspec JSON: ``init`` with the geometry and ever
 staleness shows without news; one picture made per version for every stream), ``/report`` the run's
 HTML report when ``--run`` names a folder that has one. The page reconnects by itself (the stream's
 ``retry``) when the server restarts, and shows every drone as stale while it has no stream or after
-any error of its own. The server stays up under load: a connection must send its request head within
-``HEADER_TIMEOUT_S``, at most ``MAX_CONNECTIONS`` are open and ``MAX_STREAMS`` streams served at once,
-a request head is at most ``MAX_HEAD_BYTES``, and the open-file limit is raised to the hard one at start.
+any error of its own. The server stays up under load: a connection must finish its TLS handshake and
+send its request head within ``HEADER_TIMEOUT_S`` of accept, at most ``MAX_CONNECTIONS`` are open
+(counted from accept) and ``MAX_STREAMS`` streams served at once; one more connection cuts the oldest
+one without a whole request head, and one address holds ``MAX_HEADLESS_PER_ADDRESS`` of those at most
+(``Gate``): a stranger holding half-open connections never locks the operator out. A request head is
+at most ``MAX_HEAD_BYTES``, and the open-file limit is raised to the hard one at start.
 
 **Exposure.** Loopback by default. Any other address needs ``--listen`` *and* a token (``--token-file
 FILE`` or ``$ZDRONE_VIEW_TOKEN``; ``--token T`` works, warned about: ``ps`` shows it): every request
 then carries it (``?token=`` once, kept in an HttpOnly, SameSite=Strict cookie, or an
 ``Authorization: Bearer`` header), compared in constant time. The ``Host`` header must name the
 address served or a name given with ``--name`` (required with ``--listen 0.0.0.0``): a DNS-rebinding
-page cannot read the view. TLS: ``--tls-cert``/``--tls-key`` (uvicorn's own), or a reverse proxy
-that terminates TLS in front of a loopback view (README). Every response forbids outside sources
+page cannot read the view. TLS: ``--tls-cert``/``--tls-key`` (the guarded protocol's, once admitted),
+or a reverse proxy that terminates TLS in front of a loopback view (README). Every response forbids outside sources
 (``Content-Security-Policy: default-src 'self'``), framing and referrers.
 """
 
@@ -67,8 +71,12 @@ RETRY_MS = 500
 HEADER_TIMEOUT_S = 10.0
 #: An idle kept-alive connection is closed after this long.
 KEEP_ALIVE_S = 5.0
-#: Connections open at once, at most; one more is cut at once (a file descriptor each).
+#: Connections open at once, counted from accept (a TLS handshake included), at most; one more cuts
+#: the oldest without a whole request head (``Gate``), or is cut at once when all are serving.
 MAX_CONNECTIONS = 256
+#: Connections without a whole request head (a TLS handshake included) one address holds at most; one
+#: more cuts that address's oldest (``Gate``).
+MAX_HEADLESS_PER_ADDRESS = 8
 #: Picture streams served at once, at most; one more is answered 503 (the page retries).
 MAX_STREAMS = 64
 #: The largest request head taken (bytes).
@@ -199,7 +207,8 @@ class Follower:
         self.rt = NodeRuntime(opts.fleet, names[0], "viewer", opts.router, None)
         self.fleet = self.rt.fleet
         self.opener = OpsOpener(self.rt.secret.identity, names[0], fleet_senders(self.fleet))
-        # each drone's signing keys over time: its attestations of who commands it are checked against them
+        # each drone's signing keys over time: its attestations of who commands it are checked against
+        # the last (the revision held names it), the earlier ones retired
         history = signing_key_history(opts.fleet)
         self.picture = FleetPicture(fleet_authorized(self.fleet),
                                     {d: history[d] for d in self.fleet.drones() if d in history},
@@ -249,7 +258,7 @@ class Follower:
         for d in fleet.drones():
             key = fleet.nodes[d].signing_public_bytes
             if key is not None:
-                self.picture.check.add_key(d, key)
+                self.picture.add_key(d, key)  # in force at once: the keys before it retired
         log.warning("fleet revision %d in force in the view", self.revisions.keeper.number)
 
     def snapshot(self) -> dict[str, Any]:
@@ -378,27 +387,141 @@ def build_app(follower: Any, opts: ViewOptions, host: str) -> Any:
                              Route("/report", report)])
 
 
-def guarded_protocol() -> type:
-    """uvicorn's h11 protocol with a request-head timeout and a connection limit: a connection that
-    has not sent a whole request head within ``HEADER_TIMEOUT_S`` of opening (or of its last
-    response) is cut, whatever it trickles meanwhile (uvicorn's own keep-alive timer restarts at
-    every byte); one beyond ``MAX_CONNECTIONS`` open is cut at once."""
+class Gate:
+    """Who holds the server's connections, counted from accept (a TLS handshake included): at most
+    ``cap`` open. A connection is *headless* while it has no whole request head to serve (in its TLS
+    handshake, sending its head, or idle between requests): one more connection cuts its own
+    address's oldest headless one when that address holds ``per_address`` of them, else, when ``cap``
+    are open, the oldest headless one of all; it is refused only when every open connection is
+    serving a request. Pure: the caller cuts what ``admit`` returns."""
+
+    def __init__(self, cap: int, per_address: int) -> None:
+        self.cap, self.per_address = cap, per_address
+        self.open: set[Any] = set()
+        self.headless: dict[Any, Any] = {}  # connection -> its address, oldest first
+        self.by_address: dict[Any, dict[Any, None]] = {}  # address -> its headless connections, oldest first
+        self.evicted = self.refused = 0
+
+    def admit(self, conn: Any, address: Any) -> list[Any] | None:
+        """``conn``, just accepted from ``address``, is in: the connections to cut for it (forgotten
+        here already); None: it is refused (every open connection is serving)."""
+        mine = self.by_address.get(address)
+        if mine is not None and len(mine) >= self.per_address:
+            cut = [next(iter(mine))]
+        elif len(self.open) >= self.cap:
+            if not self.headless:
+                self.refused += 1
+                return None
+            cut = [next(iter(self.headless))]
+        else:
+            cut = []
+        for c in cut:
+            self.gone(c)
+        self.evicted += len(cut)
+        self.open.add(conn)
+        self.waiting(conn, address)
+        return cut
+
+    def serving(self, conn: Any) -> None:
+        """A whole request head came: ``conn`` is not cut for another while it is served."""
+        address = self.headless.pop(conn, None)
+        if address is not None:
+            self._forget(address, conn)
+
+    def waiting(self, conn: Any, address: Any) -> None:
+        """``conn`` waits for a request head (accepted, or its response complete): headless, the youngest."""
+        if conn in self.open and conn not in self.headless:
+            self.headless[conn] = address
+            self.by_address.setdefault(address, {})[conn] = None
+
+    def gone(self, conn: Any) -> None:
+        self.open.discard(conn)
+        self.serving(conn)
+
+    def _forget(self, address: Any, conn: Any) -> None:
+        mine = self.by_address[address]
+        del mine[conn]
+        if not mine:
+            del self.by_address[address]
+
+
+def guarded_protocol(tls: Any = None) -> type:
+    """uvicorn's h11 protocol behind an admission gate (``Gate``: one per server), with TLS done here
+    when ``tls`` (an ``ssl.SSLContext``) is given: a connection is counted and timed from accept, its
+    TLS handshake included; it must have sent a whole request head within ``HEADER_TIMEOUT_S`` of
+    accept (or of its last response), whatever it trickles meanwhile (uvicorn's own keep-alive timer
+    restarts at every byte), and the handshake is cut at the same deadline. One more connection than
+    ``MAX_CONNECTIONS``, or than ``MAX_HEADLESS_PER_ADDRESS`` headless from one address, cuts the
+    oldest headless one (``Gate``), so a stranger holding half-open connections never locks out the
+    operator's. A TLS handshake is started only once admitted: memory is bounded by the gate."""
     from uvicorn.protocols.http.h11_impl import H11Protocol
 
     class Guarded(H11Protocol):  # type: ignore[misc]
-        refused = 0  # connections cut at once (over the limit)
-        timed_out = 0  # connections cut for want of a request head
+        gate = Gate(MAX_CONNECTIONS, MAX_HEADLESS_PER_ADDRESS)
+        timed_out = 0  # connections cut for want of a request head (a TLS handshake included)
 
         def connection_made(self, transport: Any) -> None:
+            if getattr(self, "_raw", None) is not None:  # the TLS transport, once the handshake is done
+                super().connection_made(transport)
+                early, self._early = self._early, []
+                for data in early:  # what the client sent with its handshake's end
+                    self.data_received(data)
+                return
+            self._raw, self._early, self._served = transport, [], False
             self._head_timer: asyncio.TimerHandle | None = None
-            super().connection_made(transport)
-            if len(self.connections) > MAX_CONNECTIONS:
-                Guarded.refused += 1
-                if Guarded.refused <= 5 or Guarded.refused % 1000 == 0:
-                    log.warning("view: %d connections open; one more cut (%d so far)", MAX_CONNECTIONS, Guarded.refused)
+            peer = transport.get_extra_info("peername")
+            self._address = peer[0] if isinstance(peer, tuple) else peer
+            cut = Guarded.gate.admit(self, self._address)
+            if cut is None:  # every open connection is serving a request
                 transport.abort()
                 return
+            for conn in cut:
+                conn._cut()
+            if cut and (Guarded.gate.evicted <= 5 or Guarded.gate.evicted % 1000 == 0):
+                log.warning("view: a connection without a request head cut for a new one (%d so far)",
+                            Guarded.gate.evicted)
             self._arm_head()
+            if tls is None:
+                super().connection_made(transport)
+            else:
+                transport.pause_reading()  # its first bytes are the handshake's: ``start_tls`` reads them
+                self._tls_task = self.loop.create_task(self._handshake(transport))
+
+        def _cut(self) -> None:
+            """Cut at once (the gate's choice, or the deadline): a TLS handshake under way is cancelled
+            (``start_tls`` then drops its TLS state at once, not at its own timeout)."""
+            task = getattr(self, "_tls_task", None)
+            if task is not None and not task.done():
+                task.cancel()
+            else:
+                self._raw.abort()
+
+        async def _handshake(self, raw: Any) -> None:
+            left = self._head_timer.when() - self.loop.time() if self._head_timer is not None else 0.0
+            try:
+                wrapped = await self.loop.start_tls(raw, self, tls, server_side=True,
+                                                    ssl_handshake_timeout=max(0.01, left))
+            except asyncio.CancelledError:  # cut (``_cut``), or the server ends
+                raw.abort()
+                self._gone()
+                raise
+            except Exception:  # refused, timed out, or cut (by the gate, at the deadline): start_tls closed it
+                self._gone()
+                return
+            if wrapped is None or raw.is_closing():
+                self._gone()
+                return
+            self.connection_made(wrapped)
+
+        def data_received(self, data: bytes) -> None:
+            if self.transport is None:  # TLS: data may come before ``connection_made`` (the handshake's end)
+                self._early.append(data)
+                return
+            super().data_received(data)
+            if not self._served and self.cycle is not None and not self.cycle.response_complete:
+                self._served = True  # a whole request head: served, not cut for another
+                self._cancel_head()
+                Guarded.gate.serving(self)
 
         def _arm_head(self) -> None:
             self._cancel_head()
@@ -412,18 +535,25 @@ def guarded_protocol() -> type:
         def _head_timeout(self) -> None:
             self._head_timer = None
             serving = self.cycle is not None and not self.cycle.response_complete
-            if not serving and not self.transport.is_closing():
+            if not serving and not self._raw.is_closing():
                 Guarded.timed_out += 1
-                self.transport.abort()
+                self._cut()
 
         def on_response_complete(self) -> None:
-            super().on_response_complete()
-            if not self.transport.is_closing():
+            super().on_response_complete()  # a pipelined request may be served at once
+            if not self.transport.is_closing() and (self.cycle is None or self.cycle.response_complete):
+                self._served = False
+                Guarded.gate.waiting(self, self._address)
                 self._arm_head()
 
-        def connection_lost(self, exc: Exception | None) -> None:
+        def _gone(self) -> None:
             self._cancel_head()
-            super().connection_lost(exc)
+            Guarded.gate.gone(self)
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._gone()
+            if self.transport is not None:  # else refused, or gone before its TLS handshake began
+                super().connection_lost(exc)
 
     return Guarded
 
@@ -448,10 +578,16 @@ def server_config(app: Any, opts: ViewOptions, host: str) -> Any:
     """uvicorn's configuration: the guarded protocol, the timeouts, TLS when asked."""
     import uvicorn
 
-    tls = {"ssl_certfile": opts.tls_cert, "ssl_keyfile": opts.tls_key} if opts.tls_cert else {}
+    tls = None
+    if opts.tls_cert:  # done by the guarded protocol, not by uvicorn (its handshake is counted and timed from accept)
+        import ssl
+
+        tls = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        tls.load_cert_chain(opts.tls_cert, opts.tls_key)
     return uvicorn.Config(app, host=host, port=opts.port, log_level="warning", lifespan="off", access_log=False,
-                          timeout_graceful_shutdown=1, http=guarded_protocol(), timeout_keep_alive=KEEP_ALIVE_S,
-                          h11_max_incomplete_event_size=MAX_HEAD_BYTES, backlog=MAX_CONNECTIONS, **tls)
+                          timeout_graceful_shutdown=1, http=guarded_protocol(tls), timeout_keep_alive=KEEP_ALIVE_S,
+                          h11_max_incomplete_event_size=MAX_HEAD_BYTES, backlog=MAX_CONNECTIONS, loop="asyncio",
+                          ws="none")  # no protocol switch: every connection stays the gate's
 
 
 def run_view(opts: ViewOptions) -> int:
