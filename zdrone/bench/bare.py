@@ -12,13 +12,18 @@ the same keys, the same QoS and the same application traffic, and nothing else:
   ``zdrone/<drone>/down/<gs>``, congestion control DROP; the full stream to the GS it is "with" (the
   nearest GS whose coverage holds it; the last one while none does), each periodic stream message at
   most once a second (``StandbyStream``) to the other GSs whose coverage holds it, as zdrone streams to a
-  standby GS; every frame that comes on ``zdrone/<drone>/up/*`` goes to the vehicle. No authority
-  machine, no pairing, no key sharing, no status beacon, no revision, no event log;
+  standby GS; it hears the same GSs a zdrone drone hears (the radio gate: those whose coverage holds it,
+  plus the one it is with), subscribed to their uplinks' lanes (``zdrone/<drone>/up/<gs>/*``) and no
+  others, and every frame that comes on them goes to the vehicle; its take-off moment is drawn over
+  the same spread as a zdrone GS's (``gs.core.TAKEOFF_SPREAD_PER_DRONE_S``). No authority machine, no
+  pairing, no key sharing, no status beacon, no revision, no event log;
 * **a GS**: a MAVLink HEARTBEAT to every drone at 2 Hz, and to each drone it is "with" (the same rule,
   on the positions it hears) and that is armed a command at 1 Hz (REQUEST_MESSAGE HOME_POSITION,
-  zdrone's command stream), each on ``zdrone/<drone>/up/<gs>`` at zdrone's link priority, not express,
-  DROP; its frames are handled in Zenoh's callback (only the position and the HEARTBEAT's armed bit are
-  read); and every ``revisions.STAMP_PERIOD_S`` one backhaul put of a revision stamp's size to the
+  zdrone's command stream, each drone's on its own clock from when it armed), paced on the uplink's
+  lanes by the same rule (``zdrone.net.pacing``: a frame per lane at once, each lane's frames
+  ``UPLINK_LANE_GAP_S`` apart), at zdrone's link priority, not express, DROP; every frame it gets is
+  decoded with pymavlink as zdrone's GS decodes it (``FrameCodec.decode``; the position and the
+  HEARTBEAT's armed bit read from the message), in Zenoh's callback; and every ``revisions.STAMP_PERIOD_S`` one backhaul put of a revision stamp's size to the
   other GSs (zdrone's GSs' own traffic to each other in flight);
 * **the flight**: the shuttle of ``bench scale``, uploaded into each simulator in-process before the
   take-off (zdrone's GS A uploads it over the link on the ground), armed and started at take-off by a
@@ -34,8 +39,11 @@ from __future__ import annotations
 import argparse
 import collections
 import gc
+import heapq
+import itertools
 import json
 import logging
+import random
 import signal
 import struct
 import subprocess
@@ -148,20 +156,32 @@ class BareDrone:
         self.standby = StandbyStream()
         self.owner: str | None = None
         self.armed_seen = False
+        self.takeoff_at = float("inf")  # its take-off moment, drawn over the spread at the take-off
         self.pos_key: tuple[float, float] | None = None
         self.inside: list[str] = []
+        self.subs: dict[str, Any] = {}  # GS -> the subscriber of its uplink's lanes (the radio gate)
         inq = self.inq
 
         def on_up(sample: zenoh.Sample) -> None:  # Zenoh's thread: hand over and return
             data = sample.payload.to_bytes()
             if lat is not None:
                 lat.note("up", "arrived", name, data, time.monotonic())
-            inq.append((keyexprs.gs_of(sample.key_expr), data))
+            inq.append((keyexprs.gs_of_uplink(sample.key_expr), data))
             self.delivered += 1
             if woken is not None:
                 woken.append(self)
 
-        self.sub = self.session.declare_subscriber(f"zdrone/{name}/up/*", zenoh.handlers.Callback(on_up, indirect=False))
+        self._on_up = on_up
+
+    def hear(self) -> None:
+        """The radio gate, as a zdrone drone's: subscribed to the uplinks of the GSs whose coverage
+        holds it and of the one it is with, and no others (called when those change)."""
+        want = set(self.inside) | ({self.owner} if self.owner is not None else set())
+        for g in [g for g in self.subs if g not in want]:
+            self.subs.pop(g).undeclare()
+        for g in sorted(want - set(self.subs)):
+            self.subs[g] = self.session.declare_subscriber(
+                f"{keyexprs.up(self.name, g)}/*", zenoh.handlers.Callback(self._on_up, indirect=False))
 
     def take_uplink(self, lat: LatencyLog | None) -> None:
         """Every frame that came up goes to the vehicle (at the drone's turn, and between turns as
@@ -175,7 +195,8 @@ class BareDrone:
 
     def close(self) -> None:
         try:
-            self.sub.undeclare()
+            for sub in self.subs.values():
+                sub.undeclare()
             self.session.close()
         except Exception as exc:  # closing is best effort at the end of a run
             log.warning("%s: close: %s", self.name, exc)
@@ -215,6 +236,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     from gs.planner import shuttle_mission
 
     from zdrone.bench.procstats import _memory_mb
+    from gs.core import TAKEOFF_SPREAD_PER_DRONE_S
     from zdrone.bench.scalehosts import CROSSINGS, PASS_S, WAKE_EVERY
     from zdrone.core.mavlink import FrameCodec
     from zdrone.core.reference import HOME
@@ -238,7 +260,14 @@ def _host_drones(args: argparse.Namespace) -> int:
         if not _upload(vehicle, mission, gcs):
             print(f"bare drones host: {name} refused the mission", file=sys.stderr, flush=True)
             return 2
-        drones.append(BareDrone(name, routers[i % len(routers)], vehicle, gss, lat, woken))
+        d = BareDrone(name, routers[i % len(routers)], vehicle, gss, lat, woken)
+        p = vehicle.sim.position
+        d.inside = [g for g, c in circles.items() if c.contains(p)]
+        d.owner = nearest_covering(p, circles, None)
+        d.hear()
+        drones.append(d)
+    spread = TAKEOFF_SPREAD_PER_DRONE_S * max(len(drones) - 1, 0)  # as a zdrone GS spreads its take-offs
+    draw = random.Random(7)
     freeze_start_up()
     print(f"{READY}: {len(drones)} drones", flush=True)
     stop, go = [False], [False]
@@ -259,6 +288,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 t0, cpu0 = pass_start, time.process_time()
                 deadline = t0 + args.duration
                 baseline = sum(d.delivered for d in drones)
+                for d in drones:
+                    d.takeoff_at = t0 + draw.uniform(0.0, spread)
                 if lat is not None:
                     lat.start(t0)
                 print("bare drones host: take-off", flush=True)
@@ -272,7 +303,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                 now = time.monotonic()
                 vehicle = d.vehicle
                 d.take_uplink(lat)
-                if arm_now and not d.armed_seen:
+                if arm_now and not d.armed_seen and now >= d.takeoff_at:
                     if vehicle.armed:
                         d.armed_seen = True
                     else:
@@ -286,8 +317,10 @@ def _host_drones(args: argparse.Namespace) -> int:
                 key = (p.lat, p.lon)
                 if key != d.pos_key:
                     d.pos_key = key
-                    d.inside = [g for g, c in circles.items() if c.contains(p)]
-                    d.owner = nearest_covering(p, circles, d.owner)
+                    inside, owner = [g for g, c in circles.items() if c.contains(p)], nearest_covering(p, circles, d.owner)
+                    if inside != d.inside or owner != d.owner:
+                        d.inside, d.owner = inside, owner
+                        d.hear()
                 owner, bundles = d.owner, d.bundles
                 for f in frames:
                     if owner is not None:
@@ -332,8 +365,16 @@ class BareStation:
         from zdrone.core.mavlink import FrameCodec
 
         self.name, self.drones, self.circles, self.lat = name, drones, circles, lat
+        from zdrone.fleet.routerconfig import UPLINK_LANE_GAP_S
+        from zdrone.net.pacing import Pacer
+
         self.codec = FrameCodec(sysid, 190)
+        self.decoder = FrameCodec(sysid, 190)  # what the drones send (Zenoh's thread only)
         self.seq: dict[str, int] = {d: 0 for d in drones}  # each link's MAVLink sequence number
+        self.refused = collections.Counter[str]()
+        self.pacer = Pacer(UPLINK_LANE_GAP_S, lambda why: self.refused.update([why]), burst=keyexprs.UP_LANES)
+        self.lanes: dict[str, Any] = {}
+        self.arming: collections.deque[str] = collections.deque()  # drones seen arming (Zenoh's thread -> the GS's)
         self.pos: dict[str, Any] = {}
         self.armed: dict[str, bool] = {}
         self.owner: dict[str, str | None] = {}
@@ -354,28 +395,42 @@ class BareStation:
         now = time.monotonic()
         if self.lat is not None:
             self.lat.note_many("down", "got", drone, frames, now)
+        decode = self.decoder.decode
         for f in frames:
-            mid = msgid_of(f)
-            if mid == 33 and len(f) >= 22:  # GLOBAL_POSITION_INT: time_boot_ms, lat, lon (int32 1e-7 deg)
-                la, lo = struct.unpack_from("<ii", f, 14)
-                p = GeoPoint(la / 1e7, lo / 1e7)
+            msg = decode(f)  # every frame decoded, as zdrone's GS decodes it (``gs.session``)
+            if msg is None:
+                continue
+            t = msg.get_type()
+            if t == "GLOBAL_POSITION_INT":
+                p = GeoPoint(msg.lat / 1e7, msg.lon / 1e7)
                 self.pos[drone] = p
                 self.owner[drone] = nearest_covering(p, self.circles, self.owner.get(drone))
-            elif mid == 0 and len(f) >= 17 and f[6] == 1:  # the autopilot's HEARTBEAT: base_mode
-                self.armed[drone] = bool(f[16] & 0x80)
+            elif t == "HEARTBEAT" and msg.get_srcComponent() == 1:  # the autopilot's: armed?
+                armed = bool(msg.base_mode & 0x80)
+                if armed and not self.armed.get(drone):
+                    self.arming.append(drone)  # its command clock starts (the GS's thread takes it)
+                self.armed[drone] = armed
 
     def _on_backhaul(self, sample: zenoh.Sample) -> None:
         if not str(sample.key_expr).startswith(f"backhaul/{self.name}/"):
             self.backhaul += 1
 
-    def _put(self, drone: str, msg: Any) -> None:
+    def _put(self, drone: str, msg: Any, now: float) -> None:
         codec = self.codec
         codec.mav.seq = self.seq[drone]
         frame = codec.encode(msg)
         self.seq[drone] = codec.mav.seq
         if self.lat is not None:
             self.lat.note("up", "sent", drone, frame, time.monotonic())
-        self.session.put(keyexprs.up(drone, self.name), frame, congestion_control=zenoh.CongestionControl.DROP,
+        uplink = keyexprs.up(drone, self.name)
+        if self.pacer.offer(uplink, frame, now):  # the same pacing rule on the same lanes as zdrone's GS
+            self._put_on_lane(uplink, frame)
+
+    def _put_on_lane(self, uplink: str, frame: bytes) -> None:
+        lanes = self.lanes.get(uplink)
+        if lanes is None:
+            lanes = self.lanes[uplink] = itertools.cycle([keyexprs.lane_of(uplink, i) for i in range(keyexprs.UP_LANES)])
+        self.session.put(next(lanes), frame, congestion_control=zenoh.CongestionControl.DROP,
                          priority=LINK_PRIORITY, express=LINK_EXPRESS)
 
     def run(self) -> None:
@@ -392,27 +447,39 @@ class BareStation:
 
         hb = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
         now = time.monotonic()
-        next_hb, next_cmd, next_stamp = now, now, now
+        next_hb, next_stamp = now, now
+        commands: list[tuple[float, str]] = []  # (due, drone): each armed drone's command clock
+        period = 1.0 / COMMAND_HZ
         while self.running:
             now = time.monotonic()
+            while self.arming:
+                heapq.heappush(commands, (now + period, self.arming.popleft()))
             if now >= next_hb:
                 next_hb = max(next_hb + 1.0 / HEARTBEAT_HZ, now)
                 for d in self.drones:
-                    self._put(d, hb)
+                    self._put(d, hb, now)
                 self.sent["heartbeat"] += len(self.drones)
-            if now >= next_cmd:
-                next_cmd = max(next_cmd + 1.0 / COMMAND_HZ, now)
-                for d, sysid in self.drones.items():
-                    if self.armed.get(d) and self.owner.get(d) == self.name:
-                        self._put(d, mav.MAVLink_command_long_message(sysid, 1, mav.MAV_CMD_REQUEST_MESSAGE, 0,
-                                                                      mav.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0))
-                        self.sent["command"] += 1
+            while commands and commands[0][0] <= now:
+                due, d = heapq.heappop(commands)
+                if not self.armed.get(d):
+                    continue  # landed: its clock stops
+                heapq.heappush(commands, (max(due + period, now), d))
+                if self.owner.get(d) == self.name:
+                    self._put(d, mav.MAVLink_command_long_message(self.drones[d], 1, mav.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                                  mav.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0), now)
+                    self.sent["command"] += 1
             if now >= next_stamp:
                 next_stamp = max(next_stamp + STAMP_PERIOD_S, now)
                 self.session.put(f"backhaul/{self.name}/stamp", bytes(STAMP_BYTES),
                                  congestion_control=zenoh.CongestionControl.DROP)
                 self.sent["backhaul"] += 1
-            time.sleep(max(0.0, min(next_hb, next_cmd, next_stamp) - time.monotonic()))
+            for uplink, frame in self.pacer.due(now):
+                self._put_on_lane(uplink, frame)
+            wake = [next_hb, next_stamp, commands[0][0] if commands else next_hb, now + 0.05]
+            paced = self.pacer.next_due()
+            if paced is not None:
+                wake.append(paced)
+            time.sleep(max(0.0, min(wake) - time.monotonic()))
 
     def close(self) -> None:
         try:
@@ -462,7 +529,8 @@ def _host_stations(args: argparse.Namespace) -> int:
         lat.dump(out / "latency-stations.json")
     (out / "stations.json").write_text(json.dumps({
         "delivered": sum(st.delivered for st in stations) - baseline[0], "memory_mb": _memory_mb("self"),
-        "sent": {st.name: dict(st.sent) for st in stations}, "backhaul_heard": {st.name: st.backhaul for st in stations},
+        "sent": {st.name: dict(st.sent) for st in stations},
+        "paced_refused": {st.name: dict(st.refused) for st in stations if st.refused}, "backhaul_heard": {st.name: st.backhaul for st in stations},
         "errors": [st.error for st in stations if st.error]}))
     for st in stations:
         st.close()
