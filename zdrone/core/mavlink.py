@@ -13,6 +13,8 @@ ArduPilot's MEMINFO, ...) and answers ``None`` for any other id.
 
 from __future__ import annotations
 
+import struct
+
 from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
@@ -79,6 +81,9 @@ class FrameError(ValueError):
     """The bytes are not exactly one well-formed MAVLink frame."""
 
 
+_V2_HEADER = struct.Struct("<7BHB")  # magic, len, incompat, compat, seq, sysid, compid, msgid (24 bit LE)
+
+
 def read_header(frame: bytes) -> FrameHeader:
     """Read and check the header of exactly one MAVLink 1 or 2 frame.
 
@@ -95,8 +100,8 @@ def read_header(frame: bytes) -> FrameHeader:
     if magic == MAGIC_V2:
         if n < 12:
             raise FrameError("too short for a MAVLink 2 header")
-        plen, incompat, _compat, seq, sysid, compid = frame[1], frame[2], frame[3], frame[4], frame[5], frame[6]
-        msgid = frame[7] | (frame[8] << 8) | (frame[9] << 16)
+        _magic, plen, incompat, _compat, seq, sysid, compid, lo, hi = _V2_HEADER.unpack_from(frame)
+        msgid = lo | (hi << 16)
         expected = 10 + plen + 2 + (SIGNATURE_LEN if incompat & SIGNED_FLAG else 0)
         if incompat & ~SIGNED_FLAG:
             raise FrameError(f"unknown incompat flags 0x{incompat:02x}")
