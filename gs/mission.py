@@ -194,6 +194,9 @@ class Mission(Machine):
                  upload_spread_s: float = 0.0, takeoff_spread_s: float = 0.0,
                  counters: "Counter[str] | None" = None) -> None:
         self.gs, self.drone, self.sysid, self.plan = gs, drone, sysid, plan
+        #: the route's first bad segment (``zdrone.core.routecheck``, checked by the session against the
+        #: fleet in force): the mission is refused before upload
+        self.route_problem: str | None = None
         self.seed = seed  # the adapter's randomness (``jitter``)
         self.upload_spread_s, self.takeoff_spread_s = upload_spread_s, takeoff_spread_s
         self.counters: Counter[str] = Counter() if counters is None else counters
@@ -317,6 +320,9 @@ class Mission(Machine):
                 *self._start_upload(FlightTick(ev.now), v, send)]
 
     def _start_upload(self, ev: FlightTick, v: VehicleFacts, send: Send) -> list[Action]:
+        if self.route_problem is not None:  # refused before upload: the route leaves coverage or a crossing is short
+            self.counters["mission_refused:route"] += 1
+            return self._give_up(v, send, ev.now, f"route refused: {self.route_problem}")
         items = encode_mission(self.plan, v.autopilot if v.autopilot in AUTOPILOTS else "px4")
         self.uploader = MissionUploader(items, target=(self.sysid, 1))
         if self.upload_first is None:
@@ -529,11 +535,11 @@ class Mission(Machine):
 
 #: (stage, event type) -> (handler, the stages it may move to). Pairs not listed do nothing.
 TABLE: Table[Stage] = {
-    (Stage.IDLE, FlightTick): (Mission._identify, frozenset({Stage.PREPARING, Stage.UPLOADING})),
+    (Stage.IDLE, FlightTick): (Mission._identify, frozenset({Stage.PREPARING, Stage.UPLOADING, Stage.FAILED})),
     (Stage.PREPARING, FlightTick): (Mission._preparing_tick, frozenset({Stage.FAILED})),
-    (Stage.PREPARING, FlightParam): (Mission._preparing_param, frozenset({Stage.UPLOADING})),
+    (Stage.PREPARING, FlightParam): (Mission._preparing_param, frozenset({Stage.UPLOADING, Stage.FAILED})),
     (Stage.UPLOADING, FlightTick): (Mission._upload_tick, frozenset({Stage.WAITING_READY, Stage.UPLOAD_WAIT, Stage.FAILED})),
-    (Stage.UPLOAD_WAIT, FlightTick): (Mission._upload_wait_tick, frozenset({Stage.UPLOADING})),
+    (Stage.UPLOAD_WAIT, FlightTick): (Mission._upload_wait_tick, frozenset({Stage.UPLOADING, Stage.FAILED})),
     (Stage.WAITING_READY, FlightTick): (Mission._ready_tick, frozenset({Stage.FLYING, Stage.STARTING, Stage.ARMING})),
     (Stage.ARMING, FlightTick): (Mission._stage_timeout, frozenset({Stage.WAITING_READY})),
     (Stage.STARTING, FlightTick): (Mission._stage_timeout, frozenset({Stage.FLYING, Stage.WAITING_READY})),

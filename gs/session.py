@@ -97,6 +97,7 @@ class DroneSession(DroneView):
         self.operator = OperatorControl(st.name, allow_takeover=st.opts.allow_takeover)
         self.mission = Mission(st.name, name, sysid, st.opts.mission, seed=st.opts.seed, counters=st.counters,
                                upload_spread_s=upload_spread_s, takeoff_spread_s=takeoff_spread_s)
+        self.check_route()
         self.linking = Linking(Context(st.name, name, st.identity, st.fleet, st.counters, grant_ids))
         self.inputs = 0  # authentic messages taken: orders a position report against an authority change
         self.due = 0.0  # when ``tick`` must next run (at once: the first pairing)
@@ -217,6 +218,7 @@ class DroneSession(DroneView):
         self.linking.ctx.fleet = fleet
         self.due = 0.0
         self._repair_hybrid()
+        self.check_route()  # a GS revoked or moved: the route is checked again against the fleet in force
 
     def _repair_hybrid(self) -> None:
         """With the hybrid pairing required, a live link on a classical key (whenever it became live)
@@ -253,6 +255,19 @@ class DroneSession(DroneView):
         if self.link is None:
             return []
         return [Put(self.name, self.link.seal_control(msg))]
+
+    def check_route(self) -> None:
+        """The mission's route against the coverages of the GSs authorized for this drone in the fleet in
+        force (``zdrone.core.routecheck``): a route that leaves them, or crosses between two without an
+        overlap long enough for a hand-over at its cruise speed, is refused before upload."""
+        plan = self.mission.plan
+        if plan is None:
+            return
+        from zdrone.core.reference import CRUISE_SPEED_MS
+        from zdrone.core.routecheck import check_mission
+
+        report = check_mission(plan, self.st.fleet, self.name, None, CRUISE_SPEED_MS)
+        self.mission.route_problem = None if report.ok else report.problem.describe()  # type: ignore[union-attr]
 
     def heartbeat(self) -> list[Action]:
         return self.send_msg(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,

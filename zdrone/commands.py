@@ -228,8 +228,30 @@ def add_drone(sub: argparse._SubParsersAction, bench: bool = False) -> None:
     p.set_defaults(func=_drone)
 
 
-def _gs(args: argparse.Namespace) -> int:
+def mission_from_arg(value: str | None) -> list | None:
+    """A mission named on the command line: a QGroundControl .plan, 'reference', or 'shuttle:N' (None:
+    none); a bad one is a ``UsageError`` or the plan's ``ConfigError``."""
     from gs.planner import load_plan, reference_plan
+
+    if not value:
+        return None
+    if value == "reference":
+        return reference_plan()  # autopilot-neutral: the GS encodes it for the autopilot it finds
+    if value.startswith("shuttle:"):
+        from gs.planner import shuttle_mission
+
+        try:
+            crossings = int(value.split(":", 1)[1])
+        except ValueError:
+            raise UsageError(f"--mission {value}: expected shuttle:N with N crossings") from None
+        try:
+            return shuttle_mission(crossings)
+        except ValueError as exc:
+            raise UsageError(f"--mission {value}: {exc}") from None
+    return load_plan(value)
+
+
+def _gs(args: argparse.Namespace) -> int:
     from gs.station import StationOptions, run_station
 
     from zdrone.vehicle.transport import parse_endpoint
@@ -247,22 +269,7 @@ def _gs(args: argparse.Namespace) -> int:
         for weak in weak_keys(load_gs_keys(args.gcs_keys, args.id, args.fleet)):
             log.warning("%s", weak_key_warning(weak, args.gcs_keys))
     _event_limits(args)
-    mission = None
-    if args.mission == "reference":
-        mission = reference_plan()  # autopilot-neutral: the GS encodes it for the autopilot it finds
-    elif args.mission and args.mission.startswith("shuttle:"):
-        from gs.planner import shuttle_mission
-
-        try:
-            crossings = int(args.mission.split(":", 1)[1])
-        except ValueError:
-            raise UsageError(f"--mission {args.mission}: expected shuttle:N with N crossings") from None
-        try:
-            mission = shuttle_mission(crossings)
-        except ValueError as exc:
-            raise UsageError(f"--mission {args.mission}: {exc}") from None
-    elif args.mission:
-        mission = load_plan(args.mission)
+    mission = mission_from_arg(args.mission)
     return run_station(StationOptions(gs=args.id, fleet=args.fleet, router=args.router,
                                       drones=tuple(args.drone or ()), pair=args.pair, mission=mission,
                                       heartbeat_hz=args.heartbeat_hz, command_rate=args.command_rate,
