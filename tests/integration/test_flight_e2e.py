@@ -349,20 +349,62 @@ def test_the_other_site_carries_the_link_when_the_authoritys_site_router_dies(tm
     _clean_shutdown(s, out)
 
 
-@pytest.mark.slow
-def test_a_revoked_owner_alone_with_the_drone_loses_it_when_its_lease_lapses(tmp_path):
-    """``revoked-alone``: the network splits at the delivery point (backhaul cut, site 1's radio gone),
-    B is revoked on A's side only. The revision never reaches the drone and B's own stamps renew
-    nothing: the lease lapses within the lease of the split, and the failsafe follows (no heir covers
-    the drone); no command of B forwarded after it."""
-    from zdrone.sil.scenarios import REVOKED_ALONE_LEASE_S
+@pytest.fixture(scope="module")
+def lease_flight(tmp_path_factory):
+    """One ``lease-stamper`` flight for the lease's two checks: ``revoked-alone`` (the split, B revoked
+    on A's side only) with GS X, authorized for no drone, stamping for the drone on its side of the
+    split. X's stamps can only keep B's lease alive, never end it sooner, so the flight checks what
+    ``revoked-alone`` checks (its verdict is part of this one's) at no further flight in the suite;
+    ``zdrone demo --scenario revoked-alone`` flies it without X."""
+    return shared_demo(tmp_path_factory, "lease-stamper")
 
-    s, out = run_demo(tmp_path, "revoked-alone")
-    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+
+def _lease_lapse(s: dict, out: Path) -> tuple[dict, dict]:
+    """(the backhaul cut, the drone's single lease lapse) of a flight."""
     drone = read_events(out / "drone.jsonl")
     lapse = [e for e in drone if e["type"] == "drop" and e.get("reason") == "lease_lapsed"]
-    cut = next(f for f in s["faults"] if f["target"] == "backhaul")
-    assert len(lapse) == 1 and lapse[0]["gs"] == "B" and 0 < lapse[0]["t"] - cut["t"] <= REVOKED_ALONE_LEASE_S + 6.0
-    assert not any(e["type"] == "revision_applied" for e in drone)
+    assert len(lapse) == 1 and lapse[0]["gs"] == "B", lapse
+    return next(f for f in s["faults"] if f["target"] == "backhaul"), lapse[0]
+
+
+@pytest.mark.slow
+def test_a_revoked_owner_alone_with_the_drone_loses_it_when_its_lease_lapses(lease_flight):
+    """``revoked-alone`` (checked on ``lease_flight``, which adds X's stamps to it): the network splits at
+    the delivery point (backhaul cut, site 1's radio gone), B is revoked on A's side only. The revision
+    never reaches the drone and B's own stamps renew nothing: the lease lapses within the lease of the
+    split, and the failsafe follows (no heir covers the drone); no command of B forwarded after it."""
+    from zdrone.sil.scenarios import REVOKED_ALONE_LEASE_S
+
+    s, out = lease_flight
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    cut, lapse = _lease_lapse(s, out)
+    assert 0 < lapse["t"] - cut["t"] <= REVOKED_ALONE_LEASE_S + 6.0
+    assert s["drone_counters"].get("stamp_refused:owner", 0) >= 1  # B's own stamps heard, renewing nothing
+    assert not any(e["type"] == "revision_applied" for e in read_events(out / "drone.jsonl"))
     assert s["failsafe"] is not None and s["failsafe"]["reason"].startswith("authority of B lost: lease lapsed")
     _clean_shutdown(s, out)
+
+
+@pytest.mark.slow
+def test_stamps_of_a_gs_not_authorized_for_the_drone_do_not_keep_a_revoked_owners_lease(lease_flight):
+    """``lease-stamper``: X (in the fleet, its own signing key, password and certificate, authorized for
+    no drone) puts a genuine stamp naming the revision in force and the drone every 2 s from the cut
+    on, at the router the drone still reaches. The drone refuses every one it hears as unauthorized and
+    B's lease lapses as in ``revoked-alone`` (before the fix X kept it: B held the drone 45.7 s at a
+    15 s lease)."""
+    from zdrone.fleet.revisions import STAMP_PERIOD_S
+    from zdrone.sil.scenarios import REVOKED_ALONE_LEASE_S
+
+    s, out = lease_flight
+    assert s["_rc"] == 0 and s["ok"], s["why_not_ok"]
+    cut, lapse = _lease_lapse(s, out)
+    stamps = [e for e in read_events(out / "rogue.jsonl") if e["type"] == "stamp_put"]
+    during = [e for e in stamps if cut["t"] <= e["t"] <= lapse["t"]]
+    assert len(during) >= 3 and all(e["gs"] == "X" and e["drones"] == ["d1"] for e in stamps), stamps
+    assert s["attacks"]["lease-stamper"]["stamps"] == len(stamps) and s["attacks"]["lease-stamper"]["failed"] == 0
+    assert lapse["t"] - cut["t"] <= REVOKED_ALONE_LEASE_S + STAMP_PERIOD_S + 1.0  # as if X had said nothing
+    refused = s["drone_counters"].get("stamp_refused:unauthorized", 0)
+    assert len(during) <= refused <= len(stamps), (refused, len(during), len(stamps))  # each one heard, refused
+    status = [e for e in read_events(out / "drone.jsonl") if e["type"] == "status" and e["t"] <= lapse["t"]]
+    assert status[-1]["counters"].get("stamp_refused:unauthorized", 0) >= len(during) - 1  # while the lease ran
+    _clean_shutdown(s, out, nodes=("drone", "A", "B", "rogue"))

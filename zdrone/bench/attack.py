@@ -84,7 +84,7 @@ def _scenario(base: Path, name: str) -> dict[str, Any]:
     s = Demo(DemoOptions(out=d, scenario=name, speedup=SPEEDUP, quiet=True, live=False, report=False), d.resolve()).run()
     refusals: dict[str, int] = {}
     for k, v in s["drone_counters"].items():
-        if k.startswith(("pair_refused", "pair_failed", "pair_deferred", "bad_grant")):
+        if k.startswith(("pair_refused", "pair_failed", "pair_deferred", "bad_grant", "stamp_refused")):
             refusals[f"drone {k}"] = int(v)
     for g, counters in s["gs_counters"].items():
         for k, v in counters.items():

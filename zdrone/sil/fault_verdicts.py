@@ -216,6 +216,45 @@ def check_revoked_alone(o: Outcome) -> list[str]:
     return why
 
 
+#: ``lease-stamper``: X's stamps, one every this many seconds (faster than a GS's ``STAMP_PERIOD_S``)
+LEASE_STAMPER_PERIOD_S = 2.0
+#: ... of which at least this many between the cut and the lapse
+LEASE_STAMPER_MIN_STAMPS = 3
+
+
+def check_lease_stamper(o: Outcome) -> list[str]:
+    """``lease-stamper``: ``revoked-alone`` with GS X (in the fleet, authorized for no drone) on the
+    drone's side of the split, putting a genuine stamp signed with its own key, naming the revision in
+    force and the drone, every ``LEASE_STAMPER_PERIOD_S`` from the cut on. Everything
+    ``check_revoked_alone`` asks (the lapse within the lease and one stamp period of the cut, the
+    failsafe, nothing of B after it), and: X put at least ``LEASE_STAMPER_MIN_STAMPS`` stamps between
+    the cut and the lapse, and the drone refused X's stamps as unauthorized while B's lease ran (its
+    status before the lapse counts ``stamp_refused:unauthorized``; no GS of this flight other than X
+    is authorized for no drone). That reason comes after every other check of a stamp but the owner's
+    and the clock's (``OwnerLease.stamp``): such a stamp was X's own, signed under its key in force, on
+    its own key, naming the revision in force and the drone; only X's authorization refused it."""
+    from zdrone.sil.testbed_records import StampPut
+
+    s = o.summary
+    why = check_revoked_alone(o)
+    stamps = o.rogue_events("lease-stamper", StampPut)
+    why += _need(bool(stamps), "X put no stamp")
+    why += _need(all(e.gs == "X" and e.drones == ("d1",) for e in stamps), "a stamp not X's naming d1")
+    cut = next((f for f in s["faults"] if f["target"] == "backhaul"), None)
+    lapse = next((e for e in only(o.drone, Drop) if e.reason == "lease_lapsed" and e.gs == "B"), None)
+    if cut is None or lapse is None:
+        return why
+    during = [e for e in stamps if cut["t"] <= e.t <= lapse.t]
+    why += _need(len(during) >= LEASE_STAMPER_MIN_STAMPS,
+                 f"X put {len(during)} stamps between the cut and the lapse (at least {LEASE_STAMPER_MIN_STAMPS})")
+    why += _need(o.drone_counter("stamp_refused:unauthorized") >= 1,
+                 "the drone refused none of X's stamps (its final counters: no stamp_refused:unauthorized)")
+    before = [e for e in only(o.drone, DroneStatus) if e.t <= lapse.t]
+    refused = before[-1].counters.get("stamp_refused:unauthorized", 0) if before else 0
+    return why + _need(refused >= 1, "none of X's stamps was refused while B's lease ran (the drone's last status "
+                                     "before the lapse counts no stamp_refused:unauthorized)")
+
+
 def check_rotate_in_flight(o: Outcome) -> list[str]:
     """``rotate-in-flight``: A's static key is rotated while A holds authority: A re-pairs under its
     new key (a new pairing key proven on the drone after the revision), authority never moves

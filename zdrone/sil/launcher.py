@@ -223,7 +223,7 @@ class Demo(ChildProcesses, SiteLinks):
         return child
 
     def start_rogue(self, r: RogueSpec, duration: float | None = None) -> Child:
-        args = ["-m", "zdrone.sil.rogue", "--mode", r.mode, "--fleet", "fleet", "--router", self.router,
+        args = ["-m", "zdrone.sil.rogue", "--mode", r.mode, "--fleet", "fleet", "--router", self._common(r.beside)[-1],
                 "--duration", f"{duration if duration is not None else r.duration(self.opts.speedup):.2f}",
                 "--events", "rogue.jsonl"]
         args += ["--wait-go"] if r.go else []
@@ -233,7 +233,7 @@ class Demo(ChildProcesses, SiteLinks):
         args += ["--gcs-port-b", str(self.gcs_port_b)] if self.gcs_port_b else []
         args += ["--gcs-keys", GCS_KEYS] if self.spec.app_signing else []
         args += ["--vehicle-port", str(self.vehicle_port)] if self.vehicle_port else []
-        return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns("A"))  # beside A, on site 1
+        return self.start(f"rogue-{r.mode}", args + list(r.args), ns=self._ns(r.beside))  # at that GS's site
 
     def run(self) -> dict[str, Any]:
         """Fly the run; whatever ends it (a child that fails to start, an exception, a signal turned

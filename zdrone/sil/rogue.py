@@ -44,7 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--router", required=True)
     p.add_argument("--drone", default="d1")
     p.add_argument("--duration", type=float, default=20.0, help="seconds of attack")
-    p.add_argument("--rate", type=float, default=2.0, help="queries per second (linkkey-knockout, pair-flood)")
+    p.add_argument("--rate", type=float, default=2.0,
+                   help="queries per second (linkkey-knockout, pair-flood; lease-stamper: stamps)")
     p.add_argument("--gcs-port", type=int, help="UDP port of the GCS gateway (gateway-flood)")
     p.add_argument("--gcs-port-b", type=int, help="UDP port of GS B's GCS gateway (local-app)")
     p.add_argument("--gcs-keys", help="GS A's GCS application key file (local-app: its operator's signed application)")

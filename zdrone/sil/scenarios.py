@@ -21,8 +21,9 @@ from zdrone.sil.attack_verdicts import (check_big_flood, check_fake_autopilot, c
                                         check_linkkey_knockout, check_local_app, check_no_cert, check_no_key,
                                         check_pair_flood, check_pair_replay, check_stale_pairing, check_unauthorized,
                                         check_uplink_policy, check_view_truth)
-from zdrone.sil.fault_verdicts import (REVOKED_ALONE_LEASE_S, check_backhaul_cut_early, check_companion_restart,
-                                       check_failsafe_recover, check_gs_crash, check_gs_hang, check_link_loss,
+from zdrone.sil.fault_verdicts import (LEASE_STAMPER_PERIOD_S, REVOKED_ALONE_LEASE_S, check_backhaul_cut_early,
+                                       check_companion_restart, check_failsafe_recover, check_gs_crash, check_gs_hang,
+                                       check_lease_stamper, check_link_loss,
                                        check_lossy_radio, check_revoke_in_flight, check_revoke_uncovered,
                                        check_revoked_alone, check_rotate_in_flight, check_router_restart,
                                        check_site_router_down, check_site_router_down_alone)
@@ -38,7 +39,8 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class RogueSpec:
     """One attacker process: its mode, when it starts, when it is told to attack (SIGUSR2; ``None``:
-    at once), for how long (``max(min_wall, sim_s / speedup)`` wall seconds) and at what rate."""
+    at once), for how long (``max(min_wall, sim_s / speedup)`` wall seconds), at what rate and beside
+    which GS (its router: with a router per site, that GS's site's; with ``--netns``, in its namespace)."""
 
     mode: str
     launch: str
@@ -47,6 +49,7 @@ class RogueSpec:
     min_wall: float = 10.0
     rate: float | None = None
     args: tuple[str, ...] = ()  # further options of the attacker
+    beside: str = "A"  # the GS whose site it connects at (site 1 unless a scenario says otherwise)
 
     def duration(self, speedup: float) -> float:
         return max(self.min_wall, self.sim_s / speedup)
@@ -204,6 +207,16 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "the lease of the cut, no heir covers the drone: its failsafe; no command of B forwarded after it",
              check_revoked_alone, faults=(_CUT_AT_DELIVERY, _JAM_SITE1_AT_DELIVERY, _REVOKE_B_BEHIND_CUT), sites=True, fixed_moment=True,
              revision_lease=REVOKED_ALONE_LEASE_S),
+    Scenario("lease-stamper",
+             "revoked-alone, and GS X's key, router password and certificate (in the fleet, authorized for no drone) "
+             "on the drone's side of the split: from the cut on, a stamp signed with X's own key naming the revision "
+             f"in force and the drone, every {LEASE_STAMPER_PERIOD_S:g} s, on X's own revision key",
+             "X's stamps reach the drone and renew nothing (stamp_refused:unauthorized): B's lease lapses within the "
+             "lease of the cut as in revoked-alone, then the failsafe; no command of B forwarded after it",
+             check_lease_stamper, faults=(_CUT_AT_DELIVERY, _JAM_SITE1_AT_DELIVERY, _REVOKE_B_BEHIND_CUT),
+             rogues=(RogueSpec("lease-stamper", MISSION_STARTED, go=AT_DELIVERY, sim_s=0.0, min_wall=120.0,
+                               rate=1.0 / LEASE_STAMPER_PERIOD_S, beside="B"),),
+             sites=True, fixed_moment=True, revision_lease=REVOKED_ALONE_LEASE_S),
     Scenario("rotate-in-flight",
              "GS A's static key is rotated by a signed fleet revision while A holds authority",
              "A re-pairs under its new key make-before-break: no failsafe, no emergency hand-over, both hand-overs",

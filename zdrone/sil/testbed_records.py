@@ -108,6 +108,16 @@ class WordCaptured(Record, frozen=True, tag="word_captured"):
     seq: int
 
 
+class StampPut(Record, frozen=True, tag="stamp_put"):
+    """The attacker put a revision stamp signed by ``gs`` (its own key) naming revision ``number``,
+    dated ``wall`` (time of day), vouching for ``drones``, on ``gs``'s own revision key."""
+
+    gs: str
+    number: int
+    wall: float
+    drones: tuple[str, ...]
+
+
 # ----------------------------------------------------------------------------- the emulated radio
 class RadioLinkChanged(Record, frozen=True, tag="radio_link"):
     """The testbed brought site ``site``'s radio link up or down, from the vehicle's true ``position``."""
@@ -128,6 +138,6 @@ class LinkFault(Record, frozen=True, tag="link_fault"):
 TESTBED_RECORDS: tuple[type[Record], ...] = (
     Closed, Suppressed, RogueReady, RogueGo, RogueNoGo, RouterAcceptedWrongPassword, RouterRefused, PairAttempt,
     UnauthorizedAttempt, ForgedReply, NothingCaptured, Captured, FloodStart, RoguePairFailed, PairedAs,
-    TlsAttempt, RadioLinkChanged, LinkFault, WordCaptured,
+    TlsAttempt, RadioLinkChanged, LinkFault, WordCaptured, StampPut,
 )
 register_vocabulary("testbed", TESTBED_RECORDS)
