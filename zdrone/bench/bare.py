@@ -421,7 +421,7 @@ class BareStation:
         frame = codec.encode(msg)
         self.seq[drone] = codec.mav.seq
         if self.lat is not None:
-            self.lat.note("up", "sent", drone, frame, time.monotonic())
+            self.lat.note("up", "sent", drone, frame, now)  # the pass's start, as zdrone's (before sealing)
         uplink = keyexprs.up(drone, self.name)
         if self.pacer.offer(uplink, frame, now):  # the same pacing rule on the same lanes as zdrone's GS
             self._put_on_lane(uplink, frame)

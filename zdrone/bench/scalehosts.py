@@ -177,16 +177,34 @@ def serve_woken(woken: "collections.deque[Any]") -> None:
 
 
 def note_station_latency(station: Any, latency: LatencyLog) -> None:
-    """The same on a GS: each envelope its core hands the adapter to put (before the pacing) (GS ->
-    vehicle, sent), each vehicle frame out of an envelope (``FrameUp``) (vehicle -> GS, got)."""
+    """The same on a GS: each envelope its core hands the adapter to put (GS -> vehicle, sent), timed
+    when the core's timer pass that made it began, before any frame of the pass was sealed (the bare
+    half notes its frames at its pass's start likewise); each vehicle frame out of an envelope
+    (``FrameUp``) (vehicle -> GS, got)."""
     from gs.actions import FrameUp
     from zdrone.core.outputs import Put
 
     handlers = station._handlers
     put, frame_up = handlers[Put], handlers[FrameUp]
+    core, do = station.core, station._do
+    timer = core.handle_timer
+    began: list[float | None] = [None]
+
+    def timed(now: float, wall: float | None = None) -> Any:
+        began[0] = time.monotonic()  # before the pass seals anything
+        return timer(now, wall)
+
+    def done(actions: Any) -> None:
+        try:
+            do(actions)
+        finally:
+            began[0] = None  # what comes another way is timed as it is put
+
+    core.handle_timer, station._do = timed, done
 
     def sent(a: Any) -> None:
-        latency.note("up", "sent", a.peer, a.payload, time.monotonic())
+        t = began[0]
+        latency.note("up", "sent", a.peer, a.payload, time.monotonic() if t is None else t)
         put(a)
 
     def got(a: Any) -> None:
