@@ -222,8 +222,13 @@ def _bench_overhead(args: argparse.Namespace) -> int:
         except (OSError, ValueError) as exc:
             raise UsageError(f"--from-json {args.from_json}: {exc}") from None
     else:
+        if not 1 <= args.runs <= 10:
+            raise UsageError(f"--runs {args.runs}: must be 1..10")
+        if not 1 <= args.drone_hosts <= 8:
+            raise UsageError(f"--drone-hosts {args.drone_hosts}: must be 1..8")
         result = overhead.run(ks, stations=args.stations, sites=args.sites, flight=args.flight, quick=args.quick,
-                              speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice)
+                              speedup=args.speedup, progress=not args.json, hosts_nice=args.hosts_nice,
+                              runs=args.runs, drone_hosts=args.drone_hosts)
     if args.plot is not None:
         from zdrone.bench.overheadplot import plot
 
@@ -518,6 +523,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the niceness of the drones and GSs hosts in both halves (default 10, as bench scale)")
     bo.add_argument("--plot", metavar="PNG", help="also draw the CPU per drone against K, per class, to this file")
     bo.add_argument("--from-json", metavar="FILE", help="show (and --plot) a result saved with --json; fly nothing")
+    bo.add_argument("--runs", type=int, default=1, metavar="R",
+                    help="fly each K this many times (both halves); the table adds the spread (min, median, max)")
+    bo.add_argument("--drone-hosts", type=int, default=1, metavar="N",
+                    help="step the drones in N host processes in both halves (drone i in host i mod N), so that no "
+                         "host runs saturated (above 0.6 of a core: the table says so where one does)")
     bo.set_defaults(func=_bench_overhead)
 
     ba = bsub.add_parser("attack", help="every attack scenario measured; failsafe lateness and CPU under a pairing flood; "

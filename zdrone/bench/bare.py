@@ -253,7 +253,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     lat = LatencyLog() if args.latency else None
     woken: collections.deque[BareDrone] = collections.deque()  # drones a GS's frame reached since last served
     drones = []
-    for i in range(args.k):
+    for i in range(args.part, args.k, args.parts):  # this host's share (drone i in host i mod parts, as zdrone's)
         name = f"d{i + 1}"
         vehicle = InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)
         vehicle.sim.step(vehicle._sim_time())
@@ -344,9 +344,10 @@ def _host_drones(args: argparse.Namespace) -> int:
         flight_s = time.monotonic() - t0 if t0 else 0.0
         cpu_s = time.process_time() - cpu0 if t0 else 0.0
         out = Path(args.out)
+        suffix = "" if args.parts == 1 else f"-{args.part}"
         if lat is not None:
-            lat.dump(out / "latency-drones.json")
-        (out / "drones.json").write_text(json.dumps({
+            lat.dump(out / f"latency-drones{suffix}.json")
+        (out / f"drones{suffix}.json").write_text(json.dumps({
             "flight_s": flight_s, "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "loops": loops,
             "worst_pass_s": round(worst_pass, 3), "flew": sum(d.armed_seen for d in drones), "landed": landed_at is not None,
             "delivered": sum(d.delivered for d in drones) - baseline}))
@@ -539,7 +540,7 @@ def _host_stations(args: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------ one run
 def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: float = 4.0,
-        hosts_nice: int = 10, latency: bool = True) -> dict[str, Any]:
+        hosts_nice: int = 10, latency: bool = True, drone_hosts: int = 1) -> dict[str, Any]:
     """One bare run: K drones x G GSs through one router, or ``sites`` meshed routers (GS i at site
     i, drone i at site i mod N), flying ``flight_s`` seconds from the take-off. The row has what the
     bench compares: CPU (100 % = one core) and RSS per process, samples delivered per second, latency."""
@@ -561,7 +562,8 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
     routers = {("router" if not sites else f"router site-{i + 1}"): ["router", "--listen", ep, "--connect", ",".join(endpoints[:i])]
                for i, ep in enumerate(endpoints)}
     gs_routers = [endpoints[i % n_routers] for i in range(g)]
-    logs = {n: open(d / f"{n.replace(' ', '-')}.log", "w") for n in (*routers, "drones", "stations")}
+    hosts = ["drones"] if drone_hosts == 1 else [f"drones-{i}" for i in range(drone_hosts)]
+    logs = {n: open(d / f"{n.replace(' ', '-')}.log", "w") for n in (*routers, *hosts, "stations")}
     procs: dict[str, subprocess.Popen] = {}
     row: dict[str, Any] = {"k": k, "g": g, "sites": sites or 1, "speedup": speedup, "runs": str(d)}
     t_start = time.monotonic()
@@ -572,24 +574,29 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
             if _wait_line(d / f"{name.replace(' ', '-')}.log", "listening", START_TIMEOUT_S, procs[name]) is None:
                 raise RuntimeError(f"bare {name} did not start; see {d}")
         common = ["--fleet", str(d / "fleet"), "--out", str(d)] + (["--latency"] if latency else [])
-        procs["drones"] = spawn(hpy + ["host-drones", "--k", str(k), "--speedup", str(speedup), "--duration", str(flight_s),
-                                       "--router", ",".join(endpoints), *common], stdout=logs["drones"], stderr=subprocess.STDOUT)
+        for part, h in enumerate(hosts):
+            procs[h] = spawn(hpy + ["host-drones", "--k", str(k), "--speedup", str(speedup), "--duration", str(flight_s),
+                                    "--router", ",".join(endpoints), "--part", str(part), "--parts", str(len(hosts)),
+                                    *common], stdout=logs[h], stderr=subprocess.STDOUT)
         procs["stations"] = spawn(hpy + ["host-stations", "--stations", str(g), "--router", ",".join(gs_routers), *common],
                                   stdout=logs["stations"], stderr=subprocess.STDOUT)
-        row["hosts_given_way"] = {h: give_way(procs[h].pid, hosts_nice) for h in ("drones", "stations")}
+        row["hosts_given_way"] = {h: give_way(procs[h].pid, hosts_nice) for h in (*hosts, "stations")}
         from zdrone.bench.scale import READY_TIMEOUT_S
 
-        if _wait_line(d / "drones.log", READY, READY_TIMEOUT_S, procs["drones"]) is None:
-            raise RuntimeError(f"bare drones host did not start; see {d / 'drones.log'}")
+        for h in hosts:
+            if _wait_line(d / f"{h}.log", READY, READY_TIMEOUT_S, procs[h]) is None:
+                raise RuntimeError(f"bare drones host did not start; see {d / f'{h}.log'}")
         if _wait_line(d / "stations.log", "stations ready", START_TIMEOUT_S, procs["stations"]) is None:
             raise RuntimeError(f"bare stations host did not start; see {d / 'stations.log'}")
         row["ground_s"] = round(time.monotonic() - t_start, 1)
         others = {**{n: procs[n].pid for n in routers}, "stations host": procs["stations"].pid}
         t0, cpu0 = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
         procs["stations"].send_signal(signal.SIGUSR1)
-        procs["drones"].send_signal(signal.SIGUSR1)
+        for h in hosts:
+            procs[h].send_signal(signal.SIGUSR1)
         try:
-            procs["drones"].wait(flight_s + 60)
+            for h in hosts:
+                procs[h].wait(flight_s + 60)
         except subprocess.TimeoutExpired:
             row["error"] = "bare drones host did not finish"
         t1, cpu1 = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
@@ -598,12 +605,20 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
         row["error"] = str(exc)
         return row
     finally:
-        stop_in_order(procs, ("stations", "drones", *routers))
+        stop_in_order(procs, ("stations", *hosts, *routers))
         for f in logs.values():
             f.close()
     row["wall_s"] = round(time.monotonic() - t_start, 1)
     try:
-        drones = json.loads((d / "drones.json").read_text())
+        parts = [json.loads((d / f"{h}.json").read_text()) for h in hosts]
+        drones = {"flight_s": max(p["flight_s"] for p in parts), "cpu_s": sum(p["cpu_s"] for p in parts),
+                  "memory_mb": None if any(p["memory_mb"] is None for p in parts) else
+                  {k: round(sum(p["memory_mb"][k] for p in parts), 1) for k in ("rss", "peak")},
+                  "flew": sum(p["flew"] for p in parts),
+                  "landed": all(p["landed"] for p in parts), "worst_pass_s": max(p["worst_pass_s"] for p in parts),
+                  "delivered": sum(p["delivered"] for p in parts),
+                  "passes_per_s": min(p.get("passes_per_s", 0.0) for p in parts),
+                  "shares": {h: round(p["cpu_s"] / max(1e-6, p["flight_s"]), 2) for h, p in zip(hosts, parts)}}
         stations = json.loads((d / "stations.json").read_text())
     except (OSError, ValueError) as exc:
         row["error"] = row.get("error") or f"no results ({exc}); see {d}"
@@ -618,9 +633,10 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
                 "memory_mb": {**memory, "drones host": drones["memory_mb"]},
                 "samples_per_s": round((drones["delivered"] + stations["delivered"]) / span, 1),
                 "flew": drones["flew"], "landed": drones["landed"], "worst_pass_s": drones["worst_pass_s"], "sent": stations["sent"],
+                "drones_host_passes_per_s": drones["passes_per_s"], "drone_host_shares": drones["shares"], "drone_hosts": len(hosts),
                 "backhaul_heard": stations["backhaul_heard"]})
     if latency:
-        files = [d / "latency-drones.json", d / "latency-stations.json"]
+        files = [d / ("latency-drones.json" if h == "drones" else f"latency-{h}.json") for h in hosts] + [d / "latency-stations.json"]
         row["latency"], row["messages_per_s"] = lat.summary(lat.load(files)), lat.rates(files, span)
     return row
 
@@ -638,6 +654,8 @@ def main(argv: list[str] | None = None) -> int:
     hd.add_argument("--k", type=int, required=True)
     hd.add_argument("--speedup", type=float, required=True)
     hd.add_argument("--duration", type=float, required=True, help="flight from the take-off (SIGUSR1), s")
+    hd.add_argument("--part", type=int, default=0, help="this host's part: drones i with i mod parts = part")
+    hd.add_argument("--parts", type=int, default=1, help="how many drones hosts share the fleet")
     hs = sub.add_parser("host-stations")
     hs.add_argument("--stations", type=int, required=True)
     for sp in (hd, hs):

@@ -103,6 +103,10 @@ def by_class(row: dict[str, Any], field: str) -> dict[str, float | None]:
     return out
 
 
+#: A host process above this share of a core is saturated (``zdrone bench overhead`` says so).
+SATURATED_SHARE = 0.6
+
+
 def ms_per_s_per_drone(cpu_percent: float | None, k: int) -> float | None:
     """100 % of a core is 1000 ms of CPU per second; per drone of the K."""
     return None if cpu_percent is None or k <= 0 else round(10.0 * cpu_percent / k, 3)
@@ -167,14 +171,42 @@ def compare(k: int, zd: dict[str, Any], bare: dict[str, Any]) -> dict[str, Any]:
     if wire is not None:  # the same goals on the way from the GS to the drone's host alone
         goals["wire_added_p50_within"] = within(wire, "p50", ADDED_P50_MS_GOAL)
         goals["wire_added_p99_within"] = within(wire, "p99", ADDED_P99_MS_GOAL)
-    return {"classes": cls, "latency_ms": lat, "samples_per_s": samples, "messages_per_s": messages, "goals": goals}
+    hosts = {h: host_load(r) for h, r in (("zdrone", zd), ("bare", bare))}
+    return {"classes": cls, "latency_ms": lat, "samples_per_s": samples, "messages_per_s": messages, "goals": goals,
+            "hosts": hosts, "saturated": {h: x["saturated"] for h, x in hosts.items()}}
+
+
+def host_load(row: dict[str, Any]) -> dict[str, Any]:
+    """Each host process's share of a core over the flight, the drones hosts' passes a second, and which
+    hosts ran above ``SATURATED_SHARE`` (saturated: they fall behind their own pace, so their CPU per
+    drone reads low; a figure from them is reported, not counted as cheap)."""
+    shares = row.get("drone_host_shares")
+    if isinstance(shares, dict):
+        shares = list(shares.values())
+    drones = [float(x) for x in shares] if shares else (
+        [row["cpu_percent"]["drones host"] / 100.0] if row.get("cpu_percent", {}).get("drones host") is not None else [])
+    cpu = row.get("cpu_percent", {})
+    stations = cpu.get("stations host")
+    routers = {n: v / 100.0 for n, v in cpu.items() if n.startswith("router") and v is not None}
+    out: dict[str, Any] = {"drones hosts": [round(x, 2) for x in drones],
+                           "GSs host": None if stations is None else round(stations / 100.0, 2),
+                           "routers": {n: round(v, 2) for n, v in routers.items()},
+                           "drones_host_passes_per_s": row.get("drones_host_passes_per_s")}
+    sat = [f"drones host {i}" for i, x in enumerate(drones) if x > SATURATED_SHARE]
+    if stations is not None and stations / 100.0 > SATURATED_SHARE:
+        sat.append("GSs host")
+    sat += [n for n, v in routers.items() if v > SATURATED_SHARE]
+    out["saturated"] = sat
+    return out
 
 
 # ------------------------------------------------------------------ running
 def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None = None, quick: bool = False,
-        speedup: float | None = None, progress: bool = True, hosts_nice: int | None = None) -> dict[str, Any]:
-    """Fly each K twice (zdrone, then bare) in the layout; the rows and their comparison. ``hosts_nice``:
-    the drones and GSs hosts' niceness in both halves (default ``scale.HOSTS_NICE``)."""
+        speedup: float | None = None, progress: bool = True, hosts_nice: int | None = None, runs: int = 1,
+        drone_hosts: int = 1) -> dict[str, Any]:
+    """Fly each K twice (zdrone, then bare) in the layout, ``runs`` times; the rows, their comparison and
+    (several runs) the spread. ``hosts_nice``: the drones and GSs hosts' niceness in both halves (default
+    ``scale.HOSTS_NICE``); ``drone_hosts``: the drones stepped in that many host processes, both halves."""
     from zdrone.bench import bare as bare_mod
     from zdrone.bench import scale
     from zdrone.bench.table import ProgressLine
@@ -186,10 +218,11 @@ def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None =
     rows = []
     status = ProgressLine(progress)
     try:
-        for k in ks:
+        for k, run_no in [(k, i) for k in ks for i in range(runs)]:
             sp = speedup if speedup is not None else scale.speedup_for(k)
             status.say(f"zdrone: {k} drones x {stations} GSs, {where}, {flight_s:g} s of flight (speed-up {sp:g})…")
-            zd = scale._one(k, stations, base, timeout=flight_s, sites=sites, speedup=sp, hosts_nice=nice, latency=True)
+            zd = scale._one(k, stations, base / f"run{run_no}", timeout=flight_s, sites=sites, speedup=sp, hosts_nice=nice,
+                            latency=True, drone_hosts=drone_hosts)
             if "runs" in zd:
                 from zdrone.bench import latency as lat
 
@@ -197,22 +230,47 @@ def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None =
                 zd["latency"] = lat.summary(lat.load(files))
                 zd["messages_per_s"] = lat.rates(files, zd.get("window_s") or 0.0)
             status.say(f"bare Zenoh: {k} drones x {stations} GSs, {where}, {flight_s:g} s of flight (speed-up {sp:g})…")
-            bz = bare_mod.one(k, stations, base, flight_s, sites=sites, speedup=sp, hosts_nice=nice)
-            rows.append({"k": k, "g": stations, "sites": sites or 1, "layout": where, "speedup": sp, "flight_s": flight_s,
+            bz = bare_mod.one(k, stations, base / f"run{run_no}", flight_s, sites=sites, speedup=sp, hosts_nice=nice,
+                              drone_hosts=drone_hosts)
+            rows.append({"k": k, "run": run_no, "drone_hosts": drone_hosts, "g": stations, "sites": sites or 1, "layout": where, "speedup": sp, "flight_s": flight_s,
                          "zdrone": _slim(zd), "bare": bz, "compare": compare(k, zd, bz),
                          "errors": {h: r["error"] for h, r in (("zdrone", zd), ("bare", bz)) if r.get("error")}})
     finally:
         status.close()
-    return {"rows": rows, "stations": stations, "sites": sites, "flight_s": flight_s, "runs": str(base), "hosts_nice": nice,
+    return {"rows": rows, "spread": spread(rows), "stations": stations, "sites": sites, "flight_s": flight_s, "runs": str(base),
+            "runs_per_k": runs, "drone_hosts": drone_hosts, "hosts_nice": nice,
             "goals": {"cpu_ratio": CPU_RATIO_GOAL, "added_gs_to_vehicle_p50_ms": ADDED_P50_MS_GOAL,
                       "added_gs_to_vehicle_p99_ms": ADDED_P99_MS_GOAL, "at": {"k": 300, "g": 3, "sites": 3}}}
+
+
+def spread(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per K over its runs: (min, median, max) of each class's CPU ratio, of the vehicle -> GS and GS ->
+    vehicle added p50/p99, and of each half's time on the ground until every link was made."""
+    def mmm(xs: list[float | None]) -> list[float] | None:
+        ys = sorted(x for x in xs if x is not None)
+        return [ys[0], ys[(len(ys) - 1) // 2], ys[-1]] if ys else None
+
+    out: dict[str, Any] = {}
+    for k in sorted({r["k"] for r in rows}):
+        mine = [r for r in rows if r["k"] == k]
+        cmp = [r["compare"] for r in mine]
+        out[str(k)] = {
+            "runs": len(mine),
+            "cpu_ratio": {c: mmm([x["classes"][c]["cpu_ms_per_s_per_drone"]["ratio"] for x in cmp]) for c in CLASSES},
+            "rss_ratio": {c: mmm([x["classes"][c]["rss_mb"]["ratio"] for x in cmp]) for c in CLASSES},
+            "added_ms": {f"{way} {p}": mmm([x["latency_ms"].get(way, {}).get(p, {}).get("added_ms") for x in cmp])
+                         for way in ("gs_to_vehicle", "vehicle_to_gs") for p in ("p50", "p99")},
+            "ground_s": {"zdrone": mmm([r["zdrone"].get("ground_s") for r in mine]),
+                         "bare": mmm([r["bare"].get("ground_s") for r in mine])},
+            "saturated": sorted({f"{h}: {n}" for x in cmp for h, ns in x.get("saturated", {}).items() for n in ns})}
+    return out
 
 
 def _slim(row: dict[str, Any]) -> dict[str, Any]:
     """The zdrone run's row without what only ``bench scale`` reads (per-drone detail)."""
     keep = ("layout", "k", "g", "sites", "tls", "correct", "all_correct", "wall_s", "ground_s", "released", "window_s",
             "cpu_percent", "memory_mb", "samples_per_s", "latency", "handovers", "worst_owner_silence_s", "error", "runs",
-            "hosts_given_way", "mesh", "messages_per_s")
+            "hosts_given_way", "mesh", "messages_per_s", "drone_host_shares", "drones_host_passes_per_s", "drone_hosts")
     return {f: row[f] for f in keep if f in row}
 
 
@@ -245,6 +303,19 @@ def table_rows(cmp: dict[str, Any]) -> list[list[str]]:
         rows.append(["messages /s", name, _num(x["bare"], 0), _num(x["zdrone"], 0), _num(x["ratio"]), ""])
     s = cmp["samples_per_s"]
     rows.append(["Zenoh samples delivered /s", "all nodes", _num(s["bare"], 0), _num(s["zdrone"], 0), _num(s["ratio"]), ""])
+    h = cmp.get("hosts")
+    if h:
+        def share(x: Any) -> str:
+            return "-" if x is None else f"{x:.2f}{' SATURATED' if x > SATURATED_SHARE else ''}"
+
+        for i in range(max(len(h["zdrone"]["drones hosts"]), len(h["bare"]["drones hosts"]))):
+            z, b = (h[x]["drones hosts"][i] if i < len(h[x]["drones hosts"]) else None for x in ("zdrone", "bare"))
+            rows.append(["share of a core", f"drones host {i}", share(b), share(z), "", ""])
+        rows.append(["share of a core", "GSs host", share(h["bare"]["GSs host"]), share(h["zdrone"]["GSs host"]), "", ""])
+        for n in sorted(set(h["zdrone"]["routers"]) | set(h["bare"]["routers"])):
+            rows.append(["share of a core", n, share(h["bare"]["routers"].get(n)), share(h["zdrone"]["routers"].get(n)), "", ""])
+        rows.append(["passes /s", "drones host (slowest)", _num(h["bare"]["drones_host_passes_per_s"], 1),
+                     _num(h["zdrone"]["drones_host_passes_per_s"], 1), "", ""])
     return rows
 
 
@@ -271,6 +342,23 @@ def render(r: dict[str, Any]) -> None:
         caption += f"; drones and GSs hosts at nice {r.get('hosts_nice', '-')}"
         if row["errors"]:
             caption += "; errors: " + "; ".join(f"{h}: {e}" for h, e in row["errors"].items())
-        print_table(f"Overhead: zdrone vs bare Zenoh, {row['k']} drones x {row['g']} GSs, {row['layout']}",
+        print_table(f"Overhead: zdrone vs bare Zenoh, {row['k']} drones x {row['g']} GSs, {row['layout']}"
+                    + (f", run {row['run'] + 1}" if r.get("runs_per_k", 1) > 1 else ""),
                     ["measure", "process class", "bare Zenoh", "zdrone", "zdrone / bare", "added"], table_rows(cmp),
                     caption=caption)
+    sp = r.get("spread") or {}
+    if r.get("runs_per_k", 1) > 1 and sp:
+        rows = []
+        for k, x in sp.items():
+            def f(v: Any) -> str:
+                return "-" if not v else " / ".join(_num(y) for y in v)
+
+            for c, v in x["cpu_ratio"].items():
+                rows.append([k, f"CPU ratio, {c}", f(v)])
+            for c, v in x["rss_ratio"].items():
+                rows.append([k, f"RSS ratio, {c}", f(v)])
+            for w, v in x["added_ms"].items():
+                rows.append([k, f"added ms, {w.replace('_', ' ')}", f(v)])
+            rows.append([k, "on the ground until linked, s (zdrone / bare)", f"{f(x['ground_s']['zdrone'])} | {f(x['ground_s']['bare'])}"])
+            rows.append([k, "saturated hosts", ", ".join(x["saturated"]) or "none"])
+        print_table("Spread over the runs (min / median / max)", ["K", "measure", "spread"], rows)

@@ -99,12 +99,17 @@ def drones_file(part: int, parts: int) -> str:
 def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
     """The drones hosts' results as one: every drone's, the slowest pass and step of any host, CPU and
     memory summed (``cpu_percent``: each host's CPU over its own flight, added)."""
+    for p in parts:  # each host's share of a core over its flight, and its passes a second
+        p.setdefault("share", round(p["cpu_s"] / max(1e-6, p["flight_s"]), 2))
+        p.setdefault("passes_per_s", round(p["loops"] / max(1e-6, p["flight_s"]), 1))
     if len(parts) == 1:
+        parts[0]["shares"] = [parts[0]["share"]]
         return parts[0]
     slow = [p["slow"] for p in parts]
     worst_step = max(slow, key=lambda x: x["worst_step_s"])
     return {
         "results": {n: r for p in parts for n, r in p["results"].items()}, "loops": min(p["loops"] for p in parts),
+        "shares": [p["share"] for p in parts], "passes_per_s": min(p["passes_per_s"] for p in parts),
         "timed_out": any(p["timed_out"] for p in parts), "flight_s": max(p["flight_s"] for p in parts),
         "cpu_s": sum(p["cpu_s"] for p in parts),
         "cpu_percent": round(sum(100.0 * p["cpu_s"] / max(1e-6, p["flight_s"]) for p in parts), 1),
