@@ -251,3 +251,16 @@ def render(result: dict[str, Any]) -> None:
                         "status without the attestation and audit head it carries; bundle_and_unopened: the tap's bytes "
                         "not in an opened envelope (bundle framing, envelopes before a key); revision pushes are on the "
                         "fleet's key, outside the link's totals")
+    plain = next((r for r in ok if r["variant"] == "plain"), None)
+    mav_only = kinds.get("plain", {}).get("mavlink", {}).get("bytes_per_min") if plain else None
+    if mav_only:
+        lines = []
+        for r in ok:
+            if r["variant"] == "plain":
+                continue
+            lines.append(f"{r['variant']} {r['bytes_per_min'] / 1000:,.1f} kB/min: "
+                         f"{100.0 * (r['bytes_per_min'] / plain['bytes_per_min'] - 1):+.1f} % against plain "
+                         f"(the envelope alone: plain already carries the statuses, attestations and audit heads), "
+                         f"{100.0 * (r['bytes_per_min'] / mav_only - 1):+.1f} % against plain MAVLink alone "
+                         f"({mav_only / 1000:,.1f} kB/min)")
+        print_table("Bytes a minute against plain, and against plain MAVLink alone", ["variant"], [[x] for x in lines])
