@@ -490,11 +490,13 @@ def guarded_protocol(tls: Any = None) -> type:
         def _cut(self) -> None:
             """Cut at once (the gate's choice, or the deadline): a TLS handshake under way is cancelled
             (``start_tls`` then drops its TLS state at once, not at its own timeout)."""
-            task = getattr(self, "_tls_task", None)
+            task, self._tls_task = getattr(self, "_tls_task", None), None  # no cycle through its CancelledError
             if task is not None and not task.done():
                 task.cancel()
-            else:
-                self._raw.abort()
+            # closed here, not by the task: one cancelled before its first step never runs its own
+            # ``except`` (its socket and this protocol stayed open until the head deadline)
+            self._cancel_head()
+            self._raw.abort()
 
         async def _handshake(self, raw: Any) -> None:
             left = self._head_timer.when() - self.loop.time() if self._head_timer is not None else 0.0
