@@ -333,9 +333,11 @@ def _bench_view(args: argparse.Namespace) -> int:
         bad = [p for p in only if p not in view.PARTS]
         if bad or not only:
             raise UsageError(f"--only {args.only}: one or more of {','.join(view.PARTS)}")
+    if args.flood_rate is not None and not 0 <= args.flood_rate <= 100_000:
+        raise UsageError(f"--flood-rate {args.flood_rate:g}: must be 0 (no limit) .. 100000")
     result = view.run(quick=args.quick, crossings=args.crossings, drones=args.drones, progress=not args.json,
                       out=Path(args.out) if args.out else None, only=only, clients=args.clients,
-                      forged_rate=args.forged_rate)
+                      forged_rate=args.forged_rate, flood_rate=args.flood_rate)
     _emit(args, result, view.render)
     return 1 if view.failed(result) else 0
 
@@ -579,21 +581,26 @@ def build_parser() -> argparse.ArgumentParser:
     bv.set_defaults(func=_bench_revoke)
     bvw = bsub.add_parser("view", help="the live web view in headless chromium: drone record -> page DOM latency "
                                        "(p50/p95), one page following the scale fleet, the server's memory over a flight, "
-                                       "the view under attack (stream clients and forged parts: RSS, CPU, picture gap)")
+                                       "the view under attack (stream clients and forged parts: RSS, CPU, picture gap), "
+                                       "the view under half-open heads and TLS handshakes from one address")
     bvw.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bvw.add_argument("--quick", action="store_true", help="2 crossings, and 25 drones for 10 s once the page shows them all, "
                                                          "and 10 s windows of 50 clients and 100 forged parts/s "
                                                          "(default: 60 crossings, about 10 minutes, 300 drones for "
                                                          "120 s from take-off, 30 s windows of 1000 clients and "
-                                                         "1000 forged parts/s)")
+                                                         "1000 forged parts/s; flood: 8 s windows, default 30 s)")
     bvw.add_argument("--crossings", type=int, metavar="N", help="crossings of the shuttle flight (latency, memory)")
     bvw.add_argument("--drones", type=int, metavar="K", help="drones of the scale fleet the page follows (1..300)")
     bvw.add_argument("--only", metavar="P,P", help="only these parts: flight (latency, memory), fleet, attack (the view "
-                                                   "under stream clients and X's forged parts); default all three")
+                                                   "under stream clients and X's forged parts), flood (half-open heads "
+                                                   "and TLS handshakes from one address: the operator's page and stream "
+                                                   "served, the view's RSS; no browser); default all four")
     bvw.add_argument("--clients", type=int, metavar="N", help="attack: clients of the picture stream (default 1000, "
                                                               "--quick 50)")
     bvw.add_argument("--forged-rate", type=float, metavar="R", help="attack: X's forged parts a second (default 1000, "
                                                                     "--quick 100)")
+    bvw.add_argument("--flood-rate", type=float, metavar="R", help="flood: the half-open connections' connects a "
+                                                                   "second at most (default 2000; 0: no limit)")
     bvw.add_argument("--out", metavar="DIR", help="keep the runs here")
     bvw.set_defaults(func=_bench_view)
     bw = bsub.add_parser("sweep", help="every scenario at speed-ups 1, 2, 4 and each fault at every moment of the flight")

@@ -41,8 +41,14 @@ its stream stayed live and d1 shown live; the clients held open and served, X's 
 that opened at the view (its own counters, in the picture). Targets beside: RSS <= ``TARGET_RSS_MB``,
 CPU <= ``TARGET_CPU_PCT``, gap <= ``TARGET_GAP_S``.
 
-The attack part is ``zdrone.bench.viewattack``; the browser, the stream probe and the timing summary
-the parts share, ``zdrone.bench.viewpage``.
+**Under a flood of half-open connections** (``--only flood``; no flight, no browser: the fleet's viewer on
+a router of its own): the real ``zdrone view`` with a token, over plain HTTP under ``HEADS`` connections
+with half a request head, and over TLS under ``HANDSHAKES`` half-open handshakes, all from one address
+and each reopened as soon as cut; the operator's page loads and stream opens served (of those asked),
+the view's RSS, open files and CPU (``zdrone.bench.viewflood``).
+
+The attack part is ``zdrone.bench.viewattack``, the flood part ``zdrone.bench.viewflood``; the browser,
+the stream probe and the timing summary the parts share, ``zdrone.bench.viewpage``.
 """
 
 from __future__ import annotations
@@ -62,6 +68,7 @@ from zdrone.bench.stallwatch import cpu_seconds
 from zdrone.bench.table import ProgressLine
 from zdrone.bench.viewattack import (ATTACK_CLIENTS, ATTACK_RATE, ATTACK_WINDOW_S, QUICK_ATTACK_CLIENTS,
                                      QUICK_ATTACK_RATE, QUICK_ATTACK_WINDOW_S, _attack, render_attack)
+from zdrone.bench.viewflood import render_flood, run_flood
 from zdrone.bench.viewpage import CHROMIUM, STREAM_PROBE, Browser, _stats
 
 GOAL_P95_MS = 250.0
@@ -336,12 +343,14 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
 
 
 #: The parts of the bench, each selectable alone (``--only``).
-PARTS = ("flight", "fleet", "attack")
+PARTS = ("flight", "fleet", "attack", "flood")
+#: The parts that drive a real page (the browser is started for them only).
+BROWSER_PARTS = ("flight", "fleet", "attack")
 
 
 def run(quick: bool = False, crossings: int | None = None, drones: int | None = None, progress: bool = True,
         out: Path | None = None, only: tuple[str, ...] = PARTS, clients: int | None = None,
-        forged_rate: float | None = None) -> dict[str, Any]:
+        forged_rate: float | None = None, flood_rate: float | None = None) -> dict[str, Any]:
     crossings = crossings or (QUICK_CROSSINGS if quick else FULL_CROSSINGS)
     drones = drones or (QUICK_DRONES if quick else FULL_DRONES)
     clients = clients or (QUICK_ATTACK_CLIENTS if quick else ATTACK_CLIENTS)
@@ -351,21 +360,25 @@ def run(quick: bool = False, crossings: int | None = None, drones: int | None = 
     base = out or Path(tempfile.mkdtemp(prefix="zdrone-bench-view-"))
     base.mkdir(parents=True, exist_ok=True)
     status = ProgressLine(progress)
-    browser = Browser(base / "profile")
+    browser = Browser(base / "profile") if any(p in only for p in BROWSER_PARTS) else None
     t0 = time.monotonic()
     result: dict[str, Any] = {"parts": [p for p in PARTS if p in only]}
     try:
-        if "flight" in only:
+        if "flight" in only and browser is not None:
             result.update(_flight(browser, base, crossings, interval, status))
-        if "fleet" in only:
+        if "fleet" in only and browser is not None:
             result["fleet"] = _fleet(browser, base, drones, window, not quick, status)
-        if "attack" in only:
+        if "attack" in only and browser is not None:
             result["attack"] = _attack(browser, base, clients, forged_rate,
                                        QUICK_ATTACK_WINDOW_S if quick else ATTACK_WINDOW_S, status, SPEEDUP)
+        if "flood" in only:
+            result["flood"] = run_flood(base, quick, flood_rate, status)
     finally:
-        browser.close()
+        if browser is not None:
+            browser.close()
         status.close()
-    result.update({"outside_requests": browser.outside, "wall_s": round(time.monotonic() - t0, 1),
+    result.update({"outside_requests": browser.outside if browser is not None else [],
+                   "wall_s": round(time.monotonic() - t0, 1),
                    "runs": str(base), "browser": CHROMIUM})
     (base / "result.json").write_text(json.dumps(result, indent=2))
     return result
@@ -374,7 +387,8 @@ def run(quick: bool = False, crossings: int | None = None, drones: int | None = 
 def failed(r: dict[str, Any]) -> bool:
     """A part asked for that did not give its figures (a target missed is a figure, not a failure)."""
     return ("flight" in r["parts"] and "latency" not in r) or ("fleet" in r["parts"] and "error" in r["fleet"]) or (
-        "attack" in r["parts"] and ("error" in r["attack"] or "load" not in r["attack"]))
+        "attack" in r["parts"] and ("error" in r["attack"] or "load" not in r["attack"])) or (
+        "flood" in r["parts"] and "error" in r["flood"])
 
 
 def render(r: dict[str, Any]) -> None:
@@ -387,6 +401,8 @@ def render(r: dict[str, Any]) -> None:
         _render_fleet(r["fleet"])
     if "attack" in parts:
         render_attack(r["attack"])
+    if "flood" in parts:
+        render_flood(r["flood"])
 
 
 def _render_flight(r: dict[str, Any]) -> None:

@@ -14,6 +14,13 @@ authorized for no drone) with its own static key and router password, as ``ops-u
 its failsafe held by X, and naming ``d99`` (no drone of the fleet: the viewer counts each of X's parts that
 reached it as one ``unknown_drone``), ``R`` parts a second, part after part on X's lanes in turn.
 
+``python -m zdrone.bench.viewload halfopen --port P --n N --send head|hello|nothing --stats FILE``: ``N``
+connections from one address (``--source``, e.g. 127.0.0.2: another host as the server sees it) that each
+send half of something and then nothing more: half a request head (``head``: no token, never ended), half a
+TLS ClientHello (``hello``) or nothing at all (``nothing``; ``mixed``: every other one half a ClientHello),
+each reopened as soon as the server cuts it (at most ``--rate`` connects a second in all; 0: no limit). It
+prints ``viewload halfopen: ready`` once every one of the ``N`` was open and had sent its half.
+
 Each writes a JSON line of its counters to ``--stats`` every second and a last one when it ends
 (SIGTERM or ``--duration``).
 """
@@ -22,13 +29,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import json
 import os
 import random
+import selectors
 import signal
+import socket
+import struct
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +76,21 @@ def last_stats(path: Path) -> dict[str, Any] | None:
         except ValueError:
             continue
     return None
+
+
+def stats_lines(path: Path) -> list[dict[str, Any]]:
+    """Every whole line of a stats file (none yet: empty)."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError:
+        return []
+    out = []
+    for line in lines:
+        try:
+            out.append(json.loads(line))
+        except ValueError:
+            continue
+    return out
 
 
 def raise_nofile(want: int) -> int:
@@ -176,6 +203,153 @@ async def _run_clients(args: argparse.Namespace, stats: StatsFile) -> None:
     stats.write({**clients.stats(), "ended": True})
 
 
+# ------------------------------------------------------------------ half-open connections
+#: What a half-open connection sends once connected (``halfopen --send``).
+SENDS = ("head", "hello", "nothing", "mixed")
+
+
+def half_client_hello(server_name: str = "view.test") -> bytes:
+    """The first half of a real TLS ClientHello (this Python's own): the server waits for the rest."""
+    import ssl
+
+    ctx = ssl.create_default_context()
+    ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+    out = ssl.MemoryBIO()
+    obj = ctx.wrap_bio(ssl.MemoryBIO(), out, server_hostname=server_name)
+    try:
+        obj.do_handshake()
+    except ssl.SSLWantReadError:
+        pass
+    hello = out.read()
+    return hello[: max(6, len(hello) // 2)]
+
+
+def half_head(host: str) -> bytes:
+    """Half a request head, no token, never ended (no blank line)."""
+    return f"GET / HTTP/1.1\r\nHost: {host}\r\nUser-Agent: zdrone-bench-viewload\r\nAccept: text/ht".encode()
+
+
+class HalfOpen:
+    """``n`` connections to ``host:port`` from ``source`` that each send ``payloads[i % len]`` once
+    connected and then wait; one the server cuts (or answers) is closed (a reset: no TIME_WAIT) and
+    opened again at once, at most ``rate`` connects a second in all (0: no limit). One thread, non-blocking
+    sockets."""
+
+    def __init__(self, host: str, port: int, n: int, source: str, payloads: list[bytes], rate: float) -> None:
+        self.host, self.port, self.n, self.source, self.payloads, self.rate = host, port, n, source, payloads, rate
+        self.held = 0  # connected, its half sent, not cut yet
+        self.c: dict[str, int] = {"attempts": 0, "connected": 0, "cut": 0, "answered": 0, "connect_failed": 0}
+        self.ever: set[int] = set()  # slots that were once connected with their half sent
+        self.held_max = 0
+
+    def stats(self) -> dict[str, Any]:
+        return {"n": self.n, "held": self.held, "held_max": self.held_max, "first_round": len(self.ever), **self.c}
+
+    def _open(self, sel: selectors.BaseSelector, slot: int) -> bool:
+        self.c["attempts"] += 1
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        try:
+            s.setblocking(False)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # close = reset
+            if hasattr(socket, "IP_BIND_ADDRESS_NO_PORT"):  # the port chosen at connect, per destination
+                s.setsockopt(socket.IPPROTO_IP, socket.IP_BIND_ADDRESS_NO_PORT, 1)
+            s.bind((self.source, 0))
+            err = s.connect_ex((self.host, self.port))
+        except OSError:
+            s.close()
+            self.c["connect_failed"] += 1
+            return False
+        if err not in (0, errno.EINPROGRESS):
+            s.close()
+            self.c["connect_failed"] += 1
+            return False
+        sel.register(s, selectors.EVENT_WRITE, (slot, False))
+        return True
+
+    def _done(self, sel: selectors.BaseSelector, s: socket.socket, held: bool) -> None:
+        sel.unregister(s)
+        s.close()
+        if held:
+            self.held -= 1
+
+    def run(self, stop: threading.Event, deadline: float, stats: StatsFile) -> None:
+        sel = selectors.DefaultSelector()
+        due: deque[int] = deque(range(self.n))  # slots to open (again)
+        tokens, last = 1.0, time.monotonic()
+        next_stats = last + 1.0
+        ready = False
+        try:
+            while not stop.is_set():
+                now = time.monotonic()
+                if now >= deadline:
+                    break
+                if self.rate > 0:
+                    tokens = min(max(1.0, self.rate / 10), tokens + (now - last) * self.rate)
+                last = now
+                failed = 0
+                while due and (self.rate <= 0 or tokens >= 1.0) and failed < 8:
+                    slot = due.popleft()
+                    tokens -= 1.0
+                    if not self._open(sel, slot):
+                        due.append(slot)
+                        failed += 1
+                wait = 0.05 if not due else 0.01 if failed or self.rate > 0 else 0.0
+                for key, _ in sel.select(wait) if sel.get_map() else ():
+                    s, (slot, held) = key.fileobj, key.data
+                    if not held:  # connected (or not)
+                        if s.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) != 0:
+                            self.c["connect_failed"] += 1
+                            self._done(sel, s, False)
+                            due.append(slot)
+                            continue
+                        payload = self.payloads[slot % len(self.payloads)]
+                        try:
+                            if payload:
+                                s.send(payload)
+                        except OSError:
+                            self.c["cut"] += 1
+                            self._done(sel, s, False)
+                            due.append(slot)
+                            continue
+                        self.c["connected"] += 1
+                        self.held += 1
+                        self.held_max = max(self.held_max, self.held)
+                        self.ever.add(slot)
+                        sel.modify(s, selectors.EVENT_READ, (slot, True))
+                        continue
+                    try:  # readable: cut (end of file, a reset) or answered (an HTTP error, a TLS alert)
+                        got = s.recv(4096)
+                    except OSError:
+                        got = b""
+                    self.c["answered" if got else "cut"] += 1
+                    self._done(sel, s, True)
+                    due.append(slot)  # at once: the pressure stays on
+                if not ready and len(self.ever) >= self.n:
+                    ready = True
+                    print(f"viewload halfopen: ready, {self.n} opened from {self.source}", flush=True)
+                if now >= next_stats:
+                    stats.write(self.stats())
+                    next_stats = now + 1.0
+        finally:
+            for key in list(sel.get_map().values()):
+                key.fileobj.close()  # type: ignore[union-attr]
+            sel.close()
+        stats.write({**self.stats(), "ended": True})
+
+
+def _halfopen(args: argparse.Namespace, stats: StatsFile) -> None:
+    from zdrone.net.shutdown import route_signals
+
+    stop = threading.Event()
+    route_signals({signal.SIGTERM: stop.set, signal.SIGINT: stop.set})
+    hello = half_client_hello()
+    payloads = {"head": [half_head(args.host_header or f"{args.host}:{args.port}")], "hello": [hello],
+                "nothing": [b""], "mixed": [b"", hello]}[args.send]
+    h = HalfOpen(args.host, args.port, args.n, args.source, payloads, args.rate)
+    print(f"viewload halfopen: {args.n} on {args.host}:{args.port} from {args.source}, {args.send}", flush=True)
+    h.run(stop, time.monotonic() + args.duration, stats)
+
+
 # ------------------------------------------------------------------ the forger
 def _forge(args: argparse.Namespace, stats: StatsFile) -> None:
     from zdrone.core import opspicture as op
@@ -241,7 +415,21 @@ def main(argv: list[str] | None = None) -> int:
     pf.add_argument("--rate", type=float, default=1000.0)
     pf.add_argument("--duration", type=float, default=600.0)
     pf.add_argument("--stats", required=True)
+    ph = sub.add_parser("halfopen", help="N connections from one address, each half a head or handshake, reopened as cut")
+    ph.add_argument("--host", default="127.0.0.1")
+    ph.add_argument("--port", type=int, required=True)
+    ph.add_argument("--n", type=int, default=300)
+    ph.add_argument("--source", default="127.0.0.2", help="the address connected from (127.0.0.2)")
+    ph.add_argument("--send", choices=SENDS, default="head", help="what each sends: half a request head, half a "
+                    "ClientHello, nothing, or mixed (nothing / half a ClientHello)")
+    ph.add_argument("--host-header", default=None, help="the Host of the half head (default HOST:PORT)")
+    ph.add_argument("--rate", type=float, default=0.0, help="connects a second at most, in all (0: no limit)")
+    ph.add_argument("--duration", type=float, default=600.0)
+    ph.add_argument("--stats", required=True)
     args = p.parse_args(argv)
+    if args.what == "halfopen" and not (1 <= args.n <= 20_000 and args.rate >= 0):
+        print("viewload: --n 1..20000, --rate >= 0", file=sys.stderr)
+        return 2
     if args.what == "clients" and not (1 <= args.n <= 20_000 and args.retry > 0 and args.ramp >= 0):
         print("viewload: --n 1..20000, --retry > 0, --ramp >= 0", file=sys.stderr)
         return 2
@@ -257,6 +445,11 @@ def main(argv: list[str] | None = None) -> int:
         if limit < args.n + 16:
             print(f"viewload: only {limit} files may be open for {args.n} clients", file=sys.stderr)
         asyncio.run(_run_clients(args, stats))
+    elif args.what == "halfopen":
+        limit = raise_nofile(args.n + 256)
+        if limit < args.n + 16:
+            print(f"viewload: only {limit} files may be open for {args.n} connections", file=sys.stderr)
+        _halfopen(args, stats)
     else:
         _forge(args, stats)
     return 0
