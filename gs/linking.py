@@ -170,6 +170,7 @@ class Share:
     grant: wire.KeyGrant | None = None
     ask_again: float | None = None  # a "live link" refusal: ask again then
     live_refused: float | None = None  # its last "live link" refusal
+    hybrid: bool = False  # the open exchange (and the key it gave) is hybrid
 
 
 @dataclass
@@ -347,6 +348,20 @@ class Linking(Machine):
                     out += send_control(s.grant)
         return out
 
+    def drop_classical_shares(self) -> int:
+        """The fleet now requires hybrid keys: a classical exchange still open, or its key not yet granted,
+        is dropped (asked again, hybrid, at the next share); how many."""
+        if not self.ctx.fleet.pairing_pq:
+            return 0
+        dropped = 0
+        for g, s in self.shares.items():
+            if s.phase in (SharePhase.ASKED, SharePhase.GRANTING) and not s.hybrid:
+                s.ask, s.grant, s.ask_again = None, None, None
+                self._set_state(SharePhase.NONE, "hybrid required", key=g, allowed=frozenset({SharePhase.NONE}))
+                dropped += 1
+        self.ctx.counters["linkkey_dropped:classical"] += dropped
+        return dropped
+
     def on_share_reply(self, g: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         if g not in self.shares:
             return self._reply_unasked(g, Reply(now, ok, err))
@@ -371,6 +386,7 @@ class Linking(Machine):
         self.last_share_try = ev.now
         s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall,
                             hybrid=c.fleet.pairing_pq)
+        s.hybrid = c.fleet.pairing_pq
         self._set_state(SharePhase.ASKED, "asked", key=g)
         return [Ask(AskKind.LINKKEY, c.drone, g, keyexprs.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
 
@@ -403,6 +419,11 @@ class Linking(Machine):
             log.warning("key-sharing reply for %s from %s refused: %s", c.drone, g, secret.reason.value)
             return [Emit(rec.LinkkeyBadReply(drone=c.drone, gs=g, reason=secret.reason.value))]
         s.ask, s.ask_again = None, None
+        if c.fleet.pairing_pq and not s.hybrid:
+            # asked before the revision requiring hybrid: a classical key is never granted after it; ask again, hybrid
+            c.counters["linkkey_reply_refused:classical"] += 1
+            self._set_state(SharePhase.NONE, "classical reply after hybrid required", key=g)
+            return []
         s.grant = wire.KeyGrant(g, c.fleet.nodes[g].sysid, secret, next(c.grant_ids))
         self.grant_sent = None
         self._set_state(SharePhase.GRANTING, "reply", key=g)
@@ -531,7 +552,7 @@ PAIR_TABLE: Table[PairPhase] = {
 SHARE_TABLE: Table[SharePhase] = {
     (S.NONE, ShareDue): (Linking._ask, frozenset({S.ASKED})),
     (S.ASKED, ShareDue): (Linking._ask_over, frozenset({S.NONE, S.ASKED})),
-    (S.ASKED, Reply): (Linking._reply, frozenset({S.GRANTING})),
+    (S.ASKED, Reply): (Linking._reply, frozenset({S.GRANTING, S.NONE})),
     (S.NONE, Reply): (Linking._reply_unasked, frozenset()),
     (S.GRANTING, Reply): (Linking._reply_unasked, frozenset()),
     (S.GRANTED, Reply): (Linking._reply_unasked, frozenset()),

@@ -217,6 +217,9 @@ class DroneSession(DroneView):
         paired again (hybrid, make-before-break): the drone takes key grants only over hybrid links."""
         self.linking.ctx.fleet = fleet
         self.due = 0.0
+        self.linking.drop_classical_shares()  # a classical key not yet granted is never granted now
+        # (a classical candidate of ours stays: the drone may have installed it before the revision; once
+        # the drone speaks under it, it is paired again hybrid at once, make-before-break: ``_repair_hybrid``)
         self._repair_hybrid()
         self.check_route()  # a GS revoked or moved: the route is checked again against the fleet in force
 

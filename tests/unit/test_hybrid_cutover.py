@@ -123,3 +123,33 @@ def test_a_replaced_key_is_wiped_at_its_grace_end_while_the_new_one_opens_everyt
     for i in range(1, 40):
         slot.open(q.gs.seal(q.heartbeat()), 1.1 + 0.1 * i)
     assert slot.previous is None
+
+
+def test_a_key_shared_classically_is_never_granted_after_the_owner_applies_the_revision(fleet_dir):
+    """Found by an attacker's review: the revision reached the drone first; B answered A's classical
+    key-sharing query; the drone refused A's classical grant; A then applied the revision, re-paired
+    hybrid and granted the classical key over the hybrid link, and the drone installed it as hybrid.
+    Now A drops the classical share at the revision and asks again, hybrid."""
+    net = FleetNet(fleet_dir)
+    a = net.add_gs("A", pair=True)
+    b = net.add_gs("B")
+    net.cut.add("B")
+    net.hung.add("B")  # B off the radio and not answering key sharing yet
+    net.run(6.0)
+    fleet = pq_fleet(fleet_dir)
+    net.drone_outs(net.drone.on_revision(fleet, net.now))  # the revision reaches the drone first
+    net.hung.discard("B")  # B answers A's classical query now
+    net.run(3.0)
+    assert net.drone.counters["grant_refused:downgrade"] >= 1 and "B" not in net.drone.links
+    for core in net.gss.values():
+        core.fleet = fleet
+    net.run(4.0)
+    assert a.counters["linkkey_dropped:classical"] + a.counters["linkkey_reply_refused:classical"] >= 1
+    assert a.counters["repair_hybrid"] == 1 and net.drone.links["A"].hybrid
+    granted = net.drone.links.get("B")
+    assert granted is not None and granted.hybrid
+    assert [c.link.hybrid for c in b.sessions["d1"].slot.candidates] == [True]  # B's key came from a hybrid exchange
+    net.cut.discard("B")
+    net.run(2.0)
+    s = b.sessions["d1"]
+    assert s.link is not None and s.link.hybrid and s.link.key == net.drone.links["B"].key
