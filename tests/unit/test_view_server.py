@@ -257,3 +257,34 @@ def test_tls_handshakes_are_counted_and_timed_from_accept(monkeypatch, tmp_path)
         assert all(_cut_off(s) for s in half)
         for s in half:
             s.close()
+
+
+def test_connections_that_read_nothing_of_their_responses_are_cut_and_never_lock_the_operator_out(monkeypatch):
+    """Found by an attacker's review: 256 connections each pipelining 1 500 requests and reading none of
+    the answers stayed "serving" (uvicorn waits for the send buffer to drain, with no deadline), the gate
+    never cut them and every new connection was refused, the operator's with its token too."""
+    monkeypatch.setattr(srv, "MAX_CONNECTIONS", 4)
+    monkeypatch.setattr(srv, "SEND_STALL_S", 0.5)
+    with serving(FakeFollower()) as port:
+        held = []
+        for _ in range(4):
+            s = socket.socket()
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 2048)
+            s.connect(("127.0.0.1", port))
+            s.setblocking(False)
+            req = f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n".encode()
+            try:
+                for _ in range(20000):  # many requests, never a byte read back (until the socket is full)
+                    s.send(req)
+            except BlockingIOError:
+                pass
+            held.append(s)
+
+        def served() -> bool:
+            try:
+                return _get(port) == 200
+            except OSError:
+                return False
+        assert wait_until(served, timeout=10.0), "the operator stayed locked out"  # once the stalled ones are cut
+        for s in held:
+            s.close()

@@ -69,6 +69,9 @@ RETRY_MS = 500
 #: A connection must have sent a whole request head within this long of opening (or of its last
 #: response): a client that trickles a header, or sends none, is cut off.
 HEADER_TIMEOUT_S = 10.0
+#: A connection whose peer reads nothing of what it is sent (its send buffer stays full: an unread response,
+#: a pipeline of requests never read, a stream nobody reads) is cut after this long, served or not.
+SEND_STALL_S = 10.0
 #: An idle kept-alive connection is closed after this long.
 KEEP_ALIVE_S = 5.0
 #: Connections open at once, counted from accept (a TLS handshake included), at most; one more cuts
@@ -459,6 +462,7 @@ def guarded_protocol(tls: Any = None) -> type:
     class Guarded(H11Protocol):  # type: ignore[misc]
         gate = Gate(MAX_CONNECTIONS, MAX_HEADLESS_PER_ADDRESS)
         timed_out = 0  # connections cut for want of a request head (a TLS handshake included)
+        stalled = 0  # connections cut for reading nothing of what they were sent (``SEND_STALL_S``)
 
         def connection_made(self, transport: Any) -> None:
             if getattr(self, "_raw", None) is not None:  # the TLS transport, once the handshake is done
@@ -496,6 +500,7 @@ def guarded_protocol(tls: Any = None) -> type:
             # closed here, not by the task: one cancelled before its first step never runs its own
             # ``except`` (its socket and this protocol stayed open until the head deadline)
             self._cancel_head()
+            self._cancel_stall()
             self._raw.abort()
 
         async def _handshake(self, raw: Any) -> None:
@@ -541,6 +546,32 @@ def guarded_protocol(tls: Any = None) -> type:
                 Guarded.timed_out += 1
                 self._cut()
 
+        def pause_writing(self) -> None:
+            """The peer reads nothing of what we send (our send buffer is full): it has ``SEND_STALL_S`` to
+            read again, or it is cut (a served connection is not cut for another: an unread response,
+            a pipeline of them or an unread stream would otherwise hold its slot for ever)."""
+            super().pause_writing()
+            if getattr(self, "_stall_timer", None) is None:
+                self._stall_timer = self.loop.call_later(SEND_STALL_S, self._stalled)
+
+        def resume_writing(self) -> None:
+            super().resume_writing()
+            self._cancel_stall()
+
+        def _cancel_stall(self) -> None:
+            timer, self._stall_timer = getattr(self, "_stall_timer", None), None
+            if timer is not None:
+                timer.cancel()
+
+        def _stalled(self) -> None:
+            self._stall_timer = None
+            if not self._raw.is_closing():
+                Guarded.stalled += 1
+                if Guarded.stalled <= 5 or Guarded.stalled % 1000 == 0:
+                    log.warning("view: a connection that read nothing for %g s cut (%d so far)", SEND_STALL_S,
+                                Guarded.stalled)
+                self._cut()
+
         def on_response_complete(self) -> None:
             super().on_response_complete()  # a pipelined request may be served at once
             if not self.transport.is_closing() and (self.cycle is None or self.cycle.response_complete):
@@ -550,6 +581,7 @@ def guarded_protocol(tls: Any = None) -> type:
 
         def _gone(self) -> None:
             self._cancel_head()
+            self._cancel_stall()
             Guarded.gate.gone(self)
 
         def connection_lost(self, exc: Exception | None) -> None:
