@@ -40,7 +40,7 @@ from zdrone.sil import procs
 from zdrone.sil.attack_verdicts import escrow_left_standing, insider_takeovers
 from zdrone.sil.children import PY, Child, ChildProcesses, _exit_text
 from zdrone.sil.liveview import LiveView, describe
-from zdrone.sil.moments import (AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
+from zdrone.sil.moments import (GSS_STARTED, AIRBORNE, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED, HANDOVERS_DONE,
                                 HANDOVER_STARTED, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
 from zdrone.sil.netns import NetnsTopology
 from zdrone.sil.ports import free_port
@@ -285,6 +285,7 @@ class Demo(ChildProcesses, SiteLinks):
         elif spec.gs_x:
             self.start("gsX", self._z() + ["gs", "--id", "X", *self._common("X"), "--drone", "d1", "--pair", "--mission",
                                            "reference", "--events", "X.jsonl"], ns=self._ns("X"))
+        self._operators_due(GSS_STARTED, None, None)  # their process starts while the fleet links, not mid-flight
         return self._watch()
 
     def _z(self) -> list[str]:
@@ -342,6 +343,14 @@ class Demo(ChildProcesses, SiteLinks):
         for fault in spec.faults:
             if fault.trigger == trigger:
                 self.scheduled.append((time.monotonic() + fault.after, fault))
+        self._operators_due(trigger, t, live)
+        self._inject_due(live)
+        self._send_go(live)
+
+    def _operators_due(self, trigger: str, t: float | None, live: "LiveView | None") -> None:
+        """Start the scenario's operators' applications (``spec.operators`` / ``spec.consent_ops``) at
+        ``trigger``."""
+        spec = self.spec
         if spec.operators == trigger and self.gcs_port and self.gcs_port_b:
             self.start("operators", ["-m", "zdrone.sil.operator", "--a-port", str(self.gcs_port), "--b-port",
                                      str(self.gcs_port_b), "--events", "operator.jsonl"], ns=self._ns("A"))
@@ -353,8 +362,6 @@ class Demo(ChildProcesses, SiteLinks):
                        ns=self._ns("A"))
             if live is not None:
                 live.event(t or time.time(), "scenario: the operators of A, B and X start")
-        self._inject_due(live)
-        self._send_go(live)
 
     def _inject_due(self, live: "LiveView | None") -> None:
         """Carry out the faults whose time has come."""

@@ -15,6 +15,9 @@ RETURNING = "returning"  # on the way back: the first entry into the hand-over r
 AT_DELIVERY = "at_delivery"  # first near the delivery point (only B's coverage; B holding authority)
 DRONE_RESTARTED = "drone_restarted"  # a fault restarted the drone's companion (just started again)
 BEFORE_DRONE = "before_drone"  # the simulator is up, the drone's companion not yet started
+#: Every GS is up with its GCS gateway (not a moment of the flight: when operators' applications start,
+#: so that a loaded host's slow start of their process never makes them late for the flight).
+GSS_STARTED = "gss_started"
 TRIGGERS = (BEFORE_DRONE, BEFORE_GS_A, MISSION_STARTED, AIRBORNE, REGION_ENTERED, HANDOVERS_DONE, FAILSAFE_FIRED, HANDOVER_STARTED,
             RETURNING, AT_DELIVERY, DRONE_RESTARTED)
 #: The moments of the flight a scenario's fault can be moved to (``zdrone demo --moment``, ``zdrone bench

@@ -27,7 +27,7 @@ from zdrone.sil.fault_verdicts import (LEASE_STAMPER_PERIOD_S, REVOKED_ALONE_LEA
                                        check_lossy_radio, check_revoke_in_flight, check_revoke_uncovered,
                                        check_revoked_alone, check_rotate_in_flight, check_router_restart,
                                        check_site_router_down, check_site_router_down_alone)
-from zdrone.sil.moments import (AIRBORNE, AT_DELIVERY, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED,
+from zdrone.sil.moments import (GSS_STARTED, AIRBORNE, AT_DELIVERY, BEFORE_DRONE, BEFORE_GS_A, DRONE_RESTARTED, FAILSAFE_FIRED,
                                 HANDOVERS_DONE, MISSION_STARTED, MOMENTS, REGION_ENTERED, RETURNING, TRIGGERS)
 from zdrone.sil.operator_verdicts import check_consent_bound, check_operator_consent
 from zdrone.sil.verdicts import fault_over_check, flight_unaffected
@@ -302,14 +302,14 @@ SCENARIO_TABLE: tuple[Scenario, ...] = (
              "releases back to A and the mission goes on",
              "nothing moves without consent; B in control within the 10 s window after consent and at once with "
              "takeover allowed; no emergency hand-over, no failsafe, landing at home",
-             check_operator_consent, operators=MISSION_STARTED),
+             check_operator_consent, operators=GSS_STARTED),
     Scenario("consent-bound",
              "three authorized GSs, an operator application on each gateway, in the overlap: B asks, X asks 1.1 s "
              "later, A's operator consents naming X (refused) then B; B's operator declines X, X asks again; B "
              "allows takeover in its epoch, A takes it, gives it back by consent, then asks again",
              "control goes to B, the requester named; X is not shown while B's request stands nor after its "
              "decline, and never holds authority; an earlier epoch's allow-takeover moves nothing; landing at home",
-             check_consent_bound, consent_ops=MISSION_STARTED, x_authorized=True),
+             check_consent_bound, consent_ops=GSS_STARTED, x_authorized=True),
     Scenario("big-flood",
              "B's router password only: 60 KiB envelopes, pairing and key-sharing queries (20/s each) and 4 MiB "
              "ones (1/s each), from the overlap on (through the hand-over)",
