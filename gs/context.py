@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mav
 
@@ -97,3 +97,5 @@ class StationContext:
     counters: Counter
     codec: FrameCodec
     traffic: LinkTraffic
+    #: key-sharing queries out, per owner GS: drone -> deadline (``gs.linking.ASKS_IN_FLIGHT``)
+    asks_out: dict = field(default_factory=dict)

@@ -268,6 +268,12 @@ class StationCore:
             return []
         return session.on_pair_reply(ok, err, now)
 
+    def on_pair_done(self, drone: str, m1: bytes, now: float) -> list[Action]:
+        """Our pairing query to ``drone`` carrying ``m1`` ended: all its replies are in, or none came."""
+        self._input(now)
+        session = self.sessions.get(drone)
+        return [] if session is None else session.on_pair_done(m1, now)
+
     def adopt_identity(self, identity: Identity, now: float, wall: float) -> list[Action]:
         """Our static key was rotated: key sharing answers under ``identity`` from now on, and every
         drone we hold a link with is re-paired under it at once, as a fresh pairing (``Linking.rekey``;

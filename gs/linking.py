@@ -32,7 +32,7 @@ after ``LIVE_LINK_RETRY_S``, a query with no answer again after its deadline), `
 reply's key is granted to the drone, re-sent each second) and ``GRANTED`` (the drone acknowledged
 it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``Reply``, ``GrantAcked``
 and ``KeysLost`` (the drone restarted: every key we shared for it is gone). One new query per
-``RETRY_S`` per drone (a "live link" retry excepted).
+``RETRY_S`` per drone and other GS (a "live link" retry excepted).
 
 ``PAIR_TABLE`` and ``SHARE_TABLE`` map (phase, event type) to (handler, the phases it may move to),
 tables of the machine engine (``zdrone.core.machine``); the key-sharing table applies to each other
@@ -66,14 +66,28 @@ from gs.actions import Action, Ask, AskKind, Emit, QueryAnswer
 
 log = logging.getLogger(__name__)
 
-#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``): a fleet of 300 drones
-#: gets every GS's keys on the ground in about a minute; a hostile asker spends a few ms of CPU a second.
+#: Key-sharing handshakes per asker per second (bursts of ``LINKKEY_BURST``, or more: below): a hostile
+#: asker spends a few ms of CPU a second.
 LINKKEY_RATE, LINKKEY_BURST = 5.0, 10.0
+#: An asker's bucket holds one handshake per drone both GSs are authorized for (the fleet in force), if
+#: that is more than ``LINKKEY_BURST``: the first share of a whole fleet on the ground is one burst (300
+#: drones: seconds, not a minute); the rate it refills at stays ``LINKKEY_RATE`` (a GS's key in hostile
+#: hands still gets that much sustained, after one burst of at most one handshake per shared drone,
+#: answered ``LINKKEY_PER_TURN`` a loop turn: ``gs.station``).
+LINKKEY_BURST_PER_SHARED_DRONE = 1.0
+#: Our key-sharing queries out to one owner GS at once at most (each drone's own): the owner's
+#: queryable ring holds 256 per path (``zdrone.net.session.QUERY_QUEUE_SIZE``); a query it dropped
+#: costs its drone the whole ``ASK_TIMEOUT``. A drone whose query must wait looks again this soon.
+ASKS_IN_FLIGHT = 64
+ASK_WAIT_S = 0.05
 #: A secret handed out over the backhaul waits this long for the drone to prove it (the drone first
 #: speaks under it when it reaches this GS's coverage).
 LINKKEY_CANDIDATE_TTL = 900.0
 PAIR_TIMEOUT = 3.0
 RETRY_S = 2.0
+#: A first pairing whose query ended with no reply at all (Zenoh: no queryable of the drone's took it:
+#: not up yet) is tried again this soon instead of ``RETRY_S``: the drone never saw it.
+UNANSWERED_RETRY_S = 0.5
 #: A key grant not yet acknowledged is sent again this often.
 GRANT_RESEND_S = 1.0
 #: A key-sharing query refused because the answering GS's link still looks alive (a drone that just
@@ -113,6 +127,7 @@ class PairDue:
     stamp: float
     retry: float = RETRY_S
     timeout: float = PAIR_TIMEOUT
+    unanswered: float | None = None  # the retry after a query no drone's queryable answered, if shorter
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,6 +184,8 @@ class Share:
     ask: KeyShareAsk | None = None
     grant: wire.KeyGrant | None = None
     ask_again: float | None = None  # a "live link" refusal: ask again then
+    last_try: float | None = None  # our last new query to this GS (one per ``RETRY_S``)
+    wait_until: float | None = None  # ``ASKS_IN_FLIGHT`` queries to this GS were out: look again then
     live_refused: float | None = None  # its last "live link" refusal
     hybrid: bool = False  # the open exchange (and the key it gave) is hybrid
 
@@ -183,6 +200,8 @@ class Context:
     fleet: Fleet
     counters: Counter[str]
     grant_ids: Iterator[int] = field(default_factory=lambda: itertools.count(1))
+    #: the station's key-sharing queries out, shared by its drones' ``Linking``s: owner GS -> drone -> deadline
+    asks_out: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 class Linking(Machine):
@@ -197,6 +216,9 @@ class Linking(Machine):
         self.pairing: PairingInitiator | None = None
         self.pairing_deadline = 0.0
         self.last_pair_try: float | None = None
+        self._m1: bytes | None = None  # the open exchange's message 1 (``pair_unanswered`` names it)
+        self._answered = False  # a reply to the open exchange came (any: refused, bad, or the proof)
+        self._unanswered = False  # the last exchange's query ended with no reply at all
         self.lost_key_at: float | None = None  # our pairing found the companion had lost our key (it restarted)
         self.rekey_pending = False  # our static key was rotated: a pairing under the new one is due
         self._rekey_exchange = False  # the open exchange is such a pairing
@@ -204,7 +226,6 @@ class Linking(Machine):
         self._rekey_rotated = True  # the fresh pairing due is for a rotated key (else: a hybrid one)
         self.shares: dict[str, Share] = {}  # other GS -> where its key stands (made when first needed)
         self.drone_links: set[str] = set()  # GSs the drone already holds keys for (its status)
-        self.last_share_try: float | None = None
         self.grant_sent: float | None = None
 
     # ------------------------------------------------------------------ queries
@@ -237,18 +258,35 @@ class Linking(Machine):
                     due.append(s.ask.deadline if s.ask_again is None else min(s.ask.deadline, s.ask_again))
             if self.grants_pending and self.grant_sent is not None:
                 due.append(self.grant_sent + GRANT_RESEND_S)
-            needed = any(s.phase is SharePhase.NONE and g not in self.drone_links for g, s in self.shares.items())
-            if needed and self.last_share_try is not None:
-                due.append(self.last_share_try + RETRY_S)
+            for g, s in self.shares.items():
+                if s.phase is SharePhase.NONE and g not in self.drone_links and s.last_try is not None:
+                    due.append(s.last_try + RETRY_S)
+                if s.phase is SharePhase.NONE and s.wait_until is not None:
+                    due.append(s.wait_until)
         later = [d for d in due if d > now]
         return min(later) if later else None
 
-    def pair_retry_due(self, now: float, retry: float) -> float | None:
-        """When a ``PairDue`` with ``retry`` may next start an exchange (None: at once)."""
+    def pair_retry_due(self, now: float, retry: float, unanswered: float | None = None) -> float | None:
+        """When a ``PairDue`` with ``retry`` (and ``unanswered``) may next start an exchange (None: at once)."""
         due = [self.pairing_deadline] if self.pair_phase is PairPhase.ASKING else []
         if self.last_pair_try is not None:
-            due.append(self.last_pair_try + retry)
+            due.append(self.last_pair_try + self._retry(retry, unanswered))
         return max(due) if due else None
+
+    def _retry(self, retry: float, unanswered: float | None) -> float:
+        """The wait after the last try: ``retry``, or ``unanswered`` if shorter and nothing answered it."""
+        return min(retry, unanswered) if self._unanswered and unanswered is not None else retry
+
+    def pair_unanswered(self, m1: bytes, now: float) -> None:
+        """Zenoh ended our pairing query carrying ``m1`` (all replies in, or none came): if it is the
+        open exchange's and nothing answered it, the exchange is over (no drone's queryable took it:
+        the next try may come sooner: ``PairDue.unanswered``). A query that was answered,
+        or an older exchange's, changes nothing."""
+        if self.pair_phase is not PairPhase.ASKING or m1 != self._m1 or self._answered:
+            return
+        self.ctx.counters["pair_unanswered"] += 1
+        self.pairing, self._unanswered = None, True
+        self._set_state(PairPhase.IDLE, "unanswered", allowed=PAIR_CLOSED)
 
     # ------------------------------------------------------------------ pairing
     def on_pair(self, ev: PairDue | Reply) -> tuple[list[Action], PairProven | None]:
@@ -265,10 +303,11 @@ class Linking(Machine):
     def _pair_start(self, ev: PairDue) -> tuple[list[Action], PairProven | None]:
         """Send a message 1 (stamped with our time of day: the drone refuses an old one) unless the
         last try was less than ``retry`` ago."""
-        if not _due(self.last_pair_try, ev.now, ev.retry):
+        if not _due(self.last_pair_try, ev.now, self._retry(ev.retry, ev.unanswered)):
             return [], None
         c = self.ctx
         self.last_pair_try = ev.now
+        self._answered = self._unanswered = False
         c.counters["pair_sent"] += 1
         self.pairing = PairingInitiator(c.identity, c.gs, c.drone, c.fleet.nodes[c.drone].public_bytes, stamp=ev.stamp,
                                         hybrid=c.fleet.pairing_pq)
@@ -276,7 +315,8 @@ class Linking(Machine):
         self._exchange_hybrid = c.fleet.pairing_pq
         self.pairing_deadline = ev.now + ev.timeout
         self._set_state(PairPhase.ASKING, "message 1")
-        return [Ask(AskKind.PAIR, c.drone, c.gs, keyexprs.pair(c.drone, c.gs), self.pairing.start(), ev.timeout)], None
+        self._m1 = self.pairing.start()
+        return [Ask(AskKind.PAIR, c.drone, c.gs, keyexprs.pair(c.drone, c.gs), self._m1, ev.timeout)], None
 
     def _pair_late(self, ev: Reply) -> tuple[list[Action], PairProven | None]:
         self.ctx.counters["pair_reply_late"] += 1
@@ -284,6 +324,7 @@ class Linking(Machine):
 
     def _pair_reply(self, ev: Reply) -> tuple[list[Action], PairProven | None]:
         c = self.ctx
+        self._answered = True
         assert self.pairing is not None
         if ev.ok is None:
             reason = (ev.err or b"error").decode(errors="replace")[:200]
@@ -357,6 +398,7 @@ class Linking(Machine):
         for g, s in self.shares.items():
             if s.phase in (SharePhase.ASKED, SharePhase.GRANTING) and not s.hybrid:
                 s.ask, s.grant, s.ask_again = None, None, None
+                self.ctx.asks_out.get(g, {}).pop(self.ctx.drone, None)
                 self._set_state(SharePhase.NONE, "hybrid required", key=g, allowed=frozenset({SharePhase.NONE}))
                 dropped += 1
         self.ctx.counters["linkkey_dropped:classical"] += dropped
@@ -380,13 +422,22 @@ class Linking(Machine):
         s, c = self.shares[g], self.ctx
         if g in self.drone_links:
             return []
-        if s.ask_again is None and not _due(self.last_share_try, ev.now, RETRY_S):
+        if s.ask_again is None and not _due(s.last_try, ev.now, RETRY_S):
             return []
-        s.ask_again = None
-        self.last_share_try = ev.now
+        out = c.asks_out.setdefault(g, {})
+        if c.drone not in out and len(out) >= ASKS_IN_FLIGHT:
+            for d in [d for d, t in out.items() if t <= ev.now]:  # expired unanswered: their turn is over
+                del out[d]
+            if len(out) >= ASKS_IN_FLIGHT:
+                s.wait_until = ev.now + ASK_WAIT_S
+                c.counters["linkkey_ask_waited"] += 1
+                return []
+        s.ask_again, s.wait_until = None, None
+        s.last_try = ev.now
         s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall,
                             hybrid=c.fleet.pairing_pq)
         s.hybrid = c.fleet.pairing_pq
+        out[c.drone] = s.ask.deadline
         self._set_state(SharePhase.ASKED, "asked", key=g)
         return [Ask(AskKind.LINKKEY, c.drone, g, keyexprs.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
 
@@ -397,6 +448,7 @@ class Linking(Machine):
         if not s.ask.expired(ev.now) and (s.ask_again is None or ev.now < s.ask_again):
             return []
         self.ctx.counters["linkkey_no_answer" if s.ask_again is None else "linkkey_asked_again"] += 1
+        self.ctx.asks_out.get(g, {}).pop(self.ctx.drone, None)
         s.ask = None
         self._set_state(SharePhase.NONE, "ask over", key=g)
         return self._ask(g, ev)
@@ -404,6 +456,7 @@ class Linking(Machine):
     def _reply(self, g: str, ev: Reply) -> list[Action]:
         s, c = self.shares[g], self.ctx
         if ev.ok is None:
+            c.asks_out.get(g, {}).pop(c.drone, None)  # answered: its place is free
             c.counters["linkkey_reply_error"] += 1
             if ev.err == ShareRefusal.LIVE_LINK.value.encode():
                 s.ask_again = ev.now + LIVE_LINK_RETRY_S  # soon: its link is about to be LOST
@@ -419,6 +472,7 @@ class Linking(Machine):
             log.warning("key-sharing reply for %s from %s refused: %s", c.drone, g, secret.reason.value)
             return [Emit(rec.LinkkeyBadReply(drone=c.drone, gs=g, reason=secret.reason.value))]
         s.ask, s.ask_again = None, None
+        c.asks_out.get(g, {}).pop(c.drone, None)
         if c.fleet.pairing_pq and not s.hybrid:
             # asked before the revision requiring hybrid: a classical key is never granted after it; ask again, hybrid
             c.counters["linkkey_reply_refused:classical"] += 1
@@ -477,6 +531,16 @@ class KeyOwner:
         self.gs, self._fleet, self.counters = gs, fleet, counters
         self.adopt(identity)
 
+    def _burst(self) -> float:
+        """The asker's bucket: ``LINKKEY_BURST``, or one handshake per drone we and another GS are
+        both authorized for, if the fleet has more (the largest over the other GSs)."""
+        f, shared = self._fleet, 0
+        mine = [d for d in f.drones() if f.is_authorized(d, self.gs)]
+        for g in f.ground_stations():
+            if g != self.gs:
+                shared = max(shared, sum(1 for d in mine if f.is_authorized(d, g)))
+        return max(LINKKEY_BURST, LINKKEY_BURST_PER_SHARED_DRONE * shared)
+
     @property
     def fleet(self) -> Fleet:
         return self._fleet
@@ -487,10 +551,11 @@ class KeyOwner:
         classical query is refused as a downgrade)."""
         self._fleet = fleet
         self.responder.require_hybrid = fleet.pairing_pq
+        self.responder.limiter.set_burst(self._burst())  # no bucket is refilled by it
 
     def adopt(self, identity: Identity) -> None:
         """Answer under ``identity`` from now on (our static key was rotated)."""
-        self.responder = KeyShareResponder(identity, self.gs, LINKKEY_RATE, LINKKEY_BURST,
+        self.responder = KeyShareResponder(identity, self.gs, LINKKEY_RATE, self._burst(),
                                            require_hybrid=self._fleet.pairing_pq)
 
     def refused(self, logs: list[Action], reason: ShareRefusal, drone: str, asker: str, detail: str = "") -> QueryAnswer:

@@ -68,7 +68,14 @@ from gs.context import (DEADLINE_SLACK_S, HANDOVER_RETRY_S, KEY_COMING_S, KEY_WA
 from gs.droneview import DroneView
 from gs.handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 from gs.keyhold import HoldStep, KeyHold, KeyMissing, KeyThere, ModeAck
-from gs.linking import PAIR_TIMEOUT, RETRY_S, Context, Linking, PairDue, Reply
+from gs.linking import PAIR_TIMEOUT, RETRY_S, UNANSWERED_RETRY_S, Context, Linking, PairDue, Reply
+
+#: A silent drone's re-pairing (``tick``) is tried every ``SILENT_RETRY_S`` but waits this long for its
+#: answer: a loaded companion that answers in 0.3 s was asked again at 0.2 s, every reply came late and
+#: each new question cost it another handshake (K = 300: 8-12 answers per drone on the ground). A query
+#: no drone's queryable took ends at once (``Linking.pair_unanswered``): a restarted companion is still
+#: asked again as soon as before.
+SILENT_PAIR_TIMEOUT_S = 1.0
 from gs.mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from gs.opcontrol import Answer, OperatorControl, Step
 from gs.ownership import owns
@@ -98,7 +105,7 @@ class DroneSession(DroneView):
         self.mission = Mission(st.name, name, sysid, st.opts.mission, seed=st.opts.seed, counters=st.counters,
                                upload_spread_s=upload_spread_s, takeoff_spread_s=takeoff_spread_s)
         self.check_route()
-        self.linking = Linking(Context(st.name, name, st.identity, st.fleet, st.counters, grant_ids))
+        self.linking = Linking(Context(st.name, name, st.identity, st.fleet, st.counters, grant_ids, st.asks_out))
         self.inputs = 0  # authentic messages taken: orders a position report against an authority change
         self.due = 0.0  # when ``tick`` must next run (at once: the first pairing)
 
@@ -184,6 +191,12 @@ class DroneSession(DroneView):
         how = " under our new key" if paired.fresh else ""
         return [Emit(rec.GsPaired(drone=self.name, again=again)),
                 ToOperator(f"zdrone gs {self.st.name}: paired with {self.name}{how}"), *self.heartbeat()]
+
+    def on_pair_done(self, m1: bytes, now: float) -> list[Action]:
+        """Our pairing query carrying ``m1`` ended (``Linking.pair_unanswered``)."""
+        self._input(now)
+        self.linking.pair_unanswered(m1, now)
+        return []
 
     def on_linkkey_reply(self, gs: str, ok: bytes | None, err: bytes | None, now: float) -> list[Action]:
         """One reply from ``gs`` to our key-sharing query about this drone."""
@@ -320,12 +333,12 @@ class DroneSession(DroneView):
         before = self._facts()
         out: list[Action] = []
         if self.link is None and self.st.opts.pair:
-            out += self._try_pair(now, wall)
+            out += self._try_pair(now, wall, unanswered=UNANSWERED_RETRY_S)
         elif self._silent_authority(now):  # a restarted companion waits for its owner to re-pair
             assert self.link is not None
             fast = self.link.tbm.since_last(now) <= SILENT_FAST_S
             retry = SILENT_RETRY_S if fast else SILENT_SLOW_RETRY_S
-            out += self._try_pair(now, wall, retry=retry, timeout=retry)
+            out += self._try_pair(now, wall, retry=retry, timeout=max(retry, SILENT_PAIR_TIMEOUT_S))
         elif self.link is not None and self.linking.rekey_pending:  # our rotated key's pairing, again
             out += self._try_pair(now, wall)
         if self.link is not None:
@@ -354,7 +367,7 @@ class DroneSession(DroneView):
         linking = self.linking
         if self.link is None:
             yield linking.deadline(now, sharing=False)
-            yield linking.pair_retry_due(now, RETRY_S) if self.st.opts.pair else None
+            yield linking.pair_retry_due(now, RETRY_S, UNANSWERED_RETRY_S) if self.st.opts.pair else None
             return
         silence = self.link.tbm.since_last(now)
         if self.owner == self.st.name and self.ha_state is not HaState.FAILSAFE:  # re-pairing a silent drone
@@ -386,9 +399,11 @@ class DroneSession(DroneView):
             yield self.last_command + 1.0 / self.st.opts.command_rate
 
     # ------------------------------------------------------------------ linking
-    def _try_pair(self, now: float, stamp: float, retry: float = RETRY_S, timeout: float = PAIR_TIMEOUT) -> list[Action]:
-        """Pair (``gs.linking``) unless an exchange is open or the last try was less than ``retry`` ago."""
-        out, _ = self.linking.on_pair(PairDue(now, stamp, retry, timeout))
+    def _try_pair(self, now: float, stamp: float, retry: float = RETRY_S, timeout: float = PAIR_TIMEOUT,
+                  unanswered: float | None = None) -> list[Action]:
+        """Pair (``gs.linking``) unless an exchange is open or the last try was less than ``retry`` ago
+        (``unanswered``, if the last query ended with no reply)."""
+        out, _ = self.linking.on_pair(PairDue(now, stamp, retry, timeout, unanswered))
         return out
 
     # ---------------------------------------------------------------- receiving

@@ -58,6 +58,8 @@ log = logging.getLogger(__name__)
 LINKKEY_PER_TURN = 2
 #: Key-sharing queries looked at per loop turn (refusals cost microseconds each).
 LINKKEY_QUERIES_PER_TURN = 256
+#: While key-sharing queries wait in the ring for a turn's handshakes, the loop looks again this soon.
+LINKKEY_BACKLOG_POLL_S = 0.005
 #: The loop sleeps at most this long without input (the key-sharing queryable's ring is looked at
 #: on every wake).
 MAX_SLEEP_S = 0.05
@@ -142,6 +144,7 @@ class GroundStation:
         self.session = self.rt.session
         self.sub = self.rt.subscribe(keyexprs.down("*", self.name), "down", keyexprs.drone_of, limit=MAX_BUNDLE)
         self.linkkey_q = self.rt.queryable(keyexprs.linkkey_all(self.name))
+        self._linkkey_backlog = False  # the last turn left key-sharing queries in the ring (``_serve_linkkeys``)
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True,
                                                   signing=lambda: self.secret.signing, wall=time.time,
                                                   drones=self._vouched)
@@ -175,7 +178,8 @@ class GroundStation:
 
     def _ask(self, a: Ask) -> None:
         if a.kind is AskKind.PAIR:
-            self.rt.ask(a.keyexpr, a.payload, a.timeout, "pair", a.drone)
+            rx, drone, m1 = self.rx, a.drone, a.payload  # the query's end names its exchange by its message 1
+            self.rt.ask(a.keyexpr, a.payload, a.timeout, "pair", a.drone, on_done=lambda: rx.put("pair_done", drone, m1))
         else:
             gs = a.gs
             self.rt.ask(a.keyexpr, a.payload, a.timeout, "linkkey", a.drone, wrap=lambda r: (gs, r))
@@ -230,6 +234,8 @@ class GroundStation:
             self._on_revision(kind, data, now)
         elif kind == "down":
             self._do(self.core.on_bundle(drone, data, now))
+        elif kind == "pair_done":
+            self._do(self.core.on_pair_done(drone, data, now))
         elif kind == "pair":
             self._do(self.core.on_pair_reply(drone, data[0], data[1], now))
         elif kind == "linkkey":
@@ -280,14 +286,18 @@ class GroundStation:
     def _serve_linkkeys(self, now: float) -> None:
         """Answer key-sharing queries: refusals cost no crypto; ``LINKKEY_PER_TURN`` handshakes at most."""
         handshakes = 0
+        self._linkkey_backlog = False
         for _ in range(LINKKEY_QUERIES_PER_TURN):
+            if handshakes >= LINKKEY_PER_TURN:
+                # the turn's handshakes are spent: what is left stays in the bounded ring for the next
+                # turn (soon: ``poll_period``), unanswered queries would cost the asker its whole timeout
+                self.counters["linkkey_deferred"] += 1
+                self._linkkey_backlog = True
+                return
             q = self.linkkey_q.try_recv()
             if q is None:
                 return
             try:
-                if handshakes >= LINKKEY_PER_TURN:
-                    self.counters["linkkey_deferred"] += 1
-                    continue
                 payload = payload_bytes(q.payload)
                 if payload is None:
                     self.counters["linkkey_refused:oversize"] += 1
@@ -359,6 +369,8 @@ class GroundStation:
     def poll_period(self) -> float:
         """How long the loop sleeps at most without input, for what wakes nobody: the key-sharing
         queryable's ring (``MAX_SLEEP_S``), the sockets a loop hook polls (``HOOK_POLL_S``)."""
+        if self._linkkey_backlog:
+            return LINKKEY_BACKLOG_POLL_S
         return HOOK_POLL_S if self.loop_hooks else MAX_SLEEP_S
 
     def run(self) -> None:

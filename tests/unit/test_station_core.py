@@ -641,7 +641,10 @@ def test_a_silent_drone_is_asked_to_pair_five_times_a_second_at_first_then_once_
     times = []
     for i in range(1, 800):  # 40 s of ticks, not a word from the drone, no answer to any query
         now = 0.1 + i * 0.05
-        times += [now for x in a.handle_timer(now) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
+        asks = [x for x in a.handle_timer(now) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
+        times += [now for _ in asks]
+        for x in asks:  # the companion is down: Zenoh ends the query at once, with no reply
+            a.on_pair_done("d1", x.payload, now)
     fast = [t for t in times if t - heard <= SILENT_FAST_S]
     slow = [t for t in times if t - heard > SILENT_FAST_S + SILENT_SLOW_RETRY_S]
     assert fast and fast[0] - heard > SILENT_REPAIR_S
@@ -783,3 +786,17 @@ def test_a_release_refused_because_authority_moved_on_stops_our_commands_until_t
             assert not [x for x in out if isinstance(x, Put) and len(x.payload) > 60]  # heartbeats only
         view.on_control(wire.AuthorityStatus("B", 2, HaState.LINKED, None, ["A", "B"]), 11.2)
         assert view.owner == "B" and not a.holds_authority(view)
+
+
+def test_a_silent_drone_slow_to_answer_is_not_asked_again_while_its_query_is_open(fleet_dir):
+    """A loaded companion answers a re-pairing in more than SILENT_RETRY_S: the exchange waits for it
+    (SILENT_PAIR_TIMEOUT_S) instead of asking again at every retry, each new question costing it a
+    handshake whose answer would come late too."""
+    from gs.session import SILENT_PAIR_TIMEOUT_S
+
+    a = paired_a(fleet_dir)
+    times = []
+    for i in range(1, 100):  # 5 s of ticks; the queries stay open (the drone has not answered yet)
+        now = 0.1 + i * 0.05
+        times += [now for x in a.handle_timer(now) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
+    assert times and all(y - x >= SILENT_PAIR_TIMEOUT_S - 0.05 for x, y in zip(times, times[1:]))

@@ -43,6 +43,15 @@ class RateLimiter:
         self._buckets: dict[str, TokenBucket] = {}
         self.refused = 0
 
+    def set_burst(self, burst: float) -> None:
+        """Buckets hold at most ``burst`` from now on (a bucket holding more keeps ``burst``; none is
+        filled by it)."""
+        if burst < 1:
+            raise ValueError("need burst >= 1")
+        self.burst = burst
+        for b in self._buckets.values():
+            b.burst, b.tokens = burst, min(b.tokens, burst)
+
     def allow(self, peer: str, now: float) -> bool:
         b = self._buckets.get(peer)
         if b is None:

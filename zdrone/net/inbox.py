@@ -31,8 +31,8 @@ INBOX_SIZE = 1024
 #: fleet (``senders_bound``): a fixed 256 refused the frames of a GS's 257th drone with a backlog, so a
 #: GS serving 300 drones lost 18 000 of their frames in a flight and 227 of them went wrong (issue 30).
 MAX_SENDERS = 256
-#: Kinds of queue one peer can hold at once (a GS's drone: down, pair, linkkey, query).
-KINDS_PER_PEER = 4
+#: Kinds of queue one peer can hold at once (a GS's drone: down, pair, pair_done, linkkey, query).
+KINDS_PER_PEER = 5
 #: Bytes waiting in all queues together, at most (``<kind>:inbox_bytes``): whatever the fleet's size,
 #: what every sender can make a node hold stays bounded (one queue alone: ``INBOX_SIZE`` items).
 MAX_BYTES = 64 * 1024 * 1024

@@ -243,11 +243,13 @@ class NodeRuntime:
         return self.pacer.next_due()
 
     def ask(self, keyexpr: str, payload: bytes, timeout: float, kind: str, peer: str,
-            wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r, limit: int = MAX_HANDSHAKE) -> None:
+            wrap: Callable[[tuple[bytes | None, bytes | None]], Any] = lambda r: r, limit: int = MAX_HANDSHAKE,
+            on_done: Callable[[], None] | None = None) -> None:
         """Query every queryable on ``keyexpr`` (ALL: a second queryable declared with a stolen
         password cannot hide the real one); every reply (NONE) comes back through the inbox as
         ``(kind, peer, wrap((ok, err)))``, a reply longer than ``limit`` bytes as the error
-        ``oversize`` (not copied). Asynchronous: never waits."""
+        ``oversize`` (not copied); ``on_done`` (Zenoh's thread: it must only queue) once the query has
+        ended, every reply in or none. Asynchronous: never waits."""
         inbox = self.inbox
 
         def on_reply(reply: Any) -> None:
@@ -257,7 +259,12 @@ class NodeRuntime:
         if not sessions:
             self.inbox.drop("ask:no_path")
             return
-        sessions[0].get(keyexpr, on_reply, payload=payload, timeout=timeout,
+        # in Zenoh's own thread, as the subscribers' (``subscribe``): a plain function gets a Python thread
+        # of its own per query (a pairing round of 300 drones: 300 threads made and ended); ``on_reply``
+        # only queues and never calls Zenoh
+        handler = zenoh.handlers.Callback(on_reply, on_done, indirect=False) if DIRECT_CALLBACKS else \
+            zenoh.handlers.Callback(on_reply, on_done)
+        sessions[0].get(keyexpr, handler, payload=payload, timeout=timeout,
               target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE)
 
     # ------------------------------------------------------------- lifecycle
