@@ -116,8 +116,8 @@ def test_bench_chaos_over_sites_a_site_router_down_at_the_hand_over_and_the_flig
 
 @pytest.mark.slow
 def test_bench_overhead_flies_both_halves_and_compares_every_class():
-    """Three drones for 10 s each way (~30 s): both halves ran and every figure of the table is there
-    (the figures themselves are the bench's, not the test's)."""
+    """Three drones for 10 s each way (~30 s): both halves ran, every figure of the table is there (the
+    figures themselves are the bench's, not the test's) and both carried the same traffic."""
     r = bench("overhead", "--drones", "3", "--flight", "10", timeout=180)
     (row,) = r["rows"]
     assert row["errors"] == {} and row["bare"]["flew"] == 3, row["errors"]
@@ -127,6 +127,14 @@ def test_bench_overhead_flies_both_halves_and_compares_every_class():
             assert row["compare"]["classes"][c]["rss_mb"][half] is not None, (c, half)
     for way in ("gs_to_vehicle", "vehicle_to_gs"):
         assert set(row["compare"]["latency_ms"][way]) == {"p50", "p99", "n"}
+    # like for like: both halves carry the same traffic, class by class (a second a frame, over the same
+    # flight window): the vehicles' frames, what reaches the GSs, what the GSs put and what reaches the
+    # vehicles (the radio gate: a drone hears only the GSs covering it and its own, in both halves)
+    msgs = row["compare"]["messages_per_s"]
+    for name, tolerance in (("vehicle frames out of the vehicles", 0.10), ("vehicle frames into the GSs", 0.10),
+                            ("GS frames put", 0.15), ("GS frames into the vehicles", 0.15)):
+        x = msgs[name]
+        assert x["bare"] and x["zdrone"] and abs(x["zdrone"] / x["bare"] - 1.0) <= tolerance, (name, x)
 
 
 def test_bench_overhead_bad_arguments_are_one_line():
