@@ -379,6 +379,11 @@ class SecureLink:
             self._rx_chain.advance()
             self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None
             log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
+        return self._deliver(plaintext, rx.epoch, counter or 0, now)
+
+    def _deliver(self, plaintext: bytes, epoch: int, counter: int, now: float) -> Opened | Dropped:
+        """An authentic, fresh envelope's content checked and delivered: a drone's batch item by item,
+        or one message; then the sender's authorization, the TBM observation and the count."""
         if plaintext[:1] == wire.BATCH_PREFIX and self.role == "gs":  # a drone's batch: its items one by one
             items = bundle.unpack(plaintext[1:])
             if items is None or len(items) < 2:
@@ -396,10 +401,10 @@ class SecureLink:
             return self._drop(DropReason.UNAUTHORIZED, self.peer)
         gap = self.tbm.observe(now)
         self.opened += len(good)
-        opened = [Opened(p, h, c, rx.epoch, counter or 0, gap) for p, h, c in good]  # type: ignore[misc]
+        opened = [Opened(p, h, c, epoch, counter, gap) for p, h, c in good]  # type: ignore[misc]
         if len(opened) == 1 and plaintext[:1] != wire.BATCH_PREFIX:
             return opened[0]
-        return Opened(plaintext, None, None, rx.epoch, counter or 0, gap, tuple(opened))
+        return Opened(plaintext, None, None, epoch, counter, gap, tuple(opened))
 
     def _open_fast(self, data: bytes, now: float, count: bool = True) -> Opened | Dropped:
         """``open`` for the production cipher: the same checks in the
@@ -457,27 +462,7 @@ class SecureLink:
             gap = self.tbm.observe(now)
             self.opened += 1
             return Opened(plaintext, hdr, None, rx.epoch, counter, gap)
-        if first == wire.BATCH_PREFIX and self.role == "gs":  # a drone's batch: its items one by one
-            items = bundle.unpack(plaintext[1:])
-            if items is None or len(items) < 2:
-                return self._drop(DropReason.BAD_INNER, "batch")
-            inner = [self._inner(item) for item in items]
-            good = [i for i in inner if not isinstance(i, Dropped)]
-            if not good:
-                return inner[0]  # type: ignore[return-value]  # each counted by ``_inner``
-        else:
-            one = self._inner(plaintext)
-            if isinstance(one, Dropped):
-                return one
-            good = [one]
-        if self.authorize is not None and not self.authorize(self.peer):
-            return self._drop(DropReason.UNAUTHORIZED, self.peer)
-        gap = self.tbm.observe(now)
-        self.opened += len(good)
-        opened = [Opened(p, h, c, rx.epoch, counter, gap) for p, h, c in good]  # type: ignore[misc]
-        if len(opened) == 1 and first != wire.BATCH_PREFIX:
-            return opened[0]
-        return Opened(plaintext, None, None, rx.epoch, counter, gap, tuple(opened))
+        return self._deliver(plaintext, rx.epoch, counter, now)  # a batch, or a control message
 
     def _inner(self, plaintext: bytes) -> tuple[bytes, FrameHeader | None, wire.Control | None] | Dropped:
         """One message of an authentic envelope checked: a MAVLink frame of the peer's sysid, or a
