@@ -19,6 +19,7 @@ from tests.procs import ZDRONE, once_per_run
 from zdrone.core.pairing import PAIR_BURST, PAIR_RATE
 from zdrone.net.eventlog import read_events
 from zdrone.sil.launcher import ATTACK_SCENARIOS, SCENARIO_TABLE, TRIGGERS
+from zdrone.sil.moments import GSS_STARTED
 from zdrone.sil.rogue import MODES, dangerous_messages
 
 
@@ -46,7 +47,8 @@ def test_scenario_table_is_consistent_and_listed():
         for r in spec.rogues:
             assert r.mode in MODES and r.launch in TRIGGERS and (r.go is None or r.go in TRIGGERS), (spec.name, r)
         assert spec.gcs_a == any(r.mode == "gateway-flood" for r in spec.rogues)
-        assert spec.operators is None or spec.operators in TRIGGERS, spec.name
+        for ops in (spec.operators, spec.consent_ops):  # operators start at a moment, or once every GS is up
+            assert ops is None or ops in TRIGGERS or ops == GSS_STARTED, spec.name
     out = subprocess.run([ZDRONE, "demo", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and all(f"  {s.name} " in out.stdout for s in SCENARIO_TABLE)
     bad = subprocess.run([ZDRONE, "bench", "attack", "--scenarios", "nominal"], capture_output=True, text=True)

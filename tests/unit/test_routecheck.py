@@ -75,7 +75,7 @@ def test_a_corridor_of_gss_is_chained_in_order_and_the_reference_missions_pass(f
         assert check_mission(m, fleet, "d1", None, CRUISE_SPEED_MS).ok
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(st.lists(st.tuples(st.floats(-900, 900), st.floats(-900, 900)), min_size=1, max_size=6),
        st.lists(st.tuples(st.floats(-900, 900), st.floats(-900, 900), st.floats(50, 600)), min_size=1, max_size=5))
 def test_a_route_that_passes_is_covered_everywhere_and_every_crossing_overlaps_long_enough(points, gss):
