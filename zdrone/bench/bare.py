@@ -621,7 +621,7 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
                   "flew": sum(p["flew"] for p in parts),
                   "landed": all(p["landed"] for p in parts), "worst_pass_s": max(p["worst_pass_s"] for p in parts),
                   "delivered": sum(p["delivered"] for p in parts),
-                  "passes_per_s": min(p.get("passes_per_s", 0.0) for p in parts),
+                  "passes_per_s": min(round(p["loops"] / max(p["flight_s"], 1e-6), 1) for p in parts),
                   "shares": {h: round(p["cpu_s"] / max(1e-6, p["flight_s"]), 2) for h, p in zip(hosts, parts)}}
         stations = json.loads((d / "stations.json").read_text())
     except (OSError, ValueError) as exc:
