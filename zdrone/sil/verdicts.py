@@ -83,7 +83,9 @@ def flight_unaffected(o: Outcome) -> list[str]:
     why += _need(all(h["kind"] == "handover" for h in s["handovers"]), "an emergency hand-over")
     why += _need(s["failsafe"] is None, "failsafe triggered")
     why += _need(s["authority_link"]["worst_state"] != "lost", "the authority link was LOST")
-    why += _need(s["delivered_at_b"], "no delivery at B")
+    # on the ground at the delivery point in B's area, by the drone's own signed status or as a GS heard
+    # it (B alone hearing the vehicle's short stop there is a matter of luck on a lossy radio: a CI failure)
+    why += _need(delivered(o), "no delivery at B")
     why += _need(s["distance_from_home_m"] is not None and s["distance_from_home_m"] < 5.0,
                  f"not landed at home ({s['distance_from_home_m']} m)")
     return why
