@@ -367,19 +367,32 @@ class SecureLink:
         if plaintext is None:
             return self._drop(DropReason.AUTH_FAILED, "", count)
         if counter is not None:
-            if not rx.window.is_fresh(counter):
-                return self._drop(DropReason.REPLAY, f"counter {counter}")
-            highest = rx.window.highest
-            rx.window.mark(counter)
-            if counter > highest + 1:  # the frames between never came (yet): lost on the way
-                self.missing += counter - highest - 1
-            elif counter < highest and self.missing:  # one of them, late
-                self.missing -= 1
-        if is_next:  # first authentic frame of the peer's new epoch: follow it
-            self._rx_chain.advance()
-            self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None
-            log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
+            replayed = self._fresh(rx, counter)
+            if replayed is not None:
+                return replayed
+        if is_next:
+            self._follow(rx)
         return self._deliver(plaintext, rx.epoch, counter or 0, now)
+
+    def _fresh(self, rx: _RxEpoch, counter: int) -> Dropped | None:
+        """The replay check of an authentic envelope's counter, marked in its epoch's window (and the
+        frames it skipped counted as missing); a replay is dropped."""
+        window = rx.window
+        if not window.is_fresh(counter):
+            return self._drop(DropReason.REPLAY, f"counter {counter}")
+        highest = window.highest
+        window.mark(counter)
+        if counter > highest + 1:  # the frames between never came (yet): lost on the way
+            self.missing += counter - highest - 1
+        elif counter < highest and self.missing:  # one of them, late
+            self.missing -= 1
+        return None
+
+    def _follow(self, rx: _RxEpoch) -> None:
+        """The first authentic frame of the peer's new epoch: follow it."""
+        self._rx_chain.advance()
+        self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None
+        log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
 
     def _deliver(self, plaintext: bytes, epoch: int, counter: int, now: float) -> Opened | Dropped:
         """An authentic, fresh envelope's content checked and delivered: a drone's batch item by item,
@@ -432,23 +445,14 @@ class SecureLink:
         except InvalidTag:
             return self._drop(DropReason.AUTH_FAILED, "", count)
         window = rx.window
-        highest = window.highest
-        if counter == highest + 1:  # the next one, in order (the common case): ``window.mark`` inline
-            bits = (window._bits << 1) | 1
-            window._bits = bits & window._mask if bits.bit_length() > window._limit else bits
-            window.highest = counter
-        else:
-            if counter <= highest and not window.is_fresh(counter):
-                return self._drop(DropReason.REPLAY, f"counter {counter}")
+        if counter == window.highest + 1:  # the next one, in order (the common case): fresh, nothing missed
             window.mark(counter)
-            if counter > highest + 1:  # the frames between never came (yet): lost on the way
-                self.missing += counter - highest - 1
-            elif counter < highest and self.missing:  # one of them, late
-                self.missing -= 1
-        if is_next:  # first authentic frame of the peer's new epoch: follow it
-            self._rx_chain.advance()
-            self._rx_previous, self._rx_current, self._rx_next = self._rx_current, rx, None
-            log.info("link %s<-%s: rx rekey to epoch %d", self.local, self.peer, rx.epoch)
+        else:
+            replayed = self._fresh(rx, counter)
+            if replayed is not None:
+                return replayed
+        if is_next:
+            self._follow(rx)
         first = plaintext[:1]
         if first == b"\xfd" or first == b"\xfe":  # one MAVLink frame: the common case
             try:
