@@ -219,13 +219,7 @@ class GroundStation:
     def _countersign(self, a: Checkpoint) -> None:
         """Countersign a drone's authority-record checkpoint from its authentic status
         (``zdrone.core.audit``; logged in this GS's record)."""
-        if self.witnessing is None:
-            return
-        refused = self.witnessing.refused
-        w = self.witnessing.on_head(a.drone, a.head.seq, a.head.head, a.head.sig, time.time())
-        if w is not None:
-            self.events.write_witness(w)
-        elif self.witnessing.refused > refused:
+        if self.witnessing is not None and not self.events.countersign(self.witnessing, a.drone, a.head, time.time()):
             self.counters["audit_bad_checkpoint"] += 1
 
     # ------------------------------------------------------------------ inbox

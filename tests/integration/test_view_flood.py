@@ -25,7 +25,7 @@ from typing import Any, Iterator
 import pytest
 
 from tests.procs import ZDRONE, Proc, free_port, spawn, wait_until
-from zdrone.bench.viewflood import FLOOD_SOURCE as ATTACKER, VIEW_NAME as NAME, operator, tls_files
+from zdrone.bench.viewflood import FLOOD_SOURCE as ATTACKER, VIEW_NAME as NAME, operator, view_secrets
 from zdrone.bench.viewload import last_stats
 from zdrone.fleet.files import init_fleet
 from zdrone.view.server import MAX_CONNECTIONS
@@ -67,16 +67,8 @@ def fleet_router(tmp_path_factory: Any) -> Iterator[tuple[Path, str]]:
 @contextlib.contextmanager
 def _view(d: Path, fleet: Path, router: str, tls: bool) -> Iterator[tuple[Proc, int, str, ssl.SSLContext | None]]:
     """``zdrone view`` with a token file (and TLS): the process, its port, the token, the operator's TLS context."""
-    token = os.urandom(24).hex()
-    (d / "token").write_text(token + "\n")
-    (d / "token").chmod(0o600)
+    token, extra, ctx = view_secrets(d, tls)
     port = free_port(socket.SOCK_STREAM)
-    extra: list[str] = []
-    ctx = None
-    if tls:
-        cert, key, ca = tls_files(d)
-        extra = ["--tls-cert", cert, "--tls-key", key]
-        ctx = ssl.create_default_context(cafile=ca)
     with spawn(ZDRONE, "view", "--fleet", str(fleet), "--router", router, "--port", str(port), "--listen", "127.0.0.1",
                "--name", NAME, "--token-file", str(d / "token"), *extra) as view:
         view.wait_line("zdrone view:", 30)

@@ -53,6 +53,18 @@ REQUEST_TIMEOUT_S = 10.0
 TARGET_RSS_MB = 150.0
 
 
+def view_secrets(d: Path, tls: bool) -> tuple[str, list[str], "ssl.SSLContext | None"]:
+    """A fresh token in ``d``'s token file (0600) and, with ``tls``, a certificate: the token, the view's
+    extra arguments (``--tls-cert``, ``--tls-key``) and the operator's TLS context that trusts it."""
+    token = os.urandom(24).hex()
+    (d / "token").write_text(token + "\n")
+    (d / "token").chmod(0o600)
+    if not tls:
+        return token, [], None
+    cert, key, ca = tls_files(d)
+    return token, ["--tls-cert", cert, "--tls-key", key], ssl.create_default_context(cafile=ca)
+
+
 def tls_files(d: Path, hosts: tuple[str, ...] = ("127.0.0.1", VIEW_NAME)) -> tuple[str, str, str]:
     """A CA, and a server certificate from it for ``hosts``: (cert, key, ca) PEM files in ``d``."""
     from cryptography.hazmat.primitives import serialization
@@ -148,16 +160,8 @@ def _mode(base: Path, fleet: Path, router: str, mode: str, window: float, rate: 
     tls, send, n = MODES[mode]
     d = base / mode
     d.mkdir(parents=True, exist_ok=True)
-    token = os.urandom(24).hex()
-    (d / "token").write_text(token + "\n")
-    (d / "token").chmod(0o600)
+    token, extra, ctx = view_secrets(d, tls)
     port = free_port(socket.SOCK_STREAM)
-    extra: list[str] = []
-    ctx = None
-    if tls:
-        cert, key, ca = tls_files(d)
-        extra = ["--tls-cert", cert, "--tls-key", key]
-        ctx = ssl.create_default_context(cafile=ca)
     out: dict[str, Any] = {"mode": mode, "tls": tls, "send": send, "connections": n, "rate": rate, "source": FLOOD_SOURCE,
                            "window_s": window, "runs": str(d)}
     cmds = {"view": [sys.executable, "-m", "zdrone", "view", "--fleet", str(fleet), "--router", router, "--port",

@@ -220,6 +220,16 @@ class EventLog:
         with self._lock:
             self._audit_lines(self.audit.rekey(key, self._clock()))
 
+    def countersign(self, witnessing: audit.Witnessing, node: str, head: Any, wall: float) -> bool:
+        """Another node's checkpoint (``head``: its seq, head and signature) countersigned by
+        ``witnessing`` and written as an entry of this node's chain (once per seq); False when its
+        signature failed (counted by the caller)."""
+        refused = witnessing.refused
+        w = witnessing.on_head(node, head.seq, head.head, head.sig, wall)
+        if w is not None:
+            self.write_witness(w)
+        return witnessing.refused == refused
+
     def write_witness(self, witness: audit.AuditWitness) -> None:
         """A checkpoint of another node this node countersigned: an entry of its own chain."""
         if self.audit is None:

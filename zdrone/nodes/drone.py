@@ -226,13 +226,7 @@ class DroneNode:
     def _countersign(self, o: Countersign) -> None:
         """A GS's checkpoint from its authentic offer: countersigned once, an entry of this drone's
         record; one whose signature fails is counted, never countersigned."""
-        if self.witnessing is None:
-            return
-        refused = self.witnessing.refused
-        w = self.witnessing.on_head(o.gs, o.head.seq, o.head.head, o.head.sig, time.time())
-        if w is not None:
-            self.events.write_witness(w)
-        elif self.witnessing.refused > refused:
+        if self.witnessing is not None and not self.events.countersign(self.witnessing, o.gs, o.head, time.time()):
             self.core.counters["audit_bad_checkpoint"] += 1
 
     def _persist(self, o: Persist) -> None:
