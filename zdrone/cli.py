@@ -382,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also load and check every secret file; on a bundle: say whose it is, and refuse it if it "
                          "holds any other node's secret or the CA key")
     fs.set_defaults(func=_fleet_show)
-    from zdrone.fleet.checkroute import add_parser as add_check_route
+    from zdrone.checkroute import add_parser as add_check_route
 
     add_check_route(fsub)  # check-route: a mission's route before take-off
     fe = fsub.add_parser("export", help="write one host's bundle: exactly the files that node (or the router) needs")
