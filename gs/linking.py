@@ -31,7 +31,10 @@ hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link"
 after ``LIVE_LINK_RETRY_S``, a query with no answer again after its deadline), ``GRANTING`` (the
 reply's key is granted to the drone, re-sent each second) and ``GRANTED`` (the drone acknowledged
 it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``Reply``, ``GrantAcked``
-and ``KeysLost`` (the drone restarted: every key we shared for it is gone). One new query per
+and ``KeysLost`` (the drone restarted: every key we shared for it is gone). When the drone's links
+follow it (``zdrone.core.linkplan``), only the GSs the owner's plan wants are asked, and a ``GRANTED``
+key the drone's status has stopped listing (it closed that link) goes back to ``NONE`` at the next
+``ShareDue``, to be asked again when wanted. One new query per
 ``RETRY_S`` per drone and other GS (a "live link" retry excepted).
 
 ``PAIR_TABLE`` and ``SHARE_TABLE`` map (phase, event type) to (handler, the phases it may move to),
@@ -94,6 +97,10 @@ GRANT_RESEND_S = 1.0
 #: restarted holds no key for it, but that GS hears the silence only at the loss threshold) is asked
 #: again this soon, the first ask still open for the genuine reply.
 LIVE_LINK_RETRY_S = 0.5
+#: A key we granted that the drone's status no longer lists this long after its acknowledgement was
+#: closed by the drone (links that follow it): shared again if still wanted (the status lists the
+#: drone's links at least once a second).
+REGRANT_AFTER_S = 3.0
 #: The first few of each refusal or bad reply go to the event log; all of them to the counters.
 LOGGED = 5
 
@@ -146,6 +153,7 @@ class ShareDue:
 
     now: float
     wall: float
+    follow: bool = False  # the drone's links follow it: a granted key it closed is shared again when wanted
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +196,7 @@ class Share:
     wait_until: float | None = None  # ``ASKS_IN_FLIGHT`` queries to this GS were out: look again then
     live_refused: float | None = None  # its last "live link" refusal
     hybrid: bool = False  # the open exchange (and the key it gave) is hybrid
+    granted_at: float | None = None  # the drone acknowledged our grant then
 
 
 @dataclass
@@ -375,12 +384,18 @@ class Linking(Machine):
         c = self.ctx
         return [g for g in c.fleet.nodes[c.drone].authorized_gs if g != c.gs]
 
-    def share_keys(self, now: float, wall: float, send_control: Callable[[wire.Control], list[Action]]) -> list[Action]:
-        """As authority: ask the other authorized GSs for their link keys; grant them to the drone."""
+    def share_keys(self, now: float, wall: float, send_control: Callable[[wire.Control], list[Action]],
+                   wanted: set[str] | None = None) -> list[Action]:
+        """As authority: ask the other authorized GSs for their link keys (only those ``wanted``, if the
+        drone's links follow it: ``zdrone.core.linkplan``); grant them to the drone."""
         out: list[Action] = []
         for g in self.others():
-            self.shares.setdefault(g, Share())
-            out += self._share(g, ShareDue(now, wall))
+            if wanted is not None and g not in wanted and g not in self.shares:
+                continue
+            share = self.shares.setdefault(g, Share())
+            if wanted is not None and g not in wanted and share.phase in (SharePhase.NONE, SharePhase.GRANTED):
+                continue  # not (or no longer) prepared: not asked
+            out += self._share(g, ShareDue(now, wall, wanted is not None))
         if self.grants_pending and _due(self.grant_sent, now, GRANT_RESEND_S):
             self.grant_sent = now
             for s in self.shares.values():
@@ -440,6 +455,18 @@ class Linking(Machine):
         out[c.drone] = s.ask.deadline
         self._set_state(SharePhase.ASKED, "asked", key=g)
         return [Ask(AskKind.LINKKEY, c.drone, g, keyexprs.linkkey(g, c.drone), s.ask.payload, s.ask.deadline - ev.now)]
+
+    def _granted_due(self, g: str, ev: ShareDue) -> list[Action]:
+        """A key we granted, which the drone no longer holds (it closed that link: links that follow the
+        drone): shared again once its status has had time to say so (``REGRANT_AFTER_S``)."""
+        s = self.shares[g]
+        if (not ev.follow or g in self.drone_links or s.granted_at is None
+                or ev.now - s.granted_at < REGRANT_AFTER_S):
+            return []
+        s.granted_at = None
+        self.ctx.counters["linkkey_shared_again"] += 1
+        self._set_state(SharePhase.NONE, "the drone closed its link", key=g)
+        return self._ask(g, ev)
 
     def _ask_over(self, g: str, ev: ShareDue) -> list[Action]:
         """An open query: past its deadline (no answer) or its "live link" retry, asked again."""
@@ -501,7 +528,7 @@ class Linking(Machine):
         assert s.grant is not None
         if s.grant.grant_id != ev.grant_id:
             return []
-        s.grant = None
+        s.grant, s.granted_at = None, ev.now
         self._set_state(SharePhase.GRANTED, "acknowledged", key=g)
         return [Emit(rec.KeyGranted(drone=self.ctx.drone, gs=g))]
 
@@ -624,6 +651,6 @@ SHARE_TABLE: Table[SharePhase] = {
     (S.GRANTING, GrantAcked): (Linking._acked, frozenset({S.GRANTED})),
     (S.GRANTING, KeysLost): (Linking._forget, frozenset({S.NONE})),
     (S.GRANTED, KeysLost): (Linking._forget, frozenset({S.NONE})),
+    (S.GRANTED, ShareDue): (Linking._granted_due, frozenset({S.NONE, S.ASKED})),
 }
-# Not listed: ShareDue while GRANTING or GRANTED (the grant is re-sent by share_keys; granted is
-# done), an acknowledgement of no grant of ours, KeysLost while NONE or ASKED (the query stands).
+# Not listed: ShareDue while GRANTING (the grant is re-sent by share_keys), an acknowledgement of no grant of ours, KeysLost while NONE or ASKED (the query stands).

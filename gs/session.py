@@ -54,7 +54,8 @@ from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.kk import is_hybrid
-from zdrone.core.linkslot import PREVIOUS_GRACE
+from zdrone.core.linkplan import plan_links
+from zdrone.core.linkslot import PREVIOUS_GRACE, LinkSlot
 from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.core.mavlink import read_header
 from zdrone.fleet import keyexprs
@@ -76,6 +77,9 @@ from gs.linking import PAIR_TIMEOUT, RETRY_S, UNANSWERED_RETRY_S, Context, Linki
 #: no drone's queryable took ends at once (``Linking.pair_unanswered``): a restarted companion is still
 #: asked again as soon as before.
 SILENT_PAIR_TIMEOUT_S = 1.0
+#: An operator's request for control of a drone we hold no link with starts pairing for this long (the
+#: application repeats its request meanwhile: answered TEMPORARILY_REJECTED until the link is made).
+PAIR_ON_DEMAND_S = 10.0
 from gs.mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from gs.opcontrol import Answer, OperatorControl, Step
 from gs.ownership import owns
@@ -108,6 +112,8 @@ class DroneSession(DroneView):
         self.linking = Linking(Context(st.name, name, st.identity, st.fleet, st.counters, grant_ids, st.asks_out))
         self.inputs = 0  # authentic messages taken: orders a position report against an authority change
         self.due = 0.0  # when ``tick`` must next run (at once: the first pairing)
+        self.closed_by_drone = False  # the drone closed our link (links that follow it): no pairing of our own
+        self.pair_on_demand_until: float | None = None  # our operator asked for control with no link: pair until then
 
     # ------------------------------------------------------------------ inputs
     def _facts(self) -> Facts:
@@ -215,6 +221,8 @@ class DroneSession(DroneView):
                          named: str | None) -> tuple[Answer, list[Action]]:
         """An application's MAV_CMD_REQUEST_OPERATOR_CONTROL (``gs.opcontrol``): the answer it gets at once."""
         before = self._facts()
+        if self.link is None and req.request:  # pair on demand (``PAIR_ON_DEMAND_S``): the app asks again
+            self.pair_on_demand_until = now + PAIR_ON_DEMAND_S
         answer, step = self.operator.command(self, req, now, app=app, named=named)
         return answer, self._operator(step) + self._effects(before, now)
 
@@ -332,7 +340,7 @@ class DroneSession(DroneView):
         whatever is due is done, whenever it is called; then the next deadline (``deadline``)."""
         before = self._facts()
         out: list[Action] = []
-        if self.link is None and self.st.opts.pair:
+        if self.link is None and self._pairs(now):
             out += self._try_pair(now, wall, unanswered=UNANSWERED_RETRY_S)
         elif self._silent_authority(now):  # a restarted companion waits for its owner to re-pair
             assert self.link is not None
@@ -344,7 +352,7 @@ class DroneSession(DroneView):
         if self.link is not None:
             self._mark_stale(now)
             if self.owner == self.st.name and not self.stale:
-                out += self.linking.share_keys(now, wall, self.send_control)
+                out += self.linking.share_keys(now, wall, self.send_control, self.links_wanted())
             out += self.flight(FlightTick(now))
             out += self._operator(self.operator.tick(self, now))
             if not self.operator.holds(self):  # an epoch our operator took stays ours until it lets go
@@ -367,7 +375,8 @@ class DroneSession(DroneView):
         linking = self.linking
         if self.link is None:
             yield linking.deadline(now, sharing=False)
-            yield linking.pair_retry_due(now, RETRY_S, UNANSWERED_RETRY_S) if self.st.opts.pair else None
+            yield linking.pair_retry_due(now, RETRY_S, UNANSWERED_RETRY_S) if self._pairs(now) else None
+            yield self.pair_on_demand_until
             return
         silence = self.link.tbm.since_last(now)
         if self.owner == self.st.name and self.ha_state is not HaState.FAILSAFE:  # re-pairing a silent drone
@@ -399,6 +408,40 @@ class DroneSession(DroneView):
             yield self.last_command + 1.0 / self.st.opts.command_rate
 
     # ------------------------------------------------------------------ linking
+    def _pairs(self, now: float) -> bool:
+        """Whether we pair with the drone while we hold no link: the station pairs (``--pair``) and the
+        drone never closed our link (its links follow it: the owner prepares ours), or our operator asked
+        for control within ``PAIR_ON_DEMAND_S``."""
+        if self.pair_on_demand_until is not None and now >= self.pair_on_demand_until:
+            self.pair_on_demand_until = None
+        return self.st.opts.pair and not self.closed_by_drone or self.pair_on_demand_until is not None
+
+    def links_wanted(self) -> set[str] | None:
+        """As the owner, the GSs whose links we prepare for the drone (``zdrone.core.linkplan``): those
+        covering it and the next on its course, by its own reports; None: every authorized GS (its
+        links do not follow it)."""
+        fleet = self.st.fleet
+        if not fleet.links_follow(self.name):
+            return None
+        if self.position is None:
+            return set()  # where the drone is, it has not said yet: nothing to prepare
+        circles = {g: n.coverage.circle() for g, n in fleet.nodes.items() if n.role == "gs" and n.coverage is not None}
+        plan = plan_links(self.st.name, self.linking.others(), circles, self.position, self.fix.course,
+                          fleet.links_max)
+        return set(plan.wanted) - {self.st.name}
+
+    def _on_link_closed(self, msg: wire.LinkClosed, now: float) -> list[Action]:
+        """The drone closed our link (it left our coverage behind, or needed the room): our key is wiped,
+        the heartbeats stop, and we do not pair again of our own accord (the owner prepares our link when
+        the drone comes our way; our operator may still ask for control)."""
+        self.slot = LinkSlot(hybrid_only=self.st.fleet.pairing_pq)
+        self.link = None
+        self.switching = False
+        self.closed_by_drone = True
+        self.st.counters["link_closed_by_drone"] += 1
+        log.info("link to %s closed by the drone (%s): key wiped", self.name, msg.reason)
+        return [Emit(rec.GsLinkClosed(drone=self.name, reason=msg.reason[:120]))]
+
     def _try_pair(self, now: float, stamp: float, retry: float = RETRY_S, timeout: float = PAIR_TIMEOUT,
                   unanswered: float | None = None) -> list[Action]:
         """Pair (``gs.linking``) unless an exchange is open or the last try was less than ``retry`` ago
@@ -454,6 +497,8 @@ class DroneSession(DroneView):
             return self._on_reject(msg, now)
         if isinstance(msg, wire.OperatorRequest):
             return self._operator(self.operator.on_request(self, msg, now))
+        if isinstance(msg, wire.LinkClosed):
+            return self._on_link_closed(msg, now)
         if isinstance(msg, wire.FailsafeNotice):
             self.ha_state = HaState.FAILSAFE  # nobody holds authority until a GS takes control back
             log.warning("drone %s failsafe: %s (%s)", self.name, msg.action, msg.reason)

@@ -125,7 +125,8 @@ def test_pair_results_are_frozen_and_each_refusal_has_one_tier():
         PairRepeated(b"m2").reply = b""  # type: ignore[misc]
     # bad input: no answer, no crypto; authentic-looking but illegal: answered with the reason
     answered = {PairRefusal.UNKNOWN, PairRefusal.UNAUTHORIZED, PairRefusal.FAILSAFE, PairRefusal.OUTSIDE_COVERAGE,
-                PairRefusal.FIRST_CLAIM, PairRefusal.AUTH_FAILED, PairRefusal.DOWNGRADE}
+                PairRefusal.FIRST_CLAIM, PairRefusal.AUTH_FAILED, PairRefusal.DOWNGRADE,
+                    PairRefusal.LINKS_FULL}
     assert SILENT_REFUSALS | answered == set(PairRefusal) and not SILENT_REFUSALS & answered
     for reason in PairRefusal:
         r = PairRefused(reason)

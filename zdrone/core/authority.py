@@ -76,6 +76,12 @@ window, its first claim); if it held authority, authority goes as when the owner
 the air: to an heir (an authorized GS proven inside its coverage), else the failsafe. In FAILSAFE
 the machine stays there (the revoked owner is only the epoch's name; nobody commands).
 
+Links that follow the drone (``zdrone.core.linkplan``). The drone may close a link it no longer needs
+(``LinkClosed``): only one ``may_close`` allows -- not the owner's, a pending recipient's, a consent
+window's or a first claim's, not a GS whose coverage holds the drone (so never an heir), never in
+FAILSAFE. A closed link is forgotten: its frames are ``not_linked``, it is no heir and no recipient
+until the GS links again (a grant of the owner, or its own pairing).
+
 First claim after a restart on the ground. A companion restarted on the ground holds no key and no
 owner, yet the GS that held authority never released it: for ``FIRST_CLAIM_S`` after the restart only
 that last owner may pair into authority (another authorized GS is refused ``first_claim``), and its
@@ -92,7 +98,7 @@ from dataclasses import dataclass, replace
 from zdrone.core.authority_events import (GS_EVENTS, Action, AuthorityAsked, AuthorityChanged, DropFrame, Event,  # noqa: F401
                                FailsafeCommand, Forward, Frame, GrantAccepted, GrantHeard, GrantRejected,
                                GrantRejection, GrantResult, GroundChanged, HaDrop, LinkChanged, Note, PairingDone,
-                               RegionChanged, Release, Revised, SendControl, Tick, check_grant)
+                               LinkClosed, RegionChanged, Release, Revised, SendControl, Tick, check_grant)
 from zdrone.core.machine import IllegalTransition, Machine, SettleRow, Table
 from zdrone.core.mavcontrol import REQUEST_TIMEOUT_MAX_S, REQUEST_TIMEOUT_MIN_S
 from zdrone.core.pairing import PairRefusal, PairRefused
@@ -186,6 +192,14 @@ class AuthorityMachine(Machine):
         """May ``gs`` take authority from the owner without its consent (its link LOST)? Only a GS
         other than the owner that is ``proven_in_cover``."""
         return gs != self.owner and self.proven_in_cover(gs)
+
+    def may_close(self, gs: str) -> bool:
+        """May the drone close its link with ``gs`` (``LinkClosed``: links that follow the drone,
+        ``zdrone.core.linkplan``)? Only a link that no rule may need: not the owner's, not a pending
+        recipient's, not a consent window's or a first claim's, not a GS whose coverage holds the drone
+        (every heir is one), and never in FAILSAFE (whoever may take control back keeps its link)."""
+        return (gs in self.links and self.state is not State.FAILSAFE and gs not in self.inside
+                and gs not in (self.owner, self.pending_to, self.takeover_to, self.first_claim))
 
     def heirs(self) -> list[str]:
         """The GSs that may take authority in an emergency, best first (the pending recipient, then by name)."""
@@ -625,6 +639,16 @@ class AuthorityMachine(Machine):
             return next_state, acts + more
         return self.state, acts
 
+    def _on_link_closed(self, ev: LinkClosed) -> tuple[State, list[Action]]:
+        """The drone closes ``gs``'s link: forgotten (its proof, its subscription) if ``may_close``; a
+        link some rule may still need is kept and the refusal noted (the core asks only for closable
+        ones: this is the rule's own guard, which ``zdrone check`` explores)."""
+        if not self.may_close(ev.gs):
+            return self.state, [Note("link_kept", f"{ev.gs}: its link may still be needed: not closed")]
+        self.links.pop(ev.gs, None)
+        self.subscribed.discard(ev.gs)
+        return self.state, [Note("link_closed", f"{ev.gs}: {ev.why or 'closed'}")]
+
     def _ignore(self, ev: Event) -> tuple[State, list[Action]]:
         return self.state, []
 
@@ -667,6 +691,10 @@ TRANSITIONS: Table[State] = {
     (State.LINKED, Revised): (AuthorityMachine._on_revised, frozenset({State.LINKED, State.FAILSAFE})),
     (State.HANDOVER_PENDING, Revised): (AuthorityMachine._on_revised, frozenset({State.HANDOVER_PENDING, State.LINKED, State.FAILSAFE})),
     (State.FAILSAFE, Revised): (AuthorityMachine._on_revised, frozenset({State.FAILSAFE})),
+    (State.UNPAIRED, LinkClosed): (AuthorityMachine._on_link_closed, frozenset({State.UNPAIRED})),
+    (State.LINKED, LinkClosed): (AuthorityMachine._on_link_closed, frozenset({State.LINKED})),
+    (State.HANDOVER_PENDING, LinkClosed): (AuthorityMachine._on_link_closed, frozenset({State.HANDOVER_PENDING})),
+    (State.FAILSAFE, LinkClosed): (AuthorityMachine._on_link_closed, frozenset({State.FAILSAFE})),
 }
 # Missing on purpose (illegal steps, answered with a Reject): GrantHeard, AuthorityAsked and
 # Release in UNPAIRED; GrantHeard and Release in FAILSAFE.

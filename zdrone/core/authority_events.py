@@ -123,6 +123,15 @@ class Revised(Event):
 
 
 @dataclass(frozen=True, slots=True)
+class LinkClosed(Event):
+    """The drone closes its link with ``gs`` (its own decision, ``zdrone.core.linkplan``): the machine
+    forgets the link, unless ``gs`` may still be needed (``AuthorityMachine.may_close``)."""
+
+    gs: str
+    why: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class Tick(Event):
     """Time passes (the adapter ticks the machine at its loop rate)."""
 

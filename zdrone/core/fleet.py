@@ -82,6 +82,10 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     #: the drone hears, within this long, a signed revision stamp from a GS *other than the owner*
     #: (``zdrone.core.revision.RevisionStamp``); a signed revision may change it
     revision_lease: Annotated[float, msgspec.Meta(ge=0, le=86400)] = 0.0
+    #: the live links a drone holds at most (``zdrone.core.linkplan``): a drone authorized for more GSs
+    #: than this holds links only with the GSs that cover it and the next on its course, and closes the
+    #: others'; one authorized for this many or fewer keeps a link with each
+    links_max: Annotated[int, msgspec.Meta(ge=2, le=64)] = 3
     #: set by a fleet revision (``zdrone.core.revision.apply_revision``), never in fleet.json5: the
     #: revision in force (0: none) and the nodes it revoked
     revision: int = 0
@@ -119,6 +123,11 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
         node = self.nodes.get(drone)
         return (node is not None and node.role == "drone" and gs in node.authorized_gs
                 and gs not in self.revoked and drone not in self.revoked)
+
+    def links_follow(self, drone: str) -> bool:
+        """Whether ``drone``'s links follow it (``links_max``): it is authorized for more GSs than that."""
+        node = self.nodes.get(drone)
+        return node is not None and len(node.authorized_gs) > self.links_max
 
     def by_sysid(self, sysid: int) -> str | None:
         for name, node in self.nodes.items():

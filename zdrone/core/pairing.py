@@ -137,6 +137,7 @@ class PairRefusal(enum.Enum):
     RATE_LIMITED = "rate_limited"  # the GS's handshakes per second are spent
     AUTH_FAILED = "auth_failed"  # the tag passed but the Noise handshake did not (should not happen)
     DOWNGRADE = "downgrade"  # a classical message 1 where the fleet requires the hybrid (ML-KEM-768) pairing
+    LINKS_FULL = "links_full"  # the drone holds the fleet's ``links_max`` links and none may close (``linkplan``)
 
 
 #: Bad input: dropped without an answer (counted; an answer would only help a prober).

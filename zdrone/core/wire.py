@@ -147,8 +147,16 @@ class SmHeartbeat(Control, frozen=True, tag="sm_heartbeat"):
     seq: int
 
 
+class LinkClosed(Control, frozen=True, tag="link_closed"):
+    """Drone -> the GS whose link it closes, under that link's key, its last word on it: the drone has
+    wiped the key (it left that GS behind, or needed room for a link ahead: ``zdrone.core.linkplan``);
+    the GS wipes its end and stops heartbeating the drone."""
+
+    reason: str
+
+
 ControlMessage = (KeyGrant | KeyGrantAck | HandoverRequest | HandoverRelease | AuthorityStatus | Reject | FailsafeNotice
-                  | SmHeartbeat | OperatorRequest | AuditOffer)
+                  | SmHeartbeat | OperatorRequest | AuditOffer | LinkClosed)
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder(ControlMessage)

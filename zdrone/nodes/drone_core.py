@@ -50,6 +50,7 @@ from zdrone.core.geometry import Circle, GeoPoint
 from zdrone.core.keys import Identity, LinkKey, SigningKey
 from zdrone.core.kk import check_message1, is_hybrid
 from zdrone.core.lease import OwnerLease
+from zdrone.core.linkplan import LinkGrace
 from zdrone.core.linkslot import LinkSlot, Promoted
 from zdrone.core.linktraffic import LinkTraffic
 from zdrone.core.mavlink import FrameError, read_header
@@ -166,6 +167,8 @@ class DroneCore(DroneRevisions):
         self.rekey: set[str] = set()  # rotated GSs whose live key predates their new static key
         self.lease = OwnerLease()  # the owner's lease (``zdrone.core.lease``)
         self._queued: dict[str, list[_Batch]] = {}  # GS -> the envelopes of this pass (``batch``)
+        self.grace = LinkGrace()  # links that follow the drone: since when each closable link was (``linkplan``)
+        self.links_peak = 0  # the most live links held at once
 
     # ---------------------------------------------------------------- inputs
     def on_envelope(self, gs: str, data: bytes, now: float) -> list[Out]:
@@ -201,7 +204,8 @@ class DroneCore(DroneRevisions):
         if payload is None:
             ans: PairResult = PairRefused(PairRefusal.OVERSIZE)
         else:
-            policy = None if self.responder.admit(gs) else self.machine.pair_refusal(gs, self.on_ground, now)
+            policy = None if self.responder.admit(gs) else (self.machine.pair_refusal(gs, self.on_ground, now)
+                                                            or self._links_full(gs))
             # the authority's refusal (first_claim with the seconds left, outside_coverage, ...) tells
             # something: only to a query that passed its tag check; anything else is dropped, counted
             forged = None if policy is None else self._message1_refusal(gs, payload, wall)
@@ -215,6 +219,8 @@ class DroneCore(DroneRevisions):
             link.hybrid = payload is not None and is_hybrid(payload)
             if not self._slot(gs).offer(link, now, "pair", self.opts.pairing_ttl):  # (the responder refused it first)
                 ans = PairRefused(PairRefusal.DOWNGRADE, "the fleet requires the hybrid (ML-KEM-768) pairing")
+        if isinstance(ans, PairAccepted) and self._follows() and gs not in self.links:
+            out += self._make_room(gs, now)  # a covering GS's pairing: the link left behind longest goes
         if isinstance(ans, PairAccepted):
             self.probation[gs] = now + self.opts.pairing_ttl
             self.counters["pair_answered"] += 1
@@ -332,6 +338,8 @@ class DroneCore(DroneRevisions):
             due.append(min(self.probation.values()))
         if (lease := self.lease_due()) is not None:
             due.append(lease)
+        if (closing := self.grace.next_due()) is not None:
+            due.append(closing)
         return min(due)
 
     def handle_timer(self, now: float) -> list[Out]:
@@ -369,6 +377,7 @@ class DroneCore(DroneRevisions):
             "ha_drops": {r.value: c for r, c in m.drops.items()}, "rejects": dict(m.rejects),
             "counters": dict(self.counters) | ({"standby_held": self.standby.held} if self.standby.held else {}), "forwarded_commands": dict(self.forwarded),
             "forwarded_epochs": dict(self.forwarded_epochs), "traffic": self.traffic.report(),
+            "links_follow": self._follows(), "links_peak": self.links_peak,
         }
 
     def failsafe_latency_ms(self, now: float) -> float | None:
@@ -517,8 +526,14 @@ class DroneCore(DroneRevisions):
         known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
         if any(link.key.same_as(key) for link in known):
             return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)  # a repeated grant
-        result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         out: list[Out] = []
+        if self._follows() and msg.gs not in self.links and self.machine.grant_rejection(sender, msg.gs) is None:
+            if len(self.links) >= self.fleet.links_max and self.grace.oldest(besides=msg.gs) is None:
+                self.counters["grant_refused:links_full"] += 1
+                return self._control(sender, wire.Reject("key_grant", f"links_full: the drone holds "
+                                                         f"{len(self.links)} links and none may close"), now)
+            out += self._make_room(msg.gs, now)
+        result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         if isinstance(result, ha.GrantAccepted):
             out += self._install(result.gs, key, now, hybrid=carrier is not None and carrier.hybrid)
         out += self._apply(actions, now)  # a rejection's Reject is among them
@@ -566,6 +581,48 @@ class DroneCore(DroneRevisions):
         self.counters[key] += 1
         return [Emit(rec.PairRefused(gs=gs, reason=refusal.text))] if self.counters[key] <= LOGGED_PER_REASON else []
 
+    # ---------------------------------------------------- links that follow the drone
+    def _follows(self) -> bool:
+        """The drone's links follow it (more authorized GSs than the fleet's ``links_max``: ``linkplan``)."""
+        return self.fleet.links_follow(self.name)
+
+    def _links_full(self, gs: str) -> PairRefused | None:
+        """A pairing of ``gs`` would pass ``links_max``: refused unless ``gs`` covers the drone (a possible
+        heir) and a closable link makes room."""
+        if not self._follows() or gs in self.links or len(self.links) < self.fleet.links_max:
+            return None
+        if gs in self.machine.inside and self.grace.oldest(besides=gs) is not None:
+            return None
+        return PairRefused(PairRefusal.LINKS_FULL, f"the drone holds {len(self.links)} links "
+                                                   f"(the fleet's most) and none may close")
+
+    def _make_room(self, newcomer: str, now: float) -> list[Out]:
+        """Close the link closable longest while a new link for ``newcomer`` would pass ``links_max``."""
+        out: list[Out] = []
+        while len(self.links) >= self.fleet.links_max:
+            victim = self.grace.oldest(besides=newcomer)
+            if victim is None:
+                break
+            out += self._close(victim, now, f"room for {newcomer}")
+        return out
+
+    def _close(self, gs: str, now: float, why: str) -> list[Out]:
+        """Close ``gs``'s link: tell it (``LinkClosed``, its last frame under the link's key), then wipe the
+        key (live, candidates, the one replaced) and forget the link in the machine."""
+        self.grace.forget(gs)
+        if not self.machine.may_close(gs):
+            return []
+        out = self._control(gs, wire.LinkClosed(why), now)
+        out += self._handle(ha.LinkClosed(now, gs, why), now)
+        self.links.pop(gs, None)
+        self.slots.pop(gs, None)
+        self.probation.pop(gs, None)
+        self.rekey.discard(gs)
+        self.standby.forget(gs)
+        self.counters["link_closed"] += 1
+        log.info("link to %s closed (%s): key wiped", gs, why)
+        return out
+
     def _poll_links(self, now: float, timer: bool) -> list[Out]:
         """The links' state changes, the authority's own link last (an heir is chosen among links
         judged at the same instant). After an input (``timer`` False) the authority's link is reported
@@ -597,6 +654,12 @@ class DroneCore(DroneRevisions):
             if due is not None and now >= due:  # a hand-over's or a re-pairing's deadline
                 self._timer_handled = due
                 out += self._apply(self.machine.handle_timer(now), now)
+        if self._follows():
+            self.grace.update({g for g in self.links if self.machine.may_close(g)}, now)
+            if timer:
+                for g in self.grace.due(now):
+                    out += self._close(g, now, "left behind")
+        self.links_peak = max(self.links_peak, len(self.links))
         self.probation = {gs: t for gs, t in self.probation.items() if t > now}
         want = frozenset(self.machine.subscribed) | frozenset(self.probation)
         if want != self._listening:

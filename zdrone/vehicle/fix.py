@@ -29,12 +29,14 @@ class PositionFix:
         self.reported: GeoPoint | None = None  # the last GLOBAL_POSITION_INT as sent (zeros included)
         self.fix_type: int | None = None  # the last GPS_RAW_INT fix_type; None: none seen
         self.ekf_flags: int | None = None  # the last EKF_STATUS_REPORT flags; None: none seen (PX4)
+        self.course: tuple[float, float] | None = None  # the last GLOBAL_POSITION_INT's ground velocity (north, east m/s)
 
     def on_message(self, msg: Any) -> bool:
         """Take one message from the autopilot; True if it was one of those this class reads."""
         t = msg.get_type()
         if t == "GLOBAL_POSITION_INT":
             self.reported = GeoPoint(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
+            self.course = (msg.vx / 100.0, msg.vy / 100.0)
         elif t == "GPS_RAW_INT":
             self.fix_type = int(msg.fix_type)
         elif t == "EKF_STATUS_REPORT":

@@ -40,12 +40,12 @@ DRONE_RECORDS: tuple[type[Record], ...] = (
     HandoverRequested, TakeoverSetting, HandoverTimeout, HandoverAborted, Reject, KeyInstalled, FailsafeRecovered, FailsafeEntered,
     AuthorityLinkLost, RegionEntered, RegionLeft, OwnerLinkLostOnGround,
     FailsafeConfirmed, FailsafeRetried, FailsafeUnconfirmed, VehicleFound, FcUnsigned,
-    RevokedNote, RevisionApplied, RevisionRefused,
+    RevokedNote, LinkClosedNote, LinkKeptNote, RevisionApplied, RevisionRefused,
 )
 #: the ground station's records (its core's ``Log`` actions, its loop's, its GCS gateway's)
 GS_RECORDS: tuple[type[Record], ...] = (
     GsStart, GsStatus, GsStop, Closed, Suppressed, PathOpen, PathState, ControlRequested, GsPairRefused, PairFailed,
-    PairNotNeeded, GsPaired, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
+    PairNotNeeded, GsPaired, GsLinkClosed, LinkkeyRefused, LinkkeyShared, LinkkeyError, LinkkeyBadReply, LinkkeyReceived,
     GsLinkConfirmed, AutopilotFound, VehicleText, AuthorityStatus, FcSigningHeard, KeyGranted, Rejected, FailsafeNoticed,
     HandoverFailed, VehicleRefused, MissionFailed, MissionRetry, VehicleParam, MissionUpload, MissionStarted, MissionStartFailed,
     VehicleWaiting, TakeoffConfirmed, TakeoffRestart, MissionProgress, HandoverRelease, HandoverHold, HandoverResume, GcsApp, GcsAppGone, OperatorControlRequested,

@@ -68,6 +68,8 @@ class DroneState(Record, frozen=True, kw_only=True):
     fc_signing: dict[str, Any] = {}  # MAVLink signing of the autopilot's link (``FcSigning.status``)
     revision: dict[str, Any] = {}  # the fleet revision in force and the ones refused (``RevisionKeeper.stats``)
     traffic: dict[str, tuple[int, int]] = {}  # what the GSs' envelopes carried: kind -> [messages, bytes] (``LinkTraffic``)
+    links_follow: bool = False  # the drone's links follow it (``zdrone.core.linkplan``)
+    links_peak: int = 0  # the most live links it held at once
 
 
 class DroneStatus(DroneState, frozen=True, tag="status"):
@@ -309,6 +311,14 @@ class OwnerLinkLostOnGround(AuthorityNote, frozen=True, tag="owner_link_lost_on_
 
 class RevokedNote(AuthorityNote, frozen=True, tag="revoked"):
     """A fleet revision took a GS off the authorized list: its link dropped, its keys erased."""
+
+
+class LinkClosedNote(AuthorityNote, frozen=True, tag="link_closed"):
+    """The drone closed a GS's link (links that follow the drone): the GS told, the key wiped."""
+
+
+class LinkKeptNote(AuthorityNote, frozen=True, tag="link_kept"):
+    """A link the drone meant to close may still be needed (owner, recipient, heir): kept."""
 
 
 class RevisionApplied(Record, frozen=True, tag="revision_applied"):

@@ -88,6 +88,13 @@ class PairNotNeeded(Record, frozen=True, tag="pair_not_needed"):
     drone: str
 
 
+class GsLinkClosed(Record, frozen=True, tag="link_closed"):
+    """The drone closed our link (it left our coverage behind, or needed room): our key wiped."""
+
+    drone: str
+    reason: str
+
+
 class GsPaired(Record, frozen=True, tag="paired"):
     """The GS paired with ``drone`` (``again``: it had a link before)."""
 
