@@ -54,7 +54,7 @@ from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.kk import is_hybrid
-from zdrone.core.linkplan import plan_links
+from zdrone.core.linkplan import GRACE_S, plan_links
 from zdrone.core.linkslot import PREVIOUS_GRACE, LinkSlot
 from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.core.mavlink import read_header
@@ -80,6 +80,10 @@ SILENT_PAIR_TIMEOUT_S = 1.0
 #: An operator's request for control of a drone we hold no link with starts pairing for this long (the
 #: application repeats its request meanwhile: answered TEMPORARILY_REJECTED until the link is made).
 PAIR_ON_DEMAND_S = 10.0
+#: A link whose drone's links follow it, silent this long while the drone is not ours, is closed on the
+#: drone's end (``linkplan.GRACE_S`` after it left our coverage): we wipe ours (the drone's notice, sent
+#: out of our radio's reach, rarely gets here).
+WIPE_SILENT_S = GRACE_S + 15.0
 from gs.mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from gs.opcontrol import Answer, OperatorControl, Step
 from gs.ownership import owns
@@ -349,6 +353,8 @@ class DroneSession(DroneView):
             out += self._try_pair(now, wall, retry=retry, timeout=max(retry, SILENT_PAIR_TIMEOUT_S))
         elif self.link is not None and self.linking.rekey_pending:  # our rotated key's pairing, again
             out += self._try_pair(now, wall)
+        elif self._left_behind(now):
+            out += self._wipe_link("silent: the drone left us behind")
         if self.link is not None:
             self._mark_stale(now)
             if self.owner == self.st.name and not self.stale:
@@ -385,6 +391,8 @@ class DroneSession(DroneView):
             yield linking.pair_retry_due(now, SILENT_RETRY_S if silence <= SILENT_FAST_S else SILENT_SLOW_RETRY_S)
         if linking.rekey_pending:
             yield linking.pair_retry_due(now, RETRY_S)
+        if self.st.fleet.links_follow(self.name) and self.link.tbm.last_seen is not None:
+            yield self.link.tbm.last_seen + WIPE_SILENT_S
         if not self.stale and self.link.tbm.last_seen is not None:
             yield self.link.tbm.last_seen + STALE_VIEW_S
         yield linking.deadline(now, sharing=self.owner == self.st.name and not self.stale)
@@ -431,16 +439,31 @@ class DroneSession(DroneView):
         return set(plan.wanted) - {self.st.name}
 
     def _on_link_closed(self, msg: wire.LinkClosed, now: float) -> list[Action]:
-        """The drone closed our link (it left our coverage behind, or needed the room): our key is wiped,
-        the heartbeats stop, and we do not pair again of our own accord (the owner prepares our link when
-        the drone comes our way; our operator may still ask for control)."""
+        """The drone closed our link (it needed the room, or it left us behind while our radio still
+        reached it): our end is wiped (``_wipe_link``)."""
+        self.st.counters["link_closed_by_drone"] += 1
+        return self._wipe_link(msg.reason)
+
+    def _left_behind(self, now: float) -> bool:
+        """The drone's links follow it and ours has been silent ``WIPE_SILENT_S``, with the drone not ours
+        nor in its failsafe by its last word: it has closed its end (``linkplan.GRACE_S`` after it left our
+        coverage, which is when our radio lost it), and its notice could not reach us."""
+        link = self.link
+        return (link is not None and self.st.fleet.links_follow(self.name) and self.owner != self.st.name
+                and self.ha_state is not HaState.FAILSAFE and link.tbm.last_seen is not None
+                and link.tbm.since_last(now) >= WIPE_SILENT_S)
+
+    def _wipe_link(self, reason: str) -> list[Action]:
+        """Our end of a link the drone closed: the key wiped (live, candidates, the one replaced), the
+        heartbeats stopped (they need a link), and no pairing of our own again (the owner prepares our link
+        when the drone comes our way; our operator may still ask for control)."""
         self.slot = LinkSlot(hybrid_only=self.st.fleet.pairing_pq)
         self.link = None
         self.switching = False
         self.closed_by_drone = True
-        self.st.counters["link_closed_by_drone"] += 1
-        log.info("link to %s closed by the drone (%s): key wiped", self.name, msg.reason)
-        return [Emit(rec.GsLinkClosed(drone=self.name, reason=msg.reason[:120]))]
+        self.st.counters["link_wiped"] += 1
+        log.info("link to %s closed (%s): key wiped", self.name, reason)
+        return [Emit(rec.GsLinkClosed(drone=self.name, reason=reason[:120]))]
 
     def _try_pair(self, now: float, stamp: float, retry: float = RETRY_S, timeout: float = PAIR_TIMEOUT,
                   unanswered: float | None = None) -> list[Action]:

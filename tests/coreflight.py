@@ -57,7 +57,9 @@ class CoreFlight:
     """The reference flight of ``d1`` between GS A (which pairs and flies the mission) and GS B."""
 
     def __init__(self, fleet_dir: Path, personality: Personality = PX4, handover_timeout: float = 2.0,
-                 command_rate: float = 2.0, dt: float = 0.05, speedup: float = 1.0) -> None:
+                 command_rate: float = 2.0, dt: float = 0.05, speedup: float = 1.0,
+                 stations: dict[str, CoreOptions] | None = None) -> None:
+        """``stations``: each GS's options (default: A pairs and flies the reference mission, B)."""
         if not (fleet_dir / "fleet.json5").exists():
             init_fleet(fleet_dir)
         fleet = load_fleet(fleet_dir)
@@ -70,10 +72,11 @@ class CoreFlight:
         self.restarts: list[float] = []
         self.gs: dict[str, Station] = {}
         # each GS's signed revision stamp every push period (zdrone.fleet.revisions): the owner's lease
-        self._signing = {g: load_secret(fleet_dir, g, fleet).signing for g in ("A", "B")}
+        stations = stations or {"A": CoreOptions(pair=True, mission=reference_plan(), command_rate=command_rate),
+                                "B": CoreOptions(command_rate=command_rate)}
+        self._signing = {g: load_secret(fleet_dir, g, fleet).signing for g in stations}
         self._next_stamp = 0.0
-        for name, opts in (("A", CoreOptions(pair=True, mission=reference_plan(), command_rate=command_rate)),
-                           ("B", CoreOptions(command_rate=command_rate))):
+        for name, opts in stations.items():
             self.gs[name] = Station(StationCore(name, fleet, load_secret(fleet_dir, name, fleet).identity, (DRONE,), opts))
         self.coverage = {g: fleet.nodes[g].coverage.circle() for g in self.gs}
         # the drone's vehicle link: the companion's own frames (heartbeat, stream requests, the failsafe)

@@ -119,6 +119,31 @@ def scale_nodes(drones: int, stations: int) -> list[tuple]:
     return nodes + [("V", "viewer", 250, None, [])]  # the viewer (``zdrone view``, ``bench view``)
 
 
+#: A corridor's coverage radius as a share of the spacing of its GSs: neighbours overlap by a quarter of
+#: the spacing along the line (571 m at 8 GSs over 16 km: 48 s at 12 m/s), no point is covered by three.
+CORRIDOR_RADIUS_OF_SPACING = 0.625
+
+
+def corridor_layout(stations: int, length_m: float) -> tuple[float, float]:
+    """A corridor of ``stations`` GSs evenly along ``length_m`` metres eastwards from home: (spacing,
+    coverage radius) in metres."""
+    spacing = length_m / max(1, stations - 1)
+    return spacing, CORRIDOR_RADIUS_OF_SPACING * spacing
+
+
+def corridor_nodes(drones: int, stations: int, length_m: float) -> list[tuple]:
+    """A corridor fleet (``bench scale --layout corridor``, ``demo --scenario corridor``): GSs A, B, C…
+    evenly along ``length_m`` metres eastwards from home (``corridor_layout``); every drone authorized
+    for all of them (its links follow it: ``Fleet.links_max``)."""
+    if not 1 <= drones <= MAX_SCALE_DRONES or not 2 <= stations <= 26:
+        raise ConfigError(f"corridor fleet: 1..{MAX_SCALE_DRONES} drones and 2..26 ground stations")
+    spacing, _ = corridor_layout(stations, length_m)
+    gss = [chr(ord("A") + i) for i in range(stations)]
+    nodes: list[tuple] = [(gs, "gs", 200 + i, offset(HOME, 0.0, spacing * i), []) for i, gs in enumerate(gss)]
+    nodes += [(f"d{i + 1}", "drone", 1 + i % 199, None, list(gss), i // 199) for i in range(drones)]
+    return nodes + [("V", "viewer", 250, None, [])]
+
+
 #: A new fleet's owner lease (s): an owner that alone reaches its drone (the rest of the fleet crashed,
 #: or cut it off and revoked it) keeps it this long at most, then the drone takes a covered heir or its
 #: failsafe; long enough for an honest owner whose fleet crashed to bring the reference flight home at
@@ -129,11 +154,12 @@ DEFAULT_REVISION_LEASE_S = 300.0
 def init_fleet(directory: str | Path, force: bool = False,
                nodes_spec: list[tuple] | None = None,
                tls: bool = False, sites: list[str] | None = None,
-               revision_lease: float = DEFAULT_REVISION_LEASE_S) -> Fleet:
+               revision_lease: float = DEFAULT_REVISION_LEASE_S, coverage_radius_m: float = COVERAGE_RADIUS_M) -> Fleet:
     """Write the fleet (default: d1, A, B, X), one secret file per node and router credentials;
     with ``tls`` also a fleet CA and certificates, and a router config that requires them; with
     ``sites`` (one router endpoint per site, two or more) also a router config per site;
-    ``revision_lease``: the owners' lease (``Fleet.revision_lease``; 0: none)."""
+    ``revision_lease``: the owners' lease (``Fleet.revision_lease``; 0: none); ``coverage_radius_m``: every
+    GS's coverage radius."""
     d = Path(directory)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"{d}: exists and is not a directory")
@@ -145,7 +171,7 @@ def init_fleet(directory: str | Path, force: bool = False,
     for name, role, sysid, centre, authorized, *net in nodes_spec or DEFAULT_NODES:  # net: the MAVLink network
         ident, signing = Identity.generate(), SigningKey.generate()
         password = secrets.token_urlsafe(18)
-        cov = Coverage(centre.lat, centre.lon, COVERAGE_RADIUS_M) if centre is not None else None
+        cov = Coverage(centre.lat, centre.lon, coverage_radius_m) if centre is not None else None
         nodes[name] = Node(role=role, sysid=sysid, public_key=b64(ident.public), coverage=cov,  # type: ignore[arg-type]
                            authorized_gs=list(authorized), signing_key=b64(signing.public),
                            mavlink_net=net[0] if net else 0)
