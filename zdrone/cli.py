@@ -583,7 +583,7 @@ def build_parser() -> argparse.ArgumentParser:
     ck.add_argument("--faults", type=int, default=2, metavar="N", help="faults per trace at most (default 2)")
     ck.add_argument("--max-states", type=int, default=None, metavar="N", help="stop after N distinct states")
     ck.add_argument("--flaw", choices=("heir-without-position", "promotion-over-live", "unstamped-pairing",
-                                       "pairing-without-position", "forgetful-ground-restart",
+                                       "pairing-without-position", "forgetful-ground-restart", "close-covering",
                                        "consent-to-last-asker", "window-across-epochs", "consent-without-reading"),
                     help="plant a known flaw (the checker must find it; the last three are in the consent world)")
     ck.add_argument("--cores", action="store_true",

@@ -23,6 +23,7 @@ def test_the_shipped_rules_hold_over_every_interleaving_at_the_ci_bound():
     ("unstamped-pairing", "owner re-pairs after a restart", "outsider replays"),
     ("pairing-without-position", "no authority outside coverage without consent", "B re-pairs"),
     ("forgetful-ground-restart", "the epoch counts up", "the companion restarts on the ground"),
+    ("close-covering", "closing keeps the owner and every heir", "the drone closes B's link"),
 ])
 def test_each_planted_flaw_is_found_with_a_short_trace(flaw, invariant, last_step):
     r = check.run(depth=7, faults=2, flaw=flaw)

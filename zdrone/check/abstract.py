@@ -44,13 +44,17 @@ Invariants, checked after every move (a violation prints the shortest trace that
 7. liveness: a hand-over whose recipient is proven completes at once (make-before-break), and a
    healthy crossing (A -> overlap -> B with A's release) ends with B as owner;
 8. the epoch counts up: no move, a companion restart included, makes it go back;
-9. first claim: within its window after a restart on the ground, authority goes to the last owner only.
+9. first claim: within its window after a restart on the ground, authority goes to the last owner only;
+10. closing a link (links that follow the drone: the drone closes one it may, the owner prepares it again)
+    never removes the owner's, a pending recipient's or an heir's; a closed link carries nothing (its
+    GS's frames are not forwarded: 2), and its GS is no heir until it links again (5).
 
 Planted flaws (``--flaw``) show that the checker can fail: ``heir-without-position`` (an heir needs no
 coverage), ``promotion-over-live`` (any candidate replaces a live key), ``unstamped-pairing`` (a replayed
 message 1 is a fresh handshake and spends the GS's tokens), ``pairing-without-position`` (a pairing that
 gives authority needs no coverage), ``forgetful-ground-restart`` (a restart on the ground forgets the
-epoch and the last owner, as before). Each must be found.
+epoch and the last owner, as before), ``close-covering`` (the drone may close any link but the owner's,
+the GS covering it included). Each must be found.
 """
 
 from __future__ import annotations
@@ -82,7 +86,7 @@ TOKENS = 3  # the drone's pairing rate limit per GS: a burst of 3, one more per 
 GRACE = 3.0
 HANDOVER_TIMEOUT = 5.0
 FLAWS = ("heir-without-position", "promotion-over-live", "unstamped-pairing", "pairing-without-position",
-         "forgetful-ground-restart")
+         "forgetful-ground-restart", "close-covering")
 FIRST_CLAIM = ha.FIRST_CLAIM_S
 
 
@@ -105,6 +109,14 @@ class _PairAnywhereMachine(AuthorityMachine):
         if self.state is State.FAILSAFE and not on_ground:
             return PairRefused(PairRefusal.FAILSAFE, "re-pair only on the ground")
         return None
+
+
+class _CloseAnyMachine(AuthorityMachine):
+    """PLANTED FLAW: the drone may close any link but the owner's (links that follow the drone, with
+    the coverage, the pending recipient and the failsafe left out of the rule)."""
+
+    def may_close(self, gs: str) -> bool:
+        return gs in self.links and gs != self.owner
 
 
 @dataclass
@@ -177,7 +189,8 @@ class Explorer:
 
     def initial(self) -> World:
         cls = {"heir-without-position": _NoPositionMachine,
-               "pairing-without-position": _PairAnywhereMachine}.get(self.flaw or "", AuthorityMachine)
+               "pairing-without-position": _PairAnywhereMachine,
+               "close-covering": _CloseAnyMachine}.get(self.flaw or "", AuthorityMachine)
         w = World(cls(Config(frozenset(AUTHORIZED), HANDOVER_TIMEOUT)))
         w.m.handle(ha.RegionChanged(0.0, INSIDE["A"]))
         w.m.handle(ha.PairingDone(0.0, "A", on_ground=True))
@@ -204,6 +217,12 @@ class Explorer:
                 yield f"FAULT: {g}'s radio is cut", lambda x, g=g: self._cut(x, g, False)
             if not w.up[g]:
                 yield f"{g}'s radio comes back", lambda x, g=g: self._cut(x, g, True)
+        for g in AUTHORIZED:  # links that follow the drone (``zdrone.core.linkplan``)
+            if m.may_close(g):
+                yield f"the drone closes {g}'s link (left behind)", lambda x, g=g: self._close(x, g)
+            elif (g not in m.links and m.owner not in (None, g) and m.state is not State.FAILSAFE
+                  and w.hears(m.owner)):  # type: ignore[arg-type]
+                yield f"the owner prepares {g}'s link again", lambda x, g=g: self._prepare(x, g)
         if m.owner is not None and m.state is not State.FAILSAFE and w.hears(m.owner):
             other = "B" if m.owner == "A" else "A"
             yield f"{m.owner} (owner) releases to {other}", lambda x, o=m.owner, t=other: self._release(x, o, t)
@@ -373,6 +392,27 @@ class Explorer:
                 raise _Broken("nobody replaces another's live link",
                               f"{sender}'s key for {g} replaced {g}'s live key (link {live.value}) on the drone")
             w.drone_key[g] = "third"
+
+    def _close(self, w: World, g: str) -> None:
+        """The drone closes ``g``'s link (its own decision): both ends wipe the key."""
+        m = w.m
+        owner, pending, heirs = m.owner, m.pending_to, m.heirs()
+        self._apply(w, ha.LinkClosed(w.now, g, "left behind"))
+        if g in m.links:
+            return  # kept: some rule may still need it
+        if g in (owner, pending) or g in heirs:
+            role = "the owner" if g == owner else "the pending recipient" if g == pending else "an heir"
+            raise _Broken("closing keeps the owner and every heir", f"{g}'s link closed while {g} was {role} "
+                          f"(drone inside {sorted(m.inside) or 'no coverage'}, {m.state.value})")
+        w.drone_key.pop(g, None)
+        w.gs_key_ok[g] = False
+
+    def _prepare(self, w: World, g: str) -> None:
+        """The owner shares ``g``'s key again (key sharing: ``g`` makes it, the owner grants it)."""
+        result, _ = w.m.grant(ha.GrantHeard(w.now, w.m.owner or "", g))
+        if isinstance(result, ha.GrantAccepted):
+            w.drone_key[g] = "own"
+            w.gs_key_ok[g] = True
 
     def _escrow(self, w: World, asker: str, g: str) -> None:
         """``asker`` asks ``g`` for ``g``'s own link key over the backhaul, then forges a frame under it to ``g``."""
