@@ -396,7 +396,8 @@ class Explorer:
     def _close(self, w: World, g: str) -> None:
         """The drone closes ``g``'s link (its own decision): both ends wipe the key."""
         m = w.m
-        owner, pending, heirs = m.owner, m.pending_to, m.heirs()
+        owner, pending = m.owner, m.pending_to
+        heirs = [h for h in m.links if h != owner and AuthorityMachine.proven_in_cover(m, h)]  # the shipped rule's
         self._apply(w, ha.LinkClosed(w.now, g, "left behind"))
         if g in m.links:
             return  # kept: some rule may still need it
