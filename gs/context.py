@@ -81,6 +81,8 @@ class CoreOptions:
     take_control: bool = False  # after a failsafe, ask for control as soon as our link is proven
     allow_takeover: bool = False  # the operator's standing "allow takeover" (MAVLink operator control)
     seed: bytes = b""  # fresh randomness from the adapter: the jitter of retries and spreads (``gs.mission.jitter``)
+    pair_drones: frozenset[str] | None = None  # with ``pair``: only these drones (None: every one)
+    missions: dict[str, list[PlannedItem]] | None = None  # a drone's own mission, over ``mission`` (a corridor's two ways)
 
 
 @dataclass(slots=True)

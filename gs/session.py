@@ -110,7 +110,8 @@ class DroneSession(DroneView):
         DroneView.__init__(self, name, sysid, handover=Handover(name))
         self.st = st
         self.operator = OperatorControl(st.name, allow_takeover=st.opts.allow_takeover)
-        self.mission = Mission(st.name, name, sysid, st.opts.mission, seed=st.opts.seed, counters=st.counters,
+        plan = (st.opts.missions or {}).get(name, st.opts.mission)
+        self.mission = Mission(st.name, name, sysid, plan, seed=st.opts.seed, counters=st.counters,
                                upload_spread_s=upload_spread_s, takeoff_spread_s=takeoff_spread_s)
         self.check_route()
         self.linking = Linking(Context(st.name, name, st.identity, st.fleet, st.counters, grant_ids, st.asks_out))
@@ -422,7 +423,8 @@ class DroneSession(DroneView):
         for control within ``PAIR_ON_DEMAND_S``."""
         if self.pair_on_demand_until is not None and now >= self.pair_on_demand_until:
             self.pair_on_demand_until = None
-        return self.st.opts.pair and not self.closed_by_drone or self.pair_on_demand_until is not None
+        pairs = self.st.opts.pair and (self.st.opts.pair_drones is None or self.name in self.st.opts.pair_drones)
+        return pairs and not self.closed_by_drone or self.pair_on_demand_until is not None
 
     def links_wanted(self) -> set[str] | None:
         """As the owner, the GSs whose links we prepare for the drone (``zdrone.core.linkplan``): those
@@ -737,7 +739,7 @@ class DroneSession(DroneView):
     # ------------------------------------------------------------------- flying
     def flies(self) -> bool:
         """The mission machine takes events: we fly one, hold authority, and no key grant is pending."""
-        return self.st.opts.mission is not None and self.holds_authority() and not self.linking.grants_pending
+        return self.mission.plan is not None and self.holds_authority() and not self.linking.grants_pending
 
     def flight(self, ev: FlightEvent) -> list[Action]:
         if not self.flies():

@@ -90,6 +90,8 @@ class StationOptions:
     allow_takeover: bool = False  # MAVLink operator control: another GS's request takes authority at once
     gcs_signing: str | None = None  # the gateway's MAVLink signing: off | prefer | require (None: require with keys)
     gcs_keys: str | None = None  # the gateway's application key file (``gs.appkeys``)
+    pair_drones: frozenset[str] | None = None  # with ``pair``: only these drones (None: every one)
+    missions: dict[str, list[PlannedItem]] | None = None  # a drone's own mission, over ``mission``
 
 
 def audit_on_revision(events: EventLog, witnessing: Witnessing | None, fleet: Fleet, own: str,
@@ -129,7 +131,8 @@ class GroundStation:
         self.core = StationCore(self.name, self.fleet, self.secret.identity, tuple(drones), CoreOptions(
             pair=opts.pair, mission=opts.mission, heartbeat_hz=opts.heartbeat_hz, command_rate=opts.command_rate,
             hysteresis_m=opts.hysteresis_m, cipher=opts.cipher, paper_heartbeat=opts.paper_heartbeat,
-            take_control=opts.take_control, allow_takeover=opts.allow_takeover, seed=os.urandom(32)))
+            take_control=opts.take_control, allow_takeover=opts.allow_takeover, seed=os.urandom(32),
+            pair_drones=opts.pair_drones, missions=opts.missions))
         self.witnessing: Witnessing | None = None
         self.audit_key: bytes | None = None  # the public half of the key its record is signed under now
         self._offered: object = None  # the record's checkpoint last offered to its drones (``AuditChain.offer``)

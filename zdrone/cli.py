@@ -143,8 +143,15 @@ def _bench_scale(args: argparse.Namespace) -> int:
         raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
     from zdrone.fleet.files import MAX_SCALE_DRONES
 
-    if ks and not all(1 <= k <= MAX_SCALE_DRONES for k in ks) or not 2 <= args.stations <= 26:
+    try:
+        counts = [int(x) for x in str(args.stations).split(",")]
+    except ValueError:
+        raise UsageError(f"--stations {args.stations!r}: expected numbers like 3 or 5,10,20") from None
+    if ks and not all(1 <= k <= MAX_SCALE_DRONES for k in ks) or not all(2 <= g <= 26 for g in counts):
         raise UsageError(f"--drones: each 1..{MAX_SCALE_DRONES}; --stations: 2..26")
+    if len(counts) > 1 and args.layout != "corridor":
+        raise UsageError("--stations G,G,…: only with --layout corridor")
+    args.stations = min(counts)
     if args.sites is not None and not 2 <= args.sites <= args.stations:
         raise UsageError(f"--sites {args.sites}: must be 2..{args.stations} (a site per ground station at most)")
     if args.drone_router is not None and args.sites is None:
@@ -166,7 +173,8 @@ def _bench_scale(args: argparse.Namespace) -> int:
     result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
                        drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
                        speedup=args.speedup, drone_hosts=args.drone_hosts, compare=not args.sites_only,
-                       hosts_nice=scale.HOSTS_NICE if args.hosts_nice is None else args.hosts_nice)
+                       hosts_nice=scale.HOSTS_NICE if args.hosts_nice is None else args.hosts_nice,
+                       corridor=args.length * 1000.0 if args.layout == "corridor" else 0.0, station_counts=counts)
     _emit(args, result, scale.render)
     return 0
 
@@ -446,7 +454,10 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--json", action="store_true", help="print JSON instead of a table")
     bs.add_argument("--quick", action="store_true", help="3 drones only (with --sites: the sites run only)")
     bs.add_argument("--drones", metavar="K,K,…", help="drone counts to try (default 10,25,50; with --sites 25,50,100)")
-    bs.add_argument("--stations", type=int, default=3, metavar="G", help="ground stations (default 3)")
+    bs.add_argument("--stations", default="3", metavar="G", help="ground stations (default 3; a corridor: G,G,… a row each)")
+    bs.add_argument("--layout", choices=("line", "corridor"), default="line",
+                    help="corridor: the GSs along --length km, half the drones flying it each way, links following them")
+    bs.add_argument("--length", type=float, default=40.0, metavar="KM", help="the corridor's length (default 40)")
     bs.add_argument("--speedup", type=float, default=None, metavar="S",
                     help="the simulators' speed-up (default by K: 4 up to 100 drones, 1 above; the vehicles' "
                          "telemetry grows with it)")

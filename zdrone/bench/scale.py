@@ -133,20 +133,26 @@ def _free_ports(n: int) -> list[int]:
 
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
-         drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE, latency: bool = False) -> dict[str, Any]:
-    """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers;
+         drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE, latency: bool = False,
+         corridor: float = 0.0) -> dict[str, Any]:
+    """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers (``corridor``:
+    the G GSs along that many metres, half the drones flying it each way, their links following them);
     ``latency``: the hosts note messages for ``zdrone.bench.latency`` (``latency-*.json`` in the run's
     directory, ``runs``)."""
-    from zdrone.fleet.files import init_fleet, load_sites, scale_nodes
+    from zdrone.fleet.files import corridor_layout, corridor_nodes, init_fleet, load_sites, scale_nodes
     from zdrone.sil.procs import spawn, stop_in_order  # dies with the bench, however it ends
 
     layout = f"{sites} sites" if sites else ("1 router, TLS" if tls else "1 router")
-    d = base / f"k{k}-{f'sites{sites}' if sites else 'one'}"
+    d = base / f"k{k}-g{g}-{f'sites{sites}' if sites else 'one'}"
     d.mkdir(parents=True, exist_ok=True)
     ports = _free_ports(max(1, sites))
     scheme = "tls" if tls or sites else "tcp"
     endpoints = [f"{scheme}/127.0.0.1:{p}" for p in ports]
-    init_fleet(d / "fleet", nodes_spec=scale_nodes(k, g), tls=tls, sites=endpoints if sites else None)
+    if corridor:
+        init_fleet(d / "fleet", nodes_spec=corridor_nodes(k, g, corridor), tls=tls, sites=endpoints if sites else None,
+                   coverage_radius_m=corridor_layout(g, corridor)[1])
+    else:
+        init_fleet(d / "fleet", nodes_spec=scale_nodes(k, g), tls=tls, sites=endpoints if sites else None)
     gs_names = [chr(ord("A") + i) for i in range(g)]
     py = [sys.executable, "-m"]
     hpy = (["nice", "-n", str(hosts_nice)] if hosts_nice else []) + py  # the hosts behind the routers
@@ -177,14 +183,15 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             zid = re.search(r"zid (\w+)", line)
             zid_site[zid.group(1) if zid else name] = name
         router_pids = {procs[n].pid for n in router_cmds}
-        common = ["--fleet", str(d / "fleet"), "--out", str(d)] + (["--latency"] if latency else [])
+        common = (["--fleet", str(d / "fleet"), "--out", str(d)] + (["--latency"] if latency else [])
+                  + (["--corridor", str(corridor)] if corridor else []))
         for part, host in enumerate(hosts):
             procs[host] = spawn(hpy + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
                                       "--duration", str(timeout), "--hold", str(hold_limit(k)),
                                       "--router", ",".join(endpoints), "--part", str(part), "--parts", str(len(hosts)),
                                       "--drone-router", drone_router, *common],
                                 stdout=logs[host], stderr=subprocess.STDOUT)
-        procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g),
+        procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g), "--k", str(k),
                                                    "--router", ",".join(gs_routers), *common,
                                                    *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
                                              stdout=logs["stations"], stderr=subprocess.STDOUT)
@@ -227,7 +234,7 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     except (OSError, ValueError) as exc:
         return {"layout": layout, "k": k, "g": g, "error": error or f"no results ({exc}); see {d}"}
     sent = stations["commands_sent"]
-    expected = 2 * (g - 1)
+    expected = g - 1 if corridor else 2 * (g - 1)  # a corridor: one way, a hand-over at each GS after the first
     per: dict[str, Any] = {}
     for name, r in drones["results"].items():
         s = sum(sent.get(gs, {}).get(name, 0) for gs in sent)
@@ -264,7 +271,14 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         "worst_owner_silences": sorted(({"drone": n, "s": v["worst_owner_silence_s"], **(v["at"] or {})}
                                         for n, v in per.items()), key=lambda x: -x["s"])[:5],
         "handovers": {"expected_each": expected, "min": min(handovers), "max": max(handovers), "total": sum(handovers)},
-        "failures": {n: v["why"] for n, v in per.items() if not v["ok"]}, "runs": str(d)}
+        "failures": {n: v["why"] for n, v in per.items() if not v["ok"]}, "runs": str(d),
+        # the most live links any drone held at once, and the links closed (links that follow the drone)
+        "links_max_per_drone": max(r.get("links_peak", 0) for r in drones["results"].values()),
+        "links_closed": sum(r.get("links_closed", 0) for r in drones["results"].values())}
+    if corridor:
+        row["corridor"] = {"length_m": corridor, "spacing_m": round(corridor_layout(g, corridor)[0]),
+                           "radius_m": round(corridor_layout(g, corridor)[1]), "links_max": 3,
+                           "start_to_takeoff_s": drones.get("ground_s")}
     if error:
         row["error"] = error
     refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in row["gs_inbox_drops"].items()}
@@ -345,14 +359,19 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float | None = None,
-        drone_hosts: int = 1, compare: bool = True, hosts_nice: int = HOSTS_NICE) -> dict[str, Any]:
+        drone_hosts: int = 1, compare: bool = True, hosts_nice: int = HOSTS_NICE,
+        corridor: float = 0.0, station_counts: list[int] | None = None) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick`` or not
     ``compare``) through one TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
     ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it);
     None: by K (``speedup_for``), each row saying its own.
     ``drone_hosts``: processes the drones are stepped in (a what-if, reported: on 2 cores, three hosts of
     100 drones made slower passes than one host of 300). ``hosts_nice``: the niceness of the drones and
-    GSs hosts (``HOSTS_NICE``)."""
+    GSs hosts (``HOSTS_NICE``). ``corridor``: the GSs along that many metres (``station_counts``: each a row,
+    e.g. 5, 10, 20 at a fixed K), half the drones flying it each way at ``CORRIDOR_SPEED_MS``, one way each."""
+    if corridor:
+        return _run_corridor(ks or [10], station_counts or [stations], corridor, sites, speedup, drone_hosts,
+                             hosts_nice, progress)
     ks = ks or ([3] if quick else ([25, 50, 100] if sites else [10, 25, 50]))
     base = Path(tempfile.mkdtemp(prefix="zdrone-bench-scale-"))
     rows = []
@@ -403,8 +422,44 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
     return result
 
 
+#: A corridor's drones cruise at this speed (m/s): 40 km one way in 2 000 simulated seconds.
+CORRIDOR_SPEED_MS = 20.0
+
+
+def _run_corridor(ks: list[int], counts: list[int], length: float, sites: int, speedup: float | None,
+                  drone_hosts: int, hosts_nice: int, progress: bool) -> dict[str, Any]:
+    """``bench scale --layout corridor``: for each K and each GS count, one flight along the corridor."""
+    from zdrone.bench.table import ProgressLine
+
+    base = Path(tempfile.mkdtemp(prefix="zdrone-bench-corridor-"))
+    rows: list[dict[str, Any]] = []
+    status = ProgressLine(progress)
+    try:
+        for k in ks:
+            for g in counts:
+                sp = speedup if speedup is not None else speedup_for(k)
+                status.say(f"corridor {length / 1000:g} km: {k} drones x {g} GSs over {sites or 1} site router(s) "
+                           f"(speed-up {sp:g})…")
+                row = _one(k, g, base, timeout=(length / CORRIDOR_SPEED_MS + 300.0) / sp, sites=sites, speedup=sp,
+                           drone_hosts=drone_hosts, hosts_nice=hosts_nice, corridor=length)
+                rows.append({**row, "speedup": sp})
+    finally:
+        status.close()
+    for r in rows:  # CPU per drone of each process class (ms of CPU per second, per drone)
+        r["cpu_ms_per_s_per_drone"] = {n: round(10.0 * v / r["k"], 3) for n, v in r.get("cpu_percent", {}).items()
+                                       if v is not None}
+    return {"rows": rows, "layout": f"corridor of {length / 1000:g} km", "stations": counts, "sites": sites,
+            "largest_k_all_correct": max([r["k"] for r in rows if r.get("all_correct")], default=0),
+            "speedup": speedup, "drone_hosts": drone_hosts, "hosts_nice": hosts_nice,
+            "links_max_per_drone": max((r.get("links_max_per_drone", 0) for r in rows), default=0),
+            "target": {"k": 100, "g": 20, "sites": 4, "links_max": 3}}
+
+
 def render(r: dict[str, Any]) -> None:
     from zdrone.bench.table import print_table
+
+    if r.get("layout", "").startswith("corridor"):
+        return _render_corridor(r)
 
     def layout(x: dict[str, Any]) -> str:
         return f"{x['sites']} sites" if x.get("sites", 1) > 1 else "1 router"
@@ -466,6 +521,26 @@ def render(r: dict[str, Any]) -> None:
                             "router-to-router link, QUIC with mutual TLS; --json: every router's TCP client sockets)")
 
 
+def _render_corridor(r: dict[str, Any]) -> None:
+    from zdrone.bench.table import print_table
+
+    def cpu(x: dict[str, Any], which: str) -> str:
+        vals = [v for n, v in x.get("cpu_ms_per_s_per_drone", {}).items() if n.startswith(which)]
+        return "/".join(f"{v:.2f}" for v in vals) or "-"
+
+    rows = [[f"{x['k']} x {x['g']}", x.get("sites", 1), x.get("correct", "error"), x.get("links_max_per_drone", "-"),
+             x.get("links_closed", "-"), x.get("ground_s", "-"), x.get("worst_owner_silence_s", "-"),
+             cpu(x, "drones host"), cpu(x, "stations host"), cpu(x, "router"), x.get("wall_s", "-"),
+             "; ".join(f"{n}: {', '.join(w)}" for n, w in list(x.get("failures", {}).items())[:3]) or x.get("error", "")]
+            for x in r["rows"]]
+    print_table(f"Corridor: {r['layout']}, links following the drones (at most 3 each)",
+                ["K x G", "sites", "correct", "links max/drone", "links closed", "start to take-off s",
+                 "worst authority silence s", "CPU ms/s/drone drones", "GSs", "routers", "wall s", "failures"], rows,
+                caption="half the drones fly east from A, half west from the last GS, one hand-over at each GS; correct: "
+                        "every hand-over, no authority gap, no command lost, no failsafe, landed; CPU per drone of each "
+                        "process class (each router apart)")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m zdrone.bench.scale")
     sub = p.add_subparsers(dest="role", required=True)
@@ -482,10 +557,14 @@ def main(argv: list[str] | None = None) -> int:
     hs = sub.add_parser("host-stations")
     hs.add_argument("--stations", type=int, required=True)
     hs.add_argument("--inbox-senders", type=int, help="lift the GS inbox's bound on (kind, sender) queues to this")
+    hs.add_argument("--k", type=int, default=0, help="the fleet's drones (a corridor's two ways)")
+    hs.add_argument("--corridor-speed", type=float, default=CORRIDOR_SPEED_MS)
     for sp in (hd, hs):
         sp.add_argument("--latency", action="store_true",
                         help="note messages for one-way latency from the take-off on (bench overhead; zdrone.bench.latency)")
         sp.add_argument("--fleet", required=True)
+        sp.add_argument("--corridor", type=float, default=0.0, metavar="M",
+                        help="a corridor this long (m): half the drones fly it east from A, half west from the last GS")
         sp.add_argument("--router", required=True, help="router endpoint(s), comma-separated")
         sp.add_argument("--out", required=True)
     args = p.parse_args(argv)

@@ -221,6 +221,7 @@ def note_station_latency(station: Any, latency: LatencyLog) -> None:
 
 def _host_drones(args: argparse.Namespace) -> int:
     from zdrone.core.authority import HaDrop
+    from zdrone.core.geometry import offset
     from zdrone.core.reference import HOME
     from zdrone.core.tbm import LinkState
     from zdrone.fleet.files import load_fleet
@@ -233,11 +234,12 @@ def _host_drones(args: argparse.Namespace) -> int:
     nodes = []
     for i in range(args.part, args.k, args.parts):  # this host's share of the fleet (the i-th drone spread as in one host)
         name = f"d{i + 1}"
+        home = HOME if not args.corridor or corridor_eastbound(i) else offset(HOME, 0.0, args.corridor)
         router = routers[i % len(routers)] if args.drone_router == "spread" else args.router
         opts = DroneOptions(drone=name, fleet=args.fleet, router=router, vehicle="inproc", gate=CoverageGate(fleet),
                             events=str(Path(args.out) / f"{name}.jsonl"), handover_timeout=max(1.5, 5.0 / args.speedup),
                             status_period=2.0)
-        nodes.append(DroneNode(opts, vehicle=InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)))
+        nodes.append(DroneNode(opts, vehicle=InProcessVehicle(home, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)))
     arrivals = FrameGaps()  # a GS's frames at each drone's Zenoh callback (where a silence begins)
     deliveries = {n.name: DeliveryCounter(n.rt.inbox, arrivals, n.name) for n in nodes}
     latency = LatencyLog() if args.latency else None  # ``bench overhead``: noted from the take-off on
@@ -282,7 +284,9 @@ def _host_drones(args: argparse.Namespace) -> int:
     loops = 0
     try:
         while not stop[0] and time.monotonic() < deadline:
-            if released is None and (all(gss[n.name] <= set(n.core.links) for n in nodes)
+            # (a corridor: each drone linked with its owner; its links follow it from there)
+            if released is None and (all((n.machine.owner is not None and n.machine.owner in n.core.links)
+                                         if args.corridor else gss[n.name] <= set(n.core.links) for n in nodes)
                                      or time.monotonic() - t_ready >= args.hold):
                 released = "keys" if time.monotonic() - t_ready < args.hold else "hold timeout"
                 for n in nodes:
@@ -353,6 +357,7 @@ def _host_drones(args: argparse.Namespace) -> int:
             m = n.machine
             results[n.name] = {
                 "handovers": max(0, m.epoch - 1),  # epoch 1 at pairing, +1 per hand-over
+                "links_peak": n.core.links_peak, "links_closed": n.core.counters["link_closed"],
                 "owners": [o for _, o, _ in m.history], "state": m.state.value, "flew": armed_seen[i],
                 "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
                 "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
@@ -379,9 +384,16 @@ def _host_drones(args: argparse.Namespace) -> int:
     return 0
 
 
+def corridor_eastbound(i: int) -> bool:
+    """A corridor's drone ``d{i+1}`` flies east from A (even ``i``) or west from the last GS (odd)."""
+    return i % 2 == 0
+
+
 def _host_stations(args: argparse.Namespace) -> int:
-    from gs.planner import shuttle_mission
+    from gs.planner import corridor_mission, shuttle_mission
     from gs.station import GroundStation, StationOptions
+    from zdrone.core.geometry import offset
+    from zdrone.core.reference import HOME
 
     deliveries: dict[str, DeliveryCounter] = {}
     baseline: dict[str, dict[str, int]] = {}
@@ -404,9 +416,21 @@ def _host_stations(args: argparse.Namespace) -> int:
     names = [chr(ord("A") + i) for i in range(args.stations)]
     routers = args.router.split(",")  # one for all, or one per station in order
     mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (args.stations - 1) - 60.0)
-    stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=routers[i % len(routers)], pair=(g == "A"),
-                                             mission=mission if g == "A" else None, command_rate=1.0,
-                                             events=None)) for i, g in enumerate(names)]
+    first, last = names[0], names[-1]
+    pair: dict[str, frozenset[str] | None] = {first: None}
+    missions: dict[str, dict[str, Any]] = {}
+    if args.corridor:  # each way's first GS pairs its drones and flies their missions; the others only link
+        west_end = offset(HOME, 0.0, args.corridor)
+        drones = [f"d{i + 1}" for i in range(args.k)]
+        east = frozenset(d for i, d in enumerate(drones) if corridor_eastbound(i))
+        pair = {first: east, last: frozenset(drones) - east}
+        to_east, to_west = (corridor_mission(HOME, west_end, speed=args.corridor_speed),
+                            corridor_mission(west_end, HOME, speed=args.corridor_speed))
+        missions = {first: {d: to_east for d in east}, last: {d: to_west for d in pair[last]}}  # type: ignore[union-attr]
+    stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=routers[i % len(routers)], pair=g in pair,
+                                             pair_drones=pair.get(g), missions=missions.get(g),
+                                             mission=mission if g == "A" and not args.corridor else None,
+                                             command_rate=1.0, events=None)) for i, g in enumerate(names)]
     deliveries.update({st.name: DeliveryCounter(st.rt.inbox) for st in stations})
     puts = FrameGaps()  # each GS's frames to each drone as it puts them (where a silence begins)
     for st in stations:
