@@ -150,14 +150,17 @@ def shuttle_mission(crossings: int, home: GeoPoint = HOME, alt: float = CRUISE_A
 
 
 def corridor_mission(start: GeoPoint, end: GeoPoint, alt: float = CRUISE_ALT_M,
-                     speed: float = CRUISE_SPEED_MS) -> list[PlannedItem]:
-    """One way along a corridor, autopilot-neutral: take off at ``start``, fly to ``end`` at ``speed``,
-    land there."""
+                     speed: float = CRUISE_SPEED_MS, back: bool = False) -> list[PlannedItem]:
+    """Along a corridor, autopilot-neutral: take off at ``start``, fly to ``end`` at ``speed`` and land
+    there, or (``back``) fly back to ``start`` and land there."""
     do = mav.MAV_FRAME_MISSION
     items = [_nav(mav.MAV_CMD_NAV_TAKEOFF, start, alt),
              PlannedItem(do, mav.MAV_CMD_DO_CHANGE_SPEED, (1.0, speed, -1.0, 0.0), NAN, NAN, 0.0),
-             _nav(mav.MAV_CMD_NAV_WAYPOINT, end, alt), _nav(mav.MAV_CMD_NAV_LAND, end, 0.0)]
-    return items
+             _nav(mav.MAV_CMD_NAV_WAYPOINT, end, alt)]
+    last = start if back else end
+    if back:
+        items.append(_nav(mav.MAV_CMD_NAV_WAYPOINT, start, alt))
+    return items + [_nav(mav.MAV_CMD_NAV_LAND, last, 0.0)]
 
 
 def load_plan(path: str | Path) -> list[PlannedItem]:

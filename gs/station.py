@@ -330,6 +330,14 @@ class GroundStation:
     def stop(self, *_: object) -> None:
         self.rt.stop()
 
+    killed = False
+
+    def kill(self) -> None:
+        """A testbed's crash of this GS in a host shared with others (``bench scale --layout corridor``'s
+        ``--kill-owner``): its loop ends now and its Zenoh session closes; nothing more is sent."""
+        self.killed = True
+        self.rt.stop()
+
     def _offer_checkpoint(self) -> None:
         """Our record's newest checkpoint that covers a decision, not offered yet: to the drones its
         decisions name, to countersign (``StationCore.offer_checkpoint``)."""

@@ -36,8 +36,8 @@ def _corridor(tmp: Path, stations: int = GSS, length: float = LENGTH_M) -> tuple
     return tmp, [chr(ord("A") + i) for i in range(stations)]
 
 
-def _flight(tmp: Path, speedup: float) -> tuple[CoreFlight, list[str]]:
-    d, names = _corridor(tmp)
+def _flight(tmp: Path, speedup: float, made: bool = False) -> tuple[CoreFlight, list[str]]:
+    d, names = (tmp, [chr(ord("A") + i) for i in range(GSS)]) if made else _corridor(tmp)
     mission = shuttle_mission(2, far_east_m=LENGTH_M, speed=SPEED)
     opts = {g: CoreOptions(pair=(g == "A"), mission=mission if g == "A" else None, command_rate=1.0) for g in names}
     return CoreFlight(d, stations=opts, dt=0.1, speedup=speedup), names
@@ -126,3 +126,53 @@ def test_the_grace_closes_the_longest_closable_first() -> None:
     assert g.oldest() == "C"
     g.update({"A", "C"}, 6.0)
     assert g.since["A"] == 6.0
+
+
+def test_the_corridor_demo_verdict_can_fail(tmp_path: Path) -> None:
+    """``zdrone.sil.corridor.judge`` on made-up results: too many links, a lost hand-over, no landing."""
+    from zdrone.sil.corridor import judge
+    from zdrone.fleet.files import load_fleet
+
+    d, _ = _corridor(tmp_path)
+    fleet = load_fleet(d)
+    good = {"flew": True, "landed": True}
+    assert judge("corridor", {"links_max_per_drone": 3, "failures": {}}, good, tmp_path, fleet) == []
+    assert judge("corridor", {"links_max_per_drone": 4, "failures": {}}, good, tmp_path, fleet)
+    assert judge("corridor", {"links_max_per_drone": 3, "failures": {"d1": ["13/14 hand-overs"]}}, good, tmp_path, fleet)
+    assert judge("corridor", {"links_max_per_drone": 3, "failures": {}}, {"flew": True, "landed": False}, tmp_path, fleet)
+    # the GS never died: the scenario did not happen
+    assert judge("corridor-gs-down", {"links_max_per_drone": 3}, good, tmp_path, fleet)
+
+
+def test_a_drone_at_links_max_with_nothing_closable_refuses_a_grant_and_a_pairing_from_afar(tmp_path: Path) -> None:
+    """links_max 2: in the A-B overlap the drone holds A (owner) and B (covering it): neither may close.
+    A grant for C (even from the owner) and C's own pairing (C does not cover the drone) are refused
+    ``links_full``; nothing the drone held is touched."""
+    import msgspec
+
+    from zdrone.core import wire
+    from zdrone.core.fleet import encode_fleet
+    from zdrone.core.pairing import PairingInitiator, PairRefusal, PairRefused
+    from zdrone.fleet.files import load_fleet, load_secret
+    from tests.coreflight import WALL0
+
+    d, names = _corridor(tmp_path)
+    fleet = msgspec.structs.replace(load_fleet(d), links_max=2)
+    (d / "fleet.json5").write_text(encode_fleet(fleet))
+    f, _ = _flight(tmp_path, 4.0, made=True)
+    assert f.fleet.links_max == 2
+    m = f.drone.machine
+    assert f.run_until(lambda: m.inside == {"A", "B"} and set(f.drone.links) == {"A", "B"} and m.owner == "A"
+                       and m.is_proven("B"), timeout=200.0)
+    # C's own pairing, from outside its coverage
+    c = PairingInitiator(load_secret(d, "C", fleet).identity, "C", "d1", fleet.nodes["d1"].public_bytes,
+                         stamp=WALL0 + f.now)
+    ans, _ = f.drone.on_pair_query("C", c.start(), f.now, bytes(32), WALL0 + f.now)
+    assert isinstance(ans, PairRefused) and ans.reason is PairRefusal.LINKS_FULL
+    # a grant for C from the owner
+    grant = f.gs["A"].core.sessions["d1"].send_control(wire.KeyGrant("C", fleet.nodes["C"].sysid, bytes(32), 999))
+    f.station("A", grant)
+    assert f.drone.counters["grant_refused:links_full"] == 1 and set(f.drone.links) == {"A", "B"}
+    # the flight goes on: the hand-over to B, and B's plan prepares C once A is left behind
+    assert f.run_until(lambda: m.owner == "B" and "C" in f.drone.links, timeout=200.0)
+    assert len(f.drone.links) <= 2

@@ -134,7 +134,7 @@ def _free_ports(n: int) -> list[int]:
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
          drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE, latency: bool = False,
-         corridor: float = 0.0) -> dict[str, Any]:
+         corridor: float = 0.0, round_trip: bool = False, kill: tuple[str, float] | None = None) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers (``corridor``:
     the G GSs along that many metres, half the drones flying it each way, their links following them);
     ``latency``: the hosts note messages for ``zdrone.bench.latency`` (``latency-*.json`` in the run's
@@ -184,14 +184,15 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             zid_site[zid.group(1) if zid else name] = name
         router_pids = {procs[n].pid for n in router_cmds}
         common = (["--fleet", str(d / "fleet"), "--out", str(d)] + (["--latency"] if latency else [])
-                  + (["--corridor", str(corridor)] if corridor else []))
+                  + (["--corridor", str(corridor)] if corridor else []) + (["--round-trip"] if round_trip else []))
         for part, host in enumerate(hosts):
             procs[host] = spawn(hpy + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
                                       "--duration", str(timeout), "--hold", str(hold_limit(k)),
                                       "--router", ",".join(endpoints), "--part", str(part), "--parts", str(len(hosts)),
                                       "--drone-router", drone_router, *common],
                                 stdout=logs[host], stderr=subprocess.STDOUT)
-        procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g), "--k", str(k),
+        killing = ["--kill-owner", kill[0], "--kill-after", str(kill[1])] if kill else []
+        procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g), "--k", str(k), *killing,
                                                    "--router", ",".join(gs_routers), *common,
                                                    *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
                                              stdout=logs["stations"], stderr=subprocess.STDOUT)
@@ -234,7 +235,8 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     except (OSError, ValueError) as exc:
         return {"layout": layout, "k": k, "g": g, "error": error or f"no results ({exc}); see {d}"}
     sent = stations["commands_sent"]
-    expected = g - 1 if corridor else 2 * (g - 1)  # a corridor: one way, a hand-over at each GS after the first
+    # a corridor: a hand-over at each GS after the first, each way flown
+    expected = (g - 1) * (2 if round_trip else 1) if corridor else 2 * (g - 1)
     per: dict[str, Any] = {}
     for name, r in drones["results"].items():
         s = sum(sent.get(gs, {}).get(name, 0) for gs in sent)
@@ -559,12 +561,15 @@ def main(argv: list[str] | None = None) -> int:
     hs.add_argument("--inbox-senders", type=int, help="lift the GS inbox's bound on (kind, sender) queues to this")
     hs.add_argument("--k", type=int, default=0, help="the fleet's drones (a corridor's two ways)")
     hs.add_argument("--corridor-speed", type=float, default=CORRIDOR_SPEED_MS)
+    hs.add_argument("--kill-owner", metavar="GS", help="kill this GS once it has owned a drone in the air --kill-after s")
+    hs.add_argument("--kill-after", type=float, default=2.0)
     for sp in (hd, hs):
         sp.add_argument("--latency", action="store_true",
                         help="note messages for one-way latency from the take-off on (bench overhead; zdrone.bench.latency)")
         sp.add_argument("--fleet", required=True)
         sp.add_argument("--corridor", type=float, default=0.0, metavar="M",
                         help="a corridor this long (m): half the drones fly it east from A, half west from the last GS")
+        sp.add_argument("--round-trip", action="store_true", help="a corridor's drones fly back to where they took off")
         sp.add_argument("--router", required=True, help="router endpoint(s), comma-separated")
         sp.add_argument("--out", required=True)
     args = p.parse_args(argv)

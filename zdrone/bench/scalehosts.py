@@ -358,7 +358,8 @@ def _host_drones(args: argparse.Namespace) -> int:
             results[n.name] = {
                 "handovers": max(0, m.epoch - 1),  # epoch 1 at pairing, +1 per hand-over
                 "links_peak": n.core.links_peak, "links_closed": n.core.counters["link_closed"],
-                "owners": [o for _, o, _ in m.history], "state": m.state.value, "flew": armed_seen[i],
+                "owners": [o for _, o, _ in m.history], "epochs": [[o, e] for _, o, e in m.history],
+                "state": m.state.value, "flew": armed_seen[i],
                 "landed": not n.vehicle.armed and n.vehicle.landed_state == 1,
                 "forwarded": dict(n.core.forwarded), "forwarded_epochs": dict(n.core.forwarded_epochs),
                 "not_authority": m.drops[HaDrop.NOT_AUTHORITY], "in_failsafe": m.drops[HaDrop.FAILSAFE],
@@ -424,8 +425,8 @@ def _host_stations(args: argparse.Namespace) -> int:
         drones = [f"d{i + 1}" for i in range(args.k)]
         east = frozenset(d for i, d in enumerate(drones) if corridor_eastbound(i))
         pair = {first: east, last: frozenset(drones) - east}
-        to_east, to_west = (corridor_mission(HOME, west_end, speed=args.corridor_speed),
-                            corridor_mission(west_end, HOME, speed=args.corridor_speed))
+        to_east, to_west = (corridor_mission(HOME, west_end, speed=args.corridor_speed, back=args.round_trip),
+                            corridor_mission(west_end, HOME, speed=args.corridor_speed, back=args.round_trip))
         missions = {first: {d: to_east for d in east}, last: {d: to_west for d in pair[last]}}  # type: ignore[union-attr]
     stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=routers[i % len(routers)], pair=g in pair,
                                              pair_drones=pair.get(g), missions=missions.get(g),
@@ -466,8 +467,20 @@ def _host_stations(args: argparse.Namespace) -> int:
                  for st in stations})  # per epoch the GS believed it commanded in (bench revoke's attribution)
 
     counted: tuple[dict[str, Any], dict[str, Any]] | None = None
+    doomed = next((st for st in stations if st.name == args.kill_owner), None)
+    owned_since: float | None = None
     while not stop[0]:
         pause.wait(0.2)
+        if doomed is not None:  # ``--kill-owner``: that GS dies once it has owned a drone in the air that long
+            flying = [d for d, v in doomed.core.sessions.items() if v.owner == doomed.name and v.armed and not v.stale]
+            owned_since = (owned_since or time.monotonic()) if flying else None
+            if owned_since is not None and time.monotonic() - owned_since >= args.kill_after:
+                print(f"stations host: GS {doomed.name} killed while it owned {', '.join(flying)} at {time.time():.3f}",
+                      flush=True)
+                Path(args.out, "killed.json").write_text(json.dumps({"gs": doomed.name, "owned": flying,
+                                                                      "t": time.time()}))
+                doomed.kill()
+                doomed = None
         if landed[0] and counted is None:
             for st in stations:  # no command after the count: every command counted is one the drones can forward
                 st.core.opts = replace(st.core.opts, command_rate=0.0)
@@ -478,7 +491,8 @@ def _host_stations(args: argparse.Namespace) -> int:
     counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
     delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}
     for st in stations:
-        st.stop()
+        if not st.killed:
+            st.stop()
     for t in threads:
         t.join(15)
     Path(args.out, "gaps-stations.json").write_text(json.dumps(puts.report()))

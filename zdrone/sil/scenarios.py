@@ -410,4 +410,9 @@ def scenario_help() -> str:
     for s in SCENARIO_TABLE:
         text = textwrap.wrap(f"{s.description}. Success: {s.expected}.", 96 - width)
         lines += [f"  {s.name:<{width}}  {text[0]}", *(f"  {'':<{width}}  {t}" for t in text[1:])]
+    from zdrone.sil.corridor import SCENARIOS as CORRIDOR
+
+    for name, (description, expected) in CORRIDOR.items():
+        text = textwrap.wrap(f"{description}. Success: {expected}.", 96 - width)
+        lines += [f"  {name:<{width}}  {text[0]}", *(f"  {'':<{width}}  {t}" for t in text[1:])]
     return "\n".join(lines)
