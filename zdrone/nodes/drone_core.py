@@ -528,11 +528,11 @@ class DroneCore(DroneRevisions):
             return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)  # a repeated grant
         out: list[Out] = []
         if self._follows() and msg.gs not in self.links and self.machine.grant_rejection(sender, msg.gs) is None:
-            if len(self.links) >= self.fleet.links_max and self.grace.oldest(besides=msg.gs) is None:
+            out += self._make_room(msg.gs, now)  # the link left behind longest goes, if one may
+            if len(self.links) >= self.fleet.links_max:
                 self.counters["grant_refused:links_full"] += 1
-                return self._control(sender, wire.Reject("key_grant", f"links_full: the drone holds "
-                                                         f"{len(self.links)} links and none may close"), now)
-            out += self._make_room(msg.gs, now)
+                return out + self._control(sender, wire.Reject("key_grant", f"links_full: the drone holds "
+                                                               f"{len(self.links)} links and none may close"), now)
         result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         if isinstance(result, ha.GrantAccepted):
             out += self._install(result.gs, key, now, hybrid=carrier is not None and carrier.hybrid)
