@@ -595,7 +595,7 @@ class FleetPicture:
         best = fresh[source].ops if source is not None else None
         links = {gs: {"link": c.ops.link, "age": None if gs not in ages else round(ages[gs], 2), "holds": c.ops.holds,
                       "says": c.ops.owner, "epoch": c.ops.epoch, "silent": gs not in fresh}
-                 for gs, c in sorted(claims.items())}
+                 for gs, c in sorted(claims.items()) if c.ops.linked or c.ops.holds}  # its prepared GSs, not every GS
         requests = [{"at": gs, **msgspec.structs.asdict(c.ops.request)} for gs, c in sorted(fresh.items()) if c.ops.request]
         return {"drone": name, "owner": owner, "epoch": epoch, "state": state, "pending_to": pending_to,
                 "verified": att is not None and recent, "attested_age": None if att_age is None else round(att_age, 2),
