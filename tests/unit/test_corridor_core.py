@@ -176,3 +176,26 @@ def test_a_drone_at_links_max_with_nothing_closable_refuses_a_grant_and_a_pairin
     # the flight goes on: the hand-over to B, and B's plan prepares C once A is left behind
     assert f.run_until(lambda: m.owner == "B" and "C" in f.drone.links, timeout=200.0)
     assert len(f.drone.links) <= 2
+
+
+def test_a_gs_left_behind_pairs_again_only_on_its_operators_request(tmp_path: Path) -> None:
+    """B, whose link the drone closed and which wiped its end, does not pair by itself; its operator's
+    request for control pairs it on demand (answered TEMPORARILY_REJECTED until then), within links_max."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from zdrone.core.mavcontrol import OperatorControlRequest
+
+    f, _ = _flight(tmp_path, 4.0)
+    b = f.gs["B"].core
+    m = f.drone.machine
+    assert f.run_until(lambda: b.sessions["d1"].link is None and b.counters["link_wiped"] == 1 and m.owner not in "AB",
+                       timeout=600.0)
+    sent = b.counters["pair_sent"]
+    f.run_until(lambda: False, timeout=20.0)
+    assert b.counters["pair_sent"] == sent  # no pairing of its own
+    req = OperatorControlRequest(request=True, takeover=False, timeout=30.0, sysid=0)
+    answer, acts = b.operator_command("d1", req, f.now, app="qgc")
+    f.station("B", acts)
+    assert answer.value == mav.MAV_RESULT_TEMPORARILY_REJECTED
+    f.run_until(lambda: b.counters["pair_sent"] > sent, timeout=5.0)
+    assert b.counters["pair_sent"] > sent  # it pairs on demand (the drone's radio may not reach it from there)
