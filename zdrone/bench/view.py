@@ -342,14 +342,15 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
     return out
 
 
-#: The parts of the bench, each selectable alone (``--only``).
-PARTS = ("flight", "fleet", "attack", "flood")
+#: The parts of the bench, each selectable alone (``--only``); all but ``corridor`` by default.
+PARTS = ("flight", "fleet", "attack", "flood", "corridor")
+DEFAULT_PARTS = ("flight", "fleet", "attack", "flood")
 #: The parts that drive a real page (the browser is started for them only).
-BROWSER_PARTS = ("flight", "fleet", "attack")
+BROWSER_PARTS = ("flight", "fleet", "attack", "corridor")
 
 
 def run(quick: bool = False, crossings: int | None = None, drones: int | None = None, progress: bool = True,
-        out: Path | None = None, only: tuple[str, ...] = PARTS, clients: int | None = None,
+        out: Path | None = None, only: tuple[str, ...] = DEFAULT_PARTS, clients: int | None = None,
         forged_rate: float | None = None, flood_rate: float | None = None) -> dict[str, Any]:
     crossings = crossings or (QUICK_CROSSINGS if quick else FULL_CROSSINGS)
     drones = drones or (QUICK_DRONES if quick else FULL_DRONES)
@@ -373,6 +374,10 @@ def run(quick: bool = False, crossings: int | None = None, drones: int | None = 
                                        QUICK_ATTACK_WINDOW_S if quick else ATTACK_WINDOW_S, status, SPEEDUP)
         if "flood" in only:
             result["flood"] = run_flood(base, quick, flood_rate, status)
+        if "corridor" in only and browser is not None:
+            from zdrone.bench.viewcorridor import corridor_page
+
+            result["corridor"] = corridor_page(browser, base, 20.0 if quick else 60.0, status)
     finally:
         if browser is not None:
             browser.close()
@@ -388,7 +393,7 @@ def failed(r: dict[str, Any]) -> bool:
     """A part asked for that did not give its figures (a target missed is a figure, not a failure)."""
     return ("flight" in r["parts"] and "latency" not in r) or ("fleet" in r["parts"] and "error" in r["fleet"]) or (
         "attack" in r["parts"] and ("error" in r["attack"] or "load" not in r["attack"])) or (
-        "flood" in r["parts"] and "error" in r["flood"])
+        "flood" in r["parts"] and "error" in r["flood"]) or ("corridor" in r["parts"] and "error" in r["corridor"])
 
 
 def render(r: dict[str, Any]) -> None:
@@ -403,6 +408,10 @@ def render(r: dict[str, Any]) -> None:
         render_attack(r["attack"])
     if "flood" in parts:
         render_flood(r["flood"])
+    if "corridor" in parts:
+        from zdrone.bench.viewcorridor import render_corridor
+
+        render_corridor(r["corridor"])
 
 
 def _render_flight(r: dict[str, Any]) -> None:
