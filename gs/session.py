@@ -456,10 +456,12 @@ class DroneSession(DroneView):
                 and link.tbm.since_last(now) >= WIPE_SILENT_S)
 
     def _wipe_link(self, reason: str) -> list[Action]:
-        """Our end of a link the drone closed: the key wiped (live, candidates, the one replaced), the
-        heartbeats stopped (they need a link), and no pairing of our own again (the owner prepares our link
+        """Our end of a link the drone closed: the key wiped (live, the one replaced, a fallback; a candidate
+        we made since for the owner's grant stays, to be proven when the drone comes back), the heartbeats stopped (they need a link), and no pairing of our own again (the owner prepares our link
         when the drone comes our way; our operator may still ask for control)."""
+        fresh = self.slot.candidates  # keys made since for the owner's grant (the drone coming back our way)
         self.slot = LinkSlot(hybrid_only=self.st.fleet.pairing_pq)
+        self.slot.candidates = fresh
         self.link = None
         self.switching = False
         self.closed_by_drone = True

@@ -199,3 +199,27 @@ def test_a_gs_left_behind_pairs_again_only_on_its_operators_request(tmp_path: Pa
     assert answer.value == mav.MAV_RESULT_TEMPORARILY_REJECTED
     f.run_until(lambda: b.counters["pair_sent"] > sent, timeout=5.0)
     assert b.counters["pair_sent"] > sent  # it pairs on demand (the drone's radio may not reach it from there)
+
+
+def test_a_gs_dying_in_the_middle_hands_the_drone_to_its_covering_heir_and_it_comes_home(tmp_path: Path) -> None:
+    """D dies 0.5 s after it took authority, the drone still in the C-D overlap (at speed-up 2 the 3 s loss
+    threshold is 120 m of flight): C, covering it with a proven link, takes it (emergency); C's hand-over
+    toward the dead D fails, the vehicle leaving C's coverage is sent home, and it is handed back C -> B
+    -> A on the way. (At speed-up 8, as in CI's process flight, the drone has left C's coverage by the
+    time D's silence counts: its failsafe lands it, by the same rules.)"""
+    from zdrone.core.geometry import distance_m
+
+    f, _ = _flight(tmp_path, 2.0)
+    m = f.drone.machine
+    assert f.run_until(lambda: m.owner == "D", timeout=600.0)
+    f.run_until(lambda: False, timeout=0.5)
+    f.gs["D"].down = True
+    assert f.run_until(lambda: m.owner != "D" or m.state.value == "failsafe", timeout=10.0)
+    assert m.owner == "C" and m.state.value == "linked", (m.owner, m.state)
+    last = f.of(rec.HandoverComplete)[-1][1]
+    assert last.kind == "emergency" and last.to == "C"
+    assert f.run_until(f.landed, timeout=900.0)
+    assert not f.commands  # no failsafe
+    assert [o for _, o, _ in m.history][-3:] == ["C", "B", "A"] and "D" not in [o for _, o, _ in m.history][4:]
+    p = f.sim.position
+    assert distance_m(HOME, GeoPoint(p.lat, p.lon)) < 100.0  # home
