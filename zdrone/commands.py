@@ -329,15 +329,17 @@ def _demo(args: argparse.Namespace) -> int:
 
     live = True if args.live else (False if args.no_live else None)
     moment = None
-    from zdrone.sil import corridor
+    from zdrone.sil.scenarios import CORRIDOR_SCENARIOS
 
-    if args.scenario in corridor.SCENARIOS:  # the corridor's own processes (``zdrone.sil.corridor``)
+    if args.scenario in CORRIDOR_SCENARIOS:  # the corridor's own processes (``zdrone.bench.corridordemo``)
         given = [o for o, v in (("--vehicle", args.vehicle), ("--netns", args.netns), ("--moment", args.moment),
                                 ("--radio", args.radio), ("--view", args.view), ("--ready-after", args.ready_after)) if v]
         if given:
             raise UsageError(f"{given[0]}: not for scenario {args.scenario} (its eight GSs and drone are "
                              "the corridor bench's processes)")
-        return corridor.main(args.scenario, Path(args.out) if args.out else None, args.speedup or 4.0)
+        from zdrone.bench import corridordemo
+
+        return corridordemo.main(args.scenario, Path(args.out) if args.out else None, args.speedup or 4.0)
     spec = SCENARIO_BY_NAME[args.scenario]
     if spec.plain_router and (args.tls or args.sites or args.netns):
         option = "--tls" if args.tls else ("--sites" if args.sites else "--netns")
@@ -384,9 +386,9 @@ def add_demo(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("demo", help="fly the reference flight with router, sim, drone and two GSs as processes",
                        epilog=scenario_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
-    from zdrone.sil.corridor import SCENARIOS as CORRIDOR
+    from zdrone.sil.scenarios import CORRIDOR_SCENARIOS
 
-    p.add_argument("--scenario", choices=SCENARIOS + tuple(CORRIDOR), default="nominal", metavar="NAME",
+    p.add_argument("--scenario", choices=SCENARIOS + tuple(CORRIDOR_SCENARIOS), default="nominal", metavar="NAME",
                    help="nominal flight, or an attack / fault case (listed below)")
     p.add_argument("--out", metavar="DIR", help="output folder (default: a fresh runs/demo-... folder)")
     p.add_argument("--speedup", type=positive, default=None,

@@ -497,11 +497,6 @@ class AuthorityMachine(Machine):
             return self.state, self._reject(ev.sender, "release", f"unauthorized: cannot hand over to {ev.to}")
         if ev.to not in self.links:
             return self.state, self._reject(ev.sender, "release", f"no link: no key installed for {ev.to}")
-        if self.links[ev.to].state is LinkState.LOST:
-            # its silence has passed the loss threshold (a dead GS, a GS out of reach): no proof can come
-            # before it is heard again; the owner decides now (try again, or bring the vehicle home)
-            return self.state, self._reject(ev.sender, "release", f"link lost: {ev.to} has not been heard "
-                                                                  f"for the loss threshold")
         if self.state is State.HANDOVER_PENDING and ev.to == self.pending_to:
             return self.state, []  # a repeated release
         self.pending_to, self.pending_deadline = ev.to, ev.now + self.config.handover_timeout

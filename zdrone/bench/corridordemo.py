@@ -1,4 +1,5 @@
-"""TESTBED: ``zdrone demo --scenario corridor | corridor-gs-down``: a beyond-line-of-sight corridor.
+"""``zdrone demo --scenario corridor | corridor-gs-down``: a beyond-line-of-sight corridor, flown by the
+corridor bench's processes (its scenario table: ``zdrone.sil.scenarios.CORRIDOR_SCENARIOS``).
 
 Eight GSs along 16 km (A … H, 2.3 km apart, coverage 1.4 km: neighbours overlap by 571 m) over two site
 routers meshed by mutual TLS (the GSs alternate between the sites), one drone flying from A to H and
@@ -41,12 +42,6 @@ MIDDLE = "D"
 #: D dies this long (wall) after it took authority: the drone is still in the C-D overlap at any speed-up
 #: up to 16 (its 266 m past the hand-over point at 20 m/s), so the rules give it to the heir C
 KILL_AFTER_S = 0.5
-SCENARIOS = {
-    "corridor": ("8 GSs along 16 km, one drone out and back, links following it",
-                 "14 hand-overs, gap 0 ms, never more than 3 links, landed at home"),
-    "corridor-gs-down": ("the corridor; D, in the middle, dies 0.5 s after it took authority",
-                         "an heir covering the drone takes it, or the failsafe lands it; never more than 3 links"),
-}
 
 
 def run(scenario: str, out: Path, speedup: float) -> int:
