@@ -16,6 +16,8 @@ from zdrone.core import records as rec
 from zdrone.net.eventlog import read_records
 
 SPEEDUP = "8"
+#: minutes of wall time, little CPU: started first (tests/conftest.py)
+pytestmark = [pytest.mark.slow, pytest.mark.longest]
 
 
 def _fly(tmp_path: Path, scenario: str) -> tuple[subprocess.CompletedProcess, dict, Path]:
