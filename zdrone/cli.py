@@ -174,8 +174,7 @@ def _bench_scale(args: argparse.Namespace) -> int:
                        drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
                        speedup=args.speedup, drone_hosts=args.drone_hosts, compare=not args.sites_only,
                        hosts_nice=scale.HOSTS_NICE if args.hosts_nice is None else args.hosts_nice,
-                       corridor=args.length * 1000.0 if args.layout == "corridor" else 0.0, station_counts=counts,
-                       restart_gs=args.restart_gs)
+                       corridor=args.length * 1000.0 if args.layout == "corridor" else 0.0, station_counts=counts)
     _emit(args, result, scale.render)
     return 0
 
@@ -459,8 +458,6 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--layout", choices=("line", "corridor"), default="line",
                     help="corridor: the GSs along --length km, half the drones flying it each way, links following them")
     bs.add_argument("--length", type=float, default=40.0, metavar="KM", help="the corridor's length (default 40)")
-    bs.add_argument("--restart-gs", metavar="GS", help="this GS dies 3 s after take-off and starts again, pairing by "
-                                                        "itself: the JSON's gs_restart says when every drone was linked again")
     bs.add_argument("--speedup", type=float, default=None, metavar="S",
                     help="the simulators' speed-up (default by K: 4 up to 100 drones, 1 above; the vehicles' "
                          "telemetry grows with it)")

@@ -134,8 +134,7 @@ def _free_ports(n: int) -> list[int]:
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
          drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE, latency: bool = False,
-         corridor: float = 0.0, round_trip: bool = False, kill: tuple[str, float] | None = None,
-         restart_gs: str | None = None) -> dict[str, Any]:
+         corridor: float = 0.0, round_trip: bool = False, kill: tuple[str, float] | None = None) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers (``corridor``:
     the G GSs along that many metres, half the drones flying it each way, their links following them);
     ``latency``: the hosts note messages for ``zdrone.bench.latency`` (``latency-*.json`` in the run's
@@ -193,7 +192,6 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
                                       "--drone-router", drone_router, *common],
                                 stdout=logs[host], stderr=subprocess.STDOUT)
         killing = ["--kill-owner", kill[0], "--kill-after", str(kill[1])] if kill else []
-        killing += ["--restart-gs", restart_gs] if restart_gs else []
         procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g), "--k", str(k), *killing,
                                                    "--router", ",".join(gs_routers), *common,
                                                    *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
@@ -279,11 +277,6 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         # the most live links any drone held at once, and the links closed (links that follow the drone)
         "links_max_per_drone": max(r.get("links_peak", 0) for r in drones["results"].values()),
         "links_closed": sum(r.get("links_closed", 0) for r in drones["results"].values())}
-    if restart_gs:
-        try:
-            row["gs_restart"] = json.loads((d / "restart.json").read_text())
-        except (OSError, ValueError):
-            row["gs_restart"] = {"gs": restart_gs, "error": "no restart.json (the flight ended first?)"}
     if corridor:
         row["corridor"] = {"length_m": corridor, "spacing_m": round(corridor_layout(g, corridor)[0]),
                            "radius_m": round(corridor_layout(g, corridor)[1]), "links_max": 3,
@@ -369,7 +362,7 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float | None = None,
         drone_hosts: int = 1, compare: bool = True, hosts_nice: int = HOSTS_NICE,
-        corridor: float = 0.0, station_counts: list[int] | None = None, restart_gs: str | None = None) -> dict[str, Any]:
+        corridor: float = 0.0, station_counts: list[int] | None = None) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick`` or not
     ``compare``) through one TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
     ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it);
@@ -378,10 +371,6 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
     100 drones made slower passes than one host of 300). ``hosts_nice``: the niceness of the drones and
     GSs hosts (``HOSTS_NICE``). ``corridor``: the GSs along that many metres (``station_counts``: each a row,
     e.g. 5, 10, 20 at a fixed K), half the drones flying it each way at ``CORRIDOR_SPEED_MS``, one way each."""
-    if restart_gs is not None and restart_gs not in [chr(ord("A") + i) for i in range(1, stations)]:
-        from zdrone.core.errors import UsageError
-
-        raise UsageError(f"--restart-gs {restart_gs}: one of the GSs B..{chr(ord('A') + stations - 1)} (A flies the missions)")
     if corridor:
         return _run_corridor(ks or [10], station_counts or [stations], corridor, sites, speedup, drone_hosts,
                              hosts_nice, progress)
@@ -399,8 +388,7 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
             if sites:
                 status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {sp:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
-                                 inbox_senders=inbox_senders, speedup=sp, drone_hosts=drone_hosts, hosts_nice=hosts_nice,
-                                 restart_gs=restart_gs))
+                                 inbox_senders=inbox_senders, speedup=sp, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
                 if compare and not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
                     rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
@@ -408,7 +396,7 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
             else:
                 status.say(f"{k} drones x {stations} GSs flying (speed-up {sp:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=sp,
-                                 drone_hosts=drone_hosts, hosts_nice=hosts_nice, restart_gs=restart_gs))
+                                 drone_hosts=drone_hosts, hosts_nice=hosts_nice))
             for row in rows[at:]:
                 row["speedup"] = sp
     finally:
@@ -575,8 +563,6 @@ def main(argv: list[str] | None = None) -> int:
     hs.add_argument("--corridor-speed", type=float, default=CORRIDOR_SPEED_MS)
     hs.add_argument("--kill-owner", metavar="GS", help="kill this GS once it has owned a drone in the air --kill-after s")
     hs.add_argument("--kill-after", type=float, default=2.0)
-    hs.add_argument("--restart-gs", metavar="GS", help="this GS dies and starts again (pairing) --restart-after s after take-off")
-    hs.add_argument("--restart-after", type=float, default=3.0)
     for sp in (hd, hs):
         sp.add_argument("--latency", action="store_true",
                         help="note messages for one-way latency from the take-off on (bench overhead; zdrone.bench.latency)")

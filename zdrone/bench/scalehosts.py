@@ -385,45 +385,6 @@ def _host_drones(args: argparse.Namespace) -> int:
     return 0
 
 
-#: A restarted GS's re-linking is watched this long at most (``--restart-gs``).
-RELINK_WATCH_S = 60.0
-
-
-def restart_station(stations: list[Any], i: int, args: argparse.Namespace, router: str) -> threading.Thread:
-    """``--restart-gs``: GS ``stations[i]`` dies (``GroundStation.kill``) and a new one starts in its place
-    with no key, pairing by itself with every drone it serves (``--pair``); a thread notes when each drone
-    is linked again (the drone spoke under the new key) and writes ``restart.json``."""
-    from gs.station import GroundStation, StationOptions
-
-    old = stations[i]
-    old.kill()
-    t_kill, wall = time.monotonic(), time.time()
-    new = GroundStation(StationOptions(gs=old.name, fleet=args.fleet, router=router, pair=True, command_rate=1.0,
-                                       events=None))
-    stations[i] = new
-    started = time.monotonic()
-    thread = threading.Thread(target=new.run, daemon=True)
-    thread.start()
-    print(f"stations host: GS {old.name} restarted at {wall:.3f} ({started - t_kill:.2f} s to a new session)", flush=True)
-
-    def watch() -> None:
-        linked: dict[str, float] = {}
-        while time.monotonic() - t_kill < RELINK_WATCH_S and len(linked) < len(new.drones):
-            for d, v in list(new.core.sessions.items()):
-                if d not in linked and v.link is not None and v.link.opened > 0:
-                    linked[d] = round(time.monotonic() - t_kill, 3)
-            time.sleep(0.05)
-        times = sorted(linked.values())
-        Path(args.out, "restart.json").write_text(json.dumps({
-            "gs": old.name, "drones": len(new.drones), "relinked": len(linked), "session_s": round(started - t_kill, 3),
-            "all_relinked_s": times[-1] if len(times) == len(new.drones) else None,
-            "p50_s": times[len(times) // 2] if times else None, "pair_sent": new.counters["pair_sent"],
-            "pair_refused": new.counters["pair_refused"]}))
-
-    threading.Thread(target=watch, daemon=True).start()
-    return thread
-
-
 def corridor_eastbound(i: int) -> bool:
     """A corridor's drone ``d{i+1}`` flies east from A (even ``i``) or west from the last GS (odd)."""
     return i % 2 == 0
@@ -442,10 +403,7 @@ def _host_stations(args: argparse.Namespace) -> int:
 
     latency = LatencyLog() if args.latency else None  # ``bench overhead``: noted from the take-off on
 
-    took: list[float] = []
-
     def took_off(*_: Any) -> None:
-        took.append(time.monotonic())
         baseline.update({g: c.snapshot() for g, c in deliveries.items()})
         loops.mark()
         if latency is not None:
@@ -511,13 +469,8 @@ def _host_stations(args: argparse.Namespace) -> int:
     counted: tuple[dict[str, Any], dict[str, Any]] | None = None
     doomed = next((st for st in stations if st.name == args.kill_owner), None)
     owned_since: float | None = None
-    restart = args.restart_gs
     while not stop[0]:
         pause.wait(0.2)
-        if restart and took and time.monotonic() - took[0] >= args.restart_after:  # ``--restart-gs``
-            i = names.index(restart)
-            threads[i] = restart_station(stations, i, args, routers[i % len(routers)])
-            restart = None
         if doomed is not None:  # ``--kill-owner``: that GS dies once it has owned a drone in the air that long
             flying = [d for d, v in doomed.core.sessions.items() if v.owner == doomed.name and v.armed and not v.stale]
             owned_since = (owned_since or time.monotonic()) if flying else None
