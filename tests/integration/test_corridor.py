@@ -1,11 +1,14 @@
 """The corridor end to end: eight GSs along 16 km and one drone, as processes (``zdrone demo --scenario
-corridor | corridor-gs-down``: two site routers, the drones host, the stations host). What only the
-processes show: links following the drone over a real Zenoh mesh, the closing notices and both ends'
-wipes, an in-flight GS death. The rules themselves are tested in memory (tests/unit/test_corridor_core.py)."""
+corridor-gs-down``: two site routers, the drones host, the stations host). What only the processes show:
+links following the drone over a real Zenoh mesh (prepared, proven, closed), an in-flight GS death in a
+shared host. The whole out-and-back (14 hand-overs) flies in memory at speed-ups 4 and 8
+(tests/unit/test_corridor_core.py); as processes it takes 220 s of wall time at speed-up 8, more than
+this suite's budget allows (``zdrone demo --scenario corridor``, docs/results.md)."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 from pathlib import Path
 
@@ -29,6 +32,8 @@ def _fly(tmp_path: Path, scenario: str) -> tuple[subprocess.CompletedProcess, di
     return proc, summary, Path(summary["run"])
 
 
+@pytest.mark.skipif(os.environ.get("ZDRONE_CORRIDOR_FULL") != "1",
+                    reason="the full out-and-back: 220 s of wall time (ZDRONE_CORRIDOR_FULL=1 flies it)")
 def test_the_corridor_hands_over_14_times_with_at_most_three_links(tmp_path: Path) -> None:
     proc, s, run = _fly(tmp_path, "corridor")
     assert proc.returncode == 0 and s["ok"], (s, proc.stdout[-2000:])
@@ -50,3 +55,5 @@ def test_a_gs_dying_in_the_middle_hands_the_drone_to_a_covering_heir_or_lands_it
     owners = s["owners"]
     assert owners[:4] == list("ABCD") and "D" not in owners[4:]  # D never again
     assert s["links_max"] <= 3 and s["landed"]
+    # links followed the drone on the way: A's closed for room once B, C and D were wanted
+    assert s["links_closed"] >= 1

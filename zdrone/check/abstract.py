@@ -45,7 +45,7 @@ Invariants, checked after every move (a violation prints the shortest trace that
    healthy crossing (A -> overlap -> B with A's release) ends with B as owner;
 8. the epoch counts up: no move, a companion restart included, makes it go back;
 9. first claim: within its window after a restart on the ground, authority goes to the last owner only;
-10. closing a link (links that follow the drone: the drone closes one it may, the owner prepares it again)
+10. closing a link (links that follow the drone: the drone closes one it may, a pairing links it again)
     never removes the owner's, a pending recipient's or an heir's; a closed link carries nothing (its
     GS's frames are not forwarded: 2), and its GS is no heir until it links again (5).
 
@@ -217,12 +217,9 @@ class Explorer:
                 yield f"FAULT: {g}'s radio is cut", lambda x, g=g: self._cut(x, g, False)
             if not w.up[g]:
                 yield f"{g}'s radio comes back", lambda x, g=g: self._cut(x, g, True)
-        for g in AUTHORIZED:  # links that follow the drone (``zdrone.core.linkplan``)
-            if m.may_close(g):
+        for g in AUTHORIZED:  # links that follow the drone (``zdrone.core.linkplan``); a closed link comes
+            if m.may_close(g):  # back by a pairing ("A pairs", "B re-pairs" below)
                 yield f"the drone closes {g}'s link (left behind)", lambda x, g=g: self._close(x, g)
-            elif (g not in m.links and m.owner not in (None, g) and m.state is not State.FAILSAFE
-                  and w.hears(m.owner)):  # type: ignore[arg-type]
-                yield f"the owner prepares {g}'s link again", lambda x, g=g: self._prepare(x, g)
         if m.owner is not None and m.state is not State.FAILSAFE and w.hears(m.owner):
             other = "B" if m.owner == "A" else "A"
             yield f"{m.owner} (owner) releases to {other}", lambda x, o=m.owner, t=other: self._release(x, o, t)
@@ -407,13 +404,6 @@ class Explorer:
                           f"(drone inside {sorted(m.inside) or 'no coverage'}, {m.state.value})")
         w.drone_key.pop(g, None)
         w.gs_key_ok[g] = False
-
-    def _prepare(self, w: World, g: str) -> None:
-        """The owner shares ``g``'s key again (key sharing: ``g`` makes it, the owner grants it)."""
-        result, _ = w.m.grant(ha.GrantHeard(w.now, w.m.owner or "", g))
-        if isinstance(result, ha.GrantAccepted):
-            w.drone_key[g] = "own"
-            w.gs_key_ok[g] = True
 
     def _escrow(self, w: World, asker: str, g: str) -> None:
         """``asker`` asks ``g`` for ``g``'s own link key over the backhaul, then forges a frame under it to ``g``."""
