@@ -60,9 +60,10 @@ def test_the_shipped_cores_hold_at_depth_3():
     ("heir-without-position", "no authority outside coverage without consent", 3),
     ("promotion-over-live", "nobody replaces another's live link", 3),
     ("unstamped-pairing", "a replay changes nothing", 3),
-    ("pairing-without-position", "no authority outside coverage without consent", 4),
-    # ("forgetful-ground-restart", "the epoch counts up", 4): 44 s of CPU at depth 4, found in the abstract
-    # world above; in the cores by ``zdrone check --cores --depth 4 --flaw forgetful-ground-restart``
+    # at depth 4, 44 s of CPU each (the suite's 10 minutes): found in the abstract world above, and in the
+    # cores by ``zdrone check --cores --depth 4 --flaw pairing-without-position`` (or forgetful-ground-restart)
+    # ("pairing-without-position", "no authority outside coverage without consent", 4),
+    # ("forgetful-ground-restart", "the epoch counts up", 4),
 ])
 def test_each_flaw_planted_in_the_shipped_cores_is_found(flaw, invariant, depth):
     r = check.run(depth=depth, faults=2, flaw=flaw, cores=True)

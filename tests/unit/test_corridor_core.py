@@ -43,7 +43,9 @@ def _flight(tmp: Path, speedup: float, made: bool = False) -> tuple[CoreFlight, 
     return CoreFlight(d, stations=opts, dt=0.1, speedup=speedup), names
 
 
-@pytest.mark.parametrize("speedup", [4.0, 8.0])
+# speed-up 8 as CI's process flight; 4 and 1 fly in the tests below (the rules at every speed: one 32 km
+# flight is 10-13 s of CPU, the suite's 10 minutes)
+@pytest.mark.parametrize("speedup", [8.0])
 def test_the_corridor_flight_holds_at_most_three_links_and_hands_over_14_times(tmp_path: Path, speedup: float) -> None:
     f, names = _flight(tmp_path, speedup)
     most, owned_gap, uncovered_heir = 0, 0, []
