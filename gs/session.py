@@ -443,6 +443,11 @@ class DroneSession(DroneView):
     def _on_link_closed(self, msg: wire.LinkClosed, now: float) -> list[Action]:
         """The drone closed our link (it needed the room, or it left us behind while our radio still
         reached it): our end is wiped (``_wipe_link``)."""
+        if self.st.name in (self.owner, self.pending_to) or self.ha_state is HaState.FAILSAFE:
+            # the drone never closes its owner's, a pending recipient's or any link in its failsafe
+            # (``may_close``): such a notice was sealed by someone else holding the key (the GS that granted it)
+            self.st.counters["link_closed_refused"] += 1
+            return []
         self.st.counters["link_closed_by_drone"] += 1
         return self._wipe_link(msg.reason)
 

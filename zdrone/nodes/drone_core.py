@@ -219,8 +219,6 @@ class DroneCore(DroneRevisions):
             link.hybrid = payload is not None and is_hybrid(payload)
             if not self._slot(gs).offer(link, now, "pair", self.opts.pairing_ttl):  # (the responder refused it first)
                 ans = PairRefused(PairRefusal.DOWNGRADE, "the fleet requires the hybrid (ML-KEM-768) pairing")
-        if isinstance(ans, PairAccepted) and self._follows() and gs not in self.links:
-            out += self._make_room(gs, now)  # a covering GS's pairing: the link left behind longest goes
         if isinstance(ans, PairAccepted):
             self.probation[gs] = now + self.opts.pairing_ttl
             self.counters["pair_answered"] += 1
@@ -561,9 +559,21 @@ class DroneCore(DroneRevisions):
         """GS ``gs`` proved a candidate key with the frame just opened: it is now the live key."""
         slot = self.slots[gs]
         assert slot.live is not None
+        out: list[Out] = []
+        if promoted.origin == "pair" and self._follows() and gs not in self.links:
+            # a new link by the GS's own pairing counts once proven: room is made now (the link left behind
+            # longest goes), or, if none may go or the GS does not cover the drone, the key is dropped
+            refused = self._links_full(gs)
+            if refused is None:
+                out += self._make_room(gs, now)
+            if refused is not None or len(self.links) >= self.fleet.links_max:
+                self.slots.pop(gs, None)
+                self.probation.pop(gs, None)
+                self.counters["pair_refused:links_full"] += 1
+                return out + [Emit(rec.PairRefused(gs=gs, reason="links_full: proven with no room"))]
         self.links[gs] = slot.live
         self.probation.pop(gs, None)
-        out: list[Out] = [Emit(rec.LinkConfirmed(gs=gs, how=promoted.origin, replaced=promoted.replaced))]
+        out.append(Emit(rec.LinkConfirmed(gs=gs, how=promoted.origin, replaced=promoted.replaced)))
         log.info("link to %s: new key proven (%s)", gs, promoted.origin)
         if promoted.origin == "pair":
             self.rekey.discard(gs)  # a rotated GS's new key is live: the old one is gone with the slot's swap

@@ -106,7 +106,9 @@ class ChildProcesses:
 
     def shutdown(self, timeout: float = 10.0) -> dict[str, int | None]:
         """SIGTERM the nodes first (so they close their sessions while the router is still up), then
-        the simulator and the router; SIGKILL only what does not exit in time; return exit codes."""
+        the simulator and the router; SIGKILL only what does not exit in time, and a node the scenario
+        left stopped (hung to the end: woken, it would act on a view the run left long ago); return
+        exit codes."""
         codes: dict[str, int | None] = {}
         self._wait_restarted(timeout)
         nodes = [c for n, c in self.children.items() if n != "sim" and not n.startswith("router")]
@@ -115,8 +117,11 @@ class ChildProcesses:
             for child in reversed(group):
                 if child.proc.poll() is None:
                     try:
-                        os.kill(child.proc.pid, signal.SIGCONT)  # a stopped process cannot handle SIGTERM
-                        child.proc.terminate()
+                        if child.stopped:  # hung on purpose to the end: woken, it would act on a view the
+                            child.proc.kill()  # run left long ago (a stopped owner re-pairing a landed drone)
+                        else:
+                            os.kill(child.proc.pid, signal.SIGCONT)  # a stopped process cannot handle SIGTERM
+                            child.proc.terminate()
                     except ProcessLookupError:
                         pass
             deadline = time.monotonic() + timeout
