@@ -69,7 +69,7 @@ from zdrone.bench.table import ProgressLine
 from zdrone.bench.viewattack import (ATTACK_CLIENTS, ATTACK_RATE, ATTACK_WINDOW_S, QUICK_ATTACK_CLIENTS,
                                      QUICK_ATTACK_RATE, QUICK_ATTACK_WINDOW_S, _attack, render_attack)
 from zdrone.bench.viewflood import render_flood, run_flood
-from zdrone.bench.viewpage import CHROMIUM, STREAM_PROBE, Browser, _stats
+from zdrone.bench.viewpage import CHROMIUM, STREAM_PROBE, Browser, _stats, start_in_order
 
 GOAL_P95_MS = 250.0
 SPEEDUP = 4.0
@@ -243,7 +243,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
     from zdrone.bench.scale import READY_TIMEOUT_S, _wait_line, hold_limit
     from zdrone.fleet.files import init_fleet, scale_nodes
     from zdrone.sil.ports import free_port
-    from zdrone.sil.procs import spawn, stop_in_order
+    from zdrone.sil.procs import stop_in_order
 
     d = base / f"fleet-{k}"
     d.mkdir(parents=True, exist_ok=True)
@@ -267,10 +267,7 @@ def _fleet(browser: Browser, base: Path, k: int, window: float, from_take_off: b
     page = None
     out: dict[str, Any] = {"k": k, "g": STATIONS, "window_s": window, "runs": str(d)}
     try:
-        for name, cmd in cmds.items():
-            procs[name] = spawn(cmd, stdout=logs[name], stderr=subprocess.STDOUT)
-            if name in ready and _wait_line(d / f"{name}.log", ready[name], 30, procs[name]) is None:
-                raise RuntimeError(f"{name} did not start; see {d / f'{name}.log'}")
+        start_in_order(cmds, ready, d, logs, procs)
         page = browser.open(f"http://127.0.0.1:{port}", STREAM_PROBE)
         status.say(f"view: {k} drones x {STATIONS} GSs on the ground, pairing and sharing keys…")
         if _wait_line(d / "drones.log", "drones ready", READY_TIMEOUT_S, procs["drones"]) is None:

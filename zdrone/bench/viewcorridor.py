@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from zdrone.bench.table import ProgressLine
-from zdrone.bench.viewpage import STREAM_PROBE, Browser
+from zdrone.bench.viewpage import STREAM_PROBE, Browser, start_in_order
 
 #: What the page shows of the corridor now.
 READ_CORRIDOR = """() => {
@@ -38,7 +38,7 @@ def corridor_page(browser: Browser, base: Path, window: float, status: ProgressL
     from zdrone.bench.scale import READY_TIMEOUT_S, _wait_line
     from zdrone.fleet.files import corridor_layout, corridor_nodes, init_fleet
     from zdrone.sil.ports import free_port
-    from zdrone.sil.procs import spawn, stop_in_order
+    from zdrone.sil.procs import stop_in_order
 
     d = base / f"corridor-{k}x{g}"
     d.mkdir(parents=True, exist_ok=True)
@@ -58,10 +58,7 @@ def corridor_page(browser: Browser, base: Path, window: float, status: ProgressL
     out: dict[str, Any] = {"k": k, "g": g, "length_m": LENGTH_M, "window_s": window, "runs": str(d)}
     samples: list[dict[str, Any]] = []
     try:
-        for name, cmd in cmds.items():
-            procs[name] = spawn(cmd, stdout=logs[name], stderr=subprocess.STDOUT)
-            if name in ready and _wait_line(d / f"{name}.log", ready[name], 30, procs[name]) is None:
-                raise RuntimeError(f"{name} did not start; see {d / f'{name}.log'}")
+        start_in_order(cmds, ready, d, logs, procs)
         page = browser.open(f"http://127.0.0.1:{port}", STREAM_PROBE)
         status.say(f"view: corridor {k} drones x {g} GSs pairing…")
         if _wait_line(d / "drones.log", "take-off", READY_TIMEOUT_S + 120, procs["drones"]) is None:

@@ -40,6 +40,21 @@ window.__lastPicture = null;
 """
 
 
+def start_in_order(cmds: dict[str, list[str]], ready: dict[str, str], d: Path, logs: dict[str, Any],
+                   procs: dict[str, Any]) -> None:
+    """Start each command of ``cmds`` in order (its output in ``logs[name]``, ``d/<name>.log``), waiting
+    for the line ``ready`` names for it, if any (``RuntimeError`` if it never comes)."""
+    import subprocess
+
+    from zdrone.bench.scale import _wait_line
+    from zdrone.sil.procs import spawn
+
+    for name, cmd in cmds.items():
+        procs[name] = spawn(cmd, stdout=logs[name], stderr=subprocess.STDOUT)
+        if name in ready and _wait_line(d / f"{name}.log", ready[name], 30, procs[name]) is None:
+            raise RuntimeError(f"{name} did not start; see {d / f'{name}.log'}")
+
+
 def _stats(values: list[float], scale: float = 1.0, digits: int = 1) -> dict[str, float | None]:
     s = sorted(values)
     if not s:
