@@ -232,6 +232,18 @@ class Mission(Machine):
         assert now is not None, "a mission's move names its time (the stage's clock starts then)"
         self.stage, self.stage_time = new, now
 
+    def check_route(self, fleet: Any, drone: str) -> None:
+        """The route against the coverages of the GSs authorized for ``drone`` in ``fleet``
+        (``zdrone.core.routecheck``): one that leaves them, or crosses between two without an overlap long
+        enough for a hand-over at its cruise speed, is refused before upload (``route_problem``)."""
+        if self.plan is None:
+            return
+        from zdrone.core.reference import CRUISE_SPEED_MS
+        from zdrone.core.routecheck import check_mission
+
+        report = check_mission(self.plan, fleet, drone, None, CRUISE_SPEED_MS)
+        self.route_problem = None if report.ok else report.problem.describe()  # type: ignore[union-attr]
+
     def deadline(self, now: float, v: VehicleFacts) -> float | None:
         """When, after ``now``, a ``FlightTick`` next matters if no input comes (None: only an input
         moves the mission now)."""

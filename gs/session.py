@@ -13,7 +13,8 @@ authority status last said) plus the sub-machines that act on it, each a table:
   ``KeyShareAsk`` at a time; its authentic reply becomes a ``KEY_GRANT`` re-sent until the drone
   acknowledges it). A reply proving the drone's static key installs the new link (our own fresh key:
   live at once, the old one readable for a grace period) and a HEARTBEAT goes out under it, the proof
-  the drone waits for.
+  the drone waits for. Links that follow the drone (what we prepare, when we pair, a link the drone
+  closed): ``gs.linkfollow``.
 * **Hand-over** (``gs.handover.Handover``, the release in the drone's epoch, and ``release_due`` here,
   the decision): while we hold authority and the vehicle is inside our and another authorized GS's
   coverage, nearer to the other's centre by the hysteresis, we release authority (``HANDOVER_RELEASE``,
@@ -54,8 +55,7 @@ from zdrone.core.fleet import Fleet
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.core.keys import Identity, LinkKey
 from zdrone.core.kk import is_hybrid
-from zdrone.core.linkplan import GRACE_S, plan_links
-from zdrone.core.linkslot import PREVIOUS_GRACE, LinkSlot
+from zdrone.core.linkslot import PREVIOUS_GRACE
 from zdrone.core.mavcontrol import OperatorControlRequest
 from zdrone.core.mavlink import read_header
 from zdrone.fleet import keyexprs
@@ -69,21 +69,13 @@ from gs.context import (DEADLINE_SLACK_S, HANDOVER_RETRY_S, KEY_COMING_S, KEY_WA
 from gs.droneview import DroneView
 from gs.handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 from gs.keyhold import HoldStep, KeyHold, KeyMissing, KeyThere, ModeAck
+from gs.linkfollow import PAIR_ON_DEMAND_S, WIPE_SILENT_S, LinkFollow
 from gs.linking import PAIR_TIMEOUT, RETRY_S, UNANSWERED_RETRY_S, Context, Linking, PairDue, Reply
 
 #: A silent drone's re-pairing (``tick``) is tried every ``SILENT_RETRY_S`` but waits this long for its
-#: answer: a loaded companion that answers in 0.3 s was asked again at 0.2 s, every reply came late and
-#: each new question cost it another handshake (K = 300: 8-12 answers per drone on the ground). A query
-#: no drone's queryable took ends at once (``Linking.pair_unanswered``): a restarted companion is still
-#: asked again as soon as before.
+#: answer: a loaded companion answering in 0.3 s, asked again at 0.2 s, paid a handshake per question (K =
+#: 300: 8-12 per drone); a query no queryable took ends at once (``Linking.pair_unanswered``).
 SILENT_PAIR_TIMEOUT_S = 1.0
-#: An operator's request for control of a drone we hold no link with starts pairing for this long (the
-#: application repeats its request meanwhile: answered TEMPORARILY_REJECTED until the link is made).
-PAIR_ON_DEMAND_S = 10.0
-#: A link whose drone's links follow it, silent this long while the drone is not ours, is closed on the
-#: drone's end (``linkplan.GRACE_S`` after it left our coverage): we wipe ours (the drone's notice, sent
-#: out of our radio's reach, rarely gets here).
-WIPE_SILENT_S = GRACE_S + 15.0
 from gs.mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from gs.opcontrol import Answer, OperatorControl, Step
 from gs.ownership import owns
@@ -102,7 +94,7 @@ def _due(last: float | None, now: float, period: float) -> bool:
     return last is None or now - last >= period
 
 
-class DroneSession(DroneView):
+class DroneSession(LinkFollow, DroneView):
     """Everything this GS does for one drone (see the module docstring)."""
 
     def __init__(self, st: StationContext, name: str, sysid: int, grant_ids: "itertools.count[int]",
@@ -286,17 +278,8 @@ class DroneSession(DroneView):
         return [Put(self.name, self.link.seal_control(msg))]
 
     def check_route(self) -> None:
-        """The mission's route against the coverages of the GSs authorized for this drone in the fleet in
-        force (``zdrone.core.routecheck``): a route that leaves them, or crosses between two without an
-        overlap long enough for a hand-over at its cruise speed, is refused before upload."""
-        plan = self.mission.plan
-        if plan is None:
-            return
-        from zdrone.core.reference import CRUISE_SPEED_MS
-        from zdrone.core.routecheck import check_mission
-
-        report = check_mission(plan, self.st.fleet, self.name, None, CRUISE_SPEED_MS)
-        self.mission.route_problem = None if report.ok else report.problem.describe()  # type: ignore[union-attr]
+        """The mission's route against the fleet in force (``Mission.check_route``), refused before upload."""
+        self.mission.check_route(self.st.fleet, self.name)
 
     def heartbeat(self) -> list[Action]:
         return self.send_msg(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -417,63 +400,6 @@ class DroneSession(DroneView):
             yield self.last_command + 1.0 / self.st.opts.command_rate
 
     # ------------------------------------------------------------------ linking
-    def _pairs(self, now: float) -> bool:
-        """Whether we pair with the drone while we hold no link: the station pairs (``--pair``) and the
-        drone never closed our link (its links follow it: the owner prepares ours), or our operator asked
-        for control within ``PAIR_ON_DEMAND_S``."""
-        if self.pair_on_demand_until is not None and now >= self.pair_on_demand_until:
-            self.pair_on_demand_until = None
-        pairs = self.st.opts.pair and (self.st.opts.pair_drones is None or self.name in self.st.opts.pair_drones)
-        return pairs and not self.closed_by_drone or self.pair_on_demand_until is not None
-
-    def links_wanted(self) -> set[str] | None:
-        """As the owner, the GSs whose links we prepare for the drone (``zdrone.core.linkplan``): those
-        covering it and the next on its course, by its own reports; None: every authorized GS (its
-        links do not follow it)."""
-        fleet = self.st.fleet
-        if not fleet.links_follow(self.name):
-            return None
-        if self.position is None:
-            return set()  # where the drone is, it has not said yet: nothing to prepare
-        circles = {g: n.coverage.circle() for g, n in fleet.nodes.items() if n.role == "gs" and n.coverage is not None}
-        plan = plan_links(self.st.name, self.linking.others(), circles, self.position, self.fix.course,
-                          fleet.links_max)
-        return set(plan.wanted) - {self.st.name}
-
-    def _on_link_closed(self, msg: wire.LinkClosed, now: float) -> list[Action]:
-        """The drone closed our link (it needed the room, or it left us behind while our radio still
-        reached it): our end is wiped (``_wipe_link``)."""
-        if self.st.name in (self.owner, self.pending_to) or self.ha_state is HaState.FAILSAFE:
-            # the drone never closes its owner's, a pending recipient's or any link in its failsafe
-            # (``may_close``): such a notice was sealed by someone else holding the key (the GS that granted it)
-            self.st.counters["link_closed_refused"] += 1
-            return []
-        self.st.counters["link_closed_by_drone"] += 1
-        return self._wipe_link(msg.reason)
-
-    def _left_behind(self, now: float) -> bool:
-        """The drone's links follow it and ours has been silent ``WIPE_SILENT_S``, with the drone not ours
-        nor in its failsafe by its last word: it has closed its end (``linkplan.GRACE_S`` after it left our
-        coverage, which is when our radio lost it), and its notice could not reach us."""
-        link = self.link
-        return (link is not None and self.st.fleet.links_follow(self.name) and self.owner != self.st.name
-                and self.ha_state is not HaState.FAILSAFE and link.tbm.last_seen is not None
-                and link.tbm.since_last(now) >= WIPE_SILENT_S)
-
-    def _wipe_link(self, reason: str) -> list[Action]:
-        """Our end of a link the drone closed: the key wiped (live, the one replaced, a fallback; a candidate
-        we made since for the owner's grant stays, to be proven when the drone comes back), the heartbeats stopped (they need a link), and no pairing of our own again (the owner prepares our link
-        when the drone comes our way; our operator may still ask for control)."""
-        fresh = self.slot.candidates  # keys made since for the owner's grant (the drone coming back our way)
-        self.slot = LinkSlot(hybrid_only=self.st.fleet.pairing_pq)
-        self.slot.candidates = fresh
-        self.link = None
-        self.switching = False
-        self.closed_by_drone = True
-        self.st.counters["link_wiped"] += 1
-        log.info("link to %s closed (%s): key wiped", self.name, reason)
-        return [Emit(rec.GsLinkClosed(drone=self.name, reason=reason[:120]))]
-
     def _try_pair(self, now: float, stamp: float, retry: float = RETRY_S, timeout: float = PAIR_TIMEOUT,
                   unanswered: float | None = None) -> list[Action]:
         """Pair (``gs.linking``) unless an exchange is open or the last try was less than ``retry`` ago

@@ -22,7 +22,7 @@ from zdrone.core.linkplan import LinkGrace, plan_links
 from zdrone.core.geometry import Circle, offset
 from zdrone.core.reference import HOME
 from zdrone.fleet.files import corridor_layout, corridor_nodes, init_fleet
-from gs.session import WIPE_SILENT_S
+from gs.linkfollow import WIPE_SILENT_S
 from tests.coreflight import CoreFlight
 
 GSS = 8
