@@ -25,8 +25,10 @@ def run_demo(tmp_path: Path, scenario: str, report: bool = False, autopilot: str
     proc = subprocess.run([ZDRONE, "demo", "--scenario", scenario, "--speedup", SPEEDUP, "--out", str(out), "--no-live",
                            "--autopilot", autopilot, *extra] + ([] if report else ["--no-report"]),
                           capture_output=True, text=True, timeout=240)
-    summary = json.loads((out / "summary.json").read_text())
     assert "Traceback" not in proc.stderr, proc.stderr
+    assert (out / "summary.json").exists(), (f"no summary (exit {proc.returncode}): {proc.stderr[-2000:]}\n"
+                                             f"{proc.stdout[-1500:]}")
+    summary = json.loads((out / "summary.json").read_text())
     summary |= {"_rc": proc.returncode, "_stdout": proc.stdout[-2000:], "_stderr": proc.stderr[-2000:]}
     if not summary["ok"]:
         for log in sorted(out.glob("*.log")):  # show what each process said, to diagnose
