@@ -33,7 +33,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Any
 
-from zdrone.core import bundle
+from zdrone.core import bundle, keyslost
 from zdrone.core import wire
 from zdrone.core.authority import State as HaState
 from zdrone.core.fleet import Fleet
@@ -311,6 +311,24 @@ class StationCore:
             self.counters["linkkey_reply:unknown_drone"] += 1
             return []
         return session.on_linkkey_reply(gs, ok, err, now)
+
+    def on_keys_lost(self, data: bytes, now: float, wall: float) -> None:
+        """Another GS's keys-lost notice (``zdrone.core.keyslost``), heard on its revision key: signed by
+        it (fleet in force) and fresh by our time of day ``wall``, it has every drone we share with it
+        share its key again (``Linking.peer_keys_lost``); otherwise counted and dropped."""
+        notice = keyslost.check_notice(data, self.fleet)
+        if notice is None:
+            self.counters["keys_lost_refused:signature"] += 1
+            return
+        if notice.gs == self.name:
+            return  # our own, heard back
+        late = keyslost.fresh(notice, wall)
+        if late is not None:
+            self.counters[f"keys_lost_refused:{late.reason}"] += 1
+            return
+        self.counters["keys_lost_heard"] += 1
+        for session in self.sessions.values():
+            session.linking.peer_keys_lost(notice.gs, data, notice.since, now)
 
     # ----------------------------------------------------------------- receiving
     def on_bundle(self, drone: str, data: bytes, now: float) -> list[Action]:

@@ -31,7 +31,9 @@ hold its key already, ``drone_links``), ``ASKED`` (a query is out; a "live link"
 after ``LIVE_LINK_RETRY_S``, a query with no answer again after its deadline), ``GRANTING`` (the
 reply's key is granted to the drone, re-sent each second) and ``GRANTED`` (the drone acknowledged
 it). Events: ``ShareDue`` (the core's timer, while we hold authority), ``Reply``, ``GrantAcked``
-and ``KeysLost`` (the drone restarted: every key we shared for it is gone). When the drone's links
+``KeysLost`` (the drone restarted: every key we shared for it is gone) and ``PeerKeysLost`` (the other
+GS restarted: its signed notice, ``zdrone.core.keyslost``; its share goes back to ``NONE`` once per
+start and is asked again even though the drone still lists it, the grant carrying the notice). When the drone's links
 follow it (``zdrone.core.linkplan``), only the GSs the owner's plan wants are asked, and a ``GRANTED``
 key the drone's status has stopped listing (it closed that link) goes back to ``NONE`` at the next
 ``ShareDue``, to be asked again when wanted. One new query per
@@ -170,6 +172,16 @@ class KeysLost:
 
 
 @dataclass(frozen=True, slots=True)
+class PeerKeysLost:
+    """GS ``gs`` restarted: its signed notice (``zdrone.core.keyslost``, checked by the caller) says it
+    holds no key made before ``since``. ``notice``: its bytes, carried in the grant to the drone."""
+
+    now: float
+    notice: bytes
+    since: float
+
+
+@dataclass(frozen=True, slots=True)
 class PairProven:
     """A pairing reply proved the drone's static key: ``key`` is our new link key."""
 
@@ -197,6 +209,8 @@ class Share:
     live_refused: float | None = None  # its last "live link" refusal
     hybrid: bool = False  # the open exchange (and the key it gave) is hybrid
     granted_at: float | None = None  # the drone acknowledged our grant then
+    lost: bytes | None = None  # its newest keys-lost notice, until the drone took a key granted with it
+    lost_since: float | None = None  # the start that notice speaks of (each start resets the share once)
 
 
 @dataclass
@@ -379,6 +393,12 @@ class Linking(Machine):
             self._share(g, KeysLost(now))
         self.drone_links = {self.ctx.gs}
 
+    def peer_keys_lost(self, g: str, notice: bytes, since: float, now: float) -> None:
+        """GS ``g`` (authorized for the drone) restarted holding none of its keys made before ``since``
+        (its checked notice): its key is shared again, once per start, the notice going with the grant."""
+        if g in self.others():
+            self._share(g, PeerKeysLost(now, notice, since))
+
     def others(self) -> list[str]:
         """The other GSs authorized for the drone, in the fleet as it is now (a revision may change it)."""
         c = self.ctx
@@ -435,7 +455,7 @@ class Linking(Machine):
 
     def _ask(self, g: str, ev: ShareDue) -> list[Action]:
         s, c = self.shares[g], self.ctx
-        if g in self.drone_links:
+        if g in self.drone_links and s.lost is None:  # the drone holds its key (unless the GS lost it)
             return []
         if s.ask_again is None and not _due(s.last_try, ev.now, RETRY_S):
             return []
@@ -505,7 +525,7 @@ class Linking(Machine):
             c.counters["linkkey_reply_refused:classical"] += 1
             self._set_state(SharePhase.NONE, "classical reply after hybrid required", key=g)
             return []
-        s.grant = wire.KeyGrant(g, c.fleet.nodes[g].sysid, secret, next(c.grant_ids))
+        s.grant = wire.KeyGrant(g, c.fleet.nodes[g].sysid, secret, next(c.grant_ids), lost=s.lost or b"")
         self.grant_sent = None
         self._set_state(SharePhase.GRANTING, "reply", key=g)
         return [Emit(rec.LinkkeyReceived(drone=c.drone, gs=g))]
@@ -528,13 +548,30 @@ class Linking(Machine):
         assert s.grant is not None
         if s.grant.grant_id != ev.grant_id:
             return []
-        s.grant, s.granted_at = None, ev.now
+        s.grant, s.granted_at, s.lost = None, ev.now, None
         self._set_state(SharePhase.GRANTED, "acknowledged", key=g)
         return [Emit(rec.KeyGranted(drone=self.ctx.drone, gs=g))]
 
     def _forget(self, g: str, ev: KeysLost) -> list[Action]:
-        self.shares[g].grant = None
+        s = self.shares[g]
+        s.grant, s.lost = None, None  # the drone restarted: it holds no key of ``g`` to replace
         self._set_state(SharePhase.NONE, "keys lost", key=g)
+        return []
+
+    def _peer_lost(self, g: str, ev: PeerKeysLost) -> list[Action]:
+        """``g`` restarted: the key the drone holds (or is being granted) is one it lost. A notice of a
+        start already acted on only refreshes the notice the grant will carry."""
+        s, c = self.shares[g], self.ctx
+        if s.lost_since is not None and ev.since <= s.lost_since:
+            if s.lost is not None and ev.since == s.lost_since:
+                s.lost = ev.notice  # a fresher copy of the notice for the grant still to come
+            return []
+        s.lost, s.lost_since = ev.notice, ev.since
+        if s.phase in (SharePhase.NONE, SharePhase.ASKED):
+            return []  # NONE: asked at the next share, past ``drone_links``; ASKED: the query stands or times out
+        s.grant, s.last_try = None, None
+        c.counters["linkkey_peer_restarted"] += 1
+        self._set_state(SharePhase.NONE, f"{g} restarted", key=g)
         return []
 
     # ------------------------------------------------------------------ engine
@@ -652,5 +689,9 @@ SHARE_TABLE: Table[SharePhase] = {
     (S.GRANTING, KeysLost): (Linking._forget, frozenset({S.NONE})),
     (S.GRANTED, KeysLost): (Linking._forget, frozenset({S.NONE})),
     (S.GRANTED, ShareDue): (Linking._granted_due, frozenset({S.NONE, S.ASKED})),
+    (S.NONE, PeerKeysLost): (Linking._peer_lost, frozenset({S.NONE})),
+    (S.ASKED, PeerKeysLost): (Linking._peer_lost, frozenset({S.ASKED})),
+    (S.GRANTING, PeerKeysLost): (Linking._peer_lost, frozenset({S.GRANTING, S.NONE})),
+    (S.GRANTED, PeerKeysLost): (Linking._peer_lost, frozenset({S.GRANTED, S.NONE})),
 }
 # Not listed: ShareDue while GRANTING (the grant is re-sent by share_keys), an acknowledgement of no grant of ours, KeysLost while NONE or ASKED (the query stands).

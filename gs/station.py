@@ -32,6 +32,7 @@ from typing import Any, Callable
 
 import zenoh
 
+from zdrone.core import keyslost
 from zdrone.core import records as rec
 from zdrone.core.audit import Witnessing
 from zdrone.core import wire
@@ -120,6 +121,7 @@ class GroundStation:
 
     def __init__(self, opts: StationOptions) -> None:
         self.opts = opts
+        self.started_wall = time.time()  # no link key of ours is older: our keys-lost notice's ``since``
         self.rt = NodeRuntime(opts.fleet, opts.gs, "gs", opts.router, opts.events)
         self.fleet, self.secret, self.events, self.rx = self.rt.fleet, self.rt.secret, self.rt.events, self.rt.inbox
         self.name = opts.gs
@@ -150,7 +152,7 @@ class GroundStation:
         self._linkkey_backlog = False  # the last turn left key-sharing queries in the ring (``_serve_linkkeys``)
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True,
                                                   signing=lambda: self.secret.signing, wall=time.time,
-                                                  drones=self._vouched)
+                                                  drones=self._vouched, notice=self._keys_lost_notice)
         # the operations picture for the fleet's viewer (``zdrone view``), if the fleet has one
         self.ops = OpsPublisher.for_station(self.name, self.fleet, self.secret.identity, self.core, self.rt.put)
         self._handlers: Handlers = {Put: self._put, FrameUp: self._frame_up, Ask: self._ask, Emit: self._emit,
@@ -249,6 +251,9 @@ class GroundStation:
         it (``StationCore.adopt_identity``); if it rotated ours or the viewer's, the operations picture
         is sealed under the new keys."""
         got = self.revision.on_inbox(kind, data)
+        notice = self.revision.take_notice()
+        if notice is not None:  # another GS restarted: the drones we own share its key again
+            self.core.on_keys_lost(notice, now, time.time())
         if isinstance(got, revisions.RevisionAccepted):
             self.fleet = self.core.fleet = got.fleet
             mine, held = got.fleet.nodes[self.name], self.secret
@@ -259,6 +264,14 @@ class GroundStation:
                 audit_on_revision(self.events, self.witnessing, self.fleet, self.name, self.audit_key, None)
             if self.ops is not None and self.ops.reseal(got.fleet, self.core.identity):
                 log.warning("operations picture sealed anew (a key rotated: ours or the viewer's)")
+
+    def _keys_lost_notice(self) -> bytes | None:
+        """Our keys-lost notice while we publish one (``keyslost.NOTICE_FOR_S`` after our start): we keep
+        no link key across a restart, so every drone's owner shares our key again."""
+        wall = time.time()
+        if self.secret.signing is None or wall - self.started_wall > keyslost.NOTICE_FOR_S:
+            return None
+        return keyslost.make_notice(self.name, self.started_wall, wall, self.secret.signing)
 
     def _adopt_own_key(self, now: float) -> None:
         from zdrone.fleet.files import load_secret

@@ -7,7 +7,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gs.actions import Ask, AskKind, Emit
-from gs.linking import (PAIR_TABLE, SHARE_TABLE, Context, GrantAcked, KeysLost, Linking, PairDue, PairPhase, Reply,
+from gs.linking import (PAIR_TABLE, SHARE_TABLE, Context, GrantAcked, KeysLost, Linking, PeerKeysLost, PairDue, PairPhase, Reply,
                         Share, ShareDue, SharePhase)
 from zdrone.core import wire
 from zdrone.core.keyshare import KeyShareAsk
@@ -51,7 +51,8 @@ NOW = st.floats(0, 10)
 PAIR_EVENTS = st.one_of(st.builds(PairDue, NOW, NOW, st.sampled_from([0.0, 0.2, 2.0]), st.sampled_from([0.2, 3.0])),
                         st.builds(Reply, NOW, REPLIES, ERRORS))
 SHARE_EVENTS = st.one_of(st.builds(ShareDue, NOW, NOW), st.builds(Reply, NOW, REPLIES, ERRORS),
-                         st.builds(GrantAcked, NOW, st.sampled_from([7, 8])), st.builds(KeysLost, NOW))
+                         st.builds(GrantAcked, NOW, st.sampled_from([7, 8])), st.builds(KeysLost, NOW),
+                         st.builds(PeerKeysLost, NOW, st.just(b"notice"), st.sampled_from([0.0, 5.0])))
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -86,6 +87,9 @@ def test_key_sharing_follows_its_table(fleet_dir, phase, ev, linked):
         out = lk.on_share_reply("B", ev.ok, ev.err, ev.now)
     elif isinstance(ev, GrantAcked):
         out = lk.on_grant_ack("B", ev.grant_id, ev.now)
+    elif isinstance(ev, PeerKeysLost):
+        lk.peer_keys_lost("B", ev.notice, ev.since, ev.now)
+        out = []
     else:
         lk.keys_lost(ev.now)
         out = []

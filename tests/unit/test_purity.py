@@ -13,7 +13,7 @@ CORE = Path(zdrone.core.__file__).parent
 GS_PURE = [*(Path(gs.__file__).parent / f for f in ("core.py", "session.py", "droneview.py", "planner.py", "actions.py", "handover.py", "mission.py",
                                                     "linking.py", "keyhold.py", "ownership.py", "opcontrol.py")),
            # and the drone's protocol core: its outputs and its part in the fleet's revisions too
-           *(CORE.parent / "nodes" / f for f in ("drone_core.py", "drone_actions.py", "drone_revisions.py"))]
+           *(CORE.parent / "nodes" / f for f in ("drone_core.py", "drone_actions.py", "drone_revisions.py", "drone_links.py"))]
 FORBIDDEN = {"zenoh", "socket", "threading", "asyncio", "time", "subprocess", "multiprocessing", "select",
              "selectors", "datetime"}
 

@@ -268,6 +268,7 @@ class SecureLink:
         self._rx_previous: _RxEpoch | None = None
         self._rx_next: _RxEpoch | None = None  # the peer's next epoch, derived once (see ``_rx_for``)
         self.tbm = TimeBetweenMessages(now, thresholds)
+        self.made = now  # when this end made the link (the caller's clock): a keys-lost notice's ``since`` is compared
         self.sent = 0
         self.opened = 0
         self.missing = 0  # authentic frames the peer sent that never came (counters skipped, not filled later)

@@ -38,6 +38,8 @@ class KeyGrant(Control, frozen=True, tag="key_grant"):
     sysid: int
     secret: bytes
     grant_id: int
+    #: GS ``gs``'s signed keys-lost notice (``zdrone.core.keyslost``): the key may replace its live one
+    lost: bytes = b""
 
 
 class KeyGrantAck(Control, frozen=True, tag="key_grant_ack"):

@@ -43,6 +43,10 @@ is renewed only by a stamp naming the drone from a GS authorized for it other th
 (``zdrone.core.lease``). The channel hands its node the last stamp *published* on a GS's own key
 (``take_stamp``); a query's reply comes labelled ``fleet``, not by its sender, so a stamp in one is
 dropped. The node's core checks it.
+
+A GS also puts its signed **keys-lost notice** on its own key for ``keyslost.NOTICE_FOR_S`` after it
+starts, every ``NOTICE_PERIOD_S`` (``zdrone.core.keyslost``): the channel hands a notice heard to its
+node (``take_notice``; a GS's core checks it, a drone ignores it) and keeps no revision from it.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from zdrone.core import keyslost
 from zdrone.core import records as rec
 from zdrone.core.fleet import Fleet
 from zdrone.core.revision import (Revision, RevisionAccepted, RevisionRefusal, RevisionRefused, RevisionResult,
@@ -77,6 +82,8 @@ PUSH_PERIOD_S = 10.0
 #: A GS pushes its signed stamp this often (with the revision when that is due, else alone: ~100 B):
 #: a drone's owner lease is renewed by the stamps of the other GSs (``Fleet.revision_lease``)
 STAMP_PERIOD_S = 5.0
+#: A GS puts its keys-lost notice this often while it publishes one (``zdrone.core.keyslost``)
+NOTICE_PERIOD_S = 2.5
 #: A GS's revision puts are this far apart at least: two of the router's intervals on its key
 #: (``REVISION_MAX_HZ``), so that a router that stalls and processes two back to back drops neither.
 PUSH_GAP_S = 2.0 / REVISION_MAX_HZ
@@ -150,11 +157,16 @@ class RevisionChannel:
 
     def __init__(self, rt: Any, fleet_dir: str | Path, publisher: bool, write_applied: bool = False,
                  in_reach: Callable[[], bool] | None = None, signing: Callable[[], SigningKey | None] | None = None,
-                 wall: Callable[[], float] | None = None, drones: Callable[[], Sequence[str]] | None = None) -> None:
+                 wall: Callable[[], float] | None = None, drones: Callable[[], Sequence[str]] | None = None,
+                 notice: Callable[[], bytes | None] | None = None) -> None:
         """``signing``: the GS's signing key in force (its pushes carry a stamp signed with it);
         ``wall``: the time of day (the stamp's); ``drones``: the drones its stamp names (those it is
-        authorized for in the revision it holds; None: none)."""
+        authorized for in the revision it holds; None: none); ``notice``: the GS's keys-lost notice to
+        put now, if any (``zdrone.core.keyslost``: for a while after its start)."""
         self.rt = rt
+        self.notice = notice
+        self.heard_notice: bytes | None = None  # the last keys-lost notice heard (``take_notice``)
+        self._next_notice = 0.0
         self.signing, self.wall, self.drones = signing, wall, drones
         self.stamp: bytes | None = None  # the stamp of the last push heard (``take_stamp``)
         self.keeper = RevisionKeeper(fleet_dir, rt.name)
@@ -177,6 +189,10 @@ class RevisionChannel:
                 self.keeper.counters["reply_error"] += 1
                 return RevisionRefused(RevisionRefusal.MALFORMED)
             data = ok
+        if kind == PUBLISHED and keyslost.is_notice(data):  # a GS's keys-lost notice: for its node's core
+            self.heard_notice = data
+            self.keeper.counters["keys_lost_notice"] += 1
+            return RevisionRefused(RevisionRefusal.REPLAYED, self.keeper.number)  # the revision held is unchanged
         if data is not None:
             stamp, data = split_push(data)
             self.stamp = stamp if kind == PUBLISHED else None  # a reply is labelled "fleet": its stamp is no one's
@@ -212,6 +228,14 @@ class RevisionChannel:
             self.rt.ask(keyexprs.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
         if self.own is None or now < self._last_push + PUSH_GAP_S:
             return
+        if self.notice is not None and now >= self._next_notice:
+            self._next_notice = now + NOTICE_PERIOD_S
+            notice = self.notice()
+            if notice is not None:
+                self._last_push = now
+                self.keeper.counters["keys_lost_published"] += 1
+                self.rt.put(self.own, notice)
+                return
         key = self.signing() if self.signing is not None else None
         stamping = key is not None and self.wall is not None
         full = self.keeper.data is not None and now >= self._next_push
@@ -228,6 +252,11 @@ class RevisionChannel:
                 self.keeper.counters["stamped"] += 1
             if data is not None:
                 self.rt.put(self.own, data)
+
+    def take_notice(self) -> bytes | None:
+        """The keys-lost notice last handed to ``on_inbox`` (once)."""
+        notice, self.heard_notice = self.heard_notice, None
+        return notice
 
     def take_stamp(self) -> bytes | None:
         """The stamp of the push last handed to ``on_inbox`` (once)."""

@@ -63,6 +63,7 @@ from zdrone.core.uplink import UplinkClass
 from zdrone.core.wire import KeyGrant, KeyGrantAck
 from zdrone.fleet import keyexprs
 from zdrone.nodes.drone_actions import CommandVehicle, Countersign, Listen, Out, Persist, ToVehicle
+from zdrone.nodes.drone_links import DroneLinks
 from zdrone.nodes.drone_revisions import DroneRevisions
 
 log = logging.getLogger(__name__)
@@ -121,7 +122,7 @@ class _Batch:
         self.size = 1  # the batch's prefix, then each item and its length
 
 
-class DroneCore(DroneRevisions):
+class DroneCore(DroneRevisions, DroneLinks):
     """The companion of drone ``name``: feed it inputs, carry out what they return."""
 
     def __init__(self, fleet: Fleet, name: str, identity: Identity, opts: DroneCoreOptions = DroneCoreOptions(),
@@ -524,6 +525,7 @@ class DroneCore(DroneRevisions):
         known = [] if slot is None else [slot.live] * (slot.live is not None) + [c.link for c in slot.candidates]
         if any(link.key.same_as(key) for link in known):
             return self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)  # a repeated grant
+        replace = slot is not None and slot.live is not None and self._lost_notice_holds(msg, slot.live, now)
         out: list[Out] = []
         if self._follows() and msg.gs not in self.links and self.machine.grant_rejection(sender, msg.gs) is None:
             out += self._make_room(msg.gs, now)  # the link left behind longest goes, if one may
@@ -533,13 +535,17 @@ class DroneCore(DroneRevisions):
                                                                f"{len(self.links)} links and none may close"), now)
         result, actions = self.machine.grant(ha.GrantHeard(now, sender, msg.gs))
         if isinstance(result, ha.GrantAccepted):
-            out += self._install(result.gs, key, now, hybrid=carrier is not None and carrier.hybrid)
+            if replace:  # the GS restarted (its own signed word): its old key goes, the granted one is live
+                self._wipe_key(result.gs)
+                self.counters["keys_lost_replaced"] += 1
+            out += self._install(result.gs, key, now, hybrid=carrier is not None and carrier.hybrid,
+                                 how="grant:keys_lost" if replace else "grant")
         out += self._apply(actions, now)  # a rejection's Reject is among them
         if isinstance(result, ha.GrantAccepted):
             out += self._control(sender, KeyGrantAck(msg.gs, msg.grant_id), now)
         return out
 
-    def _install(self, gs: str, key: LinkKey, now: float, hybrid: bool = False) -> list[Out]:
+    def _install(self, gs: str, key: LinkKey, now: float, hybrid: bool = False, how: str = "grant") -> list[Out]:
         """A key granted by the authority: live at once if the link has none, else a candidate that
         GS ``gs`` must prove (and only once its live link is LOST: ``linkslot``). The drone then
         speaks under a new live key once, so the GS can confirm it too."""
@@ -549,7 +555,7 @@ class DroneCore(DroneRevisions):
         if slot.live is None:
             slot.install(link, now)
             self.links[gs] = link
-            return [Emit(rec.LinkInstalled(gs=gs, how="grant")), *self._control(gs, self.machine.status(), now)]
+            return [Emit(rec.LinkInstalled(gs=gs, how=how)), *self._control(gs, self.machine.status(), now)]
         if not slot.offer(link, now, "grant"):
             self.counters["classical_refused:grant"] += 1  # not reached: ``_on_grant`` refuses it first
             return []
@@ -590,48 +596,6 @@ class DroneCore(DroneRevisions):
         key = f"pair_refused:{refusal.reason.value}"
         self.counters[key] += 1
         return [Emit(rec.PairRefused(gs=gs, reason=refusal.text))] if self.counters[key] <= LOGGED_PER_REASON else []
-
-    # ---------------------------------------------------- links that follow the drone
-    def _follows(self) -> bool:
-        """The drone's links follow it (more authorized GSs than the fleet's ``links_max``: ``linkplan``)."""
-        return self.fleet.links_follow(self.name)
-
-    def _links_full(self, gs: str) -> PairRefused | None:
-        """A pairing of ``gs`` would pass ``links_max``: refused unless ``gs`` covers the drone (a possible
-        heir) and a closable link makes room."""
-        if not self._follows() or gs in self.links or len(self.links) < self.fleet.links_max:
-            return None
-        if gs in self.machine.inside and self.grace.oldest(besides=gs) is not None:
-            return None
-        return PairRefused(PairRefusal.LINKS_FULL, f"the drone holds {len(self.links)} links "
-                                                   f"(the fleet's most) and none may close")
-
-    def _make_room(self, newcomer: str, now: float) -> list[Out]:
-        """Close the link closable longest while a new link for ``newcomer`` would pass ``links_max``."""
-        out: list[Out] = []
-        while len(self.links) >= self.fleet.links_max:
-            victim = self.grace.oldest(besides=newcomer)
-            if victim is None:
-                break
-            out += self._close(victim, now, f"room for {newcomer}")
-        return out
-
-    def _close(self, gs: str, now: float, why: str) -> list[Out]:
-        """Close ``gs``'s link: tell it (``LinkClosed``, its last frame under the link's key), then wipe the
-        key (live, candidates, the one replaced) and forget the link in the machine."""
-        self.grace.forget(gs)
-        if not self.machine.may_close(gs):
-            return []
-        out = self._control(gs, wire.LinkClosed(why), now)
-        out += self._handle(ha.LinkClosed(now, gs, why), now)
-        self.links.pop(gs, None)
-        self.slots.pop(gs, None)
-        self.probation.pop(gs, None)
-        self.rekey.discard(gs)
-        self.standby.forget(gs)
-        self.counters["link_closed"] += 1
-        log.info("link to %s closed (%s): key wiped", gs, why)
-        return out
 
     def _poll_links(self, now: float, timer: bool) -> list[Out]:
         """The links' state changes, the authority's own link last (an heir is chosen among links
