@@ -397,6 +397,7 @@ class Linking(Machine):
         """GS ``g`` (authorized for the drone) restarted holding none of its keys made before ``since``
         (its checked notice): its key is shared again, once per start, the notice going with the grant."""
         if g in self.others():
+            self.shares.setdefault(g, Share())
             self._share(g, PeerKeysLost(now, notice, since))
 
     def others(self) -> list[str]:

@@ -137,45 +137,7 @@ def _bench_handover(args: argparse.Namespace) -> int:
 def _bench_scale(args: argparse.Namespace) -> int:
     from zdrone.bench import scale
 
-    try:
-        ks = [int(x) for x in args.drones.split(",")] if args.drones else None
-    except ValueError:
-        raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
-    from zdrone.fleet.files import MAX_SCALE_DRONES
-
-    try:
-        counts = [int(x) for x in str(args.stations).split(",")]
-    except ValueError:
-        raise UsageError(f"--stations {args.stations!r}: expected numbers like 3 or 5,10,20") from None
-    if ks and not all(1 <= k <= MAX_SCALE_DRONES for k in ks) or not all(2 <= g <= 26 for g in counts):
-        raise UsageError(f"--drones: each 1..{MAX_SCALE_DRONES}; --stations: 2..26")
-    if len(counts) > 1 and args.layout != "corridor":
-        raise UsageError("--stations G,G,…: only with --layout corridor")
-    args.stations = min(counts)
-    if args.sites is not None and not 2 <= args.sites <= args.stations:
-        raise UsageError(f"--sites {args.sites}: must be 2..{args.stations} (a site per ground station at most)")
-    if args.drone_router is not None and args.sites is None:
-        raise UsageError("--drone-router: only with --sites")
-    if args.hosts_nice is not None and not 0 <= args.hosts_nice <= 19:
-        raise UsageError(f"--hosts-nice {args.hosts_nice}: must be 0..19")
-    if args.sites_only and args.sites is None:
-        raise UsageError("--sites-only: only with --sites")
-    if args.inbox_senders is not None and not 64 <= args.inbox_senders <= 100_000:
-        raise UsageError(f"--inbox-senders {args.inbox_senders}: must be 64..100000")
-    if args.speedup is not None and not 0.5 <= args.speedup <= 8.0:
-        raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
-    if args.speedup is not None and args.speedup > 1.0 and any(k > scale.FAST_MAX_K for k in ks or ()):
-        print(f"zdrone bench scale: note: --speedup {args.speedup:g} with more than {scale.FAST_MAX_K} drones: their "
-              f"telemetry grows with the speed-up (300 drones flew 0 of 300 at 4); without --speedup they fly at 1",
-              file=sys.stderr)
-    if not 1 <= args.drone_hosts <= 8:
-        raise UsageError(f"--drone-hosts {args.drone_hosts}: must be 1..8")
-    result = scale.run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
-                       drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
-                       speedup=args.speedup, drone_hosts=args.drone_hosts, compare=not args.sites_only,
-                       hosts_nice=scale.HOSTS_NICE if args.hosts_nice is None else args.hosts_nice,
-                       corridor=args.length * 1000.0 if args.layout == "corridor" else 0.0, station_counts=counts)
-    _emit(args, result, scale.render)
+    _emit(args, scale.run_cli(args), scale.render)
     return 0
 
 
@@ -480,6 +442,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "and give way to the routers; 0: all equal)")
     bs.add_argument("--sites-only", action="store_true",
                     help="with --sites: fly the site routers only, not also through one TLS router")
+    bs.add_argument("--gs-processes", action="store_true", help="each GS in a process of its own (default: one for all)")
+    bs.add_argument("--restart-gs", metavar="GS", help="GS crashes 3 s after the take-off and starts again with no key "
+                    "(a GS per process): how soon it is linked with every drone again, and the flight still correct")
     bs.set_defaults(func=_bench_scale)
 
     bo = bsub.add_parser("overhead", help="the same fleet flown as bare Zenoh and as zdrone: CPU, memory and latency "

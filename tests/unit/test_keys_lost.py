@@ -178,3 +178,14 @@ def test_forged_or_stale_notices_change_no_owner_share_and_no_drone_key(tmp_path
     f.run_until(lambda: False, 1.0)
     assert f.drone.links["B"] is live and f.drone.counters["keys_lost_replaced"] == 0
     assert f.drone.counters["keys_lost_refused:signature"] == 1 and f.drone.counters["keys_lost_refused:stale"] == 1
+
+
+def test_a_notice_heard_before_any_key_was_shared_is_kept_for_the_first_grant(tmp_path: Path) -> None:
+    """The fleet starting: B's notice reaches A before A owns the drone or asked anything; the first
+    share still goes, the drone holding no key of B (nothing to replace), and the flight is linked."""
+    f = _flight(tmp_path)
+    t = WALL0 + f.now
+    data = keyslost.make_notice("B", t, t, f._signing["B"])
+    f.gs["A"].core.on_keys_lost(data, f.now, t)
+    assert f.run_until(lambda: f.drone.machine.owner == "A" and "B" in f.drone.links, 60.0)
+    assert f.drone.counters["keys_lost_replaced"] == 0

@@ -215,3 +215,33 @@ def test_a_gss_stamp_names_the_drones_it_vouches_for(fleet_dir, tmp_path, drones
     (_, keyexpr, data), = rt.puts
     got = check_stamp(split_push(data)[0], load_fleet(fleet_dir))
     assert keyexpr == keyexprs.revision("A") and got is not None and got.drones == tuple(drones or ())
+
+
+def test_a_restarted_gs_puts_its_keys_lost_notice_between_its_stamps_which_still_go_every_5_s(fleet_dir, tmp_path):
+    """The notice (``zdrone.core.keyslost``) on the GS's own key: five a put gap apart, then every 2.5 s,
+    for as long as the GS gives one; a stamp or revision due goes first, so the lease's stamps keep
+    their period; a node hears it as a notice (``take_notice``), never as a revision."""
+    from zdrone.core import keyslost
+    from zdrone.core.revision import STAMP_MAGIC
+    from zdrone.fleet.files import load_fleet, load_secret
+    from zdrone.fleet.revisions import NOTICE_PERIOD_S, STAMP_PERIOD_S
+
+    export_bundle(fleet_dir, "B", tmp_path / "B")
+    rt = _Runtime("B")
+    key = load_secret(fleet_dir, "B").signing
+    t0 = 1_800_000_000.0
+    ch = RevisionChannel(rt, tmp_path / "B", publisher=True, signing=lambda: key, wall=lambda: t0 + rt.now,
+                         notice=lambda: keyslost.make_notice("B", t0, t0 + rt.now, key) if rt.now < 30.0 else None)
+    _run(ch, rt, 0.0, 40.0)
+    notices = [t for t, k, d in rt.puts if keyslost.is_notice(d)]
+    stamps = [t for t, k, d in rt.puts if d.startswith(STAMP_MAGIC)]
+    assert all(b - a >= PUSH_GAP_S - 1e-6 for a, b in zip(sorted(notices + stamps), sorted(notices + stamps)[1:]))
+    assert notices[0] <= 1.1 and len([t for t in notices if t < 6.0]) >= 4 and max(notices) < 30.0
+    assert all(b - a <= NOTICE_PERIOD_S + PUSH_GAP_S + 0.1 for a, b in zip(notices, notices[1:]))
+    assert all(b - a <= STAMP_PERIOD_S + PUSH_GAP_S + 0.1 for a, b in zip(stamps, stamps[1:])) and stamps[-1] > 35.0
+    first = next(d for _, _, d in rt.puts if keyslost.is_notice(d))
+    assert keyslost.check_notice(first, load_fleet(fleet_dir)) is not None
+    heard = RevisionChannel(_Runtime("A"), tmp_path / "B", publisher=False)
+    got = heard.on_inbox(revisions.PUBLISHED, first)
+    assert isinstance(got, RevisionRefused) and got.reason is RevisionRefusal.REPLAYED
+    assert heard.take_notice() is not None and heard.take_notice() is None and heard.keeper.number == 0

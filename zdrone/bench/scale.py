@@ -44,11 +44,12 @@ import tempfile
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from zdrone.bench.procstats import _memory_mb, _tcp_sockets, _traffic
-from zdrone.bench.scalehosts import _host_drones, _host_stations, drones_file, merge_drone_hosts
+from zdrone.bench.scalehosts import _host_drones, _host_stations, drones_file, merge_drone_hosts, merge_station_hosts
 from zdrone.bench.stallwatch import CpuSampler, cpu_seconds
+from zdrone.core.errors import UsageError
 
 SPEEDUP = 4.0
 #: Without ``--speedup`` a run of K drones flies at ``SPEEDUP`` up to this K, at 1 above it: the
@@ -134,7 +135,8 @@ def _free_ports(n: int) -> list[int]:
 def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool = False,
          drone_router: str = "spread", inbox_senders: int | None = None, speedup: float = SPEEDUP,
          drone_hosts: int = 1, hosts_nice: int = HOSTS_NICE, latency: bool = False,
-         corridor: float = 0.0, round_trip: bool = False, kill: tuple[str, float] | None = None) -> dict[str, Any]:
+         corridor: float = 0.0, round_trip: bool = False, kill: tuple[str, float] | None = None,
+         gs_processes: bool = False, restart: str | None = None) -> dict[str, Any]:
     """One run: K drones x G GSs through one router, or through ``sites`` meshed site routers (``corridor``:
     the G GSs along that many metres, half the drones flying it each way, their links following them);
     ``latency``: the hosts note messages for ``zdrone.bench.latency`` (``latency-*.json`` in the run's
@@ -164,7 +166,9 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
         router_cmds = {"router": ["zdrone", "router", "-c", str(d / "fleet/router/router.json5"), "--listen", endpoints[0]]}
         gs_routers = endpoints[:1]
     hosts = ["drones"] if drone_hosts == 1 else [f"drones-{i}" for i in range(drone_hosts)]
-    logs = {n: open(d / f"{n}.log", "w") for n in (*router_cmds, *hosts, "stations")}
+    # the GSs: one process for all, or (``gs_processes``, ``restart``) one each, as real GSs run
+    gs_parts = {f"stations-{gs}": [gs] for gs in gs_names} if gs_processes or restart else {"stations": gs_names}
+    logs = {n: open(d / f"{n}.log", "w") for n in (*router_cmds, *hosts, *gs_parts)}
     procs: dict[str, subprocess.Popen] = {}
     t0 = time.monotonic()
     error = ""
@@ -189,26 +193,40 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             procs[host] = spawn(hpy + ["zdrone.bench.scale", "host-drones", "--k", str(k), "--speedup", str(speedup),
                                       "--duration", str(timeout), "--hold", str(hold_limit(k)),
                                       "--router", ",".join(endpoints), "--part", str(part), "--parts", str(len(hosts)),
+                                      "--station-hosts", str(len(gs_parts)),
                                       "--drone-router", drone_router, *common],
                                 stdout=logs[host], stderr=subprocess.STDOUT)
         killing = ["--kill-owner", kill[0], "--kill-after", str(kill[1])] if kill else []
-        procs["stations"] = spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g), "--k", str(k), *killing,
-                                                   "--router", ",".join(gs_routers), *common,
-                                                   *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
-                                             stdout=logs["stations"], stderr=subprocess.STDOUT)
-        niced = {h: give_way(procs[h].pid, hosts_nice) for h in (*hosts, "stations")}
-        others = {**{f"router {n}" if sites else "router": procs[n].pid for n in router_cmds}, "stations host": procs["stations"].pid}
+
+        def start_gss(part: str, log: Any) -> subprocess.Popen:
+            only = ["--only", ",".join(gs_parts[part])] if len(gs_parts) > 1 else []
+            return spawn(hpy + ["zdrone.bench.scale", "host-stations", "--stations", str(g), "--k", str(k), *killing, *only,
+                                "--router", ",".join(gs_routers), *common,
+                                *(["--inbox-senders", str(inbox_senders)] if inbox_senders else [])],
+                         stdout=log, stderr=subprocess.STDOUT)
+
+        for part in gs_parts:
+            procs[part] = start_gss(part, logs[part])
+        niced = {h: give_way(procs[h].pid, hosts_nice) for h in (*hosts, *gs_parts)}
+        others = {**{f"router {n}" if sites else "router": procs[n].pid for n in router_cmds},
+                  **{"stations host" if part == "stations" else f"{part} host": procs[part].pid for part in gs_parts}}
         def every_host(line: str, within: float) -> bool:
             return all(_wait_line(d / f"{h}.log", line, within, procs[h]) is not None for h in hosts)
 
         if every_host("drones ready", READY_TIMEOUT_S) and every_host("take-off", hold_limit(k) + 30):
-            procs["stations"].send_signal(signal.SIGUSR1)
+            for part in gs_parts:
+                procs[part].send_signal(signal.SIGUSR1)
             window["t"], window["cpu"] = time.monotonic(), {n: cpu_seconds(p) for n, p in others.items()}
             window["socks"] = _tcp_sockets(router_pids)
             # each process's busiest half-seconds (a mesh pause with the routers short of a CPU, or not)
             sampler = CpuSampler({**others, **{f"{h} host" if h == "drones" else h: procs[h].pid for h in hosts}})
+            if restart:  # GS ``restart`` crashes in flight and starts again with no key: re-linked how soon
+                window["restart"] = _restart_gs(d, procs, f"stations-{restart}", start_gss, hosts_nice)
+                others[f"stations-{restart} host"] = procs[f"stations-{restart}"].pid
+                window["cpu"][f"stations-{restart} host"] = None  # two processes: its CPU is not one figure
             if every_host("all landed", timeout + 60):
-                procs["stations"].send_signal(signal.SIGUSR2)  # count the commands sent until now
+                for part in gs_parts:
+                    procs[part].send_signal(signal.SIGUSR2)  # count the commands sent until now
             try:
                 for h in hosts:
                     procs[h].wait(timeout + 60)
@@ -225,13 +243,13 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     finally:
         if sampler is not None:
             sampler.close()
-        stop_in_order(procs, ("stations", *router_cmds, *hosts))
+        stop_in_order(procs, (*gs_parts, *router_cmds, *hosts))
         for f in logs.values():
             f.close()
     wall = time.monotonic() - t0
     try:
         drones = merge_drone_hosts([json.loads((d / drones_file(i, len(hosts))).read_text()) for i in range(len(hosts))])
-        stations = json.loads((d / "stations.json").read_text())
+        stations = merge_station_hosts([json.loads((d / f"{part}.json").read_text()) for part in gs_parts])
     except (OSError, ValueError) as exc:
         return {"layout": layout, "k": k, "g": g, "error": error or f"no results ({exc}); see {d}"}
     sent = stations["commands_sent"]
@@ -286,12 +304,46 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     refused = {g: sum(v for k, v in c.items() if k.endswith("too_many_senders")) for g, c in row["gs_inbox_drops"].items()}
     row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
     row.update(_load(drones, stations, window, zid_site, sites))
+    if "restart" in window:
+        row["restart"] = window["restart"]
+        row["gs_processes"] = len(gs_parts)
     row["worst_silences_seen_before"] = _gaps_before(d, len(hosts), row["worst_owner_silences"])
     if (sampled := window.get("sampler")) is not None:  # each process's CPU and wait for one during them
         row["machine_during_worst_silences"] = {
             str(w["after_takeoff_s"]): sampled.around(window["t"], w["after_takeoff_s"], before=w["s"])
             for w in row["worst_owner_silences"] if "after_takeoff_s" in w}
     return row
+
+
+#: ``--restart-gs``: the GS crashes this long after the take-off (every drone near home, A owning it)
+RESTART_AFTER_S = 3.0
+
+
+def _restart_gs(d: Path, procs: dict[str, subprocess.Popen], part: str, start: Callable[[str, Any], subprocess.Popen],
+                hosts_nice: int) -> dict[str, Any]:
+    """Kill GS host ``part`` (SIGKILL: a crash, no goodbye) ``RESTART_AFTER_S`` after the take-off and
+    start a new one in its place with no key: when it was up, and when it was linked with every drone
+    it serves again (its own line, ``_host_stations``), from the kill."""
+    time.sleep(RESTART_AFTER_S)
+    procs[part].kill()
+    procs[part].wait(10)
+    killed = time.time()
+    log = open(d / f"{part}.restart.log", "w")
+    procs[part] = start(part, log)
+    give_way(procs[part].pid, hosts_nice)
+    out: dict[str, Any] = {"gs": part.split("-", 1)[1], "killed_after_takeoff_s": RESTART_AFTER_S}
+    up = _wait_line(d / f"{part}.restart.log", "stations ready", 60, procs[part])
+    if up is None:
+        return {**out, "error": "the new GS host did not start"}
+    out["up_s"] = round(time.time() - killed, 2)
+    procs[part].send_signal(signal.SIGUSR1)  # its deliveries count from now on
+    line = _wait_line(d / f"{part}.restart.log", "linked with all", 60, procs[part])
+    if line is None:
+        return {**out, "relinked_s": None, "error": "not linked with every drone within 60 s"}
+    out["relinked_s"] = round(time.time() - killed, 2)
+    m = re.search(r"([0-9.]+) s after its start", line)
+    out["relinked_after_start_s"] = float(m.group(1)) if m else None
+    return out
 
 
 def _gaps_before(d: Path, parts: int, worst: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -334,6 +386,14 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
     cpu = {n: round(100.0 * (window["cpu_end"][n] - c) / span, 1) if c is not None and window["cpu_end"][n] is not None else None
            for n, c in window["cpu"].items()}
     cpu["drones host"] = drones.get("cpu_percent", round(100.0 * drones["cpu_s"] / max(1e-6, drones["flight_s"]), 1))
+    memory = {**window.get("memory", {}), "drones host": drones.get("memory_mb")}
+    parts = [n for n in cpu if n.startswith("stations-")]
+    if parts:  # a GS per process: the class is their sum (unknown if one restarted)
+        each = [cpu[n] for n in parts]
+        cpu["stations host"] = None if None in each else round(sum(each), 1)  # type: ignore[arg-type]
+        mems = [memory.get(n) for n in parts]
+        memory["stations host"] = None if None in mems else {  # type: ignore[index]
+            k: round(sum(m[k] for m in mems), 1) for k in ("rss", "peak")}
     zids = {**drones["router_zid"], **stations["router_zid"]}
     site_of = {node: zid_site.get(z or "", "?") for node, z in zids.items()}
     delivered = across = 0
@@ -341,7 +401,6 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
         for sender, n in by_sender.items():
             delivered += n
             across += n if site_of.get(sender) != site_of.get(receiver) else 0
-    memory = {**window.get("memory", {}), "drones host": drones.get("memory_mb")}
     out: dict[str, Any] = {
         "window_s": round(span, 1), "cpu_percent": cpu, "memory_mb": memory, "cpu_busiest": window.get("cpu_busiest"),
         "drones_host_slow": drones.get("slow"),
@@ -362,7 +421,8 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
 def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, progress: bool = True, sites: int = 0,
         drone_router: str = "spread", inbox_senders: int | None = None, speedup: float | None = None,
         drone_hosts: int = 1, compare: bool = True, hosts_nice: int = HOSTS_NICE,
-        corridor: float = 0.0, station_counts: list[int] | None = None) -> dict[str, Any]:
+        corridor: float = 0.0, station_counts: list[int] | None = None, gs_processes: bool = False,
+        restart: str | None = None) -> dict[str, Any]:
     """Fly each K; with ``sites``, each K through the site routers and (unless ``quick`` or not
     ``compare``) through one TLS router for comparison; ``inbox_senders`` lifts the GSs' inbox bound (a what-if, reported).
     ``speedup``: the simulators' (the flight's sim time per wall second; the telemetry's rate grows with it);
@@ -370,7 +430,9 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
     ``drone_hosts``: processes the drones are stepped in (a what-if, reported: on 2 cores, three hosts of
     100 drones made slower passes than one host of 300). ``hosts_nice``: the niceness of the drones and
     GSs hosts (``HOSTS_NICE``). ``corridor``: the GSs along that many metres (``station_counts``: each a row,
-    e.g. 5, 10, 20 at a fixed K), half the drones flying it each way at ``CORRIDOR_SPEED_MS``, one way each."""
+    e.g. 5, 10, 20 at a fixed K), half the drones flying it each way at ``CORRIDOR_SPEED_MS``, one way each.
+    ``gs_processes``: each GS in a process of its own; ``restart``: that GS crashes after the take-off and
+    starts again with no key (``_restart_gs``)."""
     if corridor:
         return _run_corridor(ks or [10], station_counts or [stations], corridor, sites, speedup, drone_hosts,
                              hosts_nice, progress)
@@ -388,7 +450,8 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
             if sites:
                 status.say(f"{k} drones x {stations} GSs flying over {sites} site routers (speed-up {sp:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, sites=sites, drone_router=drone_router,
-                                 inbox_senders=inbox_senders, speedup=sp, drone_hosts=drone_hosts, hosts_nice=hosts_nice))
+                                 inbox_senders=inbox_senders, speedup=sp, drone_hosts=drone_hosts, hosts_nice=hosts_nice,
+                                 gs_processes=gs_processes, restart=restart))
                 if compare and not quick:
                     status.say(f"{k} drones x {stations} GSs flying through one router (TLS), for comparison…")
                     rows.append(_one(k, stations, base, timeout=flight_s, tls=True, inbox_senders=inbox_senders,
@@ -396,7 +459,8 @@ def run(quick: bool = False, ks: list[int] | None = None, stations: int = 3, pro
             else:
                 status.say(f"{k} drones x {stations} GSs flying (speed-up {sp:g})…")
                 rows.append(_one(k, stations, base, timeout=flight_s, inbox_senders=inbox_senders, speedup=sp,
-                                 drone_hosts=drone_hosts, hosts_nice=hosts_nice))
+                                 drone_hosts=drone_hosts, hosts_nice=hosts_nice, gs_processes=gs_processes,
+                                 restart=restart))
             for row in rows[at:]:
                 row["speedup"] = sp
     finally:
@@ -497,6 +561,13 @@ def render(r: dict[str, Any]) -> None:
     if r.get("drone_hosts", 1) > 1:
         caption += f"; what-if: the drones stepped in {r['drone_hosts']} processes"
     caption += f"; drones and GSs hosts at nice {r.get('hosts_nice', 0)} (their threads and session)"
+    for x in r["rows"]:
+        if "restart" in x:  # ``--restart-gs``
+            rs = x["restart"]
+            caption += (f"; {x['k']} x {x['g']}: GS {rs['gs']} crashed {rs['killed_after_takeoff_s']:g} s after the take-off and "
+                        f"started again with no key: up in {rs.get('up_s', '-')} s, linked with every drone again "
+                        f"{rs.get('relinked_s', '-')} s after the crash ({rs.get('relinked_after_start_s', '-')} s after "
+                        f"its start){'; ' + rs['error'] if rs.get('error') else ''}")
     print_table(f"Scale: drones x ground stations {where}", ["layout", "K x G", "correct", "all correct",
                 "worst authority silence s", "ground s", "wall s", "failures"], rows,
                 caption=caption + "; ground: key sharing before take-off")
@@ -543,6 +614,52 @@ def _render_corridor(r: dict[str, Any]) -> None:
                         "process class (each router apart)")
 
 
+def run_cli(args: argparse.Namespace) -> dict[str, Any]:
+    """``zdrone bench scale``: its options checked (``UsageError``: one line, exit 2), then ``run``."""
+    try:
+        ks = [int(x) for x in args.drones.split(",")] if args.drones else None
+    except ValueError:
+        raise UsageError(f"--drones {args.drones!r}: expected numbers like 10,25,50") from None
+    from zdrone.fleet.files import MAX_SCALE_DRONES
+
+    try:
+        counts = [int(x) for x in str(args.stations).split(",")]
+    except ValueError:
+        raise UsageError(f"--stations {args.stations!r}: expected numbers like 3 or 5,10,20") from None
+    if ks and not all(1 <= k <= MAX_SCALE_DRONES for k in ks) or not all(2 <= g <= 26 for g in counts):
+        raise UsageError(f"--drones: each 1..{MAX_SCALE_DRONES}; --stations: 2..26")
+    if len(counts) > 1 and args.layout != "corridor":
+        raise UsageError("--stations G,G,…: only with --layout corridor")
+    args.stations = min(counts)
+    if args.sites is not None and not 2 <= args.sites <= args.stations:
+        raise UsageError(f"--sites {args.sites}: must be 2..{args.stations} (a site per ground station at most)")
+    if args.drone_router is not None and args.sites is None:
+        raise UsageError("--drone-router: only with --sites")
+    if args.hosts_nice is not None and not 0 <= args.hosts_nice <= 19:
+        raise UsageError(f"--hosts-nice {args.hosts_nice}: must be 0..19")
+    if args.sites_only and args.sites is None:
+        raise UsageError("--sites-only: only with --sites")
+    if args.inbox_senders is not None and not 64 <= args.inbox_senders <= 100_000:
+        raise UsageError(f"--inbox-senders {args.inbox_senders}: must be 64..100000")
+    if args.speedup is not None and not 0.5 <= args.speedup <= 8.0:
+        raise UsageError(f"--speedup {args.speedup:g}: must be 0.5..8")
+    if args.speedup is not None and args.speedup > 1.0 and any(k > FAST_MAX_K for k in ks or ()):
+        print(f"zdrone bench scale: note: --speedup {args.speedup:g} with more than {FAST_MAX_K} drones: their "
+              f"telemetry grows with the speed-up (300 drones flew 0 of 300 at 4); without --speedup they fly at 1",
+              file=sys.stderr)
+    if not 1 <= args.drone_hosts <= 8:
+        raise UsageError(f"--drone-hosts {args.drone_hosts}: must be 1..8")
+    if args.restart_gs is not None and (args.layout != "line" or args.restart_gs not in
+                                        [chr(ord("A") + i) for i in range(1, args.stations)]):
+        raise UsageError(f"--restart-gs {args.restart_gs}: a GS of the line other than A (B..{chr(ord('A') + args.stations - 1)})")
+    return run(quick=args.quick, ks=ks, stations=args.stations, progress=not args.json, sites=args.sites or 0,
+               drone_router=args.drone_router or "spread", inbox_senders=args.inbox_senders,
+               speedup=args.speedup, drone_hosts=args.drone_hosts, compare=not args.sites_only,
+               hosts_nice=HOSTS_NICE if args.hosts_nice is None else args.hosts_nice,
+               corridor=args.length * 1000.0 if args.layout == "corridor" else 0.0, station_counts=counts,
+               gs_processes=args.gs_processes, restart=args.restart_gs)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m zdrone.bench.scale")
     sub = p.add_subparsers(dest="role", required=True)
@@ -554,6 +671,7 @@ def main(argv: list[str] | None = None) -> int:
     hd.add_argument("--jam", metavar="DRONE", help="SIGUSR1 cuts this drone's radio, SIGUSR2 mends it (bench revoke)")
     hd.add_argument("--part", type=int, default=0, help="with --parts P: host the drones d(i+1) with i mod P == this")
     hd.add_argument("--parts", type=int, default=1, help="drones hosts sharing the fleet (one process each)")
+    hd.add_argument("--station-hosts", type=int, default=1, help="GS host processes (each says when it has counted)")
     hd.add_argument("--drone-router", choices=("spread", "all"), default="spread",
                     help="spread: drone i uses the (i mod N)-th router of --router; all: every drone gets the whole list")
     hs = sub.add_parser("host-stations")
@@ -563,6 +681,7 @@ def main(argv: list[str] | None = None) -> int:
     hs.add_argument("--corridor-speed", type=float, default=CORRIDOR_SPEED_MS)
     hs.add_argument("--kill-owner", metavar="GS", help="kill this GS once it has owned a drone in the air --kill-after s")
     hs.add_argument("--kill-after", type=float, default=2.0)
+    hs.add_argument("--only", metavar="G[,G…]", help="host only these GSs (the others run in processes of their own)")
     for sp in (hd, hs):
         sp.add_argument("--latency", action="store_true",
                         help="note messages for one-way latency from the take-off on (bench overhead; zdrone.bench.latency)")

@@ -127,6 +127,19 @@ def merge_drone_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
         "delivered": {n: c for p in parts for n, c in p["delivered"].items()}}
 
 
+def merge_station_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """The GS hosts' results as one (a GS per process): each GS's counts; the loops and collections per host."""
+    if len(parts) == 1:
+        return parts[0]
+    merged: dict[str, Any] = {key: {g: v for p in parts for g, v in p.get(key, {}).items()}
+                              for key in ("commands_sent", "commands_sent_epochs", "router_zid", "delivered", "counters",
+                                          "linked_all")}
+    merged["started"] = {g: p.get("started") for p in parts for g in p.get("linked_all", {})}
+    merged["gc"] = [p.get("gc") for p in parts]
+    merged["loops"] = [p.get("loops") for p in parts]
+    return merged
+
+
 def note_drone_latency(node: Any, latency: LatencyLog) -> None:
     """``bench overhead``'s opt-in hook (``--latency``) on one drone node: the vehicle's frames as its
     loop takes them (vehicle -> GS, sent), each GS envelope as Zenoh's callback hands it to the inbox
@@ -345,7 +358,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 print("drones host: all landed", flush=True)
             if landed_at is not None:
                 # (several hosts: the GSs count once every host has landed, so wait for them as long as a flight)
-                if counted_at is None and (Path(args.out, COUNTED).exists() or time.monotonic() - landed_at
+                counted = len(list(Path(args.out).glob(COUNTED.replace(".", "*.", 1))))
+                if counted_at is None and (counted >= args.station_hosts or time.monotonic() - landed_at
                                            >= (COUNTED_WAIT_S if args.parts == 1 else max(COUNTED_WAIT_S, args.duration))):
                     counted_at = time.monotonic()
                 if counted_at is not None and time.monotonic() - counted_at >= LANDED_DRAIN_S:
@@ -415,6 +429,8 @@ def _host_stations(args: argparse.Namespace) -> int:
 
         inbox.MAX_SENDERS = args.inbox_senders
     names = [chr(ord("A") + i) for i in range(args.stations)]
+    hosted = set(args.only.split(",")) if args.only else set(names)  # this host's GSs (the others: own processes)
+    suffix = f"-{args.only.replace(',', '')}" if args.only else ""  # its result files' names
     routers = args.router.split(",")  # one for all, or one per station in order
     mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (args.stations - 1) - 60.0)
     first, last = names[0], names[-1]
@@ -431,7 +447,7 @@ def _host_stations(args: argparse.Namespace) -> int:
     stations = [GroundStation(StationOptions(gs=g, fleet=args.fleet, router=routers[i % len(routers)], pair=g in pair,
                                              pair_drones=pair.get(g), missions=missions.get(g),
                                              mission=mission if g == "A" and not args.corridor else None,
-                                             command_rate=1.0, events=None)) for i, g in enumerate(names)]
+                                             command_rate=1.0, events=None)) for i, g in enumerate(names) if g in hosted]
     deliveries.update({st.name: DeliveryCounter(st.rt.inbox) for st in stations})
     puts = FrameGaps()  # each GS's frames to each drone as it puts them (where a silence begins)
     for st in stations:
@@ -450,6 +466,8 @@ def _host_stations(args: argparse.Namespace) -> int:
     gcs = GcClock()
     for st in stations:
         loops.watch(st)
+    started = time.time()  # (``--relink``: a restarted GS re-links every drone it serves: when)
+    relinked: dict[str, float | None] = {st.name: None for st in stations}
     print(f"stations host: {len(stations)} stations ready", flush=True)
     # one thread per station: a GS's blocking backhaul query must not wait on another GS's loop
     threads = [threading.Thread(target=st.run, daemon=True) for st in stations]
@@ -471,6 +489,11 @@ def _host_stations(args: argparse.Namespace) -> int:
     owned_since: float | None = None
     while not stop[0]:
         pause.wait(0.2)
+        for st in stations:  # a GS linked with every drone it serves (its link confirmed by the drone): when, once
+            if relinked[st.name] is None and all(st.core.sessions[d].link is not None for d in st.drones):
+                relinked[st.name] = time.time()
+                print(f"stations host: {st.name} linked with all {len(st.drones)} drones "
+                      f"{relinked[st.name] - started:.2f} s after its start", flush=True)
         if doomed is not None:  # ``--kill-owner``: that GS dies once it has owned a drone in the air that long
             flying = [d for d, v in doomed.core.sessions.items() if v.owner == doomed.name and v.armed and not v.stale]
             owned_since = (owned_since or time.monotonic()) if flying else None
@@ -486,7 +509,7 @@ def _host_stations(args: argparse.Namespace) -> int:
                 st.core.opts = replace(st.core.opts, command_rate=0.0)
             pause.wait(0.3)  # a tick that began before the freeze has sent what it sends
             counted = count_sent()  # what was sent while the drones were still there to forward it
-            Path(args.out, COUNTED).touch()
+            Path(args.out, COUNTED.replace(".", f"{suffix}.", 1)).touch()
     sent, sent_epochs = counted or count_sent()
     counters = {st.name: {**dict(st.counters), **{f"inbox:{k}": v for k, v in st.rx.stats().items()}} for st in stations}
     delivered = {g: c.since(baseline.get(g, {})) for g, c in deliveries.items()}
@@ -495,10 +518,11 @@ def _host_stations(args: argparse.Namespace) -> int:
             st.stop()
     for t in threads:
         t.join(15)
-    Path(args.out, "gaps-stations.json").write_text(json.dumps(puts.report()))
+    Path(args.out, f"gaps-stations{suffix}.json").write_text(json.dumps(puts.report()))
     if latency is not None:
-        latency.dump(Path(args.out, "latency-stations.json"))
-    Path(args.out, "stations.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
+        latency.dump(Path(args.out, f"latency-stations{suffix}.json"))
+    Path(args.out, f"stations{suffix}.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
+                                                           "started": started, "linked_all": relinked,
                                                            "router_zid": router_zids,
                                                            "delivered": delivered, "counters": counters,
                                                            "gc": gcs.report(), "loops": loops.report()}))

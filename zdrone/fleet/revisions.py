@@ -82,8 +82,9 @@ PUSH_PERIOD_S = 10.0
 #: A GS pushes its signed stamp this often (with the revision when that is due, else alone: ~100 B):
 #: a drone's owner lease is renewed by the stamps of the other GSs (``Fleet.revision_lease``)
 STAMP_PERIOD_S = 5.0
-#: A GS puts its keys-lost notice this often while it publishes one (``zdrone.core.keyslost``)
-NOTICE_PERIOD_S = 2.5
+#: A GS puts its keys-lost notice this often while it publishes one (``zdrone.core.keyslost``), its first
+#: ``NOTICE_BURST`` a put gap apart (a revision push or stamp that is due goes first)
+NOTICE_PERIOD_S, NOTICE_BURST = 2.5, 5
 #: A GS's revision puts are this far apart at least: two of the router's intervals on its key
 #: (``REVISION_MAX_HZ``), so that a router that stalls and processes two back to back drops neither.
 PUSH_GAP_S = 2.0 / REVISION_MAX_HZ
@@ -228,30 +229,31 @@ class RevisionChannel:
             self.rt.ask(keyexprs.revision_all(), b"", ASK_TIMEOUT_S, REPLY, "fleet", limit=MAX_REVISION_BYTES)
         if self.own is None or now < self._last_push + PUSH_GAP_S:
             return
-        if self.notice is not None and now >= self._next_notice:
-            self._next_notice = now + NOTICE_PERIOD_S
-            notice = self.notice()
-            if notice is not None:
-                self._last_push = now
-                self.keeper.counters["keys_lost_published"] += 1
-                self.rt.put(self.own, notice)
-                return
         key = self.signing() if self.signing is not None else None
         stamping = key is not None and self.wall is not None
         full = self.keeper.data is not None and now >= self._next_push
-        if full or (stamping and now >= self._next_stamp):
-            self._last_push, self._next_stamp = now, now + STAMP_PERIOD_S
-            data = self.keeper.data if full else None
-            if full:
-                self._next_push = now + PUSH_PERIOD_S
-                self.keeper.counters["pushed"] += 1
-            if stamping:
-                assert key is not None and self.wall is not None
-                named = self.drones() if self.drones is not None else ()
-                data = make_push(self.rt.name, self.keeper.number, self.wall(), key, data, named)
-                self.keeper.counters["stamped"] += 1
-            if data is not None:
-                self.rt.put(self.own, data)
+        if not (full or (stamping and now >= self._next_stamp)):  # the stamp and revision go first
+            if self.notice is not None and now >= self._next_notice:
+                published = self.keeper.counters["keys_lost_published"]
+                self._next_notice = now + (PUSH_GAP_S if published < NOTICE_BURST else NOTICE_PERIOD_S)
+                notice = self.notice()
+                if notice is not None:
+                    self._last_push = now
+                    self.keeper.counters["keys_lost_published"] += 1
+                    self.rt.put(self.own, notice)
+            return
+        self._last_push, self._next_stamp = now, now + STAMP_PERIOD_S
+        data = self.keeper.data if full else None
+        if full:
+            self._next_push = now + PUSH_PERIOD_S
+            self.keeper.counters["pushed"] += 1
+        if stamping:
+            assert key is not None and self.wall is not None
+            named = self.drones() if self.drones is not None else ()
+            data = make_push(self.rt.name, self.keeper.number, self.wall(), key, data, named)
+            self.keeper.counters["stamped"] += 1
+        if data is not None:
+            self.rt.put(self.own, data)
 
     def take_notice(self) -> bytes | None:
         """The keys-lost notice last handed to ``on_inbox`` (once)."""
