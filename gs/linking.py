@@ -58,6 +58,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Callable, Hashable, Iterator
 
+from zdrone.core import keyslost
 from zdrone.core import records as rec
 from zdrone.core import wire
 from zdrone.core.fleet import Fleet
@@ -211,6 +212,7 @@ class Share:
     granted_at: float | None = None  # the drone acknowledged our grant then
     lost: bytes | None = None  # its newest keys-lost notice, until the drone took a key granted with it
     lost_since: float | None = None  # the start that notice speaks of (each start resets the share once)
+    asked_wall: float | None = None  # our time of day at our last query: the key it gave is no older
 
 
 @dataclass
@@ -469,7 +471,7 @@ class Linking(Machine):
                 c.counters["linkkey_ask_waited"] += 1
                 return []
         s.ask_again, s.wait_until = None, None
-        s.last_try = ev.now
+        s.last_try, s.asked_wall = ev.now, ev.wall
         s.ask = KeyShareAsk(c.identity, c.gs, g, c.fleet.nodes[g].public_bytes, c.drone, ev.now, wall=ev.wall,
                             hybrid=c.fleet.pairing_pq)
         s.hybrid = c.fleet.pairing_pq
@@ -570,6 +572,9 @@ class Linking(Machine):
         s.lost, s.lost_since = ev.notice, ev.since
         if s.phase in (SharePhase.NONE, SharePhase.ASKED):
             return []  # NONE: asked at the next share, past ``drone_links``; ASKED: the query stands or times out
+        if s.asked_wall is None or s.asked_wall >= ev.since - keyslost.SKEW_S:
+            s.lost = None  # the key we got from it was made after that start (or we never asked): it holds it
+            return []
         s.grant, s.last_try = None, None
         c.counters["linkkey_peer_restarted"] += 1
         self._set_state(SharePhase.NONE, f"{g} restarted", key=g)

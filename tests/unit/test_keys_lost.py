@@ -189,3 +189,19 @@ def test_a_notice_heard_before_any_key_was_shared_is_kept_for_the_first_grant(tm
     f.gs["A"].core.on_keys_lost(data, f.now, t)
     assert f.run_until(lambda: f.drone.machine.owner == "A" and "B" in f.drone.links, 60.0)
     assert f.drone.counters["keys_lost_replaced"] == 0
+
+
+def test_a_gs_starting_with_the_fleet_is_not_shared_again_when_its_notice_comes_after_its_key(tmp_path: Path) -> None:
+    """The fleet's start: B publishes its notice for a minute after it starts; A shared B's key after B
+    started and the drone took it. A notice heard after that speaks of keys B never lost: A shares
+    nothing again (else the drone, refusing the replacement, holds a key B no longer has)."""
+    f = _flight(tmp_path)
+    since = WALL0 + f.now - 0.5  # B started just before A asked it for its key
+    _linked_on_ground(f)
+    grants = _granted(f)
+    live = f.drone.links["B"]
+    for _ in range(3):
+        f.gs["A"].core.on_keys_lost(keyslost.make_notice("B", since, WALL0 + f.now, f._signing["B"]), f.now, WALL0 + f.now)
+        f.run_until(lambda: False, 2.5)
+    assert "B" not in grants and f.drone.links["B"] is live
+    assert f.gs["A"].core.counters["linkkey_peer_restarted"] == 0 and f.drone.counters["keys_lost_refused:key_newer"] == 0
