@@ -459,7 +459,7 @@ def test_a_gs_s_own_rotation_moves_its_signing_once_and_waits_for_a_key_it_does_
         def on_inbox(kind: str, data: Any) -> Any:  # as the station's RevisionChannel: its record first
             a.write_record(rec.RevisionApplied(number=r.revision.number, revoked=(), rotated=tuple(r.revision.changes.keys)))
             return revisions.RevisionAccepted(r.revision, r.fleet)
-        gs.revision = SimpleNamespace(on_inbox=on_inbox)
+        gs.revision = SimpleNamespace(on_inbox=on_inbox, take_notice=lambda: None)
         GroundStation._on_revision(gs, "revision", b"", 0.0)  # type: ignore[arg-type]
 
     r1 = rotate(fleet_dir, "A")
