@@ -147,7 +147,8 @@ class GroundStation:
         self.loop_hooks: list[Callable[[float], None]] = []  # called once per loop pass with ``now``
         self.status_sources: dict[str, Callable[[], dict[str, Any]]] = {}  # e.g. the gateway's stats
         self.session = self.rt.session
-        self.sub = self.rt.subscribe(keyexprs.down("*", self.name), "down", keyexprs.drone_of, limit=MAX_BUNDLE)
+        self.sub = self.rt.subscribe(keyexprs.down("*", self.name), "down", keyexprs.drone_of, limit=MAX_BUNDLE,
+                                     pumped=True)  # every drone's reports: never a GIL wait in Zenoh's thread
         self.linkkey_q = self.rt.queryable(keyexprs.linkkey_all(self.name))
         self._linkkey_backlog = False  # the last turn left key-sharing queries in the ring (``_serve_linkkeys``)
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=True, write_applied=True,

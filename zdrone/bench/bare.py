@@ -61,6 +61,7 @@ from zdrone.core.bundle import unpack
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.fleet import keyexprs
 from zdrone.net.runtime import LINK_EXPRESS, LINK_PRIORITY
+from zdrone.net.pump import PumpedSubscriber
 
 log = logging.getLogger(__name__)
 
@@ -386,7 +387,7 @@ class BareStation:
         self.sent = collections.Counter[str]()
         self.session = zenoh.open(client_config(router))
         self.subs = [
-            self.session.declare_subscriber(keyexprs.down("*", name), zenoh.handlers.Callback(self._on_down, indirect=False)),
+            PumpedSubscriber(self.session, keyexprs.down("*", name), self._on_down),  # as zdrone's GS (``zdrone.net.pump``)
             self.session.declare_subscriber("backhaul/*/stamp", zenoh.handlers.Callback(self._on_backhaul, indirect=False))]
         self.running = True
         self.error: str | None = None

@@ -47,6 +47,7 @@ from zdrone.net.eventlog import EventLog
 from zdrone.net.inbox import MAX_ENVELOPE, MAX_HANDSHAKE, Inbox, reply_bytes, senders_bound
 from zdrone.net.pacing import Pacer
 from zdrone.net.paths import PathQueryable, RecentPayloads, SessionPath
+from zdrone.net.pump import PumpedSubscriber
 from zdrone.net.session import open_client, query_queue
 
 log = logging.getLogger(__name__)
@@ -91,7 +92,7 @@ class NodeRuntime:
         self._lanes: dict[str, Iterator[str]] = {}  # uplink -> its lanes' keys, in turn (the next is the next frame's)
         self.running = True
         self._declared: list[Any] = []  # queryables and subscribers still declared
-        self._subs: list[tuple[Any, str, Callable[[zenoh.Sample], None]]] = []  # (handle, keyexpr, callback)
+        self._subs: list[tuple[Any, Callable[[Any], Any]]] = []  # (handle, how to declare it on a session)
         self._decl_lock = threading.RLock()  # subscriptions are declared from the loop and ``in_background``
         self._queryables: list[PathQueryable] = []
         self.multipath = len(routers) > 1
@@ -136,8 +137,8 @@ class NodeRuntime:
     def _declare_on(self, p: SessionPath) -> None:
         assert p.session is not None
         with self._decl_lock:
-            for handle, keyexpr, cb in self._subs:
-                handle.per_path.append(p.session.declare_subscriber(keyexpr, cb))
+            for handle, declare in self._subs:
+                handle.per_path.append(declare(p.session))
         for q in self._queryables:
             q.per_path.append(p.session.declare_queryable(q.keyexpr, query_queue()))
 
@@ -154,8 +155,11 @@ class NodeRuntime:
         self._declared.append(q)
         return q
 
-    def subscribe(self, keyexpr: str, kind: str, peer_of: Callable[[Any], str], limit: int = MAX_ENVELOPE) -> Any:
-        """A subscriber (on every path) that queues each sample's bytes as ``(kind, peer_of(key), data)``."""
+    def subscribe(self, keyexpr: str, kind: str, peer_of: Callable[[Any], str], limit: int = MAX_ENVELOPE,
+                  pumped: bool = False) -> Any:
+        """A subscriber (on every path) that queues each sample's bytes as ``(kind, peer_of(key), data)``;
+        ``pumped``: drained by a thread of its own from a Rust-side channel (``zdrone.net.pump``: a GS's
+        one subscription to all its drones), else in Zenoh's thread."""
         inbox, recent = self.inbox, self.recent
 
         def on_sample(sample: zenoh.Sample) -> None:  # a Zenoh thread: hand over and return at once
@@ -176,11 +180,15 @@ class NodeRuntime:
         # own per subscriber (4 600 threads in a host of 300 drones); ``on_sample`` only queues and never
         # calls Zenoh, so it cannot wait on Zenoh from inside Zenoh
         callback = zenoh.handlers.Callback(on_sample, indirect=False) if DIRECT_CALLBACKS else on_sample
+
+        def declare(session: Any) -> Any:
+            return PumpedSubscriber(session, keyexpr, on_sample) if pumped else session.declare_subscriber(keyexpr, callback)
+
         handle = _PathSubscriber()
         with self._decl_lock:
             for s in self._open_sessions():
-                handle.per_path.append(s.declare_subscriber(keyexpr, callback))
-            self._subs.append((handle, keyexpr, callback))
+                handle.per_path.append(declare(s))
+            self._subs.append((handle, declare))
             self._declared.append(handle)
         return handle
 
