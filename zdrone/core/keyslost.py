@@ -73,7 +73,7 @@ _DECODER = msgspec.msgpack.Decoder(KeysLostNotice)
 class NoticeRefused:
     """Why a notice does not let a grant replace a live key (``grant_refused:keys_lost_<reason>``)."""
 
-    reason: str  # signature | other_gs | unauthorized | stale | ahead | key_newer
+    reason: str  # signature | other_gs | unauthorized | stale | ahead | since_ahead | key_newer
 
 
 def make_notice(gs: str, since: float, wall: float, key: SigningKey) -> bytes:
@@ -106,7 +106,11 @@ def check_notice(data: bytes, fleet: Fleet) -> KeysLostNotice | None:
 
 
 def fresh(notice: KeysLostNotice, wall: float) -> NoticeRefused | None:
-    """``stale`` or ``ahead`` at the time of day ``wall``; None if fresh."""
+    """``stale`` or ``ahead`` at the time of day ``wall``, ``since_ahead`` if it speaks of a start after
+    its own signature (a clock stepped back, or a thief's key: it would deafen owners to the GS's next
+    start and open keys made after it); None if fresh."""
+    if notice.since > notice.wall:
+        return NoticeRefused("since_ahead")
     if notice.wall > wall + AHEAD_S:
         return NoticeRefused("ahead")
     if notice.wall < wall - FRESH_S:
