@@ -100,6 +100,9 @@ GRANT_RESEND_S = 1.0
 #: restarted holds no key for it, but that GS hears the silence only at the loss threshold) is asked
 #: again this soon, the first ask still open for the genuine reply.
 LIVE_LINK_RETRY_S = 0.5
+#: A GS's keys-lost notices send its share back to NONE at most this often (a hostile GS signing a new
+#: start in every notice churns its own key at this rate, not at its revision key's budget of 2 a second)
+PEER_RESET_GAP_S = 10.0
 #: A key we granted that the drone's status no longer lists this long after its acknowledgement was
 #: closed by the drone (links that follow it): shared again if still wanted (the status lists the
 #: drone's links at least once a second).
@@ -213,6 +216,7 @@ class Share:
     lost: bytes | None = None  # its newest keys-lost notice, until the drone took a key granted with it
     lost_since: float | None = None  # the start that notice speaks of (each start resets the share once)
     asked_wall: float | None = None  # our time of day at our last query: the key it gave is no older
+    reset_at: float | None = None  # when a notice of this GS last sent its share back to NONE
 
 
 @dataclass
@@ -569,13 +573,16 @@ class Linking(Machine):
             if s.lost is not None and ev.since == s.lost_since:
                 s.lost = ev.notice  # a fresher copy of the notice for the grant still to come
             return []
+        if s.reset_at is not None and ev.now - s.reset_at < PEER_RESET_GAP_S:
+            c.counters["linkkey_peer_restart_deferred"] += 1  # a copy after the gap acts (re-published 60 s)
+            return []
         s.lost, s.lost_since = ev.notice, ev.since
         if s.phase in (SharePhase.NONE, SharePhase.ASKED):
             return []  # NONE: asked at the next share, past ``drone_links``; ASKED: the query stands or times out
         if s.asked_wall is None or s.asked_wall >= ev.since - keyslost.SKEW_S:
             s.lost = None  # the key we got from it was made after that start (or we never asked): it holds it
             return []
-        s.grant, s.last_try = None, None
+        s.grant, s.last_try, s.reset_at = None, None, ev.now
         c.counters["linkkey_peer_restarted"] += 1
         self._set_state(SharePhase.NONE, f"{g} restarted", key=g)
         return []
