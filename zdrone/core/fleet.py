@@ -15,7 +15,7 @@ import json5
 import msgspec
 
 from zdrone.core.geometry import Circle, GeoPoint
-from zdrone.core.keys import unb64
+from zdrone.core.keys import unb64, verify_signature
 from zdrone.core.uplink import UplinkPolicy
 
 SysId = Annotated[int, msgspec.Meta(ge=1, le=255)]
@@ -93,6 +93,15 @@ class Fleet(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     def is_revoked(self, name: str) -> bool:
         return name in self.revoked
+
+    def gs_signed(self, gs: str, message: bytes, signature: bytes) -> bool:
+        """Whether ``signature`` over ``message`` is GS ``gs``'s, under its signing key in force (a GS of
+        the fleet, not revoked): a revision stamp's, a keys-lost notice's."""
+        node = self.nodes.get(gs)
+        if node is None or node.role != "gs" or self.is_revoked(gs):
+            return False
+        key = node.signing_public_bytes
+        return key is not None and verify_signature(key, message, signature)
 
     @property
     def fleet_key_bytes(self) -> bytes | None:

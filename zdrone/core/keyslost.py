@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import msgspec
 
 from zdrone.core.fleet import Fleet
-from zdrone.core.keys import SigningKey, verify_signature
+from zdrone.core.keys import SigningKey
 
 DOMAIN = b"zdrone keys lost v1\n"
 #: a put on a GS's revision key that is a keys-lost notice starts with these bytes
@@ -96,13 +96,7 @@ def check_notice(data: bytes, fleet: Fleet) -> KeysLostNotice | None:
         notice = _DECODER.decode(data[len(MAGIC):])
     except (msgspec.DecodeError, msgspec.ValidationError):
         return None
-    node = fleet.nodes.get(notice.gs)
-    if node is None or node.role != "gs" or fleet.is_revoked(notice.gs):
-        return None
-    key = node.signing_public_bytes
-    if key is None or not verify_signature(key, notice.signed_bytes(), notice.signature):
-        return None
-    return notice
+    return notice if fleet.gs_signed(notice.gs, notice.signed_bytes(), notice.signature) else None
 
 
 def fresh(notice: KeysLostNotice, wall: float) -> NoticeRefused | None:

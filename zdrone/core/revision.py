@@ -301,13 +301,7 @@ def check_stamp(data: bytes, fleet: Fleet) -> RevisionStamp | None:
         stamp = _STAMP_DECODER.decode(data)
     except (msgspec.DecodeError, msgspec.ValidationError):
         return None
-    node = fleet.nodes.get(stamp.gs)
-    if node is None or node.role != "gs" or fleet.is_revoked(stamp.gs):
-        return None
-    key = node.signing_public_bytes
-    if key is None or not verify_signature(key, stamp.signed_bytes(), stamp.signature):
-        return None
-    return stamp
+    return stamp if fleet.gs_signed(stamp.gs, stamp.signed_bytes(), stamp.signature) else None
 
 
 def with_coverage(c: Changes, gs: str, coverage: Coverage) -> Changes:
