@@ -327,8 +327,9 @@ class StationCore:
             self.counters[f"keys_lost_refused:{late.reason}"] += 1
             return
         self.counters["keys_lost_heard"] += 1
+        since_here = notice.since - (wall - now)  # its start on our clock
         for session in self.sessions.values():
-            session.linking.peer_keys_lost(notice.gs, data, notice.since, now)
+            session.linking.peer_keys_lost(notice.gs, data, notice.since, now, since_here)
 
     # ----------------------------------------------------------------- receiving
     def on_bundle(self, drone: str, data: bytes, now: float) -> list[Action]:

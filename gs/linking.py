@@ -255,6 +255,7 @@ class Linking(Machine):
         self._rekey_rotated = True  # the fresh pairing due is for a rotated key (else: a hybrid one)
         self.shares: dict[str, Share] = {}  # other GS -> where its key stands (made when first needed)
         self.drone_links: set[str] = set()  # GSs the drone already holds keys for (its status)
+        self.listed_since: dict[str, float] = {}  # since when (our clock) its statuses have listed each
         self.grant_sent: float | None = None
 
     # ------------------------------------------------------------------ queries
@@ -397,12 +398,20 @@ class Linking(Machine):
         self.lost_key_at = now  # authenticated: the drone's message 2 said it no longer held our key
         for g in self.shares:
             self._share(g, KeysLost(now))
-        self.drone_links = {self.ctx.gs}
+        self.drone_listed({self.ctx.gs}, now)
 
-    def peer_keys_lost(self, g: str, notice: bytes, since: float, now: float) -> None:
+    def drone_listed(self, linked: set[str] | frozenset[str] | tuple[str, ...], now: float) -> None:
+        """The drone's signed status lists the GSs it holds keys for: since when each has been listed."""
+        self.drone_links = set(linked)
+        self.listed_since = {g: self.listed_since.get(g, now) for g in self.drone_links}
+
+    def peer_keys_lost(self, g: str, notice: bytes, since: float, now: float, since_here: float) -> None:
         """GS ``g`` (authorized for the drone) restarted holding none of its keys made before ``since``
-        (its checked notice): its key is shared again, once per start, the notice going with the grant."""
-        if g in self.others():
+        (its checked notice; ``since_here``: the same instant on our clock): its key is shared again, once
+        per start, the notice going with the grant, if the drone's statuses have listed a key of ``g``
+        since before that start (else the drone holds none, or one ``g`` made after it: nothing to replace)."""
+        listed = self.listed_since.get(g)
+        if g in self.others() and listed is not None and listed < since_here - keyslost.SKEW_S:
             self.shares.setdefault(g, Share())
             self._share(g, PeerKeysLost(now, notice, since))
 

@@ -474,7 +474,7 @@ class DroneSession(LinkFollow, DroneView):
             self.ours_from_input = self.inputs  # a position heard before this does not decide a release
         self.owner, self.epoch, self.ha_state, self.pending_to = msg.owner, msg.epoch, state, msg.pending_to
         self.stale = False
-        self.linking.drone_links = set(msg.linked)
+        self.linking.drone_listed(frozenset(msg.linked), now)
         self.takeover, self.takeover_to = msg.takeover, msg.takeover_to
         if msg.fc_signed is not None:
             self.fc_signed = msg.fc_signed

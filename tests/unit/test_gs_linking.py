@@ -77,7 +77,7 @@ def test_pairing_follows_its_table(fleet_dir, phase, ev):
 @given(phase=st.sampled_from(list(SharePhase)), ev=SHARE_EVENTS, linked=st.booleans())
 def test_key_sharing_follows_its_table(fleet_dir, phase, ev, linked):
     lk = _linking(fleet_dir)
-    lk.drone_links = {"A", "B"} if linked else {"A"}
+    lk.drone_listed({"A", "B"} if linked else {"A"}, -10.0)
     _in_share_phase(lk, phase, 1.0)
     row = SHARE_TABLE.get((phase, type(ev)))
     sent: list = []
@@ -88,7 +88,7 @@ def test_key_sharing_follows_its_table(fleet_dir, phase, ev, linked):
     elif isinstance(ev, GrantAcked):
         out = lk.on_grant_ack("B", ev.grant_id, ev.now)
     elif isinstance(ev, PeerKeysLost):
-        lk.peer_keys_lost("B", ev.notice, ev.since, ev.now)
+        lk.peer_keys_lost("B", ev.notice, ev.since, ev.now, ev.since)
         out = []
     else:
         lk.keys_lost(ev.now)

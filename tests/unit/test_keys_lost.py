@@ -205,3 +205,18 @@ def test_a_gs_starting_with_the_fleet_is_not_shared_again_when_its_notice_comes_
         f.run_until(lambda: False, 2.5)
     assert "B" not in grants and f.drone.links["B"] is live
     assert f.gs["A"].core.counters["linkkey_peer_restarted"] == 0 and f.drone.counters["keys_lost_refused:key_newer"] == 0
+
+
+def test_the_start_notice_of_a_gs_that_paired_after_it_makes_no_later_owner_ask_for_its_key(tmp_path: Path) -> None:
+    """A starts, then pairs (its own key, made after its start); B hears A's start notice while not the
+    owner. When B owns the drone and A's link goes quiet out of range, B must not ask A for a key of a
+    link the drone has held since after that start (A would hand one out once its link is LOST)."""
+    f = _flight(tmp_path)
+    t = WALL0 + f.now
+    notice = keyslost.make_notice("A", t, t, f._signing["A"])
+    assert f.run_until(lambda: f.drone.machine.owner == "A" and "B" in f.drone.links, 60.0)
+    f.run_until(lambda: False, 2.0)
+    f.gs["B"].core.on_keys_lost(notice, f.now, WALL0 + f.now)
+    assert f.run_until(lambda: f.drone.machine.owner == "B", 600.0)
+    f.run_until(lambda: False, 20.0)
+    assert f.gs["A"].core.counters["linkkey_shared"] == 0 and f.gs["B"].core.counters["linkkey_peer_restarted"] == 0

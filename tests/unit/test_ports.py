@@ -34,3 +34,16 @@ def test_a_port_held_is_never_chosen_and_without_the_range_the_kernel_chooses(mo
         assert ports._range() is None and free_port(socket.SOCK_STREAM) > 0
     finally:
         held.close()
+
+
+def test_a_port_held_by_udp_is_never_chosen_for_tcp(monkeypatch):
+    """A site router listens for TLS (TCP) and QUIC (UDP) on one port: a TCP choice must be free for UDP too
+    (a simulator's UDP socket on the port a router was given stopped it starting: ``Address already in use``)."""
+    held = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    held.bind(("127.0.0.1", 0))
+    try:
+        port = held.getsockname()[1]
+        monkeypatch.setattr(ports, "_range", lambda: range(port, port + 1))
+        assert free_port(socket.SOCK_STREAM) != port
+    finally:
+        held.close()

@@ -4,7 +4,7 @@ A port the kernel hands out (``bind(("127.0.0.1", 0))``) comes from its ephemera
 every outgoing connection of every process takes its local port from: between the choice and the
 child's own bind, any connection on the machine may take it (the more runs at once, the likelier).
 ``free_port`` chooses below that range instead, where only another explicit choice can land, and
-checks that the port is free now.
+checks that the port is free now, for TCP and UDP alike (a site router takes both on one port).
 """
 
 from __future__ import annotations
@@ -47,7 +47,9 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
         rng = random.SystemRandom()
         for _ in range(100):
             port = rng.choice(ports)
-            if _bindable(kind, port):
+            # free for both kinds: a site router listens on one port for TLS (TCP) and QUIC (UDP), and a
+            # simulator's or relay's UDP socket on it made a router fail to start (CI, twice)
+            if _bindable(socket.SOCK_STREAM, port) and _bindable(socket.SOCK_DGRAM, port):
                 return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
