@@ -48,7 +48,7 @@ from zdrone.vehicle.modes import mode_name
 
 from gs.actions import Action, QueryAnswer
 from gs.droneview import DroneView, view_line
-from gs.linking import LINKKEY_CANDIDATE_TTL, KeyOwner
+from gs.keyowner import LINKKEY_CANDIDATE_TTL, KeyOwner
 from gs.opcontrol import Answer, PendingRequest
 from gs.ownership import owns
 from gs.context import GCS_COMPID, CoreOptions, StationContext

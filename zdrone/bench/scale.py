@@ -44,7 +44,7 @@ import tempfile
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from zdrone.bench.procstats import _memory_mb, _tcp_sockets, _traffic
 from zdrone.bench.scalehosts import _host_drones, _host_stations, drones_file, merge_drone_hosts, merge_station_hosts
@@ -221,7 +221,9 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             # each process's busiest half-seconds (a mesh pause with the routers short of a CPU, or not)
             sampler = CpuSampler({**others, **{f"{h} host" if h == "drones" else h: procs[h].pid for h in hosts}})
             if restart:  # GS ``restart`` crashes in flight and starts again with no key: re-linked how soon
-                window["restart"] = _restart_gs(d, procs, f"stations-{restart}", start_gss, hosts_nice)
+                from zdrone.bench.gsrestart import restart_gs
+
+                window["restart"] = restart_gs(d, procs, f"stations-{restart}", start_gss, hosts_nice, _wait_line, give_way)
                 others[f"stations-{restart} host"] = procs[f"stations-{restart}"].pid
                 window["cpu"][f"stations-{restart} host"] = None  # two processes: its CPU is not one figure
             if every_host("all landed", timeout + 60):
@@ -305,7 +307,9 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
     row["notes"] = [f"GS {g}'s inbox refused {n} items from senders beyond its queue bound" for g, n in refused.items() if n]
     row.update(_load(drones, stations, window, zid_site, sites))
     if "restart" in window:
-        row["restart"] = {**window["restart"], **_relinked(d, k, window["restart"], stations)}
+        from zdrone.bench.gsrestart import relinked
+
+        row["restart"] = {**window["restart"], **relinked(d, k, window["restart"], stations)}
         row["gs_processes"] = len(gs_parts)
     row["worst_silences_seen_before"] = _gaps_before(d, len(hosts), row["worst_owner_silences"])
     if (sampled := window.get("sampler")) is not None:  # each process's CPU and wait for one during them
@@ -313,54 +317,6 @@ def _one(k: int, g: int, base: Path, timeout: float, sites: int = 0, tls: bool =
             str(w["after_takeoff_s"]): sampled.around(window["t"], w["after_takeoff_s"], before=w["s"])
             for w in row["worst_owner_silences"] if "after_takeoff_s" in w}
     return row
-
-
-#: ``--restart-gs``: the GS crashes this long after the take-off (every drone near home, A owning it)
-RESTART_AFTER_S = 3.0
-
-
-def _restart_gs(d: Path, procs: dict[str, subprocess.Popen], part: str, start: Callable[[str, Any], subprocess.Popen],
-                hosts_nice: int) -> dict[str, Any]:
-    """Kill GS host ``part`` (SIGKILL: a crash, no goodbye) ``RESTART_AFTER_S`` after the take-off and
-    start a new one in its place with no key: when it was up, from the kill (``_relinked``: the rest)."""
-    time.sleep(RESTART_AFTER_S)
-    procs[part].kill()
-    procs[part].wait(10)
-    killed = time.time()
-    log = open(d / f"{part}.restart.log", "w")
-    procs[part] = start(part, log)
-    give_way(procs[part].pid, hosts_nice)
-    out: dict[str, Any] = {"gs": part.split("-", 1)[1], "killed_after_takeoff_s": RESTART_AFTER_S, "killed_wall": killed}
-    up = _wait_line(d / f"{part}.restart.log", "stations ready", 60, procs[part])
-    if up is None:
-        return {**out, "error": "the new GS host did not start"}
-    out["up_s"] = round(time.time() - killed, 2)
-    procs[part].send_signal(signal.SIGUSR1)  # its deliveries count from now on
-    return out
-
-
-def _relinked(d: Path, k: int, restart: dict[str, Any], stations: dict[str, Any]) -> dict[str, Any]:
-    """When each drone took the restarted GS's new key (its event ``link_installed``, how
-    ``grant:keys_lost``, or a new pairing), from the crash: how many, the median and the last; and when
-    the GS had them all confirmed (the drone's first words under it, heard in the GS's radio only)."""
-    gs, killed = restart["gs"], restart["killed_wall"]
-    confirmed = (stations.get("linked_all") or {}).get(gs)
-    took: list[float] = []
-    for i in range(k):
-        try:
-            with open(d / f"d{i + 1}.jsonl") as f:
-                for line in f:
-                    if f'"gs":"{gs}"' in line and ('"link_installed"' in line or '"link_confirmed"' in line):
-                        e = json.loads(line)
-                        if e["t"] > killed:
-                            took.append(e["t"] - killed)
-                            break
-        except (OSError, ValueError, KeyError):
-            continue
-    took.sort()
-    return {"drones_relinked": len(took), "relinked_p50_s": round(took[(len(took) - 1) // 2], 2) if took else None,
-            "relinked_s": round(took[-1], 2) if len(took) == k else None,
-            "confirmed_s": round(confirmed - killed, 2) if confirmed else None}
 
 
 def _gaps_before(d: Path, parts: int, worst: list[dict[str, Any]]) -> list[dict[str, Any]]:
