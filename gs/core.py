@@ -316,16 +316,12 @@ class StationCore:
         """Another GS's keys-lost notice (``zdrone.core.keyslost``), heard on its revision key: signed by
         it (fleet in force) and fresh by our time of day ``wall``, it has every drone we share with it
         share its key again (``Linking.peer_keys_lost``); otherwise counted and dropped."""
-        notice = keyslost.check_notice(data, self.fleet)
-        if notice is None:
-            self.counters["keys_lost_refused:signature"] += 1
+        notice = keyslost.heard(data, self.fleet, wall)
+        if isinstance(notice, keyslost.NoticeRefused):
+            self.counters[f"keys_lost_refused:{notice.reason}"] += 1
             return
         if notice.gs == self.name:
             return  # our own, heard back
-        late = keyslost.fresh(notice, wall)
-        if late is not None:
-            self.counters[f"keys_lost_refused:{late.reason}"] += 1
-            return
         self.counters["keys_lost_heard"] += 1
         since_here = notice.since - (wall - now)  # its start on our clock
         for session in self.sessions.values():

@@ -134,7 +134,6 @@ def merge_station_hosts(parts: list[dict[str, Any]]) -> dict[str, Any]:
     merged: dict[str, Any] = {key: {g: v for p in parts for g, v in p.get(key, {}).items()}
                               for key in ("commands_sent", "commands_sent_epochs", "router_zid", "delivered", "counters",
                                           "linked_all")}
-    merged["started"] = {g: p.get("started") for p in parts for g in p.get("linked_all", {})}
     merged["gc"] = [p.get("gc") for p in parts]
     merged["loops"] = [p.get("loops") for p in parts]
     return merged
@@ -466,7 +465,7 @@ def _host_stations(args: argparse.Namespace) -> int:
     gcs = GcClock()
     for st in stations:
         loops.watch(st)
-    started = time.time()  # (``--relink``: a restarted GS re-links every drone it serves: when)
+    started = time.time()  # when each GS is linked with every drone it serves, from here (``--restart-gs``)
     relinked: dict[str, float | None] = {st.name: None for st in stations}
     print(f"stations host: {len(stations)} stations ready", flush=True)
     # one thread per station: a GS's blocking backhaul query must not wait on another GS's loop
@@ -522,7 +521,7 @@ def _host_stations(args: argparse.Namespace) -> int:
     if latency is not None:
         latency.dump(Path(args.out, f"latency-stations{suffix}.json"))
     Path(args.out, f"stations{suffix}.json").write_text(json.dumps({"commands_sent": sent, "commands_sent_epochs": sent_epochs,
-                                                           "started": started, "linked_all": relinked,
+                                                           "linked_all": relinked,
                                                            "router_zid": router_zids,
                                                            "delivered": delivered, "counters": counters,
                                                            "gc": gcs.report(), "loops": loops.report()}))

@@ -112,24 +112,30 @@ def fresh(notice: KeysLostNotice, wall: float) -> NoticeRefused | None:
     return None
 
 
+def heard(data: bytes, fleet: Fleet, wall: float) -> KeysLostNotice | NoticeRefused:
+    """A notice as anyone takes it at the time of day ``wall``: its GS's signature (``check_notice``),
+    then ``fresh``; the notice, or why not."""
+    notice = check_notice(data, fleet)
+    if notice is None:
+        return NoticeRefused("signature")
+    return fresh(notice, wall) or notice
+
+
 def judge(data: bytes, fleet: Fleet, drone: str, gs: str, wall: float, key_wall: float | None) -> KeysLostNotice | NoticeRefused:
     """The drone's judgement of the notice a grant for ``gs`` carries: the notice if the granted key
     may replace the live key of ``gs`` (made at the drone's time of day ``key_wall``; None: no live
     key), else why not."""
-    notice = check_notice(data, fleet)
-    if notice is None:
-        return NoticeRefused("signature")
+    notice = heard(data, fleet, wall)
+    if isinstance(notice, NoticeRefused):
+        return notice
     if notice.gs != gs:
         return NoticeRefused("other_gs")
     if not fleet.is_authorized(drone, gs):
         return NoticeRefused("unauthorized")
-    late = fresh(notice, wall)
-    if late is not None:
-        return late
     if key_wall is not None and key_wall > notice.since - SKEW_S:
         return NoticeRefused("key_newer")
     return notice
 
 
 __all__ = ["AHEAD_S", "FRESH_S", "KeysLostNotice", "MAGIC", "NOTICE_FOR_S", "NoticeRefused", "SKEW_S",
-           "check_notice", "fresh", "is_notice", "judge", "make_notice"]
+           "check_notice", "fresh", "heard", "is_notice", "judge", "make_notice"]

@@ -573,8 +573,7 @@ class DroneCore(DroneRevisions, DroneLinks):
             if refused is None:
                 out += self._make_room(gs, now)
             if refused is not None or len(self.links) >= self.fleet.links_max:
-                self.slots.pop(gs, None)
-                self.probation.pop(gs, None)
+                self._wipe_key(gs)
                 self.counters["pair_refused:links_full"] += 1
                 return out + [Emit(rec.PairRefused(gs=gs, reason="links_full: proven with no room"))]
         self.links[gs] = slot.live
