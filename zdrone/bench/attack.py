@@ -231,7 +231,7 @@ def _junk_flood_trial(base: Path, i: int, rate: float) -> dict[str, Any]:
     try:
         sim = demo.start("sim", ["-m", "zdrone", "-v", "sim", "--mavlink", f"udpin:127.0.0.1:{port}",
                                  "--home", f"{spot.lat:.7f},{spot.lon:.7f}"])
-        demo.wait_line(sim, "zdrone sim:")
+        demo.wait_line(sim, "zdrone sim:", 20)
         demo.start_core()
         demo.start_gs("B")
         demo.start_gs("A", "--pair")
@@ -321,16 +321,16 @@ def _shaped_radio_trial(base: Path, i: int, size: int, rate: float = RADIO_FLOOD
             cfg_path.write_text(json.dumps(cfg, indent=2))
         z = ["-m", "zdrone", "-v"]
         r = demo.start("router", z + ["router", "-c", str(cfg_path.relative_to(d)), *listen])
-        demo.wait_line(r, "listening")
+        demo.wait_line(r, "listening", 20)
         sim = demo.start("sim", z + ["sim", "--mavlink", f"udpin:127.0.0.1:{sport}", "--home", f"{spot.lat:.7f},{spot.lon:.7f}"],
                          ns=radio.ns)
-        demo.wait_line(sim, "zdrone sim:")
+        demo.wait_line(sim, "zdrone sim:", 20)
         drone = demo.start("drone", z + ["drone", "--id", "d1", "--fleet", "fleet", "--router", far, "--vehicle",
                                          f"udpout:127.0.0.1:{sport}", "--events", "drone.jsonl"], ns=radio.ns)
-        demo.wait_line(drone, "ready")
+        demo.wait_line(drone, "ready", 40)
         for gs, extra in (("B", []), ("A", ["--pair"])):
             demo.wait_line(demo.start(f"gs{gs}", z + ["gs", "--id", gs, "--fleet", "fleet", "--router", local,
-                                                       "--events", f"{gs}.jsonl", *extra]), f"zdrone gs {gs}")
+                                                       "--events", f"{gs}.jsonl", *extra]), f"zdrone gs {gs}", 20)
         if _wait_event(d / "drone.jsonl", Paired, 30.0) is None:
             raise RuntimeError("A did not pair")
         deadline = time.monotonic() + 30.0

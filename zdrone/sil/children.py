@@ -19,9 +19,6 @@ from zdrone.sil.netns import NetnsTopology
 
 #: The interpreter every child runs in (this one).
 PY = sys.executable
-#: how long a child may take to say it is up: a bounded wait, not a speed target (a test suite of six
-#: workers on two cores starts a dozen Python processes at once, each importing zenoh and pymavlink)
-START_WAIT_S = 90.0
 
 
 @dataclass
@@ -81,7 +78,7 @@ class ChildProcesses:
                 time.sleep(0.05)
         self.restarting.clear()
 
-    def wait_line(self, child: Child, needle: str, timeout: float = START_WAIT_S) -> None:
+    def wait_line(self, child: Child, needle: str, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if needle in child.log.read_text(errors="replace"):

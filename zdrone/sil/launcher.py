@@ -157,7 +157,7 @@ class Demo(ChildProcesses, SiteLinks):
             self._export_bundles(["router"])
             r = self.start("router", self._z() + ["router", "-c", "bundles/router/router/router.json5", "--listen", self.router]
                            + (["--tap", "tap.json"] if o.tap else []))
-            self.wait_line(r, "listening")
+            self.wait_line(r, "listening", 20)
         telem2: list[str] = []
         if self.spec.telem2 and o.vehicle is None:
             self.telem2_port = free_port(socket.SOCK_DGRAM)
@@ -169,20 +169,20 @@ class Demo(ChildProcesses, SiteLinks):
             sim = self.start("sim", self._z() + ["sim", "--autopilot", o.autopilot, "--mavlink",
                                                  f"udpout:127.0.0.1:{self.vehicle_port}", "--speedup", str(o.speedup)]
                              + self._truth_args() + telem2 + self._ready_args(), ns=self._ns())
-            self.wait_line(sim, "zdrone sim:")
+            self.wait_line(sim, "zdrone sim:", 20)
             vehicle = f"udpin:127.0.0.1:{self.vehicle_port}"
         elif o.autopilot == "ardupilot":  # like ArduPilot SITL: a TCP server that boots on the first client
             tport = free_port(socket.SOCK_STREAM)
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "ardupilot", "--mavlink", f"tcpin:127.0.0.1:{tport}",
                                                  "--speedup", str(o.speedup)] + self._truth_args() + telem2
                              + self._ready_args(), ns=self._ns())
-            self.wait_line(sim, "zdrone sim:")
+            self.wait_line(sim, "zdrone sim:", 20)
             vehicle = f"tcp:127.0.0.1:{tport}"
         else:
             sim = self.start("sim", self._z() + ["sim", "--autopilot", "px4", "--mavlink", f"udpin:127.0.0.1:{sport}",
                                                  "--speedup", str(o.speedup)] + self._truth_args() + telem2
                              + self._ready_args(), ns=self._ns())
-            self.wait_line(sim, "zdrone sim:")
+            self.wait_line(sim, "zdrone sim:", 20)
             self._wait_coverage()
             vehicle = f"udpout:127.0.0.1:{sport}"
         # Timers are wall-clock while the simulator may run faster: scale the hand-over timeout so that
@@ -192,7 +192,7 @@ class Demo(ChildProcesses, SiteLinks):
         self._fire(BEFORE_DRONE, None)
         for r in self.spec.rogues:  # attackers racing the companion's start
             if r.launch == BEFORE_DRONE:
-                self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready")
+                self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
         trust: list[str] = []
         if o.fc_signing == "off":  # an unsigned link's positions grant no authority unless opted in (issue 29)
             trust = ["--trust-unsigned-position"]
@@ -204,7 +204,7 @@ class Demo(ChildProcesses, SiteLinks):
                                                   *self._bench_extra(),
                                                   *self.spec.radio, *o.radio],
                            ns=self._ns())
-        self.wait_line(drone, "ready")
+        self.wait_line(drone, "ready", 40)
 
     def _ready_args(self) -> list[str]:
         """The simulator's start-up (``--ready-after``), if one was given."""
@@ -219,7 +219,7 @@ class Demo(ChildProcesses, SiteLinks):
     def start_gs(self, gs: str, *extra: str) -> Child:
         child = self.start(f"gs{gs}", self._zn() + ["gs", "--id", gs, *self._common(gs), "--events", f"{gs}.jsonl", *extra],
                            ns=self._ns(gs))
-        self.wait_line(child, f"zdrone gs {gs}")
+        self.wait_line(child, f"zdrone gs {gs}", 20)
         return child
 
     def start_rogue(self, r: RogueSpec, duration: float | None = None) -> Child:
@@ -250,7 +250,7 @@ class Demo(ChildProcesses, SiteLinks):
         folder: its report is linked once written)."""
         child = self.start("view", self._z() + ["view", "--fleet", "bundles/V", "--router", self.router, "--port",
                                                 str(port), "--run", "."], ns=self._ns("A") if self.netns else None)
-        self.wait_line(child, "zdrone view:")
+        self.wait_line(child, "zdrone view:", 20)
         self.notes.append(f"live view: http://127.0.0.1:{port}/")
         return child
 
@@ -268,7 +268,7 @@ class Demo(ChildProcesses, SiteLinks):
         self._fire(BEFORE_GS_A, None)
         for r in spec.rogues:  # attackers that must be in place before A starts (and pairs)
             if r.launch == BEFORE_GS_A:
-                self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready")
+                self.wait_line(self.children[f"rogue-{r.mode}"], "rogue: ready", 30)
         a_extra = ["--pair", "--mission", o.mission, *gs_extra, *spec.gs_a_extra]
         if spec.app_signing:  # A's operator application's key, as an operator provisions one (gs.appkeys)
             keys = self.out / GCS_KEYS

@@ -16,7 +16,6 @@ from typing import Any
 from zdrone.fleet.files import init_fleet, load_sites
 from zdrone.fleet.routerconfig import mesh_endpoint
 from zdrone.net.eventlog import EventLog
-from zdrone.sil.children import START_WAIT_S
 from zdrone.sil.netns import NetnsTopology
 from zdrone.sil.ports import free_port
 from zdrone.sil.radiolink import DatagramLink, RadioLink, SiteCoverage, SwitchedLink, TruthReceiver, site_circles
@@ -63,7 +62,7 @@ class SiteLinks:
                 connect += ["--connect", mesh_endpoint(f"tls/{link.endpoint}")]  # the mesh runs over QUIC
             name = "router" if n == 0 else f"router{n + 1}"
             r = self.start(name, self._z() + ["router", "-c", f"bundles/{site}/router/{site}.json5", *connect])
-            self.wait_line(r, "listening")
+            self.wait_line(r, "listening", 20)
         radios = {site: RadioLink(site, ("127.0.0.1", ports[site]), up=self.opts.vehicle is not None) for site in names}
         self.links.update(radios)
         self.site_of_endpoint = {f"tls/{link.endpoint}": site for site, link in radios.items()}
@@ -87,7 +86,7 @@ class SiteLinks:
                                               f"tls/127.0.0.1:{port}", "--listen", f"tls/{topo.radio_ip[site]}:{port}",
                                               "--listen", mesh_endpoint(f"tls/{topo.radio_ip[site]}:{port}")],
                            ns=topo.site_ns[site])
-            self.wait_line(r, "listening")
+            self.wait_line(r, "listening", 20)
         self.links.update(topo.backhauls)
         self.links.update(topo.radios)
         self.site_of_endpoint = {f"tls/{topo.radio_ip[site]}:{port}": site for site in names}
@@ -117,7 +116,7 @@ class SiteLinks:
     def _truth_args(self) -> list[str]:
         return ["--truth", f"{self.truth.host}:{self.truth.port}"] if self.truth is not None else []
 
-    def _wait_coverage(self, timeout: float = START_WAIT_S) -> None:
+    def _wait_coverage(self, timeout: float = 20.0) -> None:
         """With radio links: the first true position has set them (the drone starts in range)."""
         deadline = time.monotonic() + timeout
         while self.coverage is not None and self.coverage.updates == 0:
