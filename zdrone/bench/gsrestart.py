@@ -23,8 +23,8 @@ def restart_gs(d: Path, procs: dict[str, subprocess.Popen], part: str, start: Ca
     procs[part].kill()
     procs[part].wait(10)
     killed = time.time()
-    log = open(d / f"{part}.restart.log", "w")
-    procs[part] = start(part, log)
+    with open(d / f"{part}.restart.log", "w") as log:  # the child writes to its own copy of the file
+        procs[part] = start(part, log)
     give_way(procs[part].pid, hosts_nice)
     out: dict[str, Any] = {"gs": part.split("-", 1)[1], "killed_after_takeoff_s": RESTART_AFTER_S, "killed_wall": killed}
     up = wait_line(d / f"{part}.restart.log", "stations ready", 60, procs[part])
