@@ -193,3 +193,21 @@ def test_the_split_is_compared_and_judged_on_the_wire_alone() -> None:
     rows = ov.table_rows(c)
     assert ["latency p50 ms", "  GS -> drone's host (wire)", "2.00", "2.50", "1.25", "+0.50 ms"] in rows
     assert ["latency p99 ms", "  drone's host -> vehicle", "5.00", "70.00", "14.00", "+65.00 ms"] in rows
+
+
+def test_a_catch_up_is_timed_from_its_sending_again_and_its_age_kept_apart(tmp_path) -> None:
+    """A frame a standby GS was not sent, sent to it as its new owner's catch-up 0.2 s after the
+    vehicle gave it: its delivery is timed from the catch-up (2 ms), its age (200 ms) reported apart."""
+    drone, gs = lat.LatencyLog(), lat.LatencyLog()
+    drone.start(0.0)
+    gs.start(0.0)
+    frame = next(i.to_bytes(2, "big") for i in range(4096) if lat.crc(i.to_bytes(2, "big")) % lat.SAMPLE_DOWN == 0)
+    drone.note_many("down", "sent", "d1", [frame], 10.0)  # the vehicle gave it; to the owner only
+    gs.note("down", "got", "d1", frame, 10.001)  # the owner got it
+    drone.note_catch_up("d1", [(frame, 10.0)], 10.2)  # the hand-over: the new owner's catch-up
+    gs.note("down", "got", "d1", frame, 10.202)
+    drone.dump(tmp_path / "d.json")
+    gs.dump(tmp_path / "g.json")
+    files = [tmp_path / "d.json", tmp_path / "g.json"]
+    assert lat.summary(lat.load(files))["vehicle_to_gs"] == {"n": 2, "p50_ms": 1.0, "p99_ms": 2.0}
+    assert lat.catch_up(files) == {"n": 1, "p50_ms": 200.0, "p99_ms": 200.0, "max_ms": 200.0}

@@ -15,7 +15,10 @@ envelope, noted as the GS's core hands it to its adapter, before the pacing; the
 envelope's CRC when the core forwards its frame to the vehicle, ``ToVehicle``); vehicle -> GS, the
 MAVLink frame as the vehicle gives it to the drone's loop and as the GS gets it back (zdrone: the
 GS's ``FrameUp``, the frame out of its envelope; bare: the frame out of the bundle in the GS's
-Zenoh callback).
+Zenoh callback). A zdrone drone also sends a GS that becomes its owner (or heir) the newest frame of
+each stream message at once (``DroneCore``'s catch-up: a standby GS was sent each at most once a
+second); those are noted as sent again then, so that their delivery is timed like any other, and how
+old they were is reported apart (``catch_up``): bare has no hand-over to send one at.
 
 GS -> vehicle is also split where the drone's host takes the message from Zenoh ("arrived": in the
 Zenoh callback, before any queue): **the wire** (sent -> arrived: the GS's pacing, its session, the
@@ -66,6 +69,9 @@ class LatencyLog:
             d: {side: [] for side in SIDES} for d in DIRECTIONS}
         # every message (not only the sample), per second after ``start``: the rate each half carried
         self.counts: dict[str, dict[str, dict[int, int]]] = {d: {"sent": {}, "got": {}} for d in DIRECTIONS}
+        # zdrone: how old each frame a new owner (or heir) is sent at once was (its catch-up: the newest
+        # frame of each stream message, which a standby GS was sent at most once a second), in seconds
+        self.catch_up: list[float] = []
 
     def start(self, now: float) -> None:
         self.on, self.t0 = True, now
@@ -94,8 +100,15 @@ class LatencyLog:
                 if c % every == 0:
                     notes.append((drone, c, now))
 
+    def note_catch_up(self, drone: str, frames: list[tuple[bytes, float]], now: float) -> None:
+        """A new owner's catch-up (zdrone): each frame is sent again now (a delivery timed from this
+        sending, as any other: its wire and hosts), and how old it was is kept apart."""
+        if self.on and frames:
+            self.note_many("down", "sent", drone, [f for f, _ in frames], now)
+            self.catch_up += [now - t for _, t in frames]
+
     def dump(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps({**self.notes, "counts": self.counts}))
+        Path(path).write_text(json.dumps({**self.notes, "counts": self.counts, "catch_up": self.catch_up}))
 
 
 def rates(paths: Iterable[Path], window_s: float) -> dict[str, dict[str, float]]:
@@ -126,6 +139,18 @@ def load(paths: Iterable[Path]) -> dict[str, dict[str, list[tuple[str, int, floa
             for side in SIDES:
                 out[d][side] += [tuple(x) for x in data.get(d, {}).get(side, [])]  # type: ignore[misc]
     return out
+
+
+def catch_up(paths: Iterable[Path]) -> dict[str, Any]:
+    """How old the frames of new owners' catch-ups were when sent (ms: n, p50, max), over the hosts' files."""
+    ages: list[float] = []
+    for p in paths:
+        try:
+            ages += json.loads(Path(p).read_text()).get("catch_up", [])
+        except (OSError, ValueError):
+            continue
+    top = max(ages) if ages else None
+    return {**_stats(ages), "max_ms": None if top is None else round(1000 * top, 2)}
 
 
 def match(sent: list[tuple[str, int, float]], got: list[tuple[str, int, float]],

@@ -172,6 +172,7 @@ def compare(k: int, zd: dict[str, Any], bare: dict[str, Any]) -> dict[str, Any]:
         goals["wire_added_p50_within"] = within(wire, "p50", ADDED_P50_MS_GOAL)
         goals["wire_added_p99_within"] = within(wire, "p99", ADDED_P99_MS_GOAL)
     hosts = {h: host_load(r) for h, r in (("zdrone", zd), ("bare", bare))}
+    lat["catch_up_age"] = zd.get("latency", {}).get("catch_up_age")  # zdrone alone: bare has no hand-over
     return {"classes": cls, "latency_ms": lat, "samples_per_s": samples, "messages_per_s": messages, "goals": goals,
             "hosts": hosts, "saturated": {h: x["saturated"] for h, x in hosts.items()}}
 
@@ -227,7 +228,7 @@ def run(ks: list[int], stations: int = 3, sites: int = 0, flight: float | None =
                 from zdrone.bench import latency as lat
 
                 files = sorted(Path(zd["runs"]).glob("latency-*.json"))
-                zd["latency"] = lat.summary(lat.load(files))
+                zd["latency"] = {**lat.summary(lat.load(files)), "catch_up_age": lat.catch_up(files)}
                 zd["messages_per_s"] = lat.rates(files, zd.get("window_s") or 0.0)
             status.say(f"bare Zenoh: {k} drones x {stations} GSs, {where}, {flight_s:g} s of flight (speed-up {sp:g})…")
             bz = bare_mod.one(k, stations, base / f"run{run_no}", flight_s, sites=sites, speedup=sp, hosts_nice=nice,
@@ -299,6 +300,10 @@ def table_rows(cmp: dict[str, Any]) -> list[list[str]]:
             x = cmp["latency_ms"][way][p]
             rows.append([f"latency {p} ms", label, _num(x["bare"]), _num(x["zdrone"]), _num(x["ratio"]),
                          "-" if x["added_ms"] is None else f"{x['added_ms']:+.2f} ms"])
+    age = cmp["latency_ms"].get("catch_up_age")
+    if age and age.get("n"):
+        rows.append(["catch-up frames' age ms, p50 / max", "new owner's first view", "-",
+                     f"{_num(age['p50_ms'])} / {_num(age['max_ms'])} (n {age['n']})", "", ""])
     for name, x in cmp.get("messages_per_s", {}).items():
         rows.append(["messages /s", name, _num(x["bare"], 0), _num(x["zdrone"], 0), _num(x["ratio"]), ""])
     s = cmp["samples_per_s"]

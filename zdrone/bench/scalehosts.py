@@ -159,10 +159,30 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
         envelope[0] = data
         return on_envelope(gs, data, now)
 
+    core, catch_up = node.core, node.core._catch_up
+    taken: dict[bytes, float] = {}  # the newest frame of each stream message -> when the vehicle gave it
+
     def received(timeout: float = 0.0) -> list[bytes]:
         frames = recv(timeout)
-        latency.note_many("down", "sent", name, frames, time.monotonic())
+        now = time.monotonic()
+        latency.note_many("down", "sent", name, frames, now)
+        if latency.on:
+            latest = set(core._latest.values())
+            for f in list(taken):
+                if f not in latest:
+                    del taken[f]
+            for f in frames:
+                taken[f] = now
         return frames
+
+    def caught_up() -> Any:  # a new owner's (or heir's) catch-up: its frames are sent again now
+        m = core.machine
+        new = {g for g in (m.owner, m.pending_to) if g is not None} - core._full_stream
+        out = catch_up()
+        if any(g in core.links for g in new):
+            now = time.monotonic()
+            latency.note_catch_up(name, [(f, taken.get(f, now)) for f in core._latest.values()], now)
+        return out
 
     handlers = node._handlers  # the adapter's output handlers (built once, on first use)
     to_vehicle = handlers[ToVehicle]
@@ -172,6 +192,7 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
         to_vehicle(o)
 
     node.core.on_envelope, node.vehicle.recv, handlers[ToVehicle] = opened, received, forwarded
+    node.core._catch_up = caught_up
     node.rt.inbox.put = arrived
 
 
