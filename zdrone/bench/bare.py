@@ -2,7 +2,7 @@
 
 The same processes as ``bench scale``'s run (one router, or one router per site meshed site n to sites
 1..n-1; a process hosting the K drones, each with its own Zenoh session and an in-process simulator,
-all stepped by one loop every ``scalehosts.PASS_S``; a process hosting the G GSs, each with its own session),
+each stepped by one loop at its own deadline or input, as zdrone's (``zdrone.bench.stepping``); a process hosting the G GSs, each with its own session),
 the same keys, the same QoS and the same application traffic, and nothing else:
 
 * **routers**: plain TCP (the mesh too), no authentication, no access control, no downsampling, no
@@ -57,6 +57,7 @@ from typing import Any
 import zenoh
 
 from zdrone.bench.latency import LatencyLog
+from zdrone.bench.stepping import MIN_STEP_GAP_S, StepSchedule
 from zdrone.core.bundle import unpack
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.fleet import keyexprs
@@ -146,7 +147,7 @@ class BareDrone:
     """One drone: its session, its vehicle, what came up for it."""
 
     def __init__(self, name: str, router: str, vehicle: Any, gss: list[str], lat: LatencyLog | None = None,
-                 woken: "collections.deque[BareDrone] | None" = None) -> None:
+                 woken: "collections.deque[BareDrone] | None" = None, wake: threading.Event | None = None) -> None:
         from zdrone.core.bundle import BundleWriter
         from zdrone.core.standby import StandbyStream
 
@@ -159,6 +160,7 @@ class BareDrone:
         self.owner: str | None = None
         self.armed_seen = False
         self.takeoff_at = float("inf")  # its take-off moment, drawn over the spread at the take-off
+        self.next_arm = 0.0  # when to send ARM and MISSION_START again if it has not armed
         self.pos_key: tuple[float, float] | None = None
         self.inside: list[str] = []
         self.subs: dict[str, Any] = {}  # GS -> the subscriber of its uplink's lanes (the radio gate)
@@ -172,6 +174,8 @@ class BareDrone:
             self.delivered += 1
             if woken is not None:
                 woken.append(self)
+            if wake is not None:
+                wake.set()
 
         self._on_up = on_up
 
@@ -254,6 +258,7 @@ def _host_drones(args: argparse.Namespace) -> int:
     mission = shuttle_mission(CROSSINGS, far_east_m=500.0 * (len(gss) - 1) - 60.0)
     lat = LatencyLog() if args.latency else None
     woken: collections.deque[BareDrone] = collections.deque()  # drones a GS's frame reached since last served
+    wake = threading.Event()  # set with each
     drones = []
     for i in range(args.part, args.k, args.parts):  # this host's share (drone i in host i mod parts, as zdrone's)
         name = f"d{i + 1}"
@@ -262,7 +267,7 @@ def _host_drones(args: argparse.Namespace) -> int:
         if not _upload(vehicle, mission, gcs):
             print(f"bare drones host: {name} refused the mission", file=sys.stderr, flush=True)
             return 2
-        d = BareDrone(name, routers[i % len(routers)], vehicle, gss, lat, woken)
+        d = BareDrone(name, routers[i % len(routers)], vehicle, gss, lat, woken, wake)
         p = vehicle.sim.position
         d.inside = [g for g, c in circles.items() if c.contains(p)]
         d.owner = nearest_covering(p, circles, None)
@@ -278,39 +283,63 @@ def _host_drones(args: argparse.Namespace) -> int:
     t0 = cpu0 = 0.0
     deadline = float("inf")
     baseline = 0
-    next_arm = 0.0
-    loops = 0
+    loops = 0.0
     worst_pass = 0.0
     landed_at: float | None = None
     put_opts = {"congestion_control": zenoh.CongestionControl.DROP}
+    # each drone stepped at its own next deadline or when a GS's frame comes, as zdrone's host does
+    sched = StepSchedule(len(drones), time.monotonic())
+    index = {id(d): i for i, d in enumerate(drones)}
+    steps_at_t0, next_check = 0, 0.0
+
+    def served(d: BareDrone) -> None:  # what came up goes to the vehicle; its answer is due at once
+        d.take_uplink(lat)
+        sched.bring_forward(index[id(d)], d.vehicle.next_due())
+
     try:
         while not stop[0] and time.monotonic() < deadline:
+            wake.wait(max(0.0, min(sched.next_due(), next_check) - time.monotonic()))
+            wake.clear()
+            if time.monotonic() >= next_check:
+                next_check = time.monotonic() + PASS_S
+                if go[0] and t0 == 0.0:
+                    t0, cpu0 = time.monotonic(), time.process_time()
+                    deadline = t0 + args.duration
+                    baseline = sum(d.delivered for d in drones)
+                    steps_at_t0 = sched.steps
+                    for i, d in enumerate(drones):
+                        d.takeoff_at = t0 + draw.uniform(0.0, spread)
+                        sched.bring_forward(i, d.takeoff_at)
+                    if lat is not None:
+                        lat.start(t0)
+                    print("bare drones host: take-off", flush=True)
+                if landed_at is None and t0 and all(d.armed_seen for d in drones) and not any(d.vehicle.armed for d in drones):
+                    landed_at = time.monotonic()
+                    print("bare drones host: all landed", flush=True)
+                if landed_at is not None and time.monotonic() - landed_at >= LANDED_TAIL_S:
+                    break
             pass_start = time.monotonic()
-            if go[0] and t0 == 0.0:
-                t0, cpu0 = pass_start, time.process_time()
-                deadline = t0 + args.duration
-                baseline = sum(d.delivered for d in drones)
-                for d in drones:
-                    d.takeoff_at = t0 + draw.uniform(0.0, spread)
-                if lat is not None:
-                    lat.start(t0)
-                print("bare drones host: take-off", flush=True)
-            arm_now = t0 > 0.0 and pass_start >= next_arm
-            if arm_now:
-                next_arm = pass_start + ARM_RETRY_S
-            for i, d in enumerate(drones):
-                if i % WAKE_EVERY == 0:
+            while woken:
+                served(woken.popleft())
+            for j, i in enumerate(sched.take(pass_start)):
+                if j and j % WAKE_EVERY == 0:
                     while woken:
-                        woken.popleft().take_uplink(lat)
+                        served(woken.popleft())
+                d = drones[i]
                 now = time.monotonic()
                 vehicle = d.vehicle
                 d.take_uplink(lat)
-                if arm_now and not d.armed_seen and now >= d.takeoff_at:
+                if t0 and not d.armed_seen and now >= d.takeoff_at:
                     if vehicle.armed:
                         d.armed_seen = True
-                    else:
+                    elif now >= d.next_arm:
+                        d.next_arm = now + ARM_RETRY_S
                         _take_off(vehicle, gcs)
                 frames = vehicle.recv(0.0)
+                due = vehicle.next_due()
+                if t0 and not d.armed_seen:
+                    due = min(due, max(d.takeoff_at, d.next_arm))
+                sched.set(i, max(due, time.monotonic() + MIN_STEP_GAP_S))
                 if not frames:
                     continue
                 if lat is not None:
@@ -334,15 +363,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                                 bundles.add(g, f)
                 for g, b in bundles.take():
                     d.session.put(keyexprs.down(d.name, g), b, **put_opts)
-            loops += 1
-            if landed_at is None and t0 and all(d.armed_seen for d in drones) and not any(d.vehicle.armed for d in drones):
-                landed_at = time.monotonic()
-                print("bare drones host: all landed", flush=True)
-            if landed_at is not None and time.monotonic() - landed_at >= LANDED_TAIL_S:
-                break
-            pass_s = time.monotonic() - pass_start
-            worst_pass = max(worst_pass, pass_s)
-            time.sleep(max(0.0005, PASS_S - pass_s))
+            worst_pass = max(worst_pass, time.monotonic() - pass_start)
+        loops = (sched.steps - steps_at_t0) / max(1, len(drones))  # steps a drone, from the take-off
         flight_s = time.monotonic() - t0 if t0 else 0.0
         cpu_s = time.process_time() - cpu0 if t0 else 0.0
         out = Path(args.out)

@@ -24,6 +24,7 @@ from typing import Any
 from zdrone.bench.latency import LatencyLog
 from zdrone.bench.procstats import _memory_mb
 from zdrone.bench.stallwatch import FrameGaps, GcClock, LoopTimer, PassClock, StallWatch
+from zdrone.bench.stepping import MIN_STEP_GAP_S, StepSchedule
 from zdrone.net.runtime import freeze_start_up
 
 #: Crossings of the shuttle each drone flies (A's area to the last GS's area, and back).
@@ -32,8 +33,8 @@ CROSSINGS = 2
 #: its inputs (``DroneNode.take_inputs``; the bare half does the same), as a drone on its own companion
 #: wakes on one: the frame waits for a few drones' steps, not for a pass over all of them.
 WAKE_EVERY = 10
-#: The drones host steps every drone once per pass, a pass every PASS_S at most (a drone's own loop
-#: sleeps until its next deadline or input; stepping hundreds in turn, each pass costs them all).
+#: The drones host steps each drone at its own next deadline or when an input comes for it
+#: (``zdrone.bench.stepping``), and makes its own checks (take-off, landing) every PASS_S.
 PASS_S = 0.01
 #: After the last vehicle has landed the GSs stop commanding and count what they sent (``COUNTED``
 #: file), and the drones host steps on this long after that, so what is still on its way arrives: a
@@ -196,22 +197,28 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
     node.rt.inbox.put = arrived
 
 
-def wake_on_uplink(node: Any, woken: "collections.deque[Any]") -> None:
-    """``node`` goes into ``woken`` when a GS's frame reaches its inbox (Zenoh's thread: one append)."""
+def wake_on_uplink(node: Any, woken: "collections.deque[Any]", wake: threading.Event | None = None) -> None:
+    """``node`` goes into ``woken`` when a GS's frame reaches its inbox, and ``wake`` is set (Zenoh's
+    thread: one append, one set)."""
     put = node.rt.inbox.put
 
     def woke(kind: str, peer: str, data: Any) -> None:
         put(kind, peer, data)
         if kind == "up":
             woken.append(node)
+            if wake is not None:
+                wake.set()
 
     node.rt.inbox.put = woke
 
 
-def serve_woken(woken: "collections.deque[Any]") -> None:
-    """Hand each drone woken by a GS's frame its inputs (``WAKE_EVERY``)."""
+def serve_woken(woken: "collections.deque[Any]", after: Any = None) -> None:
+    """Hand each drone woken by a GS's frame its inputs (``WAKE_EVERY``), then ``after(drone)``."""
     while woken:
-        woken.popleft().take_inputs()
+        n = woken.popleft()
+        n.take_inputs()
+        if after is not None:
+            after(n)
 
 
 def note_station_latency(station: Any, latency: LatencyLog) -> None:
@@ -280,8 +287,9 @@ def _host_drones(args: argparse.Namespace) -> int:
         for n in nodes:
             note_drone_latency(n, latency)
     woken: collections.deque[Any] = collections.deque()
+    wake = threading.Event()  # a GS's frame came for one of the drones (``woken``)
     for n in nodes:
-        wake_on_uplink(n, woken)
+        wake_on_uplink(n, woken, wake)
     router_zids = {n.name: _router_zid(n.rt.session) for n in nodes}
     gss = {n.name: set(n.fleet.nodes[n.name].authorized_gs) for n in nodes}
     for n in nodes:  # pre-flight hold: not ready to arm (SYS_STATUS says so; the GS waits) until released
@@ -303,7 +311,9 @@ def _host_drones(args: argparse.Namespace) -> int:
     slow: dict[str, Any] = {"worst_pass_s": 0.0, "passes_over_0_5s": 0, "worst_step_s": 0.0, "worst_step_node": None}
     # which call a slow step waits in (``ZDRONE_STALL_NATIVE=dir``: with py-spy's native stacks there)
     watch = StallWatch(native_dir=os.environ.get("ZDRONE_STALL_NATIVE"))
-    clock = PassClock()  # a slow pass: the loop on a CPU, waiting for one, or asleep
+    # a slow pass: the loop on a CPU, waiting for one, or asleep (not in ``bench overhead``, whose bare
+    # half has no such clock: two reads of /proc a pass cost as much as a drone's step at K = 1)
+    clock = PassClock(on=not args.latency)
     worst_owner_silence = [0.0] * len(nodes)
     worst_at: list[dict[str, Any] | None] = [None] * len(nodes)
     owner_lost = [0] * len(nodes)
@@ -315,38 +325,72 @@ def _host_drones(args: argparse.Namespace) -> int:
     released: str | None = None
     baseline: dict[str, dict[str, int]] = {}
     loops = 0
+    # each drone stepped at its own next deadline or when a GS's frame comes (``zdrone.bench.stepping``)
+    sched = StepSchedule(len(nodes), time.monotonic())
+    index = {id(n): i for i, n in enumerate(nodes)}
+    steps_at_t0 = 0
+    next_check = 0.0  # the host's own checks (take-off, landing, --jam), every PASS_S
+
+    def served(n: Any) -> None:  # its inputs handled: what it answers goes now, its step comes forward
+        now = time.monotonic()
+        n.flush_down(now)
+        sched.bring_forward(index[id(n)], n.next_deadline(now))
+
     try:
         while not stop[0] and time.monotonic() < deadline:
-            # (a corridor: each drone linked with its owner; its links follow it from there)
-            if released is None and (all((n.machine.owner is not None and n.machine.owner in n.core.links)
-                                         if args.corridor else gss[n.name] <= set(n.core.links) for n in nodes)
-                                     or time.monotonic() - t_ready >= args.hold):
-                released = "keys" if time.monotonic() - t_ready < args.hold else "hold timeout"
-                for n in nodes:
-                    n.vehicle.sim.ready_after = 0.0
-                t0, cpu0 = time.monotonic(), time.process_time()
-                deadline = t0 + args.duration
-                baseline = {d: c.snapshot() for d, c in deliveries.items()}
-                if latency is not None:
-                    latency.start(t0)
-                print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
+            wake.wait(max(0.0, min(sched.next_due(), next_check) - time.monotonic()))
+            wake.clear()
+            if time.monotonic() >= next_check:
+                next_check = time.monotonic() + PASS_S
+                # (a corridor: each drone linked with its owner; its links follow it from there)
+                if released is None and (all((n.machine.owner is not None and n.machine.owner in n.core.links)
+                                             if args.corridor else gss[n.name] <= set(n.core.links) for n in nodes)
+                                         or time.monotonic() - t_ready >= args.hold):
+                    released = "keys" if time.monotonic() - t_ready < args.hold else "hold timeout"
+                    for i, n in enumerate(nodes):
+                        n.vehicle.sim.ready_after = 0.0
+                        sched.bring_forward(i, time.monotonic())
+                    t0, cpu0 = time.monotonic(), time.process_time()
+                    deadline = t0 + args.duration
+                    steps_at_t0 = sched.steps
+                    baseline = {d: c.snapshot() for d, c in deliveries.items()}
+                    if latency is not None:
+                        latency.start(t0)
+                    print(f"drones host: take-off ({released}, {t0 - t_ready:.1f} s on the ground)", flush=True)
+                if jam[0] is not None:
+                    gate = next(n.gate for n in nodes if n.name == args.jam)
+                    if gate.jammed != jam[0]:
+                        gate.jammed = jam[0]
+                        mended[0] = None if jam[0] else time.monotonic()
+                        print(f"drones host: {args.jam} {'out of' if jam[0] else 'back in'} reach at {time.time():.3f}",
+                              flush=True)
+                if landed_at is None and all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (
+                        not args.jam or mended[0] is not None and time.monotonic() > mended[0] + 10.0):
+                    # (--jam: not before the cut-off drone has been back in reach for 10 s)
+                    landed_at = time.monotonic()  # the GSs count what they sent now; what is on its way still arrives
+                    print("drones host: all landed", flush=True)
+                if landed_at is not None:
+                    # (several hosts: the GSs count once every host has landed, so wait for them as long as a flight)
+                    counted = len(list(Path(args.out).glob(COUNTED.replace(".", "*.", 1))))
+                    if counted_at is None and (counted >= args.station_hosts or time.monotonic() - landed_at
+                                               >= (COUNTED_WAIT_S if args.parts == 1 else max(COUNTED_WAIT_S, args.duration))):
+                        counted_at = time.monotonic()
+                    if counted_at is not None and time.monotonic() - counted_at >= LANDED_DRAIN_S:
+                        break
             pass_start = time.monotonic()
             clock.begin()
-            if jam[0] is not None:
-                gate = next(n.gate for n in nodes if n.name == args.jam)
-                if gate.jammed != jam[0]:
-                    gate.jammed = jam[0]
-                    mended[0] = None if jam[0] else time.monotonic()
-                    print(f"drones host: {args.jam} {'out of' if jam[0] else 'back in'} reach at {time.time():.3f}",
-                          flush=True)
-            for i, n in enumerate(nodes):
-                if i % WAKE_EVERY == 0:
-                    serve_woken(woken)
+            serve_woken(woken, served)
+            for j, i in enumerate(sched.take(pass_start)):
+                if j and j % WAKE_EVERY == 0:
+                    serve_woken(woken, served)
+                n = nodes[i]
                 step_start = time.monotonic()
                 watch.begin(n.name)
                 n.step(0.0)
                 watch.end()
-                step_s = time.monotonic() - step_start
+                done = time.monotonic()
+                sched.set(i, max(n.next_deadline(done), done + MIN_STEP_GAP_S))
+                step_s = done - step_start
                 if step_s > slow["worst_step_s"]:
                     slow["worst_step_s"], slow["worst_step_node"] = round(step_s, 3), n.name
                 m = n.machine
@@ -366,25 +410,11 @@ def _host_drones(args: argparse.Namespace) -> int:
                     silent = judged is not None and judged.state is not LinkState.OK
                     owner_judged_silent[i] += silent and not owner_silent_now[i]
                     owner_silent_now[i] = silent
-            loops += 1
             pass_s = time.monotonic() - pass_start
             clock.end(pass_start - t0)
             slow["worst_pass_s"] = max(slow["worst_pass_s"], round(pass_s, 3))
             slow["passes_over_0_5s"] += pass_s > 0.5
-            if landed_at is None and all(armed_seen) and all(not n.vehicle.armed for n in nodes) and (
-                    not args.jam or mended[0] is not None and time.monotonic() > mended[0] + 10.0):
-                # (--jam: not before the cut-off drone has been back in reach for 10 s)
-                landed_at = time.monotonic()  # the GSs count what they sent now; what is on its way still arrives
-                print("drones host: all landed", flush=True)
-            if landed_at is not None:
-                # (several hosts: the GSs count once every host has landed, so wait for them as long as a flight)
-                counted = len(list(Path(args.out).glob(COUNTED.replace(".", "*.", 1))))
-                if counted_at is None and (counted >= args.station_hosts or time.monotonic() - landed_at
-                                           >= (COUNTED_WAIT_S if args.parts == 1 else max(COUNTED_WAIT_S, args.duration))):
-                    counted_at = time.monotonic()
-                if counted_at is not None and time.monotonic() - counted_at >= LANDED_DRAIN_S:
-                    break
-            time.sleep(max(0.0005, PASS_S - (time.monotonic() - pass_start)))
+        loops = (sched.steps - steps_at_t0) / max(1, len(nodes))  # steps a drone, from the take-off
         flight_s, cpu_s = time.monotonic() - t0, time.process_time() - cpu0
         results = {}
         for i, n in enumerate(nodes):

@@ -136,15 +136,19 @@ class PassClock:
     machine's stolen time, the whole process's CPU. Neither on a CPU nor queued: the thread slept
     (a lock, a futex). Kept for the ``MAX_STALLS`` slowest passes over ``threshold``."""
 
-    def __init__(self, threshold: float = 0.5) -> None:
+    def __init__(self, threshold: float = 0.5, on: bool = True) -> None:
         self.threshold = threshold
+        self.on = on  # off: begin and end do nothing
         self.slow: list[dict[str, float]] = []
         self._start = (0.0, 0.0, 0.0, 0.0, 0.0)
 
     def begin(self) -> None:
-        self._start = (time.monotonic(), *_schedstat(), _steal(), time.process_time())
+        if self.on:
+            self._start = (time.monotonic(), *_schedstat(), _steal(), time.process_time())
 
     def end(self, after_takeoff_s: float) -> None:
+        if not self.on:
+            return
         wall = time.monotonic() - self._start[0]
         if wall < self.threshold:
             return

@@ -1,7 +1,8 @@
 """A vehicle link to a simulator inside the same process (no sockets): for hosting many drones in
 one process in ``zdrone bench scale``. Same interface as ``VehicleLink``, read by polling: there is
 nothing to wait on, the simulator advances when the node's loop calls ``recv`` (``start_reader``
-says so, and ``next_due`` asks for a look every ``STEP_S``)."""
+says so). ``next_due`` says when to call it next: when the simulator's next stream message is due
+(``STEP_MAX_S`` at the latest), or at once after a frame was sent to it (its answer is ready)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,9 @@ from zdrone.vehicle.modes import mode_name
 from zdrone.vehicle.px4modes import FlightMode
 from zdrone.vehicle.sim import SimAutopilot
 
-#: How often a node's loop that sleeps until its next deadline steps the simulator.
-STEP_S = 0.02
+#: The longest a node's loop that sleeps until its next deadline leaves the simulator unstepped
+#: (wall seconds), whatever its streams: its own timers (readiness, retries, the GCS's loss) run in steps.
+STEP_MAX_S = 0.25
 
 
 class InProcessVehicle:
@@ -28,6 +30,7 @@ class InProcessVehicle:
         self.sysid = sysid
         self.autopilot: str | None = self.sim.p.name  # "px4"
         self.conn = f"inproc-sim:{sysid}"
+        self._sent = False  # a frame was sent to the simulator since its last step: its answer is ready
 
     def _sim_time(self) -> float:
         return (time.monotonic() - self.t0) * self.speedup
@@ -49,6 +52,7 @@ class InProcessVehicle:
         pass
 
     def recv(self, timeout: float = 0.0) -> list[bytes]:
+        self._sent = False
         self.sim.step(self._sim_time())
         return self.sim.drain()
 
@@ -60,10 +64,18 @@ class InProcessVehicle:
         return bytes(msg)
 
     def next_due(self) -> float:
-        """The next step of the simulator, for a caller's timer."""
-        return time.monotonic() + STEP_S
+        """When to step the simulator next (monotonic seconds), for a caller's timer: at once if a frame
+        was sent to it; else when its next stream message is due, ``STEP_MAX_S`` from now at the latest."""
+        now = time.monotonic()
+        if self._sent:
+            return now
+        tel = self.sim.telemetry
+        sim_due = min((tel.next_due.get(m, self.sim.t) for m in tel.streams), default=None)
+        soonest = now if sim_due is None else self.t0 + sim_due / self.speedup
+        return min(soonest, now + STEP_MAX_S)
 
     def send(self, frame: bytes) -> None:
+        self._sent = True
         self.sim.receive(frame, self.sim.t)
 
     def state(self) -> VehicleState:
