@@ -178,7 +178,7 @@ def compare(k: int, zd: dict[str, Any], bare: dict[str, Any]) -> dict[str, Any]:
 
 
 def host_load(row: dict[str, Any]) -> dict[str, Any]:
-    """Each host process's share of a core over the flight, the drones hosts' passes a second, and which
+    """Each host process's share of a core over the flight, how often the drones host stepped a drone, and which
     hosts ran above ``SATURATED_SHARE`` (saturated: they fall behind their own pace, so their CPU per
     drone reads low; a figure from them is reported, not counted as cheap)."""
     shares = row.get("drone_host_shares")
@@ -319,7 +319,7 @@ def table_rows(cmp: dict[str, Any]) -> list[list[str]]:
         rows.append(["share of a core", "GSs host", share(h["bare"]["GSs host"]), share(h["zdrone"]["GSs host"]), "", ""])
         for n in sorted(set(h["zdrone"]["routers"]) | set(h["bare"]["routers"])):
             rows.append(["share of a core", n, share(h["bare"]["routers"].get(n)), share(h["zdrone"]["routers"].get(n)), "", ""])
-        rows.append(["passes /s", "drones host (slowest)", _num(h["bare"]["drones_host_passes_per_s"], 1),
+        rows.append(["steps /s a drone", "drones host (slowest)", _num(h["bare"]["drones_host_passes_per_s"], 1),
                      _num(h["zdrone"]["drones_host_passes_per_s"], 1), "", ""])
     return rows
 

@@ -18,6 +18,8 @@ from zdrone.vehicle.sim import SimAutopilot
 #: The longest a node's loop that sleeps until its next deadline leaves the simulator unstepped
 #: (wall seconds), whatever its streams: its own timers (readiness, retries, the GCS's loss) run in steps.
 STEP_MAX_S = 0.25
+#: Vehicle ``seed``'s streams start ``seed`` times this (modulo 1 s) into its first second: spread evenly.
+PHASE_STEP = 0.6180339887
 
 
 class InProcessVehicle:
@@ -27,6 +29,12 @@ class InProcessVehicle:
         self.sim = SimAutopilot(home, sysid=sysid, seed=seed)
         self.speedup = speedup
         self.t0 = time.monotonic()
+        # its streams' phase (simulated seconds, by ``seed``): hundreds of vehicles made at once do not
+        # stream in step, as companions' autopilots that booted apart do not (one burst a period otherwise)
+        phase = (seed * PHASE_STEP) % 1.0
+        due = self.sim.telemetry.next_due
+        for m in due:
+            due[m] += phase
         self.sysid = sysid
         self.autopilot: str | None = self.sim.p.name  # "px4"
         self.conn = f"inproc-sim:{sysid}"
