@@ -211,3 +211,18 @@ def test_a_catch_up_is_timed_from_its_sending_again_and_its_age_kept_apart(tmp_p
     files = [tmp_path / "d.json", tmp_path / "g.json"]
     assert lat.summary(lat.load(files))["vehicle_to_gs"] == {"n": 2, "p50_ms": 1.0, "p99_ms": 2.0}
     assert lat.catch_up(files) == {"n": 1, "p50_ms": 200.0, "p99_ms": 200.0, "max_ms": 200.0}
+
+
+def test_vehicle_to_gs_is_split_at_the_drones_put_and_the_gss_inbox(tmp_path) -> None:
+    drone, gs = lat.LatencyLog(), lat.LatencyLog()
+    drone.notes["down"]["sent"] = [("d1", 1, 10.0)]
+    drone.notes["down"]["put"] = [("d1", 1, 10.001)]
+    gs.notes["down"]["arrived"] = [("d1", 1, 10.004)]
+    gs.notes["down"]["got"] = [("d1", 1, 10.010)]
+    drone.dump(tmp_path / "d.json")
+    gs.dump(tmp_path / "g.json")
+    s = lat.summary(lat.load([tmp_path / "d.json", tmp_path / "g.json"]))
+    assert s["vehicle_to_gs"]["p50_ms"] == 10.0
+    assert (s["vehicle_to_gs_drone"]["p50_ms"], s["vehicle_to_gs_wire"]["p50_ms"], s["vehicle_to_gs_host"]["p50_ms"]) == (1.0, 3.0, 6.0)
+    c = ov.compare(100, {"latency": s}, {"latency": {}})
+    assert c["latency_ms"]["vehicle_to_gs_wire"]["p50"]["zdrone"] == 3.0

@@ -363,6 +363,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                                 bundles.add(g, f)
                 for g, b in bundles.take():
                     d.session.put(keyexprs.down(d.name, g), b, **put_opts)
+                if lat is not None:
+                    lat.note_many("down", "put", d.name, frames, time.monotonic())
             worst_pass = max(worst_pass, time.monotonic() - pass_start)
         loops = (sched.steps - steps_at_t0) / max(1, len(drones))  # steps a drone, from the take-off
         flight_s = time.monotonic() - t0 if t0 else 0.0
@@ -421,6 +423,7 @@ class BareStation:
         frames = unpack(sample.payload.to_bytes()) or []
         now = time.monotonic()
         if self.lat is not None:
+            self.lat.note_many("down", "arrived", drone, frames, now)  # in its pump's hands
             self.lat.note_many("down", "got", drone, frames, now)
         decode = self.decoder.decode
         for f in frames:

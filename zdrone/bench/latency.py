@@ -20,6 +20,10 @@ each stream message at once (``DroneCore``'s catch-up: a standby GS was sent eac
 second); those are noted as sent again then, so that their delivery is timed like any other, and how
 old they were is reported apart (``catch_up``): bare has no hand-over to send one at.
 
+Vehicle -> GS is split likewise: **the drone** (sent -> put: its step, to the end of the put of its
+bundles), **the wire** (put -> arrived in the GS's inbox: the drone's session, the routers, the GS's
+session and its pump) and **the GS's host** (arrived -> got: the wait for the GS's loop, its opening).
+
 GS -> vehicle is also split where the drone's host takes the message from Zenoh ("arrived": in the
 Zenoh callback, before any queue): **the wire** (sent -> arrived: the GS's pacing, its session, the
 routers, the drone's session) and **the host** (arrived -> got: the wait for the drone's turn in its
@@ -49,8 +53,10 @@ SAMPLE_DOWN = 64
 WINDOW_S = 5.0
 #: The streams noted: "up" GS -> vehicle, "down" vehicle -> GS.
 DIRECTIONS = ("up", "down")
-#: Where a message is noted: sent, arrived in the receiving host's Zenoh callback (GS -> vehicle only), got.
-SIDES = ("sent", "arrived", "got")
+#: Where a message is noted: sent; put (vehicle -> GS: published by the drone's step, sealed, in its
+#: bundle); arrived in the receiving host (GS -> vehicle: the drone's Zenoh callback; vehicle -> GS:
+#: the GS's inbox, its bundle as it came); got.
+SIDES = ("sent", "put", "arrived", "got")
 _EVERY = {"up": SAMPLE_UP, "down": SAMPLE_DOWN}
 
 
@@ -81,7 +87,7 @@ class LatencyLog:
         Sent and got are also counted; an arrival is not (noted in Zenoh's callback thread: one append,
         atomic under the GIL, where a count's read-and-write would not be)."""
         if self.on:
-            if side != "arrived":
+            if side in ("sent", "got"):
                 counts = self.counts[direction][side]
                 s = int(now - self.t0)
                 counts[s] = counts.get(s, 0) + 1
@@ -91,9 +97,10 @@ class LatencyLog:
 
     def note_many(self, direction: str, side: str, drone: str, frames: list[bytes], now: float) -> None:
         if self.on and frames:
-            counts = self.counts[direction][side]
-            s = int(now - self.t0)
-            counts[s] = counts.get(s, 0) + len(frames)
+            counts = self.counts[direction].get(side)  # sent and got are counted (the rates), not put or arrived
+            if counts is not None:
+                s = int(now - self.t0)
+                counts[s] = counts.get(s, 0) + len(frames)
             every, notes = _EVERY[direction], self.notes[direction][side]
             for f in frames:
                 c = zlib.crc32(f)
@@ -197,4 +204,9 @@ def summary(notes: dict[str, dict[str, list[tuple[str, int, float]]]]) -> dict[s
     if up.get("arrived"):
         out["gs_to_vehicle_wire"] = _stats(match(up["sent"], up["arrived"]))
         out["gs_to_vehicle_host"] = _stats(match(up["arrived"], up["got"]))
+    down = notes["down"]
+    if down.get("put") and down.get("arrived"):
+        out["vehicle_to_gs_drone"] = _stats(match(down["sent"], down["put"]))
+        out["vehicle_to_gs_wire"] = _stats(match(down["put"], down["arrived"]))
+        out["vehicle_to_gs_host"] = _stats(match(down["arrived"], down["got"]))
     return out

@@ -163,10 +163,14 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
     core, catch_up = node.core, node.core._catch_up
     taken: dict[bytes, float] = {}  # the newest frame of each stream message -> when the vehicle gave it
 
+    stepped: list[bytes] = []  # the frames taken (and caught up) since the last put of the bundles
+    flush_down = node.flush_down
+
     def received(timeout: float = 0.0) -> list[bytes]:
         frames = recv(timeout)
         now = time.monotonic()
         latency.note_many("down", "sent", name, frames, now)
+        stepped.extend(frames)
         if latency.on:
             latest = set(core._latest.values())
             for f in list(taken):
@@ -183,7 +187,14 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
         if any(g in core.links for g in new):
             now = time.monotonic()
             latency.note_catch_up(name, [(f, taken.get(f, now)) for f in core._latest.values()], now)
+            stepped.extend(core._latest.values())
         return out
+
+    def flushed(now: float) -> None:  # the step's bundles put: its frames are on their way
+        flush_down(now)
+        if stepped:
+            latency.note_many("down", "put", name, stepped, time.monotonic())
+            stepped.clear()
 
     handlers = node._handlers  # the adapter's output handlers (built once, on first use)
     to_vehicle = handlers[ToVehicle]
@@ -194,6 +205,7 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
 
     node.core.on_envelope, node.vehicle.recv, handlers[ToVehicle] = opened, received, forwarded
     node.core._catch_up = caught_up
+    node.flush_down = flushed
     node.rt.inbox.put = arrived
 
 
@@ -252,11 +264,33 @@ def note_station_latency(station: Any, latency: LatencyLog) -> None:
         latency.note("up", "sent", a.peer, a.payload, time.monotonic() if t is None else t)
         put(a)
 
+    # vehicle -> GS: a frame "arrived" when the bundle it came in reached the GS's inbox (its pump's hand)
+    bundles: dict[bytes, float] = {}
+    arrival: list[float | None] = [None]
+    inbox_put, on_inbox = station.rx.put, station._on_inbox
+
+    def came(kind: str, drone: str, data: Any) -> None:  # the pump's thread
+        if kind == "down" and latency.on:
+            if len(bundles) > 100_000:  # dropped before the loop took them (counted by the inbox)
+                bundles.clear()
+            bundles[data] = time.monotonic()
+        inbox_put(kind, drone, data)
+
+    def taken(kind: str, drone: str, data: Any, now: float) -> None:  # the GS's loop
+        arrival[0] = bundles.pop(data, None) if kind == "down" else None
+        try:
+            on_inbox(kind, drone, data, now)
+        finally:
+            arrival[0] = None
+
     def got(a: Any) -> None:
         latency.note("down", "got", a.drone, a.frame, time.monotonic())
+        if arrival[0] is not None:
+            latency.note("down", "arrived", a.drone, a.frame, arrival[0])
         frame_up(a)
 
     handlers[Put], handlers[FrameUp] = sent, got
+    station.rx.put, station._on_inbox = came, taken
 
 
 def _host_drones(args: argparse.Namespace) -> int:
