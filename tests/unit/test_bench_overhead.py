@@ -226,3 +226,15 @@ def test_vehicle_to_gs_is_split_at_the_drones_put_and_the_gss_inbox(tmp_path) ->
     assert (s["vehicle_to_gs_drone"]["p50_ms"], s["vehicle_to_gs_wire"]["p50_ms"], s["vehicle_to_gs_host"]["p50_ms"]) == (1.0, 3.0, 6.0)
     c = ov.compare(100, {"latency": s}, {"latency": {}})
     assert c["latency_ms"]["vehicle_to_gs_wire"]["p50"]["zdrone"] == 3.0
+
+
+def test_gs_to_vehicle_shows_the_gss_own_part_of_the_wire(tmp_path) -> None:
+    gs, host = lat.LatencyLog(), lat.LatencyLog()
+    gs.notes["up"]["sent"] = [("d1", 1, 10.0)]  # the GS's pass began
+    gs.notes["up"]["put"] = [("d1", 1, 10.012)]  # on its lane: after the pass and the pacing
+    host.notes["up"]["arrived"] = [("d1", 1, 10.015)]
+    host.notes["up"]["got"] = [("d1", 1, 10.016)]
+    gs.dump(tmp_path / "g.json")
+    host.dump(tmp_path / "h.json")
+    s = lat.summary(lat.load([tmp_path / "g.json", tmp_path / "h.json"]))
+    assert (s["gs_to_vehicle_gs"]["p50_ms"], s["gs_to_vehicle_wire"]["p50_ms"], s["gs_to_vehicle_host"]["p50_ms"]) == (12.0, 15.0, 1.0)

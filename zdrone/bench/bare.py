@@ -457,6 +457,8 @@ class BareStation:
             self._put_on_lane(uplink, frame)
 
     def _put_on_lane(self, uplink: str, frame: bytes) -> None:
+        if self.lat is not None:  # on its lane, after the GS's pass and its pacing (as zdrone's)
+            self.lat.note("up", "put", uplink.split("/")[1], frame, time.monotonic())
         lanes = self.lanes.get(uplink)
         if lanes is None:
             lanes = self.lanes[uplink] = itertools.cycle([keyexprs.lane_of(uplink, i) for i in range(keyexprs.UP_LANES)])

@@ -53,8 +53,8 @@ SAMPLE_DOWN = 64
 WINDOW_S = 5.0
 #: The streams noted: "up" GS -> vehicle, "down" vehicle -> GS.
 DIRECTIONS = ("up", "down")
-#: Where a message is noted: sent; put (vehicle -> GS: published by the drone's step, sealed, in its
-#: bundle); arrived in the receiving host (GS -> vehicle: the drone's Zenoh callback; vehicle -> GS:
+#: Where a message is noted: sent; put (GS -> vehicle: on its uplink's lane, after the GS's pass and
+#: pacing; vehicle -> GS: published by the drone's step, sealed, in its bundle); arrived in the receiving host (GS -> vehicle: the drone's Zenoh callback; vehicle -> GS:
 #: the GS's inbox, its bundle as it came); got.
 SIDES = ("sent", "put", "arrived", "got")
 _EVERY = {"up": SAMPLE_UP, "down": SAMPLE_DOWN}
@@ -204,6 +204,8 @@ def summary(notes: dict[str, dict[str, list[tuple[str, int, float]]]]) -> dict[s
     if up.get("arrived"):
         out["gs_to_vehicle_wire"] = _stats(match(up["sent"], up["arrived"]))
         out["gs_to_vehicle_host"] = _stats(match(up["arrived"], up["got"]))
+    if up.get("put"):  # of the wire, the part in the GS: its pass, sealing and pacing
+        out["gs_to_vehicle_gs"] = _stats(match(up["sent"], up["put"]))
     down = notes["down"]
     if down.get("put") and down.get("arrived"):
         out["vehicle_to_gs_drone"] = _stats(match(down["sent"], down["put"]))

@@ -47,11 +47,12 @@ CLASSES = ("drones host", "GSs host", "routers")
 #: session, the routers, the drone's session) and the host (the wait for the drone's turn in a pass over
 #: every drone of the host, then the drone's own handling); vehicle -> GS.
 LATENCY_LABELS = {"gs_to_vehicle": "GS -> vehicle", "gs_to_vehicle_wire": "  GS -> drone's host (wire)",
+                  "gs_to_vehicle_gs": "    of which the GS's pass and pacing",
                   "gs_to_vehicle_host": "  drone's host -> vehicle", "vehicle_to_gs": "vehicle -> GS",
                   "vehicle_to_gs_drone": "  vehicle -> put (the drone)", "vehicle_to_gs_wire": "  put -> GS's inbox (wire)",
                   "vehicle_to_gs_host": "  GS's inbox -> GS (its loop)"}
 #: The split, which an older run's notes do not have.
-SPLIT_WAYS = ("gs_to_vehicle_wire", "gs_to_vehicle_host", "vehicle_to_gs_drone", "vehicle_to_gs_wire", "vehicle_to_gs_host")
+SPLIT_WAYS = ("gs_to_vehicle_wire", "gs_to_vehicle_gs", "gs_to_vehicle_host", "vehicle_to_gs_drone", "vehicle_to_gs_wire", "vehicle_to_gs_host")
 #: The messages each half carried per second (``latency.rates``): direction, side, the row's name.
 MESSAGES = (("down", "sent", "vehicle frames out of the vehicles"), ("down", "got", "vehicle frames into the GSs"),
             ("up", "sent", "GS frames put"), ("up", "got", "GS frames into the vehicles"))

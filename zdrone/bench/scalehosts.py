@@ -538,7 +538,10 @@ def _host_stations(args: argparse.Namespace) -> int:
         put_on_lane = st.rt._put_on_lane
 
         def noted(uplink: str, payload: bytes, gs: str = st.name, put_on_lane: Any = put_on_lane) -> None:
-            puts.note(gs, uplink.split("/")[1], time.monotonic())  # keyexprs.up: zdrone/<drone>/up/<gs>
+            drone, now = uplink.split("/")[1], time.monotonic()  # keyexprs.up: zdrone/<drone>/up/<gs>
+            puts.note(gs, drone, now)
+            if latency is not None:  # GS -> vehicle: on its lane, after the GS's pass and its pacing
+                latency.note("up", "put", drone, payload, now)
             put_on_lane(uplink, payload)
 
         st.rt._put_on_lane = noted
