@@ -28,3 +28,19 @@ def test_vehicles_made_at_once_do_not_stream_in_step() -> None:
     vs = [InProcessVehicle(HOME, sysid=i + 1, speedup=1.0, seed=i) for i in range(8)]
     firsts = {round(min(v.sim.telemetry.next_due.values()), 3) for v in vs}
     assert len(firsts) == 8 and max(firsts) - min(firsts) > 0.5  # spread over the first second
+
+
+def test_a_bench_flies_it_bare_as_a_gcs_would() -> None:
+    from gs.planner import shuttle_mission
+
+    v = InProcessVehicle(HOME, sysid=1, speedup=4.0, seed=0)
+    gcs = FrameCodec(200, 190)
+    assert v.upload(shuttle_mission(1, far_east_m=440.0), gcs)
+    v.sim.ready_after = 0.0
+    for _ in range(200):  # until the simulator says it may arm
+        v.recv()
+        v.arm_and_start(gcs)
+        if v.armed:
+            break
+        time.sleep(0.01)
+    assert v.armed

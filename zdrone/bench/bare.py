@@ -208,36 +208,6 @@ class BareDrone:
             log.warning("%s: close: %s", self.name, exc)
 
 
-def _upload(vehicle: Any, items: list[Any], codec: Any) -> bool:
-    """Upload ``items`` (``PlannedItem``) into the in-process simulator as a GCS does (what it says
-    meanwhile is dropped: before the flight). True if it accepted the mission."""
-    from pymavlink.dialects.v20 import common as mav
-
-    sim = vehicle.sim
-    sysid = vehicle.sysid
-    sim.drain()
-    sim.receive(codec.encode(mav.MAVLink_mission_count_message(sysid, 1, len(items), 0)), sim.t)
-    for _ in range(len(items) + 1):
-        for f in sim.drain():
-            msg = codec.decode(f)
-            if msg is None:
-                continue
-            if msg.get_type() == "MISSION_ACK":
-                return bool(msg.type == mav.MAV_MISSION_ACCEPTED)
-            if msg.get_type() == "MISSION_REQUEST_INT":
-                sim.receive(codec.encode(items[msg.seq].message(msg.seq, (sysid, 1))), sim.t)
-                break
-    return False
-
-
-def _take_off(vehicle: Any, codec: Any) -> None:
-    """ARM, then MISSION_START, as the GS that flies it sends them."""
-    from pymavlink.dialects.v20 import common as mav
-
-    for cmd, p1 in ((mav.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), (mav.MAV_CMD_MISSION_START, 0.0)):
-        vehicle.send(codec.encode(mav.MAVLink_command_long_message(vehicle.sysid, 1, cmd, 0, p1, 0, 0, 0, 0, 0, 0)))
-
-
 def _host_drones(args: argparse.Namespace) -> int:
     from gs.planner import shuttle_mission
 
@@ -264,7 +234,7 @@ def _host_drones(args: argparse.Namespace) -> int:
         name = f"d{i + 1}"
         vehicle = InProcessVehicle(HOME, sysid=fleet.nodes[name].sysid, speedup=args.speedup, seed=i)
         vehicle.sim.step(vehicle._sim_time())
-        if not _upload(vehicle, mission, gcs):
+        if not vehicle.upload(mission, gcs):
             print(f"bare drones host: {name} refused the mission", file=sys.stderr, flush=True)
             return 2
         d = BareDrone(name, routers[i % len(routers)], vehicle, gss, lat, woken, wake)
@@ -334,7 +304,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                         d.armed_seen = True
                     elif now >= d.next_arm:
                         d.next_arm = now + ARM_RETRY_S
-                        _take_off(vehicle, gcs)
+                        vehicle.arm_and_start(gcs)
                 frames = vehicle.recv(0.0)
                 due = vehicle.next_due()
                 if t0 and not d.armed_seen:

@@ -109,6 +109,34 @@ class InProcessVehicle:
     def command_rtl(self) -> None:
         self.sim.request_mode(FlightMode.RTL)
 
+    # ---------------------------------------------------- a GCS's part, for a bench that flies it bare
+    def upload(self, items: list[Any], codec: Any) -> bool:
+        """Upload ``items`` (``PlannedItem``) as a GCS does (what the simulator says meanwhile is
+        dropped: before the flight). True if it accepted the mission."""
+        from pymavlink.dialects.v20 import common as mav
+
+        sim, sysid = self.sim, self.sysid
+        sim.drain()
+        sim.receive(codec.encode(mav.MAVLink_mission_count_message(sysid, 1, len(items), 0)), sim.t)
+        for _ in range(len(items) + 1):
+            for f in sim.drain():
+                msg = codec.decode(f)
+                if msg is None:
+                    continue
+                if msg.get_type() == "MISSION_ACK":
+                    return bool(msg.type == mav.MAV_MISSION_ACCEPTED)
+                if msg.get_type() == "MISSION_REQUEST_INT":
+                    sim.receive(codec.encode(items[msg.seq].message(msg.seq, (sysid, 1))), sim.t)
+                    break
+        return False
+
+    def arm_and_start(self, codec: Any) -> None:
+        """ARM, then MISSION_START, as the GS that flies it sends them."""
+        from pymavlink.dialects.v20 import common as mav
+
+        for cmd, p1 in ((mav.MAV_CMD_COMPONENT_ARM_DISARM, 1.0), (mav.MAV_CMD_MISSION_START, 0.0)):
+            self.send(codec.encode(mav.MAVLink_command_long_message(self.sysid, 1, cmd, 0, p1, 0, 0, 0, 0, 0, 0)))
+
     def wait_vehicle(self, timeout: float) -> bool:
         return True
 
