@@ -312,8 +312,8 @@ def _host_drones(args: argparse.Namespace) -> int:
                 sched.set(i, max(due, time.monotonic() + MIN_STEP_GAP_S))
                 if not frames:
                     continue
-                if lat is not None:
-                    lat.note_many("down", "sent", d.name, frames, now)
+                if lat is not None:  # as the vehicle gives them, after its step (as zdrone's drone notes them)
+                    lat.note_many("down", "sent", d.name, frames, time.monotonic())
                 p = vehicle.sim.position
                 key = (p.lat, p.lon)
                 if key != d.pos_key:

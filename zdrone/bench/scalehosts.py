@@ -271,7 +271,7 @@ def note_station_latency(station: Any, latency: LatencyLog) -> None:
 
     def came(kind: str, drone: str, data: Any) -> None:  # the pump's thread
         if kind == "down" and latency.on:
-            if len(bundles) > 100_000:  # dropped before the loop took them (counted by the inbox)
+            if len(bundles) > 5_000:  # bundles the inbox refused are never taken (counted by the inbox)
                 bundles.clear()
             bundles[data] = time.monotonic()
         inbox_put(kind, drone, data)

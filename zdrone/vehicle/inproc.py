@@ -79,7 +79,7 @@ class InProcessVehicle:
             return now
         tel = self.sim.telemetry
         sim_due = min((tel.next_due.get(m, self.sim.t) for m in tel.streams), default=None)
-        soonest = now if sim_due is None else self.t0 + sim_due / self.speedup
+        soonest = now + STEP_MAX_S if sim_due is None else self.t0 + sim_due / self.speedup
         return min(soonest, now + STEP_MAX_S)
 
     def send(self, frame: bytes) -> None:
