@@ -70,3 +70,25 @@ def test_a_gs_that_becomes_the_heir_first_gets_the_newest_of_each_stream_message
     assert [len(o.payload) - 24 for o in to_b] == [len(pos[-1]), len(ack)]
     # then B is an heir like the owner: every frame
     assert sum(1 for o in drone.on_telemetry(pos[0], 200.4) if isinstance(o, Put) and o.peer == "B") == 1
+
+
+def test_a_catch_up_is_counted_by_the_frames_it_sends(tmp_path):
+    """What a new heir is sent at once is counted (``catch_up_frames``, in the drone's status): one
+    frame per stream message seen, once per GS that becomes the owner or heir."""
+    from zdrone.bench.fleetnet import FleetNet, make_fleet
+    from zdrone.core.mavlink import FrameCodec
+
+    net = FleetNet(make_fleet(tmp_path))
+    net.add_gs("A", pair=True)
+    net.add_gs("B")
+    net.run(4.0)
+    net.position = net.between(net.centre("A"), net.centre("B"), 0.45)
+    net.run(1.0)
+    drone, codec = net.drone, FrameCodec(1)
+    before = drone.counters["catch_up_frames"]
+    drone.on_telemetry(codec.encode(mav.MAVLink_global_position_int_message(1, 1, 0, 0, 0, 0, 0, 0, 0)), 200.0)
+    drone.on_telemetry(codec.encode(mav.MAVLink_attitude_message(1, 0, 0, 0, 0, 0, 0)), 200.1)
+    drone.machine.pending_to = "B"
+    drone.on_telemetry(codec.encode(mav.MAVLink_command_ack_message(400, 0)), 200.2)
+    drone.on_telemetry(codec.encode(mav.MAVLink_command_ack_message(400, 0)), 200.3)  # B already caught up
+    assert drone.counters["catch_up_frames"] - before == len(drone._latest) >= 2

@@ -161,8 +161,7 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
         return on_envelope(gs, data, now)
 
     core, catch_up = node.core, node.core._catch_up
-    taken: dict[bytes, float] = {}  # the newest frame of each stream message -> when the vehicle gave it
-
+    taken: dict[bytes, float] = {}  # a vehicle frame -> when the vehicle gave it (the newest kept)
     stepped: list[bytes] = []  # the frames taken (and caught up) since the last put of the bundles
     flush_down = node.flush_down
 
@@ -172,19 +171,17 @@ def note_drone_latency(node: Any, latency: LatencyLog) -> None:
         latency.note_many("down", "sent", name, frames, now)
         stepped.extend(frames)
         if latency.on:
-            latest = set(core._latest.values())
-            for f in list(taken):
-                if f not in latest:
+            if len(taken) > 1024:  # the newest frame of each stream message is all a catch-up sends
+                latest = set(core._latest.values())
+                for f in [f for f in taken if f not in latest]:
                     del taken[f]
-            for f in frames:
-                taken[f] = now
+            taken.update(dict.fromkeys(frames, now))
         return frames
 
-    def caught_up() -> Any:  # a new owner's (or heir's) catch-up: its frames are sent again now
-        m = core.machine
-        new = {g for g in (m.owner, m.pending_to) if g is not None} - core._full_stream
+    def caught_up() -> Any:  # a new owner's (or heir's) catch-up (``catch_up_frames``): sent again now
+        before = core.counters["catch_up_frames"]
         out = catch_up()
-        if any(g in core.links for g in new):
+        if core.counters["catch_up_frames"] != before:
             now = time.monotonic()
             latency.note_catch_up(name, [(f, taken.get(f, now)) for f in core._latest.values()], now)
             stepped.extend(core._latest.values())

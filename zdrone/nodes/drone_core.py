@@ -294,6 +294,7 @@ class DroneCore(DroneRevisions, DroneLinks):
             if link is not None:
                 for f in self._latest.values():
                     out += self._send(gs, link, f)
+                self.counters["catch_up_frames"] += len(self._latest)
             self.standby.forget(gs)
         self._full_stream = full
         return out
