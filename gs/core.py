@@ -65,6 +65,10 @@ TAKEOFF_SPREAD_PER_DRONE_S = 0.02
 #: A checkpoint of our record offered to a drone goes out now and at this many heartbeats after
 #: (the drone countersigns it once; one that never arrives leaves our decisions ``unwitnessed``).
 AUDIT_OFFER_REPEATS = 2
+#: The heartbeat period is cut into this many slots (at most one per drone), each drone in one of them
+#: (by its place in the station's list): a GS of 300 drones puts 30 heartbeats every 50 ms, not 300
+#: at once twice a second, a burst every router on the way queues and every drone's frame waits behind.
+HEARTBEAT_SLOTS = 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,7 +109,10 @@ class StationCore:
                                          takeoff_spread_s=TAKEOFF_SPREAD_PER_DRONE_S * extra) for d in drones}
         self.key_owner = KeyOwner(identity, name, fleet, self.counters)
         self._sm_seq = 0
-        self._hb_due = 0.0
+        self._hb_due = 0.0  # the next heartbeat slot's time
+        self._hb_slot = 0  # the slot it is
+        slots = max(1, min(HEARTBEAT_SLOTS, len(drones)))
+        self._hb_groups = [[self.sessions[d] for d in sorted(drones)[i::slots]] for i in range(slots)]
         self._audit_offer: wire.AuditOffer | None = None  # our record's newest checkpoint to countersign
         self._offer_left: dict[str, int] = {}  # drone -> sends left
         self._due = 0.0  # the earliest of the sessions' ``due``, as of the last ``handle_timer``
@@ -245,16 +252,23 @@ class StationCore:
             if session.due <= now:
                 out += session.tick(now, stamp)
         if now >= self._hb_due:
-            # the next a period after this one was due (after ``now``, a late pass stretched the period)
-            period = 1.0 / self.opts.heartbeat_hz
-            nxt = self._hb_due + period
-            self._hb_due = nxt if nxt > now else now + period
-            for session in self.sessions.values():
-                out += session.heartbeat()
-                if self.opts.paper_heartbeat:
-                    self._sm_seq += 1
-                    out += session.send_control(wire.SmHeartbeat(self._sm_seq))
-            out += self._send_offer()
+            # the slots that are due, each once (a late pass sends every drone one heartbeat, no more); the
+            # next slot a slot's time after this one was due (after ``now``, a late pass stretched it)
+            step = 1.0 / self.opts.heartbeat_hz / len(self._hb_groups)
+            for _ in self._hb_groups:
+                if now < self._hb_due:
+                    break
+                for session in self._hb_groups[self._hb_slot]:
+                    out += session.heartbeat()
+                    if self.opts.paper_heartbeat:
+                        self._sm_seq += 1
+                        out += session.send_control(wire.SmHeartbeat(self._sm_seq))
+                if self._hb_slot == 0:
+                    out += self._send_offer()
+                self._hb_slot = (self._hb_slot + 1) % len(self._hb_groups)
+                self._hb_due += step
+            if self._hb_due <= now:
+                self._hb_due = now + step
         self._due = min((s.due for s in self.sessions.values()), default=float("inf"))
         return out
 

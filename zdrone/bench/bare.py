@@ -17,7 +17,7 @@ the same keys, the same QoS and the same application traffic, and nothing else:
   others, and every frame that comes on them goes to the vehicle; its take-off moment is drawn over
   the same spread as a zdrone GS's (``gs.core.TAKEOFF_SPREAD_PER_DRONE_S``). No authority machine, no
   pairing, no key sharing, no status beacon, no revision, no event log;
-* **a GS**: a MAVLink HEARTBEAT at 2 Hz to every drone it has heard (as zdrone's GS heartbeats the drones it
+* **a GS**: a MAVLink HEARTBEAT at 2 Hz, spread over zdrone's slots (``gs.core.HEARTBEAT_SLOTS``), to every drone it has heard (as zdrone's GS heartbeats the drones it
   holds a live link with: a link becomes live when the drone first speaks under it), and to each drone it is "with" (the same rule,
   on the positions it hears) and that is armed a command at 1 Hz (REQUEST_MESSAGE HOME_POSITION,
   zdrone's command stream, each drone's on its own clock from when it armed), paced on the uplink's
@@ -445,23 +445,30 @@ class BareStation:
     def _run(self) -> None:
         from pymavlink.dialects.v20 import common as mav
 
+        from gs.core import HEARTBEAT_SLOTS
         from zdrone.fleet.revisions import STAMP_PERIOD_S
 
         hb = mav.MAVLink_heartbeat_message(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, mav.MAV_STATE_ACTIVE, 3)
         now = time.monotonic()
         next_hb, next_stamp = now, now
+        slots = max(1, min(HEARTBEAT_SLOTS, len(self.drones)))  # zdrone's GS's slots, the same drones in each
+        groups, slot, step = [sorted(self.drones)[i::slots] for i in range(slots)], 0, 1.0 / HEARTBEAT_HZ / slots
         commands: list[tuple[float, str]] = []  # (due, drone): each armed drone's command clock
         period = 1.0 / COMMAND_HZ
         while self.running:
             now = time.monotonic()
             while self.arming:
                 heapq.heappush(commands, (now + period, self.arming.popleft()))
-            if now >= next_hb:
-                next_hb = max(next_hb + 1.0 / HEARTBEAT_HZ, now)
-                heard = [d for d in self.drones if d in self.heard]
+            for _ in groups:  # the slots that are due, each once (``StationCore.handle_timer``'s rule)
+                if now < next_hb:
+                    break
+                heard = [d for d in groups[slot] if d in self.heard]
                 for d in heard:
                     self._put(d, hb, now)
                 self.sent["heartbeat"] += len(heard)
+                slot, next_hb = (slot + 1) % slots, next_hb + step
+            if next_hb <= now:
+                next_hb = now + step
             while commands and commands[0][0] <= now:
                 due, d = heapq.heappop(commands)
                 if not self.armed.get(d):
