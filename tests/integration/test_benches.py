@@ -127,6 +127,9 @@ def test_bench_overhead_flies_both_halves_and_compares_every_class():
             assert row["compare"]["classes"][c]["rss_mb"][half] is not None, (c, half)
     for way in ("gs_to_vehicle", "vehicle_to_gs"):
         assert set(row["compare"]["latency_ms"][way]) == {"p50", "p99", "n"}
+    for half in ("bare", "zdrone"):  # how late each host stepped its drones, both halves alike
+        late = row["compare"]["hosts"][half]["drones_host_step_late"]
+        assert late["n"] > 0 and 0.0 <= late["p50_ms"] <= late["p99_ms"] <= late["max_ms"], (half, late)
     # like for like: both halves carry the same traffic, class by class (a second a frame, over the same
     # flight window): the vehicles' frames, what reaches the GSs, what the GSs put and what reaches the
     # vehicles (the radio gate: a drone hears only the GSs covering it and its own, in both halves)

@@ -57,7 +57,7 @@ from typing import Any
 import zenoh
 
 from zdrone.bench.latency import LatencyLog
-from zdrone.bench.stepping import MIN_STEP_GAP_S, StepSchedule
+from zdrone.bench.stepping import MIN_STEP_GAP_S, StepLateness, StepSchedule, worst_lateness
 from zdrone.core.bundle import unpack
 from zdrone.core.geometry import GeoPoint, distance_m
 from zdrone.fleet import keyexprs
@@ -277,6 +277,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                     deadline = t0 + args.duration
                     baseline = sum(d.delivered for d in drones)
                     steps_at_t0 = sched.steps
+                    sched.lateness = StepLateness()  # from the take-off, as the steps
                     for i, d in enumerate(drones):
                         d.takeoff_at = t0 + draw.uniform(0.0, spread)
                         sched.bring_forward(i, d.takeoff_at)
@@ -297,6 +298,7 @@ def _host_drones(args: argparse.Namespace) -> int:
                         served(woken.popleft())
                 d = drones[i]
                 now = time.monotonic()
+                sched.started(i, now)
                 vehicle = d.vehicle
                 d.take_uplink(lat)
                 if t0 and not d.armed_seen and now >= d.takeoff_at:
@@ -345,7 +347,7 @@ def _host_drones(args: argparse.Namespace) -> int:
             lat.dump(out / f"latency-drones{suffix}.json")
         (out / f"drones{suffix}.json").write_text(json.dumps({
             "flight_s": flight_s, "cpu_s": cpu_s, "memory_mb": _memory_mb("self"), "loops": loops,
-            "worst_pass_s": round(worst_pass, 3), "flew": sum(d.armed_seen for d in drones), "landed": landed_at is not None,
+            "step_late": sched.lateness.report(), "worst_pass_s": round(worst_pass, 3), "flew": sum(d.armed_seen for d in drones), "landed": landed_at is not None,
             "delivered": sum(d.delivered for d in drones) - baseline}))
     finally:
         for d in drones:
@@ -627,6 +629,7 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
                   "landed": all(p["landed"] for p in parts), "worst_pass_s": max(p["worst_pass_s"] for p in parts),
                   "delivered": sum(p["delivered"] for p in parts),
                   "passes_per_s": min(round(p["loops"] / max(p["flight_s"], 1e-6), 1) for p in parts),
+                  "step_late": worst_lateness([p.get("step_late") for p in parts]),
                   "shares": {h: round(p["cpu_s"] / max(1e-6, p["flight_s"]), 2) for h, p in zip(hosts, parts)}}
         stations = json.loads((d / "stations.json").read_text())
     except (OSError, ValueError) as exc:
@@ -642,7 +645,8 @@ def one(k: int, g: int, base: Path, flight_s: float, sites: int = 0, speedup: fl
                 "memory_mb": {**memory, "drones host": drones["memory_mb"]},
                 "samples_per_s": round((drones["delivered"] + stations["delivered"]) / span, 1),
                 "flew": drones["flew"], "landed": drones["landed"], "worst_pass_s": drones["worst_pass_s"], "sent": stations["sent"],
-                "drones_host_passes_per_s": drones["passes_per_s"], "drone_host_shares": drones["shares"], "drone_hosts": len(hosts),
+                "drones_host_passes_per_s": drones["passes_per_s"],
+                "drones_host_step_late": drones["step_late"], "drone_host_shares": drones["shares"], "drone_hosts": len(hosts),
                 "backhaul_heard": stations["backhaul_heard"]})
     if latency:
         files = [d / ("latency-drones.json" if h == "drones" else f"latency-{h}.json") for h in hosts] + [d / "latency-stations.json"]

@@ -195,7 +195,8 @@ def host_load(row: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {"drones hosts": [round(x, 2) for x in drones],
                            "GSs host": None if stations is None else round(stations / 100.0, 2),
                            "routers": {n: round(v, 2) for n, v in routers.items()},
-                           "drones_host_passes_per_s": row.get("drones_host_passes_per_s")}
+                           "drones_host_passes_per_s": row.get("drones_host_passes_per_s"),
+                           "drones_host_step_late": row.get("drones_host_step_late")}
     sat = [f"drones host {i}" for i, x in enumerate(drones) if x > SATURATED_SHARE]
     if stations is not None and stations / 100.0 > SATURATED_SHARE:
         sat.append("GSs host")
@@ -274,7 +275,7 @@ def _slim(row: dict[str, Any]) -> dict[str, Any]:
     """The zdrone run's row without what only ``bench scale`` reads (per-drone detail)."""
     keep = ("layout", "k", "g", "sites", "tls", "correct", "all_correct", "wall_s", "ground_s", "released", "window_s",
             "cpu_percent", "memory_mb", "samples_per_s", "latency", "handovers", "worst_owner_silence_s", "error", "runs",
-            "hosts_given_way", "mesh", "messages_per_s", "drone_host_shares", "drones_host_passes_per_s", "drone_hosts")
+            "hosts_given_way", "mesh", "messages_per_s", "drone_host_shares", "drones_host_passes_per_s", "drones_host_step_late", "drone_hosts")
     return {f: row[f] for f in keep if f in row}
 
 
@@ -324,6 +325,10 @@ def table_rows(cmp: dict[str, Any]) -> list[list[str]]:
             rows.append(["share of a core", n, share(h["bare"]["routers"].get(n)), share(h["zdrone"]["routers"].get(n)), "", ""])
         rows.append(["steps /s a drone", "drones host (slowest)", _num(h["bare"]["drones_host_passes_per_s"], 1),
                      _num(h["zdrone"]["drones_host_passes_per_s"], 1), "", ""])
+        late = {x: h[x].get("drones_host_step_late") or {} for x in ("zdrone", "bare")}
+        for p in ("p50", "p99"):  # how long after its deadline (or input) a drone's step began: a host's own wait
+            rows.append([f"a step's lateness {p} ms", "drones host (latest)", _num(late["bare"].get(f"{p}_ms")),
+                         _num(late["zdrone"].get(f"{p}_ms")), "", ""])
     return rows
 
 

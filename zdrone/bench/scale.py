@@ -380,6 +380,7 @@ def _load(drones: dict[str, Any], stations: dict[str, Any], window: dict[str, An
         "stations_host_gc": stations.get("gc"),
         "stations_host_loops": stations.get("loops"),
         "drone_host_shares": drones.get("shares"), "drones_host_passes_per_s": drones.get("passes_per_s"),
+        "drones_host_step_late": drones.get("step_late"),
         "drones_per_site": dict(Counter(site_of[n] for n in drones["router_zid"])),
         "samples_per_s": round(delivered / span, 1)}
     before, after = window.get("socks"), window.get("socks_end")

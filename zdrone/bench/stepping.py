@@ -10,6 +10,10 @@ core's timer, its status; the bare half's drone: its vehicle's next frame, its t
 stepped then; an input (a GS's frame, handed over between steps as before) brings it forward. Both
 halves of ``bench overhead`` step their drones by this rule.
 
+How late a host steps its drones is measured, in both halves alike: ``started(i, now)`` notes, as a
+drone's step begins, how long after its deadline (or the input that brought it forward) that is. A
+saturated host steps late; the figure shows by how much (``StepLateness``: p50, p99, max).
+
 ``StepSchedule`` is pure: a heap of (due, drone); ``now`` is passed in.
 """
 
@@ -23,6 +27,45 @@ import math
 MIN_STEP_GAP_S = 0.002
 
 
+#: At most this many lateness samples are kept; past it every other one is dropped and only every
+#: second one taken from then on (a uniform sample of the whole flight in bounded memory).
+LATENESS_SAMPLES = 50_000
+
+
+class StepLateness:
+    """How late the steps began after they were due, in seconds: a bounded uniform sample."""
+
+    def __init__(self) -> None:
+        self.samples: list[float] = []
+        self.n = 0  # steps noted, in all
+        self._stride = 1
+        self.worst = 0.0
+
+    def add(self, late: float) -> None:
+        late = max(0.0, late)
+        self.worst = max(self.worst, late)
+        if self.n % self._stride == 0:
+            self.samples.append(late)
+            if len(self.samples) >= LATENESS_SAMPLES:
+                self.samples = self.samples[::2]
+                self._stride *= 2
+        self.n += 1
+
+    def report(self) -> dict[str, float | int | None]:
+        """p50, p99 and max in ms (None: nothing noted)."""
+        xs = sorted(self.samples)
+        if not xs:
+            return {"n": 0, "p50_ms": None, "p99_ms": None, "max_ms": None}
+        pick = lambda q: round(1000.0 * xs[min(len(xs) - 1, int(q * len(xs)))], 2)  # noqa: E731
+        return {"n": self.n, "p50_ms": pick(0.50), "p99_ms": pick(0.99), "max_ms": round(1000.0 * self.worst, 2)}
+
+
+def worst_lateness(parts: list[dict | None]) -> dict | None:
+    """Of several drones hosts' step lateness (``StepLateness.report``), the latest host's (by p99)."""
+    known = [x for x in parts if x and x.get("p99_ms") is not None]
+    return max(known, key=lambda x: x["p99_ms"]) if known else None
+
+
 class StepSchedule:
     """Which drones (by index) are due now; each has one deadline, moved by ``set`` or ``bring_forward``."""
 
@@ -31,6 +74,8 @@ class StepSchedule:
         self._heap = [(now, i) for i in range(n)]
         heapq.heapify(self._heap)
         self.steps = 0  # drones taken, in all
+        self._taken_due = [now] * n  # the deadline each drone was taken at
+        self.lateness = StepLateness()
 
     def set(self, i: int, due: float) -> None:
         """Drone ``i``'s next deadline (after its step)."""
@@ -50,9 +95,14 @@ class StepSchedule:
             t, i = heapq.heappop(heap)
             if t == due[i]:  # else a deadline since moved: its entry is stale
                 due[i] = math.inf
+                self._taken_due[i] = t
                 out.append(i)
         self.steps += len(out)
         return out
+
+    def started(self, i: int, now: float) -> None:
+        """Drone ``i``'s step (taken by ``take``) begins at ``now``: how late that is, noted."""
+        self.lateness.add(now - self._taken_due[i])
 
     def next_due(self) -> float:
         """The soonest deadline (inf if none)."""
