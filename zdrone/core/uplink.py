@@ -18,7 +18,9 @@ drone's ``uplink.read_only_extra``.
 from __future__ import annotations
 
 import enum
-from typing import Annotated
+import functools
+import types
+from typing import Annotated, Mapping
 
 import msgspec
 import msgspec.structs
@@ -120,16 +122,24 @@ class UplinkPolicy(msgspec.Struct, frozen=True, forbid_unknown_fields=True, dict
             msgspec.structs.force_setattr(self, "_table", table)
         return table.get(msgid, UplinkClass.AUTHORITY_ONLY)
 
+
     @property
     def is_default(self) -> bool:
         return not self.read_only_extra and not self.allow
 
 
-def _compile(policy: UplinkPolicy) -> dict[int, UplinkClass]:
-    """msgid -> class for every id that is not authority-only under ``policy``."""
-    table = {i: UplinkClass.DENIED for i in DEFAULT_DENIED - set(policy.allow)}
-    table.update((i, UplinkClass.READ_ONLY) for i in DEFAULT_READ_ONLY | set(policy.read_only_extra))
-    return table
+def _compile(policy: UplinkPolicy) -> Mapping[int, UplinkClass]:
+    """msgid -> class for every id that is not authority-only under ``policy``: one read-only table per
+    distinct policy, shared by every drone that has it (a fleet of 300 drones, each node's policy
+    parsed by each of the 300 companions of a test host, made 90 000 tables of the same default)."""
+    return _table(frozenset(policy.read_only_extra), frozenset(policy.allow))
+
+
+@functools.lru_cache(maxsize=1024)
+def _table(read_only_extra: frozenset[int], allow: frozenset[int]) -> Mapping[int, UplinkClass]:
+    table = {i: UplinkClass.DENIED for i in DEFAULT_DENIED - allow}
+    table.update((i, UplinkClass.READ_ONLY) for i in DEFAULT_READ_ONLY | read_only_extra)
+    return types.MappingProxyType(table)
 
 
 #: The policy of a drone whose fleet entry has no ``uplink`` field.

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import OrderedDict
 from typing import Any, Callable
 
@@ -31,29 +32,40 @@ import zenoh
 
 log = logging.getLogger(__name__)
 
-#: Payloads remembered per node to recognise the copies other paths deliver.
+#: Payloads remembered per node to recognise the copies other paths deliver, at most.
 RECENT_PAYLOADS = 8192
+#: ... and for this long at most (s): the other paths' copies come within the mesh's delay. A copy later
+#: than this reaches the inbox and is dropped there by the envelope's replay window (counted as a
+#: replay, not ``duplicate_path``). Before, a drone kept its last 8 192 payloads whatever their age:
+#: about 1 MB a drone once full, 60 % of a zdrone drone's memory in a host of 300.
+RECENT_S = 5.0
 
 
 class RecentPayloads:
-    """Thread-safe memory of the last ``size`` payloads seen (per kind and peer), to drop copies."""
+    """Thread-safe memory of the payloads seen (per kind and peer) in the last ``window`` s, ``size``
+    at most, to drop copies."""
 
-    def __init__(self, size: int = RECENT_PAYLOADS) -> None:
-        self.size = size
-        self._seen: OrderedDict[tuple[str, str, int, int], None] = OrderedDict()
+    def __init__(self, size: int = RECENT_PAYLOADS, window: float = RECENT_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.size, self.window, self._clock = size, window, clock
+        self._seen: OrderedDict[tuple[str, str, int, int], float] = OrderedDict()  # key -> first seen, oldest first
         self._lock = threading.Lock()
 
     def first(self, kind: str, peer: str, data: bytes) -> bool:
         """True the first time these bytes are seen from ``peer``; False for a copy."""
         key = (kind, peer, len(data), hash(data))
+        now = self._clock()
         with self._lock:
-            if key in self._seen:
-                self._seen.move_to_end(key)
+            seen = self._seen
+            while seen and (len(seen) >= self.size or next(iter(seen.values())) < now - self.window):
+                seen.popitem(last=False)
+            if key in seen:
                 return False
-            self._seen[key] = None
-            if len(self._seen) > self.size:
-                self._seen.popitem(last=False)
+            seen[key] = now
             return True
+
+    def __len__(self) -> int:
+        return len(self._seen)
 
 
 class SessionPath:
