@@ -111,6 +111,9 @@ class DroneSession(LinkFollow, DroneView):
         self.due = 0.0  # when ``tick`` must next run (at once: the first pairing)
         self.closed_by_drone = False  # the drone closed our link (links that follow it): no pairing of our own
         self.pair_on_demand_until: float | None = None  # our operator asked for control with no link: pair until then
+        #: when the drone last proved itself alive with our key while silent on the link: its message 2 to our
+        #: re-pairing, saying it still holds our key (authentic and fresh: it answers our message 1)
+        self.kept_key_at: float | None = None
 
     # ------------------------------------------------------------------ inputs
     def _facts(self) -> Facts:
@@ -178,9 +181,12 @@ class DroneSession(LinkFollow, DroneView):
         # a rotated key's pairing is no restart; a hybrid re-pairing is one only if the drone lost our key
         again = self.link is not None and not (paired.fresh and (paired.rotated or paired.kept))
         if again and paired.kept:
-            # the drone still holds our key: its silence was the radio (out of coverage), not a
-            # restart; switching to a key it cannot confirm now would cut us off later
+            # the drone still holds our key: its silence was the radio (out of coverage) or a slow
+            # companion, not a restart; switching to a key it cannot confirm now would cut us off later,
+            # and pairing again before another SILENT_REPAIR_S of silence would only load a drone that is
+            # late already (each try is a handshake it computes: five a second per silent drone)
             self.st.counters["pair_not_needed"] += 1
+            self.kept_key_at = now
             return [Emit(rec.PairNotNeeded(drone=self.name))]
         # our own fresh key, proven by the drone's message 2: live at once; the drone takes it when our
         # first frame under it arrives (a heartbeat now); the old one stays readable a while
@@ -308,10 +314,17 @@ class DroneSession(LinkFollow, DroneView):
         return (owns(self, self.st.name) and not self.handover.released_in(self.epoch)
                 and self.st.fleet.is_authorized(self.name, self.st.name))
 
+    def _silence(self, now: float) -> float:
+        """How long the drone has given no sign of life to us: its last frame on our link, or its last
+        answer to our re-pairing that it still holds our key, whichever is newer."""
+        assert self.link is not None
+        silence = self.link.tbm.since_last(now)
+        return silence if self.kept_key_at is None else min(silence, max(0.0, now - self.kept_key_at))
+
     def _silent_authority(self, now: float) -> bool:
         """We hold authority, yet the drone has said nothing for ``SILENT_REPAIR_S``."""
         return (self.link is not None and self.owner == self.st.name and self.ha_state is not HaState.FAILSAFE
-                and self.link.tbm.since_last(now) > SILENT_REPAIR_S
+                and self._silence(now) > SILENT_REPAIR_S
                 and self.st.fleet.is_authorized(self.name, self.st.name))
 
     def _mark_stale(self, now: float) -> None:
@@ -332,7 +345,7 @@ class DroneSession(LinkFollow, DroneView):
             out += self._try_pair(now, wall, unanswered=UNANSWERED_RETRY_S)
         elif self._silent_authority(now):  # a restarted companion waits for its owner to re-pair
             assert self.link is not None
-            fast = self.link.tbm.since_last(now) <= SILENT_FAST_S
+            fast = self._silence(now) <= SILENT_FAST_S
             retry = SILENT_RETRY_S if fast else SILENT_SLOW_RETRY_S
             out += self._try_pair(now, wall, retry=retry, timeout=max(retry, SILENT_PAIR_TIMEOUT_S))
         elif self.link is not None and self.linking.rekey_pending:  # our rotated key's pairing, again
@@ -368,7 +381,7 @@ class DroneSession(LinkFollow, DroneView):
             yield linking.pair_retry_due(now, RETRY_S, UNANSWERED_RETRY_S) if self._pairs(now) else None
             yield self.pair_on_demand_until
             return
-        silence = self.link.tbm.since_last(now)
+        silence = self._silence(now)
         if self.owner == self.st.name and self.ha_state is not HaState.FAILSAFE:  # re-pairing a silent drone
             yield now + SILENT_REPAIR_S - silence
             yield now + SILENT_FAST_S - silence

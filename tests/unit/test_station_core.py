@@ -466,6 +466,25 @@ def test_pairing_again_after_silence_keeps_the_key_the_drone_still_holds(fleet_d
     assert b.sessions["d1"].link is not live_b and any(isinstance(x, Emit) and x.kind == "paired" for x in out_b)
 
 
+def test_a_drone_that_says_it_still_holds_our_key_is_not_asked_again_before_another_silence(fleet_dir):
+    """A slow companion (or a lossy downlink) is silent on the link, yet answers our re-pairing that it
+    holds our key: that answer is its word, fresh and authentic. We pair again only after another
+    ``SILENT_REPAIR_S`` without a sign of life, not every ``SILENT_RETRY_S`` (each try a handshake the
+    late drone computes: the loop that made a saturated host of 300 drones answer 48 000 of them)."""
+    from gs.context import SILENT_REPAIR_S, SILENT_RETRY_S
+
+    a, live, out = _repair(fleet_dir, holds_key=True)
+    assert [x.kind for x in out if isinstance(x, Emit)] == ["pair_not_needed"]
+    t, asked = 10.1, []
+    while t < 10.1 + SILENT_REPAIR_S + 0.5:
+        t = max(a.get_timer(), t + 0.01)
+        asked += [t for x in a.handle_timer(t) if isinstance(x, Ask) and x.kind is AskKind.PAIR]
+    assert asked and asked[0] > 10.1 + SILENT_REPAIR_S  # then pairing again, as for any silence
+    assert all(y - x >= SILENT_RETRY_S * 0.9 for x, y in zip(asked, asked[1:]))
+    b, live_b, _ = _repair(fleet_dir, holds_key=False)  # a restarted companion: the new key, no wait
+    assert b.sessions["d1"].link is not live_b and b.sessions["d1"].kept_key_at is None
+
+
 def test_a_lost_start_answer_never_starts_a_flying_mission_again(fleet_dir):
     """Seen under a lossy radio: MISSION_START's ACK was lost, the GS timed out and, on getting authority
     back later, started the mission again from its first item. A GS whose vehicle flies takes the
