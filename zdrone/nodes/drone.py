@@ -20,6 +20,7 @@ every wake).
 
 from __future__ import annotations
 
+import collections
 import functools
 import heapq
 import logging
@@ -61,6 +62,10 @@ log = logging.getLogger(__name__)
 PAIRING_PER_TURN = 2
 #: Pairing queries looked at per loop turn (no crypto for those refused).
 PAIRING_QUERIES_PER_TURN = 256
+#: Queries over a turn's handshake budget held for the next turns, at most, and for this long at most
+#: (within the GS's wait for its answer: ``gs.session.SILENT_PAIR_TIMEOUT_S``, 1 s).
+PAIRING_HELD = 32
+PAIRING_HOLD_S = 0.8
 #: The loop sleeps at most this long, whatever its deadlines (a safety net, and the bound on how long
 #: a pairing query waits in its ring).
 MAX_SLEEP_S = 0.05
@@ -198,6 +203,7 @@ class DroneNode:
             signing=FcSigning(FcKeyStore.for_node(opts.fleet, opts.drone), opts.fc_signing, opts.rotate_fc_key))
         self._vehicle_pushes = False  # True once the vehicle's frames come through the inbox
         self.pairing = self.rt.queryable(keyexprs.pair_all(self.name))
+        self._held_pairing: collections.deque[tuple[float, Any]] = collections.deque()  # (since, query)
         # fleet revisions: heard and kept, asked for on coming back in reach (a drone never answers)
         self.revision = revisions.RevisionChannel(self.rt, opts.fleet, publisher=False, in_reach=self._hears_a_gs)
 
@@ -396,16 +402,32 @@ class DroneNode:
             self._do(self.core.restore(saved.owner, saved.epoch, saved.state, now), now)
 
     def _serve_pairing(self, now: float) -> None:
-        """Answer pairing queries: refusals cost no crypto; at most ``PAIRING_PER_TURN`` handshakes."""
-        handshakes = 0
+        """Answer pairing queries: refusals cost no crypto; at most ``PAIRING_PER_TURN`` handshakes a
+        turn. A query over the turn's budget is held for the next turns (``PAIRING_HELD``, at most
+        ``PAIRING_HOLD_S``), oldest first, not dropped: a dropped query ends unanswered at the GS,
+        which then asks again at once (an owner re-pairing a silent drone, every 0.2 s), so a drone too
+        busy to answer got more questions, each a handshake once answered."""
+        handshakes, held = 0, self._held_pairing
         for _ in range(PAIRING_QUERIES_PER_TURN):
-            q = self.pairing.try_recv()
-            if q is None:
-                return
-            try:
-                if handshakes >= PAIRING_PER_TURN:
-                    self.core.counters["pair_deferred"] += 1  # over this turn's budget: the GS asks again
+            if held and handshakes < PAIRING_PER_TURN:
+                since, q = held.popleft()
+                if now - since > PAIRING_HOLD_S:
+                    self.core.counters["pair_held_expired"] += 1  # the GS has given up on it: it asks again
+                    q.drop()
                     continue
+            else:
+                q = self.pairing.try_recv()
+                if q is None:
+                    return
+                if handshakes >= PAIRING_PER_TURN:
+                    if len(held) < PAIRING_HELD:
+                        self.core.counters["pair_held"] += 1  # answered in a later turn
+                        held.append((now, q))
+                    else:
+                        self.core.counters["pair_deferred"] += 1  # over the budget and the hold: the GS asks again
+                        q.drop()
+                    continue
+            try:
                 gs = keyexprs.gs_of(q.key_expr)
                 ans, outs = self.core.on_pair_query(gs, payload_bytes(q.payload), now, os.urandom(32), time.time())
                 self._do(outs, now)
@@ -491,6 +513,8 @@ class DroneNode:
             due.append(timer)
         if self._late:
             due.append(self._late[0][0])
+        if self._held_pairing:  # pairing queries held over the last turn's budget: the next turn answers them
+            due.append(now)
         return min(due)
 
     def sleep_time(self) -> float:
