@@ -369,3 +369,29 @@ def test_a_late_loop_never_hands_over_to_a_gs_that_really_went_silent_meanwhile(
         net.drone_outs(d.handle_timer(net.now))
     assert m.owner == "A" and m.epoch == 1 and m.state in (State.LINKED, State.HANDOVER_PENDING), m.state
     assert not [r for r in net.records if isinstance(r, rec.HandoverComplete)] and not net.commands
+
+
+def test_a_pairing_from_a_gs_the_drone_hears_under_its_live_key_costs_no_handshake(fleet_dir):
+    """A drone whose word reaches its owner late (a loaded companion, a one-way fault) is re-paired by it
+    after a second: it still holds the owner's key and hears it, so a handshake would mend nothing. It
+    refuses as ``linked``, no crypto; once it has not heard the GS for ``LINKED_HEARD_S`` it answers as
+    before (a GS it lost, or that lost it)."""
+    from zdrone.bench.fleetnet import WALL0
+    from zdrone.core.pairing import PairAccepted, PairRefused, PairRefusal
+    from zdrone.nodes.drone_core import LINKED_HEARD_S
+
+    net = linked(fleet_dir)
+    drone, a = net.drone, net.gss["A"]
+    answered = drone.counters["pair_answered"]
+
+    def ask():
+        m1 = PairingInitiator(a.st.identity, "A", "d1", net.fleet.nodes["d1"].public_bytes, stamp=WALL0 + net.now).start()
+        return drone.on_pair_query("A", m1, net.now, bytes(32), WALL0 + net.now)[0]
+
+    ans = ask()
+    assert isinstance(ans, PairRefused) and ans.reason is PairRefusal.LINKED and not ans.crypto
+    assert drone.counters["pair_refused:linked"] == 1 and drone.counters["pair_answered"] == answered
+    net.cut.add("A")  # A's frames stop reaching the drone
+    net.run(LINKED_HEARD_S + 0.2)
+    ans = ask()
+    assert isinstance(ans, PairAccepted) and drone.counters["pair_answered"] == answered + 1

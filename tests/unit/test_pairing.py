@@ -126,7 +126,7 @@ def test_pair_results_are_frozen_and_each_refusal_has_one_tier():
     # bad input: no answer, no crypto; authentic-looking but illegal: answered with the reason
     answered = {PairRefusal.UNKNOWN, PairRefusal.UNAUTHORIZED, PairRefusal.FAILSAFE, PairRefusal.OUTSIDE_COVERAGE,
                 PairRefusal.FIRST_CLAIM, PairRefusal.AUTH_FAILED, PairRefusal.DOWNGRADE,
-                    PairRefusal.LINKS_FULL}
+                    PairRefusal.LINKS_FULL, PairRefusal.LINKED}
     assert SILENT_REFUSALS | answered == set(PairRefusal) and not SILENT_REFUSALS & answered
     for reason in PairRefusal:
         r = PairRefused(reason)

@@ -77,6 +77,9 @@ PAIRING_TTL = 10.0
 STATUS_BEACON_S = BEACON_S
 #: The first few of each drop or refusal reason go to the event log; all of them to the counters.
 LOGGED_PER_REASON = 5
+#: A pairing query from a GS we heard under its live key within this long is refused as ``linked``
+#: (``_heard_lately``): the GS's own silence rule (``gs.context.SILENT_REPAIR_S``) is as long.
+LINKED_HEARD_S = 1.0
 
 Position = tuple[float, float, float]
 
@@ -206,7 +209,7 @@ class DroneCore(DroneRevisions, DroneLinks):
             ans: PairResult = PairRefused(PairRefusal.OVERSIZE)
         else:
             policy = None if self.responder.admit(gs) else (self.machine.pair_refusal(gs, self.on_ground, now)
-                                                            or self._links_full(gs))
+                                                            or self._links_full(gs) or self._heard_lately(gs, now))
             # the authority's refusal (first_claim with the seconds left, outside_coverage, ...) tells
             # something: only to a query that passed its tag check; anything else is dropped, counted
             forged = None if policy is None else self._message1_refusal(gs, payload, wall)
@@ -229,6 +232,21 @@ class DroneCore(DroneRevisions, DroneLinks):
         else:
             out += self._pair_refused(gs, ans)
         return ans, out + self._effects(now)
+
+    def _heard_lately(self, gs: str, now: float) -> PairRefused | None:
+        """A pairing of ``gs`` refused as ``linked``: we hold its live key and heard it under that key within
+        ``LINKED_HEARD_S``. Its owner pairs again when our word has not reached it for a second (a restarted
+        companion must have its owner back within the loss threshold); a drone that is only late (a loaded
+        companion, a one-way fault) would compute a handshake per try and mend nothing: it holds the key.
+        Not for a rotated GS (its new static key needs the pairing) nor a classical key the fleet's hybrid
+        rule no longer accepts."""
+        link = self.links.get(gs)
+        if link is None or gs in self.rekey or (self.fleet.pairing_pq and not link.hybrid):
+            return None
+        last = link.tbm.last_seen
+        if last is None or now - last >= LINKED_HEARD_S:
+            return None
+        return PairRefused(PairRefusal.LINKED, f"the drone holds your key and heard you {now - last:.1f} s ago")
 
     def _message1_refusal(self, gs: str, payload: bytes, wall: float | None) -> PairRefused | None:
         """The silent refusal of a message 1 that fails its tag (or its freshness), None if it passes."""
