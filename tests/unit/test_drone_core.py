@@ -391,6 +391,10 @@ def test_a_pairing_from_a_gs_the_drone_hears_under_its_live_key_costs_no_handsha
     ans = ask()
     assert isinstance(ans, PairRefused) and ans.reason is PairRefusal.LINKED and not ans.crypto
     assert drone.counters["pair_refused:linked"] == 1 and drone.counters["pair_answered"] == answered
+    b = net.gss["B"]  # a GS that is not the owner pairs as before (the rule is the owner's silence rule's)
+    m1 = PairingInitiator(b.st.identity, "B", "d1", net.fleet.nodes["d1"].public_bytes, stamp=WALL0 + net.now).start()
+    assert isinstance(drone.on_pair_query("B", m1, net.now, bytes(32), WALL0 + net.now)[0], PairAccepted)
+    answered += 1
     net.cut.add("A")  # A's frames stop reaching the drone
     net.run(LINKED_HEARD_S + 0.2)
     ans = ask()

@@ -138,7 +138,8 @@ class PairRefusal(enum.Enum):
     AUTH_FAILED = "auth_failed"  # the tag passed but the Noise handshake did not (should not happen)
     DOWNGRADE = "downgrade"  # a classical message 1 where the fleet requires the hybrid (ML-KEM-768) pairing
     LINKS_FULL = "links_full"  # the drone holds the fleet's ``links_max`` links and none may close (``linkplan``)
-    #: the drone holds this GS's live key and heard it under that key within ``LINKED_HEARD_S``: it has not
+    #: the GS is the drone's owner, the drone holds its live key and heard it under that key within
+    #: ``LINKED_HEARD_S``: it has not
     #: restarted, a new key would mend nothing, and the handshake would only load a drone that is late
     LINKED = "linked"
 

@@ -234,14 +234,15 @@ class DroneCore(DroneRevisions, DroneLinks):
         return ans, out + self._effects(now)
 
     def _heard_lately(self, gs: str, now: float) -> PairRefused | None:
-        """A pairing of ``gs`` refused as ``linked``: we hold its live key and heard it under that key within
-        ``LINKED_HEARD_S``. Its owner pairs again when our word has not reached it for a second (a restarted
-        companion must have its owner back within the loss threshold); a drone that is only late (a loaded
-        companion, a one-way fault) would compute a handshake per try and mend nothing: it holds the key.
-        Not for a rotated GS (its new static key needs the pairing) nor a classical key the fleet's hybrid
-        rule no longer accepts."""
+        """A pairing of ``gs``, our owner, refused as ``linked``: we hold its live key and heard it under
+        that key within ``LINKED_HEARD_S``. The owner pairs again when our word has not reached it for a
+        second (a restarted companion must have its owner back within the loss threshold); a drone that
+        is only late (a loaded companion, a one-way fault) would compute a handshake per try and mend
+        nothing: it holds the key. Not for a rotated GS (its new static key needs the pairing) nor a
+        classical key the fleet's hybrid rule no longer accepts."""
         link = self.links.get(gs)
-        if link is None or gs in self.rekey or (self.fleet.pairing_pq and not link.hybrid):
+        if (gs != self.machine.owner or link is None or gs in self.rekey
+                or (self.fleet.pairing_pq and not link.hybrid)):
             return None
         last = link.tbm.last_seen
         if last is None or now - last >= LINKED_HEARD_S:

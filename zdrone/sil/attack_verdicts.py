@@ -62,16 +62,21 @@ def check_linkkey_knockout(o: Outcome) -> list[str]:
 
 def check_pair_replay(o: Outcome) -> list[str]:
     """``pair-replay``: Noise KK cannot tell a replayed message 1, so the drone answers it with the
-    message 2 it sent the first time (``pair_repeated``): no new key. Once older than 30 s (its tagged
+    message 2 it sent the first time (``pair_repeated``): no new key; while it hears A under A's live
+    key it refuses it as ``linked`` before any handshake. Once older than 30 s (its tagged
     stamp) a replay is ``stale``: dropped before any work. The only pairing proven is A's genuine one."""
     done = o.rogue_done("pair-replay")
     seen = (o.drone_counter("pair_answered") + o.drone_counter("pair_repeated") + o.drone_counter("pair_refused:stale")
-            + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred"))
+            + o.drone_counter("pair_refused:rate_limited") + o.drone_counter("pair_deferred")
+            + o.drone_counter("pair_refused:linked"))
     why = flight_unaffected(o)
     why += _need(bool(o.rogue_events("pair-replay", Captured)) and done.get("replayed", 0) > 0, "nothing captured or replayed")
     why += _need(seen >= 1 + done.get("replayed", 0) // 2, f"the drone saw {seen} pairing queries of A")
     why += _need(len(o.confirmed("A", "pair")) == 1, "a replayed pairing key was proven")
-    why += _need(o.drone_counter("pair_repeated") > 0, "no replay was answered from the response cache")
+    # while the drone hears A under its live key a replay is refused as ``linked`` (no handshake, no key);
+    # else it is answered from the response cache: either way, never a new key
+    why += _need(o.drone_counter("pair_repeated") + o.drone_counter("pair_refused:linked") > 0,
+                 "no replay was answered from the response cache nor refused as linked")
     return why
 
 
