@@ -38,6 +38,10 @@ SILENT_RETRY_S = 0.2
 #: forever; a companion that takes longer than this to come back is re-paired within a second).
 SILENT_FAST_S = 10.0
 SILENT_SLOW_RETRY_S = 1.0
+#: A silent drone's re-pairing (``tick``) is tried every ``SILENT_RETRY_S`` but waits this long for its
+#: answer: a loaded companion answering in 0.3 s, asked again at 0.2 s, paid a handshake per question (K =
+#: 300: 8-12 per drone); a query no queryable took ends at once (``Linking.pair_unanswered``).
+SILENT_PAIR_TIMEOUT_S = 1.0
 #: After this long without a word from the drone (our site cut off, our process hung) our view of the
 #: authority may be stale: authority may have moved meanwhile. Until the drone's authority status
 #: (a beacon, at least once a second) says who holds it, the GS acts on no authority it thinks it has.

@@ -49,6 +49,12 @@ class DroneView(VehicleReport):
     switching: bool = False  # our rotated key's pairing made a new key live: the drone has not spoken under it yet
     position_input: int = 0  # the session's input number of the newest position report
     ours_from_input: int = 0  # ... of the status that made the drone ours (a position before it does not count)
+    kept_key_at: float | None = None  # the drone's last message 2 saying it still holds our key (``_silence``)
+
+    def _silence(self, now: float) -> float:
+        """Since the drone's last sign of life: a frame on our link, or a message 2 saying it holds our key."""
+        since = self.link.tbm.since_last(now) if self.link is not None else float("inf")
+        return since if self.kept_key_at is None else min(since, max(0.0, now - self.kept_key_at))
 
     @property
     def position(self) -> GeoPoint | None:

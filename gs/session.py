@@ -64,18 +64,14 @@ from zdrone.vehicle.report import AutopilotHeard, PositionReported, TextHeard
 
 from gs.actions import Action, Checkpoint, Emit, FrameUp, Put, ToOperator
 from gs.context import (DEADLINE_SLACK_S, HANDOVER_RETRY_S, KEY_COMING_S, KEY_WAIT_RADIUS, LEAVING_M,
-                        RELEASE_RESEND_S, RESTART_EVIDENCE_S, SILENT_FAST_S, SILENT_REPAIR_S, SILENT_RETRY_S,
-                        SILENT_SLOW_RETRY_S, STALE_VIEW_S, USED_MSGIDS, StationContext)
+                        RELEASE_RESEND_S, RESTART_EVIDENCE_S, SILENT_FAST_S, SILENT_PAIR_TIMEOUT_S, SILENT_REPAIR_S,
+                        SILENT_RETRY_S, SILENT_SLOW_RETRY_S, STALE_VIEW_S, USED_MSGIDS, StationContext)
 from gs.droneview import DroneView
 from gs.handover import Confirmed, Failed, Handover, HandoverPhase, ReleaseSent
 from gs.keyhold import HoldStep, KeyHold, KeyMissing, KeyThere, ModeAck
 from gs.linkfollow import PAIR_ON_DEMAND_S, WIPE_SILENT_S, LinkFollow
 from gs.linking import PAIR_TIMEOUT, RETRY_S, UNANSWERED_RETRY_S, Context, Linking, PairDue, Reply
 
-#: A silent drone's re-pairing (``tick``) is tried every ``SILENT_RETRY_S`` but waits this long for its
-#: answer: a loaded companion answering in 0.3 s, asked again at 0.2 s, paid a handshake per question (K =
-#: 300: 8-12 per drone); a query no queryable took ends at once (``Linking.pair_unanswered``).
-SILENT_PAIR_TIMEOUT_S = 1.0
 from gs.mission import FlightAck, FlightEvent, FlightParam, FlightTick, Mission
 from gs.opcontrol import Answer, OperatorControl, Step
 from gs.ownership import owns
@@ -111,9 +107,6 @@ class DroneSession(LinkFollow, DroneView):
         self.due = 0.0  # when ``tick`` must next run (at once: the first pairing)
         self.closed_by_drone = False  # the drone closed our link (links that follow it): no pairing of our own
         self.pair_on_demand_until: float | None = None  # our operator asked for control with no link: pair until then
-        #: when the drone last proved itself alive with our key while silent on the link: its message 2 to our
-        #: re-pairing, saying it still holds our key (authentic and fresh: it answers our message 1)
-        self.kept_key_at: float | None = None
 
     # ------------------------------------------------------------------ inputs
     def _facts(self) -> Facts:
@@ -181,10 +174,8 @@ class DroneSession(LinkFollow, DroneView):
         # a rotated key's pairing is no restart; a hybrid re-pairing is one only if the drone lost our key
         again = self.link is not None and not (paired.fresh and (paired.rotated or paired.kept))
         if again and paired.kept:
-            # the drone still holds our key: its silence was the radio (out of coverage) or a slow
-            # companion, not a restart; switching to a key it cannot confirm now would cut us off later,
-            # and pairing again before another SILENT_REPAIR_S of silence would only load a drone that is
-            # late already (each try is a handshake it computes: five a second per silent drone)
+            # the drone holds our key: no restart (out of coverage, or late); a key it cannot confirm now
+            # would cut us off later, and pairing again within SILENT_REPAIR_S would load a late drone
             self.st.counters["pair_not_needed"] += 1
             self.kept_key_at = now
             return [Emit(rec.PairNotNeeded(drone=self.name))]
@@ -313,13 +304,6 @@ class DroneSession(LinkFollow, DroneView):
         the drone away: the drone drops our link at once)."""
         return (owns(self, self.st.name) and not self.handover.released_in(self.epoch)
                 and self.st.fleet.is_authorized(self.name, self.st.name))
-
-    def _silence(self, now: float) -> float:
-        """How long the drone has given no sign of life to us: its last frame on our link, or its last
-        answer to our re-pairing that it still holds our key, whichever is newer."""
-        assert self.link is not None
-        silence = self.link.tbm.since_last(now)
-        return silence if self.kept_key_at is None else min(silence, max(0.0, now - self.kept_key_at))
 
     def _silent_authority(self, now: float) -> bool:
         """We hold authority, yet the drone has said nothing for ``SILENT_REPAIR_S``."""

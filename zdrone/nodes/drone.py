@@ -63,7 +63,7 @@ PAIRING_PER_TURN = 2
 #: Pairing queries looked at per loop turn (no crypto for those refused).
 PAIRING_QUERIES_PER_TURN = 256
 #: Queries over a turn's handshake budget held for the next turns, at most, and for this long at most
-#: (within the GS's wait for its answer: ``gs.session.SILENT_PAIR_TIMEOUT_S``, 1 s). A few: a burst of
+#: (within the GS's wait for its answer: ``gs.context.SILENT_PAIR_TIMEOUT_S``, 1 s). A few: a burst of
 #: the GSs' queries waits for the next turn (on a companion, within ``MAX_SLEEP_S``); a drone whose turns
 #: come late drops the rest as before (at 32, a testbed host of 300 late drones held 9 600 queries and
 #: their Zenoh state, 1.4 GB, and let nearly all of them expire).
