@@ -46,12 +46,9 @@ def test_the_owner_gets_every_frame_and_a_standby_gs_one_position_a_second(tmp_p
     assert drone.report(t0 + 1.0)["counters"]["standby_held"] >= 9
 
 
-def test_a_gs_that_becomes_the_heir_first_gets_the_newest_of_each_stream_message(tmp_path):
-    """Never decide from a stale position: the moment B is the GS a hand-over is pending to, the next
-    vehicle frame sends it the newest position (held back from it as a standby GS) before anything else."""
+def _in_the_overlap(tmp_path):
+    """A drone linked with A (its owner) and B, in the overlap nearer A: B is a standby GS."""
     from zdrone.bench.fleetnet import FleetNet, make_fleet
-    from zdrone.core.mavlink import FrameCodec
-    from zdrone.core.outputs import Put
 
     net = FleetNet(make_fleet(tmp_path))
     net.add_gs("A", pair=True)
@@ -59,7 +56,16 @@ def test_a_gs_that_becomes_the_heir_first_gets_the_newest_of_each_stream_message
     net.run(4.0)
     net.position = net.between(net.centre("A"), net.centre("B"), 0.45)
     net.run(1.0)
-    drone, codec = net.drone, FrameCodec(1)
+    return net.drone
+
+
+def test_a_gs_that_becomes_the_heir_first_gets_the_newest_of_each_stream_message(tmp_path):
+    """Never decide from a stale position: the moment B is the GS a hand-over is pending to, the next
+    vehicle frame sends it the newest position (held back from it as a standby GS) before anything else."""
+    from zdrone.core.mavlink import FrameCodec
+    from zdrone.core.outputs import Put
+
+    drone, codec = _in_the_overlap(tmp_path), FrameCodec(1)
     pos = [codec.encode(mav.MAVLink_global_position_int_message(i, i, 0, 0, 0, 0, 0, 0, 0)) for i in range(3)]
     for i, frame in enumerate(pos):
         drone.on_telemetry(frame, 200.0 + 0.1 * i)  # B got the first only
@@ -75,16 +81,9 @@ def test_a_gs_that_becomes_the_heir_first_gets_the_newest_of_each_stream_message
 def test_a_catch_up_is_counted_by_the_frames_it_sends(tmp_path):
     """What a new heir is sent at once is counted (``catch_up_frames``, in the drone's status): one
     frame per stream message seen, once per GS that becomes the owner or heir."""
-    from zdrone.bench.fleetnet import FleetNet, make_fleet
     from zdrone.core.mavlink import FrameCodec
 
-    net = FleetNet(make_fleet(tmp_path))
-    net.add_gs("A", pair=True)
-    net.add_gs("B")
-    net.run(4.0)
-    net.position = net.between(net.centre("A"), net.centre("B"), 0.45)
-    net.run(1.0)
-    drone, codec = net.drone, FrameCodec(1)
+    drone, codec = _in_the_overlap(tmp_path), FrameCodec(1)
     before = drone.counters["catch_up_frames"]
     drone.on_telemetry(codec.encode(mav.MAVLink_global_position_int_message(1, 1, 0, 0, 0, 0, 0, 0, 0)), 200.0)
     drone.on_telemetry(codec.encode(mav.MAVLink_attitude_message(1, 0, 0, 0, 0, 0, 0)), 200.1)
