@@ -53,6 +53,32 @@ def test_bench_link_quick():
     assert {"added_p50_us", "added_p99_us", "throughput_ratio", "targets"} <= set(r)
 
 
+def test_bench_link_takes_another_port_when_its_first_is_taken(tmp_path, monkeypatch):
+    """A port free when chosen and taken before the router binds it (CI: another test beside this one):
+    the router ends with its error line, and the bench starts one on the next port, seen listening."""
+    import socket
+
+    from zdrone.bench import link
+    from zdrone.fleet.files import init_fleet
+    from zdrone.sil.procs import stop_all
+
+    init_fleet(tmp_path / "fleet")
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    ports = iter([taken.getsockname()[1]])
+    free = link.free_port
+    monkeypatch.setattr(link, "free_port", lambda kind: next(ports, None) or free(kind))
+    try:
+        proc, router = link._start_router(tmp_path / "fleet/router/router.json5")
+        assert router != f"tcp/127.0.0.1:{taken.getsockname()[1]}" and proc.poll() is None
+        proc.terminate()
+        proc.wait(10)
+    finally:
+        taken.close()
+        stop_all()
+
+
 @pytest.mark.slow
 def test_bench_handover_quick():
     r = bench("handover")

@@ -29,6 +29,7 @@ import json5
 from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core.envelope import Opened, SecureLink
+from zdrone.core.fleet import ConfigError
 from zdrone.core.keys import LinkKey
 from zdrone.core.mavlink import FrameCodec
 from zdrone.fleet.files import init_fleet, load_secret
@@ -187,6 +188,27 @@ def _throughput(path: _Path, n: int) -> float:
     return round(len(path.arrivals) / (path.arrivals[-1][0] - sent[0]))
 
 
+#: ports tried before the bench gives up: a port free when chosen may be taken before the router binds
+#: it (another bench or test starting beside this one); the router then ends with one error line
+ROUTER_TRIES = 3
+
+
+def _start_router(cfg_path: Path) -> tuple[subprocess.Popen, str]:
+    """A router listening on a free port, once its ready line is seen (another port if it could not listen)."""
+    last = ""
+    for _ in range(ROUTER_TRIES):
+        router = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+        proc = spawn([sys.executable, "-m", "zdrone", "router", "-c", str(cfg_path), "--listen", router],
+                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        assert proc.stdout is not None
+        for line in proc.stdout:  # ends at the router's end (EOF): it could not listen
+            if "listening on" in line:
+                return proc, router
+            last = line.strip() or last
+        proc.wait(10)
+    raise ConfigError(f"bench link: the router did not start on {ROUTER_TRIES} ports; its last line: {last}")
+
+
 def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="zdrone-bench-link-"))
     init_fleet(tmp / "fleet")
@@ -196,13 +218,8 @@ def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:
     cfg = json5.loads(cfg_path.read_text())
     cfg.pop("downsampling", None)
     cfg_path.write_text(json.dumps(cfg, indent=2))
-    port = free_port(socket.SOCK_STREAM)
-    router = f"tcp/127.0.0.1:{port}"
-    proc = spawn([sys.executable, "-m", "zdrone", "router", "-c", str(cfg_path),
-                  "--listen", router], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc, router = _start_router(cfg_path)
     try:
-        assert proc.stdout is not None
-        proc.stdout.readline()  # the ready line
         n_lat, n_thr = (300, 3000) if quick else (2000, 30000)
         out: dict[str, Any] = {"latency_us": {}, "frames_per_s": {}, "dropped": {}}
         status = None
