@@ -79,6 +79,12 @@ class SigningKey:
     """An Ed25519 private key (32 raw bytes): the fleet's or a node's. Never printed or logged."""
 
     private: bytes
+    #: the key object, made once (making it costs as much as a signature, and a node signs every status
+    #: and lease with it); it lives and dies with this key, so a rotated key leaves no copy behind
+    _key: Ed25519PrivateKey = field(init=False, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_key", Ed25519PrivateKey.from_private_bytes(self.private))
 
     @classmethod
     def generate(cls) -> "SigningKey":
@@ -87,15 +93,15 @@ class SigningKey:
         return cls(raw)
 
     def private_key(self) -> Ed25519PrivateKey:
-        return Ed25519PrivateKey.from_private_bytes(self.private)
+        return self._key
 
     @property
     def public(self) -> bytes:
-        return self.private_key().public_key().public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+        return self._key.public_key().public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
 
     def sign(self, message: bytes) -> bytes:
         """A 64-byte Ed25519 signature of ``message``."""
-        return self.private_key().sign(message)
+        return self._key.sign(message)
 
     def __repr__(self) -> str:
         return f"SigningKey(public={b64(self.public)[:12]}…)"

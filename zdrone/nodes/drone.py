@@ -394,7 +394,7 @@ class DroneNode:
 
     def _hears_a_gs(self) -> bool:
         """TESTBED: whether the coverage gate lets any GS's traffic through now (True without one)."""
-        return self.gate is None or any(self.gate.allow(g, "up") for g in self.fleet.ground_stations())
+        return self.gate is None or any(self.gate.allow(g, "up") for g in self.core.gs_sysids)  # the fleet's GSs
 
     def _restore(self, now: float) -> None:
         """At start: back to the authority saved before a restart (in the air: its owner re-pairs; on
