@@ -308,11 +308,12 @@ def read_revisions(paths: "list[Path]", base: Fleet) -> "list[RevisionAccepted]"
     return out
 
 
-def load_fleet(where: str | Path) -> Fleet:
+def load_fleet(where: str | Path, base: Fleet | None = None) -> Fleet:
     """The effective fleet: ``fleet.json5`` (a path to it or to its directory) with the latest
-    revision kept for it (``load_revision``)."""
+    revision kept for it (``load_revision``); ``base``: ``fleet.json5`` already parsed (it is then the
+    same object when no revision is kept: a node parses its fleet once)."""
 
-    base = load_base_fleet(where)
+    base = load_base_fleet(where) if base is None else base
     rev = load_revision(where, base)
     return apply_revision(base, rev) if rev is not None else base
 

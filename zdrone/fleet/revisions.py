@@ -99,9 +99,10 @@ MAX_REVISION_BYTES = REVISION_MAX_BYTES
 class RevisionKeeper:
     """The revision in force at one node, and what was refused (``counters``)."""
 
-    def __init__(self, fleet_dir: str | Path, name: str = "") -> None:
+    def __init__(self, fleet_dir: str | Path, name: str = "", base: Fleet | None = None) -> None:
+        """``base``: ``fleet.json5`` as the node's runtime already parsed it (else parsed here)."""
         self.fleet_dir, self.name = Path(fleet_dir), name
-        self.base: Fleet = load_base_fleet(fleet_dir)
+        self.base: Fleet = load_base_fleet(fleet_dir) if base is None else base
         self.current: Revision | None = load_revision(fleet_dir, self.base)
         self.data: bytes | None = encode_revision(self.current) if self.current is not None else None
         self.counters: Counter[str] = Counter()
@@ -170,7 +171,7 @@ class RevisionChannel:
         self._next_notice = 0.0
         self.signing, self.wall, self.drones = signing, wall, drones
         self.stamp: bytes | None = None  # the stamp of the last push heard (``take_stamp``)
-        self.keeper = RevisionKeeper(fleet_dir, rt.name)
+        self.keeper = RevisionKeeper(fleet_dir, rt.name, getattr(rt, "base_fleet", None))
         self.write_applied = write_applied  # the drone's core writes its own record
         self.in_reach = in_reach
         rt.subscribe(keyexprs.revision_all(), PUBLISHED, keyexprs.gs_of, limit=MAX_REVISION_BYTES)
