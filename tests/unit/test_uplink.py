@@ -291,3 +291,12 @@ def test_bad_uplink_is_one_line_naming_the_field(capsys, fleet_dir: Path, node, 
 def test_a_gs_may_carry_an_empty_uplink(fleet_dir: Path):
     edit_fleet(fleet_dir, lambda f: f["nodes"]["A"].__setitem__("uplink", {}))
     assert load_fleet(fleet_dir).nodes["A"].uplink.is_default
+
+
+def test_a_policy_finds_its_table_on_first_use_only(fleet_dir: Path):
+    """A drone holds every drone's policy and classifies under its own: the others hold no table."""
+    fleet = load_fleet(fleet_dir)
+    policies = [v.uplink for v in fleet.nodes.values() if v.role == "drone"]
+    assert all("_table" not in p.__dict__ for p in policies)
+    assert policies[0].classify(common.MAVLINK_MSG_ID_HEARTBEAT) is UplinkClass.READ_ONLY
+    assert "_table" in policies[0].__dict__ and all("_table" not in p.__dict__ for p in policies[1:])
