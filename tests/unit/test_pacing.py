@@ -67,3 +67,20 @@ def test_sustained_the_rate_is_a_burst_per_gap():
         now += 0.001
         t += len(p.due(now))
     assert t <= 8 * (1 + int(1.0 / 0.16)) + 8 and t >= 8 * int(1.0 / 0.16)
+
+
+def test_the_send_table_is_swept_at_most_once_a_gap_and_stays_bounded():
+    """A GS of hundreds of drones calls ``due`` every pass: the sweep of old send times is not O(drones)
+    each time, and the table still holds no more than the keys of the last two gaps (and 64)."""
+    p = Pacer(0.02, lambda r: None)
+    largest, sweeps, table = 0, 0, p._sent
+    for step in range(2000):  # 300 uplinks in turn, two passes every millisecond, for 2 s
+        t = step * 0.001
+        p.offer(f"d{step % 300}/up/A", b"x", t)
+        for now in (t, t + 0.0005):
+            p.due(now)
+            sweeps += p._sent is not table
+            table = p._sent
+        largest = max(largest, len(p._sent))
+    assert 0 < sweeps <= 2.0 / 0.02 + 1  # 4 000 passes
+    assert largest <= 2 * 0.02 / 0.001 + 64 + 1
