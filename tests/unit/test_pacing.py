@@ -71,17 +71,17 @@ def test_sustained_the_rate_is_a_burst_per_gap():
 
 def test_the_send_table_is_swept_at_most_once_a_gap_and_stays_bounded():
     """A GS of hundreds of drones calls ``due`` every pass: the sweep of old send times is not O(drones)
-    each time, and the table still holds no more than the keys of the last two gaps (and 64)."""
+    each time (the sweep every pass: 3 990 sweeps in 4 000 passes here), and the rule is unchanged."""
     p = Pacer(0.02, lambda r: None)
     largest, sweeps, table = 0, 0, p._sent
-    for step in range(2000):  # 300 uplinks, each used every 10 ms; two passes every millisecond, for 2 s
+    for step in range(2000):  # 300 uplinks, each used every 25 ms; two passes every millisecond, for 2 s
         t = step * 0.001
-        for i in range(30):
-            p.offer(f"d{(step % 10) * 30 + i}/up/A", b"x", t)
+        for i in range(12):
+            assert p.offer(f"d{(step % 25) * 12 + i}/up/A", b"x", t)
         for now in (t, t + 0.0005):
             p.due(now)
             sweeps += p._sent is not table
             table = p._sent
         largest = max(largest, len(p._sent))
     assert 0 < sweeps <= 2.0 / 0.02 + 1  # 4 000 passes
-    assert largest <= 2 * 0.02 / 0.001 * 30 + 64
+    assert largest <= 300 + 64 and p.waiting() == 0
