@@ -248,9 +248,12 @@ class StationCore:
         self._input_at = None
         stamp = now if wall is None else wall
         out: list[Action] = []
+        due = float("inf")  # the sessions' earliest deadline, found in the same walk (300 sessions, every pass)
         for session in self.sessions.values():
             if session.due <= now:
                 out += session.tick(now, stamp)
+            if session.due < due:
+                due = session.due
         if now >= self._hb_due:
             # the slots that are due, each once (a late pass sends every drone one heartbeat, no more); the
             # next slot a slot's time after this one was due (after ``now``, a late pass stretched it)
@@ -263,13 +266,17 @@ class StationCore:
                     if self.opts.paper_heartbeat:
                         self._sm_seq += 1
                         out += session.send_control(wire.SmHeartbeat(self._sm_seq))
+                    due = min(due, session.due)
                 if self._hb_slot == 0:
-                    out += self._send_offer()
+                    offers = self._send_offer()
+                    if offers:  # (rare: an audit offer's few sends) every session looked at again
+                        out += offers
+                        due = min((s.due for s in self.sessions.values()), default=float("inf"))
                 self._hb_slot = (self._hb_slot + 1) % len(self._hb_groups)
                 self._hb_due += step
             if self._hb_due <= now:
                 self._hb_due = now + step
-        self._due = min((s.due for s in self.sessions.values()), default=float("inf"))
+        self._due = due
         return out
 
     # ------------------------------------------------------------------ linking

@@ -63,3 +63,17 @@ def test_a_late_pass_sends_each_drone_one_heartbeat_and_no_more(fleet_dir):
     woke = [d for t, d in sent[first:]]
     assert len(woke) == len(set(woke)) == K  # each drone once
     assert a.get_timer() == pytest.approx(late + period / HEARTBEAT_SLOTS)
+
+
+def test_the_timer_is_the_earliest_of_the_sessions_deadlines_and_the_next_slot(fleet_dir):
+    """One walk over the sessions runs the due ones and finds the earliest deadline: the timer the
+    station asks for is the same as a second walk after every session and heartbeat would give."""
+    fleet = load_fleet(fleet_dir)
+    drones = tuple(d for d in fleet.drones() if fleet.is_authorized(d, "A"))
+    a = StationCore("A", fleet, load_secret(fleet_dir, "A", fleet).identity, drones, CoreOptions())
+    now = 0.0
+    for _ in range(200):
+        a.handle_timer(now, 1_800_000_000.0 + now)
+        earliest = min(s.due for s in a.sessions.values())
+        assert a._due == earliest and a.get_timer() == min(a._hb_due, earliest)
+        now = max(now + 0.001, min(a.get_timer(), now + 0.3))
