@@ -29,14 +29,14 @@ import json5
 from pymavlink.dialects.v20 import common as mav
 
 from zdrone.core.envelope import Opened, SecureLink
-from zdrone.core.fleet import ConfigError
+from zdrone.core.errors import ConfigError
 from zdrone.core.keys import LinkKey
 from zdrone.core.mavlink import FrameCodec
 from zdrone.fleet.files import init_fleet, load_secret
 from zdrone.fleet import keyexprs
 from zdrone.net.session import open_client
 from zdrone.sil.launcher import free_port
-from zdrone.sil.procs import spawn  # the router dies with the bench, however it ends
+from zdrone.sil.procs import spawn, wait_line  # the router dies with the bench, however it ends
 
 
 def _frames(n: int) -> list[bytes]:
@@ -191,22 +191,25 @@ def _throughput(path: _Path, n: int) -> float:
 #: ports tried before the bench gives up: a port free when chosen may be taken before the router binds
 #: it (another bench or test starting beside this one); the router then ends with one error line
 ROUTER_TRIES = 3
+#: how long a router may take to say it listens (a loaded machine: seconds)
+ROUTER_START_S = 30.0
 
 
 def _start_router(cfg_path: Path) -> tuple[subprocess.Popen, str]:
     """A router listening on a free port, once its ready line is seen (another port if it could not listen)."""
-    last = ""
+    why = ""
     for _ in range(ROUTER_TRIES):
         router = f"tcp/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
         proc = spawn([sys.executable, "-m", "zdrone", "router", "-c", str(cfg_path), "--listen", router],
                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert proc.stdout is not None
-        for line in proc.stdout:  # ends at the router's end (EOF): it could not listen
-            if "listening on" in line:
-                return proc, router
-            last = line.strip() or last
-        proc.wait(10)
-    raise ConfigError(f"bench link: the router did not start on {ROUTER_TRIES} ports; its last line: {last}")
+        try:
+            wait_line(proc, "listening on", ROUTER_START_S)
+            return proc, router
+        except RuntimeError as exc:  # it ended (the port taken) or never listened
+            why = str(exc)
+            proc.kill()
+            proc.wait(10)
+    raise ConfigError(f"bench link: the router did not start on {ROUTER_TRIES} ports: {why}")
 
 
 def run(quick: bool = False, progress: bool = False) -> dict[str, Any]:

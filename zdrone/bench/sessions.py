@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import select
 import socket
 import subprocess
 import sys
@@ -24,6 +23,8 @@ import threading
 import time
 from pathlib import Path
 from typing import Any, Iterator
+
+from zdrone.sil.procs import wait_line
 
 #: The flooder: K sessions as one node, every lane of its uplink to d1, as fast as they can.
 FLOODER = """
@@ -55,22 +56,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def _wait_line(proc: subprocess.Popen, needle: str, timeout: float) -> str:
-    """The first line of ``proc``'s output holding ``needle`` (``RuntimeError`` if none in time)."""
-    assert proc.stdout is not None
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stdout], [], [], max(0.0, deadline - time.monotonic()))
-        if not ready:
-            break
-        line = proc.stdout.readline()
-        if not line:
-            break
-        if needle in line:
-            return line
-    raise RuntimeError(f"no {needle!r} from {proc.args[:4]} within {timeout:.0f} s")
 
 
 @contextlib.contextmanager
@@ -108,7 +93,7 @@ def router_with_d1_and_a(base: Path, tls: bool = False) -> Iterator[tuple[Path, 
 
     with _child([sys.executable, "-m", "zdrone", "router", "-c", str(fleet / "router" / "router.json5"),
                  "--listen", ep]) as router:
-        _wait_line(router, "listening", 20)
+        wait_line(router, "listening", 20)
         d, a = client("d1"), client("A")
         try:
             yield fleet, ep, d, a
@@ -143,7 +128,7 @@ def flood_trial(base: Path, tls: bool, who: str, k: int, seconds: float = 2.0) -
                 a.put(lanes[0], b"r")
                 tick.wait(0.05)
             with _child([sys.executable, "-c", FLOODER, ep, str(fleet), who, str(seconds), str(k)]) as flooder:
-                _wait_line(flooder, "flooding", 30)
+                wait_line(flooder, "flooding", 30)
                 t0, sent_a = time.monotonic(), 0
                 with lock:
                     for v in got.values():
@@ -154,7 +139,7 @@ def flood_trial(base: Path, tls: bool, who: str, k: int, seconds: float = 2.0) -
                     sent_a += 1
                     if time.monotonic() - t0 > seconds:
                         break
-                _, n, took = _wait_line(flooder, "sent", 20).split()
+                _, n, took = wait_line(flooder, "sent", 20).split()
             last = -1
             while True:  # the last samples in flight: until the count stops growing
                 tick.wait(0.15)

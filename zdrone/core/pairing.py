@@ -139,8 +139,8 @@ class PairRefusal(enum.Enum):
     DOWNGRADE = "downgrade"  # a classical message 1 where the fleet requires the hybrid (ML-KEM-768) pairing
     LINKS_FULL = "links_full"  # the drone holds the fleet's ``links_max`` links and none may close (``linkplan``)
     #: the GS is the drone's owner, the drone holds its live key and heard it under that key within
-    #: ``LINKED_HEARD_S``: it has not
-    #: restarted, a new key would mend nothing, and the handshake would only load a drone that is late
+    #: ``LINKED_HEARD_S``: it has not restarted, a new key would mend nothing, and the handshake would
+    #: only load a drone that is late
     LINKED = "linked"
 
 

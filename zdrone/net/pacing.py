@@ -89,8 +89,7 @@ class Pacer:
     def _forget(self, now: float) -> None:
         """Drop the send times that no longer hold anything back (keeps the table small), at most once a
         ``gap``: a GS of 300 drones calls ``due`` every pass, and a sweep each time was O(drones) a pass.
-        Between sweeps the table holds at most the keys used within two gaps, and a forgotten key's
-        time is one that no longer holds anything back, so the rule is unchanged."""
+        A forgotten key's time is one that no longer holds anything back, so the rule is unchanged."""
         if now >= self._next_forget and len(self._sent) > 4 * len(self._waiting) + 64:
             self._next_forget = now + self.gap
             self._sent = {k: t for k, t in self._sent.items() if k in self._waiting or now - t[-1] < self.gap}

@@ -26,6 +26,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -164,3 +165,19 @@ def stop_in_order(procs: "dict[str, subprocess.Popen]", order: Sequence[str], gr
                 p.kill()
                 p.wait(5)
         forget(p)
+
+
+def wait_line(proc: subprocess.Popen, needle: str, timeout: float) -> str:
+    """The first line of ``proc``'s output holding ``needle`` (``RuntimeError`` if none in time)."""
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], max(0.0, deadline - time.monotonic()))
+        if not ready:
+            break
+        line = proc.stdout.readline()
+        if not line:
+            break
+        if needle in line:
+            return line
+    raise RuntimeError(f"no {needle!r} from {proc.args[:4]} within {timeout:.0f} s")
